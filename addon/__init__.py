@@ -1,0 +1,61 @@
+"""The Blender side of Nephele: the only package that imports ``bpy``.
+
+Each feature module exports ``CLASSES`` (registered in order) and may export
+``SCENE_PROPERTIES``, a dict ``{attribute name: PropertyGroup class}``
+attached to ``bpy.types.Scene`` as pointer properties.  Panels are sub-panels
+of the "Nephele" sidebar tab defined in :mod:`.panel`.
+"""
+
+import importlib
+
+# Order matters: the main panel first, then the features' sub-panels.
+MODULES = (
+    "panel",
+    "data_ops",
+    "contour_ops",
+    "globe_ops",
+    "volume_ops",
+    "advect_ops",
+    "scatter_ops",
+    "dome_ops",
+)
+
+
+def _modules():
+    mods = []
+    for name in MODULES:
+        try:
+            mods.append(importlib.import_module(f".{name}", __name__))
+        except ModuleNotFoundError as exc:
+            # A feature module not written yet is simply absent; any other
+            # missing import is a real error.
+            if exc.name != f"{__name__}.{name}":
+                raise
+    return mods
+
+
+def register():
+    import bpy
+
+    from . import frame
+
+    for mod in _modules():
+        for cls in getattr(mod, "CLASSES", ()):
+            bpy.utils.register_class(cls)
+        for attr, group in getattr(mod, "SCENE_PROPERTIES", {}).items():
+            setattr(bpy.types.Scene, attr, bpy.props.PointerProperty(type=group))
+    frame.install()
+
+
+def unregister():
+    import bpy
+
+    from . import frame
+
+    frame.uninstall()
+    for mod in reversed(_modules()):
+        for attr in getattr(mod, "SCENE_PROPERTIES", {}):
+            if hasattr(bpy.types.Scene, attr):
+                delattr(bpy.types.Scene, attr)
+        for cls in reversed(getattr(mod, "CLASSES", ())):
+            bpy.utils.unregister_class(cls)

@@ -1,0 +1,75 @@
+"""Write a benchmark's table into docs/benchmarks.md, each benchmark in its own section.
+
+``write_section("contour", markdown)`` replaces the text between
+``<!-- BEGIN contour -->`` and ``<!-- END contour -->`` (appending the section
+the first time), stamped with the date and the machine, atomically and under a
+file lock so that benchmarks may run side by side.
+"""
+
+import datetime
+import fcntl
+import os
+import platform
+import re
+import tempfile
+from pathlib import Path
+
+DOC = Path(__file__).resolve().parent.parent / "docs" / "benchmarks.md"
+HEADER = "# Benchmarks\n\nWritten by the scripts in `benchmarks/` (`make bench`). Each section says when and where it ran.\n"
+
+
+def machine():
+    """One line describing this machine: CPU model, cores, memory, Python, numpy."""
+    import numpy
+
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    cpu = line.split(":", 1)[1].strip()
+                    break
+    except OSError:
+        pass
+    mem = ""
+    try:
+        with open("/proc/meminfo") as f:
+            kb = int(f.readline().split()[1])
+            mem = f", {kb / 2**20:.0f} GiB"
+    except (OSError, ValueError, IndexError):
+        pass
+    return f"{cpu}, {os.cpu_count()} cores{mem}, Python {platform.python_version()}, numpy {numpy.__version__}"
+
+
+def md_table(header, rows):
+    """A markdown table from a header list and rows of values (floats get 4 significant digits)."""
+
+    def fmt(v):
+        if isinstance(v, float):
+            return f"{v:.4g}"
+        return str(v)
+
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(fmt(v) for v in r) + " |" for r in rows]
+    return "\n".join(lines)
+
+
+def write_section(name, body, title=None, doc=DOC):
+    """Put ``body`` (markdown) into section ``name`` of docs/benchmarks.md."""
+    stamp = datetime.datetime.now().strftime("%Y-%m-%d %H:%M")
+    text = (
+        f"<!-- BEGIN {name} -->\n## {title or name}\n\n"
+        f"_Run {stamp} on {machine()}._\n\n{body.strip()}\n<!-- END {name} -->"
+    )
+    doc = Path(doc)
+    doc.parent.mkdir(parents=True, exist_ok=True)
+    with open(doc.with_suffix(".lock"), "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        old = doc.read_text() if doc.exists() else HEADER
+        pattern = re.compile(rf"<!-- BEGIN {re.escape(name)} -->.*?<!-- END {re.escape(name)} -->", re.S)
+        new = pattern.sub(lambda m: text, old) if pattern.search(old) else old.rstrip() + "\n\n" + text + "\n"
+        fd, tmp = tempfile.mkstemp(dir=doc.parent, prefix=".benchmarks.")
+        with os.fdopen(fd, "w") as f:
+            f.write(new)
+        os.replace(tmp, doc)
+    print(text)

@@ -1,0 +1,1 @@
+"""NumPy-only algorithms of Nephele.  Nothing here imports Blender."""

@@ -1,0 +1,152 @@
+"""Curvilinear longitude × latitude × terrain-following level grids on the globe.
+
+Conventions used everywhere in Nephele:
+
+* arrays of a field are ordered ``(nk, nj, ni)`` = (level, latitude, longitude),
+  level 0 at the bottom, latitude ascending (south to north), longitude ascending;
+* longitudes and latitudes are in degrees, heights in metres above sea level;
+* Cartesian positions are in scene units: the sea-level sphere has radius
+  ``radius`` (1 by default) and a height ``h`` sits at
+  ``radius * (1 + exaggeration * h / EARTH_RADIUS)``, x toward (0°E, 0°N),
+  z toward the north pole.
+
+References
+----------
+.. [1] N. Max and R. Crawfis, "Advances in Scientific Visualization".
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import DataError
+
+EARTH_RADIUS = 6_371_000.0
+"""Mean Earth radius in metres."""
+
+DEFAULT_EXAGGERATION = 30.0
+"""Vertical exaggeration of heights on the globe; the atmosphere is otherwise
+a shell 0.3 % of the radius thick."""
+
+
+def globe_radius(height, radius=1.0, exaggeration=DEFAULT_EXAGGERATION):
+    """Scene-unit distance from the globe's centre of a point ``height`` metres up."""
+    return radius * (1.0 + exaggeration * np.asarray(height, dtype=np.float64) / EARTH_RADIUS)
+
+
+def height_from_radius(r, radius=1.0, exaggeration=DEFAULT_EXAGGERATION):
+    """Inverse of :func:`globe_radius`: metres above sea level."""
+    return (np.asarray(r, dtype=np.float64) / radius - 1.0) * EARTH_RADIUS / exaggeration
+
+
+def lonlat_to_xyz(lon, lat, r=1.0):
+    """Cartesian points from longitude, latitude (degrees) and distance ``r``.
+
+    Inputs broadcast; the result has a trailing axis of length 3.
+    """
+    lam = np.deg2rad(np.asarray(lon, dtype=np.float64))
+    phi = np.deg2rad(np.asarray(lat, dtype=np.float64))
+    r = np.asarray(r, dtype=np.float64)
+    cphi = np.cos(phi)
+    return np.stack(np.broadcast_arrays(r * cphi * np.cos(lam), r * cphi * np.sin(lam), r * np.sin(phi)), axis=-1)
+
+
+def xyz_to_lonlat(xyz):
+    """Longitude in [-180, 180), latitude (degrees) and distance of Cartesian points."""
+    xyz = np.asarray(xyz, dtype=np.float64)
+    x, y, z = xyz[..., 0], xyz[..., 1], xyz[..., 2]
+    r = np.sqrt(x * x + y * y + z * z)
+    lon = np.rad2deg(np.arctan2(y, x))
+    lat = np.rad2deg(np.arctan2(z, np.hypot(x, y)))
+    lon = np.where(lon >= 180.0, lon - 360.0, lon)
+    return lon, lat, r
+
+
+@dataclass(frozen=True, eq=False)
+class GlobeGrid:
+    """A terrain-following longitude × latitude × level grid.
+
+    Parameters
+    ----------
+    lon : (ni,) array
+        Longitudes in degrees, strictly ascending, spanning less than 360°.
+    lat : (nj,) array
+        Latitudes in degrees, strictly ascending, within [-90, 90].
+    height : (nk, nj, ni) array
+        Height in metres above sea level of every grid vertex, strictly
+        increasing with level.  The lowest level follows the terrain.
+    terrain : (nj, ni) array, optional
+        Surface height in metres (defaults to the lowest level).
+    """
+
+    lon: np.ndarray
+    lat: np.ndarray
+    height: np.ndarray
+    terrain: np.ndarray = None
+
+    def __post_init__(self):
+        lon = np.asarray(self.lon, dtype=np.float64)
+        lat = np.asarray(self.lat, dtype=np.float64)
+        height = np.asarray(self.height, dtype=np.float64)
+        object.__setattr__(self, "lon", lon)
+        object.__setattr__(self, "lat", lat)
+        object.__setattr__(self, "height", height)
+        terrain = height[0] if self.terrain is None else np.asarray(self.terrain, dtype=np.float64)
+        object.__setattr__(self, "terrain", terrain)
+
+    @property
+    def shape(self):
+        """``(nk, nj, ni)``."""
+        return self.height.shape
+
+    @property
+    def periodic_lon(self):
+        """True when the longitudes close the circle (the last column's
+        neighbour is the first one, 360° on)."""
+        if self.lon.size < 3:
+            return False
+        step = np.median(np.diff(self.lon))
+        gap = self.lon[0] + 360.0 - self.lon[-1]
+        return bool(abs(gap - step) <= 0.01 * step)
+
+    def validate(self, path=None):
+        """Raise :class:`DataError` naming ``path`` and the coordinate at fault."""
+        lon, lat, height = self.lon, self.lat, self.height
+        for name, c in (("lon", lon), ("lat", lat)):
+            if c.ndim != 1 or c.size < 2:
+                raise DataError(f"needs at least 2 values along one axis, got shape {c.shape}", path=path, field=name)
+            if not np.all(np.isfinite(c)):
+                raise DataError("has NaN or infinite coordinates", path=path, field=name)
+            if not np.all(np.diff(c) > 0):
+                raise DataError("is not strictly ascending", path=path, field=name)
+        if lon[-1] - lon[0] >= 360.0:
+            raise DataError("spans 360 degrees or more (duplicate seam column?)", path=path, field="lon")
+        if lat[0] < -90.0 or lat[-1] > 90.0:
+            raise DataError("lies outside [-90, 90] degrees", path=path, field="lat")
+        if height.ndim != 3 or height.shape[1:] != (lat.size, lon.size) or height.shape[0] < 2:
+            raise DataError(
+                f"shape {height.shape} does not match (levels>=2, lat={lat.size}, lon={lon.size})",
+                path=path,
+                field="height",
+            )
+        if not np.all(np.isfinite(height)):
+            raise DataError("has NaN or infinite level heights", path=path, field="height")
+        if not np.all(np.diff(height, axis=0) > 0):
+            raise DataError("levels are not strictly increasing upward (non-monotonic levels)", path=path, field="height")
+        return self
+
+    def radii(self, radius=1.0, exaggeration=DEFAULT_EXAGGERATION):
+        """Scene-unit distance from the centre of every vertex, ``(nk, nj, ni)``."""
+        return globe_radius(self.height, radius, exaggeration)
+
+    def points(self, radius=1.0, exaggeration=DEFAULT_EXAGGERATION, dtype=np.float32):
+        """Cartesian vertex positions, ``(nk, nj, ni, 3)``, in scene units."""
+        r = self.radii(radius, exaggeration)
+        lam = np.deg2rad(self.lon)[None, None, :]
+        phi = np.deg2rad(self.lat)[None, :, None]
+        out = np.empty(self.shape + (3,), dtype=dtype)
+        cphi = np.cos(phi)
+        out[..., 0] = r * cphi * np.cos(lam)
+        out[..., 1] = r * cphi * np.sin(lam)
+        out[..., 2] = r * np.sin(phi)
+        return out

@@ -1,0 +1,1 @@
+"""The ``nephele`` command line and Dask render farm (never needs the add-on)."""
