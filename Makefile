@@ -33,7 +33,7 @@ test-main: $(VENV)/.stamp
 
 # Core only (no bpy, no farm): the numpy 1.26 / Python 3.11 that Blender 4.2-5.0 ship.
 test-core311: $(VENV311)/.stamp
-	$(VENV311)/bin/python -m pytest -m "not bpy" --ignore=tests/farm --ignore=tests/addon $(PYTEST_ARGS)
+	$(VENV311)/bin/python -m pytest -m "not bpy" --ignore=tests/farm --ignore=tests/blender $(PYTEST_ARGS)
 
 bench: $(VENV)/.stamp
 	for b in benchmarks/bench_*.py; do $(VENV)/bin/python $$b || exit 1; done
