@@ -1,0 +1,184 @@
+"""Which dataset a scene shows, and how frames map to model time.
+
+The settings live in a PropertyGroup ``scene.nephele_data`` for the panel and
+are mirrored as a JSON ID property ``scene["nephele_settings"]``, so a saved
+.blend opened without the add-on (the farm) still knows them.  Every layer
+reads the radius and vertical exaggeration from here, so the globe, contours,
+volumes and textures line up.
+"""
+
+import json
+
+import bpy
+
+from ..core.grid import DEFAULT_EXAGGERATION
+
+MIRROR_KEY = "nephele_settings"
+
+DEFAULTS = {
+    "source": "demo",
+    "hours_per_frame": 1.0,
+    "frame_start": 1,
+    "exaggeration": DEFAULT_EXAGGERATION,
+    "radius": 1.0,
+}
+"""Defaults of the scene settings (radius 1, the grid module's exaggeration)."""
+
+
+def settings(scene=None):
+    """The scene's Nephele settings as a dict (defaults for anything unset)."""
+    scene = scene or bpy.context.scene
+    out = dict(DEFAULTS)
+    raw = scene.get(MIRROR_KEY)
+    if raw:
+        try:
+            out.update({k: v for k, v in json.loads(raw).items() if k in DEFAULTS})
+        except (TypeError, ValueError):
+            pass
+    return out
+
+
+def set_settings(scene=None, **values):
+    """Change settings: written to the mirror and, when registered, to ``scene.nephele_data``."""
+    scene = scene or bpy.context.scene
+    unknown = set(values) - set(DEFAULTS)
+    if unknown:
+        raise KeyError(f"unknown Nephele settings {sorted(unknown)} (known: {sorted(DEFAULTS)})")
+    cfg = settings(scene)
+    cfg.update(values)
+    cfg["source"] = str(cfg["source"])
+    cfg["hours_per_frame"] = float(cfg["hours_per_frame"])
+    cfg["frame_start"] = int(cfg["frame_start"])
+    cfg["exaggeration"] = float(cfg["exaggeration"])
+    cfg["radius"] = float(cfg["radius"])
+    scene[MIRROR_KEY] = json.dumps(cfg, sort_keys=True)
+    group = getattr(scene, "nephele_data", None)
+    if group is not None:
+        global _SYNCING
+        _SYNCING = True
+        try:
+            for k, v in cfg.items():
+                if getattr(group, k) != v:
+                    setattr(group, k, v)
+        finally:
+            _SYNCING = False
+    return cfg
+
+
+def dataset(source=None, scene=None):
+    """The dataset ``source`` (default: the scene's), opened once per process."""
+    from ..core.contour_task import open_source
+
+    if source is None:
+        source = settings(scene)["source"]
+    return open_source(source)
+
+
+_SYNCING = False
+
+
+def _on_change(self, context):
+    if _SYNCING:
+        return
+    set_settings(self.id_data, **{k: getattr(self, k) for k in DEFAULTS})
+
+
+class NephelePropsData(bpy.types.PropertyGroup):
+    source: bpy.props.StringProperty(
+        name="Source", default=DEFAULTS["source"], update=_on_change,
+        description='"demo", "demo:small", or the path of a NetCDF (.nc) or GrADS (.ctl) file',
+    )
+    hours_per_frame: bpy.props.FloatProperty(
+        name="Hours per frame", default=DEFAULTS["hours_per_frame"], min=1e-3, update=_on_change,
+        description="Model hours advanced by one frame",
+    )
+    frame_start: bpy.props.IntProperty(
+        name="First frame", default=DEFAULTS["frame_start"], update=_on_change,
+        description="The frame showing the first time step",
+    )
+    exaggeration: bpy.props.FloatProperty(
+        name="Vertical exaggeration", default=DEFAULTS["exaggeration"], min=0.0, update=_on_change,
+        description="Heights are drawn this many times taller (globe and every layer)",
+    )
+    radius: bpy.props.FloatProperty(
+        name="Globe radius", default=DEFAULTS["radius"], min=1e-3, update=_on_change,
+        description="Radius of sea level in scene units",
+    )
+
+
+def frame_range_for(ds, cfg):
+    """The frames ``(first, last)`` that cover the dataset's time axis."""
+    last = cfg["frame_start"] + int(round(float(ds.hours[-1]) / cfg["hours_per_frame"]))
+    return cfg["frame_start"], max(last, cfg["frame_start"])
+
+
+class NEPHELE_OT_import_dataset(bpy.types.Operator):
+    """Use a dataset: the built-in demo climate, a NetCDF file or a GrADS .ctl file"""
+
+    bl_idname = "nephele.import_dataset"
+    bl_label = "Import dataset"
+    bl_options = {"REGISTER", "UNDO"}
+
+    kind: bpy.props.EnumProperty(
+        name="Data",
+        items=[
+            ("DEMO", "Demo climate", "The built-in synthetic climate (320×160×19, 10 days hourly)"),
+            ("DEMO_SMALL", "Small demo", "A small, fast version of the demo"),
+            ("FILE", "File", "A NetCDF (.nc) or GrADS (.ctl) file"),
+        ],
+        default="DEMO",
+    )
+    filepath: bpy.props.StringProperty(name="File", subtype="FILE_PATH")
+    filter_glob: bpy.props.StringProperty(default="*.nc;*.nc4;*.cdf;*.ctl", options={"HIDDEN"})
+    hours_per_frame: bpy.props.FloatProperty(name="Hours per frame", default=1.0, min=1e-3)
+    set_frame_range: bpy.props.BoolProperty(name="Set frame range", default=True)
+
+    def invoke(self, context, event):
+        if self.kind == "FILE" and not self.filepath:
+            context.window_manager.fileselect_add(self)
+            return {"RUNNING_MODAL"}
+        return self.execute(context)
+
+    def execute(self, context):
+        from ..core.errors import DataError
+
+        source = {"DEMO": "demo", "DEMO_SMALL": "demo:small"}.get(self.kind, bpy.path.abspath(self.filepath))
+        try:
+            ds = dataset(source)
+        except (DataError, OSError, ImportError) as exc:
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        cfg = set_settings(context.scene, source=source, hours_per_frame=self.hours_per_frame)
+        if self.set_frame_range:
+            context.scene.frame_start, context.scene.frame_end = frame_range_for(ds, cfg)
+        nk, nj, ni = ds.grid.shape
+        self.report({"INFO"}, f"{source}: {ni}×{nj}×{nk}, {ds.times.size} times, {', '.join(sorted(ds.variables))}")
+        return {"FINISHED"}
+
+
+class NEPHELE_PT_data(bpy.types.Panel):
+    bl_label = "Dataset"
+    bl_idname = "NEPHELE_PT_data"
+    bl_parent_id = "NEPHELE_PT_main"
+    bl_space_type = "VIEW_3D"
+    bl_region_type = "UI"
+    bl_category = "Nephele"
+
+    def draw(self, context):
+        layout = self.layout
+        row = layout.row(align=True)
+        row.operator(NEPHELE_OT_import_dataset.bl_idname, text="Demo").kind = "DEMO"
+        row.operator(NEPHELE_OT_import_dataset.bl_idname, text="File…").kind = "FILE"
+        group = getattr(context.scene, "nephele_data", None)
+        if group is None:
+            return
+        col = layout.column()
+        col.prop(group, "source")
+        col.prop(group, "hours_per_frame")
+        col.prop(group, "frame_start")
+        col.prop(group, "exaggeration")
+        col.prop(group, "radius")
+
+
+CLASSES = (NephelePropsData, NEPHELE_OT_import_dataset, NEPHELE_PT_data)
+SCENE_PROPERTIES = {"nephele_data": NephelePropsData}
