@@ -1,0 +1,166 @@
+"""Lookup tables for contouring a hexahedral cell, generated (not typed in).
+
+Local corner ``c = di + 2*dj + 4*dk`` sits at offset ``(di, dj, dk)`` along
+the grid axes ``(i, j, k)``.  A local *edge* is one of the 28 corner pairs
+(:data:`PAIRS`): the 12 cube edges, 12 face diagonals and 4 body diagonals.
+A cell's configuration is ``sum(2**c for corners with value >= level)``.
+
+Marching cubes (Lorensen & Cline 1987) needs a rule for the ambiguous faces
+(two diagonal corners above the level, two below).  The tables here use one
+rule that depends only on the face, "the corners above the level are kept
+apart", so both cells sharing a face cut it the same way and the surface has
+no holes.  Per configuration, every face contributes directed segments between
+the crossing points on its edges; the segments chain into closed loops, which
+are fanned into triangles.  The direction is chosen so that the triangles are
+counter-clockwise seen from the side below the level (normals point toward
+decreasing values) and the two cells sharing a face run along their common
+segment in opposite directions (consistent winding).
+
+The tetrahedral tables split each cell into the paper's five tetrahedra
+(a central one on the corners of one parity and four corner ones), the
+parity alternating with ``(i + j + k) % 2`` so that face diagonals match.  A
+periodic ring of an odd number of cells cannot alternate, so the seam column
+uses a six-tetrahedron split whose face diagonal toward the seam is flipped
+(see :data:`SEAM_EVEN`).
+"""
+
+import itertools
+
+import numpy as np
+
+CORNERS = np.array([(c & 1, (c >> 1) & 1, (c >> 2) & 1) for c in range(8)], dtype=np.int64)
+PAIRS = tuple(itertools.combinations(range(8), 2))
+PAIR_INDEX = {p: n for n, p in enumerate(PAIRS)}
+CUBE_EDGES = tuple(p for p in PAIRS if bin(p[0] ^ p[1]).count("1") == 1)
+
+
+def _edge(a, b):
+    return PAIR_INDEX[(a, b) if a < b else (b, a)]
+
+
+def _faces():
+    """The 6 faces, each as 4 corners counter-clockwise seen from outside the cell."""
+    faces = []
+    centre = np.full(3, 0.5)
+    for axis in range(3):
+        for side in (0, 1):
+            cs = [c for c in range(8) if CORNERS[c][axis] == side]
+            # Order cyclically: (0,0), (1,0), (1,1), (0,1) in the two other axes.
+            u, v = [a for a in range(3) if a != axis]
+            cyc = sorted(cs, key=lambda c: {(0, 0): 0, (1, 0): 1, (1, 1): 2, (0, 1): 3}[(CORNERS[c][u], CORNERS[c][v])])
+            p = CORNERS[cyc].astype(float)
+            normal = np.cross(p[1] - p[0], p[2] - p[0])
+            if np.dot(normal, p[0] - centre) < 0:
+                cyc = cyc[::-1]
+            faces.append(cyc)
+    return faces
+
+
+FACES = _faces()
+
+
+def _cube_loops(config):
+    above = [(config >> c) & 1 for c in range(8)]
+    nxt = {}
+    for face in FACES:
+        crossings = []  # (edge, entering?) in walk order
+        for m in range(4):
+            a, b = face[m], face[(m + 1) % 4]
+            if above[a] != above[b]:
+                crossings.append((_edge(a, b), bool(above[b])))
+        # Keep the corners above apart: pair each entering crossing with the
+        # leaving crossing that follows it along the walk.
+        n = len(crossings)
+        for s in range(n):
+            e, entering = crossings[s]
+            if entering:
+                leave = crossings[(s + 1) % n][0]
+                nxt[leave] = e
+    loops = []
+    while nxt:
+        start = next(iter(nxt))
+        loop = [start]
+        cur = nxt.pop(start)
+        while cur != start:
+            loop.append(cur)
+            cur = nxt.pop(cur)
+        loops.append(loop)
+    return loops
+
+
+def _table(tri_lists):
+    ntri = np.array([len(t) for t in tri_lists], dtype=np.int64)
+    table = np.zeros((len(tri_lists), max(1, ntri.max()), 3), dtype=np.int64)
+    for c, tris in enumerate(tri_lists):
+        if tris:
+            table[c, : len(tris)] = tris
+    return table, ntri
+
+
+def cube_table():
+    """``(table, ntri)``: table[config, n] = three local edges of triangle n."""
+    tris = []
+    for config in range(256):
+        t = []
+        for loop in _cube_loops(config):
+            for m in range(1, len(loop) - 1):
+                # The loop runs so that the fan is counter-clockwise seen from below the level.
+                t.append((loop[0], loop[m + 1], loop[m]))
+        tris.append(t)
+    return _table(tris)
+
+
+def _five(central):
+    others = [c for c in range(8) if c not in central]
+    tets = [tuple(central)]
+    for c in others:
+        tets.append((c,) + tuple(c ^ (1 << a) for a in range(3)))
+    return tets
+
+
+EVEN = _five((0, 3, 5, 6))
+"""The paper's split: central tetrahedron on the even corners."""
+ODD = _five((1, 2, 4, 7))
+SEAM_EVEN = [(1, 7, 3, 0), (1, 7, 5, 0), (7, 3, 0, 6), (7, 5, 0, 6), (2, 0, 3, 6), (4, 0, 5, 6)]
+"""Six tetrahedra with the even face diagonals except on face ``di = 1``,
+which is cut along 1–7 instead of 3–5 (the corner tetrahedra at 1 and 7 and
+the central one re-split around the flipped diagonal)."""
+SEAM_ODD = [tuple(c ^ 2 for c in t) for t in SEAM_EVEN]
+"""Mirror of :data:`SEAM_EVEN` in ``j``: odd diagonals, flipped on face ``di = 1``."""
+SPLITS = (EVEN, ODD, SEAM_EVEN, SEAM_ODD)
+
+
+def _tet_triangles(tet, config):
+    above = [c for c in tet if (config >> c) & 1]
+    below = [c for c in tet if not (config >> c) & 1]
+    if not above or not below:
+        return []
+    if len(above) == 1 or len(below) == 1:
+        lone, rest = (above[0], below) if len(above) == 1 else (below[0], above)
+        polys = [[_edge(lone, r) for r in rest]]
+    else:
+        a0, a1 = above
+        b0, b1 = below
+        polys = [[_edge(a0, b0), _edge(a0, b1), _edge(a1, b1), _edge(a1, b0)]]
+    out = []
+    up = CORNERS[above].mean(axis=0)
+    down = CORNERS[below].mean(axis=0)
+    for poly in polys:
+        pts = np.array([CORNERS[list(PAIRS[e])].mean(axis=0) for e in poly])
+        normal = sum(np.cross(pts[m] - pts[0], pts[m + 1] - pts[0]) for m in range(1, len(pts) - 1))
+        if np.dot(normal, down - up) < 0:
+            poly = poly[::-1]
+        out += [(poly[0], poly[m], poly[m + 1]) for m in range(1, len(poly) - 1)]
+    return out
+
+
+def tet_tables():
+    """``(table, ntri)`` with a leading axis over :data:`SPLITS`."""
+    tables = [_table([[t for tet in split for t in _tet_triangles(tet, c)] for c in range(256)]) for split in SPLITS]
+    width = max(t.shape[1] for t, _ in tables)
+    table = np.zeros((len(SPLITS), 256, width, 3), dtype=np.int64)
+    ntri = np.zeros((len(SPLITS), 256), dtype=np.int64)
+    for s, (t, n) in enumerate(tables):
+        table[s, :, : t.shape[1]] = t
+        ntri[s] = n
+    return table, ntri
