@@ -1,0 +1,620 @@
+"""Backward trajectories through time-varying winds, for textures that move with the wind.
+
+The texture of a frame at time ``t`` is evaluated not at the rendered point A
+but at the point B that, starting at time 0, reaches A at ``t`` [1]_.  Every
+grid vertex the scene needs is traced backwards through the hourly winds.
+
+Positions are unit vectors on the sphere plus a fractional level index ``s``
+(0 = lowest level).  Winds are turned into a Cartesian velocity on the unit
+sphere (per hour) and a level-index rate, interpolated trilinearly in
+(level, latitude, longitude) index and linearly in time.  Integrating in 3-D
+Cartesian coordinates and renormalising every stage keeps the poles regular;
+rows mirrored across each pole and periodic longitudes let points cross both.
+Vertical motion is clamped at the bottom and top levels.  The step is the
+smaller of ``dt_max`` and a CFL bound from the fastest wind of the interval.
+
+Three strategies give the start coordinates of frame ``n`` (:class:`FullTrace`,
+:class:`ComposedTrace`, :class:`RestartTrace`); each returns a list of
+:class:`Copy` (start positions and a blending weight).
+
+Missing winds (NaN) raise :class:`~nephele.core.errors.DataError` by default;
+``nan="zero"`` treats them as calm air instead.
+
+References
+----------
+.. [1] N. Max and R. Crawfis, "Advances in Scientific Visualization" (Fig. 4).
+.. [2] N. Max and R. Crawfis, "Visualizing wind velocities by advecting cloud
+   textures", Proc. Visualization '92, 179-184.
+.. [3] F. Neyret, "Advected textures", Proc. SCA 2003 (two phase-shifted layers
+   restarted periodically and cross-faded).
+"""
+
+from collections import OrderedDict
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import ndimage
+
+from .errors import DataError
+from .flows import tangent_velocity
+from .grid import EARTH_RADIUS, xyz_to_lonlat
+
+HOUR = 3600.0
+METHODS = ("euler", "rk2", "rk4")
+
+
+def _lonlat(xyz):
+    lon = np.rad2deg(np.arctan2(xyz[:, 1], xyz[:, 0]))
+    lat = np.rad2deg(np.arcsin(np.clip(xyz[:, 2], -1.0, 1.0)))
+    return lon, lat
+
+
+def _normalise(x):
+    return x / np.linalg.norm(x, axis=1, keepdims=True)
+
+
+class _GridIndex:
+    """Fractional (level, row, column) indices of points on a GlobeGrid, with pole-mirrored rows.
+
+    Fields are stored with ``pad`` extra rows at each end: the rows nearest the
+    pole, rolled half way round in longitude, so a point between the last row
+    and the pole (or beyond it) interpolates across the pole.
+    """
+
+    def __init__(self, grid, pad):
+        nk, nj, ni = grid.shape
+        self.shape = grid.shape
+        self.periodic = grid.periodic_lon
+        lon, lat = grid.lon, grid.lat
+        self.lon0 = lon[0]
+        self.pad = pad if (self.periodic and ni % 2 == 0) else 0
+        if self.periodic:
+            self.lon_axis = np.append(lon - lon[0], 360.0)
+        else:
+            self.lon_axis = lon - lon[0]
+            self.lon_centre = 0.5 * (lon[0] + lon[-1])
+        p = self.pad
+        south = [j + (lat[0] == -90.0) for j in range(p)]
+        north = [nj - 1 - j - (lat[-1] == 90.0) for j in range(p)]
+        self.south_rows, self.north_rows = south, north
+        self.lat_axis = np.concatenate([-180.0 - lat[south][::-1], lat, 180.0 - lat[north]])
+        self.njp = nj + 2 * p
+
+    def pad_rows(self, f):
+        """``f`` (nk, nj, ni, ...) with mirrored rows added at both poles."""
+        if not self.pad:
+            return np.ascontiguousarray(f)
+        half = self.shape[2] // 2
+        s = np.roll(f[:, self.south_rows[::-1]], half, axis=2)
+        n = np.roll(f[:, self.north_rows], half, axis=2)
+        return np.ascontiguousarray(np.concatenate([s, f, n], axis=1))
+
+    def fractional(self, xyz, s):
+        """Fractional indices ``(fk, fj, fi)`` of unit vectors ``xyz`` at level coordinate ``s``."""
+        lon, lat = _lonlat(xyz)
+        if self.periodic:
+            d = np.mod(lon - self.lon0, 360.0)
+            fi = np.interp(d, self.lon_axis, np.arange(self.lon_axis.size, dtype=np.float64))
+        else:
+            d = np.mod(lon - self.lon_centre + 180.0, 360.0) - 180.0 + self.lon_centre - self.lon0
+            fi = np.interp(d, self.lon_axis, np.arange(self.lon_axis.size, dtype=np.float64))
+        fj = np.interp(lat, self.lat_axis, np.arange(self.njp, dtype=np.float64))
+        fk = np.clip(s, 0.0, self.shape[0] - 1)
+        return fk, fj, fi
+
+    def trilinear(self, f, fk, fj, fi):
+        """Trilinear interpolation of padded field ``f`` (nk, njp, ni, c) at fractional indices."""
+        nk, njp, ni, c = f.shape
+        k0 = np.minimum(fk.astype(np.int64), nk - 2) if nk > 1 else np.zeros(fk.shape, np.int64)
+        j0 = np.minimum(fj.astype(np.int64), njp - 2)
+        i0 = np.floor(fi).astype(np.int64)
+        tk, tj, ti = fk - k0, fj - j0, fi - i0
+        if self.periodic:
+            i0 = i0 % ni
+            i1 = (i0 + 1) % ni
+        else:
+            i0 = np.minimum(i0, ni - 2)
+            ti = fi - i0
+            i1 = i0 + 1
+        flat = f.reshape(-1, c)
+        out = np.zeros((fk.size, c))
+        dk = 1 if nk > 1 else 0
+        for a, wa in ((0, 1 - tk), (dk, tk)):
+            for b, wb in ((0, 1 - tj), (1, tj)):
+                row = ((k0 + a) * njp + j0 + b) * ni
+                wab = wa * wb
+                out += flat[row + i0] * (wab * (1 - ti))[:, None]
+                out += flat[row + i1] * (wab * ti)[:, None]
+        return out
+
+
+class WindField:
+    """The winds of a :class:`~nephele.core.dataset.Dataset` as a velocity field on the unit sphere.
+
+    ``velocity(hours, xyz, s)`` gives the Cartesian velocity of unit vectors
+    (per hour) and the rate of the level coordinate ``s`` (levels per hour):
+    ``ds/dt = (w - u ∂h/∂x - v ∂h/∂y) / (∂h/∂s)``, which follows the
+    terrain-following levels.  Space: trilinear in level/row/column index;
+    time: linear between steps.
+
+    Parameters
+    ----------
+    dataset : Dataset
+        Needs ``u`` and ``v`` (m/s); ``w`` (m/s) is optional.
+    nan : {"error", "zero"}
+        Missing winds raise :class:`DataError` naming the step, or count as calm.
+    """
+
+    def __init__(self, dataset, nan="error", cache_steps=6):
+        if nan not in ("error", "zero"):
+            raise ValueError(f"nan must be 'error' or 'zero', got {nan!r}")
+        for name in ("u", "v"):
+            if name not in dataset:
+                raise DataError("is needed to advect textures but the dataset has no such field", path=dataset.source, field=name)
+        self.dataset = dataset
+        self.grid = grid = dataset.grid
+        self.nan = nan
+        self.index = _GridIndex(grid, pad=2)
+        self.nk = grid.shape[0]
+        self.hours = dataset.hours
+        self.time_range = (float(self.hours[0]), float(self.hours[-1]))
+        self._steps = OrderedDict()
+        self._blends = OrderedDict()
+        self._cache_steps = cache_steps
+        self._speed = {}
+        self.min_spacing = float(np.deg2rad(np.min(np.diff(grid.lat))))
+        self._geometry()
+
+    def _geometry(self):
+        g = self.grid
+        nk, nj, ni = g.shape
+        self._lon = np.broadcast_to(g.lon[None, None, :], g.shape)
+        self._lat = np.broadcast_to(g.lat[None, :, None], g.shape)
+        h = g.height
+        dhds = np.gradient(h, axis=0) if nk > 1 else np.ones_like(h)
+        self._inv_dhds = 1.0 / dhds
+        flat = np.all(h == h[:, :1, :1])
+        if flat:
+            self._dhdx = self._dhdy = None
+        else:
+            lam, phi = np.deg2rad(g.lon), np.deg2rad(g.lat)
+            if g.periodic_lon:
+                dl = np.deg2rad(np.mod(np.roll(g.lon, -1) - np.roll(g.lon, 1), 360.0))
+                dhdl = (np.roll(h, -1, axis=2) - np.roll(h, 1, axis=2)) / dl
+            else:
+                dhdl = np.gradient(h, lam, axis=2)
+            cos = np.cos(phi)[None, :, None]
+            self._dhdx = np.where(cos > 1e-9, dhdl / (EARTH_RADIUS * np.maximum(cos, 1e-9)), 0.0)
+            self._dhdy = np.gradient(h, phi, axis=1) / EARTH_RADIUS
+        self.height_field = self.index.pad_rows(h[..., None].astype(np.float64))
+
+    def _step(self, t):
+        if t in self._steps:
+            self._steps.move_to_end(t)
+            return self._steps[t]
+        u, v, w = (np.asarray(a, dtype=np.float64) for a in self.dataset.wind(t))
+        for name, a in (("u", u), ("v", v), ("w", w)):
+            bad = ~np.isfinite(a)
+            if bad.any():
+                if self.nan == "error":
+                    raise DataError(
+                        f"has {int(bad.sum())} NaN/infinite values at time step {t} "
+                        "(pass nan='zero' to treat missing wind as calm air)",
+                        path=self.dataset.source,
+                        field=name,
+                    )
+                a[bad] = 0.0
+        vel = tangent_velocity(self._lon, self._lat, u, v) * (HOUR / EARTH_RADIUS)
+        wz = w if self._dhdx is None else w - u * self._dhdx - v * self._dhdy
+        sdot = wz * self._inv_dhds * HOUR
+        f = self.index.pad_rows(np.concatenate([vel, sdot[..., None]], axis=-1).astype(np.float32))
+        self._speed[t] = (float(np.sqrt(np.max(np.sum(vel.astype(np.float64) ** 2, axis=-1)))), float(np.max(np.abs(sdot))))
+        self._steps[t] = f
+        while len(self._steps) > self._cache_steps:
+            self._steps.popitem(last=False)
+        return f
+
+    def check_time(self, hours):
+        lo, hi = self.time_range
+        if not (np.isfinite(hours) and lo - 1e-9 <= hours <= hi + 1e-9):
+            raise DataError(f"time {hours:g} h is outside the data range {lo:g}..{hi:g} h", path=self.dataset.source, field="time")
+
+    def _field_at(self, hours):
+        key = round(float(hours), 9)
+        if key in self._blends:
+            return self._blends[key]
+        i0, i1, w = self.dataset.locate_time(hours)
+        if w <= 0.0 or i0 == i1:
+            f = self._step(i0)
+        elif w >= 1.0:
+            f = self._step(i1)
+        else:
+            f = ((1.0 - w) * self._step(i0) + w * self._step(i1)).astype(np.float32)
+        self._blends[key] = f
+        while len(self._blends) > 4:
+            self._blends.popitem(last=False)
+        return f
+
+    def velocity(self, hours, xyz, s):
+        """``(dxyz/dt, ds/dt)`` per hour at unit vectors ``xyz`` (n, 3) and levels ``s`` (n,)."""
+        f = self._field_at(hours)
+        out = self.index.trilinear(f, *self.index.fractional(xyz, s))
+        v = out[:, :3]
+        v -= np.sum(v * xyz, axis=1, keepdims=True) * xyz
+        return v, out[:, 3]
+
+    def max_speed(self, t0, t1):
+        """Largest (unit-sphere speed per hour, level rate per hour) over the steps spanning ``t0..t1``."""
+        lo, hi = min(t0, t1), max(t0, t1)
+        i_lo = self.dataset.locate_time(lo)[0]
+        i_hi = self.dataset.locate_time(hi)[1]
+        sp, vr = 0.0, 0.0
+        for t in range(i_lo, i_hi + 1):
+            if t not in self._speed:
+                self._step(t)
+            a, b = self._speed[t]
+            sp, vr = max(sp, a), max(vr, b)
+        return sp, vr
+
+    def start_height(self, xyz, s):
+        """Height in metres of the points (the grid's level heights interpolated)."""
+        return self.index.trilinear(self.height_field, *self.index.fractional(xyz, s))[:, 0]
+
+
+class AnalyticWind:
+    """A flow from :mod:`nephele.core.flows` as a velocity field (no vertical motion).
+
+    Parameters
+    ----------
+    flow : object with ``wind(lon, lat, hours) -> (u, v)`` and ``period_hours``
+    nk : int
+        Number of levels of the level coordinate (stays constant).
+    hours : (float, float), optional
+        Time range (default ``0..period_hours``).
+    min_spacing : float
+        Grid spacing in radians used by the CFL bound.
+    """
+
+    def __init__(self, flow, nk=2, hours=None, min_spacing=np.deg2rad(1.125)):
+        self.flow = flow
+        self.nk = nk
+        self.time_range = tuple(float(h) for h in (hours or (0.0, flow.period_hours)))
+        self.min_spacing = float(min_spacing)
+        lon, lat = np.meshgrid(np.arange(0, 360, 5.0), np.arange(-87.5, 90, 5.0))
+        self._lon, self._lat = lon.ravel(), lat.ravel()
+
+    def check_time(self, hours):
+        lo, hi = self.time_range
+        if not (np.isfinite(hours) and lo - 1e-9 <= hours <= hi + 1e-9):
+            raise DataError(f"time {hours:g} h is outside the data range {lo:g}..{hi:g} h", path=type(self.flow).__name__, field="time")
+
+    def velocity(self, hours, xyz, s):
+        lon, lat = _lonlat(xyz)
+        u, v = self.flow.wind(lon, lat, hours)
+        return tangent_velocity(lon, lat, u, v) * (HOUR / EARTH_RADIUS), np.zeros(len(xyz))
+
+    def max_speed(self, t0, t1):
+        sp = 0.0
+        for t in np.linspace(t0, t1, 5):
+            u, v = self.flow.wind(self._lon, self._lat, t)
+            sp = max(sp, float(np.sqrt(np.max(u * u + v * v))) * HOUR / EARTH_RADIUS)
+        return 1.05 * sp, 0.0
+
+
+def trace(wind, xyz, s, t_from, t_to, *, method="rk4", dt_max=1.0, cfl=0.5):
+    """Integrate points from time ``t_from`` to ``t_to`` (hours; backwards when ``t_to < t_from``).
+
+    Parameters
+    ----------
+    wind : WindField or AnalyticWind
+    xyz : (n, 3) array
+        Unit vectors (normalised here).
+    s : (n,) array
+        Level coordinates, clamped to ``0..nk-1``.
+    method : {"euler", "rk2", "rk4"}
+    dt_max : float
+        Largest step in hours.
+    cfl : float
+        Largest displacement per step, in grid spacings (horizontal) or levels.
+
+    Returns
+    -------
+    xyz, s : arrays like the inputs, at ``t_to``.
+    """
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+    if not dt_max > 0 or not cfl > 0:
+        raise ValueError("dt_max and cfl must be positive")
+    xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
+    s = np.asarray(s, dtype=np.float64).reshape(-1)
+    if len(s) != len(xyz):
+        raise ValueError(f"xyz has {len(xyz)} points but s has {len(s)}")
+    wind.check_time(t_from)
+    wind.check_time(t_to)
+    xyz = _normalise(xyz)
+    top = wind.nk - 1
+    s = np.clip(s, 0.0, top)
+    span = t_to - t_from
+    if span == 0 or len(xyz) == 0:
+        return xyz, s
+    sp, vr = wind.max_speed(t_from, t_to)
+    dt = dt_max
+    if sp > 0:
+        dt = min(dt, cfl * wind.min_spacing / sp)
+    if vr > 0:
+        dt = min(dt, cfl / vr)
+    n = int(np.ceil(abs(span) / dt - 1e-9))
+    h = span / n
+    t = t_from
+    for _ in range(n):
+        xyz, s = _step(wind, method, t, h, xyz, s, top)
+        t += h
+    return xyz, s
+
+
+def _step(wind, method, t, h, x, s, top):
+    def stage(xb, sb, k, dk, a):
+        return _normalise(xb + a * k), np.clip(sb + a * dk, 0.0, top)
+
+    k1, d1 = wind.velocity(t, x, s)
+    if method == "euler":
+        return stage(x, s, k1, d1, h)
+    if method == "rk2":
+        x2, s2 = stage(x, s, k1, d1, h / 2)
+        k2, d2 = wind.velocity(t + h / 2, x2, s2)
+        return stage(x, s, k2, d2, h)
+    x2, s2 = stage(x, s, k1, d1, h / 2)
+    k2, d2 = wind.velocity(t + h / 2, x2, s2)
+    x3, s3 = stage(x, s, k2, d2, h / 2)
+    k3, d3 = wind.velocity(t + h / 2, x3, s3)
+    x4, s4 = stage(x, s, k3, d3, h)
+    k4, d4 = wind.velocity(t + h, x4, s4)
+    return stage(x, s, k1 + 2 * k2 + 2 * k3 + k4, d1 + 2 * d2 + 2 * d3 + d4, h / 6)
+
+
+@dataclass
+class Copy:
+    """One texture copy of a frame: where each point started, and the copy's weight.
+
+    ``xyz`` (n, 3) unit vectors and ``s`` (n,) level coordinates at the copy's
+    start time ``start_hours``; the texture is ``Σ weight · T(start)``.
+    """
+
+    xyz: np.ndarray
+    s: np.ndarray
+    weight: float
+    start_hours: float
+
+
+def _frame_hours(frame_hours):
+    fh = np.asarray(frame_hours, dtype=np.float64).reshape(-1)
+    if fh.size < 1 or not np.all(np.isfinite(fh)) or np.any(np.diff(fh) <= 0):
+        raise ValueError("frame_hours must be a non-empty, finite, strictly increasing sequence")
+    return fh
+
+
+class FullTrace:
+    """Strategy (a), the paper's: trace every point from frame ``n`` back to frame 0.
+
+    Exact up to the integrator, but the cost of frame ``n`` grows with ``n``.
+    """
+
+    name = "full"
+
+    def __init__(self, wind, frame_hours, *, method="rk4", dt_max=1.0, cfl=0.5):
+        self.wind, self.frame_hours = wind, _frame_hours(frame_hours)
+        self.opts = dict(method=method, dt_max=dt_max, cfl=cfl)
+
+    def copies(self, n, xyz, s):
+        t0 = self.frame_hours[0]
+        x, z = trace(self.wind, xyz, s, self.frame_hours[n], t0, **self.opts)
+        return [Copy(x, z, 1.0, t0)]
+
+
+class RestartTrace:
+    """Strategy (c): two texture copies restarted every ``period`` frames, half a period apart.
+
+    Copy A restarts (start = current position) at frames ``0, P, 2P, ...``, copy
+    B at ``P/2, 3P/2, ...``; their weights are triangle ramps
+    ``w_A = 1 - |2 ((n mod P) / P) - 1|``, ``w_B = 1 - w_A``, so each copy is
+    invisible when it restarts.  Frames are independent, the cost is bounded by
+    ``P`` frames of tracing, and the texture never stretches without bound.
+    """
+
+    name = "restart"
+
+    def __init__(self, wind, frame_hours, *, period=24, method="rk4", dt_max=1.0, cfl=0.5):
+        if int(period) < 2 or int(period) % 2:
+            raise ValueError(f"period must be an even number of frames >= 2, got {period!r}")
+        self.wind, self.frame_hours, self.period = wind, _frame_hours(frame_hours), int(period)
+        self.opts = dict(method=method, dt_max=dt_max, cfl=cfl)
+
+    def weights(self, n):
+        """``(w_A, w_B)`` at frame ``n``."""
+        p = self.period
+        wa = 1.0 - abs(2.0 * ((n % p) / p) - 1.0)
+        return wa, 1.0 - wa
+
+    def restarts(self, n):
+        """Frames at which copies A and B last restarted (clamped at frame 0)."""
+        p = self.period
+        return n - n % p, max(0, n - (n - p // 2) % p)
+
+    def copies(self, n, xyz, s):
+        out = []
+        for start, w in zip(self.restarts(n), self.weights(n)):
+            th = self.frame_hours[start]
+            x, z = trace(self.wind, xyz, s, self.frame_hours[n], th, **self.opts)
+            out.append(Copy(x, z, w, th))
+        return out
+
+
+class ComposedTrace:
+    """Strategy (b): compose backward maps stored on the grid, with cubic interpolation.
+
+    The start position of every grid vertex is kept for a key frame ``K``
+    (constant memory: one map).  Frame ``n`` traces its points back to ``K``
+    directly and interpolates the map there; every ``key_every`` frames the map
+    is advanced by tracing all grid vertices back to the previous key frame.
+    ``key_every=1`` composes one-frame maps (interpolation error accumulates
+    every frame); ``order=1`` uses trilinear interpolation (smears the map),
+    ``order=3`` cubic B-splines.  Frames must be requested in increasing order
+    for speed (going back restarts from frame 0).
+
+    Parameters
+    ----------
+    wind : WindField or AnalyticWind
+    grid : GlobeGrid
+        Where the maps live (usually the wind's grid).
+    """
+
+    name = "compose"
+
+    def __init__(self, wind, frame_hours, grid, *, key_every=24, order=3, method="rk4", dt_max=1.0, cfl=0.5):
+        if int(key_every) < 1:
+            raise ValueError(f"key_every must be >= 1, got {key_every!r}")
+        if order not in (1, 3):
+            raise ValueError(f"order must be 1 or 3, got {order!r}")
+        self.wind, self.frame_hours, self.grid = wind, _frame_hours(frame_hours), grid
+        self.key_every, self.order = int(key_every), order
+        self.opts = dict(method=method, dt_max=dt_max, cfl=cfl)
+        self.index = _GridIndex(grid, pad=8 if order == 3 else 2)
+        nk, nj, ni = grid.shape
+        self._xyz0 = grid_vertices(grid)
+        self._s0 = np.broadcast_to(np.arange(nk, dtype=np.float64)[:, None, None], grid.shape).reshape(-1)
+        self._reset()
+
+    def _reset(self):
+        self.key = 0
+        self._set_map(self._xyz0, self._s0)
+
+    def _set_map(self, xyz, s):
+        nk, nj, ni = self.grid.shape
+        m = np.concatenate([xyz, s[:, None]], axis=1).reshape(nk, nj, ni, 4)
+        m = self.index.pad_rows(m)
+        if self.order == 3:
+            w = 8 if self.index.periodic else 0
+            m = np.concatenate([m[:, :, -w:], m, m[:, :, :w]], axis=2) if w else m
+            self._wrap = w
+            self._coef = [ndimage.spline_filter(m[..., c], order=3, mode="nearest") for c in range(4)]
+        else:
+            self._map = m
+
+    def _lookup(self, xyz, s):
+        fk, fj, fi = self.index.fractional(xyz, s)
+        if self.order == 1:
+            out = self.index.trilinear(self._map, fk, fj, fi)
+        else:
+            coords = np.stack([fk, fj, fi + self._wrap])
+            out = np.stack([ndimage.map_coordinates(c, coords, order=3, mode="nearest", prefilter=False) for c in self._coef], axis=1)
+        return _normalise(out[:, :3]), np.clip(out[:, 3], 0.0, self.grid.shape[0] - 1)
+
+    def _advance_to(self, n):
+        if n < self.key:
+            self._reset()
+        while n >= self.key + self.key_every:
+            k1 = self.key + self.key_every
+            x, z = trace(self.wind, self._xyz0, self._s0, self.frame_hours[k1], self.frame_hours[self.key], **self.opts)
+            self._set_map(*(self._lookup(x, z) if self.key > 0 else (x, z)))
+            self.key = k1
+
+    def copies(self, n, xyz, s):
+        self._advance_to(n)
+        x, z = trace(self.wind, xyz, s, self.frame_hours[n], self.frame_hours[self.key], **self.opts)
+        if self.key > 0:
+            x, z = self._lookup(x, z)
+        return [Copy(x, z, 1.0, self.frame_hours[0])]
+
+
+STRATEGIES = {"full": FullTrace, "restart": RestartTrace, "compose": ComposedTrace}
+
+
+def grid_vertices(grid, index=None):
+    """Unit vectors of grid vertices (all, or the flat indices ``index``), ``(n, 3)``."""
+    nk, nj, ni = grid.shape
+    lam = np.deg2rad(grid.lon)
+    phi = np.deg2rad(grid.lat)
+    if index is None:
+        j, i = np.divmod(np.arange(nj * ni), ni)
+        j = np.tile(j, nk)
+        i = np.tile(i, nk)
+    else:
+        _, j, i = np.unravel_index(np.asarray(index), grid.shape)
+    cp = np.cos(phi[j])
+    return np.stack([cp * np.cos(lam[i]), cp * np.sin(lam[i]), np.sin(phi[j])], axis=1)
+
+
+def vertex_levels(grid, index):
+    """Level index of the flat vertex indices ``index`` (float)."""
+    return np.unravel_index(np.asarray(index), grid.shape)[0].astype(np.float64)
+
+
+def active_vertices(values, level, periodic_lon=False):
+    """Flat indices of the vertices of cells that hold the ``level`` contour.
+
+    A cell is active when its 8 vertex values straddle ``level``
+    (``min <= level <= max``); cells with a NaN vertex are skipped, as the
+    contour skips them.  With ``periodic_lon`` the cells between the last and
+    the first column count too.
+
+    Parameters
+    ----------
+    values : (nk, nj, ni) array
+    level : float
+    """
+    v = np.asarray(values, dtype=np.float64)
+    if v.ndim != 3:
+        raise ValueError(f"values must be (nk, nj, ni), got shape {v.shape}")
+    if periodic_lon:
+        v = np.concatenate([v, v[:, :, :1]], axis=2)
+    lo = np.minimum(v[:-1], v[1:])
+    hi = np.maximum(v[:-1], v[1:])
+    lo = np.minimum(lo[:, :-1], lo[:, 1:])
+    hi = np.maximum(hi[:, :-1], hi[:, 1:])
+    lo = np.minimum(lo[:, :, :-1], lo[:, :, 1:])
+    hi = np.maximum(hi[:, :, :-1], hi[:, :, 1:])
+    cell = (lo <= level) & (hi >= level)
+    mark = np.zeros(v.shape, dtype=bool)
+    for a in (0, 1):
+        for b in (0, 1):
+            for c in (0, 1):
+                mark[a : a + cell.shape[0], b : b + cell.shape[1], c : c + cell.shape[2]] |= cell
+    if periodic_lon:
+        mark[:, :, 0] |= mark[:, :, -1]
+        mark = mark[:, :, :-1]
+    return np.flatnonzero(mark)
+
+
+def start_coordinates(wind, copy):
+    """Start longitude, latitude (degrees) and height (m) of a :class:`Copy`."""
+    lon, lat, _ = xyz_to_lonlat(copy.xyz)
+    if isinstance(wind, WindField):
+        alt = wind.start_height(copy.xyz, copy.s)
+    else:
+        alt = copy.s.copy()
+    return lon, lat, alt
+
+
+def great_circle_km(a, b):
+    """Great-circle distance in km between unit vectors ``a`` and ``b`` (n, 3)."""
+    a, b = _normalise(np.asarray(a, float)), _normalise(np.asarray(b, float))
+    c = np.linalg.norm(np.cross(a, b), axis=1)
+    d = np.sum(a * b, axis=1)
+    return np.arctan2(c, d) * EARTH_RADIUS / 1000.0
+
+
+__all__ = [
+    "AnalyticWind",
+    "ComposedTrace",
+    "Copy",
+    "FullTrace",
+    "RestartTrace",
+    "STRATEGIES",
+    "WindField",
+    "active_vertices",
+    "grid_vertices",
+    "great_circle_km",
+    "start_coordinates",
+    "trace",
+    "vertex_levels",
+]
