@@ -1,0 +1,177 @@
+"""Contour surfaces that follow the frame (Fig. 1: 15% cloudiness).
+
+The object keeps only parameters (``obj["nephele"]``); on every frame change
+the updater maps the frame to model time, gets the mesh from the cache (or
+computes it with the ``"contour"`` task of :mod:`nephele.core.contour_task`)
+and refills the object's mesh in place.  It uses only ``bpy.data`` and the
+scene it is given, so it works in a headless render of a saved .blend with
+nothing but :func:`nephele.addon.frame.install` (no add-on, no window).
+"""
+
+import bpy
+
+from ..core import contour_task
+from ..core.cache import default_cache_dir
+from ..core.mesh import Mesh
+from ..core.tasks import run_cached
+from . import data_ops, frame, materials
+from .mesh import fill_mesh
+
+COLOR_RANGES = {"altitude": (0.0, 12000.0), "temperature": (220.0, 300.0), "cloud": (0.0, 1.0)}
+"""Default colour-ramp ranges per attribute (others: the level's field range is unknown, 0..1)."""
+
+
+def cache_dir():
+    """Where contour meshes are cached: beside the saved .blend, else the user cache."""
+    return default_cache_dir(bpy.data.filepath or None)
+
+
+@frame.register_updater("contour")
+def update_contour(obj, params, scene, frame_number):
+    """Refill ``obj``'s mesh with the contour for ``frame_number`` (skipped if already shown)."""
+    tp = contour_task.task_params(params, frame_number)
+    shown = (tp["hours"], tp["level"], tp["var"], tp["exaggeration"], tp["radius"], tp["stamp"])
+    if obj.get("nephele_shown") == repr(shown) and len(obj.data.vertices):
+        return
+    arrays = run_cached("contour", tp, cache_dir())
+    fill_mesh(obj.data, Mesh.from_arrays(arrays))
+    obj["nephele_shown"] = repr(shown)
+    obj["nephele_hours"] = tp["hours"]
+
+
+def add_contour(var="cloud", level=0.15, *, source=None, exaggeration=None, radius=None, color_var="altitude",
+                method="cubes", ramp=None, color_range=None, scene=None, collection=None, name=None):
+    """Add a contour-surface object that follows the frame.
+
+    Parameters
+    ----------
+    var : str
+        Field to contour.
+    level : float
+        Contour level (e.g. 0.15 for 15% cloudiness).
+    source : str, optional
+        Dataset; default: the scene's.
+    exaggeration, radius : float, optional
+        Default: the scene's settings (the globe's).
+    color_var : str
+        ``"altitude"`` (metres) or another field of the dataset, shown through a colour ramp.
+    method : {"cubes", "tetra5"}
+        Contouring method (``tetra5`` is the paper's 5-tetrahedra split).
+    ramp : str or list, optional
+        Colour ramp (see :data:`nephele.addon.materials.RAMPS`); default by ``color_var``.
+    color_range : (float, float), optional
+        Attribute values at the ramp's ends.
+
+    Returns
+    -------
+    bpy.types.Object
+    """
+    scene = scene or bpy.context.scene
+    cfg = data_ops.settings(scene)
+    params = {
+        "kind": "contour",
+        "source": str(source or cfg["source"]),
+        "var": str(var),
+        "level": float(level),
+        "exaggeration": float(cfg["exaggeration"] if exaggeration is None else exaggeration),
+        "radius": float(cfg["radius"] if radius is None else radius),
+        "color_var": str(color_var or contour_task.ALTITUDE),
+        "method": str(method),
+        "hours_per_frame": float(cfg["hours_per_frame"]),
+        "frame_start": int(cfg["frame_start"]),
+    }
+    name = name or f"Contour {var} {level:g}"
+    me = bpy.data.meshes.new(name)
+    obj = bpy.data.objects.new(name, me)
+    (collection or scene.collection).objects.link(obj)
+    vmin, vmax = color_range or COLOR_RANGES.get(params["color_var"], (0.0, 1.0))
+    if ramp is None:
+        ramp = "temperature" if params["color_var"] == "temperature" else (
+            "altitude" if params["color_var"] == "altitude" else "viridis")
+    mat = materials.attribute_material(f"{name} colour", params["color_var"], vmin, vmax, ramp)
+    materials.assign(obj, mat)
+    frame.set_params(obj, params)
+    update_contour(obj, params, scene, scene.frame_current + scene.frame_subframe)
+    return obj
+
+
+def _variables(self, context):
+    try:
+        names = sorted(data_ops.dataset(scene=context.scene).variables)
+    except Exception:  # noqa: BLE001 - no usable dataset yet: offer the standard name
+        names = ["cloud"]
+    return [(n, n, "") for n in names]
+
+
+def _color_variables(self, context):
+    return [("altitude", "altitude", "Height above sea level")] + [
+        item for item in _variables(self, context) if item[0] != "altitude"
+    ]
+
+
+class NEPHELE_OT_add_contour(bpy.types.Operator):
+    """Add a contour surface of a field that follows the frame through model time"""
+
+    bl_idname = "nephele.add_contour"
+    bl_label = "Add contour surface"
+    bl_options = {"REGISTER", "UNDO"}
+
+    var: bpy.props.EnumProperty(name="Variable", items=_variables)
+    level: bpy.props.FloatProperty(name="Level", default=0.15)
+    exaggeration: bpy.props.FloatProperty(name="Vertical exaggeration", default=-1.0,
+                                          description="Negative: the scene's setting (same as the globe)")
+    color_var: bpy.props.EnumProperty(name="Colour by", items=_color_variables)
+    method: bpy.props.EnumProperty(name="Method", items=[
+        ("cubes", "Marching cubes", "Cells contoured as cubes"),
+        ("tetra5", "5 tetrahedra", "The paper's split of each cell into 5 tetrahedra"),
+    ])
+
+    def invoke(self, context, event):
+        return context.window_manager.invoke_props_dialog(self)
+
+    def execute(self, context):
+        from ..core.errors import DataError
+
+        try:
+            obj = add_contour(self.var, self.level, scene=context.scene, color_var=self.color_var,
+                              exaggeration=None if self.exaggeration < 0 else self.exaggeration,
+                              method=self.method)
+        except (DataError, OSError, ImportError, ValueError) as exc:
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        self.report({"INFO"}, f"{obj.name}: {len(obj.data.polygons)} triangles")
+        return {"FINISHED"}
+
+
+class NEPHELE_OT_update_contours(bpy.types.Operator):
+    """Recompute every Nephele object for the current frame"""
+
+    bl_idname = "nephele.update_frame"
+    bl_label = "Update to frame"
+
+    def execute(self, context):
+        frame.update_scene(context.scene)
+        return {"FINISHED"}
+
+
+class NEPHELE_PT_contour(bpy.types.Panel):
+    bl_label = "Contour surfaces"
+    bl_idname = "NEPHELE_PT_contour"
+    bl_parent_id = "NEPHELE_PT_main"
+    bl_space_type = "VIEW_3D"
+    bl_region_type = "UI"
+    bl_category = "Nephele"
+
+    def draw(self, context):
+        col = self.layout.column(align=True)
+        col.operator(NEPHELE_OT_add_contour.bl_idname, icon="MESH_ICOSPHERE")
+        col.operator(NEPHELE_OT_update_contours.bl_idname, icon="FILE_REFRESH")
+        obj = context.active_object
+        p = frame.params(obj) if obj is not None else {}
+        if p.get("kind") == "contour":
+            box = self.layout.box()
+            box.label(text=f"{p['var']} = {p['level']:g}  ({p['source']})")
+            box.label(text=f"model time {obj.get('nephele_hours', 0.0):.2f} h, {len(obj.data.polygons)} triangles")
+
+
+CLASSES = (NEPHELE_OT_add_contour, NEPHELE_OT_update_contours, NEPHELE_PT_contour)
