@@ -245,53 +245,50 @@ def _cubes(above, nan, periodic):
     """Marching cubes: vertex endpoints (a, b) per crossed edge and faces into them."""
     nk, nj, ni = above.shape
     nv = nk * nj * ni
+    idx = np.int32 if 3 * nv < 2**31 else np.int64
     table, ntri, family, lower = _cube_lookup()
     cfg = _cell_config(above, nan, periodic)
     cells, slot = _expand(cfg, ntri)
     if len(cells) == 0:
         return None, None, np.zeros((0, 3), np.int64)
-    k, j, i = _cell_ijk(cells, cfg.shape)
+    k, j, i = _cell_ijk(cells.astype(idx), cfg.shape)
     base = (k * nj + j) * ni + i
     local = table[cfg.reshape(-1)[cells], slot]  # (T, 3) local edge numbers
 
     # Arithmetic edge number: family * nv + flat index of the edge's lower corner.
     stride = np.array([1, ni, nj * ni])
-    delta = family * nv + lower @ stride
-    edge = base[:, None] + delta[local]
+    delta = (family * nv + lower @ stride).astype(idx)
     if periodic:
         # Corners in the column after the last one are column 0.
-        wrap = (i == ni - 1)[:, None] & (lower[local, 0] == 1)
-        edge -= ni * wrap
+        delta_wrap = delta - (ni * lower[:, 0]).astype(idx)
+        edge = np.where((i == ni - 1)[:, None], base[:, None] + delta_wrap[local], base[:, None] + delta[local])
+    else:
+        edge = base[:, None] + delta[local]
 
     # Crossed edges, family by family, numbered in order: vertex id = lut[edge].
-    same = above
     ia = np.zeros((nk, nj, ni), bool)
     if periodic:
-        np.not_equal(same, np.roll(same, -1, axis=2), out=ia)
+        np.not_equal(above, np.roll(above, -1, axis=2), out=ia)
     else:
-        np.not_equal(same[:, :, :-1], same[:, :, 1:], out=ia[:, :, :-1])
+        np.not_equal(above[:, :, :-1], above[:, :, 1:], out=ia[:, :, :-1])
     ja = np.zeros((nk, nj, ni), bool)
-    np.not_equal(same[:, :-1], same[:, 1:], out=ja[:, :-1])
+    np.not_equal(above[:, :-1], above[:, 1:], out=ja[:, :-1])
     ka = np.zeros((nk, nj, ni), bool)
-    np.not_equal(same[:-1], same[1:], out=ka[:-1])
+    np.not_equal(above[:-1], above[1:], out=ka[:-1])
     if nan is not None:
-        nanr = np.roll(nan, -1, axis=2)
-        ia &= ~(nan | nanr)
+        ia &= ~(nan | np.roll(nan, -1, axis=2))
         ja[:, :-1] &= ~(nan[:, :-1] | nan[:, 1:])
         ka[:-1] &= ~(nan[:-1] | nan[1:])
-    crossed = [np.flatnonzero(m) for m in (ia, ja, ka)]
-    lut = np.empty(3 * nv, np.int64)
+    lut = np.empty(3 * nv, idx)
     a_parts, b_parts = [], []
     n = 0
-    for f, ids in enumerate(crossed):
-        lut[f * nv + ids] = np.arange(n, n + len(ids))
+    for f, mask in enumerate((ia, ja, ka)):
+        ids = np.flatnonzero(mask)
+        lut[f * nv + ids] = np.arange(n, n + len(ids), dtype=idx)
         n += len(ids)
-        if f == 0:
-            b = ids + 1
-            if periodic:
-                b -= ni * (ids % ni == ni - 1)
-        else:
-            b = ids + stride[f]
+        b = ids + stride[f]
+        if f == 0 and periodic:
+            b -= ni * (ids % ni == ni - 1)
         a_parts.append(ids)
         b_parts.append(b)
     faces = lut[edge]
