@@ -91,7 +91,11 @@ class Mesh:
         ext = path.suffix.lower()
         if ext not in EXPORT_FORMATS:
             raise DataError(f"unsupported mesh format {ext!r}; use one of {', '.join(EXPORT_FORMATS)}", path=path)
-        data = self.to_trimesh().export(file_type=ext[1:])
+        try:
+            tm = self.to_trimesh()
+        except ImportError:
+            raise DataError(f"writing {ext} needs the trimesh package (pip install trimesh)", path=path) from None
+        data = tm.export(file_type=ext[1:])
         if isinstance(data, str):
             data = data.encode()
         _write_atomic(path, lambda f: f.write(data))
