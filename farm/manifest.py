@@ -1,0 +1,134 @@
+"""``OUT/manifest.json``: what a run produced, frame by frame, written atomically.
+
+Layout::
+
+    {"version": 1, "run": {...settings, started, finished, failed...},
+     "frames": {"1": {"status": "ok", "file": "frame_0001.png", "seconds": 0.8,
+                      "worker": "tcp://...", "size": 1551, "mtime_ns": ..., "sha256": "...",
+                      "attempts": 1, "log": "logs/frame_0001.log"}, ...}}
+
+Only the client writes it (one writer), through a temp file and ``os.replace``,
+so a crash leaves the previous complete manifest.
+"""
+
+import json
+import os
+import tempfile
+import time
+from pathlib import Path
+
+from .frames import InvalidFrame, check_image, frame_name, sha256_file
+
+VERSION = 1
+NAME = "manifest.json"
+
+
+class Manifest:
+    """The run manifest of an output directory."""
+
+    def __init__(self, out_dir):
+        self.out_dir = Path(out_dir)
+        self.path = self.out_dir / NAME
+        self.run = {}
+        self.frames = {}
+        self._saved = 0.0
+
+    @classmethod
+    def load(cls, out_dir):
+        """Read ``OUT/manifest.json``; a missing or unreadable one gives an empty manifest."""
+        m = cls(out_dir)
+        try:
+            data = json.loads(m.path.read_text())
+            if data.get("version") == VERSION:
+                m.run = dict(data.get("run", {}))
+                m.frames = {str(k): dict(v) for k, v in data.get("frames", {}).items()}
+        except (OSError, ValueError, AttributeError):
+            pass
+        return m
+
+    def entry(self, frame):
+        return self.frames.get(str(frame))
+
+    def set(self, frame, entry):
+        self.frames[str(frame)] = entry
+
+    def to_dict(self):
+        frames = dict(sorted(self.frames.items(), key=lambda kv: int(kv[0])))
+        return {"version": VERSION, "run": self.run, "frames": frames}
+
+    def save(self, min_interval=0.0):
+        """Write atomically; with ``min_interval`` skip if saved less than that many seconds ago."""
+        now = time.monotonic()
+        if min_interval and now - self._saved < min_interval:
+            return
+        fd, tmp = tempfile.mkstemp(dir=self.out_dir, prefix=".manifest-", suffix=".json")
+        try:
+            with os.fdopen(fd, "w") as f:
+                json.dump(self.to_dict(), f, indent=1)
+                f.flush()
+                os.fsync(f.fileno())
+            os.replace(tmp, self.path)
+        except BaseException:
+            Path(tmp).unlink(missing_ok=True)
+            raise
+        self._saved = now
+
+
+def file_entry(path, **extra):
+    """A manifest entry for a frame file already on disk and valid."""
+    st = os.stat(path)
+    return {
+        "status": "ok",
+        "file": os.path.basename(path),
+        "size": st.st_size,
+        "mtime_ns": st.st_mtime_ns,
+        "sha256": sha256_file(path),
+        **extra,
+    }
+
+
+def classify(manifest, frames, fmt, verify=False):
+    """Split ``frames`` into those already valid on disk and those to render.
+
+    A frame is valid when the manifest says ``ok`` and the file's size and
+    mtime match (``verify`` also compares the sha256); a file that is on disk
+    but not (or no longer) matching the manifest is checked with
+    :func:`~nephele.farm.frames.check_image` and adopted when whole.  Missing,
+    zero-byte and corrupt frames are to render.  The manifest is updated in
+    memory: adopted frames get an entry, re-rendered ones lose theirs.
+
+    Returns
+    -------
+    done, todo : list of int
+    """
+    done, todo = [], []
+    for f in frames:
+        name = frame_name(f, fmt)
+        path = manifest.out_dir / name
+        entry = manifest.entry(f)
+        try:
+            st = os.stat(path)
+        except FileNotFoundError:
+            todo.append(f)
+            manifest.frames.pop(str(f), None)
+            continue
+        if (
+            entry
+            and entry.get("status") == "ok"
+            and entry.get("file") == name
+            and entry.get("size") == st.st_size
+            and entry.get("mtime_ns") == st.st_mtime_ns
+            and st.st_size > 0
+            and (not verify or entry.get("sha256") == sha256_file(path))
+        ):
+            done.append(f)
+            continue
+        try:
+            check_image(path)
+        except (InvalidFrame, OSError):
+            todo.append(f)
+            manifest.frames.pop(str(f), None)
+            continue
+        manifest.set(f, file_entry(path, seconds=None, worker=None, attempts=0, adopted=True))
+        done.append(f)
+    return done, todo

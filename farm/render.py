@@ -1,0 +1,421 @@
+"""Render a frame sequence on Dask without ever losing a frame.
+
+:func:`render_sequence` checks every input before any worker starts, skips
+frames already valid on disk (see :mod:`.frames` for what "valid" means),
+renders the rest on Dask workers that each keep one bpy (:mod:`.worker`),
+retries failed frames up to a limit, and records everything in
+``OUT/manifest.json`` (:mod:`.manifest`) and ``OUT/logs/``.
+"""
+
+import ast
+import contextlib
+import datetime
+import fcntl
+import json
+import os
+import shutil
+import sys
+import tempfile
+import time
+import uuid
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from ..core.errors import DataError
+from .cli import UsageError
+from .frames import FORMATS, TMP_DIR, InvalidFrame, check_image, chunks, format_frames, frame_name, parse_frames
+from .manifest import Manifest, classify, file_entry
+
+ENGINES = ("CYCLES", "BLENDER_EEVEE", "BLENDER_WORKBENCH")
+DEVICES = ("CPU", "OPTIX", "CUDA", "HIP", "METAL", "ONEAPI")
+_BLEND_MAGIC = (b"BLENDER", b"\x28\xb5\x2f\xfd", b"\x1f\x8b")  # plain, zstd, gzip
+
+
+@dataclass
+class RenderResult:
+    """What a run left in ``out_dir``.
+
+    Attributes
+    ----------
+    manifest : dict
+        The content of ``OUT/manifest.json``.
+    frames, rendered, skipped, failed : list of int
+        All requested frames; those rendered by this run; those already valid; those that failed.
+    """
+
+    out_dir: Path
+    fmt: str
+    manifest: dict
+    frames: list
+    rendered: list = field(default_factory=list)
+    skipped: list = field(default_factory=list)
+    failed: list = field(default_factory=list)
+    seconds: float = 0.0
+
+    @property
+    def paths(self):
+        """Paths of the valid frames, in frame order."""
+        bad = set(self.failed)
+        return [self.out_dir / frame_name(f, self.fmt) for f in self.frames if f not in bad]
+
+    @property
+    def ok(self):
+        return not self.failed
+
+    def failure_report(self):
+        """Lines naming each failed frame, its error and its log file."""
+        lines = []
+        for f in self.failed:
+            e = self.manifest["frames"].get(str(f), {})
+            lines.append(f"frame {f}: {e.get('error', 'failed')} (log: {self.out_dir / e.get('log', '')})")
+        return lines
+
+
+def check_scene(scene):
+    """The scene's absolute path and kind (``"blend"`` or ``"script"``); :class:`DataError` if unusable."""
+    path = Path(scene).expanduser()
+    if not path.is_file():
+        raise DataError("no such scene file", path=path, field="SCENE")
+    path = path.resolve()
+    if path.suffix.lower() == ".blend":
+        with open(path, "rb") as f:
+            head = f.read(8)
+        if not head.startswith(_BLEND_MAGIC):
+            raise DataError("not a Blender file (bad header)", path=path, field="SCENE")
+        return path, "blend"
+    if path.suffix.lower() == ".py":
+        try:
+            tree = ast.parse(path.read_text(), filename=str(path))
+        except (SyntaxError, UnicodeDecodeError) as exc:
+            raise DataError(f"the example script does not parse: {exc}", path=path, field="SCENE") from None
+        if not any(isinstance(n, ast.FunctionDef) and n.name == "build" for n in tree.body):
+            raise DataError("the example script defines no build(**options) function", path=path, field="SCENE")
+        return path, "script"
+    raise DataError("SCENE must be a .blend file or an example .py script with build(**options)", path=path, field="SCENE")
+
+
+def check_out_dir(out_dir):
+    """Create ``out_dir`` if needed and prove it writable; :class:`DataError` otherwise."""
+    out = Path(out_dir).expanduser().resolve()
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        fd, probe = tempfile.mkstemp(dir=out, prefix=".nephele-probe-")
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as exc:
+        raise DataError(f"output directory cannot be written: {exc.strerror or exc}", path=out, field="--out") from None
+    return out
+
+
+def _check_options(engine, samples, resolution, percentage, device, fmt, retries, timeout, chunk, workers, scene_options):
+    if engine is not None and engine not in ENGINES:
+        raise UsageError(f"unknown engine {engine!r}; expected one of {', '.join(ENGINES)}")
+    if fmt not in FORMATS:
+        raise UsageError(f"unknown format {fmt!r}; expected one of {', '.join(FORMATS)}")
+    if device is not None and device not in DEVICES:
+        raise UsageError(f"unknown device {device!r}; expected one of {', '.join(DEVICES)}")
+    if device not in (None, "CPU") and engine not in (None, "CYCLES"):
+        raise UsageError(f"--device {device} needs --engine CYCLES")
+    for name, value, low in (("samples", samples, 1), ("percentage", percentage, 1), ("retries", retries, 0),
+                             ("chunk", chunk, 1), ("workers", workers, 1)):
+        if value is not None and (not isinstance(value, int) or value < low):
+            raise UsageError(f"--{name} must be an integer >= {low}, got {value!r}")
+    if timeout is not None and not timeout > 0:
+        raise UsageError(f"--timeout must be > 0 seconds, got {timeout!r}")
+    if resolution is not None:
+        if len(resolution) != 2 or any(not isinstance(v, int) or v < 4 for v in resolution):
+            raise UsageError(f"resolution must be two integers >= 4, got {resolution!r}")
+    try:
+        json.dumps(scene_options or {})
+    except TypeError as exc:
+        raise UsageError(f"scene options must be JSON values: {exc}") from None
+
+
+@contextlib.contextmanager
+def _lock(out):
+    """One run per output directory at a time."""
+    path = out / ".nephele.lock"
+    with open(path, "w") as f:
+        try:
+            fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            raise DataError("another nephele render is writing this directory", path=out, field="--out") from None
+        try:
+            yield
+        finally:
+            path.unlink(missing_ok=True)
+
+
+class Progress:
+    """A progress line on stderr: frames done/failed, per-frame time, ETA.
+
+    On a terminal the line is redrawn in place; otherwise (logs, CI) one plain
+    line is printed per finished frame, at most one per second, and always for
+    failures and at the end.
+    """
+
+    def __init__(self, total, already, enabled=True, stream=None):
+        self.stream = stream or sys.stderr
+        self.enabled = enabled
+        self.tty = enabled and self.stream.isatty()
+        self.total, self.already = total, already
+        self.done = self.failed = 0
+        self.render_s = 0.0
+        self.t0 = time.perf_counter()
+        self._last = 0.0
+
+    def update(self, frame, entry, final=False):
+        if entry is not None:
+            if entry["status"] == "ok":
+                self.done += 1
+                self.render_s += entry.get("seconds") or 0.0
+            else:
+                self.failed += 1
+        if not self.enabled:
+            return
+        now = time.perf_counter()
+        failed_now = entry is not None and entry["status"] != "ok"
+        if not (self.tty or final or failed_now or now - self._last >= 1.0):
+            return
+        self._last = now
+        finished = self.already + self.done
+        todo = self.total - self.already
+        n = self.done + self.failed
+        elapsed = now - self.t0
+        eta = elapsed / n * (todo - n) if n else float("nan")
+        per = self.render_s / self.done if self.done else float("nan")
+        width = 24
+        filled = int(width * (finished + self.failed) / max(self.total, 1))
+        bar = "#" * filled + "-" * (width - filled)
+        what = f" frame {frame} {'ok' if not failed_now else 'FAILED'}" if frame is not None else ""
+        text = (f"nephele render [{bar}] {finished}/{self.total} done, {self.failed} failed, "
+                f"{per:.2f} s/frame, ETA {_clock(eta)}{what}")
+        if self.tty:
+            self.stream.write("\r" + text.ljust(110) + ("\n" if final else ""))
+        else:
+            self.stream.write(text + "\n")
+        self.stream.flush()
+
+
+def _clock(seconds):
+    if seconds != seconds:
+        return "--:--"
+    s = int(round(seconds))
+    return f"{s // 3600}:{s // 60 % 60:02d}:{s % 60:02d}" if s >= 3600 else f"{s // 60}:{s % 60:02d}"
+
+
+def render_sequence(scene, frames, out_dir, *, workers=None, engine=None, samples=None, resolution=None,
+                    percentage=None, device=None, fmt="PNG", chunk=1, retries=2, timeout=None,
+                    scheduler=None, security=None, jobqueue=None, jobs=1, progress=True,
+                    scene_options=None, precompute=False, overwrite=False, verify=False):
+    """Render ``frames`` of ``scene`` into ``out_dir`` on Dask; valid frames already there are kept.
+
+    Parameters
+    ----------
+    scene : str or Path
+        A saved ``.blend`` or an example script defining ``build(**options)``.
+    frames : str or iterable of int
+        ``"1-240"``, ``"1-240x2"``, ``"1,5,9-12"`` or frame numbers.
+    out_dir : str or Path
+        Frames go to ``out_dir/frame_NNNN.png`` (or ``.exr``), logs to
+        ``out_dir/logs/``, the manifest to ``out_dir/manifest.json``.
+    workers : int, optional
+        Local Dask workers (each one bpy process).  Ignored with ``scheduler``/``jobqueue``.
+    engine, samples, resolution, percentage, device : optional
+        Render overrides: ``"CYCLES"|"BLENDER_EEVEE"|"BLENDER_WORKBENCH"``,
+        samples, ``(width, height)``, resolution percentage, Cycles device
+        (``"CPU"``, ``"OPTIX"``, ``"CUDA"``, ``"HIP"``, ``"METAL"``, ``"ONEAPI"``;
+        an absent GPU is a :class:`DataError`).
+    fmt : {"PNG", "EXR"}
+    chunk : int
+        Frames per Dask task.
+    retries : int
+        Extra attempts for a frame that fails (raises, crashes its worker, times out).
+    timeout : float, optional
+        Seconds one frame may take; past it the worker is killed and the attempt fails.
+    scheduler, security : optional
+        Address of a running Dask scheduler and its TLS :class:`~distributed.security.Security`.
+    jobqueue, jobs : optional
+        ``dict(system="slurm"|"pbs", queue=..., account=..., walltime=..., job_cpus=..., job_mem=...)``
+        and the number of jobs (see :func:`nephele.farm.cluster.jobqueue_cluster`).
+    progress : bool
+        Print the progress line on stderr.
+    scene_options : dict, optional
+        Keyword arguments of an example script's ``build()``.
+    precompute : bool
+        First run the scene's per-frame core tasks (:func:`nephele.core.tasks.plan`) on Dask into the cache.
+    overwrite : bool
+        Re-render every frame, valid or not.
+    verify : bool
+        On resume, re-hash every frame against the manifest's sha256 instead of trusting size and mtime.
+
+    Returns
+    -------
+    RenderResult
+
+    Raises
+    ------
+    DataError, UsageError
+        Bad input, before any worker starts.
+    """
+    t_start = time.perf_counter()
+    scene_path, kind = check_scene(scene)
+    frame_list = parse_frames(frames)
+    engine = engine.upper() if isinstance(engine, str) else engine
+    fmt = fmt.upper()
+    device = device.upper() if isinstance(device, str) else device
+    resolution = tuple(resolution) if resolution is not None else None
+    _check_options(engine, samples, resolution, percentage, device, fmt, retries, timeout, chunk, workers, scene_options)
+    out = check_out_dir(out_dir)
+
+    with _lock(out):
+        manifest = Manifest.load(out)
+        if overwrite:
+            done, todo = [], list(frame_list)
+        else:
+            done, todo = classify(manifest, frame_list, fmt, verify=verify)
+        shutil.rmtree(out / TMP_DIR, ignore_errors=True)  # leftovers of a killed run
+        settings = {
+            "scene": str(scene_path), "frames": format_frames(frame_list), "engine": engine, "samples": samples,
+            "resolution": resolution, "percentage": percentage, "device": device, "format": fmt,
+            "scene_options": scene_options or {},
+        }
+        manifest.run = {**settings, "started": _now(), "finished": None, "failed": []}
+        result = RenderResult(out, fmt, {}, frame_list, skipped=done)
+        if todo:
+            _render(manifest, result, todo, scene_path, kind, settings, out, workers=workers, chunk=chunk,
+                    retries=retries, timeout=timeout, scheduler=scheduler, security=security,
+                    jobqueue=jobqueue, jobs=jobs, progress=progress, precompute=precompute,
+                    total=len(frame_list), already=len(done))
+        manifest.run.update(finished=_now(), failed=result.failed, seconds=round(time.perf_counter() - t_start, 3))
+        manifest.save()
+        result.manifest = manifest.to_dict()
+        result.seconds = time.perf_counter() - t_start
+        return result
+
+
+def _now():
+    return datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
+
+
+def _render(manifest, result, todo, scene_path, kind, settings, out, *, workers, chunk, retries, timeout,
+            scheduler, security, jobqueue, jobs, progress, precompute, total, already):
+    from distributed import as_completed
+
+    from .cluster import open_client
+    from .worker import BlenderScene, plugin_name, probe, render_frames
+
+    from ..core.cache import default_cache_dir
+
+    (out / "logs").mkdir(exist_ok=True)
+    (out / TMP_DIR).mkdir(exist_ok=True)
+    token = uuid.uuid4().hex[:12]
+    since_ns = time.time_ns() - 2_000_000_000  # frames this run moves into place are newer (2 s clock slack)
+    spec = {
+        "token": token, "scene": str(scene_path), "kind": kind, "options": settings["scene_options"],
+        "engine": settings["engine"], "samples": settings["samples"], "resolution": settings["resolution"],
+        "percentage": settings["percentage"], "device": settings["device"], "fmt": settings["format"],
+        "out_dir": str(out), "timeout": timeout, "cache_dir": str(default_cache_dir(scene_path)),
+    }
+    name = plugin_name(token)
+    bar = Progress(total, already, enabled=progress)
+    attempts = {f: 0 for f in todo}
+    futures = {}
+    try:
+        with open_client(workers=workers, scheduler=scheduler, security=security, jobqueue=jobqueue, jobs=jobs) as client:
+            client.register_plugin(BlenderScene(spec), name=name)
+            try:
+                info = client.submit(probe, name, pure=False, key=f"nephele-probe-{token}").result()
+            except DataError:
+                raise
+            except Exception as exc:
+                raise DataError(f"the scene did not load on a worker: {type(exc).__name__}: {exc}",
+                                path=scene_path, field="SCENE") from None
+            manifest.run["worker_scene"] = {k: info[k] for k in ("engine", "size", "device", "threads")}
+            deps = _precompute(client, info["objects"], todo, spec["cache_dir"], manifest) if precompute else {}
+
+            def submit(frames):
+                for f in frames:
+                    attempts[f] += 1
+                first = frames[0]
+                needs = [deps[f] for f in frames if f in deps]
+                fut = client.submit(render_frames, name, frames, *needs, pure=False, priority=-first,
+                                    key=f"nephele-frames-{token}-{first}-{len(frames)}-a{attempts[first]}")
+                futures[fut] = frames
+                return fut
+
+            pending = as_completed([submit(c) for c in chunks(todo, chunk)])
+            for fut in pending:
+                frames = futures.pop(fut)
+                try:
+                    entries = fut.result()
+                except Exception as exc:  # the worker died (crash, kill, timeout) or the task was lost
+                    entries = {f: _after_lost_task(out, f, settings["format"], exc, since_ns) for f in frames}
+                retry = []
+                for f in frames:
+                    e = entries[f]
+                    e["attempts"] = attempts[f]
+                    if e["status"] == "ok":
+                        manifest.set(f, e)
+                        result.rendered.append(f)
+                        bar.update(f, e)
+                    elif attempts[f] <= retries:
+                        retry.append(f)
+                    else:
+                        manifest.set(f, e)
+                        result.failed.append(f)
+                        bar.update(f, e)
+                for f in retry:
+                    pending.add(submit([f]))
+                manifest.save(min_interval=0.5)
+            bar.update(None, None, final=True)
+            with contextlib.suppress(Exception):
+                client.unregister_worker_plugin(name)
+    finally:
+        shutil.rmtree(out / TMP_DIR, ignore_errors=True)
+        result.rendered.sort()
+        result.failed.sort()
+        manifest.save()
+
+
+def _after_lost_task(out, frame, fmt, exc, since_ns):
+    """Entry for a frame whose task did not return: kept if this run moved it into place whole, else failed."""
+    path = out / frame_name(frame, fmt)
+    log = f"logs/{path.stem}.log"
+    try:
+        check_image(path)
+        if path.stat().st_mtime_ns >= since_ns:
+            return file_entry(path, seconds=None, worker=None, log=log, recovered=True)
+    except (InvalidFrame, OSError):
+        pass
+    reason = f"{type(exc).__name__}: {exc}".splitlines()[0]
+    with contextlib.suppress(OSError), open(out / log, "a") as f:
+        f.write(f"nephele: the task rendering frame {frame} was lost ({reason}): the worker crashed, "
+                "was killed or exceeded --timeout\n")
+    return {"status": "failed", "error": f"worker lost ({reason})", "log": log}
+
+
+def _precompute(client, objects, frames, cache_dir, manifest):
+    """Submit every distinct core task the frames need; returns ``frame -> future`` the render waits on."""
+    from ..core import tasks
+    from ..core.cache import cache_key
+    from .worker import precompute
+
+    by_key, per_frame = {}, {}
+    for f in frames:
+        keys = []
+        for params in objects.values():
+            for kind, task_params in tasks.plan(params, f):
+                key = cache_key(kind, task_params)
+                if key not in by_key:
+                    by_key[key] = client.submit(precompute, kind, task_params, cache_dir, pure=False,
+                                                priority=1_000_000 - f, key=f"nephele-pre-{key[:16]}-{uuid.uuid4().hex[:6]}")
+                keys.append(by_key[key])
+        if keys:
+            per_frame[f] = client.submit(_gather, keys, pure=False, key=f"nephele-need-{f}-{uuid.uuid4().hex[:6]}")
+    manifest.run["precompute"] = {"tasks": len(by_key), "cache": cache_dir}
+    return per_frame
+
+
+def _gather(results):
+    return len(results)

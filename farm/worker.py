@@ -1,0 +1,410 @@
+"""The Dask worker side: one long-lived bpy per worker process.
+
+:class:`BlenderScene` is a Dask ``WorkerPlugin`` carrying a run's scene
+description.  The first task of a run on a worker opens the .blend (or builds
+the example script) in that worker's bpy, installs the frame handler
+(:func:`nephele.addon.frame.install`, no add-on needed) and applies the render
+overrides; later frames only call ``scene.frame_set(f)`` and render.  Loading
+happens in the task thread, the thread that then renders, so bpy is only ever
+driven from one thread.
+
+Each frame is rendered to ``OUT/.nephele-tmp/``, decoded with OpenImageIO
+(every pixel, expected size) and by :func:`~nephele.farm.frames.check_image`,
+fsync'ed, then moved into place with :func:`os.replace`.  Blender's output
+during the frame goes to ``OUT/logs/frame_NNNN.log``.  Python errors that
+Blender swallows (a frame handler raising) are caught through
+``sys.excepthook`` and fail the frame.  A per-frame timeout kills the worker
+process (a Blender render cannot be interrupted from Python); the nanny
+restarts it and the client counts the attempt.
+"""
+
+import contextlib
+import datetime
+import hashlib
+import importlib.util
+import json
+import os
+import signal
+import socket
+import sys
+import threading
+import time
+import traceback
+from pathlib import Path
+
+from distributed import get_worker
+from distributed.diagnostics.plugin import WorkerPlugin
+
+from .frames import FORMATS, TMP_DIR, InvalidFrame, check_image, frame_name, sha256_file
+
+ENGINES = ("CYCLES", "BLENDER_EEVEE", "BLENDER_WORKBENCH")
+DEVICES = ("CPU", "OPTIX", "CUDA", "HIP", "METAL", "ONEAPI")
+THREAD_VARS = ("NEPHELE_THREADS", "SLURM_CPUS_PER_TASK", "NCPUS", "PBS_NUM_PPN")
+"""Render threads come from the first of these set: ours, Slurm's allocation, PBS Pro's, Torque's."""
+_WORKBENCH_AA = ((1, "OFF"), (5, "5"), (8, "8"), (11, "11"), (16, "16"), (32, "32"))
+
+# Which run's scene this process's bpy holds (one bpy per process).
+_LOADED = {"token": None, "spec": None}
+
+
+class FrameError(RuntimeError):
+    """A frame that rendered wrongly or raised; the message says why."""
+
+
+class BlenderScene(WorkerPlugin):
+    """Worker plugin: the scene of one run, loaded once per worker process.
+
+    Parameters
+    ----------
+    spec : dict
+        JSON-able run description made by :func:`nephele.farm.render.render_sequence`
+        (``token``, ``scene``, ``kind``, ``options``, overrides, ``out_dir``,
+        ``fmt``, ``timeout``, ``cache_dir``).
+    """
+
+    def __init__(self, spec):
+        self.spec = spec
+        self.name = plugin_name(spec["token"])
+
+    def setup(self, worker):
+        self.address = worker.address
+        # Ctrl-C reaches the whole process group: the client alone handles it
+        # (cancels, closes the cluster, removes temp files); a worker would
+        # only die noisily in the middle of a frame.
+        with contextlib.suppress(ValueError):  # not the main thread
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+    def ensure_loaded(self):
+        if _LOADED["token"] != self.spec["token"]:
+            load_scene(self.spec)
+            _LOADED.update(token=self.spec["token"], spec=self.spec)
+        import bpy
+
+        return bpy.context.scene
+
+
+def plugin_name(token):
+    return f"nephele-scene-{token}"
+
+
+def _plugin(name):
+    return get_worker().plugins[name]
+
+
+def render_threads():
+    """Render threads from the environment (``NEPHELE_THREADS``, Slurm, PBS), or None for Blender's default."""
+    for var in THREAD_VARS:
+        value = os.environ.get(var, "").strip()
+        if value.isdigit() and int(value) > 0:
+            return int(value)
+    return None
+
+
+def _import_script(path):
+    name = "nephele_scene_" + hashlib.sha1(str(path).encode()).hexdigest()[:12]
+    spec = importlib.util.spec_from_file_location(name, path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+def _import_bpy():
+    """Import the bpy module, after dropping Blender script folders a parent process left on sys.path.
+
+    A worker spawned from a process that had imported bpy inherits its
+    ``sys.path``, which then starts with Blender's ``scripts/modules``: its
+    ``bpy`` package there would shadow the real module.
+    """
+    if "bpy" not in sys.modules:
+        sys.path[:] = [p for p in sys.path if not ("bpy" in Path(p).parts and "scripts" in Path(p).parts)]
+    import bpy
+
+    return bpy
+
+
+def load_scene(spec):
+    """Open or build the scene of ``spec`` in this process's bpy and apply the overrides."""
+    bpy = _import_bpy()
+
+    if spec.get("cache_dir"):
+        # Updaters of a scene built from a script find the cache through this.
+        os.environ["NEPHELE_CACHE"] = spec["cache_dir"]
+    if spec["kind"] == "blend":
+        bpy.ops.wm.open_mainfile(filepath=spec["scene"], load_ui=False)
+    else:
+        bpy.ops.wm.read_factory_settings(use_empty=True)
+        _import_script(spec["scene"]).build(**(spec.get("options") or {}))
+    from ..addon import frame
+
+    frame.install()
+    scene = bpy.context.scene
+    r = scene.render
+    if spec.get("engine"):
+        r.engine = spec["engine"]
+    if spec.get("resolution"):
+        r.resolution_x, r.resolution_y = spec["resolution"]
+    if spec.get("percentage"):
+        r.resolution_percentage = spec["percentage"]
+    if spec.get("samples"):
+        n = spec["samples"]
+        if r.engine == "CYCLES":
+            scene.cycles.samples = n
+        elif r.engine == "BLENDER_EEVEE":
+            scene.eevee.taa_render_samples = n
+        else:  # Workbench: the largest anti-aliasing level not above n samples
+            scene.display.render_aa = [name for k, name in _WORKBENCH_AA if k <= n][-1]
+    if r.engine == "CYCLES":
+        _set_device(scene, spec.get("device") or "CPU")
+    elif spec.get("device") not in (None, "CPU"):
+        raise FrameError(f"--device {spec['device']} needs the CYCLES engine, the scene uses {r.engine}")
+    threads = spec.get("threads") or render_threads()
+    if threads:
+        r.threads_mode, r.threads = "FIXED", threads
+    im = r.image_settings
+    if spec["fmt"] == "EXR":
+        im.file_format = "OPEN_EXR"
+        im.exr_codec = "ZIP"
+    else:
+        im.file_format = "PNG"
+    r.use_file_extension = True
+    r.use_overwrite = True
+    r.use_placeholder = False
+    return scene
+
+
+def _set_device(scene, device):
+    if device == "CPU":
+        scene.cycles.device = "CPU"
+        return
+    import bpy
+
+    from ..core.errors import DataError
+
+    prefs = bpy.context.preferences.addons["cycles"].preferences
+    try:
+        prefs.compute_device_type = device
+    except TypeError:
+        pass
+    prefs.refresh_devices()
+    found = [d for d in prefs.devices if d.type == device]
+    if not found:
+        have = sorted({d.type for d in prefs.devices})
+        raise DataError(
+            f"no {device} device on worker host {socket.gethostname()} (Cycles sees: {', '.join(have) or 'none'}); "
+            "use --device CPU or run on GPU nodes",
+            field="--device",
+        )
+    for d in prefs.devices:
+        d.use = d.type == device
+    scene.cycles.device = "GPU"
+
+
+def expected_size(scene):
+    """``(width, height)`` of the rendered frame, or None when a crop border makes it vary."""
+    r = scene.render
+    if r.use_border and r.use_crop_to_border:
+        return None
+    return r.resolution_x * r.resolution_percentage // 100, r.resolution_y * r.resolution_percentage // 100
+
+
+def decode(path, size=None):
+    """Decode every pixel of ``path`` with OpenImageIO; raises :class:`InvalidFrame` unless whole."""
+    try:
+        import OpenImageIO as oiio
+    except ImportError:
+        import bpy
+
+        bpy.utils.expose_bundled_modules()
+        import OpenImageIO as oiio
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        raise InvalidFrame(f"OpenImageIO cannot open it: {oiio.geterror()}")
+    try:
+        spec = inp.spec()
+        pixels = inp.read_image(0, 0, 0, spec.nchannels, "float")
+        err = inp.geterror()
+    finally:
+        inp.close()
+    if pixels is None or err:
+        raise InvalidFrame(f"OpenImageIO cannot decode it: {err}")
+    if size is not None and (spec.width, spec.height) != tuple(size):
+        raise InvalidFrame(f"size {spec.width}x{spec.height}, expected {size[0]}x{size[1]}")
+    check_image(path)
+    return spec.width, spec.height
+
+
+@contextlib.contextmanager
+def _logged(log_path):
+    """Send this process's stdout/stderr (Blender's C output too) to ``log_path``."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    saved = os.dup(1), os.dup(2)
+    fd = os.open(log_path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+    try:
+        os.dup2(fd, 1)
+        os.dup2(fd, 2)
+        yield
+    finally:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os.dup2(saved[0], 1)
+        os.dup2(saved[1], 2)
+        for f in (fd, *saved):
+            os.close(f)
+
+
+@contextlib.contextmanager
+def _swallowed_errors():
+    """Collect Python errors that Blender prints instead of raising (frame handlers)."""
+    caught = []
+    old = sys.excepthook
+
+    def hook(kind, value, tb):
+        caught.append("".join(traceback.format_exception(kind, value, tb)))
+        old(kind, value, tb)
+
+    sys.excepthook = hook
+    try:
+        yield caught
+    finally:
+        sys.excepthook = old
+
+
+@contextlib.contextmanager
+def _watchdog(seconds, log_path, frame):
+    """Kill this worker process if the frame takes longer than ``seconds``."""
+    if not seconds:
+        yield
+        return
+
+    def expire():
+        with open(log_path, "a") as f:
+            f.write(f"\nnephele: frame {frame} exceeded the {seconds} s timeout; killing worker pid {os.getpid()}\n")
+        os.kill(os.getpid(), signal.SIGKILL)
+
+    timer = threading.Timer(seconds, expire)
+    timer.daemon = True
+    timer.start()
+    try:
+        yield
+    finally:
+        timer.cancel()
+
+
+def _fsync(path):
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def render_one(scene, spec, frame, address):
+    """Render ``frame`` of the loaded ``scene`` into place; returns its manifest entry."""
+    import bpy
+
+    out = Path(spec["out_dir"])
+    name = frame_name(frame, spec["fmt"])
+    log = out / "logs" / f"{Path(name).stem}.log"
+    tmp = out / TMP_DIR / f"{Path(name).stem}.{os.getpid()}.{time.monotonic_ns()}{FORMATS[spec['fmt']]}"
+    t0 = time.perf_counter()
+    with open(log, "a") as f:
+        f.write(f"=== frame {frame} on {address} (pid {os.getpid()}) {datetime.datetime.now().isoformat()} ===\n")
+    try:
+        with _logged(log), _watchdog(spec.get("timeout"), log, frame), _swallowed_errors() as caught:
+            scene.frame_set(frame)
+            scene.render.filepath = str(tmp)
+            result = bpy.ops.render.render(write_still=True)
+        if caught:  # the traceback itself is already in the log
+            raise FrameError(f"a Python error during frame {frame}: {caught[0].strip().splitlines()[-1]}")
+        if "FINISHED" not in result:
+            raise FrameError(f"render operator returned {sorted(result)}")
+        if not tmp.is_file():
+            raise FrameError(f"Blender wrote no file for frame {frame}")
+        decode(tmp, expected_size(scene))
+        _fsync(tmp)
+        digest = sha256_file(tmp)
+        final = out / name
+        os.replace(tmp, final)
+        st = final.stat()
+    except BaseException as exc:
+        with open(log, "a") as f:
+            f.write("".join(traceback.format_exception(exc)))
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        raise
+    seconds = time.perf_counter() - t0
+    with open(log, "a") as f:
+        f.write(f"nephele: frame {frame} ok in {seconds:.3f} s -> {name}\n")
+    return {
+        "status": "ok",
+        "file": name,
+        "seconds": round(seconds, 4),
+        "worker": address,
+        "size": st.st_size,
+        "mtime_ns": st.st_mtime_ns,
+        "sha256": digest,
+        "log": str(log.relative_to(out)),
+    }
+
+
+def render_frames(name, frames, *needs):
+    """Dask task: render ``frames`` with the scene of plugin ``name``; one entry per frame.
+
+    ``needs`` are the results of the precompute tasks these frames wait for (unused).
+
+    A frame that fails gets ``{"status": "failed", "error": ...}``; the others
+    of the chunk still render.
+    """
+    plugin = _plugin(name)
+    scene = plugin.ensure_loaded()
+    results = {}
+    for f in frames:
+        try:
+            results[f] = render_one(scene, plugin.spec, f, plugin.address)
+        except Exception as exc:
+            log = Path(plugin.spec["out_dir"]) / "logs" / f"{Path(frame_name(f, plugin.spec['fmt'])).stem}.log"
+            results[f] = {
+                "status": "failed",
+                "error": f"{type(exc).__name__}: {str(exc).strip().splitlines()[0] if str(exc).strip() else ''}",
+                "worker": plugin.address,
+                "log": str(log.relative_to(plugin.spec["out_dir"])),
+            }
+    return results
+
+
+def probe(name):
+    """Dask task: load the scene and report what the client needs before rendering.
+
+    Returns the engine, the frame size, the device, and the ``obj["nephele"]``
+    parameters of every Nephele object (for precompute).  Raises on a scene that
+    does not load or a device that is absent.
+    """
+    plugin = _plugin(name)
+    scene = plugin.ensure_loaded()
+    objects = {}
+    for obj in scene.objects:
+        raw = obj.get("nephele")
+        if raw:
+            objects[obj.name] = json.loads(raw)
+    return {
+        "engine": scene.render.engine,
+        "size": expected_size(scene),
+        "device": scene.cycles.device if scene.render.engine == "CYCLES" else None,
+        "objects": objects,
+        "threads": scene.render.threads,
+    }
+
+
+def precompute(kind, params, cache_dir):
+    """Dask task: make sure the cache holds task ``kind`` for ``params``; returns (key, computed?, seconds)."""
+    from ..core import tasks
+    from ..core.cache import Cache, cache_key
+
+    cache = Cache(cache_dir)
+    t0 = time.perf_counter()
+    hit = (kind, params) in cache
+    if not hit:
+        tasks.run_cached(kind, params, cache)
+    return cache_key(kind, params), not hit, time.perf_counter() - t0
