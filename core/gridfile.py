@@ -1,0 +1,252 @@
+"""Shared machinery of the file readers (NetCDF, GrADS): names, axis order, units, derived fields.
+
+A file's fields are mapped onto Nephele's standard names (see
+:mod:`nephele.core.dataset`), its axes put into the ``(level, lat, lon)``
+order with level 0 at the bottom, latitude ascending and longitude ascending
+in [0, 360), and missing fields derived where possible:
+
+* ``pressure`` (Pa) from the vertical coordinate (pressure or hybrid levels);
+* ``rh`` from ``temperature``, ``q`` and ``pressure`` (:func:`~nephele.core.humidity.relative_humidity`);
+* ``cloud`` from ``rh`` by the Sundqvist (1989) scheme (:func:`~nephele.core.humidity.sundqvist_cloud`).
+
+Relative humidity, read or derived, is clipped to [0, 1]: files on pressure
+levels hold values outside it (ECHAM5's ``rhumidity`` spans −0.14…1.26)
+because of vertical interpolation and supersaturation over ice; a fraction of
+the sky cannot be negative or above one.
+
+References
+----------
+.. [1] N. Max and R. Crawfis, "Advances in Scientific Visualization".
+.. [2] H. Sundqvist et al., Mon. Wea. Rev. 117 (1989) 1641–1657.
+"""
+
+import abc
+import re
+
+import numpy as np
+
+from .dataset import Dataset, Variable
+from .errors import DataError
+from .humidity import RH_CRIT, relative_humidity, sundqvist_cloud
+
+# Lower-case file names (CF, ECMWF/ERA, ECHAM, NCEP, GrADS) → standard name.
+ALIASES = {
+    "cloud": ("cloud", "cc", "clc", "cl", "aclcac", "cldfrac", "cloud_fraction", "cloudiness", "cfrac"),
+    "temperature": ("t", "ta", "temp", "air", "temperature", "air_temperature", "tk"),
+    "u": ("u", "ua", "uwnd", "u_wind", "uas3d", "eastward_wind"),
+    "v": ("v", "va", "vwnd", "v_wind", "northward_wind"),
+    "w": ("w", "wa", "upward_air_velocity"),
+    "rh": ("rh", "hur", "rhum", "rhumidity", "relhum", "relative_humidity", "r"),
+    "q": ("q", "hus", "shum", "qv", "specific_humidity"),
+}
+STANDARD_NAMES = {
+    "cloud_area_fraction_in_atmosphere_layer": "cloud",
+    "air_temperature": "temperature",
+    "eastward_wind": "u",
+    "northward_wind": "v",
+    "upward_air_velocity": "w",
+    "relative_humidity": "rh",
+    "specific_humidity": "q",
+}
+UNITS = {"cloud": "1", "temperature": "K", "u": "m/s", "v": "m/s", "w": "m/s", "rh": "1", "q": "kg/kg", "pressure": "Pa"}
+
+
+def standard_name(name, attrs=None):
+    """Nephele's name for a file variable (its CF ``standard_name`` first, then known aliases), or the name itself."""
+    attrs = attrs or {}
+    std = str(attrs.get("standard_name", "")).strip().lower()
+    if std in STANDARD_NAMES:
+        return STANDARD_NAMES[std]
+    low = name.lower()
+    for std_name, names in ALIASES.items():
+        if low in names:
+            return std_name
+    return name
+
+
+def unit_conversion(std, units, path, field):
+    """``(scale, offset)`` turning a file's ``units`` into Nephele's units for field ``std``."""
+    u = (units or "").strip().lower().replace(" ", "")
+    if std == "temperature":
+        if u in ("c", "degc", "celsius", "deg_c", "degreesc", "degrees_celsius"):
+            return 1.0, 273.15
+        return 1.0, 0.0
+    if std in ("rh", "cloud") and u in ("%", "percent"):
+        return 0.01, 0.0
+    if std == "q" and u in ("g/kg", "gkg-1", "gkg**-1"):
+        return 0.001, 0.0
+    if std == "pressure" and u in ("hpa", "mb", "mbar", "millibar", "millibars"):
+        return 100.0, 0.0
+    return 1.0, 0.0
+
+
+def pressure_scale(units, path, field):
+    """Factor from pressure ``units`` to Pa; :class:`DataError` for non-pressure units."""
+    u = (units or "").strip().lower()
+    if u in ("pa", "pascal", "pascals"):
+        return 1.0
+    if u in ("hpa", "mb", "mbar", "millibar", "millibars", "hectopascal", "hectopascals"):
+        return 100.0
+    if u in ("kpa",):
+        return 1000.0
+    raise DataError(f"has units {units!r}, not a pressure (Pa or hPa)", path=path, field=field)
+
+
+def tidy_lonlat(lon, lat, path, lon_name="lon", lat_name="lat"):
+    """Index arrays that put latitudes ascending and longitudes ascending in [0, 360).
+
+    Returns ``lon_sorted, lat_sorted, lon_index, lat_index``; a repeated seam
+    column (the same meridian at both ends) is left out.
+    """
+    lon = np.asarray(lon, dtype=np.float64)
+    lat = np.asarray(lat, dtype=np.float64)
+    for name, c in ((lon_name, lon), (lat_name, lat)):
+        if c.ndim != 1:
+            raise DataError(f"is {c.ndim}-D; only rectilinear longitude × latitude grids are read", path=path, field=name)
+        if c.size < 2:
+            raise DataError(f"needs at least 2 values, got {c.size}", path=path, field=name)
+        if not np.all(np.isfinite(c)):
+            raise DataError("has NaN coordinates", path=path, field=name)
+    d = np.diff(lat)
+    if np.all(d > 0):
+        lat_index = np.arange(lat.size)
+    elif np.all(d < 0):
+        lat_index = np.arange(lat.size)[::-1]
+    else:
+        raise DataError("latitudes are not monotonic", path=path, field=lat_name)
+    wrapped = np.mod(lon, 360.0)
+    lon_index = np.argsort(wrapped, kind="stable")
+    sorted_lon = wrapped[lon_index]
+    step = np.median(np.diff(sorted_lon)) if lon.size > 1 else 0.0
+    keep = np.concatenate([[True], np.diff(sorted_lon) > 1e-6 * max(step, 1e-9)])
+    lon_index, sorted_lon = lon_index[keep], sorted_lon[keep]
+    if sorted_lon.size > 2 and sorted_lon[-1] - sorted_lon[0] > 360.0 - 1e-6 * step:
+        lon_index, sorted_lon = lon_index[:-1], sorted_lon[:-1]
+    # A regional grid crossing 0° (e.g. 350..10 °E) stays contiguous: start after the widest gap.
+    gaps = np.diff(np.concatenate([sorted_lon, [sorted_lon[0] + 360.0]]))
+    start = (int(np.argmax(gaps)) + 1) % sorted_lon.size
+    if gaps.max() > 1.5 * step and start != 0:
+        lon_index = np.roll(lon_index, -start)
+        sorted_lon = np.roll(sorted_lon, -start)
+        sorted_lon = np.where(np.arange(sorted_lon.size) >= sorted_lon.size - start, sorted_lon + 360.0, sorted_lon)
+        sorted_lon = sorted_lon - 360.0 * (sorted_lon[0] >= 180.0)
+    return sorted_lon, lat[lat_index], lon_index, lat_index
+
+
+class FileDataset(Dataset):
+    """A dataset read from a file: subclasses provide :meth:`_raw`, this class the rest.
+
+    Parameters
+    ----------
+    path : path
+    grid : GlobeGrid
+    times : datetime64 array
+    fields : dict
+        standard name → ``(file name, units in the file)``: the 3-D fields.
+    order : (level_index, lat_index, lon_index)
+        Index arrays from file order to Nephele's order.
+    pressure : callable or None
+        ``pressure(t)`` → Pa, ``(nk, nj, ni)`` in Nephele's order, for
+        pressure-based vertical coordinates.
+    rh_crit : float or (nk,) array
+        Critical relative humidity for the derived cloud fraction.
+    vertical : str
+        Kind of levels, for ``nephele info``.
+    skipped : dict
+        File variables that are not 3-D fields on the grid → reason.
+    """
+
+    def __init__(self, path, grid, times, fields, order, *, pressure=None, rh_crit=RH_CRIT, vertical="", skipped=None, cache_steps=8):
+        self.path = str(path)
+        self._fields = dict(fields)
+        self._order = tuple(np.asarray(o) for o in order)
+        self._pressure = pressure
+        self.vertical = vertical
+        self.skipped = dict(skipped or {})
+        self.derived = {}
+        variables = []
+        for std, (raw, units) in self._fields.items():
+            units_out = UNITS.get(std, units or "")
+            variables.append(Variable(std, units_out, raw if raw != std else ""))
+        names = set(self._fields)
+        if pressure is not None:
+            variables.append(Variable("pressure", "Pa", "from the vertical coordinate"))
+            self.derived["pressure"] = "vertical coordinate"
+            names.add("pressure")
+        if "rh" not in names and {"temperature", "q", "pressure"} <= names:
+            variables.append(Variable("rh", "1", "relative humidity from T, q, p (Bolton 1980)"))
+            self.derived["rh"] = "T, q, p (Bolton 1980)"
+            names.add("rh")
+        if "cloud" not in names and "rh" in names:
+            variables.append(Variable("cloud", "1", "cloud fraction from RH (Sundqvist 1989)"))
+            self.derived["cloud"] = f"rh, Sundqvist (1989), RH_crit={_fmt_crit(rh_crit)}"
+        nk = grid.shape[0]
+        self.rh_crit = np.broadcast_to(np.asarray(rh_crit, dtype=np.float64), (nk,)).reshape(nk, 1, 1) if np.ndim(rh_crit) else float(rh_crit)
+        super().__init__(grid, times, variables, path, cache_steps)
+
+    @abc.abstractmethod
+    def _raw(self, name, t):
+        """Step ``t`` of file variable ``name`` in file order, float, missing values as NaN."""
+
+    def _read(self, name, t):
+        if name in self._fields:
+            raw, units = self._fields[name]
+            a = np.asarray(self._raw(raw, t), dtype=np.float32)
+            lev, lat, lon = self._order
+            a = a[np.ix_(lev, lat, lon)]
+            scale, offset = unit_conversion(name, units, self.path, raw)
+            if scale != 1.0 or offset != 0.0:
+                a = a * np.float32(scale) + np.float32(offset)
+            if name in ("rh", "cloud"):
+                a = np.clip(a, 0.0, 1.0)
+            return a
+        if name == "pressure":
+            return self._pressure(t)
+        if name == "rh":
+            with np.errstate(invalid="ignore", over="ignore"):
+                rh = relative_humidity(self.read("temperature", t), self.read("q", t), self.read("pressure", t))
+            return np.clip(rh, 0.0, 1.0)
+        if name == "cloud":
+            return sundqvist_cloud(self.read("rh", t), self.rh_crit)
+        raise DataError("no such variable", path=self.path, field=name)
+
+
+def _fmt_crit(rh_crit):
+    a = np.asarray(rh_crit)
+    return f"{float(a):g}" if a.ndim == 0 else f"{a.min():g}..{a.max():g}"
+
+
+_TIME_UNITS = {
+    "s": 1, "sec": 1, "secs": 1, "second": 1, "seconds": 1,
+    "mn": 60, "min": 60, "mins": 60, "minute": 60, "minutes": 60,
+    "h": 3600, "hr": 3600, "hrs": 3600, "hour": 3600, "hours": 3600,
+    "d": 86400, "dy": 86400, "day": 86400, "days": 86400,
+}  # fmt: skip
+
+
+def cf_times(values, units, calendar, path, field="time"):
+    """datetime64[s] from CF ``"<unit> since <date>"`` numbers (standard calendars)."""
+    cal = (calendar or "standard").strip().lower()
+    if cal not in ("standard", "gregorian", "proleptic_gregorian"):
+        raise DataError(f"calendar {calendar!r} is not supported (standard/gregorian only)", path=path, field=field)
+    m = re.match(r"\s*(\w+)\s+since\s+(.+?)\s*$", units or "")
+    if not m or m.group(1).lower() not in _TIME_UNITS:
+        raise DataError(f"time units {units!r} are not '<seconds|minutes|hours|days> since <date>'", path=path, field=field)
+    ref = parse_iso(m.group(2), path, field)
+    values = np.asarray(values, dtype=np.float64)
+    if not np.all(np.isfinite(values)):
+        raise DataError("has NaN times", path=path, field=field)
+    secs = np.rint(values * _TIME_UNITS[m.group(1).lower()]).astype(np.int64)
+    return ref + secs.astype("timedelta64[s]")
+
+
+def parse_iso(text, path, field):
+    """A CF reference date such as ``2001-1-1 00:00:00``, ``1987-01-02T06:00Z`` or ``2001-01-01 0:0:0.0 UTC``."""
+    m = re.match(r"(-?\d{1,4})-(\d{1,2})-(\d{1,2})(?:[ T](\d{1,2}):(\d{1,2})(?::(\d{1,2})(?:\.\d*)?)?)?\s*(?:Z|UTC|GMT|[+-]00:?00)?\s*$", text.strip())
+    if not m:
+        raise DataError(f"cannot read the reference date {text!r}", path=path, field=field)
+    y, mo, d, hh, mm, ss = (int(g) if g else 0 for g in m.groups())
+    return np.datetime64(f"{y:04d}-{mo:02d}-{d:02d}T{hh:02d}:{mm:02d}:{ss:02d}", "s")
+
+
+__all__ = ["ALIASES", "FileDataset", "cf_times", "standard_name", "tidy_lonlat"]

@@ -1,0 +1,295 @@
+"""CF NetCDF climate files (read lazily with xarray, one step at a time).
+
+Understood layouts: fields with dimensions ``([time,] level, lat, lon)`` in
+any order, 1-D latitude and longitude (any direction, longitudes −180…180 or
+0…360), and one of these vertical coordinates:
+
+=========================== ======================================================
+vertical coordinate         level heights (metres)
+=========================== ======================================================
+pressure (Pa, hPa)          mean geopotential height of each level in the first
+                            step when the file has one (``zg``, ``z``, ``hgt``…;
+                            geopotential in m²/s² is divided by g), else the ISO
+                            standard atmosphere; flat levels, not terrain following
+hybrid sigma-pressure       ``p = a p0 + b ps`` (or ``ap + b ps``) from its CF
+                            ``formula_terms``, first-step ``ps``, converted with the
+                            standard atmosphere: terrain following
+atmosphere sigma            ``p = ptop + sigma (ps − ptop)``, as above
+hybrid height               ``z = a + b orog`` from ``formula_terms``
+height (m, km)              flat levels
+=========================== ======================================================
+
+Times come from CF units (``hours since 2001-01-01``…, standard calendars).
+A file without a time axis has one step at 1970-01-01.
+
+References
+----------
+.. [1] CF Conventions 1.11, Appendix D (parametric vertical coordinates).
+.. [2] N. Max and R. Crawfis, "Advances in Scientific Visualization".
+"""
+
+import re
+
+import numpy as np
+
+from .errors import DataError
+from .gridfile import FileDataset, cf_times, pressure_scale, standard_name, tidy_lonlat
+from .grid import GlobeGrid
+from .humidity import G0, RH_CRIT, standard_height
+
+_LON_UNITS = ("degrees_east", "degree_east", "degree_e", "degrees_e", "degreee", "degreese")
+_LAT_UNITS = ("degrees_north", "degree_north", "degree_n", "degrees_n", "degreen", "degreesn")
+_HEIGHT_NAMES = ("zg", "z", "hgt", "geopotential_height", "gh", "geopot", "phi")
+
+
+def _attr(var, key):
+    return str(var.attrs.get(key, "")).strip()
+
+
+def _find_axis(ds, path, kind):
+    names, units, std = (
+        (("lon", "longitude", "long", "x", "nav_lon"), _LON_UNITS, "longitude")
+        if kind == "lon"
+        else (("lat", "latitude", "y", "nav_lat"), _LAT_UNITS, "latitude")
+    )
+    for name, var in ds.variables.items():
+        if _attr(var, "standard_name").lower() == std or _attr(var, "units").lower().replace(" ", "") in units:
+            return name
+    for name in ds.variables:
+        if name.lower() in names:
+            return name
+    raise DataError(f"no {std} coordinate (looked for standard_name {std}, units {units[0]}, names {'/'.join(names[:2])})", path=path, field=kind)
+
+
+def _find_time(ds):
+    for name, var in ds.variables.items():
+        if var.ndim == 1 and (_attr(var, "standard_name").lower() == "time" or _attr(var, "axis").upper() == "T" or " since " in _attr(var, "units")):
+            return name
+    return "time" if "time" in ds.variables else None
+
+
+def _formula_terms(var, path, field):
+    text = _attr(var, "formula_terms")
+    terms = dict(re.findall(r"(\w+):\s*(\w+)", text))
+    if not terms:
+        raise DataError(f"has standard_name {_attr(var, 'standard_name')} but no formula_terms", path=path, field=field)
+    return terms
+
+
+def _values(ds, name, path, field):
+    if name not in ds.variables:
+        raise DataError(f"formula term variable {name!r} is missing", path=path, field=field)
+    a = np.asarray(ds[name].values, dtype=np.float64)
+    if np.isnan(a).any():
+        raise DataError(f"has NaN values in {name!r}", path=path, field=field)
+    return a
+
+
+class NetCDFDataset(FileDataset):
+    """A CF NetCDF file opened lazily; see the module docstring for what is understood."""
+
+    def __init__(self, path, *, rh_crit=RH_CRIT, cache_steps=8):
+        import xarray as xr
+
+        try:
+            ds = xr.open_dataset(path, decode_times=False, mask_and_scale=True)
+        except Exception as exc:  # netCDF4/HDF5/scipy raise many types for a bad file
+            raise DataError(f"cannot open as NetCDF ({type(exc).__name__}: {exc})", path=path) from exc
+        self._ds = ds
+        lon_name, lat_name = _find_axis(ds, path, "lon"), _find_axis(ds, path, "lat")
+        lon_dim, lat_dim = ds[lon_name].dims, ds[lat_name].dims
+        if len(lon_dim) != 1 or len(lat_dim) != 1:
+            raise DataError("2-D longitude/latitude (a curvilinear input grid) is not supported", path=path, field=lon_name)
+        lon_dim, lat_dim = lon_dim[0], lat_dim[0]
+        time_name = _find_time(ds)
+        time_dim = ds[time_name].dims[0] if time_name else None
+
+        # 3-D fields: dims = {lat, lon, one level dim} plus time if the file has one.
+        candidates, skipped = {}, {}
+        for name, var in ds.data_vars.items():
+            dims = [d for d in var.dims if d != time_dim]
+            if lat_dim in dims and lon_dim in dims and len(dims) == 3:
+                candidates[name] = [d for d in dims if d not in (lat_dim, lon_dim)][0]
+            elif name not in (lon_name, lat_name, time_name):
+                skipped[name] = f"dimensions {var.dims} are not (time, level, lat, lon)"
+        if not candidates:
+            raise DataError(
+                f"no 3-D field on (level, {lat_dim}, {lon_dim}) (variables: {', '.join(ds.data_vars) or 'none'})",
+                path=path,
+                field="variables",
+            )
+        dims = list(candidates.values())
+        self._zdim = zdim = max(set(dims), key=dims.count)
+        for name, d in candidates.items():
+            if d != zdim:
+                skipped[name] = f"on levels {d!r}, not {zdim!r}"
+        names = [n for n, d in candidates.items() if d == zdim]
+        self._dims = (zdim, lat_dim, lon_dim)
+        self._time_dim = time_dim
+
+        lon, lat, lon_index, lat_index = tidy_lonlat(ds[lon_name].values, ds[lat_name].values, path, lon_name, lat_name)
+        if time_dim:
+            tv = ds[time_name]
+            times = cf_times(tv.values, _attr(tv, "units"), tv.attrs.get("calendar"), path, time_name)
+        else:
+            times = np.array(["1970-01-01T00:00:00"], dtype="datetime64[s]")
+        self._nt = times.size
+
+        heights, level_index, pressure, vertical = self._vertical(ds, path, zdim, names, lat_index, lon_index, lat.size, lon.size)
+        grid = GlobeGrid(lon, lat, heights).validate(path)
+
+        fields, taken = {}, {}
+        for name in names:
+            std = standard_name(name, ds[name].attrs)
+            if std in fields:
+                skipped[name] = f"another variable ({taken[std]!r}) already gives {std!r}"
+                continue
+            fields[std], taken[std] = (name, _attr(ds[name], "units")), name
+        super().__init__(
+            path,
+            grid,
+            times,
+            fields,
+            (level_index, lat_index, lon_index),
+            pressure=pressure,
+            rh_crit=rh_crit,
+            vertical=vertical,
+            skipped=skipped,
+            cache_steps=cache_steps,
+        )
+
+    # ------------------------------------------------------------------ vertical
+    def _vertical(self, ds, path, zdim, names, lat_index, lon_index, nj, ni):
+        if zdim not in ds.variables:
+            raise DataError("level dimension has no coordinate variable", path=path, field=zdim)
+        zvar = ds[zdim]
+        z = np.asarray(zvar.values, dtype=np.float64)
+        if z.ndim != 1 or z.size < 2:
+            raise DataError(f"needs at least 2 levels, got {z.size}", path=path, field=zdim)
+        if not np.all(np.isfinite(z)):
+            raise DataError("has NaN level coordinates", path=path, field=zdim)
+        std = _attr(zvar, "standard_name").lower()
+        units = _attr(zvar, "units").lower()
+        take = np.ix_(lat_index, lon_index)
+
+        def surface(name, t):
+            a = ds[name]
+            if self._time_dim in a.dims:
+                a = a.isel({self._time_dim: t})
+            a = np.asarray(a.transpose(*self._dims[1:]).values, dtype=np.float64)
+            return a[take]
+
+        if std in ("atmosphere_hybrid_sigma_pressure_coordinate", "atmosphere_sigma_coordinate"):
+            terms = _formula_terms(zvar, path, zdim)
+            ps_name = terms.get("ps")
+            if not ps_name or ps_name not in ds.variables:
+                raise DataError(f"surface pressure {ps_name!r} from formula_terms is missing", path=path, field=zdim)
+            ps_scale = pressure_scale(_attr(ds[ps_name], "units") or "Pa", path, ps_name)
+            if std == "atmosphere_sigma_coordinate":
+                sigma = _values(ds, terms.get("sigma", zdim), path, zdim)
+                ptop = float(_values(ds, terms["ptop"], path, zdim)) * pressure_scale(_attr(ds[terms["ptop"]], "units") or "Pa", path, terms["ptop"]) if "ptop" in terms else 0.0
+                a_pa, b = ptop * (1.0 - sigma), sigma
+            else:
+                b = _values(ds, terms.get("b", ""), path, zdim)
+                if "ap" in terms:
+                    a_pa = _values(ds, terms["ap"], path, zdim) * pressure_scale(_attr(ds[terms["ap"]], "units") or "Pa", path, terms["ap"])
+                elif "a" in terms and "p0" in terms:
+                    p0 = float(_values(ds, terms["p0"], path, zdim)) * pressure_scale(_attr(ds[terms["p0"]], "units") or "Pa", path, terms["p0"])
+                    a_pa = _values(ds, terms["a"], path, zdim) * p0
+                else:
+                    raise DataError(f"formula_terms {terms} need 'ap' or 'a' and 'p0'", path=path, field=zdim)
+            ref = a_pa + b * 101325.0
+            level_index = self._level_order(-ref, path, zdim)
+            a_pa, b = a_pa[level_index, None, None], b[level_index, None, None]
+
+            def pressure(t):
+                return (a_pa + b * surface(ps_name, t) * ps_scale).astype(np.float32)
+
+            return standard_height(pressure(0)), level_index, pressure, "hybrid sigma-pressure (terrain following)"
+        if std == "atmosphere_hybrid_height_coordinate":
+            terms = _formula_terms(zvar, path, zdim)
+            a = _values(ds, terms.get("a", zdim), path, zdim)
+            b = _values(ds, terms.get("b", ""), path, zdim)
+            orog_name = terms.get("orog")
+            if not orog_name or orog_name not in ds.variables:
+                raise DataError(f"orography {orog_name!r} from formula_terms is missing", path=path, field=zdim)
+            level_index = self._level_order(a + b * 1000.0, path, zdim)
+            heights = a[level_index, None, None] + b[level_index, None, None] * surface(orog_name, 0)[None]
+            return heights, level_index, None, "hybrid height (terrain following)"
+        is_pressure = std in ("air_pressure", "pressure") or units in ("pa", "hpa", "mb", "mbar", "millibar", "millibars", "hectopascal", "hectopascals")
+        if is_pressure:
+            p = z * pressure_scale(units, path, zdim)
+            level_index = self._level_order(-p, path, zdim)
+            p = p[level_index]
+            heights = self._geopotential_heights(ds, path, names, level_index, take)
+            if heights is None:
+                heights = standard_height(p)
+                source = "standard atmosphere"
+            else:
+                source = "mean geopotential height"
+            p3 = np.broadcast_to(p[:, None, None], (p.size, nj, ni)).astype(np.float32)
+            return (
+                np.broadcast_to(heights[:, None, None], (p.size, nj, ni)),
+                level_index,
+                lambda t: p3,
+                f"pressure levels, heights from the {source} (not terrain following)",
+            )
+        if std in ("height", "altitude", "height_above_mean_sea_level") or units in ("m", "km", "meter", "meters", "metre", "metres"):
+            scale = 1000.0 if units == "km" else 1.0
+            if _attr(zvar, "positive").lower() == "down":
+                raise DataError("heights with positive='down' (depth) are not supported", path=path, field=zdim)
+            level_index = self._level_order(z * scale, path, zdim)
+            heights = (z * scale)[level_index]
+            return np.broadcast_to(heights[:, None, None], (heights.size, nj, ni)), level_index, None, "height levels (flat)"
+        raise DataError(
+            f"cannot tell what the vertical coordinate is (standard_name {std or 'none'!r}, units {units or 'none'!r}); "
+            "expected pressure, hybrid sigma-pressure, hybrid height or height",
+            path=path,
+            field=zdim,
+        )
+
+    @staticmethod
+    def _level_order(upward, path, field):
+        """Indices putting levels bottom→top given a quantity that grows upward; non-monotonic → DataError."""
+        d = np.diff(upward)
+        if np.all(d > 0):
+            return np.arange(upward.size)
+        if np.all(d < 0):
+            return np.arange(upward.size)[::-1]
+        raise DataError("levels are not monotonic (non-monotonic levels)", path=path, field=field)
+
+    def _geopotential_heights(self, ds, path, names, level_index, take):
+        for name in names:
+            var = ds[name]
+            std = _attr(var, "standard_name").lower()
+            units = _attr(var, "units").lower().replace(" ", "")
+            if std == "geopotential_height" or (name.lower() in _HEIGHT_NAMES and units in ("m", "gpm", "meters", "metres")):
+                scale = 1.0
+            elif std == "geopotential" or (name.lower() in _HEIGHT_NAMES and units in ("m2s-2", "m**2s**-2", "m^2/s^2", "m2/s2")):
+                scale = 1.0 / G0
+            else:
+                continue
+            a = self._raw(name, 0)[level_index][(slice(None),) + take] * scale
+            with np.errstate(invalid="ignore"):
+                mean = np.nanmean(a.reshape(a.shape[0], -1), axis=1)
+            if np.all(np.isfinite(mean)) and np.all(np.diff(mean) > 0):
+                return mean
+        return None
+
+    def _raw(self, name, t):
+        var = self._ds[name]
+        if self._time_dim in var.dims:
+            var = var.isel({self._time_dim: t})
+        return np.asarray(var.transpose(*self._dims).values, dtype=np.float32)
+
+    def close(self):
+        """Close the file."""
+        self._ds.close()
+
+
+def open_netcdf(path, **kw):
+    """Open a CF NetCDF file as a lazy :class:`NetCDFDataset`."""
+    return NetCDFDataset(path, **kw)
+
+
+__all__ = ["NetCDFDataset", "open_netcdf"]

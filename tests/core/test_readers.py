@@ -1,0 +1,284 @@
+"""Readers: real GrADS and ECHAM5 files, synthetic CF layouts, and a clear error for each bad input."""
+
+import numpy as np
+import pytest
+
+xr = pytest.importorskip("xarray")
+
+from nephele.core.errors import DataError  # noqa: E402
+from nephele.core.humidity import standard_height  # noqa: E402
+from nephele.core.readers import open_dataset  # noqa: E402
+
+UNDEF = -2.56e33
+
+
+# --------------------------------------------------------------------------- real files
+def test_grads_sample_model_output(shared_data):
+    ctl = shared_data / "climate" / "model.ctl"
+    ds = open_dataset(ctl)
+    assert ds.grid.shape == (7, 46, 72)
+    assert ds.times[0] == np.datetime64("1987-01-02T00:00") and ds.times.size == 5
+    np.testing.assert_array_equal(np.diff(ds.hours), 24.0)
+    assert ds.grid.periodic_lon and ds.grid.lat[0] == -90.0 and ds.grid.lat[-1] == 90.0
+    assert {"u", "v", "temperature", "q", "Z", "pressure", "rh", "cloud"} <= set(ds.variables)
+    assert set(ds.skipped) == {"PS", "TS", "P"}
+    # Heights: mean geopotential heights, rising, 500 hPa near 5.5 km.
+    h = ds.grid.height[:, 0, 0]
+    assert np.all(np.diff(h) > 0) and 5000 < h[3] < 6000
+    # A value read independently: 36 records of 46x72 per time, U is records 1..7.
+    raw = np.fromfile(ctl.parent / "model.dat", dtype="<f4").reshape(5, 36, 46, 72)
+    t, k, j, i = 3, 4, 30, 17
+    assert ds.read("u", t)[k, j, i] == raw[t, 1 + k, j, i]
+    assert ds.read("temperature", t)[k, j, i] == raw[t, 22 + k, j, i]
+    # UNDEF (below ground) -> NaN, in the same places.
+    np.testing.assert_array_equal(np.isnan(ds.read("temperature", 0)[0]), raw[0, 22] == np.float32(UNDEF))
+    assert np.isnan(ds.read("temperature", 0)[0]).sum() == 1738
+    # Q has 5 of 7 levels: NaN above 300 hPa.
+    q = ds.read("q", 0)
+    assert np.isnan(q[5:]).all() and np.isfinite(q[4]).all()
+    cloud = ds.read("cloud", 2)
+    finite = cloud[np.isfinite(cloud)]
+    assert finite.min() >= 0 and finite.max() <= 1 and 0.01 < np.mean(finite > 0.15) < 0.6
+    rh = ds.read("rh", 2)
+    assert np.nanmax(rh) <= 1.0
+
+
+def test_echam5_netcdf(shared_data):
+    path = shared_data / "climate" / "rectilinear_grid_3D.nc"
+    ds = open_dataset(path)
+    assert ds.grid.shape == (17, 96, 192)
+    assert ds.times[0] == np.datetime64("2001-01-01T00:00")
+    g = ds.grid
+    assert np.all(np.diff(g.lat) > 0) and g.lon[0] == 0.0 and g.lon[-1] == 358.125 and g.periodic_lon
+    np.testing.assert_allclose(g.height[:, 5, 5], standard_height(np.sort([100000, 92500, 85000, 77500, 70000, 60000, 50000, 40000, 30000, 25000, 20000, 15000, 10000, 7000, 5000, 3000, 1000])[::-1]))
+    assert "pressure" in ds.vertical
+    with xr.open_dataset(path, decode_times=False) as f:
+        t_file = f["t"].values[0]
+        rh_file = f["rhumidity"].values[0]
+        lon_file = f["lon"].values
+        lat_file = f["lat"].values
+    # Independent mapping of one file index to ours: lat flipped, lon wrapped to 0..360.
+    kf, jf, i_f = 6, 10, 3  # lon -174.375 -> 185.625
+    j = int(np.flatnonzero(g.lat == lat_file[jf])[0])
+    i = int(np.flatnonzero(g.lon == np.mod(lon_file[i_f], 360))[0])
+    assert ds.read("temperature", 0)[kf, j, i] == t_file[kf, jf, i_f]
+    rh = ds.read("rh", 0)
+    assert rh_file.min() < 0 and rh_file.max() > 1  # the file really is outside [0, 1] ...
+    assert rh.min() == 0 and rh.max() == 1  # ... and we clip
+    assert ds.derived["cloud"].startswith("rh, Sundqvist")
+    cloud = ds.read("cloud", 0)
+    assert cloud.min() >= 0 and cloud.max() <= 1 and np.mean(cloud > 0.15) > 0.05
+
+
+def test_orography_file_is_2d(shared_data):
+    with pytest.raises(DataError, match=r"orog_mod1.*no 3-D field"):
+        open_dataset(shared_data / "climate" / "orog_mod1_rectilinear_grid_2D.nc")
+
+
+# ---------------------------------------------------------------- synthetic NetCDF layouts
+def _write(path, data_vars, coords, attrs=None):
+    ds = xr.Dataset(data_vars, coords=coords, attrs=attrs or {})
+    ds.to_netcdf(path)
+    return path
+
+
+def _basic(tmp_path, name="f.nc", lev=(1000.0, 850.0, 500.0), lat=(-60.0, 0.0, 60.0), lon=(0.0, 90.0, 180.0, 270.0), var="t", units="K"):
+    shape = (2, len(lev), len(lat), len(lon))
+    values = np.arange(np.prod(shape), dtype=np.float32).reshape(shape) + 200.0
+    coords = {
+        "time": ("time", [0.0, 6.0], {"units": "hours since 1987-01-01 00:00:00", "calendar": "standard"}),
+        "lev": ("lev", np.asarray(lev), {"units": "hPa", "positive": "down"}),
+        "lat": ("lat", np.asarray(lat), {"units": "degrees_north"}),
+        "lon": ("lon", np.asarray(lon), {"units": "degrees_east"}),
+    }
+    return _write(tmp_path / name, {var: (("time", "lev", "lat", "lon"), values, {"units": units})}, coords), values
+
+
+def test_pressure_levels_reordered_and_times(tmp_path):
+    # Top-down levels, north-to-south latitudes, -180..180 longitudes: all put into Nephele's order.
+    path, values = _basic(tmp_path, lev=(300.0, 700.0, 1000.0), lat=(60.0, 0.0, -60.0), lon=(-90.0, 0.0, 90.0, 180.0))
+    ds = open_dataset(path)
+    np.testing.assert_array_equal(ds.grid.lat, [-60, 0, 60])
+    np.testing.assert_array_equal(ds.grid.lon, [0, 90, 180, 270])
+    assert np.all(np.diff(ds.grid.height[:, 0, 0]) > 0)
+    np.testing.assert_allclose(ds.read("pressure", 0)[:, 0, 0], [100000, 70000, 30000])
+    np.testing.assert_array_equal(ds.times, np.array(["1987-01-01T00", "1987-01-01T06"], dtype="datetime64[s]"))
+    out = ds.read("temperature", 1)
+    # ours[k, j, i] = file[2 - k, 2 - j, (i + 1) % 4]
+    for k, j, i in ((0, 0, 0), (2, 1, 3), (1, 2, 2)):
+        assert out[k, j, i] == values[1, 2 - k, 2 - j, (i + 1) % 4]
+
+
+def test_hybrid_sigma_pressure_is_terrain_following(tmp_path):
+    nk, lat, lon = 4, np.array([-30.0, 0.0, 30.0]), np.arange(0.0, 360.0, 60.0)
+    hyam = np.array([0.0, 5000.0, 20000.0, 10000.0])  # Pa
+    hybm = np.array([0.99, 0.8, 0.3, 0.0])
+    ps = np.full((1, 3, 6), 100000.0)
+    ps[0, 1, 2] = 60000.0  # a mountain
+    coords = {
+        "time": ("time", [0.0], {"units": "days since 2000-01-01"}),
+        "lev": ("lev", np.arange(nk, dtype=float), {"standard_name": "atmosphere_hybrid_sigma_pressure_coordinate", "formula_terms": "ap: hyam b: hybm ps: aps"}),
+        "lat": ("lat", lat, {"units": "degrees_north"}),
+        "lon": ("lon", lon, {"units": "degrees_east"}),
+    }
+    data = {
+        "hyam": ("lev", hyam, {"units": "Pa"}),
+        "hybm": ("lev", hybm),
+        "aps": (("time", "lat", "lon"), ps, {"units": "Pa"}),
+        "rh": (("time", "lev", "lat", "lon"), np.full((1, nk, 3, 6), 95.0, dtype=np.float32), {"units": "%"}),
+    }
+    ds = open_dataset(_write(tmp_path / "hyb.nc", data, coords))
+    p = ds.read("pressure", 0)
+    np.testing.assert_allclose(p[:, 1, 2], hyam + hybm * 60000.0, rtol=1e-6)
+    h = ds.grid.height
+    np.testing.assert_allclose(h[0, 1, 2], standard_height(59400.0), rtol=1e-6)
+    assert h[0, 1, 2] > h[0, 0, 0] + 3000  # the bottom level rises over the mountain
+    np.testing.assert_allclose(ds.read("rh", 0), 0.95, rtol=1e-6)  # percent -> fraction
+    np.testing.assert_allclose(ds.read("cloud", 0), 1 - np.sqrt(0.05 / 0.2), rtol=1e-5)
+    assert "terrain following" in ds.vertical
+
+
+def test_hybrid_height_and_plain_height(tmp_path):
+    lat, lon = np.array([-10.0, 10.0]), np.array([0.0, 120.0, 240.0])
+    orog = np.array([[0.0, 500.0, 1000.0], [200.0, 0.0, 2000.0]])
+    coords = {
+        "lev": ("lev", np.array([10.0, 1000.0, 5000.0]), {"standard_name": "atmosphere_hybrid_height_coordinate", "formula_terms": "a: lev b: bb orog: orog", "units": "m"}),
+        "lat": ("lat", lat, {"units": "degrees_north"}),
+        "lon": ("lon", lon, {"units": "degrees_east"}),
+    }
+    data = {
+        "bb": ("lev", np.array([1.0, 0.6, 0.0])),
+        "orog": (("lat", "lon"), orog),
+        "u": (("lev", "lat", "lon"), np.ones((3, 2, 3), dtype=np.float32), {"units": "m s-1"}),
+    }
+    ds = open_dataset(_write(tmp_path / "hh.nc", data, coords))
+    np.testing.assert_allclose(ds.grid.height[0], 10.0 + orog)
+    np.testing.assert_allclose(ds.grid.height[1], 1000.0 + 0.6 * orog)
+    assert ds.times.size == 1 and ds.grid.periodic_lon
+    coords["lev"] = ("lev", np.array([0.5, 2.0, 8.0]), {"units": "km", "positive": "up"})
+    del data["bb"]
+    ds = open_dataset(_write(tmp_path / "z.nc", data, coords))
+    np.testing.assert_allclose(ds.grid.height[:, 1, 1], [500.0, 2000.0, 8000.0])
+
+
+# ---------------------------------------------------------------------------- bad input
+def test_missing_file_and_unknown_format(tmp_path):
+    with pytest.raises(DataError, match="missing.nc: file not found"):
+        open_dataset(tmp_path / "missing.nc")
+    with pytest.raises(DataError, match="missing.ctl: file not found"):
+        open_dataset(tmp_path / "missing.ctl")
+    txt = tmp_path / "data.txt"
+    txt.write_text("hello")
+    with pytest.raises(DataError, match=r"data.txt: unknown format '.txt'"):
+        open_dataset(txt)
+    junk = tmp_path / "junk.nc"
+    junk.write_bytes(b"\x00garbage" * 10)
+    with pytest.raises(DataError, match="junk.nc: cannot open as NetCDF"):
+        open_dataset(junk)
+
+
+def test_missing_variable(tmp_path):
+    path, _ = _basic(tmp_path, var="u", units="m/s")
+    ds = open_dataset(path)
+    with pytest.raises(DataError, match=r"f.nc: field 'cloud': no such variable"):
+        ds.read("cloud", 0)
+
+
+def test_wrong_dimensions(tmp_path):
+    coords = {"lat": ("lat", [0.0, 10.0], {"units": "degrees_north"}), "lon": ("lon", [0.0, 10.0, 20.0], {"units": "degrees_east"})}
+    path = _write(tmp_path / "flat.nc", {"t": (("lat", "lon"), np.zeros((2, 3)))}, coords)
+    with pytest.raises(DataError, match=r"flat.nc: field 'variables': no 3-D field"):
+        open_dataset(path)
+    path = _write(tmp_path / "nolon.nc", {"t": (("a", "b", "c"), np.zeros((2, 2, 2)))}, {})
+    with pytest.raises(DataError, match=r"nolon.nc: field 'lon': no longitude coordinate"):
+        open_dataset(path)
+
+
+def test_nan_coordinates(tmp_path):
+    path, _ = _basic(tmp_path, lat=(-60.0, np.nan, 60.0))
+    with pytest.raises(DataError, match=r"f.nc: field 'lat': has NaN coordinates"):
+        open_dataset(path)
+    path, _ = _basic(tmp_path, name="g.nc", lev=(1000.0, np.nan, 500.0))
+    with pytest.raises(DataError, match=r"g.nc: field 'lev': has NaN level"):
+        open_dataset(path)
+
+
+def test_non_monotonic_levels(tmp_path):
+    path, _ = _basic(tmp_path, lev=(1000.0, 500.0, 700.0))
+    with pytest.raises(DataError, match=r"f.nc: field 'lev': levels are not monotonic"):
+        open_dataset(path)
+
+
+def test_unknown_vertical_coordinate(tmp_path):
+    path, _ = _basic(tmp_path)
+    with xr.open_dataset(path) as f:
+        f = f.load()
+    f["lev"].attrs = {"units": "level"}
+    f.to_netcdf(tmp_path / "lev.nc")
+    with pytest.raises(DataError, match=r"lev.nc: field 'lev': cannot tell what the vertical coordinate is"):
+        open_dataset(tmp_path / "lev.nc")
+
+
+# ------------------------------------------------------------------------------ GrADS
+def _grads(tmp_path, body, data, name="s"):
+    (tmp_path / f"{name}.dat").write_bytes(data)
+    ctl = tmp_path / f"{name}.ctl"
+    ctl.write_text(body.replace("DATA", f"^{name}.dat"))
+    return ctl
+
+
+CTL = """DSET DATA
+OPTIONS {options}
+UNDEF -9.99e8
+XDEF 4 LINEAR 0 90
+YDEF 3 LEVELS -45 0 45
+ZDEF 2 LEVELS 1000 500
+TDEF 3 LINEAR 06Z1FEB1990 {step}
+VARS 2
+T 2 99 temperature
+RH 1 99 humidity in percent? no: fraction
+ENDVARS
+"""
+
+
+def test_grads_endianness_yrev_undef_and_steps(tmp_path):
+    nt, nx, ny = 3, 4, 3
+    rng = np.random.default_rng(0)
+    t = rng.uniform(200, 300, size=(nt, 2, ny, nx)).astype(np.float32)
+    rh = rng.uniform(0, 1, size=(nt, 1, ny, nx)).astype(np.float32)
+    t[1, 0, 2, 3] = -9.99e8
+    rows = np.concatenate([t, rh], axis=1)  # file order: rows north->south under yrev
+    ctl = _grads(tmp_path, CTL.format(options="big_endian yrev", step="6hr"), rows.astype(">f4").tobytes())
+    ds = open_dataset(ctl)
+    np.testing.assert_array_equal(ds.times, np.array(["1990-02-01T06", "1990-02-01T12", "1990-02-01T18"], dtype="datetime64[s]"))
+    np.testing.assert_array_equal(ds.grid.lat, [-45, 0, 45])
+    out = ds.read("temperature", 1)
+    # yrev: the first file row is the northernmost latitude.
+    assert out[1, 2, 1] == t[1, 1, 0, 1] and out[0, 0, 0] == t[1, 0, 2, 0]
+    assert np.isnan(out[0, 0, 3])  # UNDEF
+    assert np.isnan(ds.read("rh", 0)[1]).all()  # one level of two
+    ctl = _grads(tmp_path, CTL.format(options="little_endian", step="1mo"), rows.astype("<f4").tobytes(), name="m")
+    ds = open_dataset(ctl)
+    np.testing.assert_array_equal(ds.times, np.array(["1990-02-01T06", "1990-03-01T06", "1990-04-01T06"], dtype="datetime64[s]"))
+    assert ds.read("temperature", 2)[1, 0, 2] == t[2, 1, 0, 2]
+
+
+def test_grads_errors(tmp_path):
+    good = CTL.format(options="little_endian", step="1dy")
+    size = 3 * 3 * 4 * 3 * 4
+    ctl = tmp_path / "nodat.ctl"
+    ctl.write_text(good.replace("DATA", "^nodat.dat"))
+    with pytest.raises(DataError, match=r"nodat.ctl: field 'dset': data file .* not found"):
+        open_dataset(ctl)
+    ctl = _grads(tmp_path, good, b"\0" * (size - 8), name="short")
+    with pytest.raises(DataError, match=r"short.dat: field 'dset': .*wrong dimensions"):
+        open_dataset(ctl)
+    ctl = _grads(tmp_path, good.replace("ZDEF 2 LEVELS 1000 500", "ZDEF 3 LEVELS 1000 500 700").replace("T 2", "T 3"), b"\0" * 10_000, name="mono")
+    with pytest.raises(DataError, match=r"mono.ctl: field 'zdef': levels are not monotonic"):
+        open_dataset(ctl)
+    ctl = _grads(tmp_path, good.replace("XDEF 4 LINEAR 0 90\n", ""), b"\0" * size, name="nox")
+    with pytest.raises(DataError, match=r"nox.ctl: field 'xdef': descriptor has no XDEF"):
+        open_dataset(ctl)
+    ctl = _grads(tmp_path, good.replace("06Z1FEB1990", "sometime"), b"\0" * size, name="badt")
+    with pytest.raises(DataError, match=r"badt.ctl: field 'tdef': cannot read the time 'sometime'"):
+        open_dataset(ctl)
