@@ -180,7 +180,7 @@ def terrain_material(name="Nephele Terrain"):
     links.new(mix.outputs["Result"], bsdf.inputs["Base Color"])
     # Water is glossier than land.
     rough = nodes.new("ShaderNodeMapRange")
-    rough.inputs["To Min"].default_value = 0.5
+    rough.inputs["To Min"].default_value = 0.7
     rough.inputs["To Max"].default_value = 0.9
     links.new(land.outputs["Value"], rough.inputs["Value"])
     links.new(rough.outputs["Result"], bsdf.inputs["Roughness"])
@@ -286,6 +286,7 @@ def haze_material(radius, exaggeration, *, density=None, scale_height=8000.0, co
     scatter.inputs["Anisotropy"].default_value = 0.0
     links.new(dens.outputs["Value"], scatter.inputs["Density"])
     links.new(scatter.outputs["Volume"], out.inputs["Volume"])
+    mat.cycles.volume_sampling = "DISTANCE"
     mat["nephele_haze"] = {"radius": radius, "scale_height_scene": h_scene, "density": density}
     return mat
 
@@ -358,8 +359,11 @@ def add_sky_and_haze(scene=None, *, radius=None, exaggeration=None, haze=True, h
         haze_obj.scale = (1.0, 1.0, 1.0)
         materials.assign(haze_obj, haze_material(radius, exaggeration, density=haze_density,
                                                  scale_height=scale_height))
-        # Shadows from the thin shell would only add noise.
-        haze_obj.visible_shadow = False
+        # Seen by camera rays only: shadow and bounce rays through the shell
+        # would triple the render time for a barely visible difference.
+        for attr in ("visible_shadow", "visible_diffuse", "visible_glossy", "visible_transmission",
+                     "visible_volume_scatter"):
+            setattr(haze_obj, attr, False)
     return {"world": world, "sun": sun, "haze": haze_obj}
 
 

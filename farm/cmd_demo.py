@@ -1,0 +1,146 @@
+"""``nephele demo --out out/demo``: a short film of Fig. 1 from the embedded climate.
+
+Renders ``examples/fig1_contours.py`` (contour surfaces of 15% cloudiness
+over the relief globe, following model time hour by hour) headless with
+Cycles on the CPU through :func:`nephele.farm.render.render_sequence`, then
+tiles the frames into ``contact_sheet.png`` with OpenImageIO.  The peak
+memory of the whole process tree (this process, the Dask scheduler and the
+bpy workers; resident set sizes summed, an upper bound) is sampled while it
+runs and written with the timings to ``demo.json``.
+"""
+
+import json
+import os
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+from .cli import UsageError
+
+HELP = "render the Fig. 1 demo film (embedded data) to PNG frames and a contact sheet"
+
+ROOT = Path(__file__).resolve().parent.parent
+SCRIPT = ROOT / "examples" / "fig1_contours.py"
+
+
+def add_arguments(p):
+    p.add_argument("--out", default="out/demo", help="output directory (default: out/demo)")
+    p.add_argument("--frames", default="1-24", help="frames, e.g. 1-24")
+    p.add_argument("--size", default="320x240", help="WxH (default 320x240)")
+    p.add_argument("--samples", type=int, default=16, help="Cycles samples per pixel (default 16)")
+    p.add_argument("--workers", type=int, default=None, help="local Dask workers (default: the farm's)")
+    p.add_argument("--source", default="demo", help='data: "demo" (default), "demo:small", a .nc or .ctl file')
+    p.add_argument("--hours-per-frame", type=float, default=3.0,
+                   help="model hours per frame (default 3: 24 frames show three days)")
+    p.add_argument("--haze", action="store_true", help="add the blue haze volume (about 3x slower)")
+
+
+def _size(text):
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise UsageError(f"--size must look like 320x240, got {text!r}") from None
+    if not (8 <= w <= 8192 and 8 <= h <= 8192):
+        raise UsageError(f"--size {text} is outside 8..8192 pixels")
+    return w, h
+
+
+class PeakMemory:
+    """Samples the summed resident memory of this process and all its descendants."""
+
+    def __init__(self, interval=0.25):
+        self.interval = interval
+        self.peak_total = 0
+        self.peak_process = 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+
+    def _sample(self):
+        import psutil
+
+        me = psutil.Process()
+        total = 0
+        for p in [me] + me.children(recursive=True):
+            try:
+                rss = p.memory_info().rss
+            except (psutil.NoSuchProcess, psutil.AccessDenied):
+                continue
+            total += rss
+            self.peak_process = max(self.peak_process, rss)
+        self.peak_total = max(self.peak_total, total)
+
+    def _run(self):
+        while not self._stop.is_set():
+            self._sample()
+            self._stop.wait(self.interval)
+
+    def __enter__(self):
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc):
+        self._stop.set()
+        self._thread.join()
+        self._sample()
+
+
+def _write_json(path, data):
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
+    with os.fdopen(fd, "w") as f:
+        json.dump(data, f, indent=2)
+    os.replace(tmp, path)
+
+
+def run(args):
+    from ..core.contour_task import open_source
+    from .frames import parse_frames
+    from .post import contact_sheet
+    from .render import render_sequence
+
+    size = _size(args.size)
+    if args.samples < 1:
+        raise UsageError(f"--samples must be >= 1, got {args.samples}")
+    if not args.hours_per_frame > 0:
+        raise UsageError(f"--hours-per-frame must be > 0, got {args.hours_per_frame}")
+    if not SCRIPT.is_file():
+        raise UsageError(f"the Fig. 1 example script is missing: {SCRIPT}")
+    frames = parse_frames(args.frames)
+    open_source(args.source)  # bad data fails here, before any worker starts
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    options = {
+        "source": args.source,
+        "frames": [min(frames), max(frames)],
+        "size": list(size),
+        "samples": args.samples,
+        "hours_per_frame": args.hours_per_frame,
+        "haze": bool(args.haze),
+    }
+    t0 = time.perf_counter()
+    with PeakMemory() as mem:
+        result = render_sequence(SCRIPT, frames, out, workers=args.workers, engine="CYCLES", samples=args.samples,
+                                 resolution=size, device="CPU", scene_options=options)
+    seconds = time.perf_counter() - t0
+    if not result.ok:
+        for line in result.failure_report():
+            print(line)
+        raise UsageError(f"{len(result.failed)} of {len(frames)} frames failed")
+    sheet = contact_sheet(result.paths, out / "contact_sheet.png", columns=min(6, len(frames)))
+    summary = {
+        "frames": len(frames),
+        "rendered": len(result.rendered),
+        "skipped": len(result.skipped),
+        "size": list(size),
+        "samples": args.samples,
+        "seconds": round(seconds, 1),
+        "peak_memory_total_mb": round(mem.peak_total / 2**20),
+        "peak_memory_one_process_mb": round(mem.peak_process / 2**20),
+        "contact_sheet": str(Path(sheet).name if sheet else "contact_sheet.png"),
+        "options": options,
+    }
+    _write_json(out / "demo.json", summary)
+    print(f"{len(frames)} frames in {out} ({len(result.rendered)} rendered, {len(result.skipped)} kept) "
+          f"in {seconds:.0f} s; peak memory {summary['peak_memory_total_mb']} MB (all processes); "
+          f"contact sheet {out / 'contact_sheet.png'}")
+    return 0
