@@ -83,7 +83,7 @@ def _tet_lookup():
     return table, ntri, np.array(tables.PAIRS)
 
 
-def isosurface(points, values, level, *, periodic_lon=False, method="cubes", attributes=None):
+def isosurface(points, values, level, *, periodic_lon=False, method="cubes", attributes=None, close_poles=False):
     """The surface where ``values == level``.
 
     Parameters
@@ -101,6 +101,13 @@ def isosurface(points, values, level, *, periodic_lon=False, method="cubes", att
         Marching cubes, or the paper's split of every cell into 5 tetrahedra.
     attributes : dict of str to (nk, nj, ni) arrays, optional
         Fields interpolated to the vertices with the same edge weights.
+    close_poles : bool
+        For a periodic longitude-latitude grid centred on the origin whose
+        first and last latitude rows stop short of the poles (cell-centred
+        latitudes such as ±89.44°): add the pole, on the ring's axis at the
+        ring's mean distance from the origin, with the ring's mean value, so
+        that surfaces reaching the pole are closed there instead of keeping a
+        hole the size of the polar cap.  Rows already at a pole are left alone.
 
     Returns
     -------
@@ -139,6 +146,10 @@ def isosurface(points, values, level, *, periodic_lon=False, method="cubes", att
     level = dtype.type(level)
     attributes = {k: np.asarray(a) for k, a in attributes.items()}
 
+    if close_poles:
+        if not periodic_lon:
+            raise DataError("closing the poles needs periodic_lon=True (rings of longitudes)", field="close_poles")
+        points, values, attributes = _add_poles(points, values, attributes)
     pole_rows = _collapsed_rows(points)
     if pole_rows is not None:
         values = _average_rows(values, pole_rows)
@@ -195,6 +206,45 @@ def _collapsed_rows(points):
     mask = np.zeros(cand.shape, bool)
     mask[kk[ok], jj[ok]] = True
     return mask if mask.any() else None
+
+
+def _add_poles(points, values, attributes):
+    """Append a pole row before row 0 and after row nj-1 where those rows are open rings."""
+    collapsed = _collapsed_rows(points)
+    ends = []
+    for j in (0, points.shape[1] - 1):
+        if collapsed is not None and collapsed[:, j].all():
+            ends.append(None)
+            continue
+        ring = points[:, j].astype(np.float64)  # (nk, ni, 3)
+        centre = ring.mean(axis=1)
+        size = np.linalg.norm(ring, axis=-1).mean(axis=1)
+        norm = np.linalg.norm(centre, axis=-1)
+        if np.any(norm <= 1e-9 * size):
+            raise DataError("row {j} is not a ring around an axis through the origin".format(j=j), field="close_poles")
+        pole = centre * (size / norm)[:, None]
+        ends.append(np.broadcast_to(pole[:, None, None, :], (points.shape[0], 1) + points.shape[2:]))
+    if ends[0] is None and ends[1] is None:
+        return points, values, attributes
+
+    def extend(field, pole_value):
+        parts = [field]
+        if ends[0] is not None:
+            parts.insert(0, pole_value(field[:, :1]))
+        if ends[1] is not None:
+            parts.append(pole_value(field[:, -1:]))
+        return np.concatenate(parts, axis=1)
+
+    ring_mean = lambda row: np.broadcast_to(row.mean(axis=2, keepdims=True), row.shape)  # noqa: E731
+    pts = [points.astype(np.float64)]
+    if ends[0] is not None:
+        pts.insert(0, ends[0])
+    if ends[1] is not None:
+        pts.append(ends[1])
+    points = np.concatenate(pts, axis=1)
+    values = extend(values, ring_mean)
+    attributes = {k: extend(a.astype(np.float64), ring_mean) for k, a in attributes.items()}
+    return points, values, attributes
 
 
 def _average_rows(field, rows):

@@ -195,6 +195,33 @@ def test_globe_grid_points_at_the_poles():
     assert counts.max() == 2  # open only at the ground (level 0), never non-manifold
 
 
+@pytest.mark.parametrize("method", METHODS)
+def test_close_poles_on_cell_centred_latitudes(method):
+    # Latitudes stop at ±85°: the polar caps are holes unless the poles are added.
+    ni, nj = 24, 18
+    lon = np.arange(ni) * 360.0 / ni
+    lat = -85.0 + 10.0 * np.arange(nj)
+    p = lonlat_to_xyz(lon[None, None, :], lat[None, :, None], np.linspace(0.2, 1.2, 11)[:, None, None])
+    v = np.linalg.norm(p - CENTRE, axis=-1)
+    alt = np.linalg.norm(p, axis=-1)
+    holes = isosurface(p, v, 0.6, periodic_lon=True, method=method)
+    assert edge_counts(holes.faces).min() == 1
+    mesh = isosurface(p, v, 0.6, periodic_lon=True, method=method, close_poles=True, attributes={"r": alt})
+    assert_closed_manifold(mesh)
+    assert np.count_nonzero(np.hypot(mesh.vertices[:, 0], mesh.vertices[:, 1]) < 1e-6) == 2
+    assert np.abs(np.linalg.norm(mesh.vertices - CENTRE, axis=1) - 0.6).max() < 0.03
+    # The radius attribute is linear along radial pole edges: exact there too.
+    assert np.allclose(mesh.attributes["r"], np.linalg.norm(mesh.vertices, axis=1), atol=0.02)
+    # A grid that already has its poles is left as it is.
+    with_poles = shell_points(ni, 19, 11)
+    vp = np.linalg.norm(with_poles - CENTRE, axis=-1)
+    a = isosurface(with_poles, vp, 0.6, periodic_lon=True, method=method)
+    b = isosurface(with_poles, vp, 0.6, periodic_lon=True, method=method, close_poles=True)
+    assert np.array_equal(a.faces, b.faces) and np.allclose(a.vertices, b.vertices)
+    with pytest.raises(DataError):
+        isosurface(p, v, 0.6, close_poles=True)
+
+
 # ---------------------------------------------------------------- values at the level
 
 
