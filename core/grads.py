@@ -214,8 +214,7 @@ class GradsDataset(FileDataset):
             if std in fields:
                 skipped[name] = f"another variable already gives {std!r}"
                 continue
-            fields[std] = (name, _UNITS.get(std.lower(), ""))
-        self.descriptions = {std: desc for std, (name, _) in fields.items() for n, _, desc in ctl["vars"] if n == name}
+            fields[std] = (name, _UNITS.get(std.lower(), ""), desc)
         self._nz = nz
         order = (level_index, lat_index, lon_index)
         z = z[level_index]

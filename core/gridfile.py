@@ -142,7 +142,7 @@ class FileDataset(Dataset):
     grid : GlobeGrid
     times : datetime64 array
     fields : dict
-        standard name → ``(file name, units in the file)``: the 3-D fields.
+        standard name → ``(file name, units in the file[, description])``: the 3-D fields.
     order : (level_index, lat_index, lon_index)
         Index arrays from file order to Nephele's order.
     pressure : callable or None
@@ -165,9 +165,11 @@ class FileDataset(Dataset):
         self.skipped = dict(skipped or {})
         self.derived = {}
         variables = []
-        for std, (raw, units) in self._fields.items():
+        self.file_names = {}
+        for std, (raw, units, *about) in self._fields.items():
             units_out = UNITS.get(std, units or "")
-            variables.append(Variable(std, units_out, raw if raw != std else ""))
+            variables.append(Variable(std, units_out, about[0] if about else ""))
+            self.file_names[std] = raw
         names = set(self._fields)
         if pressure is not None:
             variables.append(Variable("pressure", "Pa", "from the vertical coordinate"))
@@ -190,7 +192,7 @@ class FileDataset(Dataset):
 
     def _read(self, name, t):
         if name in self._fields:
-            raw, units = self._fields[name]
+            raw, units = self._fields[name][:2]
             a = np.asarray(self._raw(raw, t), dtype=np.float32)
             lev, lat, lon = self._order
             a = a[np.ix_(lev, lat, lon)]

@@ -94,7 +94,10 @@ class NetCDFDataset(FileDataset):
         try:
             ds = xr.open_dataset(path, decode_times=False, mask_and_scale=True)
         except Exception as exc:  # netCDF4/HDF5/scipy raise many types for a bad file
-            raise DataError(f"cannot open as NetCDF ({type(exc).__name__}: {exc})", path=path) from exc
+            first = (str(exc).strip().splitlines() or [""])[0]
+            if "did not find a match" in first:
+                first = "the contents are not NetCDF 3 or NetCDF 4/HDF5"
+            raise DataError(f"cannot open as NetCDF ({type(exc).__name__}: {first})", path=path) from exc
         self._ds = ds
         lon_name, lat_name = _find_axis(ds, path, "lon"), _find_axis(ds, path, "lat")
         lon_dim, lat_dim = ds[lon_name].dims, ds[lat_name].dims
@@ -144,7 +147,7 @@ class NetCDFDataset(FileDataset):
             if std in fields:
                 skipped[name] = f"another variable ({taken[std]!r}) already gives {std!r}"
                 continue
-            fields[std], taken[std] = (name, _attr(ds[name], "units")), name
+            fields[std], taken[std] = (name, _attr(ds[name], "units"), _attr(ds[name], "long_name")), name
         super().__init__(
             path,
             grid,

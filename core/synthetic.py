@@ -164,6 +164,7 @@ class SyntheticClimate(Dataset):
             Variable("w", "m/s", "upward wind"),
         ]
         super().__init__(grid, times, variables, source, cache_steps)
+        self.vertical = f"hybrid height over the ETOPO60 relief, flat top at {TOP / 1000:g} km"
         z = self.nominal_height
         # How strongly each level feels the jets (peak near 11 km) and the storms (weaker aloft).
         self._jet_factor = 0.3 + 0.7 * _gauss(z, 11_000.0, 6_000.0)

@@ -1,0 +1,93 @@
+"""``nephele info FILE``: what a dataset holds — grid, levels, variables, times."""
+
+import json
+
+HELP = "describe a dataset: grid type, shape, longitudes/latitudes, levels, variables, times"
+
+
+def add_arguments(p):
+    p.add_argument("source", metavar="FILE", help='dataset: "demo", "demo:small", a NetCDF .nc or a GrADS .ctl file')
+    p.add_argument("--json", action="store_true", help="print one JSON object instead of text")
+
+
+def describe(ds):
+    """A dict describing a :class:`~nephele.core.dataset.Dataset` (what ``nephele info`` prints)."""
+    import numpy as np
+
+    g = ds.grid
+    nk, nj, ni = g.shape
+    flat = bool(np.all(np.ptp(g.height.reshape(nk, -1), axis=1) == 0.0))
+    vertical = getattr(ds, "vertical", "") or ("flat levels" if flat else "terrain-following levels")
+    kind = ("rectilinear" if flat else "curvilinear, terrain following") + f" ({vertical})"
+    step = np.diff(ds.hours)
+    levels = [
+        {"index": k, "min_m": float(g.height[k].min()), "max_m": float(g.height[k].max())}
+        for k in range(nk)
+    ]
+    info = {
+        "source": ds.source,
+        "reader": type(ds).__name__,
+        "grid": kind,
+        "shape": {"lon": ni, "lat": nj, "levels": nk},
+        "lon": [float(g.lon[0]), float(g.lon[-1])],
+        "lon_step": float(np.median(np.diff(g.lon))),
+        "periodic_lon": g.periodic_lon,
+        "lat": [float(g.lat[0]), float(g.lat[-1])],
+        "levels": levels,
+        "variables": [
+            {
+                "name": v.name,
+                "units": v.units,
+                "about": v.long_name,
+                "file_name": getattr(ds, "file_names", {}).get(v.name, v.name),
+                "derived": getattr(ds, "derived", {}).get(v.name, ""),
+            }
+            for v in ds.variables.values()
+        ],
+        "skipped": getattr(ds, "skipped", {}),
+        "times": {
+            "count": int(ds.times.size),
+            "first": str(ds.times[0]),
+            "last": str(ds.times[-1]),
+            "step_hours": float(np.median(step)) if step.size else None,
+            "regular": bool(step.size == 0 or np.allclose(step, step[0])),
+        },
+    }
+    return info
+
+
+def format_text(info):
+    """The human-readable form of :func:`describe`."""
+    s = info["shape"]
+    t = info["times"]
+    lines = [
+        f"{info['source']}  ({info['reader']})",
+        f"  grid       {info['grid']}",
+        f"  shape      {s['lon']} lon x {s['lat']} lat x {s['levels']} levels",
+        f"  lon        {info['lon'][0]:g} .. {info['lon'][1]:g} degrees east, step {info['lon_step']:g}, "
+        + ("periodic" if info["periodic_lon"] else "not periodic"),
+        f"  lat        {info['lat'][0]:g} .. {info['lat'][1]:g} degrees north",
+        "  levels     " + ", ".join(
+            f"{lv['min_m']:.0f}" if lv["min_m"] == lv["max_m"] else f"{lv['min_m']:.0f}-{lv['max_m']:.0f}"
+            for lv in info["levels"]
+        ) + " m",
+        "  variables",
+    ]
+    for v in info["variables"]:
+        about = f"derived from {v['derived']}" if v["derived"] else v["about"]
+        if v["file_name"] != v["name"]:
+            about = f"'{v['file_name']}' in the file" + (f": {about}" if about else "")
+        lines.append(f"    {v['name']:<12} [{v['units'] or '-'}]" + (f"  {about}" if about else ""))
+    for name, why in info["skipped"].items():
+        lines.append(f"    ({name}: not read, {why})")
+    step = "" if t["step_hours"] is None else f", step {t['step_hours']:g} h" + ("" if t["regular"] else " (irregular)")
+    lines.append(f"  times      {t['count']}: {t['first']} .. {t['last']}{step}")
+    return "\n".join(lines)
+
+
+def run(args):
+    from ..core.readers import open_dataset
+
+    info = describe(open_dataset(args.source))
+    print(json.dumps(info, indent=1) if args.json else format_text(info))
+    return 0
