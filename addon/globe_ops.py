@@ -142,7 +142,7 @@ def globe_arrays(lon, lat, height, radius=1.0, exaggeration=None):
 def terrain_material(name="Nephele Terrain"):
     """Land/sea colours from the ``height`` attribute; land ice poleward of ~65°."""
     mat = bpy.data.materials.get(name) or bpy.data.materials.new(name)
-    mat.use_nodes = True
+    materials.enable_nodes(mat)
     tree = mat.node_tree
     tree.nodes.clear()
     nodes, links = tree.nodes, tree.links
@@ -253,7 +253,7 @@ def haze_material(radius, exaggeration, *, density=None, scale_height=8000.0, co
     h_scene = radius * max(exaggeration, 1e-6) * scale_height / EARTH_RADIUS
     density = 0.08 / h_scene if density is None else float(density)
     mat = bpy.data.materials.get(name) or bpy.data.materials.new(name)
-    mat.use_nodes = True
+    materials.enable_nodes(mat)
     tree = mat.node_tree
     tree.nodes.clear()
     nodes, links = tree.nodes, tree.links
@@ -326,7 +326,7 @@ def add_sky_and_haze(scene=None, *, radius=None, exaggeration=None, haze=True, h
     radius = cfg["radius"] if radius is None else float(radius)
     world = scene.world or bpy.data.worlds.new("Nephele World")
     scene.world = world
-    world.use_nodes = True
+    materials.enable_nodes(world)
     bg = world.node_tree.nodes.get("Background") or world.node_tree.nodes.new("ShaderNodeBackground")
     bg.inputs["Color"].default_value = tuple(background) + (1.0,)
     bg.inputs["Strength"].default_value = 1.0

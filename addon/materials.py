@@ -26,6 +26,13 @@ RAMPS = {
 """Named colour ramps: lists of ``(position 0..1, (r, g, b))`` in linear RGB."""
 
 
+def enable_nodes(idblock):
+    """Give a material or world its node tree (Blender < 5 creates it only on request)."""
+    if idblock.node_tree is None:
+        idblock.use_nodes = True
+    return idblock.node_tree
+
+
 def _stops(ramp):
     stops = RAMPS[ramp] if isinstance(ramp, str) else ramp
     if len(stops) < 1:
@@ -89,7 +96,7 @@ def attribute_material(name, attribute, vmin, vmax, ramp="altitude", *, roughnes
         Strength of emission in the ramp colour (0: none), to lift dark sides.
     """
     mat = bpy.data.materials.get(name) or bpy.data.materials.new(name)
-    mat.use_nodes = True
+    enable_nodes(mat)
     tree = mat.node_tree
     tree.nodes.clear()
     out = tree.nodes.new("ShaderNodeOutputMaterial")

@@ -12,7 +12,10 @@ References
    (Fig. 1: contour surfaces of 15% cloudiness).
 """
 
+import hashlib
 from collections import OrderedDict
+from functools import lru_cache
+from pathlib import Path
 
 import numpy as np
 
@@ -62,6 +65,18 @@ def open_source(source):
     return ds
 
 
+@lru_cache(maxsize=1)
+def code_stamp():
+    """Short hash of the contouring code, part of every cache key: a changed
+    algorithm never serves meshes cached by the old one."""
+    here = Path(__file__).resolve().parent
+    h = hashlib.sha256()
+    for name in ("contour.py", "_mc_tables.py", "mesh.py", "contour_task.py"):
+        p = here / name
+        h.update(p.read_bytes() if p.is_file() else name.encode())
+    return h.hexdigest()[:16]
+
+
 def frame_hours(frame, frame_start=1, hours_per_frame=1.0, last_hour=None):
     """Model time (hours since the first step) shown at ``frame``, clamped to ``[0, last_hour]``."""
     if not hours_per_frame > 0:
@@ -99,6 +114,7 @@ def task_params(obj_params, frame):
         "radius": float(obj_params.get("radius", 1.0)),
         "color_var": str(color_var),
         "method": str(obj_params.get("method", "cubes")),
+        "code": code_stamp(),
     }
 
 
