@@ -21,7 +21,6 @@ retry limit counts it.
 """
 
 import contextlib
-import importlib.util
 import logging
 import os
 import sys
@@ -113,14 +112,14 @@ def local_cluster(workers=None, env=None):
 
     n = workers or default_workers()
     threads = max(1, (os.cpu_count() or 1) // n)
-    dashboard = "127.0.0.1:0" if importlib.util.find_spec("bokeh") else None
     with _scheduler_config():
         return LocalCluster(
             n_workers=n,
             threads_per_worker=1,
             processes=True,
             host="127.0.0.1",
-            dashboard_address=dashboard,
+            # Also without bokeh the scheduler serves HTTP (health, metrics): keep it local too.
+            dashboard_address="127.0.0.1:0",
             silence_logs=logging.ERROR,
             env={"NEPHELE_THREADS": str(threads), **(env or {})},
         )

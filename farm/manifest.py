@@ -13,7 +13,7 @@ so a crash leaves the previous complete manifest.
 
 import json
 import os
-import tempfile
+import uuid
 import time
 from pathlib import Path
 
@@ -61,7 +61,8 @@ class Manifest:
         now = time.monotonic()
         if min_interval and now - self._saved < min_interval:
             return
-        fd, tmp = tempfile.mkstemp(dir=self.out_dir, prefix=".manifest-", suffix=".json")
+        tmp = self.out_dir / f".manifest.{uuid.uuid4().hex[:12]}.json"
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)  # umask applies, as for frames
         try:
             with os.fdopen(fd, "w") as f:
                 json.dump(self.to_dict(), f, indent=1)

@@ -207,7 +207,7 @@ def _clock(seconds):
 def render_sequence(scene, frames, out_dir, *, workers=None, engine=None, samples=None, resolution=None,
                     percentage=None, device=None, fmt="PNG", chunk=1, retries=2, timeout=None,
                     scheduler=None, security=None, jobqueue=None, jobs=1, progress=True,
-                    scene_options=None, precompute=False, overwrite=False, verify=False):
+                    scene_options=None, precompute=False, cache_dir=None, overwrite=False, verify=False):
     """Render ``frames`` of ``scene`` into ``out_dir`` on Dask; valid frames already there are kept.
 
     Parameters
@@ -243,7 +243,12 @@ def render_sequence(scene, frames, out_dir, *, workers=None, engine=None, sample
     scene_options : dict, optional
         Keyword arguments of an example script's ``build()``.
     precompute : bool
-        First run the scene's per-frame core tasks (:func:`nephele.core.tasks.plan`) on Dask into the cache.
+        Run the scene's per-frame core tasks (:func:`nephele.core.tasks.plan`) on Dask into the
+        cache; each frame's render waits only for its own tasks.
+    cache_dir : path, optional
+        Cache of an example script's scene (default: beside the script, see
+        :func:`nephele.core.cache.default_cache_dir`).  A .blend's cache is always beside it,
+        where the add-on's updaters look.
     overwrite : bool
         Re-render every frame, valid or not.
     verify : bool
@@ -286,7 +291,7 @@ def render_sequence(scene, frames, out_dir, *, workers=None, engine=None, sample
             _render(manifest, result, todo, scene_path, kind, settings, out, workers=workers, chunk=chunk,
                     retries=retries, timeout=timeout, scheduler=scheduler, security=security,
                     jobqueue=jobqueue, jobs=jobs, progress=progress, precompute=precompute,
-                    total=len(frame_list), already=len(done))
+                    cache_dir=cache_dir, total=len(frame_list), already=len(done))
         manifest.run.update(finished=_now(), failed=result.failed, seconds=round(time.perf_counter() - t_start, 3))
         manifest.save()
         result.manifest = manifest.to_dict()
@@ -299,40 +304,28 @@ def _now():
 
 
 def _render(manifest, result, todo, scene_path, kind, settings, out, *, workers, chunk, retries, timeout,
-            scheduler, security, jobqueue, jobs, progress, precompute, total, already):
+            scheduler, security, jobqueue, jobs, progress, precompute, cache_dir, total, already):
     from distributed import as_completed
 
     from .cluster import open_client
-    from .worker import BlenderScene, plugin_name, probe, render_frames
-
-    from ..core.cache import default_cache_dir
+    from .worker import render_frames
 
     (out / "logs").mkdir(exist_ok=True)
     (out / TMP_DIR).mkdir(exist_ok=True)
-    token = uuid.uuid4().hex[:12]
+    spec = _spec(scene_path, kind, settings, cache_dir, out_dir=str(out), timeout=timeout)
+    token = spec["token"]
     since_ns = time.time_ns() - 2_000_000_000  # frames this run moves into place are newer (2 s clock slack)
-    spec = {
-        "token": token, "scene": str(scene_path), "kind": kind, "options": settings["scene_options"],
-        "engine": settings["engine"], "samples": settings["samples"], "resolution": settings["resolution"],
-        "percentage": settings["percentage"], "device": settings["device"], "fmt": settings["format"],
-        "out_dir": str(out), "timeout": timeout, "cache_dir": str(default_cache_dir(scene_path)),
-    }
-    name = plugin_name(token)
     bar = Progress(total, already, enabled=progress)
     attempts = {f: 0 for f in todo}
     futures = {}
     try:
         with open_client(workers=workers, scheduler=scheduler, security=security, jobqueue=jobqueue, jobs=jobs) as client:
-            client.register_plugin(BlenderScene(spec), name=name)
-            try:
-                info = client.submit(probe, name, pure=False, key=f"nephele-probe-{token}").result()
-            except DataError:
-                raise
-            except Exception as exc:
-                raise DataError(f"the scene did not load on a worker: {type(exc).__name__}: {exc}",
-                                path=scene_path, field="SCENE") from None
+            name, info = _start(client, spec)
             manifest.run["worker_scene"] = {k: info[k] for k in ("engine", "size", "device", "threads")}
-            deps = _precompute(client, info["objects"], todo, spec["cache_dir"], manifest) if precompute else {}
+            deps = {}
+            if precompute:
+                deps, pre = _precompute(client, info["objects"], todo, spec["cache_dir"])
+                manifest.run["precompute"] = {"tasks": len(pre), "cache": spec["cache_dir"]}
 
             def submit(frames):
                 for f in frames:
@@ -395,27 +388,98 @@ def _after_lost_task(out, frame, fmt, exc, since_ns):
     return {"status": "failed", "error": f"worker lost ({reason})", "log": log}
 
 
-def _precompute(client, objects, frames, cache_dir, manifest):
-    """Submit every distinct core task the frames need; returns ``frame -> future`` the render waits on."""
+def _spec(scene_path, kind, settings, cache_dir, **extra):
+    """The JSON-able scene description a :class:`~nephele.farm.worker.BlenderScene` plugin carries."""
+    from ..core.cache import default_cache_dir
+
+    if kind == "blend" or cache_dir is None:
+        cache_dir = default_cache_dir(scene_path)
+    return {
+        "token": uuid.uuid4().hex[:12], "scene": str(scene_path), "kind": kind,
+        "options": settings.get("scene_options") or {}, "engine": settings.get("engine"),
+        "samples": settings.get("samples"), "resolution": settings.get("resolution"),
+        "percentage": settings.get("percentage"), "device": settings.get("device"),
+        "fmt": settings.get("format", "PNG"), "cache_dir": str(Path(cache_dir).resolve()), **extra,
+    }
+
+
+def _start(client, spec):
+    """Register the scene plugin on every worker and load the scene on one; returns (plugin name, probe info)."""
+    from .worker import BlenderScene, plugin_name, probe
+
+    name = plugin_name(spec["token"])
+    client.register_plugin(BlenderScene(spec), name=name)
+    try:
+        return name, client.submit(probe, name, pure=False, key=f"nephele-probe-{spec['token']}").result()
+    except DataError:
+        raise
+    except Exception as exc:
+        raise DataError(f"the scene did not load on a worker: {type(exc).__name__}: {exc}",
+                        path=spec["scene"], field="SCENE") from None
+
+
+def _precompute(client, objects, frames, cache_dir):
+    """Submit every distinct core task the frames need.
+
+    Returns ``frame -> future`` (what that frame's render waits on) and ``key -> future`` of all tasks.
+    """
     from ..core import tasks
     from ..core.cache import cache_key
     from .worker import precompute
 
     by_key, per_frame = {}, {}
     for f in frames:
-        keys = []
+        needs = []
         for params in objects.values():
             for kind, task_params in tasks.plan(params, f):
                 key = cache_key(kind, task_params)
                 if key not in by_key:
                     by_key[key] = client.submit(precompute, kind, task_params, cache_dir, pure=False,
                                                 priority=1_000_000 - f, key=f"nephele-pre-{key[:16]}-{uuid.uuid4().hex[:6]}")
-                keys.append(by_key[key])
-        if keys:
-            per_frame[f] = client.submit(_gather, keys, pure=False, key=f"nephele-need-{f}-{uuid.uuid4().hex[:6]}")
-    manifest.run["precompute"] = {"tasks": len(by_key), "cache": cache_dir}
-    return per_frame
+                needs.append(by_key[key])
+        if needs:
+            per_frame[f] = client.submit(_count, needs, pure=False, key=f"nephele-need-{f}-{uuid.uuid4().hex[:6]}")
+    return per_frame, by_key
 
 
-def _gather(results):
+def _count(results):
     return len(results)
+
+
+def precompute_scene(scene, frames, *, workers=None, scheduler=None, security=None, jobqueue=None, jobs=1,
+                     scene_options=None, cache_dir=None, progress=True):
+    """Run the per-frame core tasks ``scene`` needs for ``frames`` on Dask into its cache.
+
+    One worker opens the scene to read every Nephele object's parameters
+    (``obj["nephele"]``); :func:`nephele.core.tasks.plan` turns them into
+    ``(kind, params)`` tasks per frame; distinct tasks run once each as Dask
+    tasks through :func:`nephele.core.tasks.run_cached` (a hit costs one file test).
+
+    Returns
+    -------
+    dict
+        ``tasks`` (distinct), ``computed`` (not in the cache before), ``cache`` (directory), ``seconds``.
+    """
+    from distributed import as_completed
+
+    from .cluster import open_client
+
+    t0 = time.perf_counter()
+    scene_path, kind = check_scene(scene)
+    frame_list = parse_frames(frames)
+    _check_options(None, None, None, None, None, "PNG", 0, None, 1, workers, scene_options)
+    spec = _spec(scene_path, kind, {"scene_options": scene_options}, cache_dir, out_dir=None, timeout=None)
+    with open_client(workers=workers, scheduler=scheduler, security=security, jobqueue=jobqueue, jobs=jobs) as client:
+        name, info = _start(client, spec)
+        _, by_key = _precompute(client, info["objects"], frame_list, spec["cache_dir"])
+        computed = done = 0
+        for fut in as_completed(list(by_key.values())):
+            _, new, _ = fut.result()
+            computed += bool(new)
+            done += 1
+            if progress:
+                print(f"nephele precompute: {done}/{len(by_key)} tasks ({computed} computed)", file=sys.stderr)
+        with contextlib.suppress(Exception):
+            client.unregister_worker_plugin(name)
+    return {"tasks": len(by_key), "computed": computed, "cache": spec["cache_dir"],
+            "objects": sorted(info["objects"]), "seconds": time.perf_counter() - t0}

@@ -153,6 +153,7 @@ def test_timeout_kills_the_frame_not_the_run(cluster, tmp_path):
     only_frames(out, [1, 3, 4])
 
 
+@pytest.mark.slow
 def test_sigint_leaves_no_partial_files_and_resumes(cluster, tmp_path):
     out = tmp_path / "out"
     cmd = [sys.executable, "-m", "nephele.farm", "render", str(SCENE), "--frames", "1-20", "--out", str(out),
@@ -172,6 +173,17 @@ def test_sigint_leaves_no_partial_files_and_resumes(cluster, tmp_path):
     res = render_sequence(SCENE, "1-20", out, scheduler=cluster.scheduler_address, progress=False)
     assert res.ok and res.skipped == done and sorted(res.rendered + done) == list(range(1, 21))
     only_frames(out, range(1, 21))
+
+
+def test_cluster_listens_on_loopback_only(cluster):
+    import psutil
+    from distributed import Client
+
+    with Client(cluster.scheduler_address) as client:
+        pids = {os.getpid(), *client.run(os.getpid).values()}
+    listening = [c for c in psutil.net_connections(kind="tcp") if c.status == psutil.CONN_LISTEN and c.pid in pids]
+    assert len(listening) >= 3  # scheduler, its HTTP server, the workers
+    assert {c.laddr.ip for c in listening} == {"127.0.0.1"}
 
 
 def test_absent_gpu_device_is_a_clear_error(cluster, tmp_path, capsys):

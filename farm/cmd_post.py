@@ -1,0 +1,83 @@
+"""``nephele post``: contact sheet, EXR → PNG, stereo pairs and movies from rendered frames."""
+
+from pathlib import Path
+
+from ..core.errors import DataError
+from .cli import UsageError
+
+HELP = "post-process frames: contact-sheet, exr2png, stereo (side-by-side, anaglyph), movie (H.264 MP4)"
+
+
+def frames_of(inputs):
+    """Image files from files and directories (a directory gives its frame_* files in name order)."""
+    paths = []
+    for item in inputs:
+        p = Path(item)
+        if p.is_dir():
+            found = sorted(q for q in p.iterdir() if q.name.startswith("frame_") and q.suffix.lower() in (".png", ".exr"))
+            if not found:
+                raise DataError("no frame_*.png or frame_*.exr files in this directory", path=p)
+            paths += found
+        elif p.is_file():
+            paths.append(p)
+        else:
+            raise DataError("no such file or directory", path=p)
+    return paths
+
+
+def add_arguments(p):
+    sub = p.add_subparsers(dest="action", required=True, metavar="ACTION")
+    s = sub.add_parser("contact-sheet", help="tile frames into one PNG")
+    s.add_argument("inputs", nargs="+", help="frame files or directories")
+    s.add_argument("--out", required=True, help="output PNG")
+    s.add_argument("--columns", type=int, help="thumbnails per row (default: square-ish)")
+    s.add_argument("--thumb-width", type=int, help="thumbnail width in pixels (default: frame width, <= 256)")
+    s.add_argument("--every", type=int, default=1, help="take every N-th frame")
+    s.add_argument("--view", default="Standard", help="OCIO view for EXR frames (Standard, AgX, ...)")
+    e = sub.add_parser("exr2png", help="convert EXR frames to 8-bit sRGB PNG")
+    e.add_argument("inputs", nargs="+", help="EXR files or directories")
+    e.add_argument("--out", required=True, help="output directory")
+    e.add_argument("--view", default="Standard", help="OCIO view (Standard = sRGB transfer; AgX = Blender's default)")
+    st = sub.add_parser("stereo", help="left/right views → side-by-side and red-cyan anaglyph")
+    st.add_argument("left", help="left-eye frame or directory")
+    st.add_argument("right", help="right-eye frame or directory")
+    st.add_argument("--out", required=True, help="output directory (sbs_*.png, anaglyph_*.png)")
+    m = sub.add_parser("movie", help="encode frames as H.264 MP4 (bundled ffmpeg)")
+    m.add_argument("inputs", nargs="+", help="frame files or directories")
+    m.add_argument("--out", required=True, help="output .mp4")
+    m.add_argument("--fps", type=float, default=24.0)
+    m.add_argument("--crf", type=int, default=18, help="x264 quality (lower = better, 18 ~ visually lossless)")
+    m.add_argument("--view", default="Standard", help="OCIO view for EXR frames")
+
+
+def run(args):
+    from . import post
+
+    if args.action == "contact-sheet":
+        if args.every < 1:
+            raise UsageError(f"--every must be >= 1, got {args.every}")
+        paths = frames_of(args.inputs)[:: args.every]
+        out = post.contact_sheet(paths, args.out, columns=args.columns, thumb_width=args.thumb_width, view=args.view)
+        print(f"contact sheet of {len(paths)} frames: {out}")
+    elif args.action == "exr2png":
+        out_dir = Path(args.out)
+        paths = [p for p in frames_of(args.inputs) if p.suffix.lower() == ".exr"]
+        if not paths:
+            raise DataError("no EXR files among the inputs")
+        for p in paths:
+            post.exr_to_png(p, out_dir / (p.stem + ".png"), view=args.view)
+        print(f"{len(paths)} PNG files in {out_dir}")
+    elif args.action == "stereo":
+        left, right = frames_of([args.left]), frames_of([args.right])
+        if len(left) != len(right):
+            raise DataError(f"{len(left)} left frames but {len(right)} right frames", path=args.right)
+        out_dir = Path(args.out)
+        for a, b in zip(left, right):
+            post.side_by_side(a, b, out_dir / f"sbs_{a.stem}.png")
+            post.anaglyph(a, b, out_dir / f"anaglyph_{a.stem}.png")
+        print(f"{len(left)} side-by-side and anaglyph frames in {out_dir}")
+    else:
+        paths = frames_of(args.inputs)
+        out = post.movie(paths, args.out, fps=args.fps, crf=args.crf, view=args.view)
+        print(f"movie of {len(paths)} frames at {args.fps:g} fps: {out}")
+    return 0
