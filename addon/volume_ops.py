@@ -1,0 +1,380 @@
+"""Volume-rendered clouds (Fig. 2): a VDB sequence on disk, a volume object, a material.
+
+"Add volume clouds" resamples every frame's model time into a sparse volume
+(:func:`nephele.core.volume.resample`: opacity from the transfer function,
+a second grid with the colour variable), writes one ``.vdb`` per frame
+(:mod:`.vdb`) and makes a Volume object whose ``is_sequence`` maps frames to
+files — Blender loads the sequence natively, so a farm render needs neither
+the add-on nor the frame handler.  The material is Principled Volume with
+density = the ``density`` grid × extinction and colour = the colour grid
+through ``Map Range → Color Ramp`` (the colour map's control points), so the
+colour map and extinction edit live; a changed transfer function (it is
+baked into the grid) needs a re-bake, which the panel offers.
+
+References
+----------
+.. [1] N. Max and R. Crawfis, "Advances in Scientific Visualization", Fig. 2.
+"""
+
+import json
+from pathlib import Path
+
+import bpy
+
+from ..core.cache import default_cache_dir
+from ..core.errors import DataError
+from ..core.transfer import ALTITUDE_COLORS, TEMPERATURE_COLORS, ColorMap, TransferFunction
+from ..core.volume import ALTITUDE, DEFAULT_EXTINCTION, DEFAULT_VOXEL_SIZE
+from . import data_ops, frame, materials
+from .vdb import bake_sequence
+
+KIND = "volume"
+OBJECT_NAME = "Nephele Clouds"
+COLOR_MAPS = {"altitude": ALTITUDE_COLORS, "temperature": TEMPERATURE_COLORS}
+"""Default colour map per colour variable (others: grey over the field's range)."""
+
+
+def default_color_map(color_var):
+    return COLOR_MAPS.get(color_var, ColorMap(points=((0.0, (0.6, 0.6, 0.65)), (1.0, (1.0, 1.0, 1.0)))))
+
+
+def volume_material(name, extinction, color_var, cmap, anisotropy=0.3):
+    """Principled Volume: density grid × ``extinction``, colour through ``cmap``.
+
+    Parameters
+    ----------
+    name : str
+    extinction : float
+        Extinction per scene unit at opacity 1.
+    color_var : str
+        The colour grid's name (``""``: a constant colour, ``cmap``'s first).
+    cmap : ColorMap
+    """
+    mat = bpy.data.materials.get(name) or bpy.data.materials.new(name)
+    tree = mat.node_tree
+    if tree is None:
+        mat.use_nodes = True
+        tree = mat.node_tree
+    tree.nodes.clear()
+    out = tree.nodes.new("ShaderNodeOutputMaterial")
+    out.location = (500, 0)
+    pv = tree.nodes.new("ShaderNodeVolumePrincipled")
+    pv.name = pv.label = "Nephele volume"
+    pv.location = (200, 0)
+    # The density grid (the transfer function's opacity) times the extinction.
+    pv.inputs["Density"].default_value = float(extinction)
+    pv.inputs["Density Attribute"].default_value = "density"
+    pv.inputs["Color Attribute"].default_value = ""
+    pv.inputs["Anisotropy"].default_value = float(anisotropy)
+    if color_var:
+        lo, hi = cmap.range
+        ramp = materials.attribute_ramp_nodes(tree, color_var, lo, hi, [(p, c) for p, c in cmap.normalized()],
+                                              location=(-500, 0))
+        tree.links.new(ramp.outputs["Color"], pv.inputs["Color"])
+    else:
+        pv.inputs["Color"].default_value = tuple(cmap.colors[0]) + (1.0,)
+    tree.links.new(pv.outputs["Volume"], out.inputs["Volume"])
+    return mat
+
+
+def _obj_params(obj):
+    p = frame.params(obj)
+    return p if p.get("kind") == KIND else None
+
+
+def refresh_material(obj):
+    """Rebuild ``obj``'s material from its stored parameters."""
+    p = _obj_params(obj)
+    if p is None:
+        return None
+    cmap = ColorMap.from_dict(p["cmap"])
+    mat = volume_material(f"{obj.name} material", p["extinction"], p.get("color_var", ""), cmap)
+    if not obj.data.materials:
+        obj.data.materials.append(mat)
+    else:
+        obj.data.materials[0] = mat
+    return mat
+
+
+def volume_dir(name, directory=None):
+    """Where a volume's sequence goes: ``directory``, else beside the .blend
+    (``<blend>_nephele_cache/volumes/<name>``), else the user cache."""
+    if directory:
+        return Path(bpy.path.abspath(directory))
+    return default_cache_dir(bpy.data.filepath or None) / "volumes" / bpy.path.clean_name(name)
+
+
+def add_volume_clouds(var="cloud", tf=None, *, source=None, color_var=ALTITUDE, cmap=None,
+                      voxel_size=DEFAULT_VOXEL_SIZE, extinction=DEFAULT_EXTINCTION, frames=None,
+                      directory=None, exaggeration=None, radius=None, scene=None, collection=None,
+                      name=OBJECT_NAME, progress=None):
+    """Bake a VDB sequence and add (or update) a volume object showing it.
+
+    Parameters
+    ----------
+    var : str
+        Field behind the opacity.
+    tf : TransferFunction, optional
+        Default: zero up to 0.3, rising to 1 at 1.
+    source : str, optional
+        Dataset; default: the scene's.
+    color_var : str
+        ``"altitude"``, another field, or ``""`` for one colour.
+    cmap : ColorMap, optional
+        Default: :data:`COLOR_MAPS` for the colour variable.
+    voxel_size, extinction : float
+        Scene units between voxels; extinction per scene unit at opacity 1.
+    frames : (first, last), optional
+        Default: the scene's frame range within the data's time span.
+    directory : str, optional
+        Default: :func:`volume_dir`.
+    exaggeration, radius : float, optional
+        Default: the scene's (the globe's).
+
+    Returns
+    -------
+    (bpy.types.Object, list of dict)
+        The object and the per-frame bake summaries (see
+        :func:`~nephele.addon.vdb.bake_sequence`).
+    """
+    scene = scene or bpy.context.scene
+    cfg = data_ops.settings(scene)
+    source = cfg["source"] if source is None else str(source)
+    tf = tf or TransferFunction.ramp(0.3, 1.0)
+    cmap = cmap or default_color_map(color_var)
+    ds = data_ops.dataset(source)
+    if var not in ds.variables:
+        raise DataError(f"no such variable (available: {', '.join(sorted(ds.variables))})", path=source, field=var)
+    if color_var and color_var != ALTITUDE and color_var not in ds.variables:
+        raise DataError(f"no such colour variable (available: altitude, {', '.join(sorted(ds.variables))})",
+                        path=source, field=color_var)
+    if frames is None:
+        d0, d1 = data_ops.frame_range_for(ds, cfg)
+        f0, f1 = max(scene.frame_start, d0), min(scene.frame_end, d1)
+        if f1 < f0:
+            f0, f1 = d0, d0
+    else:
+        f0, f1 = int(frames[0]), int(frames[1])
+        if f1 < f0:
+            raise DataError(f"last frame {f1} is before the first {f0}", field="frames")
+    params = {
+        "kind": KIND,
+        "source": source,
+        "var": var,
+        "tf": tf.to_dict(),
+        "cmap": cmap.to_dict(),
+        "color_var": color_var or "",
+        "voxel_size": float(voxel_size),
+        "extinction": float(extinction),
+        "exaggeration": cfg["exaggeration"] if exaggeration is None else float(exaggeration),
+        "radius": cfg["radius"] if radius is None else float(radius),
+        "frame_start": cfg["frame_start"],
+        "hours_per_frame": cfg["hours_per_frame"],
+        "frames": [f0, f1],
+    }
+    out_dir = volume_dir(name, directory)
+    prefix = "clouds"
+    infos = bake_sequence(params, range(f0, f1 + 1), out_dir, prefix, progress=progress)
+    # Drop files of an older, longer bake so the directory holds one sequence.
+    for stale in out_dir.glob(f"{prefix}_*.vdb"):
+        num = stale.stem.rsplit("_", 1)[-1]
+        if num.isdigit() and int(num) > len(infos):
+            stale.unlink()
+    first = infos[0]["path"]
+    vol = bpy.data.volumes.get(name) or bpy.data.volumes.new(name)
+    vol.filepath = bpy.path.relpath(first) if bpy.data.filepath else first
+    vol.is_sequence = len(infos) > 1
+    vol.frame_start = f0
+    vol.frame_duration = len(infos)
+    vol.frame_offset = 0
+    vol.sequence_mode = "EXTEND"
+    obj = bpy.data.objects.get(name)
+    if obj is None or obj.type != "VOLUME":
+        obj = bpy.data.objects.new(name, vol)
+    elif obj.data is not vol:
+        obj.data = vol
+    coll = collection or scene.collection
+    if obj.name not in coll.objects:
+        coll.objects.link(obj)
+    obj.location = (0.0, 0.0, 0.0)
+    obj.rotation_euler = (0.0, 0.0, 0.0)
+    obj.scale = (1.0, 1.0, 1.0)
+    params["directory"] = str(out_dir)
+    params["value_max"] = max((i["value_max"] for i in infos), default=float("nan"))
+    params["empty"] = all(i["active_voxels"] == 0 for i in infos)
+    frame.set_params(obj, params)
+    refresh_material(obj)
+    return obj, infos
+
+
+def eevee_volume_settings(scene, tile_size="2", samples=64):
+    """EEVEE renders volumes in screen-space froxels, 8 px wide by default:
+    far too coarse for clouds a few voxels thick.  Finer tiles, shadows on."""
+    ee = scene.eevee
+    ee.volumetric_tile_size = str(tile_size)
+    ee.volumetric_samples = int(samples)
+    ee.use_volumetric_shadows = True
+    return ee
+
+
+def empty_message(params):
+    """The warning for a bake with no cloud at all, or None."""
+    if not params.get("empty"):
+        return None
+    tf = TransferFunction.from_dict(params["tf"])
+    support = tf.support()
+    lo = support[0] if support else float("nan")
+    return (f"Volume is empty: the opacity is zero for every value of '{params['var']}' "
+            f"(threshold {lo:g}, largest value {params['value_max']:g} over frames "
+            f"{params['frames'][0]}-{params['frames'][1]}); lower the threshold and re-bake")
+
+
+# ---------------------------------------------------------------- the panel
+
+
+def _settings(scene):
+    return getattr(scene, "nephele_volume", None)
+
+
+def panel_tf(s):
+    """The transfer function the panel describes (custom JSON points win)."""
+    if s.tf_points.strip():
+        return TransferFunction(points=tuple(tuple(p) for p in json.loads(s.tf_points)))
+    return TransferFunction.ramp(s.threshold, s.full, s.opacity)
+
+
+def panel_cmap(s):
+    base = default_color_map(s.color_var)
+    if s.use_color_range:
+        lo, hi = base.range
+        span = hi - lo if hi > lo else 1.0
+        return ColorMap(points=tuple((s.color_min + (v - lo) / span * (s.color_max - s.color_min), c)
+                                     for v, c in base.points))
+    return base
+
+
+def _active_volumes(context):
+    return [o for o in context.scene.objects if o.type == "VOLUME" and _obj_params(o) is not None]
+
+
+def _on_material_change(self, context):
+    # Extinction and colours live in the material: edit without re-baking.
+    for obj in _active_volumes(context):
+        p = _obj_params(obj)
+        p["extinction"] = float(self.extinction)
+        if p.get("color_var", "") == self.color_var:
+            p["cmap"] = panel_cmap(self).to_dict()
+        frame.set_params(obj, p)
+        refresh_material(obj)
+
+
+def stale(context):
+    """True when the panel's transfer function or grids differ from the baked ones."""
+    s = _settings(context.scene)
+    objs = _active_volumes(context)
+    if s is None or not objs:
+        return False
+    p = _obj_params(objs[0])
+    try:
+        tf = panel_tf(s).to_dict()
+    except (ValueError, TypeError, DataError):
+        return True
+    return (tf != p["tf"] or s.var != p["var"] or abs(s.voxel_size - p["voxel_size"]) > 1e-12
+            or s.color_var != p.get("color_var", ""))
+
+
+class NephelePropsVolume(bpy.types.PropertyGroup):
+    var: bpy.props.StringProperty(name="Variable", default="cloud", description="Field behind the opacity")
+    threshold: bpy.props.FloatProperty(name="Threshold", default=0.3, description="Opacity is zero up to this value")
+    full: bpy.props.FloatProperty(name="Full at", default=1.0, description="Value where the opacity reaches its maximum")
+    opacity: bpy.props.FloatProperty(name="Opacity", default=1.0, min=0.0, description="Opacity at the full value")
+    tf_points: bpy.props.StringProperty(
+        name="TF points", default="",
+        description='Custom transfer function as JSON [[value, opacity], ...] (overrides threshold/full/opacity)',
+    )
+    color_var: bpy.props.StringProperty(name="Colour by", default=ALTITUDE,
+                                        description='"altitude", a field such as "temperature", or empty')
+    use_color_range: bpy.props.BoolProperty(name="Own colour range", default=False, update=_on_material_change)
+    color_min: bpy.props.FloatProperty(name="Colour min", default=0.0, update=_on_material_change)
+    color_max: bpy.props.FloatProperty(name="Colour max", default=12000.0, update=_on_material_change)
+    voxel_size: bpy.props.FloatProperty(name="Voxel size", default=DEFAULT_VOXEL_SIZE, min=1e-4, precision=4,
+                                        description="Scene units between voxels (globe radius 1)")
+    extinction: bpy.props.FloatProperty(name="Extinction", default=DEFAULT_EXTINCTION, min=0.0,
+                                        update=_on_material_change,
+                                        description="Extinction per scene unit at opacity 1")
+    directory: bpy.props.StringProperty(name="Directory", default="", subtype="DIR_PATH",
+                                        description="Where the .vdb sequence goes (empty: beside the .blend)")
+
+
+class NEPHELE_OT_add_volume_clouds(bpy.types.Operator):
+    """Resample the field into a VDB sequence (one file per frame) and show it as a volume"""
+
+    bl_idname = "nephele.add_volume_clouds"
+    bl_label = "Add volume clouds"
+    bl_options = {"REGISTER", "UNDO"}
+
+    def execute(self, context):
+        s = _settings(context.scene)
+        try:
+            tf = panel_tf(s)
+            obj, infos = add_volume_clouds(
+                s.var, tf, color_var=s.color_var, cmap=panel_cmap(s), voxel_size=s.voxel_size,
+                extinction=s.extinction, directory=s.directory or None, scene=context.scene,
+            )
+        except (DataError, ValueError, OSError, ImportError) as exc:
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        p = frame.params(obj)
+        msg = empty_message(p)
+        if msg:
+            self.report({"WARNING"}, msg)
+        else:
+            voxels = sum(i["active_voxels"] for i in infos)
+            self.report({"INFO"}, f"{len(infos)} VDB frames in {p['directory']}, {voxels} active voxels")
+        context.view_layer.objects.active = obj
+        return {"FINISHED"}
+
+
+class NEPHELE_PT_volume(bpy.types.Panel):
+    bl_label = "Volume clouds"
+    bl_idname = "NEPHELE_PT_volume"
+    bl_parent_id = "NEPHELE_PT_main"
+    bl_space_type = "VIEW_3D"
+    bl_region_type = "UI"
+    bl_category = "Nephele"
+    bl_options = {"DEFAULT_CLOSED"}
+
+    def draw(self, context):
+        layout = self.layout
+        s = _settings(context.scene)
+        if s is None:
+            return
+        col = layout.column()
+        col.prop(s, "var")
+        col.prop(s, "threshold")
+        col.prop(s, "full")
+        col.prop(s, "opacity")
+        col.prop(s, "tf_points")
+        col.prop(s, "color_var")
+        col.prop(s, "use_color_range")
+        if s.use_color_range:
+            row = col.row(align=True)
+            row.prop(s, "color_min")
+            row.prop(s, "color_max")
+        col.prop(s, "voxel_size")
+        col.prop(s, "extinction")
+        col.prop(s, "directory")
+        objs = _active_volumes(context)
+        if objs:
+            msg = empty_message(frame.params(objs[0]))
+            if msg:
+                layout.label(text="Volume is empty: lower the threshold", icon="ERROR")
+            if stale(context):
+                layout.label(text="Transfer function changed", icon="INFO")
+                layout.operator(NEPHELE_OT_add_volume_clouds.bl_idname, text="Re-bake volume")
+                return
+        layout.operator(NEPHELE_OT_add_volume_clouds.bl_idname)
+
+
+CLASSES = (NephelePropsVolume, NEPHELE_OT_add_volume_clouds, NEPHELE_PT_volume)
+SCENE_PROPERTIES = {"nephele_volume": NephelePropsVolume}

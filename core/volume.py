@@ -1,0 +1,637 @@
+"""Curvilinear globe fields resampled into sparse Cartesian block volumes (VDB-style).
+
+Blender renders volumes on regular grids; climate fields live on a
+longitude × latitude × terrain-following-level grid.  :func:`resample`
+bridges the two:
+
+* the field is defined everywhere by trilinear interpolation in the
+  curvilinear cell (:class:`CurvilinearField`): a Cartesian point is mapped
+  back analytically to longitude, latitude and height, the longitude and
+  latitude give the fractional column index (periodic longitude, the poles
+  closed by a ring of the last row's mean), and the level is found by
+  searching the column's bilinearly interpolated terrain-following heights;
+* only blocks of ``block``³ voxels (8³, OpenVDB's leaf nodes) that may have a
+  non-zero opacity are ever evaluated: grid cells whose value range meets the
+  transfer function's non-zero range give Cartesian bounding boxes, and those
+  give the block set — transparent space costs nothing, memory follows the
+  cloudy volume;
+* a voxel's density is the transfer function's opacity of the interpolated
+  value (NaN, outside the grid and below the terrain are empty); a second
+  grid carries a colour variable (or the altitude) for the colour map.
+
+Voxel index ``(a, b, c)`` sits at world position ``voxel_size * (a, b, c)``
+(OpenVDB's linear transform), block ``(A, B, C)`` holds indices
+``block*A .. block*A+block-1`` along each axis, arrays ordered ``[x, y, z]``.
+
+References
+----------
+.. [1] N. Max and R. Crawfis, "Advances in Scientific Visualization", Fig. 2.
+.. [2] K. Museth, "VDB: High-resolution sparse volumes with dynamic
+   topology", ACM Trans. Graph. 32(3), 2013 (8³ leaf nodes).
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import DataError
+from .grid import DEFAULT_EXAGGERATION, EARTH_RADIUS, globe_radius, height_from_radius, xyz_to_lonlat
+from .transfer import TransferFunction
+
+DEFAULT_VOXEL_SIZE = 0.004
+"""Scene units (the sea-level globe has radius 1): ~850 m of height at the
+default exaggeration, 25 km across.  Chosen by ``benchmarks/bench_volume.py``."""
+
+DEFAULT_EXTINCTION = 100.0
+"""Extinction per scene unit at opacity 1: a full cloud 0.01 units thick
+(~2 km at exaggeration 30) has optical depth 1."""
+
+ALTITUDE = "altitude"
+"""Colour-variable name meaning "the height above sea level in metres"."""
+
+
+@dataclass(frozen=True, eq=False)
+class CurvilinearField:
+    """Scalar fields on a globe grid, closed across the seam and the poles.
+
+    Build with :meth:`from_grid`.  ``lon`` (relative to ``lon0``, ascending
+    from 0), ``lat``, ``height`` ``(nk, nj, ni)`` and each array in ``values``
+    are the grid's, with a copy of the first column appended at +360° when
+    the longitudes are periodic, and a pole row (mean of the nearest row) at
+    ±90° when a periodic grid stops short of a pole.
+    """
+
+    lon0: float
+    lon: np.ndarray
+    lat: np.ndarray
+    height: np.ndarray
+    values: dict
+    radius: float
+    exaggeration: float
+
+    @classmethod
+    def from_grid(cls, grid, values, radius=1.0, exaggeration=DEFAULT_EXAGGERATION):
+        """``values``: dict name → ``(nk, nj, ni)`` array (NaN = missing)."""
+        grid.validate()
+        if not (np.isfinite(radius) and radius > 0 and np.isfinite(exaggeration) and exaggeration > 0):
+            raise DataError(f"radius {radius} and exaggeration {exaggeration} must be positive", field="exaggeration")
+        lon = grid.lon - grid.lon[0]
+        lat = grid.lat.copy()
+        height = grid.height.copy()
+        vals = {}
+        for name, a in values.items():
+            a = np.asarray(a, dtype=np.float32)
+            if a.shape != grid.shape:
+                raise DataError(f"shape {a.shape} does not match the grid {grid.shape}", field=name)
+            vals[name] = a
+        if grid.periodic_lon:
+            lon = np.append(lon, 360.0)
+            height = np.concatenate([height, height[:, :, :1]], axis=2)
+            vals = {n: np.concatenate([a, a[:, :, :1]], axis=2) for n, a in vals.items()}
+            # Close the poles: a ring at ±90° holding the nearest row's mean, so
+            # the field is continuous over the pole instead of a hole.
+            for side, pole in ((0, -90.0), (-1, 90.0)):
+                if (lat[0] > -90.0) if side == 0 else (lat[-1] < 90.0):
+                    ring_h = np.broadcast_to(height[:, side, :-1].mean(axis=1)[:, None], height[:, 0].shape)
+                    rings = {}
+                    for n, a in vals.items():
+                        row = a[:, side, :-1]
+                        with np.errstate(invalid="ignore"):
+                            m = np.where(np.isnan(row).any(axis=1), np.nan, row.mean(axis=1, dtype=np.float64))
+                        rings[n] = np.broadcast_to(m[:, None], a[:, 0].shape).astype(np.float32)
+                    if side == 0:
+                        lat = np.concatenate([[pole], lat])
+                        height = np.concatenate([ring_h[:, None], height], axis=1)
+                        vals = {n: np.concatenate([rings[n][:, None], a], axis=1) for n, a in vals.items()}
+                    else:
+                        lat = np.append(lat, pole)
+                        height = np.concatenate([height, ring_h[:, None]], axis=1)
+                        vals = {n: np.concatenate([a, rings[n][:, None]], axis=1) for n, a in vals.items()}
+        if np.any(np.diff(height, axis=0) <= 0):
+            raise DataError("levels are not strictly increasing upward", field="height")
+        return cls(float(grid.lon[0]), lon, lat, height, vals, float(radius), float(exaggeration))
+
+    @property
+    def shape(self):
+        return self.height.shape
+
+    def radius_range(self):
+        """Smallest radius of the lowest level and largest of the top level."""
+        return (
+            float(globe_radius(self.height[0].min(), self.radius, self.exaggeration)),
+            float(globe_radius(self.height[-1].max(), self.radius, self.exaggeration)),
+        )
+
+    def locate(self, xyz, levels=None):
+        """Cell and fractions of Cartesian points.
+
+        Parameters
+        ----------
+        xyz : (n, 3) array
+        levels : (kmin, kmax) pair of ``(nj-1, ni-1)`` int arrays, optional
+            Per column, the only cells worth locating (``kmin > kmax`` for
+            none); points elsewhere come back with ``ok`` False.  Used by
+            :func:`resample` to skip transparent cells.
+
+        Returns
+        -------
+        flat : (n,) int
+            Flat index of each point's cell's lowest corner in ``(nk, nj, ni)``.
+        f : (n, 3)
+            Fractions along (level, lat, lon).
+        h : (n,)
+            Height in metres.
+        ok : (n,) bool
+            Inside the grid (and the ``levels``).  Other rows hold arbitrary
+            in-range indices.
+        """
+        xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
+        lon, lat, r = xyz_to_lonlat(xyz)
+        h = height_from_radius(r, self.radius, self.exaggeration)
+        nk, nj, ni = self.shape
+        x = np.mod(lon - self.lon0, 360.0)
+        i = _axis_index(self.lon, x)
+        fi = (x - self.lon[i]) / (self.lon[i + 1] - self.lon[i])
+        j = _axis_index(self.lat, lat)
+        fj = (lat - self.lat[j]) / (self.lat[j + 1] - self.lat[j])
+        ok = (fi >= 0) & (fi <= 1) & (fj >= 0) & (fj <= 1)
+        if levels is None:
+            k0 = np.zeros(h.shape, dtype=np.intp)
+            k1 = np.full(h.shape, nk - 2, dtype=np.intp)
+        else:
+            k0 = levels[0][j, i].astype(np.intp)
+            k1 = levels[1][j, i].astype(np.intp)
+            ok &= k0 <= k1
+        fk = np.zeros(h.shape)
+        flat = j * ni + i
+        sel = np.flatnonzero(ok)
+        ok[:] = False
+        if sel.size:
+            fi_s = np.clip(fi[sel], 0.0, 1.0)
+            fj_s = np.clip(fj[sel], 0.0, 1.0)
+            h_s = h[sel]
+            col = flat[sel]
+            hf = self.height.reshape(-1)
+            w = ((1 - fj_s) * (1 - fi_s), (1 - fj_s) * fi_s, fj_s * (1 - fi_s), fj_s * fi_s)
+            corners = (col, col + 1, col + ni, col + ni + 1)
+            layer = nj * ni
+
+            def column_height(level):
+                base = level * layer
+                return w[0] * hf[base + corners[0]] + w[1] * hf[base + corners[1]] + w[2] * hf[base + corners[2]] + w[3] * hf[base + corners[3]]
+
+            lo, hi = k0[sel], k1[sel] + 1
+            inside = (h_s >= column_height(lo)) & (h_s <= column_height(hi))
+            # Binary search of the level: heights increase upward in every
+            # column, so the bilinear mix of four columns does too.
+            while True:
+                open_ = hi - lo > 1
+                if not open_.any():
+                    break
+                mid = (lo + hi) // 2
+                go = column_height(mid) <= h_s
+                lo = np.where(open_ & go, mid, lo)
+                hi = np.where(open_ & ~go, mid, hi)
+            h0, h1 = column_height(lo), column_height(lo + 1)
+            fk[sel] = np.clip((h_s - h0) / (h1 - h0), 0.0, 1.0)
+            fi[sel], fj[sel] = fi_s, fj_s
+            flat[sel] = lo * layer + col
+            ok[sel] = inside
+        return flat, np.stack([fk, np.clip(fj, 0, 1), np.clip(fi, 0, 1)], axis=1), h, ok
+
+    def interpolate(self, name, flat, f, ok):
+        """Trilinear value of field ``name`` at located points; NaN outside or
+        where a corner of the cell is missing."""
+        a = self.values[name].reshape(-1)
+        nk, nj, ni = self.shape
+        fk, fj, fi = f[:, 0], f[:, 1], f[:, 2]
+        out = np.zeros(flat.shape, dtype=np.float64)
+        for dk in (0, 1):
+            wk = fk if dk else 1 - fk
+            for dj in (0, 1):
+                wj = fj if dj else 1 - fj
+                for di in (0, 1):
+                    wi = fi if di else 1 - fi
+                    out += (wk * wj * wi) * a[flat + dk * nj * ni + dj * ni + di]
+        out[~ok] = np.nan
+        return out
+
+    def sample(self, name, xyz):
+        """Field ``name`` at Cartesian points (NaN outside the grid or missing)."""
+        flat, f, _, ok = self.locate(xyz)
+        return self.interpolate(name, flat, f, ok)
+
+    def cell_corner_points(self):
+        """Cartesian vertices ``(nk, nj, ni, 3)`` of the closed grid."""
+        r = globe_radius(self.height, self.radius, self.exaggeration)
+        lam = np.deg2rad(self.lon + self.lon0)[None, None, :]
+        phi = np.deg2rad(self.lat)[None, :, None]
+        cphi = np.cos(phi)
+        return np.stack(np.broadcast_arrays(r * cphi * np.cos(lam), r * cphi * np.sin(lam), r * np.sin(phi)), axis=-1)
+
+
+def _axis_index(axis, x):
+    """``searchsorted(axis, x, "right") - 1`` clipped to ``[0, n-2]``, by
+    arithmetic on a nearly uniform axis with a correction step each way."""
+    n = axis.size
+    step = (axis[-1] - axis[0]) / (n - 1)
+    i = np.clip(np.floor((x - axis[0]) / step).astype(np.intp), 0, n - 2)
+    for _ in range(2):
+        i = np.where((x < axis[i]) & (i > 0), i - 1, i)
+        i = np.where((x >= axis[i + 1]) & (i < n - 2), i + 1, i)
+    bad = ((x < axis[i]) & (i > 0)) | ((x >= axis[i + 1]) & (i < n - 2))
+    if bad.any():
+        i[bad] = np.clip(np.searchsorted(axis, x[bad], side="right") - 1, 0, n - 2)
+    return i
+
+
+@dataclass(eq=False)
+class SparseVolume:
+    """Blocks of voxels: the output of :func:`resample`.
+
+    Attributes
+    ----------
+    voxel_size : float
+        Scene units between voxel centres.
+    block : int
+        Voxels per block edge (8).
+    blocks : (n, 3) int32
+        Block coordinates; voxel index = ``block * blocks[b] + local``.
+    density : (n, block, block, block) float32
+        Opacity from the transfer function, axes ``[x, y, z]``.
+    color : (n, block, block, block) float32 or None
+        The colour variable, NaN replaced by 0.
+    color_name : str or None
+    stats : dict
+        ``candidate_cells``, ``candidate_blocks``, ``blocks``, ``active_voxels``,
+        ``bytes`` of the kept arrays.
+    """
+
+    voxel_size: float
+    block: int
+    blocks: np.ndarray
+    density: np.ndarray
+    color: np.ndarray = None
+    color_name: str = None
+    stats: dict = None
+
+    @property
+    def empty(self):
+        return self.blocks.shape[0] == 0
+
+    def arrays(self):
+        """Plain arrays for ``np.savez`` / the cache (no pickle)."""
+        out = {
+            "voxel_size": np.float64(self.voxel_size),
+            "block": np.int64(self.block),
+            "blocks": self.blocks,
+            "density": self.density,
+        }
+        if self.color is not None:
+            out["color"] = self.color
+        return out
+
+    @classmethod
+    def from_arrays(cls, d, color_name=None):
+        return cls(
+            float(d["voxel_size"]), int(d["block"]), np.asarray(d["blocks"]), np.asarray(d["density"]),
+            np.asarray(d["color"]) if "color" in d else None, color_name, {},
+        )
+
+    def bounds(self):
+        """World-space ``(min, max)`` corners of the voxel centres, or None if empty."""
+        if self.empty:
+            return None
+        lo = self.blocks.min(axis=0) * self.block
+        hi = (self.blocks.max(axis=0) + 1) * self.block - 1
+        return lo * self.voxel_size, hi * self.voxel_size
+
+    def sample(self, xyz, grid="density"):
+        """Trilinear interpolation between voxel centres (zero outside blocks)."""
+        data = self.density if grid == "density" else self.color
+        xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
+        out = np.zeros(xyz.shape[0])
+        if self.empty:
+            return out
+        B = self.block
+        u = xyz / self.voxel_size
+        base = np.floor(u).astype(np.int64)
+        f = u - base
+        keys = _block_keys(self.blocks)
+        order = np.argsort(keys)
+        skeys = keys[order]
+        flat = data.reshape(data.shape[0], -1)
+        for dx in (0, 1):
+            for dy in (0, 1):
+                for dz in (0, 1):
+                    idx = base + (dx, dy, dz)
+                    blk = np.floor_divide(idx, B)
+                    loc = idx - blk * B
+                    k = _block_keys(blk)
+                    pos = np.clip(np.searchsorted(skeys, k), 0, skeys.size - 1)
+                    hit = skeys[pos] == k
+                    v = np.where(hit, flat[order[pos], (loc[:, 0] * B + loc[:, 1]) * B + loc[:, 2]], 0.0)
+                    w = (f[:, 0] if dx else 1 - f[:, 0]) * (f[:, 1] if dy else 1 - f[:, 1]) * (f[:, 2] if dz else 1 - f[:, 2])
+                    out += w * v
+        return out
+
+
+_KEY_OFFSET = 1 << 20
+
+
+def _block_keys(b):
+    """One int64 per block coordinate triple (|coordinate| < 2**20)."""
+    b = np.asarray(b, dtype=np.int64) + _KEY_OFFSET
+    return (b[..., 0] << 42) | (b[..., 1] << 21) | b[..., 2]
+
+
+def _keys_to_blocks(k):
+    m = (1 << 21) - 1
+    return (np.stack([(k >> 42) & m, (k >> 21) & m, k & m], axis=-1) - _KEY_OFFSET).astype(np.int32)
+
+
+def candidate_blocks(field, name, tf, voxel_size, block=8):
+    """Blocks that may hold a non-zero opacity, and the candidate cells.
+
+    Returns ``(blocks (n, 3) int32, cells (nk-1, nj-1, ni-1) bool)``.
+
+    A cell can be non-zero only when its corner values' range meets the
+    transfer function's open non-zero range (trilinear values stay within the
+    corners' range); its Cartesian bounding box, padded by how far the
+    curved faces bulge past the corners, bounds its voxels.
+    """
+    support = tf.support()
+    v = field.values[name]
+    if support is None:
+        return np.zeros((0, 3), np.int32), np.zeros(tuple(n - 1 for n in v.shape), bool)
+    lo, hi = support
+    cmax = v[:-1, :-1, :-1]
+    cmin = cmax
+    for dk in (0, 1):
+        for dj in (0, 1):
+            for di in (0, 1):
+                if dk or dj or di:
+                    s = v[dk : v.shape[0] - 1 + dk, dj : v.shape[1] - 1 + dj, di : v.shape[2] - 1 + di]
+                    cmax = np.maximum(cmax, s)  # NaN propagates: cells touching NaN drop out
+                    cmin = np.minimum(cmin, s)
+    with np.errstate(invalid="ignore"):
+        cand = (cmax > lo) & (cmin < hi)
+    kk, jj, ii = np.nonzero(cand)
+    if kk.size == 0:
+        return np.zeros((0, 3), np.int32), cand
+    pts = field.cell_corner_points()
+    bmin = np.full((kk.size, 3), np.inf)
+    bmax = np.full((kk.size, 3), -np.inf)
+    for dk in (0, 1):
+        for dj in (0, 1):
+            for di in (0, 1):
+                p = pts[kk + dk, jj + dj, ii + di]
+                np.minimum(bmin, p, out=bmin)
+                np.maximum(bmax, p, out=bmax)
+    # Faces between corners are arcs: pad by the sagitta of the widest arc.
+    dang = np.deg2rad(max(np.diff(field.lon).max(), np.diff(field.lat).max()))
+    rmax = field.radius_range()[1]
+    pad = rmax * (1 - np.cos(dang / 2)) + 1e-9
+    first = np.ceil((bmin - pad) / voxel_size).astype(np.int64)
+    last = np.floor((bmax + pad) / voxel_size).astype(np.int64)
+    b0 = np.floor_divide(first, block)
+    b1 = np.floor_divide(last, block)
+    span = b1 - b0
+    lo = b0.min(axis=0)
+    shape = tuple(int(n) for n in b1.max(axis=0) - lo + 1)
+    # Mark blocks in a dense boolean grid of blocks when it is small (sorted
+    # and duplicate-free for free), else collect keys and sort them.
+    mark = np.zeros(shape, bool) if np.prod(shape, dtype=np.float64) <= 64e6 else None
+    keys = []
+    for ox in range(int(span[:, 0].max()) + 1):
+        for oy in range(int(span[:, 1].max()) + 1):
+            for oz in range(int(span[:, 2].max()) + 1):
+                off = np.array([ox, oy, oz])
+                sel = np.all(span >= off, axis=1)
+                if not sel.any():
+                    continue
+                if mark is not None:
+                    b = b0[sel] + (off - lo)
+                    mark[b[:, 0], b[:, 1], b[:, 2]] = True
+                else:
+                    keys.append(_block_keys(b0[sel] + off))
+    if mark is not None:
+        return (np.argwhere(mark) + lo).astype(np.int32), cand
+    return _keys_to_blocks(np.unique(np.concatenate(keys))), cand
+
+
+def resample(
+    grid,
+    values,
+    tf,
+    *,
+    voxel_size=DEFAULT_VOXEL_SIZE,
+    color_values=None,
+    color_name=None,
+    radius=1.0,
+    exaggeration=DEFAULT_EXAGGERATION,
+    block=8,
+    chunk_blocks=256,
+    workers=1,
+):
+    """Resample one time step into a sparse block volume of opacity (and colour).
+
+    Parameters
+    ----------
+    grid : GlobeGrid
+    values : (nk, nj, ni) array
+        The scalar behind the opacity (cloudiness); NaN = missing.
+    tf : TransferFunction
+        Opacity of the scalar; zero below its threshold.
+    voxel_size : float
+        Scene units between voxel centres.
+    color_values : (nk, nj, ni) array, optional
+        Second variable carried in the ``color`` grid.
+    color_name : str, optional
+        Its name; :data:`ALTITUDE` (``"altitude"``) stores each voxel's
+        height in metres instead (``color_values`` then unused).
+    radius, exaggeration : float
+        The globe mapping, as in :meth:`GlobeGrid.points`.
+    block : int
+        Voxels per block edge.
+    chunk_blocks : int
+        Blocks evaluated per batch (bounds the temporary memory).
+    workers : int
+        Threads evaluating batches (numpy releases the GIL in most of it).
+
+    Returns
+    -------
+    SparseVolume
+        Only blocks with some non-zero opacity.
+
+    References
+    ----------
+    .. [1] N. Max and R. Crawfis, "Advances in Scientific Visualization", Fig. 2.
+    """
+    if not isinstance(tf, TransferFunction):
+        raise DataError(f"needs a TransferFunction, got {type(tf).__name__}", field="transfer function")
+    if not (np.isfinite(voxel_size) and voxel_size > 0):
+        raise DataError(f"must be a positive number of scene units, got {voxel_size}", field="voxel_size")
+    if int(block) < 1:
+        raise DataError(f"must be >= 1, got {block}", field="block")
+    block = int(block)
+    arrays = {"value": values}
+    if color_name is not None and color_name != ALTITUDE:
+        if color_values is None:
+            raise DataError("color_values are needed for a colour variable other than altitude", field=color_name)
+        arrays["color"] = color_values
+    field = CurvilinearField.from_grid(grid, arrays, radius, exaggeration)
+    # Blocks further out than the whole globe would overflow the block keys.
+    if field.radius_range()[1] / (voxel_size * block) > (_KEY_OFFSET - 2):
+        raise DataError(f"voxel size {voxel_size} is too small for a globe of radius {radius}", field="voxel_size")
+    # Evaluate in sub-blocks half a block wide (a thin cloud layer fills few
+    # of them), then gather the non-empty ones into whole blocks.
+    sub = block // 2 if block % 2 == 0 and block >= 4 else block
+    blocks, cells = candidate_blocks(field, "value", tf, voxel_size, sub)
+    ncells = int(np.count_nonzero(cells))
+    # Per column, the range of candidate levels: points elsewhere are transparent.
+    nkc = cells.shape[0]
+    has = cells.any(axis=0)
+    levels = (
+        np.where(has, np.argmax(cells, axis=0), 1),
+        np.where(has, nkc - 1 - np.argmax(cells[::-1], axis=0), 0),
+    )
+    n = blocks.shape[0]
+    local = np.indices((sub,) * 3).reshape(3, -1).T
+    with_color = color_name is not None
+
+    def run(start):
+        b = blocks[start : start + chunk_blocks].astype(np.int64)
+        idx = (b[:, None, :] * sub + local[None]).reshape(-1, 3)
+        flat, f, h, ok = field.locate(idx * voxel_size, levels)
+        dens = np.zeros(idx.shape[0], dtype=np.float32)
+        col = np.zeros(idx.shape[0], dtype=np.float32) if with_color else None
+        if ok.any():
+            sel = np.flatnonzero(ok)
+            inside = np.ones(sel.size, bool)
+            dens[sel] = np.nan_to_num(tf(field.interpolate("value", flat[sel], f[sel], inside)), nan=0.0)
+            if color_name == ALTITUDE:
+                col[sel] = h[sel]
+            elif with_color:
+                col[sel] = np.nan_to_num(field.interpolate("color", flat[sel], f[sel], inside), nan=0.0)
+        dens = dens.reshape(-1, sub, sub, sub)
+        keep = dens.reshape(dens.shape[0], -1).max(axis=1) > 0
+        return b[keep], dens[keep], None if col is None else col.reshape(-1, sub, sub, sub)[keep]
+
+    starts = list(range(0, n, chunk_blocks))
+    if workers > 1 and len(starts) > 1:
+        from concurrent.futures import ThreadPoolExecutor
+
+        with ThreadPoolExecutor(max_workers=int(workers)) as ex:
+            parts = list(ex.map(run, starts))
+    else:
+        parts = [run(s) for s in starts]
+    sb = np.concatenate([p[0] for p in parts]) if parts else np.zeros((0, 3), np.int64)
+    keys, inverse = np.unique(_block_keys(np.floor_divide(sb, block // sub)), return_inverse=True)
+    kb = _keys_to_blocks(keys)
+    kd = np.zeros((keys.size, block, block, block), np.float32)
+    kc = np.zeros_like(kd) if with_color else None
+    if sb.shape[0]:
+        inverse = inverse.reshape(-1)
+        off = (sb - np.floor_divide(sb, block // sub) * (block // sub)) * sub
+        sd = np.concatenate([p[1] for p in parts])
+        sc = np.concatenate([p[2] for p in parts]) if with_color else None
+        r = np.arange(sub)
+        # Scatter every sub-block into its block with one fancy assignment.
+        ix = (off[:, 0, None] + r)[:, :, None, None]
+        iy = (off[:, 1, None] + r)[:, None, :, None]
+        iz = (off[:, 2, None] + r)[:, None, None, :]
+        ib = inverse[:, None, None, None]
+        kd[ib, ix, iy, iz] = sd
+        if with_color:
+            kc[ib, ix, iy, iz] = sc
+    stats = {
+        "candidate_cells": ncells,
+        "candidate_blocks": int(n),
+        "blocks": int(kb.shape[0]),
+        "active_voxels": int(np.count_nonzero(kd)),
+        "voxels": int(kb.shape[0]) * block**3,
+        "bytes": int(kd.nbytes + (kc.nbytes if kc is not None else 0) + kb.nbytes),
+    }
+    return SparseVolume(float(voxel_size), block, kb, kd, kc, color_name, stats)
+
+
+def frame_params(obj_params, frame):
+    """The inputs of the volume an object with ``obj_params`` shows at ``frame``.
+
+    ``obj_params`` keys: ``source``, ``var``, ``tf`` (a
+    :meth:`TransferFunction.to_dict`), optionally ``color_var`` (a field
+    name, ``"altitude"`` or ``""`` for none), ``voxel_size``,
+    ``exaggeration``, ``radius``, ``frame_start``, ``hours_per_frame``.
+    The model time is interpolated linearly between steps and clamped to the
+    data; it is rounded to 1e-6 h so equal frames share a cache entry.
+    """
+    from .cache import source_stamp
+    from .contour_task import frame_hours, open_source
+
+    missing = [k for k in ("source", "var", "tf") if k not in obj_params]
+    if missing:
+        raise DataError(f"volume parameters lack {missing}", field="volume")
+    source = str(obj_params["source"])
+    ds = open_source(source)
+    hours = frame_hours(frame, obj_params.get("frame_start", 1), obj_params.get("hours_per_frame", 1.0),
+                        last_hour=float(ds.hours[-1]))
+    return {
+        "source": source,
+        "stamp": source_stamp(source),
+        "var": str(obj_params["var"]),
+        "hours": round(hours, 6),
+        "tf": TransferFunction.from_dict(obj_params["tf"]).to_dict(),
+        "color_var": str(obj_params.get("color_var", ALTITUDE) or ""),
+        "voxel_size": float(obj_params.get("voxel_size", DEFAULT_VOXEL_SIZE)),
+        "exaggeration": float(obj_params.get("exaggeration", DEFAULT_EXAGGERATION)),
+        "radius": float(obj_params.get("radius", 1.0)),
+    }
+
+
+def _volume_task(params):
+    """Task ``"volume"``: :func:`resample` of one model time (params from
+    :func:`frame_params`).  Arrays of :meth:`SparseVolume.arrays` plus
+    ``value_max``, the largest finite value of the field at that time."""
+    from .contour_task import open_source
+
+    ds = open_source(params["source"])
+    values = ds.read_at(params["var"], params["hours"])
+    color_var = params.get("color_var") or None
+    color_values = None if color_var in (None, ALTITUDE) else ds.read_at(color_var, params["hours"])
+    vol = resample(
+        ds.grid, values, TransferFunction.from_dict(params["tf"]), voxel_size=params["voxel_size"],
+        color_values=color_values, color_name=color_var, radius=params["radius"],
+        exaggeration=params["exaggeration"],
+    )
+    out = vol.arrays()
+    finite = values[np.isfinite(values)]
+    out["value_max"] = np.float64(finite.max() if finite.size else np.nan)
+    return out
+
+
+def _register_task():
+    from .tasks import task
+
+    task("volume")(_volume_task)
+
+
+_register_task()
+
+
+def height_scale(exaggeration=DEFAULT_EXAGGERATION, radius=1.0):
+    """Scene units per metre of height."""
+    return radius * exaggeration / EARTH_RADIUS
+
+
+__all__ = [
+    "ALTITUDE",
+    "DEFAULT_EXTINCTION",
+    "DEFAULT_VOXEL_SIZE",
+    "CurvilinearField",
+    "SparseVolume",
+    "candidate_blocks",
+    "frame_params",
+    "height_scale",
+    "resample",
+]

@@ -1,0 +1,115 @@
+"""``nephele volume FILE --var cloud --out DIR``: write a VDB sequence, one file per model time step.
+
+The files (``DIR/clouds_0001.vdb`` …, step 0 in file 1) load natively in
+Blender as a volume sequence, so a farm needs neither the add-on nor this
+command at render time; ``DIR/sequence.json`` records how they were made.
+"""
+
+import json
+import os
+import sys
+import tempfile
+from pathlib import Path
+
+from .cli import UsageError
+
+HELP = "resample a variable into a sparse VDB volume sequence (one .vdb per time step) for Blender"
+
+
+def add_arguments(p):
+    p.add_argument("source", metavar="FILE", help='dataset: "demo", "demo:small", a NetCDF .nc or a GrADS .ctl file')
+    p.add_argument("--var", default="cloud", metavar="NAME", help="variable behind the opacity (default cloud)")
+    p.add_argument("--out", required=True, metavar="DIR", help="directory for the .vdb files")
+    p.add_argument("--threshold", type=float, default=0.3, help="opacity is zero up to this value (default 0.3)")
+    p.add_argument("--full", type=float, default=1.0, help="value where the opacity reaches --opacity (default 1)")
+    p.add_argument("--opacity", type=float, default=1.0, help="opacity at --full (default 1)")
+    p.add_argument("--tf", metavar="JSON", help='custom transfer function [[value, opacity], ...] (overrides the ramp)')
+    p.add_argument("--color-var", default="altitude", metavar="NAME",
+                   help='second grid: "altitude" (default), a variable such as temperature, or "" for none')
+    p.add_argument("--voxel-size", type=float, metavar="S", help="scene units between voxels (default 0.004)")
+    p.add_argument("--exaggeration", type=float, metavar="E", help="vertical exaggeration (default 30)")
+    p.add_argument("--radius", type=float, default=1.0, help="sea-level radius in scene units (default 1)")
+    p.add_argument("--steps", metavar="A-B", help="time steps to write, e.g. 0-23 (default: all)")
+    p.add_argument("--prefix", default="clouds", help="file name prefix (default clouds)")
+    p.add_argument("--quiet", action="store_true", help="no progress lines")
+
+
+def _steps(text, nt):
+    if not text:
+        return 0, nt - 1
+    try:
+        a, _, b = text.partition("-")
+        first, last = int(a), int(b or a)
+    except ValueError:
+        raise UsageError(f"--steps must look like A-B, got {text!r}") from None
+    if not (0 <= first <= last < nt):
+        raise UsageError(f"--steps {text} is outside 0-{nt - 1}")
+    return first, last
+
+
+def run(args):
+    import numpy as np
+
+    from ..core.contour_task import open_source
+    from ..core.errors import DataError
+    from ..core.grid import DEFAULT_EXAGGERATION
+    from ..core.transfer import TransferFunction
+    from ..core.volume import DEFAULT_VOXEL_SIZE
+
+    voxel = DEFAULT_VOXEL_SIZE if args.voxel_size is None else args.voxel_size
+    exaggeration = DEFAULT_EXAGGERATION if args.exaggeration is None else args.exaggeration
+    if not (np.isfinite(voxel) and voxel > 0):
+        raise UsageError(f"--voxel-size must be > 0, got {voxel}")
+    if not (np.isfinite(exaggeration) and exaggeration > 0):
+        raise UsageError(f"--exaggeration must be > 0, got {exaggeration}")
+    if not args.radius > 0:
+        raise UsageError(f"--radius must be > 0, got {args.radius}")
+    if not args.prefix or os.sep in args.prefix:
+        raise UsageError(f"--prefix must be a plain file name prefix, got {args.prefix!r}")
+    try:
+        if args.tf:
+            tf = TransferFunction.from_dict({"points": json.loads(args.tf)})
+        else:
+            tf = TransferFunction.ramp(args.threshold, args.full, args.opacity)
+    except (DataError, json.JSONDecodeError, TypeError) as exc:
+        raise UsageError(f"bad transfer function: {exc}") from None
+
+    ds = open_source(args.source)
+    if args.var not in ds.variables:
+        raise DataError(f"no such variable (available: {', '.join(sorted(ds.variables))})", path=args.source,
+                        field=args.var)
+    color_var = args.color_var or ""
+    if color_var and color_var != "altitude" and color_var not in ds.variables:
+        raise DataError(f"no such colour variable (available: altitude, {', '.join(sorted(ds.variables))})",
+                        path=args.source, field=color_var)
+    first, last = _steps(args.steps, ds.times.size)
+    # Frame k (1-based) shows step first + k - 1: frames advance one step each.
+    step_hours = float(np.median(np.diff(ds.hours))) if ds.hours.size > 1 else 1.0
+    params = {
+        "source": args.source, "var": args.var, "tf": tf.to_dict(), "color_var": color_var, "voxel_size": voxel,
+        "exaggeration": exaggeration, "radius": args.radius,
+        "frame_start": 1 - first, "hours_per_frame": step_hours,
+    }
+    from ..addon.vdb import bake_sequence
+
+    out = Path(args.out)
+
+    def progress(i, n, info):
+        if not args.quiet:
+            print(f"[{i}/{n}] {Path(info['path']).name}: {info['hours']:g} h, {info['blocks']} blocks, "
+                  f"{info['active_voxels']} active voxels ({info['seconds']:.2f} s)", file=sys.stderr)
+
+    infos = bake_sequence(params, range(1, last - first + 2), out, args.prefix, progress=progress)
+    meta = dict(params, steps=[first, last], files=[Path(i["path"]).name for i in infos],
+                value_max=max(i["value_max"] for i in infos), grids=["density"] + ([color_var] if color_var else []))
+    fd, tmp = tempfile.mkstemp(dir=out, prefix=".sequence.", suffix=".json")
+    with os.fdopen(fd, "w") as f:
+        json.dump(meta, f, indent=1)
+    os.replace(tmp, out / "sequence.json")
+    voxels = sum(i["active_voxels"] for i in infos)
+    print(f"{out}: {len(infos)} VDB files ({args.prefix}_0001.vdb ...), {voxels} active voxels")
+    if voxels == 0:
+        lo = tf.support()[0] if tf.support() else float("nan")
+        print(f"nephele volume: warning: every volume is empty (threshold {lo:g}, largest {args.var} "
+              f"{meta['value_max']:g})", file=sys.stderr)
+    return 0
