@@ -148,7 +148,11 @@ def sample_relief(lon, lat, relief=None):
     fx = x - i0
     i0 %= ni
     i1 = (i0 + 1) % ni
-    y = np.interp(lat, glat, np.arange(nj, dtype=np.float64))
+    dlat = np.diff(glat)
+    if np.allclose(dlat, dlat[0], rtol=1e-6):  # evenly spaced: no search needed
+        y = np.clip((lat - glat[0]) / dlat[0], 0.0, nj - 1.0)
+    else:
+        y = np.interp(lat, glat, np.arange(nj, dtype=np.float64))
     j0 = np.minimum(np.floor(y).astype(np.intp), nj - 2)
     fy = y - j0
     top = z[j0, i0] * (1.0 - fx) + z[j0, i1] * fx

@@ -13,30 +13,41 @@ sphere: the position at time ``t`` of the air parcel that was at ``a`` at
 ``t = 0`` (``X_k(a, 0) = a``).  It is a composition of invertible closed-form
 maps,
 
-``X_k(·, t) = V_N ∘ … ∘ V_1 ∘ Z``
+``X_k(·, t) = Z_t ∘ W_N ∘ … ∘ W_1``,   ``W_i = Z_{s_i}⁻¹ ∘ V_i(t) ∘ Z_{s_i}``
 
-* ``Z`` — zonal differential rotation about the polar axis by
-  ``Θ_k(φ, t)``: westerly jets in mid-latitudes, easterlies in the tropics,
-  with strengths that oscillate in time.  Latitude is unchanged by ``Z``, so
-  ``Z⁻¹`` is the rotation by ``−Θ_k(φ, t)``.
-* ``V_i`` — a vortex "twist": rotation about a fixed axis ``c_i`` by
-  ``ψ_i = g_k Γ_i S((t − t_i)/L_i) P(ρ/ρ_i)`` where ``ρ = |p − c_i|`` is the
-  chord distance from the centre (kept by the rotation, so ``V_i⁻¹`` is the
-  rotation by ``−ψ_i``), ``P(s) = (1 − s²)³`` for ``s < 1`` (compact, C²),
-  ``S`` the C² smootherstep from 0 to 1: each storm spins up over
-  ``L_i`` = 1–3 days from its birth ``t_i`` and leaves its twist in place.
+* ``Z_t`` — zonal differential rotation about the polar axis by
+  ``j_k Θ(φ, t)``: westerly jets near 38 °N and 47 °S, easterlies in the
+  tropics and near the poles, strengths oscillating in time (periods of 3–6
+  days), ``j_k`` peaking near 11 km.  ``Θ`` is tabulated in ``z = sin φ`` and
+  interpolated linearly, the same way for the map and its inverse.  Latitude
+  is unchanged by ``Z``, so ``Z⁻¹`` is the rotation by ``−j_k Θ``, and all
+  ``Z`` commute.
+* ``V_i(t)`` — storm group ``i``: vortex "twists", each a rotation about its
+  centre ``c`` by ``ψ = g_k Γ S((t − t_i)/L_i) P(ρ/ρ_i)`` where ``ρ = |p − c|``
+  is the chord distance from the centre (kept by the rotation, so the inverse
+  is the rotation by ``−ψ``), ``P(s) = (1 − s²)³`` for ``s < 1`` (compact, C²)
+  and ``S`` the C² smootherstep: the storm spins up over ``L_i`` = 1–3 days
+  from its birth ``t_i`` and leaves its twist in place.  A group is either a
+  mid-latitude wave train (4, 6 or 8 alternating cyclones and weaker
+  anticyclones evenly spaced around one latitude, disjoint caps of up to 20°,
+  so they commute) or one tropical cyclone; ``g_k`` weakens them above 6 km.
+* Conjugating by ``Z_{s_i}`` (``s_i`` = middle of the spin-up) places the
+  storms in the jets' frame: they drift with the jet at their latitude, and
+  the jets shear them only by what builds up over their own life, so the
+  winds stay bounded (≤ ~50 m/s) over the 10 days.
 
-Both kinds of map are area-preserving, so the horizontal wind on every level
-is non-divergent.  The fields follow from the map:
+Rotations and differential rotations preserve area, so the horizontal wind on
+every level is non-divergent.  The fields follow from the map:
 
 * ``cloud(x, t) = C0_k(X_k⁻¹(x, t))`` with ``C0_k`` a smooth initial
   pattern (storm-track bands, a deep ITCZ just south of the equator, low
   cloud, 3-D "plane-wave" noise for structure; values clipped to 0..1 and
   shaped in height by the level's nominal height);
-* horizontal wind = ``∂X_k/∂t`` at ``a = X_k⁻¹(x, t)``, by a central
-  difference over ``±δ`` (60 s), projected on east/north and scaled by the
-  Earth radius (m/s; the shallow-atmosphere convention: angular speed ×
-  ``EARTH_RADIUS`` at every height);
+* horizontal wind = ``∂X_k/∂t`` at ``a = X_k⁻¹(x, t)``, by the forward
+  difference ``(X_k(a, t + δ) − x) / δ`` with ``δ`` = 1 s (truncation error
+  below 1e-3 m/s), projected on east/north and scaled by the Earth radius
+  (m/s; the shallow-atmosphere convention: angular speed × ``EARTH_RADIUS``
+  at every height);
 * level heights ``h_k(x) = η_k H + b_k T(x)`` over the relief ``T`` (the
   shipped 1° ETOPO60, sea floor clipped to 0), ``η_k`` from 0 to 1
   (finer near the ground), ``H`` = 20 km, ``b_k = (1 − η_k)³``: terrain
@@ -45,7 +56,7 @@ is non-divergent.  The fields follow from the map:
   grid nodes it is the bilinear interpolant of those values (so the level
   surfaces are exactly those of the grid);
 * ``w`` = the vertical speed of the parcel that stays on its level surface,
-  ``Dh_k/Dt = b_k (T(X(a, t+δ)) − T(X(a, t−δ))) / 2δ``;
+  ``Dh_k/Dt = b_k (T(X(a, t + δ)) − T(x)) / δ``;
 * ``temperature`` = a January surface temperature by latitude, a 6.5 K/km
   lapse rate up to a latitude-dependent tropopause (isothermal above), plus a
   ±3 K anomaly that is advected like the clouds.
@@ -53,6 +64,8 @@ is non-divergent.  The fields follow from the map:
 So a parcel moved by ``(u, v, w)`` keeps its level index and its cloudiness:
 the clouds are carried exactly by the winds (up to the time-interpolation of
 hourly steps and the spatial interpolation of the grid, as with any data).
+Cost: one inverse map per step for cloud and temperature, one forward map
+more for the three wind components (see ``benchmarks/bench_data.py``).
 
 References
 ----------
@@ -103,9 +116,9 @@ defines Θ exactly for the forward and the inverse map alike)."""
 # Zonal jets: (centre latitude, width, peak m/s at the jet level, relative oscillation,
 # period in days, phase).  January: the northern jet is the stronger.
 _JETS = (
-    (38.0, 11.0, 38.0, 0.30, 4.0, 0.0),
-    (-47.0, 11.0, 28.0, 0.30, 5.0, 1.7),
-    (-2.0, 16.0, -9.0, 0.40, 3.0, 0.6),
+    (38.0, 18.0, 32.0, 0.35, 4.0, 0.0),
+    (-47.0, 17.0, 26.0, 0.35, 5.0, 1.7),
+    (-2.0, 18.0, -7.0, 0.40, 3.0, 0.6),
     (72.0, 8.0, -6.0, 0.50, 6.0, 2.4),
     (-70.0, 8.0, -5.0, 0.50, 6.0, 4.0),
 )
@@ -128,7 +141,8 @@ class SyntheticClimate(Dataset):
     start : str
         First time (ISO date).
     n_storms : int, optional
-        Number of vortices; about 2.5 per day by default.
+        Number of storm groups (wave trains or single tropical cyclones);
+        about 2.5 a day by default.
     relief : (lon, lat, elevation), optional
         Relief grid for the terrain (the shipped 1° ETOPO60 by default).
     cache_steps : int
@@ -167,14 +181,14 @@ class SyntheticClimate(Dataset):
         self.vertical = f"hybrid height over the ETOPO60 relief, flat top at {TOP / 1000:g} km"
         z = self.nominal_height
         # How strongly each level feels the jets (peak near 11 km) and the storms (weaker aloft).
-        self._jet_factor = 0.3 + 0.7 * _gauss(z, 11_000.0, 6_000.0)
-        self._storm_factor = np.where(z < 9_000.0, 1.0, 0.35 + 0.65 * _gauss(z, 9_000.0, 6_000.0))
+        self._jet_factor = 0.25 + 0.75 * _gauss(z, 11_000.0, 5_000.0)
+        self._storm_factor = np.where(z < 6_000.0, 1.0, 0.3 + 0.7 * _gauss(z, 6_000.0, 5_000.0))
         rng = np.random.default_rng(self.seed)
         self._storms = self._make_storms(rng, days, n_storms)
         phi = np.rad2deg(np.arcsin(_ZNODES))
         self._jet_shapes = [peak / np.cos(np.deg2rad(lat0)) * _gauss(phi, lat0, width) / EARTH_RADIUS for lat0, width, peak, *_ in _JETS]
-        self._frames = [self._theta_table(s[5]) for s in self._storms]
-        self._noise = [self._make_waves(rng, 10, 5.0, 12.0), self._make_waves(rng, 14, 12.0, 26.0), self._make_waves(rng, 10, 4.0, 14.0)]
+        self._frames = [self._theta_table(g["frame"]) for g in self._storms]
+        self._noise = [self._make_waves(rng, 10, 4.0, 10.0), self._make_waves(rng, 12, 9.0, 16.0), self._make_waves(rng, 10, 4.0, 12.0)]
         # Grid points as unit vectors (float64) and east/north unit vectors, shape (nj, ni).
         lam, phi = np.deg2rad(lon)[None, :], np.deg2rad(lat)[:, None]
         cl, sl, cp, sp = np.cos(lam), np.sin(lam), np.cos(phi), np.sin(phi)
@@ -188,23 +202,41 @@ class SyntheticClimate(Dataset):
     # ----------------------------------------------------------------- parameters
     @staticmethod
     def _make_storms(rng, days, n):
-        n = max(1, int(round(4 * days))) if n is None else int(n)
-        storms = []
+        """Storm groups: mid-latitude wave trains of alternating cyclones and anticyclones
+        (an even number of vortices evenly spaced around one latitude, with disjoint caps)
+        and single tropical cyclones.  ``n`` = number of groups (about 2.5 a day by default)."""
+        n = max(1, int(round(2.5 * days))) if n is None else int(n)
+        groups = []
         for _ in range(n):
-            tropical = rng.random() < 0.25
-            hemi = -1.0 if rng.random() < (0.7 if tropical else 0.5) else 1.0  # tropical storms: mostly SH in January
-            lat = hemi * (rng.uniform(8.0, 22.0) if tropical else rng.uniform(33.0, 65.0))
-            lon = rng.uniform(0.0, 360.0)
-            radius = np.deg2rad(rng.uniform(6.0, 10.0) if tropical else rng.uniform(9.0, 17.0))
-            cyclone = tropical or rng.random() < 0.75
-            strength = rng.uniform(2.5, 5.0) * (1.0 if cyclone else -0.5) * hemi  # cyclones turn counter-clockwise in the north
+            tropical = rng.random() < 0.3
+            hemi = -1.0 if rng.random() < (0.7 if tropical else 0.5) else 1.0  # tropical cyclones: mostly SH in January
+            if tropical:
+                lat, count = hemi * rng.uniform(8.0, 20.0), 1
+                radius = rng.uniform(5.0, 9.0)
+                strengths = np.array([hemi * rng.uniform(3.0, 5.0)])  # counter-clockwise in the north
+            else:
+                lat, count = hemi * rng.uniform(35.0, 62.0), int(rng.choice([4, 6, 8]))
+                dlon = 2 * np.pi / count
+                phi = np.deg2rad(lat)
+                sep = np.arccos(np.sin(phi) ** 2 + np.cos(phi) ** 2 * np.cos(dlon))  # angle between neighbours
+                radius = min(np.rad2deg(0.48 * sep), 20.0, rng.uniform(12.0, 22.0))
+                # Keep each cap within its own longitude sector so a point's sector names its vortex.
+                while np.arcsin(min(1.0, np.sin(np.deg2rad(radius)) / np.cos(phi))) >= 0.49 * dlon:
+                    radius *= 0.95
+                signs = np.where(np.arange(count) % 2 == 0, 1.0, -0.7)  # cyclone, weaker anticyclone, ...
+                strengths = hemi * signs * rng.uniform(1.2, 2.4, size=count)
+            lon0 = rng.uniform(0.0, 2 * np.pi)
+            lons = lon0 + np.arange(count) * (2 * np.pi / count)
+            phi, alpha = np.deg2rad(lat), np.deg2rad(radius)
+            centres = np.stack([np.cos(phi) * np.cos(lons), np.cos(phi) * np.sin(lons), np.full(count, np.sin(phi))], axis=1)
             birth = rng.uniform(0.0, max(days - 0.5, 0.0)) * DAY
-            life = rng.uniform(1.0, 3.0) * DAY
-            c = np.array([np.cos(np.deg2rad(lat)) * np.cos(np.deg2rad(lon)), np.cos(np.deg2rad(lat)) * np.sin(np.deg2rad(lon)), np.sin(np.deg2rad(lat))])
-            zlim = (np.sin(np.deg2rad(lat) - radius), np.sin(min(np.deg2rad(lat) + radius, 0.5 * np.pi)))
-            storms.append((c, 2.0 * np.sin(radius / 2.0), strength, birth, life, birth + 0.5 * life, zlim))
-        storms.sort(key=lambda s: s[5])
-        return storms
+            life = rng.uniform(1.0, 2.5) * DAY if tropical else rng.uniform(1.5, 3.0) * DAY
+            zlim = (np.sin(phi - alpha), np.sin(min(phi + alpha, 0.5 * np.pi)))
+            groups.append(dict(centres=centres, lon0=lon0, lons=lons, count=count, cos_lat=np.cos(phi), sin_lat=np.sin(phi),
+                               rho=2.0 * np.sin(alpha / 2.0), strengths=strengths,
+                               birth=birth, life=life, frame=birth + 0.5 * life, zlim=zlim))
+        groups.sort(key=lambda g: g["frame"])
+        return groups
 
     @staticmethod
     def _make_waves(rng, n, kmin, kmax):
@@ -237,32 +269,46 @@ class SyntheticClimate(Dataset):
         return c * x - s * y, s * x + c * y
 
     def _twists(self, p, t, jet, storm, inverse):
-        """Apply the storms' twists ``Z_s⁻¹ V_i Z_s`` (or their inverses, in reverse order) to ``p`` in place."""
+        """Apply the storms' twists ``Z_s⁻¹ V_i Z_s`` (or their inverses, in reverse order) to ``p`` in place.
+
+        The vortices of one group have disjoint caps, so they commute and are applied together."""
         x, y, z = p
-        order = reversed(self._storms) if inverse else self._storms
-        for (c, rho, strength, birth, life, _, (zlo, zhi)), table in zip(order, reversed(self._frames) if inverse else self._frames):
-            grow = _smootherstep((t - birth) / life)
+        pairs = list(zip(self._storms, self._frames))
+        for g, table in reversed(pairs) if inverse else pairs:
+            grow = _smootherstep((t - g["birth"]) / g["life"])
             if grow == 0.0:
                 continue
-            # Z_s keeps latitude: candidates by the cap's latitude range, then the exact chord test.
+            # Z_s keeps latitude: candidates by the caps' latitude range, then the exact chord test.
+            zlo, zhi = g["zlim"]
             cand = np.nonzero((z > zlo) & (z < zhi))[0]
             if cand.size == 0:
                 continue
             cj = jet[cand]
             pz = z[cand]
-            px, py = self._rotate_z(x[cand], y[cand], cj * self._lookup(table, pz))  # into the storm's frame
-            cdot = c[0] * px + c[1] * py + c[2] * pz
-            s2 = 2.0 * (1.0 - cdot) / (rho * rho)
-            inside = s2 < 1.0
-            cand, cj, px, py, pz, cdot, s2 = (v[inside] for v in (cand, cj, px, py, pz, cdot, s2))
-            psi = (strength * grow) * storm[cand] * (1.0 - s2) ** 3
+            # Longitude in the storm's frame (Z_s adds jet·Θ_s(z) to it), its sector's vortex, and the chord test.
+            shift = cj * self._lookup(table, pz)
+            lam = np.arctan2(y[cand], x[cand]) + shift
+            count = g["count"]
+            if count > 1:
+                sector = np.floor((lam - g["lon0"]) * (count / (2 * np.pi)) + 0.5).astype(np.intp) % count
+            else:
+                sector = np.zeros(cand.size, dtype=np.intp)
+            rh = np.sqrt(np.maximum(1.0 - pz * pz, 0.0))
+            cdot = g["cos_lat"] * rh * np.cos(lam - g["lons"][sector]) + g["sin_lat"] * pz
+            s2 = 2.0 * (1.0 - cdot) / (g["rho"] ** 2)
+            inside = np.nonzero(s2 < 1.0)[0]
+            cand, cj, pz, cdot, s2, sector, shift = (v[inside] for v in (cand, cj, pz, cdot, s2, sector, shift))
+            px, py = self._rotate_z(x[cand], y[cand], shift)  # into the storm's frame
+            c = g["centres"][sector]
+            psi = g["strengths"][sector] * grow * storm[cand] * (1.0 - s2) ** 3
             if inverse:
                 psi = -psi
             cs, sn = np.cos(psi), np.sin(psi)
             k = cdot * (1.0 - cs)
-            qx = px * cs + (c[1] * pz - c[2] * py) * sn + c[0] * k
-            qy = py * cs + (c[2] * px - c[0] * pz) * sn + c[1] * k
-            qz = pz * cs + (c[0] * py - c[1] * px) * sn + c[2] * k
+            cx, cy, cz = c[:, 0], c[:, 1], c[:, 2]
+            qx = px * cs + (cy * pz - cz * py) * sn + cx * k
+            qy = py * cs + (cz * px - cx * pz) * sn + cy * k
+            qz = pz * cs + (cx * py - cy * px) * sn + cz * k
             x[cand], y[cand] = self._rotate_z(qx, qy, -cj * self._lookup(table, qz))  # back from the storm's frame
             z[cand] = qz
         return p
@@ -317,7 +363,7 @@ class SyntheticClimate(Dataset):
             + 0.18 * (low + 0.5 * mid)
             - 0.25 * subtropics * (mid + deep)
         )
-        c = wet * (1.0 + 0.9 * n1 + 0.45 * n2) * top - 0.1
+        c = 0.8 * wet * (1.0 + 0.9 * n1 + 0.6 * n2) * top - 0.08
         return np.clip(c, 0.0, 1.0).astype(np.float32)
 
     def _anomaly(self, a):
@@ -362,9 +408,8 @@ class SyntheticClimate(Dataset):
         u = d[0] * self._east[0] + d[1] * self._east[1]
         v = d[0] * self._north[0] + d[1] * self._north[1] + d[2] * self._north[2]
         lon1, lat1 = _lonlat(p1)
-        lon0, lat0 = _lonlat(p0)
-        dterrain = sample_relief(lon1, lat1, self._terrain) - sample_relief(lon0, lat0, self._terrain)
-        w = self.b[:, None, None] * dterrain.reshape(shape) / DELTA
+        dterrain = sample_relief(lon1, lat1, self._terrain).reshape(shape) - self.grid.terrain
+        w = self.b[:, None, None] * dterrain / DELTA
         self._winds = {t: (u, v, w)}
         return self._winds[t]
 
