@@ -209,42 +209,39 @@ def _collapsed_rows(points):
 
 
 def _add_poles(points, values, attributes):
-    """Append a pole row before row 0 and after row nj-1 where those rows are open rings."""
+    """Add a pole row before row 0 and after row nj-1 where those rows are open rings."""
     collapsed = _collapsed_rows(points)
-    ends = []
+    poles = []
     for j in (0, points.shape[1] - 1):
         if collapsed is not None and collapsed[:, j].all():
-            ends.append(None)
+            poles.append(None)
             continue
         ring = points[:, j].astype(np.float64)  # (nk, ni, 3)
         centre = ring.mean(axis=1)
         size = np.linalg.norm(ring, axis=-1).mean(axis=1)
         norm = np.linalg.norm(centre, axis=-1)
         if np.any(norm <= 1e-9 * size):
-            raise DataError("row {j} is not a ring around an axis through the origin".format(j=j), field="close_poles")
-        pole = centre * (size / norm)[:, None]
-        ends.append(np.broadcast_to(pole[:, None, None, :], (points.shape[0], 1) + points.shape[2:]))
-    if ends[0] is None and ends[1] is None:
+            raise DataError(f"row {j} is not a ring around an axis through the origin", field="close_poles")
+        poles.append(centre * (size / norm)[:, None])  # (nk, 3)
+    if poles[0] is None and poles[1] is None:
         return points, values, attributes
 
-    def extend(field, pole_value):
+    def extend(field, pole_row):
         parts = [field]
-        if ends[0] is not None:
-            parts.insert(0, pole_value(field[:, :1]))
-        if ends[1] is not None:
-            parts.append(pole_value(field[:, -1:]))
+        if poles[0] is not None:
+            parts.insert(0, pole_row(0, field[:, :1]))
+        if poles[1] is not None:
+            parts.append(pole_row(1, field[:, -1:]))
         return np.concatenate(parts, axis=1)
 
-    ring_mean = lambda row: np.broadcast_to(row.mean(axis=2, keepdims=True), row.shape)  # noqa: E731
-    pts = [points.astype(np.float64)]
-    if ends[0] is not None:
-        pts.insert(0, ends[0])
-    if ends[1] is not None:
-        pts.append(ends[1])
-    points = np.concatenate(pts, axis=1)
-    values = extend(values, ring_mean)
-    attributes = {k: extend(a.astype(np.float64), ring_mean) for k, a in attributes.items()}
-    return points, values, attributes
+    def ring_mean(end, row):
+        return np.broadcast_to(row.mean(axis=2, keepdims=True), row.shape)
+
+    def pole_point(end, row):
+        return np.broadcast_to(poles[end][:, None, None, :], row.shape).astype(points.dtype)
+
+    attributes = {k: extend(a, ring_mean) for k, a in attributes.items()}
+    return extend(points, pole_point), extend(values, ring_mean), attributes
 
 
 def _average_rows(field, rows):
@@ -390,20 +387,23 @@ def _weld(a, b, faces, shape, pole_rows, drop_unused):
     if pole_rows is not None:
         rows = pole_rows.reshape(-1)
         pa, pb = rows[a // ni], rows[b // ni]
-        if (pa | pb).any():
+        near = np.flatnonzero(pa | pb)
+        if len(near):
             # All longitudes of a pole row are one point: name every edge end
             # there by its column-0 twin, so that coinciding edges (a pole
             # edge per longitude, or an edge and a face diagonal of a
             # collapsed face) share one vertex.
             nv = nk * nj * ni
-            na = np.where(pa, a - a % ni, a)
-            nb = np.where(pb, b - b % ni, b)
+            na, nb = a[near], b[near]
+            na = np.where(pa[near], na - na % ni, na)
+            nb = np.where(pb[near], nb - nb % ni, nb)
             key = np.minimum(na, nb) * nv + np.maximum(na, nb)
             _, first, inverse = np.unique(key, return_index=True, return_inverse=True)
-            f = inverse.reshape(-1)[faces]
+            rep = np.arange(len(a))
+            rep[near] = near[first[inverse.reshape(-1)]]
+            f = rep[faces]
             good = (f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])
-            f, keep = _compact(f[good], len(first))
-            return f, first[keep]
+            return _compact(f[good], len(a))
     if drop_unused:
         return _compact(faces, len(a))
     return faces, None
