@@ -1,0 +1,89 @@
+"""Henyey-Greenstein phase function and the 96 direction bins."""
+
+import numpy as np
+import pytest
+
+from nephele.core import phase
+
+
+def test_bins_cover_the_sphere():
+    cen, omega, dirs, w = phase.bins(4)
+    assert cen.shape == (96, 3) and omega.shape == (96,)
+    assert omega.sum() == pytest.approx(4 * np.pi, rel=1e-12)
+    # each face is 1/6 of the sphere; corner bins are the smallest
+    assert omega.reshape(6, 16).sum(1) == pytest.approx(np.full(6, 4 * np.pi / 6), rel=1e-12)
+    np.testing.assert_allclose(w.sum(1), omega, rtol=1e-12)
+    # every sub-direction lies in its own bin
+    assert np.all(phase.bin_of(dirs) == np.arange(96)[:, None])
+    assert np.all(phase.bin_of(cen) == np.arange(96))
+
+
+def test_hg_normalised_and_mean_cosine():
+    from scipy.integrate import quad
+
+    for g in (-0.95, -0.3, 0.0, 0.5, 0.8, 0.99):
+        integ = quad(lambda m: 2 * np.pi * phase.hg(m, g), -1, 1, points=[1 - 1e-3], limit=200)[0]
+        mean = quad(lambda m: 2 * np.pi * m * phase.hg(m, g), -1, 1, points=[1 - 1e-3], limit=200)[0]
+        assert integ == pytest.approx(1.0, rel=1e-8)
+        assert mean == pytest.approx(g, abs=1e-8)
+    with pytest.raises(ValueError):
+        phase.hg(0.5, 1.0)
+
+
+def test_isotropic_matrix_is_solid_angle():
+    cen, omega, _, _ = phase.bins(8)
+    m = phase.phase_matrix(0.0)
+    np.testing.assert_allclose(m, np.repeat((omega / (4 * np.pi))[:, None], 96, 1), rtol=1e-10)
+
+
+@pytest.mark.parametrize("g", [0.8, -0.5])
+def test_matrix_conserves_energy_and_mean_cosine(g):
+    m = phase.phase_matrix(g)
+    assert np.all(m >= 0)
+    np.testing.assert_allclose(m.sum(0), 1.0, atol=1e-12)
+    c = phase.mean_directions(2)
+    # flux uniform over bin j scatters to mean direction g * c_j, as HG does
+    np.testing.assert_allclose((m * (c @ c.T)).sum(0), g * (c * c).sum(1), atol=1e-9)
+
+
+def test_matrix_without_delta_is_integrated_hg():
+    # no delta split: mean cosine lower than g because bins smear directions
+    m = phase.phase_matrix(0.8, delta=False)
+    np.testing.assert_allclose(m.sum(0), 1.0, atol=1e-12)
+    c = phase.mean_directions(2)
+    assert np.all((m * (c @ c.T)).sum(0) < 0.8 * (c * c).sum(1))
+
+
+def test_g_near_plus_minus_one():
+    m = phase.phase_matrix(0.995)
+    assert np.diagonal(m).min() > 0.9  # nearly all flux stays in its bin
+    mb = phase.phase_matrix(-0.995)
+    anti = phase.bin_of(-phase.bins(1)[0])
+    assert mb[anti, np.arange(96)].min() > 0.9
+    assert np.all(np.isfinite(m)) and np.all(np.isfinite(mb))
+
+
+def test_direct_fractions_sun_on_bin_corner():
+    # straight down hits the corner of the four central -z bins: equal shares
+    q = phase.direct_fractions([0, 0, -1], 0.8)
+    assert q.sum() == pytest.approx(1.0)
+    top4 = np.sort(np.argsort(q)[-4:])
+    assert np.all(phase.bins(1)[0][top4, 2] < -0.9)
+    np.testing.assert_allclose(q[top4], q[top4[0]], rtol=1e-10)
+    # along a face diagonal (edge between two cube faces): two bins share the peak
+    q2 = phase.direct_fractions([1, 0, 1], 0.9)
+    top2 = np.argsort(q2)[-2:]
+    assert q2[top2[0]] == pytest.approx(q2[top2[1]], rel=1e-10)
+    qs = phase.direct_fractions([0.3, -0.2, 0.9], 0.8, sub=48, into_sub=4)
+    np.testing.assert_allclose(qs.sum(1), phase.direct_fractions([0.3, -0.2, 0.9], 0.8), atol=1e-14)
+
+
+def test_bin_phase_toward_normalised():
+    cen, omega, _, _ = phase.bins(8)
+    d = np.random.default_rng(0).normal(size=(500, 3))
+    pb = phase.bin_phase_toward(d, 0.8)
+    # sum_j Omega_j pbar_j(w) = integral of p over all incoming directions = 1
+    np.testing.assert_allclose((pb * omega).sum(1), 1.0, atol=3e-3)
+    # forward: radiance toward the bin's own centre is the largest
+    own = phase.bin_phase_toward(cen, 0.8)
+    assert np.all(np.argmax(own, axis=1) == np.arange(96))
