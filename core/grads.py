@@ -145,8 +145,8 @@ def parse_ctl(path):
             raise DataError(f"descriptor has no {key.upper()} entry", path=path, field=key)
     if not ctl["vars"]:
         raise DataError("descriptor lists no variables (VARS ... ENDVARS)", path=path, field="vars")
-    bad = {"template", "sequential", "365_day_calendar", "pascals"} & ctl["options"]
-    if bad - {"pascals"}:
+    bad = {"template", "sequential", "365_day_calendar"} & ctl["options"]
+    if bad:
         raise DataError(f"OPTIONS {', '.join(sorted(bad))} not supported", path=path, field="options")
     return ctl
 

@@ -64,7 +64,7 @@ def standard_name(name, attrs=None):
     return name
 
 
-def unit_conversion(std, units, path, field):
+def unit_conversion(std, units):
     """``(scale, offset)`` turning a file's ``units`` into Nephele's units for field ``std``."""
     u = (units or "").strip().lower().replace(" ", "")
     if std == "temperature":
@@ -196,7 +196,7 @@ class FileDataset(Dataset):
             a = np.asarray(self._raw(raw, t), dtype=np.float32)
             lev, lat, lon = self._order
             a = a[np.ix_(lev, lat, lon)]
-            scale, offset = unit_conversion(name, units, self.path, raw)
+            scale, offset = unit_conversion(name, units)
             if scale != 1.0 or offset != 0.0:
                 a = a * np.float32(scale) + np.float32(offset)
             if name in ("rh", "cloud"):
