@@ -102,30 +102,70 @@ class _GridIndex:
         fk = np.clip(s, 0.0, self.shape[0] - 1)
         return fk, fj, fi
 
+    def _columns(self, fi, taps):
+        """Column indices ``i0 + t`` for ``t`` in ``taps`` (wrapped or clamped) and the fraction."""
+        ni = self.shape[2]
+        i0 = np.floor(fi).astype(np.int64)
+        ti = fi - i0
+        if self.periodic:
+            return [(i0 + t) % ni for t in taps], ti
+        i0c = np.minimum(i0, ni - 2)
+        return [np.clip(i0c + t, 0, ni - 1) for t in taps], fi - i0c
+
+    def _rows(self, fj, lo, hi):
+        njp = self.njp
+        j0 = np.clip(fj.astype(np.int64), lo, njp - 1 - hi)
+        return j0, fj - j0
+
+    def _levels(self, fk):
+        nk = self.shape[0]
+        if nk == 1:
+            return np.zeros(fk.shape, np.int64), np.zeros(fk.shape), 0
+        k0 = np.minimum(fk.astype(np.int64), nk - 2)
+        return k0, fk - k0, 1
+
     def trilinear(self, f, fk, fj, fi):
         """Trilinear interpolation of padded field ``f`` (nk, njp, ni, c) at fractional indices."""
-        nk, njp, ni, c = f.shape
-        k0 = np.minimum(fk.astype(np.int64), nk - 2) if nk > 1 else np.zeros(fk.shape, np.int64)
-        j0 = np.minimum(fj.astype(np.int64), njp - 2)
-        i0 = np.floor(fi).astype(np.int64)
-        tk, tj, ti = fk - k0, fj - j0, fi - i0
-        if self.periodic:
-            i0 = i0 % ni
-            i1 = (i0 + 1) % ni
-        else:
-            i0 = np.minimum(i0, ni - 2)
-            ti = fi - i0
-            i1 = i0 + 1
-        flat = f.reshape(-1, c)
-        out = np.zeros((fk.size, c))
-        dk = 1 if nk > 1 else 0
-        for a, wa in ((0, 1 - tk), (dk, tk)):
-            for b, wb in ((0, 1 - tj), (1, tj)):
-                row = ((k0 + a) * njp + j0 + b) * ni
-                wab = wa * wb
-                out += flat[row + i0] * (wab * (1 - ti))[:, None]
-                out += flat[row + i1] * (wab * ti)[:, None]
+        return self._gather(f, fk, fj, fi, cubic=False)
+
+    def cubic(self, f, fk, fj, fi):
+        """Catmull-Rom bicubic in (row, column), linear in level; NaN where a tap is NaN."""
+        return self._gather(f, fk, fj, fi, cubic=True)
+
+    def _gather(self, f, fk, fj, fi, cubic, chunk=1 << 16):
+        n = fk.size
+        c = f.shape[-1]
+        out = np.empty((n, c))
+        for a in range(0, n, chunk):
+            sl = slice(a, a + chunk)
+            out[sl] = self._gather_chunk(f, fk[sl], fj[sl], fi[sl], cubic)
         return out
+
+    def _gather_chunk(self, f, fk, fj, fi, cubic):
+        nk, njp, ni, c = f.shape
+        k0, tk, dk = self._levels(fk)
+        taps = (-1, 0, 1, 2) if cubic else (0, 1)
+        j0, tj = self._rows(fj, 1 if cubic else 0, 2 if cubic else 1)
+        cols, ti = self._columns(fi, taps)
+        wj = _catmull_rom(tj) if cubic else (1 - tj, tj)
+        wi = _catmull_rom(ti) if cubic else (1 - ti, ti)
+        idx, wt = [], []
+        for a, wa in ((0, 1 - tk), (dk, tk)):
+            for tj_, wb in zip(taps, wj):
+                row = ((k0 + a) * njp + j0 + tj_) * ni
+                wab = wa * wb
+                for col, wc in zip(cols, wi):
+                    idx.append(row + col)
+                    wt.append(wab * wc)
+        g = np.take(f.reshape(-1, c), np.concatenate(idx), axis=0).reshape(len(idx), fk.size, c)
+        return np.einsum("kn,knc->nc", np.array(wt, dtype=np.float32), g).astype(np.float64)
+
+
+def _catmull_rom(t):
+    """Weights of taps -1, 0, 1, 2 of the Catmull-Rom cubic at fraction ``t``."""
+    t2 = t * t
+    t3 = t2 * t
+    return (-0.5 * t3 + t2 - 0.5 * t, 1.5 * t3 - 2.5 * t2 + 1.0, -1.5 * t3 + 2.0 * t2 + 0.5 * t, 0.5 * t3 - 0.5 * t2)
 
 
 class WindField:
@@ -301,7 +341,7 @@ class AnalyticWind:
         return 1.05 * sp, 0.0
 
 
-def trace(wind, xyz, s, t_from, t_to, *, method="rk4", dt_max=1.0, cfl=0.5):
+def trace(wind, xyz, s, t_from, t_to, *, method="rk4", dt_max=1.0, cfl=1.0):
     """Integrate points from time ``t_from`` to ``t_to`` (hours; backwards when ``t_to < t_from``).
 
     Parameters
@@ -393,41 +433,188 @@ def _frame_hours(frame_hours):
     return fh
 
 
-class FullTrace:
-    """Strategy (a), the paper's: trace every point from frame ``n`` back to frame 0.
+class _Strategy:
+    """Common parts: the wind, frame times, the grid whose vertices are traced, step options."""
 
-    Exact up to the integrator, but the cost of frame ``n`` grows with ``n``.
+    def __init__(self, wind, frame_hours, grid, *, method="rk4", dt_max=1.0, cfl=1.0):
+        self.wind, self.frame_hours, self.grid = wind, _frame_hours(frame_hours), grid
+        self.opts = dict(method=method, dt_max=dt_max, cfl=cfl)
+        if method not in METHODS:
+            raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+
+    def _frame(self, n):
+        n = int(n)
+        if not 0 <= n < self.frame_hours.size:
+            raise ValueError(f"frame {n} is outside 0..{self.frame_hours.size - 1}")
+        return n
+
+    def _points(self, index):
+        index = np.asarray(index, dtype=np.int64).reshape(-1)
+        return grid_vertices(self.grid, index), vertex_levels(self.grid, index)
+
+
+class FullTrace(_Strategy):
+    """Strategy (a), the paper's: trace every vertex from frame ``n`` back to frame 0 (RK4).
+
+    Exact up to the integrator and the data, but the cost of frame ``n`` grows with ``n``.
     """
 
     name = "full"
 
-    def __init__(self, wind, frame_hours, *, method="rk4", dt_max=1.0, cfl=0.5):
-        self.wind, self.frame_hours = wind, _frame_hours(frame_hours)
-        self.opts = dict(method=method, dt_max=dt_max, cfl=cfl)
-
-    def copies(self, n, xyz, s):
+    def copies(self, n, index):
+        """Start positions at frame 0 of the grid vertices ``index`` (flat indices) at frame ``n``."""
+        n = self._frame(n)
+        xyz, s = self._points(index)
         t0 = self.frame_hours[0]
         x, z = trace(self.wind, xyz, s, self.frame_hours[n], t0, **self.opts)
         return [Copy(x, z, 1.0, t0)]
 
 
-class RestartTrace:
+class _StreamedMap:
+    """The start positions of grid vertices, advanced one frame at a time by composition.
+
+    ``S_n(x) = S_{n-1}(Φ(x))`` with ``Φ`` the one-frame backward trajectory and
+    ``S_{n-1}`` interpolated from the vertices where it is stored (trilinear,
+    or Catmull-Rom bicubic in latitude/longitude and linear in level).  Only a
+    band of vertices around those asked for is kept (one grid-sized array:
+    memory does not grow with the film); a vertex whose interpolation stencil
+    leaves the band is traced directly back to the start frame instead.
+    """
+
+    def __init__(self, strategy, order, band):
+        self.st = strategy
+        self.order = order
+        self.band = band
+        self.index = _GridIndex(strategy.grid, pad=2)
+        self.frame = None
+        self.start = None
+        self.fallbacks = 0
+
+    def reset(self, n):
+        """Identity at frame ``n``: every vertex starts where it is."""
+        g = self.st.grid
+        nk = g.shape[0]
+        xyz = grid_vertices(g)
+        s = np.broadcast_to(np.arange(nk, dtype=np.float64)[:, None], (nk, xyz.shape[0] // nk)).reshape(-1)
+        self._store(np.arange(xyz.shape[0]), np.concatenate([xyz, s[:, None]], axis=1))
+        self.frame = self.start = n
+
+    def _store(self, index, values):
+        m = np.full(self.st.grid.shape + (4,), np.nan, dtype=np.float32)
+        m.reshape(-1, 4)[index] = values
+        self.map = self.index.pad_rows(m)
+
+    def _band(self, index):
+        if self.band is None:
+            return np.arange(int(np.prod(self.st.grid.shape)))
+        mask = np.zeros(self.st.grid.shape, dtype=bool)
+        mask.reshape(-1)[index] = True
+        return np.flatnonzero(dilate(mask, self.band, periodic_lon=self.st.grid.periodic_lon))
+
+    def advance(self, n, index):
+        """Move the map from frame ``n - 1`` to ``n`` for the vertices around ``index``."""
+        st = self.st
+        need = self._band(index)
+        xyz, s = st._points(need)
+        y, z = trace(st.wind, xyz, s, st.frame_hours[n], st.frame_hours[n - 1], **st.opts)
+        if n - 1 == self.start:
+            vals = np.concatenate([y, z[:, None]], axis=1)
+        else:
+            fr = self.index.fractional(y, z)
+            vals = self.index.cubic(self.map, *fr) if self.order == 3 else self.index.trilinear(self.map, *fr)
+            bad = ~np.all(np.isfinite(vals), axis=1)
+            if bad.any():
+                self.fallbacks += int(bad.sum())
+                xb, zb = trace(st.wind, xyz[bad], s[bad], st.frame_hours[n], st.frame_hours[self.start], **st.opts)
+                vals[bad] = np.concatenate([xb, zb[:, None]], axis=1)
+            vals[:, :3] = _normalise(vals[:, :3])
+            vals[:, 3] = np.clip(vals[:, 3], 0.0, st.grid.shape[0] - 1)
+        self._store(need, vals)
+        self.frame = n
+
+    def lookup(self, index):
+        v = self._unpadded()[np.asarray(index)]
+        return np.asarray(v[:, :3], dtype=np.float64), np.asarray(v[:, 3], dtype=np.float64)
+
+    def _unpadded(self):
+        p = self.index.pad
+        m = self.map[:, p : self.map.shape[1] - p] if p else self.map
+        return m.reshape(-1, 4)
+
+    def at(self, n, index, start):
+        """The map at frame ``n`` (streaming from ``start``) for vertices ``index``."""
+        if self.frame is None or self.start != start or n < self.frame:
+            self.reset(start)
+        while self.frame < n:
+            self.advance(self.frame + 1, index)
+        return self.lookup(index)
+
+
+def dilate(mask, cells, periodic_lon=False):
+    """Grow a boolean (nk, nj, ni) mask by ``cells`` in latitude/longitude and one level."""
+    m = mask.copy()
+    for _ in range(int(cells)):
+        g = m.copy()
+        g[:, 1:] |= m[:, :-1]
+        g[:, :-1] |= m[:, 1:]
+        if periodic_lon:
+            g |= np.roll(m, 1, axis=2) | np.roll(m, -1, axis=2)
+        else:
+            g[:, :, 1:] |= m[:, :, :-1]
+            g[:, :, :-1] |= m[:, :, 1:]
+        m = g
+    g = m.copy()
+    g[1:] |= m[:-1]
+    g[:-1] |= m[1:]
+    return g
+
+
+class ComposedTrace(_Strategy):
+    """Strategy (b): compose one-frame backward maps, interpolated on the grid.
+
+    Cost per frame: one frame of tracing for the vertices around those asked
+    for, plus one interpolation; the interpolation error accumulates over the
+    film (``order=1``, trilinear, smears the map; ``order=3``, Catmull-Rom
+    bicubic, keeps it sharp).  ``band`` cells around the requested vertices
+    are kept (None: the whole grid).  Frames should be requested in increasing
+    order; an earlier frame restarts from frame 0.
+    """
+
+    name = "compose"
+
+    def __init__(self, wind, frame_hours, grid, *, order=3, band=3, **opts):
+        super().__init__(wind, frame_hours, grid, **opts)
+        if order not in (1, 3):
+            raise ValueError(f"order must be 1 or 3, got {order!r}")
+        self.stream = _StreamedMap(self, order, band)
+
+    def copies(self, n, index):
+        n = self._frame(n)
+        x, z = self.stream.at(n, index, 0)
+        return [Copy(x, z, 1.0, self.frame_hours[0])]
+
+
+class RestartTrace(_Strategy):
     """Strategy (c): two texture copies restarted every ``period`` frames, half a period apart.
 
     Copy A restarts (start = current position) at frames ``0, P, 2P, ...``, copy
     B at ``P/2, 3P/2, ...``; their weights are triangle ramps
     ``w_A = 1 - |2 ((n mod P) / P) - 1|``, ``w_B = 1 - w_A``, so each copy is
-    invisible when it restarts.  Frames are independent, the cost is bounded by
-    ``P`` frames of tracing, and the texture never stretches without bound.
+    invisible when it restarts and the texture never stretches without bound.
+    With ``incremental=True`` each copy is streamed by composition (cost of
+    one frame per frame, frames in increasing order); otherwise every frame is
+    traced directly back to the restarts (independent frames, cost up to ``P``).
     """
 
     name = "restart"
 
-    def __init__(self, wind, frame_hours, *, period=24, method="rk4", dt_max=1.0, cfl=0.5):
-        if int(period) < 2 or int(period) % 2:
+    def __init__(self, wind, frame_hours, grid, *, period=24, incremental=True, order=3, band=3, **opts):
+        super().__init__(wind, frame_hours, grid, **opts)
+        if int(period) != period or int(period) < 2 or int(period) % 2:
             raise ValueError(f"period must be an even number of frames >= 2, got {period!r}")
-        self.wind, self.frame_hours, self.period = wind, _frame_hours(frame_hours), int(period)
-        self.opts = dict(method=method, dt_max=dt_max, cfl=cfl)
+        self.period = int(period)
+        self.incremental = bool(incremental)
+        self.streams = [_StreamedMap(self, order, band), _StreamedMap(self, order, band)]
 
     def weights(self, n):
         """``(w_A, w_B)`` at frame ``n``."""
@@ -440,93 +627,20 @@ class RestartTrace:
         p = self.period
         return n - n % p, max(0, n - (n - p // 2) % p)
 
-    def copies(self, n, xyz, s):
+    def copies(self, n, index):
+        n = self._frame(n)
         out = []
-        for start, w in zip(self.restarts(n), self.weights(n)):
-            th = self.frame_hours[start]
-            x, z = trace(self.wind, xyz, s, self.frame_hours[n], th, **self.opts)
-            out.append(Copy(x, z, w, th))
+        for stream, start, w in zip(self.streams, self.restarts(n), self.weights(n)):
+            if self.incremental:
+                x, z = stream.at(n, index, start)
+            else:
+                xyz, s = self._points(index)
+                x, z = trace(self.wind, xyz, s, self.frame_hours[n], self.frame_hours[start], **self.opts)
+            out.append(Copy(x, z, w, self.frame_hours[start]))
         return out
 
 
-class ComposedTrace:
-    """Strategy (b): compose backward maps stored on the grid, with cubic interpolation.
-
-    The start position of every grid vertex is kept for a key frame ``K``
-    (constant memory: one map).  Frame ``n`` traces its points back to ``K``
-    directly and interpolates the map there; every ``key_every`` frames the map
-    is advanced by tracing all grid vertices back to the previous key frame.
-    ``key_every=1`` composes one-frame maps (interpolation error accumulates
-    every frame); ``order=1`` uses trilinear interpolation (smears the map),
-    ``order=3`` cubic B-splines.  Frames must be requested in increasing order
-    for speed (going back restarts from frame 0).
-
-    Parameters
-    ----------
-    wind : WindField or AnalyticWind
-    grid : GlobeGrid
-        Where the maps live (usually the wind's grid).
-    """
-
-    name = "compose"
-
-    def __init__(self, wind, frame_hours, grid, *, key_every=24, order=3, method="rk4", dt_max=1.0, cfl=0.5):
-        if int(key_every) < 1:
-            raise ValueError(f"key_every must be >= 1, got {key_every!r}")
-        if order not in (1, 3):
-            raise ValueError(f"order must be 1 or 3, got {order!r}")
-        self.wind, self.frame_hours, self.grid = wind, _frame_hours(frame_hours), grid
-        self.key_every, self.order = int(key_every), order
-        self.opts = dict(method=method, dt_max=dt_max, cfl=cfl)
-        self.index = _GridIndex(grid, pad=8 if order == 3 else 2)
-        nk, nj, ni = grid.shape
-        self._xyz0 = grid_vertices(grid)
-        self._s0 = np.broadcast_to(np.arange(nk, dtype=np.float64)[:, None, None], grid.shape).reshape(-1)
-        self._reset()
-
-    def _reset(self):
-        self.key = 0
-        self._set_map(self._xyz0, self._s0)
-
-    def _set_map(self, xyz, s):
-        nk, nj, ni = self.grid.shape
-        m = np.concatenate([xyz, s[:, None]], axis=1).reshape(nk, nj, ni, 4)
-        m = self.index.pad_rows(m)
-        if self.order == 3:
-            w = 8 if self.index.periodic else 0
-            m = np.concatenate([m[:, :, -w:], m, m[:, :, :w]], axis=2) if w else m
-            self._wrap = w
-            self._coef = [ndimage.spline_filter(m[..., c], order=3, mode="nearest") for c in range(4)]
-        else:
-            self._map = m
-
-    def _lookup(self, xyz, s):
-        fk, fj, fi = self.index.fractional(xyz, s)
-        if self.order == 1:
-            out = self.index.trilinear(self._map, fk, fj, fi)
-        else:
-            coords = np.stack([fk, fj, fi + self._wrap])
-            out = np.stack([ndimage.map_coordinates(c, coords, order=3, mode="nearest", prefilter=False) for c in self._coef], axis=1)
-        return _normalise(out[:, :3]), np.clip(out[:, 3], 0.0, self.grid.shape[0] - 1)
-
-    def _advance_to(self, n):
-        if n < self.key:
-            self._reset()
-        while n >= self.key + self.key_every:
-            k1 = self.key + self.key_every
-            x, z = trace(self.wind, self._xyz0, self._s0, self.frame_hours[k1], self.frame_hours[self.key], **self.opts)
-            self._set_map(*(self._lookup(x, z) if self.key > 0 else (x, z)))
-            self.key = k1
-
-    def copies(self, n, xyz, s):
-        self._advance_to(n)
-        x, z = trace(self.wind, xyz, s, self.frame_hours[n], self.frame_hours[self.key], **self.opts)
-        if self.key > 0:
-            x, z = self._lookup(x, z)
-        return [Copy(x, z, 1.0, self.frame_hours[0])]
-
-
-STRATEGIES = {"full": FullTrace, "restart": RestartTrace, "compose": ComposedTrace}
+STRATEGIES = {"full": FullTrace, "compose": ComposedTrace, "restart": RestartTrace}
 
 
 def grid_vertices(grid, index=None):
@@ -603,6 +717,134 @@ def great_circle_km(a, b):
     return np.arctan2(c, d) * EARTH_RADIUS / 1000.0
 
 
+
+# ---------------------------------------------------------------- per-frame task
+ADVECT_DEFAULTS = {"strategy": "restart", "period": 24, "integrator": "rk4", "order": 3, "band": 3, "nan": "error"}
+"""Texture-advection settings an advected contour object stores (besides its contour's)."""
+
+START = "nephele_start_{}"
+"""Vector attribute: start position (unit vector) of copy ``a`` or ``b`` at each mesh vertex."""
+START_ALT = "nephele_start_alt_{}"
+"""Float attribute: start height (m) of copy ``a`` or ``b``."""
+WEIGHT = "nephele_weight_{}"
+"""Float attribute: blending weight of copy ``a`` or ``b`` (the same at every vertex)."""
+COPIES = ("a", "b")
+
+_WINDS = OrderedDict()
+_STRATEGIES = OrderedDict()
+
+
+def advect_task_params(obj_params, frame):
+    """The inputs of the advected contour an object with ``obj_params`` shows at ``frame``.
+
+    The contour's own parameters (see :func:`nephele.core.contour_task.task_params`)
+    plus the strategy settings (:data:`ADVECT_DEFAULTS`) and the frame index ``n``
+    counted from the texture's start (the first frame, model time 0).
+    """
+    from .contour_task import task_params
+
+    tp = task_params(obj_params, frame)
+    hpf = float(obj_params.get("hours_per_frame", 1.0))
+    tp.update({k: obj_params.get(k, v) for k, v in ADVECT_DEFAULTS.items()})
+    tp["hours_per_frame"] = hpf
+    tp["frame"] = int(round(tp["hours"] / hpf))
+    if tp["strategy"] not in STRATEGIES:
+        raise DataError(f"unknown strategy {tp['strategy']!r} (known: {', '.join(STRATEGIES)})", field="strategy")
+    return tp
+
+
+def _strategy(params, ds):
+    key = (params["stamp"], params["strategy"], params["period"], params["integrator"], params["order"], params["band"],
+           params["hours_per_frame"], params["nan"])
+    hit = _STRATEGIES.get(key)
+    if hit is not None and hit.frame_hours[-1] >= params["frame"] * params["hours_per_frame"] - 1e-9:
+        _STRATEGIES.move_to_end(key)
+        return hit
+    wkey = (params["stamp"], params["nan"])
+    wind = _WINDS.get(wkey)
+    if wind is None:
+        wind = _WINDS[wkey] = WindField(ds, nan=params["nan"])
+        while len(_WINDS) > 2:
+            _WINDS.popitem(last=False)
+    last = float(ds.hours[-1])
+    fh = np.arange(int(np.floor(last / params["hours_per_frame"] + 1e-9)) + 1) * params["hours_per_frame"]
+    opts = dict(method=params["integrator"])
+    name = params["strategy"]
+    if name == "restart":
+        st = RestartTrace(wind, fh, ds.grid, period=int(params["period"]), order=int(params["order"]), band=params["band"], **opts)
+    elif name == "compose":
+        st = ComposedTrace(wind, fh, ds.grid, order=int(params["order"]), band=params["band"], **opts)
+    else:
+        st = FullTrace(wind, fh, ds.grid, **opts)
+    _STRATEGIES[key] = st
+    while len(_STRATEGIES) > 2:
+        _STRATEGIES.popitem(last=False)
+    return st
+
+
+def _register_task():
+    from .tasks import planner, task
+
+    @planner("advected_contour")
+    def plan_advected(obj_params, frame):
+        """The one ``("advect_contour", params)`` task an advected contour needs at ``frame``."""
+        return [("advect_contour", advect_task_params(obj_params, frame))]
+
+    @task("advect_contour")
+    def advect_contour(params):
+        """Contour mesh of one frame with the texture start coordinates of its vertices.
+
+        The strategy traces the vertices of the cells holding the contour; their
+        start coordinates are passed to the contour as grid attributes, so every
+        mesh vertex gets them interpolated with the contour's own edge weights [1]_.
+
+        Returns
+        -------
+        dict of ndarray
+            :meth:`nephele.core.mesh.Mesh.to_arrays` with attributes ``altitude``,
+            the colour variable, and per copy ``a``/``b``: :data:`START`,
+            :data:`START_ALT` and :data:`WEIGHT`.
+        """
+        from .contour import isosurface
+        from .contour_task import ALTITUDE, open_source
+
+        ds = open_source(params["source"])
+        var, level = params["var"], float(params["level"])
+        if var not in ds:
+            raise DataError(f"no such variable (available: {', '.join(sorted(ds.variables))})", path=ds.source, field=var)
+        values = ds.read_at(var, params["hours"])
+        st = _strategy(params, ds)
+        n = min(int(params["frame"]), st.frame_hours.size - 1)
+        index = active_vertices(values, level, ds.grid.periodic_lon)
+        copies = st.copies(n, index) if index.size else [Copy(np.zeros((0, 3)), np.zeros(0), 1.0, 0.0)]
+        if len(copies) == 1:
+            copies = copies + [Copy(copies[0].xyz, copies[0].s, 0.0, copies[0].start_hours)]
+        attrs = {ALTITUDE: ds.grid.height.astype(np.float32)}
+        color_var = params.get("color_var") or ALTITUDE
+        if color_var != ALTITUDE:
+            attrs[color_var] = ds.read_at(color_var, params["hours"])
+        wind = st.wind
+        for name, cp in zip(COPIES, copies):
+            alt = wind.start_height(cp.xyz, cp.s) if len(cp.s) else np.zeros(0)
+            for c, vals in enumerate((cp.xyz[:, 0], cp.xyz[:, 1], cp.xyz[:, 2], alt)):
+                f = np.zeros(ds.grid.shape, dtype=np.float32)
+                f.reshape(-1)[index] = vals
+                attrs[f"_{name}{c}"] = f
+        points = ds.grid.points(radius=params["radius"], exaggeration=params["exaggeration"])
+        mesh = isosurface(points, values, level, periodic_lon=ds.grid.periodic_lon, method=params.get("method", "cubes"),
+                          attributes=attrs)
+        nv = len(mesh.vertices)
+        for name, cp in zip(COPIES, copies):
+            a = [mesh.attributes.pop(f"_{name}{c}", np.zeros(nv, np.float32)) for c in range(4)]
+            mesh.attributes[START.format(name)] = np.stack(a[:3], axis=1).astype(np.float32)
+            mesh.attributes[START_ALT.format(name)] = np.asarray(a[3], dtype=np.float32)
+            mesh.attributes[WEIGHT.format(name)] = np.full(nv, cp.weight, dtype=np.float32)
+        return mesh.to_arrays()
+
+
+_register_task()
+
+
 __all__ = [
     "AnalyticWind",
     "ComposedTrace",
@@ -611,7 +853,10 @@ __all__ = [
     "RestartTrace",
     "STRATEGIES",
     "WindField",
+    "ADVECT_DEFAULTS",
     "active_vertices",
+    "advect_task_params",
+    "dilate",
     "grid_vertices",
     "great_circle_km",
     "start_coordinates",

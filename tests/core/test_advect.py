@@ -189,25 +189,24 @@ def test_active_vertices_match_brute_force():
 def test_strategies_agree_on_solid_body_rotation():
     flow = flows.SolidBodyRotation(TILT)
     grid = flows.sample_grid(64, 32)
-    ds = flows.FlowDataset(flow, hours=9, grid=grid)
-    wind = advect.WindField(ds)
+    wind = advect.WindField(flows.FlowDataset(flow, hours=9, grid=grid))
     fh = np.arange(9.0)
     idx = np.arange(0, 64 * 32, 7)
     xyz = advect.grid_vertices(grid, idx)
-    s = advect.vertex_levels(grid, idx)
     exact = flow.exact_start(xyz, 8.0)
-    full = advect.FullTrace(wind, fh).copies(8, xyz, s)
-    comp = advect.ComposedTrace(wind, fh, grid, key_every=3, order=3)
-    for n in range(9):  # streamed in order
-        c = comp.copies(n, xyz, s)
+    full = advect.FullTrace(wind, fh, grid).copies(8, idx)
     assert len(full) == 1 and full[0].weight == 1.0 and full[0].start_hours == 0.0
     e_full = advect.great_circle_km(full[0].xyz, exact)
-    e_comp = advect.great_circle_km(c[0].xyz, exact)
     assert e_full.max() < 60  # coarse 64x32 grid (625 km cells)
-    assert e_comp.max() < e_full.max() + 30
-    # asked for an earlier frame, the composed strategy restarts and still agrees
-    back = comp.copies(2, xyz, s)[0]
-    np.testing.assert_allclose(back.xyz, advect.FullTrace(wind, fh).copies(2, xyz, s)[0].xyz, atol=1e-9)
+    for band in (None, 2):
+        comp = advect.ComposedTrace(wind, fh, grid, band=band)
+        for n in range(9):  # streamed in order
+            c = comp.copies(n, idx)
+        e_comp = advect.great_circle_km(c[0].xyz, exact)
+        assert e_comp.max() < e_full.max() + 30
+    # asked for an earlier frame, the composed strategy restarts from frame 0 and agrees with a direct trace
+    back = comp.copies(1, idx)[0]
+    np.testing.assert_allclose(back.xyz, advect.FullTrace(wind, fh, grid).copies(1, idx)[0].xyz, atol=1e-6)
 
 
 def test_composed_bilinear_smears_more_than_cubic():
@@ -216,39 +215,60 @@ def test_composed_bilinear_smears_more_than_cubic():
     wind = advect.AnalyticWind(flow, min_spacing=np.deg2rad(5.625))
     fh = np.arange(25.0)
     idx = np.arange(64 * 32)
-    xyz, s = advect.grid_vertices(grid, idx), advect.vertex_levels(grid, idx)
+    xyz = advect.grid_vertices(grid, idx)
     errs = {}
     for order in (1, 3):
-        comp = advect.ComposedTrace(wind, fh, grid, key_every=1, order=order)
+        comp = advect.ComposedTrace(wind, fh, grid, order=order, band=None)
         for n in range(25):
-            c = comp.copies(n, xyz, s)[0]
+            c = comp.copies(n, idx)[0]
         errs[order] = advect.great_circle_km(c.xyz, xyz).max()  # back home at T
     assert errs[3] < errs[1] / 3
 
 
-def test_restart_weights_and_restarts():
+def test_band_falls_back_to_direct_trace_outside_the_band():
+    # Ask for a different patch each frame: its stencil is never in the band, so
+    # every vertex is traced directly, and the answer equals the full trace.
+    flow = flows.SolidBodyRotation(0.0)
+    grid = flows.sample_grid(64, 32)
+    wind = advect.WindField(flows.FlowDataset(flow, hours=5, grid=grid))
+    fh = np.arange(5.0)
+    comp = advect.ComposedTrace(wind, fh, grid, band=1)
+    for n in range(5):
+        idx = np.array([n * 10 + 16 * 64])
+        c = comp.copies(n, idx)[0]
+    assert comp.stream.fallbacks >= 1
+    np.testing.assert_allclose(c.xyz, advect.FullTrace(wind, fh, grid).copies(4, idx)[0].xyz, atol=1e-6)
+
+
+@pytest.mark.parametrize("incremental", [False, True])
+def test_restart_weights_and_restarts(incremental):
     g = flat_grid()
     wind = advect.WindField(wind_dataset(g, nt=30, u=20.0))
-    r = advect.RestartTrace(wind, np.arange(30.0), period=8)
+    r = advect.RestartTrace(wind, np.arange(30.0), g, period=8, incremental=incremental)
     for n in range(30):
         wa, wb = r.weights(n)
         assert wa + wb == pytest.approx(1.0) and 0 <= wa <= 1
         a, b = r.restarts(n)
         assert 0 <= n - a < 8 and 0 <= n - b < 8 and a % 8 == 0
     assert r.weights(8) == (0.0, 1.0) and r.weights(4) == (1.0, 0.0)
-    x = random_points(10)
-    copies = r.copies(8, x, np.zeros(10))
-    np.testing.assert_allclose(copies[0].xyz, x)  # copy A restarts at frame 8: start = here, weight 0
+    idx = np.arange(0, g.shape[0] * 16 * 8, 5)
+    for n in range(9):
+        copies = r.copies(n, idx)
+    x = advect.grid_vertices(g, idx)
+    np.testing.assert_allclose(copies[0].xyz, x, atol=1e-6)  # copy A restarts at frame 8: start = here, weight 0
     assert copies[0].weight == 0.0 and copies[1].start_hours == 4.0
+    # copy B started at frame 4: 4 h of 20 m/s eastward wind
+    direct, _ = advect.trace(wind, x, advect.vertex_levels(g, idx), 8.0, 4.0)
+    np.testing.assert_allclose(copies[1].xyz, direct, atol=2e-3)
     with pytest.raises(ValueError):
-        advect.RestartTrace(wind, np.arange(30.0), period=7)
+        advect.RestartTrace(wind, np.arange(30.0), g, period=7)
 
 
 def test_start_height_and_bad_inputs():
     g = flat_grid(nk=4)
     wind = advect.WindField(wind_dataset(g))
     x = random_points(5)
-    c = advect.FullTrace(wind, [0.0, 1.0]).copies(1, x, np.full(5, 1.5))[0]
+    c = advect.Copy(x, np.full(5, 1.5), 1.0, 0.0)
     lon, lat, alt = advect.start_coordinates(wind, c)
     np.testing.assert_allclose(alt, 5000.0)
     with pytest.raises(ValueError):

@@ -1,0 +1,285 @@
+"""Cloud textures advected by the wind (Fig. 4): start coordinates, the fractal node group, the material.
+
+"Add advected cloud texture" turns a contour surface (kind ``"contour"``)
+into an advected contour (kind ``"advected_contour"``): every frame its mesh
+comes from the task ``"advect_contour"`` of :mod:`nephele.core.advect` (the
+same contour, plus per-vertex start coordinates of two texture copies and
+their weights, written with ``foreach_set``), from the cache or computed.
+The material evaluates the poor-man's fractal of :mod:`nephele.core.fractal`
+at the start coordinates in a shader node group that computes the same
+formula, and uses it as transparency on front faces only.
+
+References
+----------
+.. [1] N. Max and R. Crawfis, "Advances in Scientific Visualization" (Fig. 4).
+.. [2] G. Y. Gardner, "Visual simulation of clouds", SIGGRAPH 1985.
+"""
+
+import json
+import math
+
+import bpy
+
+from ..core import advect
+from ..core.fractal import Fractal, terms
+from ..core.mesh import Mesh
+from ..core.tasks import run_cached
+from . import frame, materials
+from .contour_ops import cache_dir
+from .mesh import fill_mesh
+
+GROUP_NAME = "Nephele Poor-Man's Fractal"
+KIND = "advected_contour"
+
+
+def _socket(tree, value):
+    """A node output for ``value``: a socket is returned as is, a number becomes a Value node."""
+    if isinstance(value, bpy.types.NodeSocket):
+        return value
+    node = tree.nodes.new("ShaderNodeValue")
+    node.outputs[0].default_value = float(value)
+    return node.outputs[0]
+
+
+def _math(tree, op, *args, loc=(0, 0)):
+    node = tree.nodes.new("ShaderNodeMath")
+    node.operation = op
+    node.location = loc
+    for i, a in enumerate(args):
+        if isinstance(a, bpy.types.NodeSocket):
+            tree.links.new(a, node.inputs[i])
+        else:
+            node.inputs[i].default_value = float(a)
+    return node.outputs[0]
+
+
+def fractal_node_group(fractal=Fractal()):
+    """The shader node group computing :func:`nephele.core.fractal.texture_xyz`.
+
+    Inputs ``Vector`` (start position, any length) and ``Altitude`` (m); output
+    ``Texture`` in ``[0, 1]``.  Built once per parameter set and reused.
+    """
+    key = json.dumps(fractal.as_dict(), sort_keys=True)
+    for ng in bpy.data.node_groups:
+        if ng.get("nephele_fractal") == key:
+            return ng
+    ng = bpy.data.node_groups.new(GROUP_NAME, "ShaderNodeTree")
+    ng["nephele_fractal"] = key
+    ng.interface.new_socket(name="Vector", in_out="INPUT", socket_type="NodeSocketVector")
+    ng.interface.new_socket(name="Altitude", in_out="INPUT", socket_type="NodeSocketFloat")
+    ng.interface.new_socket(name="Texture", in_out="OUTPUT", socket_type="NodeSocketFloat")
+    gin = ng.nodes.new("NodeGroupInput")
+    gin.location = (-1400, 0)
+    gout = ng.nodes.new("NodeGroupOutput")
+    gout.location = (1400, 0)
+    sep = ng.nodes.new("ShaderNodeSeparateXYZ")
+    sep.location = (-1200, 0)
+    ng.links.new(gin.outputs["Vector"], sep.inputs[0])
+    x, y, z = sep.outputs
+    alt = gin.outputs["Altitude"]
+    lon = _math(ng, "ARCTAN2", y, x, loc=(-1000, 200))
+    hyp = _math(ng, "SQRT", _math(ng, "MULTIPLY_ADD", y, y, _math(ng, "MULTIPLY", x, x)), loc=(-1000, 0))
+    lat = _math(ng, "ARCTAN2", z, hyp, loc=(-800, 0))
+    sx = sy = sz = 0.0
+    half_pi = 0.5 * math.pi
+    for i, (omega, big, c, a, b, d) in enumerate(terms(fractal)):
+        px = _math(ng, "SINE", _math(ng, "MULTIPLY", lat, 0.5 * omega))  # perturbs X and Z
+        py = _math(ng, "SINE", _math(ng, "MULTIPLY", lon, 0.5 * omega))  # perturbs Y
+        for axis, coord, freq, phase, pert in (("x", lon, omega, a, px), ("y", lat, omega, b, py), ("z", alt, big, d, px)):
+            arg = _math(ng, "MULTIPLY_ADD", pert, half_pi, _math(ng, "MULTIPLY_ADD", coord, freq, phase))
+            wave = _math(ng, "SINE", arg, loc=(200 * i - 600, {"x": 400, "y": 0, "z": -400}[axis]))
+            if axis == "x":
+                sx = _math(ng, "MULTIPLY_ADD", wave, c, sx)
+            elif axis == "y":
+                sy = _math(ng, "MULTIPLY_ADD", wave, c, sy)
+            else:
+                sz = _math(ng, "MULTIPLY_ADD", wave, c, sz)
+    prod = _math(ng, "MULTIPLY", _math(ng, "ADD", sx, 1.0), _math(ng, "ADD", sy, 1.0))
+    tex = _math(ng, "MULTIPLY", _math(ng, "MULTIPLY", prod, _math(ng, "ADD", sz, 1.0)), 0.125, loc=(1200, 0))
+    ng.links.new(tex, gout.inputs["Texture"])
+    return ng
+
+
+def _attribute(tree, name, loc):
+    node = tree.nodes.new("ShaderNodeAttribute")
+    node.attribute_name = name
+    node.location = loc
+    return node
+
+
+def texture_nodes(tree, fractal=Fractal(), location=(-600, 0)):
+    """Nodes giving ``Σ w_k T(start_k)`` over the copies ``a``, ``b`` from the mesh attributes; returns the socket."""
+    group = fractal_node_group(fractal)
+    x0, y0 = location
+    total = None
+    for i, name in enumerate(advect.COPIES):
+        y = y0 - 300 * i
+        vec = _attribute(tree, advect.START.format(name), (x0 - 400, y))
+        alt = _attribute(tree, advect.START_ALT.format(name), (x0 - 400, y - 150))
+        w = _attribute(tree, advect.WEIGHT.format(name), (x0 - 200, y - 100))
+        g = tree.nodes.new("ShaderNodeGroup")
+        g.node_tree = group
+        g.location = (x0 - 200, y)
+        tree.links.new(vec.outputs["Vector"], g.inputs["Vector"])
+        tree.links.new(alt.outputs["Fac"], g.inputs["Altitude"])
+        part = _math(tree, "MULTIPLY", g.outputs["Texture"], w.outputs["Fac"], loc=(x0, y))
+        total = part if total is None else _math(tree, "ADD", total, part, loc=(x0 + 150, y0))
+    return total
+
+
+def cloud_material(name="Nephele Advected Clouds", fractal=Fractal(), lo=0.08, hi=0.28, color=(0.9, 0.9, 0.92)):
+    """Clouds whose opacity is the advected texture mapped from ``[lo, hi]`` to ``[0, 1]``; back faces transparent.
+
+    As in the paper only front-facing contour polygons are drawn: EEVEE and
+    Workbench cull back faces, Cycles mixes them to transparent with the
+    Geometry node's ``Backfacing``.
+    """
+    mat = bpy.data.materials.get(name) or bpy.data.materials.new(name)
+    materials.enable_nodes(mat)
+    tree = mat.node_tree
+    tree.nodes.clear()
+    out = tree.nodes.new("ShaderNodeOutputMaterial")
+    out.location = (900, 0)
+    tex = texture_nodes(tree, fractal, location=(-300, 0))
+    rng = tree.nodes.new("ShaderNodeMapRange")
+    rng.name = rng.label = "Nephele opacity"
+    rng.clamp = True
+    rng.inputs["From Min"].default_value = lo
+    rng.inputs["From Max"].default_value = hi
+    rng.location = (0, 0)
+    tree.links.new(tex, rng.inputs["Value"])
+    geo = tree.nodes.new("ShaderNodeNewGeometry")
+    geo.location = (0, 300)
+    front = _math(tree, "SUBTRACT", 1.0, geo.outputs["Backfacing"], loc=(200, 300))
+    alpha = _math(tree, "MULTIPLY", rng.outputs["Result"], front, loc=(400, 200))
+    clear = tree.nodes.new("ShaderNodeBsdfTransparent")
+    clear.location = (400, -100)
+    white = tree.nodes.new("ShaderNodeBsdfDiffuse")
+    white.inputs["Color"].default_value = tuple(color) + (1.0,)
+    white.location = (400, -250)
+    mix = tree.nodes.new("ShaderNodeMixShader")
+    mix.location = (650, 0)
+    tree.links.new(alpha, mix.inputs[0])
+    tree.links.new(clear.outputs[0], mix.inputs[1])
+    tree.links.new(white.outputs[0], mix.inputs[2])
+    tree.links.new(mix.outputs[0], out.inputs["Surface"])
+    mat.use_backface_culling = True
+    if hasattr(mat, "surface_render_method"):
+        mat.surface_render_method = "BLENDED"
+    mat["nephele_advected"] = json.dumps({"fractal": fractal.as_dict(), "lo": lo, "hi": hi})
+    return mat
+
+
+@frame.register_updater(KIND)
+def update_advected(obj, params, scene, frame_number):
+    """Refill ``obj`` with the contour and texture start coordinates of ``frame_number``."""
+    tp = advect.advect_task_params(params, frame_number)
+    shown = json.dumps(tp, sort_keys=True)
+    if obj.get("nephele_shown") == shown and len(obj.data.vertices):
+        return
+    arrays = run_cached("advect_contour", tp, cache_dir())
+    fill_mesh(obj.data, Mesh.from_arrays(arrays))
+    obj["nephele_shown"] = shown
+    obj["nephele_hours"] = tp["hours"]
+
+
+def add_advected_texture(obj, *, strategy="restart", period=24, integrator="rk4", fractal=Fractal(), lo=0.08, hi=0.28,
+                         scene=None):
+    """Give the contour object ``obj`` the advected cloud texture; returns ``obj``.
+
+    Parameters
+    ----------
+    obj : bpy.types.Object
+        A contour surface (``obj["nephele"]`` of kind ``"contour"``) or an
+        already advected one (its settings are replaced).
+    strategy : {"restart", "compose", "full"}
+        See :mod:`nephele.core.advect` (restart: two copies, cross-faded every
+        ``period`` frames; compose: one copy composed frame by frame; full:
+        the paper's trace back to the first frame, cost growing with the frame).
+    integrator : {"rk4", "rk2", "euler"}
+    fractal : Fractal
+    lo, hi : float
+        Texture values mapped to fully transparent and fully opaque.
+    """
+    scene = scene or bpy.context.scene
+    params = frame.params(obj)
+    if params.get("kind") not in ("contour", KIND):
+        raise ValueError(f"{obj.name} is not a Nephele contour surface (kind {params.get('kind')!r})")
+    if strategy not in advect.STRATEGIES:
+        raise ValueError(f"strategy must be one of {sorted(advect.STRATEGIES)}, got {strategy!r}")
+    params.update({"kind": KIND, "strategy": strategy, "period": int(period), "integrator": integrator})
+    frame.set_params(obj, params)
+    obj.pop("nephele_shown", None)
+    materials.assign(obj, cloud_material(f"{obj.name} advected texture", fractal, lo, hi))
+    update_advected(obj, params, scene, scene.frame_current + scene.frame_subframe)
+    return obj
+
+
+def _is_contour(obj):
+    return obj is not None and frame.params(obj).get("kind") in ("contour", KIND)
+
+
+class NEPHELE_OT_add_advected_texture(bpy.types.Operator):
+    """Texture the selected contour surface with a cloud texture carried by the wind (front faces only)"""
+
+    bl_idname = "nephele.add_advected_texture"
+    bl_label = "Add advected cloud texture"
+    bl_options = {"REGISTER", "UNDO"}
+
+    strategy: bpy.props.EnumProperty(name="Strategy", default="restart", items=[
+        ("restart", "Restart, 2 copies", "Two texture copies restarted every period, cross-faded (bounded stretch)"),
+        ("compose", "Compose", "One copy composed frame by frame from the first frame (bicubic)"),
+        ("full", "Full trace", "The paper's: trace back to the first frame every frame (slow late in a film)"),
+    ])
+    period: bpy.props.IntProperty(name="Restart period (frames)", default=24, min=2, step=2)
+    integrator: bpy.props.EnumProperty(name="Integrator", default="rk4", items=[
+        ("rk4", "RK4", ""), ("rk2", "RK2", ""), ("euler", "Euler", "")])
+    lo: bpy.props.FloatProperty(name="Clear below", default=0.08, min=0.0, max=1.0)
+    hi: bpy.props.FloatProperty(name="Opaque above", default=0.28, min=0.0, max=1.0)
+
+    @classmethod
+    def poll(cls, context):
+        return _is_contour(context.active_object)
+
+    def execute(self, context):
+        from ..core.errors import DataError
+
+        if self.strategy == "restart" and self.period % 2:
+            self.report({"ERROR"}, "the restart period must be even")
+            return {"CANCELLED"}
+        try:
+            obj = add_advected_texture(context.active_object, strategy=self.strategy, period=self.period,
+                                       integrator=self.integrator, lo=self.lo, hi=max(self.hi, self.lo + 1e-3),
+                                       scene=context.scene)
+        except (DataError, OSError, ValueError) as exc:
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        self.report({"INFO"}, f"{obj.name}: {len(obj.data.vertices)} textured vertices")
+        return {"FINISHED"}
+
+
+class NEPHELE_PT_advect(bpy.types.Panel):
+    bl_label = "Advected texture"
+    bl_idname = "NEPHELE_PT_advect"
+    bl_parent_id = "NEPHELE_PT_main"
+    bl_space_type = "VIEW_3D"
+    bl_region_type = "UI"
+    bl_category = "Nephele"
+    bl_options = {"DEFAULT_CLOSED"}
+
+    def draw(self, context):
+        layout = self.layout
+        obj = context.active_object
+        layout.operator(NEPHELE_OT_add_advected_texture.bl_idname)
+        if obj is not None and frame.params(obj).get("kind") == KIND:
+            p = frame.params(obj)
+            col = layout.column(align=True)
+            col.label(text=f"Strategy: {p.get('strategy')}, {p.get('integrator', 'rk4')}")
+            if p.get("strategy") == "restart":
+                col.label(text=f"Restart every {p.get('period')} frames")
+            col.label(text=f"Model time: {obj.get('nephele_hours', 0.0):g} h")
+        elif not _is_contour(obj):
+            layout.label(text="Select a contour surface")
+
+
+CLASSES = (NEPHELE_OT_add_advected_texture, NEPHELE_PT_advect)

@@ -1,0 +1,196 @@
+"""Advected texture coordinates: strategy × step × error (km) × seconds per frame.
+
+Part 1 — exact answers on the paper's 320×160 grid, 240 frames over T = 12 days
+(1.2 h apart; winds hourly): Nair & Lauritzen (2010) case 4 (every point is home
+at T; at T/2 the reference is RK4 with 0.05 h steps on the analytic wind) and
+Williamson et al. (1992) case 1 tilted by α = π/2 − 0.05 (exact rotation).  Each
+with the analytic wind (integrator error) and the same wind sampled hourly on
+the grid (adds the data interpolation floor).
+
+Part 2 — speed on the 320×160×19 demo for the vertices of the cells holding the
+15 % cloud contour, with the demo's closed-form flow map as the exact answer.
+
+Usage: ``python benchmarks/bench_advect.py [--quick]``.
+"""
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from report import md_table, write_section  # noqa: E402
+
+from nephele.core import advect, flows  # noqa: E402
+
+TILT = np.pi / 2 - 0.05
+
+
+def reference(flow, xyz, t_from, t_to):
+    if isinstance(flow, flows.SolidBodyRotation):
+        return flow.exact_start(flow.exact_start(xyz, t_from), -t_to) if t_to else flow.exact_start(xyz, t_from)
+    if abs(t_from - flow.period_hours) < 1e-9 and t_to == 0:
+        return xyz
+    x, _ = advect.trace(advect.AnalyticWind(flow), xyz, np.zeros(len(xyz)), t_from, t_to, dt_max=0.05)
+    return x
+
+
+def err_km(a, b):
+    e = advect.great_circle_km(a, b)
+    return float(np.sqrt(np.mean(e**2))), float(e.max())
+
+
+def part1(quick):
+    nframes = 240
+    rows = []
+    grid = flows.sample_grid()
+    lvl0 = np.arange(grid.shape[1] * grid.shape[2])
+    pts = lvl0[:: 7] if not quick else lvl0[:: 31]
+    xyz = advect.grid_vertices(grid, pts)
+    cases = [("NL2010 case 4", flows.DeformationalFlow()), ("W1992 case 1, α=π/2−0.05", flows.SolidBodyRotation(TILT))]
+    for cname, flow in cases:
+        T = flow.period_hours
+        fh = np.linspace(0.0, T, nframes + 1)
+        half = nframes // 2
+        truth_half = reference(flow, xyz, fh[half], 0.0)
+        truth_end = reference(flow, xyz, fh[-1], 0.0)
+        for wname, wind in (("analytic", advect.AnalyticWind(flow)), ("hourly grid", advect.WindField(flows.FlowDataset(flow)))):
+            # (a) full backward integration to t = 0: cost grows with the frame; the mean over
+            # 240 frames equals the cost at frame 120 (linear in n), measured there.
+            analytic = isinstance(wind, advect.AnalyticWind)
+            nl = isinstance(flow, flows.DeformationalFlow)
+            runs = (("euler", 1.0), ("rk2", 1.0), ("rk4", 1.0), ("rk4", 0.25)) if analytic and nl and not quick else (("rk4", 1.0),)
+            for method, dt in runs:
+                st = advect.FullTrace(wind, fh, grid, method=method, dt_max=dt)
+                t0 = time.perf_counter()
+                c_half = st.copies(half, pts)[0]
+                sec = time.perf_counter() - t0
+                c_end = st.copies(nframes, pts)[0]
+                rows.append([cname, wname, f"(a) full, {method}", f"{dt:g} h", len(pts), *err_km(c_half.xyz, truth_half),
+                             *err_km(c_end.xyz, truth_end), sec])
+            # (b) composition of one-frame maps on the whole grid (both levels), streamed over 240 frames.
+            # (the machine is shared: the trilinear row only where it shows the smear, NL case 4 analytic)
+            for order in ((1, 3) if analytic and nl and not quick else (3,)):
+                if quick and analytic:
+                    continue
+                st = advect.ComposedTrace(wind, fh, grid, order=order, band=None)
+                t0 = time.perf_counter()
+                for n in range(nframes + 1):
+                    c = st.copies(n, pts)[0]
+                    if n == half:
+                        e_half = err_km(c.xyz, truth_half)
+                sec = (time.perf_counter() - t0) / nframes
+                label = "(b) compose, " + ("trilinear" if order == 1 else "Catmull-Rom bicubic")
+                rows.append([cname, wname, label, "1 frame", grid.shape[0] * len(lvl0), *e_half, *err_km(c.xyz, truth_end), sec])
+            # (c) restart every 24 frames, two copies: error of the longest-running copy (23 frames).
+            st = advect.RestartTrace(wind, fh, grid, period=24)
+            first = half - 24
+            t0 = time.perf_counter()
+            for n in range(first, half + 12):
+                cs = st.copies(n, pts)
+            sec = (time.perf_counter() - t0) / (half + 12 - first)
+            n = half + 11
+            errs = []
+            for cp in cs:
+                truth = reference(flow, xyz, fh[n], cp.start_hours) if not isinstance(flow, flows.SolidBodyRotation) else \
+                    flow.exact_start(flow.exact_start(xyz, fh[n]), -cp.start_hours)
+                errs.append(err_km(cp.xyz, truth))
+            worst = max(errs, key=lambda e: e[1])
+            rows.append([cname, wname, "(c) restart P=24, 2 copies", "1 frame", len(pts), *worst, "", "", sec])
+    return rows
+
+
+def demo_dataset():
+    try:
+        from nephele.core.readers import open_dataset
+
+        return open_dataset("demo")
+    except ImportError:
+        from nephele.core.synthetic import demo_dataset as make
+
+        return make()
+
+
+def part2(quick):
+    ds = demo_dataset()
+    grid = ds.grid
+    wind = advect.WindField(ds)
+    fh = ds.hours
+    nframes = 24 if quick else 48
+    level = 0.15
+    actives = {}
+
+    def active(n):
+        if n not in actives:
+            actives[n] = advect.active_vertices(ds.read("cloud", n), level, grid.periodic_lon)
+        return actives[n]
+
+    def exact(n, idx, start_frame):
+        k = np.unravel_index(idx, grid.shape)[0]
+        jet, storm = ds.level_factors(k)
+        xyz = advect.grid_vertices(grid, idx)
+        a = ds.inverse(tuple(xyz.T), fh[n] * 3600.0, jet, storm)
+        if start_frame:
+            a = ds.forward(a, fh[start_frame] * 3600.0, jet, storm)
+        return np.stack(a, axis=1)
+
+    has_truth = hasattr(ds, "inverse")
+    rows = []
+    for n in range(nframes + 1):
+        active(n)
+    nact = int(np.mean([active(n).size for n in range(1, nframes + 1)]))
+    setups = [
+        ("(c) restart P=24, incremental", "rk4", lambda: advect.RestartTrace(wind, fh, grid, period=24)),
+        ("(c) restart P=24, incremental", "rk2", lambda: advect.RestartTrace(wind, fh, grid, period=24, method="rk2")),
+        ("(b) compose, bicubic, band 3", "rk4", lambda: advect.ComposedTrace(wind, fh, grid)),
+        ("(b) compose, bicubic, band 3", "rk2", lambda: advect.ComposedTrace(wind, fh, grid, method="rk2")),
+    ]
+    for label, method, make in setups:
+        st = make()
+        t0 = time.perf_counter()
+        for n in range(1, nframes + 1):
+            cs = st.copies(n, active(n))
+        sec = (time.perf_counter() - t0) / nframes
+        e = ("", "")
+        if has_truth:
+            errs = [err_km(cp.xyz, exact(nframes, active(nframes), int(round(cp.start_hours)))) for cp in cs]
+            e = max(errs, key=lambda x: x[1])
+        fb = sum(s.fallbacks for s in getattr(st, "streams", [getattr(st, "stream", None)]) if s is not None)
+        rows.append([label, method, "1 h", nact, *e, sec, f"frames 1–{nframes}; {fb} fallback traces"])
+    # (a) full: frames 6 and 24 measured; cost is linear in the frame, so the 240-frame mean ≈ cost(120) = 5 × cost(24).
+    st = advect.FullTrace(wind, fh, grid)
+    for n in (6, 24):
+        t0 = time.perf_counter()
+        c = st.copies(n, active(n))[0]
+        sec = time.perf_counter() - t0
+        e = err_km(c.xyz, exact(n, active(n), 0)) if has_truth else ("", "")
+        rows.append([f"(a) full to frame 0 (frame {n})", "rk4", "1 h", active(n).size, *e, sec,
+                     f"240-frame mean ≈ {sec * 120 / n:.1f} s (extrapolated, linear in frame)"])
+    return rows, ds
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--quick", action="store_true", help="fewer points, methods and frames")
+    args = ap.parse_args(argv)
+    r1 = part1(args.quick)
+    r2, ds = part2(args.quick)
+    body = (
+        "Shared 2-core machine under load from other jobs: seconds are upper bounds.  Errors are great-circle km; "
+        "one grid cell is ~125 km, so the data interpolation floor (a tenth of a cell) is ~12 km.\n\n"
+        "### Exact answers, 320×160 grid, 240 frames over T = 12 days (frames 1.2 h apart, winds hourly)\n\n"
+        "(a) is timed at frame 120, which equals its mean over the 240 frames (cost linear in the frame); "
+        "(b) streams all 240 frames over the whole grid (both levels); (c) streams frames 96–131 and reports the "
+        "copy that ran longest (23 frames) against the exact trajectory over its own interval.\n\n"
+        + md_table(["case", "wind", "strategy", "step", "points", "rms T/2", "max T/2", "rms T", "max T", "s/frame"], r1)
+        + f"\n\n### Demo {ds.grid.shape[2]}×{ds.grid.shape[1]}×{ds.grid.shape[0]}, vertices of cells holding the 15 % cloud "
+        "contour, exact answer from the demo's closed-form flow map\n\n"
+        + md_table(["strategy", "method", "step", "vertices", "rms km", "max km", "s/frame", "note"], r2)
+    )
+    write_section("advect", body, title="Advected texture coordinates (Fig. 4)")
+
+
+if __name__ == "__main__":
+    main()
