@@ -107,7 +107,8 @@ def isosurface(points, values, level, *, periodic_lon=False, method="cubes", att
         latitudes such as ±89.44°): add the pole, on the ring's axis at the
         ring's mean distance from the origin, with the ring's mean value, so
         that surfaces reaching the pole are closed there instead of keeping a
-        hole the size of the polar cap.  Rows already at a pole are left alone.
+        hole the size of the polar cap.  Rows already at a pole, and rows more
+        than 10° from one (a latitude band), are left alone.
 
     Returns
     -------
@@ -208,6 +209,10 @@ def _collapsed_rows(points):
     return mask if mask.any() else None
 
 
+POLE_RING = np.sin(np.deg2rad(10.0))
+"""``close_poles`` closes a last row only if it lies within 10° of the pole."""
+
+
 def _add_poles(points, values, attributes):
     """Add a pole row before row 0 and after row nj-1 where those rows are open rings."""
     collapsed = _collapsed_rows(points)
@@ -217,12 +222,14 @@ def _add_poles(points, values, attributes):
             poles.append(None)
             continue
         ring = points[:, j].astype(np.float64)  # (nk, ni, 3)
-        centre = ring.mean(axis=1)
+        centre = ring.mean(axis=1, keepdims=True)
         size = np.linalg.norm(ring, axis=-1).mean(axis=1)
-        norm = np.linalg.norm(centre, axis=-1)
-        if np.any(norm <= 1e-9 * size):
-            raise DataError(f"row {j} is not a ring around an axis through the origin", field="close_poles")
-        poles.append(centre * (size / norm)[:, None])  # (nk, 3)
+        spread = np.linalg.norm(ring - centre, axis=-1).mean(axis=1)
+        if np.any(spread > POLE_RING * size):
+            poles.append(None)  # a ring far from any pole (a latitude band): leave it open
+            continue
+        centre = centre[:, 0]
+        poles.append(centre * (size / np.linalg.norm(centre, axis=-1))[:, None])  # (nk, 3)
     if poles[0] is None and poles[1] is None:
         return points, values, attributes
 

@@ -46,7 +46,8 @@ def run(args):
     if args.color_var:
         attributes[args.color_var] = ds.read(args.color_var, args.time)
     points = ds.grid.points(radius=args.radius, exaggeration=exaggeration)
-    mesh = isosurface(points, values, args.level, periodic_lon=ds.grid.periodic_lon,
+    periodic = ds.grid.periodic_lon
+    mesh = isosurface(points, values, args.level, periodic_lon=periodic, close_poles=periodic,
                       method=args.method, attributes=attributes)
     mesh.save(out)
     when = np.datetime_as_string(ds.times[args.time], unit="h") if ds.times.size else "?"

@@ -220,6 +220,13 @@ def test_close_poles_on_cell_centred_latitudes(method):
     assert np.array_equal(a.faces, b.faces) and np.allclose(a.vertices, b.vertices)
     with pytest.raises(DataError):
         isosurface(p, v, 0.6, close_poles=True)
+    # A latitude band is not closed: its edge rows are far from the poles.
+    band = p[:, 5:-5]
+    vb = v[:, 5:-5]
+    assert np.array_equal(
+        isosurface(band, vb, 0.6, periodic_lon=True, close_poles=True).faces,
+        isosurface(band, vb, 0.6, periodic_lon=True).faces,
+    )
 
 
 # ---------------------------------------------------------------- values at the level

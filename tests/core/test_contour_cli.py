@@ -32,7 +32,8 @@ def test_exports_the_demo_cloud_surface(tmp_path, ext):
     from nephele.core.readers import open_dataset
 
     ds = open_dataset("demo:small")
-    ref = isosurface(ds.grid.points(), ds.read("cloud", 3), 0.15, periodic_lon=ds.grid.periodic_lon)
+    periodic = ds.grid.periodic_lon
+    ref = isosurface(ds.grid.points(), ds.read("cloud", 3), 0.15, periodic_lon=periodic, close_poles=periodic)
     assert len(mesh.faces) == len(ref.faces)
     assert [p.name for p in tmp_path.iterdir()] == [out.name]
 
