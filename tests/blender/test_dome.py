@@ -34,7 +34,6 @@ def _markers(scene, distance=10.0, radius=0.3, markers=MARKERS):
         bm.to_mesh(mesh)
         bm.free()
         mat = bpy.data.materials.new(name)
-        mat.use_nodes = True
         nt = mat.node_tree
         nt.nodes.clear()
         em = nt.nodes.new("ShaderNodeEmission")
