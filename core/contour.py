@@ -143,7 +143,7 @@ def isosurface(points, values, level, *, periodic_lon=False, method="cubes", att
 
     dtype = values.dtype if values.dtype in (np.float32, np.float64) else np.float64
     values = values.astype(dtype, copy=False)
-    # The level in the values' precision, so that "== level" and "t == 0" agree.
+    # The level in the values' precision: a float32 value that reads 0.15 is at the level 0.15.
     level = dtype.type(level)
     attributes = {k: np.asarray(a) for k, a in attributes.items()}
 

@@ -9,7 +9,7 @@ from nephele.core import contour
 from nephele.core.contour import EDGE_MARGIN, isosurface, regular_points
 from nephele.core.errors import DataError
 from nephele.core.grid import GlobeGrid, lonlat_to_xyz
-from nephele.core.mesh import Mesh, triangle_areas
+from nephele.core.mesh import triangle_areas
 
 METHODS = ["cubes", "tetra5"]
 CENTRE = np.array([0.1, 0.05, 0.2])  # off the grid's centre: the sphere cuts every kind of edge

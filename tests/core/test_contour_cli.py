@@ -23,6 +23,9 @@ def test_exports_the_demo_cloud_surface(tmp_path, ext):
     assert r.returncode == 0, r.stderr
     assert "triangles" in r.stdout
     mesh = trimesh.load(out, force="mesh", process=False)
+    if ext == ".ply":  # normals and the altitude attribute travel with the vertices
+        header = out.read_bytes()[:600]
+        assert b"property float nx" in header and b"property float altitude" in header
     assert len(mesh.faces) > 100
     # On the globe: between the terrain (chords dip a little under it) and the exaggerated atmosphere top.
     radius = np.linalg.norm(mesh.vertices, axis=1)
