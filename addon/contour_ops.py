@@ -95,18 +95,21 @@ def add_contour(var="cloud", level=0.15, *, source=None, exaggeration=None, radi
     return obj
 
 
+_ENUM_ITEMS = {}  # Blender needs Python to keep dynamic enum strings alive
+
+
 def _variables(self, context):
     try:
         names = sorted(data_ops.dataset(scene=context.scene).variables)
     except Exception:  # noqa: BLE001 - no usable dataset yet: offer the standard name
         names = ["cloud"]
-    return [(n, n, "") for n in names]
+    return _ENUM_ITEMS.setdefault(("var", tuple(names)), [(n, n, "") for n in names])
 
 
 def _color_variables(self, context):
-    return [("altitude", "altitude", "Height above sea level")] + [
-        item for item in _variables(self, context) if item[0] != "altitude"
-    ]
+    names = tuple(item[0] for item in _variables(self, context) if item[0] != "altitude")
+    return _ENUM_ITEMS.setdefault(("color", names), [("altitude", "altitude", "Height above sea level")]
+                                  + [(n, n, "") for n in names])
 
 
 class NEPHELE_OT_add_contour(bpy.types.Operator):

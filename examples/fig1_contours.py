@@ -28,7 +28,7 @@ DEFAULTS = {
     "haze": True,
     "camera_lon": -40.0,
     "camera_lat": 22.0,
-    "camera_distance": 3.9,
+    "camera_distance": 4.5,
     "frames": (1, 24),
     "size": (640, 480),
     "samples": 32,
@@ -96,12 +96,13 @@ def main(argv=None):
     ap.add_argument("--samples", type=int, default=DEFAULTS["samples"])
     ap.add_argument("--source", default=DEFAULTS["source"], help='"demo", "demo:small", a .nc or a .ctl')
     ap.add_argument("--level", type=float, default=DEFAULTS["level"])
+    ap.add_argument("--hours-per-frame", type=float, default=DEFAULTS["hours_per_frame"])
     ap.add_argument("--no-haze", action="store_true", help="leave out the blue haze (renders ~3x faster)")
     args = ap.parse_args(argv)
 
     bpy.ops.wm.read_factory_settings(use_empty=True)
     build(source=args.source, level=args.level, frames=args.frames, size=args.size, samples=args.samples,
-          haze=not args.no_haze)
+          hours_per_frame=args.hours_per_frame, haze=not args.no_haze)
     scene = bpy.context.scene
     if args.save:
         Path(args.save).parent.mkdir(parents=True, exist_ok=True)
