@@ -99,6 +99,9 @@ SIZES = {
 """Preset sizes of :func:`demo_dataset`: the paper's grid and a fast one for tests."""
 
 
+CLOUD_GAIN, CLOUD_BIAS = 1.3, 0.3
+
+
 def _smootherstep(x):
     x = np.clip(x, 0.0, 1.0)
     return x * x * x * (x * (6.0 * x - 15.0) + 10.0)
@@ -181,14 +184,14 @@ class SyntheticClimate(Dataset):
         self.vertical = f"hybrid height over the ETOPO60 relief, flat top at {TOP / 1000:g} km"
         z = self.nominal_height
         # How strongly each level feels the jets (peak near 11 km) and the storms (weaker aloft).
-        self._jet_factor = 0.25 + 0.75 * _gauss(z, 11_000.0, 5_000.0)
+        self._jet_factor = 0.25 + 0.75 * _gauss(z, 11_000.0, 3_500.0)
         self._storm_factor = np.where(z < 6_000.0, 1.0, 0.3 + 0.7 * _gauss(z, 6_000.0, 5_000.0))
         rng = np.random.default_rng(self.seed)
         self._storms = self._make_storms(rng, days, n_storms)
         phi = np.rad2deg(np.arcsin(_ZNODES))
         self._jet_shapes = [peak / np.cos(np.deg2rad(lat0)) * _gauss(phi, lat0, width) / EARTH_RADIUS for lat0, width, peak, *_ in _JETS]
         self._frames = [self._theta_table(g["frame"]) for g in self._storms]
-        self._noise = [self._make_waves(rng, 10, 4.0, 10.0), self._make_waves(rng, 12, 9.0, 16.0), self._make_waves(rng, 10, 4.0, 12.0)]
+        self._noise = [self._make_waves(rng, 10, 3.0, 7.0, 4.0), self._make_waves(rng, 16, 12.0, 22.0, 25.0), self._make_waves(rng, 10, 4.0, 12.0, 3.0)]
         # Grid points as unit vectors (float64) and east/north unit vectors, shape (nj, ni).
         lam, phi = np.deg2rad(lon)[None, :], np.deg2rad(lat)[:, None]
         cl, sl, cp, sp = np.cos(lam), np.sin(lam), np.cos(phi), np.sin(phi)
@@ -239,11 +242,11 @@ class SyntheticClimate(Dataset):
         return groups
 
     @staticmethod
-    def _make_waves(rng, n, kmin, kmax):
+    def _make_waves(rng, n, kmin, kmax, vmax):
         d = rng.normal(size=(n, 3))
         d /= np.linalg.norm(d, axis=1, keepdims=True)
         k = d * rng.uniform(kmin, kmax, size=(n, 1))
-        return k, rng.uniform(0.0, 2 * np.pi, size=n), rng.uniform(0.5, 1.0, size=n)
+        return k, rng.uniform(0.0, 2 * np.pi, size=n), rng.uniform(0.5, 1.0, size=n), rng.uniform(-vmax, vmax, size=n)
 
     # --------------------------------------------------------------- flow map parts
     def _theta_table(self, t):
@@ -335,19 +338,22 @@ class SyntheticClimate(Dataset):
         return self._jet_factor[k], self._storm_factor[k]
 
     # -------------------------------------------------------------- initial fields
-    def _waves(self, which, a):
-        kvec, phase, amp = self._noise[which]
+    def _waves(self, which, a, level_height=None):
+        """Unit-variance sum of plane waves in 3-D evaluated on unit vectors ``a``; their
+        phases also turn with the level's nominal height, so structures change upward."""
+        kvec, phase, amp, vertical = self._noise[which]
         x, y, z = (np.asarray(v, dtype=np.float32) for v in a)
-        out = np.zeros(x.shape, dtype=np.float32)
-        for (kx, ky, kz), ph, am in zip(kvec.astype(np.float32), phase.astype(np.float32), amp.astype(np.float32)):
-            out += am * np.sin(kx * x + ky * y + kz * z + ph)
-        return out * np.float32(1.0 / np.sqrt(0.5 * np.sum(amp**2)))  # unit variance
+        eta = np.float32(0.0) if level_height is None else np.asarray(level_height, dtype=np.float32) / np.float32(TOP)
+        out = np.zeros(np.broadcast(x, eta).shape, dtype=np.float32)
+        for (kx, ky, kz), ph, am, m in zip(kvec.astype(np.float32), phase.astype(np.float32), amp.astype(np.float32), vertical.astype(np.float32)):
+            out += am * np.sin(kx * x + ky * y + kz * z + (ph + m * eta))
+        return out * np.float32(1.0 / np.sqrt(0.5 * np.sum(amp**2)))
 
     def initial_cloud(self, a, k):
         """``C0_k(a)``: cloud fraction at ``t = 0`` at unit vectors ``a`` on levels ``k``."""
         z = self.nominal_height[np.asarray(k)].astype(np.float32)
         lat = np.rad2deg(np.arcsin(np.clip(np.asarray(a[2], dtype=np.float32), -1.0, 1.0)))
-        n1, n2 = self._waves(0, a), self._waves(1, a)
+        systems, cells = self._waves(0, a, z), self._waves(1, a, z)
         storm_track = _gauss(np.abs(lat), 50.0, 12.0) * (1.0 + 0.25 * (lat > 0))
         itcz = _gauss(lat, -4.0, 7.0)
         subtropics = _gauss(np.abs(lat), 24.0, 7.0)
@@ -363,7 +369,7 @@ class SyntheticClimate(Dataset):
             + 0.18 * (low + 0.5 * mid)
             - 0.25 * subtropics * (mid + deep)
         )
-        c = 0.8 * wet * (1.0 + 0.9 * n1 + 0.6 * n2) * top - 0.08
+        c = CLOUD_GAIN * wet * (CLOUD_BIAS + 0.6 * systems + 0.55 * cells) * top - 0.05
         return np.clip(c, 0.0, 1.0).astype(np.float32)
 
     def _anomaly(self, a):

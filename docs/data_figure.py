@@ -40,7 +40,7 @@ def panel(ax, grid, cloud, title, u=None, v=None, background=None):
     if u is not None:
         si, sj = max(1, grid.lon.size // 36), max(1, grid.lat.size // 18)
         ax.quiver(grid.lon[::si], grid.lat[sj // 2 :: sj], u[sj // 2 :: sj, ::si], v[sj // 2 :: sj, ::si],
-                  color="#ff5533", scale=700, width=0.002)
+                  color="#ff5533", scale=450, width=0.002)
     ax.set_xlim(0, 360)
     ax.set_ylim(-90, 90)
     ax.set_xticks(range(0, 361, 60))
