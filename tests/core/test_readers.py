@@ -282,3 +282,18 @@ def test_grads_errors(tmp_path):
     ctl = _grads(tmp_path, good.replace("06Z1FEB1990", "sometime"), b"\0" * size, name="badt")
     with pytest.raises(DataError, match=r"badt.ctl: field 'tdef': cannot read the time 'sometime'"):
         open_dataset(ctl)
+
+
+def test_seam_column_and_regional_grid(tmp_path):
+    # 0..360 inclusive: the repeated meridian is dropped and the grid is periodic.
+    path, values = _basic(tmp_path, lon=(0.0, 90.0, 180.0, 270.0, 360.0))
+    ds = open_dataset(path)
+    np.testing.assert_array_equal(ds.grid.lon, [0, 90, 180, 270])
+    assert ds.grid.periodic_lon
+    np.testing.assert_array_equal(ds.read("temperature", 0)[..., 3], values[0][..., 3])
+    # A regional grid across 0 degrees stays contiguous and ascending, and is not periodic.
+    path, values = _basic(tmp_path, name="r.nc", lon=(350.0, 355.0, 0.0, 5.0, 10.0))
+    ds = open_dataset(path)
+    np.testing.assert_array_equal(ds.grid.lon, [-10, -5, 0, 5, 10])
+    assert not ds.grid.periodic_lon
+    np.testing.assert_array_equal(ds.read("temperature", 1), values[1])
