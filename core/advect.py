@@ -452,6 +452,16 @@ class _Strategy:
         index = np.asarray(index, dtype=np.int64).reshape(-1)
         return grid_vertices(self.grid, index), vertex_levels(self.grid, index)
 
+    def _one_frame(self, n, need):
+        """Vertices ``need`` and where they were one frame earlier; shared by the copies of a frame."""
+        hit = getattr(self, "_phi", None)
+        if hit is not None and hit[0] == n and np.array_equal(hit[1], need):
+            return hit[2]
+        xyz, s = self._points(need)
+        y, z = trace(self.wind, xyz, s, self.frame_hours[n], self.frame_hours[n - 1], **self.opts)
+        self._phi = (n, need, (xyz, s, y, z))
+        return self._phi[2]
+
 
 class FullTrace(_Strategy):
     """Strategy (a), the paper's: trace every vertex from frame ``n`` back to frame 0 (RK4).
@@ -515,8 +525,7 @@ class _StreamedMap:
         """Move the map from frame ``n - 1`` to ``n`` for the vertices around ``index``."""
         st = self.st
         need = self._band(index)
-        xyz, s = st._points(need)
-        y, z = trace(st.wind, xyz, s, st.frame_hours[n], st.frame_hours[n - 1], **st.opts)
+        xyz, s, y, z = st._one_frame(n, need)
         if n - 1 == self.start:
             vals = np.concatenate([y, z[:, None]], axis=1)
         else:
