@@ -24,6 +24,7 @@ uses a six-tetrahedron split whose face diagonal toward the seam is flipped
 (see :data:`SEAM_EVEN`).
 """
 
+import functools
 import itertools
 
 import numpy as np
@@ -130,28 +131,49 @@ SEAM_ODD = [tuple(c ^ 2 for c in t) for t in SEAM_EVEN]
 SPLITS = (EVEN, ODD, SEAM_EVEN, SEAM_ODD)
 
 
+def _sub(p, q):
+    return (p[0] - q[0], p[1] - q[1], p[2] - q[2])
+
+
+def _cross(u, v):
+    return (u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0])
+
+
+def _centroid(corners):
+    pts = [_XYZ[c] for c in corners]
+    return tuple(sum(p[a] for p in pts) / len(pts) for a in range(3))
+
+
+_XYZ = [tuple(int(x) for x in c) for c in CORNERS]
+
+
 def _tet_triangles(tet, config):
-    above = [c for c in tet if (config >> c) & 1]
-    below = [c for c in tet if not (config >> c) & 1]
+    """Triangles (local edges) of the linear interpolant's level set in one tetrahedron,
+    counter-clockwise seen from the corners below the level."""
+    return _tet_case(tuple(tet), tuple(c for c in tet if (config >> c) & 1))
+
+
+@functools.lru_cache(maxsize=None)
+def _tet_case(tet, above):
+    below = [c for c in tet if c not in above]
     if not above or not below:
         return []
     if len(above) == 1 or len(below) == 1:
         lone, rest = (above[0], below) if len(above) == 1 else (below[0], above)
-        polys = [[_edge(lone, r) for r in rest]]
+        poly = [_edge(lone, r) for r in rest]
     else:
         a0, a1 = above
         b0, b1 = below
-        polys = [[_edge(a0, b0), _edge(a0, b1), _edge(a1, b1), _edge(a1, b0)]]
-    out = []
-    up = CORNERS[above].mean(axis=0)
-    down = CORNERS[below].mean(axis=0)
-    for poly in polys:
-        pts = np.array([CORNERS[list(PAIRS[e])].mean(axis=0) for e in poly])
-        normal = sum(np.cross(pts[m] - pts[0], pts[m + 1] - pts[0]) for m in range(1, len(pts) - 1))
-        if np.dot(normal, down - up) < 0:
-            poly = poly[::-1]
-        out += [(poly[0], poly[m], poly[m + 1]) for m in range(1, len(poly) - 1)]
-    return out
+        poly = [_edge(a0, b0), _edge(a0, b1), _edge(a1, b1), _edge(a1, b0)]
+    pts = [_centroid(PAIRS[e]) for e in poly]
+    normal = (0.0, 0.0, 0.0)
+    for m in range(1, len(pts) - 1):
+        c = _cross(_sub(pts[m], pts[0]), _sub(pts[m + 1], pts[0]))
+        normal = (normal[0] + c[0], normal[1] + c[1], normal[2] + c[2])
+    down = _sub(_centroid(below), _centroid(above))
+    if sum(n * d for n, d in zip(normal, down)) < 0:
+        poly = poly[::-1]
+    return [(poly[0], poly[m], poly[m + 1]) for m in range(1, len(poly) - 1)]
 
 
 def tet_tables():

@@ -131,6 +131,8 @@ def isosurface(points, values, level, *, periodic_lon=False, method="cubes", att
         raise DataError(f"shape {points.shape} does not match values {values.shape} + (3,)", field="points")
     if not np.all(np.isfinite(points)):
         raise DataError("has NaN or infinite positions", field="points")
+    if periodic_lon and values.shape[2] < 3:
+        raise DataError(f"a periodic ring needs at least 3 longitudes, got {values.shape[2]}", field="values")
     if method not in METHODS:
         raise DataError(f"unknown method {method!r}; use one of {', '.join(METHODS)}", field="method")
     level = float(level)
@@ -354,35 +356,59 @@ def _tetra(above, nan, periodic):
     """5-tetrahedra contouring: vertices on cube edges, face and body diagonals."""
     nk, nj, ni = above.shape
     nv = nk * nj * ni
+    idx = np.int32 if 7 * nv < 2**31 else np.int64
     table, ntri, pairs = _tet_lookup()
-    cfg = _cell_config(above, nan, periodic)
-    split = np.add.outer(np.add.outer(np.arange(cfg.shape[0]), np.arange(cfg.shape[1])), np.arange(cfg.shape[2])) % 2
-    if periodic and ni % 2:
-        split[:, :, -1] += 2  # seam column: flipped diagonal toward column 0
-    flat_cfg = cfg.reshape(-1)
-    flat_split = split.reshape(-1)
-    active = np.flatnonzero((flat_cfg != 0) & (flat_cfg != 255))
-    counts = ntri[flat_split[active], flat_cfg[active]]
-    cells = np.repeat(active, counts)
-    if len(cells) == 0:
+    cfg = _cell_config(above, nan, periodic).reshape(-1)
+    nci = ni if periodic else ni - 1
+    active = np.flatnonzero((cfg != 0) & (cfg != 255)).astype(idx)
+    if len(active) == 0:
         return None, None, np.zeros((0, 3), np.int64)
-    slot = np.arange(len(cells)) - np.repeat(np.cumsum(counts) - counts, counts)
-    local = table[flat_split[cells], flat_cfg[cells], slot]  # (T, 3)
-    k, j, i = _cell_ijk(cells, cfg.shape)
-    base = (k * nj + j) * ni + i
-    off = tables.CORNERS @ np.array([1, ni, nj * ni])
+    k, j, i = _cell_ijk(active, (nk - 1, nj - 1, nci))
+    # The split alternates with (i + j + k) % 2; seam column of an odd ring: flipped variant.
+    case = ((k + j + i) & 1) * 256 + cfg[active]
+    seam = i == ni - 1 if periodic else np.zeros(len(active), bool)
+    if periodic and ni % 2:
+        case[seam] += 2 * 256
+    counts = ntri.reshape(-1)[case]
+    width = table.shape[2]
+    slot = np.arange(counts.sum(), dtype=idx) - np.repeat(np.cumsum(counts, dtype=idx) - counts, counts)
+    local = table.reshape(-1, 3)[np.repeat(case, counts) * width + slot]  # (T, 3) local edges
+    base = np.repeat((k * nj + j) * ni + i, counts)
+    seam = np.repeat(seam, counts)
+
+    # Every edge used is named arithmetically, without sorting: its kind
+    # (3 axes, diagonal of an x-, y- or z-face, body diagonal) and the
+    # lowest corner of the face or cell it lies in.  A face has one diagonal
+    # (the split is consistent), a cell at most one body diagonal.
+    c0, c1 = tables.CORNERS[pairs[:, 0]], tables.CORNERS[pairs[:, 1]]
+    stride = np.array([1, ni, nj * ni])
+    low = np.minimum(c0, c1)
+    span = np.abs(c1 - c0)
+    kind = np.select([span.sum(axis=1) == 1, span.sum(axis=1) == 2], [np.argmax(span, axis=1), 3 + np.argmin(span, axis=1)], 6)
+    key = base[:, None] + (kind * nv + low @ stride).astype(idx)[local]
+    if periodic:
+        rows = np.flatnonzero(seam)
+        key[rows] -= (ni * low[local[rows], 0]).astype(idx)  # corners past the last column are column 0
+    key = key.reshape(-1)
+    # One representative triangle corner per key (whichever write lands), numbered in order.
+    lut = np.empty(7 * nv, idx)
+    lut[key] = np.arange(len(key), dtype=idx)
+    rep = lut[key]
+    first = np.flatnonzero(rep == np.arange(len(key), dtype=idx))
+    number = np.empty(len(key), idx)
+    number[first] = np.arange(len(first), dtype=idx)
+    faces = number[rep].reshape(-1, 3)
+
+    # Grid points at the ends of each vertex's edge.
+    e = local.reshape(-1)[first]
+    row = first // 3
     ends = []
-    for side in (0, 1):
-        c = pairs[local, side]
-        g = base[:, None] + off[c]
+    for c in (c0, c1):
+        g = base[row] + (c @ stride)[e]
         if periodic:
-            g -= ni * ((i == ni - 1)[:, None] & (tables.CORNERS[c, 0] == 1))
-        ends.append(g)
-    lo = np.minimum(ends[0], ends[1])
-    hi = np.maximum(ends[0], ends[1])
-    keys, inverse = np.unique((lo * nv + hi).reshape(-1), return_inverse=True)
-    faces = inverse.reshape(-1, 3)
-    return keys // nv, keys % nv, faces
+            g = np.where(seam[row], g - ni * c[e, 0], g)
+        ends.append(g.astype(np.int64))
+    return ends[0], ends[1], faces
 
 
 def _weld(a, b, faces, shape, pole_rows, drop_unused):

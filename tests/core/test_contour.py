@@ -315,6 +315,7 @@ def test_bad_input_names_the_field():
         (dict(level=np.nan), "level"),
         (dict(method="cubes2"), "method"),
         (dict(attributes={"alt": np.zeros(3)}), "alt"),
+        (dict(points=p[:, :, :2], values=v[:, :, :2], periodic_lon=True), "values"),
     ]
     for change, field in cases:
         kwargs = dict(points=p, values=v, level=0.5)
