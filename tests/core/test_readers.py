@@ -297,3 +297,32 @@ def test_seam_column_and_regional_grid(tmp_path):
     np.testing.assert_array_equal(ds.grid.lon, [-10, -5, 0, 5, 10])
     assert not ds.grid.periodic_lon
     np.testing.assert_array_equal(ds.read("temperature", 1), values[1])
+
+
+def test_pressure_levels_use_geopotential_height_and_sigma_levels(tmp_path):
+    lev, lat, lon = np.array([1000.0, 700.0, 300.0]), np.array([-45.0, 45.0]), np.array([0.0, 120.0, 240.0])
+    zg = np.empty((1, 3, 2, 3), dtype=np.float32)
+    zg[0] = np.array([100.0, 3000.0, 9000.0])[:, None, None] + np.arange(6, dtype=np.float32).reshape(2, 3)
+    coords = {
+        "time": ("time", [0.0], {"units": "days since 2000-01-01"}),
+        "plev": ("plev", lev * 100.0, {"units": "Pa", "standard_name": "air_pressure"}),
+        "lat": ("lat", lat, {"units": "degrees_north"}),
+        "lon": ("lon", lon, {"units": "degrees_east"}),
+    }
+    data = {"zg": (("time", "plev", "lat", "lon"), zg, {"units": "m", "standard_name": "geopotential_height"})}
+    ds = open_dataset(_write(tmp_path / "zg.nc", data, coords))
+    np.testing.assert_allclose(ds.grid.height[:, 0, 0], [102.5, 3002.5, 9002.5])  # level means
+    assert "mean geopotential height" in ds.vertical
+    # sigma levels: p = ptop + sigma (ps - ptop)
+    coords = {
+        "lev": ("lev", np.array([0.95, 0.5, 0.1]), {"standard_name": "atmosphere_sigma_coordinate", "formula_terms": "sigma: lev ps: ps ptop: ptop"}),
+        "lat": ("lat", lat, {"units": "degrees_north"}),
+        "lon": ("lon", lon, {"units": "degrees_east"}),
+    }
+    data = {
+        "ptop": ((), 1000.0, {"units": "Pa"}),
+        "ps": (("lat", "lon"), np.full((2, 3), 1000.0), {"units": "hPa"}),
+        "t": (("lev", "lat", "lon"), np.full((3, 2, 3), 250.0, dtype=np.float32), {"units": "K"}),
+    }
+    ds = open_dataset(_write(tmp_path / "sigma.nc", data, coords))
+    np.testing.assert_allclose(ds.read("pressure", 0)[:, 1, 1], 1000.0 + np.array([0.95, 0.5, 0.1]) * 99000.0, rtol=1e-6)
