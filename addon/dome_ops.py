@@ -399,7 +399,7 @@ class NepheleDomeSettings(bpy.types.PropertyGroup):
 
 
 class NEPHELE_OT_add_dome_camera(bpy.types.Operator):
-    """Add a dome camera rig: Cycles renders the final Omnimax or domemaster frame"""
+    """Add a dome camera rig whose Cycles render is the final frame (unset values: the preset's)"""
 
     bl_idname = "nephele.add_dome_camera"
     bl_label = "Add dome camera"
@@ -421,11 +421,12 @@ class NEPHELE_OT_add_dome_camera(bpy.types.Operator):
         return self.execute(context)
 
     def execute(self, context):
+        # Values not given (a script calling the operator) come from the preset.
+        given = {k: getattr(self, k) for k in ("tilt", "fov", "width", "height") if self.properties.is_property_set(k)}
         try:
             rig = add_dome_camera(
-                self.preset, tilt=self.tilt, fov=self.fov, width=self.width, height=self.height, lens=self.lens,
-                stereo=self.stereo, separation=self.separation, location=tuple(context.scene.cursor.location),
-                scene=context.scene,
+                self.preset, lens=self.lens, stereo=self.stereo, separation=self.separation,
+                location=tuple(context.scene.cursor.location), scene=context.scene, **given,
             )
         except DataError as exc:
             self.report({"ERROR"}, str(exc))

@@ -188,6 +188,11 @@ def test_operator_configures_the_camera(empty_scene):
     rig = dome_ops.dome_rig(scene)
     p = dome_ops.frame.params(rig)
     assert p["kind"] == "dome" and p["tilt"] == 25.0 and not p["stereo"]
+    # values not given come from the preset
+    assert bpy.ops.nephele.add_dome_camera(preset="domemaster") == {"FINISHED"}
+    p = dome_ops.frame.params(dome_ops.dome_rig(scene))
+    assert (p["width"], p["height"], p["tilt"]) == (2048, 2048, 0.0)
+    assert (scene.render.resolution_x, scene.render.resolution_y) == (2048, 2048)
     # stereo: two cameras and multi-view _L/_R output
     assert bpy.ops.nephele.add_dome_camera(preset="domemaster", width=256, height=256, stereo=True, separation=0.1) == {"FINISHED"}
     assert {o.name for o in scene.objects if o.type == "CAMERA"} == {"DomeCamera_L", "DomeCamera_R"}
