@@ -100,6 +100,8 @@ SIZES = {
 
 
 CLOUD_GAIN, CLOUD_BIAS = 1.3, 0.3
+"""Contrast and offset of the initial cloud pattern: tuned so that about a fifth of the
+volume (half of the low levels) is above 15 % in many separate bodies, as in Fig. 1."""
 
 
 def _smootherstep(x):
@@ -136,9 +138,8 @@ class SyntheticClimate(Dataset):
         Longitudes (evenly spaced from 0 °E), latitudes (cell centres, the
         poles themselves are not rows) and levels.
     days : float
-        Length of the hourly time axis (``round(24 * days) + 1`` steps would
-        include the end; the axis has ``round(24 * days)`` steps like the
-        paper's 240).
+        Length of the hourly time axis: ``round(24 * days)`` steps (240 for
+        10 days, as in the paper).
     seed : int
         Seed of the storms and cloud patterns; equal seeds give identical data.
     start : str
@@ -147,7 +148,8 @@ class SyntheticClimate(Dataset):
         Number of storm groups (wave trains or single tropical cyclones);
         about 2.5 a day by default.
     relief : (lon, lat, elevation), optional
-        Relief grid for the terrain (the shipped 1° ETOPO60 by default).
+        Relief grid for the terrain (the shipped 1° ETOPO60 by default);
+        averaged over each grid cell, sea floor counted as 0.
     cache_steps : int
         (field, step) arrays kept in memory.
     """
