@@ -106,6 +106,8 @@ class NetCDFDataset(FileDataset):
         lon_dim, lat_dim = lon_dim[0], lat_dim[0]
         time_name = _find_time(ds)
         time_dim = ds[time_name].dims[0] if time_name else None
+        if time_dim is None and "time" in ds.dims:
+            raise DataError("dimension 'time' has no coordinate variable with CF units ('hours since ...')", path=path, field="time")
 
         # 3-D fields: dims = {lat, lon, one level dim} plus time if the file has one.
         candidates, skipped = {}, {}

@@ -326,3 +326,21 @@ def test_pressure_levels_use_geopotential_height_and_sigma_levels(tmp_path):
     }
     ds = open_dataset(_write(tmp_path / "sigma.nc", data, coords))
     np.testing.assert_allclose(ds.read("pressure", 0)[:, 1, 1], 1000.0 + np.array([0.95, 0.5, 0.1]) * 99000.0, rtol=1e-6)
+
+
+def test_time_problems(tmp_path):
+    path, _ = _basic(tmp_path)
+    with xr.open_dataset(path, decode_times=False) as f:
+        f = f.load()
+    g = f.drop_vars("time")
+    g.to_netcdf(tmp_path / "notime.nc")
+    with pytest.raises(DataError, match=r"notime.nc: field 'time': dimension 'time' has no coordinate"):
+        open_dataset(tmp_path / "notime.nc")
+    f["time"].attrs["units"] = "months since 1987-01-01"
+    f.to_netcdf(tmp_path / "months.nc")
+    with pytest.raises(DataError, match=r"months.nc: field 'time': time units 'months since 1987-01-01'"):
+        open_dataset(tmp_path / "months.nc")
+    f["time"].attrs.update(units="hours since 1987-01-01", calendar="360_day")
+    f.to_netcdf(tmp_path / "cal.nc")
+    with pytest.raises(DataError, match=r"cal.nc: field 'time': calendar '360_day' is not supported"):
+        open_dataset(tmp_path / "cal.nc")
