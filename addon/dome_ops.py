@@ -260,6 +260,9 @@ def write_image(path, pixels):
         os.unlink(tmp)
         raise DataError(f"cannot write image: {oiio.geterror()}", path=path)
     out.close()
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes it private; a frame is an ordinary file
     os.replace(tmp, path)
     return path
 

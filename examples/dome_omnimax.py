@@ -5,7 +5,8 @@ cloudiness contours, sky and sun) and puts a dome audience in orbit, the globe
 ahead of them and 25 deg up, where a tilted dome's audience looks.  ``main()``
 renders, per preset, the left and right eyes (``<preset>_L.png``,
 ``<preset>_R.png``: Cycles' fisheye renders the final frame) and a picture of
-the Omnimax frame beside the domemaster (left eyes).
+the Omnimax frame beside the domemaster (left eyes, the audience's horizon
+and zenith marked in orange).
 
     .venv/bin/python examples/dome_omnimax.py --out out/dome            # small, for CI
     .venv/bin/python examples/dome_omnimax.py --out out/dome --full     # 2048x1500 and 2048x2048
@@ -105,17 +106,42 @@ def render(out, preset, engine="cycles", **options):
     return [path]
 
 
-def side_by_side(left_png, right_png, out_png, height=375, gap=12):
-    """The Omnimax frame and the domemaster at one height, side by side on black."""
+def draw_horizon(img, camera, color=(1.0, 0.55, 0.1)):
+    """Mark the audience's horizon (elevation 0, all azimuths) and the zenith on a dome frame."""
+    az = np.radians(np.linspace(-180.0, 180.0, 20000))
+    d = np.stack([np.sin(az), np.cos(az), np.zeros_like(az)], axis=-1)
+    col, row, vis = camera.direction_to_pixel(d)
+    zc, zr, zvis = camera.direction_to_pixel(np.array([[0.0, 0.0, 1.0]]))
+    h, w = img.shape[:2]
+    t = max(1, w // 400)
+    sizes = np.r_[np.full(vis.sum(), t), np.full(zvis.sum(), 4 * t)]  # the zenith a larger dot
+    for c, r, k in zip(np.r_[col[vis], zc[zvis]], np.r_[row[vis], zr[zvis]], sizes):
+        img[max(0, int(r) - k) : int(r) + k + 1, max(0, int(c) - k) : int(c) + k + 1, :3] = color
+    return img
+
+
+def _shrink(img, height):
+    """Box-filtered resize to ``height`` rows (keeps the aspect)."""
+    h, w = img.shape[:2]
+    width = round(w * height / h)
+    rows = np.minimum((np.arange(height + 1) * h / height).astype(int), h)
+    cols = np.minimum((np.arange(width + 1) * w / width).astype(int), w)
+    cs = np.cumsum(np.cumsum(np.pad(img, ((1, 0), (1, 0), (0, 0))), 0), 1)
+    s = cs[rows[1:]][:, cols[1:]] - cs[rows[:-1]][:, cols[1:]] - cs[rows[1:]][:, cols[:-1]] + cs[rows[:-1]][:, cols[:-1]]
+    area = np.outer(np.diff(rows), np.diff(cols))[..., None]
+    return (s / area).astype(np.float32)
+
+
+def side_by_side(left_png, right_png, out_png, height=375, gap=12, cameras=None):
+    """Two frames at one height, side by side on black; with ``cameras`` the horizon is marked."""
     from nephele.addon.dome_ops import read_image, write_image
 
     tiles = []
-    for p in (left_png, right_png):
-        img = read_image(p)[..., :3]
-        h, w = img.shape[:2]
-        rows = np.minimum(((np.arange(height) + 0.5) * h / height).astype(int), h - 1)
-        cols = np.minimum(((np.arange(round(w * height / h)) + 0.5) * h / height).astype(int), w - 1)
-        tiles.append(img[rows][:, cols])
+    for i, p in enumerate((left_png, right_png)):
+        img = read_image(p)[..., :3].copy()
+        if cameras:
+            draw_horizon(img, cameras[i])
+        tiles.append(_shrink(img, height))
     sep = np.zeros((height, gap, 3), np.float32)
     return write_image(out_png, np.concatenate([tiles[0], sep, tiles[1]], axis=1))
 
@@ -152,7 +178,11 @@ def main(argv=None):
         if args.save and preset == "omnimax":
             bpy.ops.wm.save_as_mainfile(filepath=str(Path(args.save).resolve()))
         print(preset, *written[preset])
-    pic = side_by_side(written["omnimax"][0], written["domemaster"][0], Path(args.picture or out / "dome.png"))
+    from nephele.core import dome
+
+    cams = [dome.dome_camera(p, width=sizes[p][0], height=sizes[p][1]) for p in ("omnimax", "domemaster")]
+    pic = side_by_side(written["omnimax"][0], written["domemaster"][0], Path(args.picture or out / "dome.png"),
+                       cameras=cams)
     print("picture", pic)
     return 0
 
