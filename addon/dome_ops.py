@@ -353,7 +353,9 @@ def render_dome_eevee(filepath, *, scene=None, face_size=None, supersample=None,
     camera = dome_from_params(p)
     n = int(face_size or p.get("face_size") or default_face_size(camera))
     ss = int(supersample or p.get("supersample") or 2)
-    table = core_dome.remap_table(camera, "cube", n, ss)
+    from ..core.cache import Cache, default_cache_dir
+
+    table = core_dome.stored_remap_table(camera, "cube", n, ss, Cache(default_cache_dir(bpy.data.filepath or None)))
     filepath = Path(filepath)
     eyes = core_dome.stereo_eyes(p["separation"]) if p.get("stereo") else {"": np.zeros(3)}
     written = []

@@ -51,6 +51,7 @@ References
    Proc. Nicograph '83, 137-159, 1983.
 """
 
+import dataclasses
 import functools
 import math
 from dataclasses import dataclass
@@ -474,7 +475,7 @@ def remap_table(camera, source, source_shape, supersample=2, rows_per_chunk=128)
     return _remap_table(camera, source, source_shape, supersample, int(rows_per_chunk))
 
 
-@functools.lru_cache(maxsize=8)
+@functools.lru_cache(maxsize=4)
 def _remap_table(camera, source, source_shape, supersample, rows_per_chunk):
     from scipy.sparse import coo_matrix
 
@@ -514,6 +515,24 @@ def _remap_table(camera, source, source_shape, supersample, rows_per_chunk):
         np.concatenate(indices) if indices else np.zeros(0, np.int32),
         np.concatenate(weights) if weights else np.zeros(0, np.float32),
     )
+
+
+def stored_remap_table(camera, source, source_shape, supersample=2, cache=None):
+    """:func:`remap_table`, kept on disk in a :class:`~nephele.core.cache.Cache` (kind ``"dome_map"``).
+
+    Render-farm workers are separate processes: the first one builds the
+    table (seconds for a 2048 x 1500 frame), the others load it.
+    """
+    if cache is None:
+        return remap_table(camera, source, source_shape, supersample)
+    shape = np.atleast_1d(np.asarray(source_shape)).tolist()
+    params = {"camera": dataclasses.asdict(camera), "source": source, "shape": shape, "supersample": int(supersample)}
+    arrays = cache.load("dome_map", params)
+    if arrays is not None:
+        return RemapTable.from_arrays(arrays)
+    table = remap_table(camera, source, source_shape, supersample)
+    cache.store("dome_map", params, table.arrays())
+    return table
 
 
 def remap(source_image, camera, source="cube", supersample=2):

@@ -136,7 +136,8 @@ def test_stereo_left_right_frames_fixed_baseline(empty_scene, tmp_path):
 
 
 @pytest.mark.slow
-def test_eevee_cube_route_agrees_with_cycles(empty_scene, tmp_path):
+def test_eevee_cube_route_agrees_with_cycles(empty_scene, tmp_path, monkeypatch):
+    monkeypatch.setenv("NEPHELE_CACHE", str(tmp_path / "cache"))
     scene = empty_scene
     _markers(scene, radius=0.4)
     kw = dict(preset="domemaster", width=128)
@@ -155,6 +156,7 @@ def test_eevee_cube_route_agrees_with_cycles(empty_scene, tmp_path):
     for name in MARKERS:
         if a[name] is not None and b[name] is not None:
             assert math.hypot(a[name][0] - b[name][0], a[name][1] - b[name][1]) < 1.0
+    assert list((tmp_path / "cache").rglob("*.npz"))  # the remap table was kept for other workers
     # the scene's camera and settings are restored after the cube renders
     assert scene.camera.name == dome_ops.CAMERA_NAME and scene.render.resolution_x == 128
 

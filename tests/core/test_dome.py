@@ -297,6 +297,20 @@ def test_remap_table_is_cached_and_stores_as_plain_arrays(tmp_path):
     assert np.array_equal(t1.apply(img), t2.apply(img))
 
 
+def test_stored_remap_table_builds_once(tmp_path):
+    from nephele.core.cache import Cache
+
+    cam = dome.dome_camera("domemaster", width=40)
+    cache = Cache(tmp_path)
+    a = dome.stored_remap_table(cam, "equirect", (32, 64), 2, cache)
+    dome._remap_table.cache_clear()
+    b = dome.stored_remap_table(cam, "equirect", (32, 64), 2, cache)  # loaded, not rebuilt
+    assert dome._remap_table.cache_info().misses == 0
+    assert np.array_equal(a.indices, b.indices) and np.array_equal(a.weights, b.weights)
+    other = dome.stored_remap_table(dome.dome_camera("domemaster", width=40, tilt=5.0), "equirect", (32, 64), 2, cache)
+    assert not np.array_equal(other.indices, a.indices)
+
+
 def test_remap_rejects_wrong_source():
     cam = dome.dome_camera("domemaster", width=32)
     with pytest.raises(DataError, match="source"):
