@@ -111,6 +111,28 @@ def cube_table():
     return _table(tris)
 
 
+CENTRE = len(PAIRS)
+"""Local ids ``CENTRE + q``: a vertex at the centre of the cell's loop ``q``."""
+
+
+def cube_centre_table():
+    """Like :func:`cube_table` but each loop fanned from a vertex at its centre.
+
+    Used for cells next to a pole, where one face is collapsed: a fan from a
+    loop vertex could draw a diagonal that, once the pole vertices merge,
+    lies in a face shared with the next cell; spokes from a centre vertex of
+    the cell's own never do.
+    """
+    tris = []
+    for config in range(256):
+        t = []
+        for q, loop in enumerate(_cube_loops(config)):
+            n = len(loop)
+            t += [(CENTRE + q, loop[(m + 1) % n], loop[m]) for m in range(n)]
+        tris.append(t)
+    return _table(tris)
+
+
 def _five(central):
     others = [c for c in range(8) if c not in central]
     tets = [tuple(central)]

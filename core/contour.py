@@ -22,7 +22,9 @@ surface:
   the seam column uses a 6-tetrahedron split, see :mod:`._mc_tables`);
 * rows of grid points that coincide (the poles of a longitude-latitude grid)
   are one point: their values are averaged, their vertices merged, so no
-  degenerate triangle or crack remains there.
+  degenerate triangle or crack remains there; the cells touching such a row
+  fan each loop from a vertex at its centre, so that merging never makes an
+  edge shared by more than two triangles.
 
 References
 ----------
@@ -69,12 +71,13 @@ def regular_points(shape, spacing=(1.0, 1.0, 1.0), origin=(0.0, 0.0, 0.0), dtype
 
 @lru_cache(maxsize=None)
 def _cube_lookup():
-    """Cube table and per local edge: family (i/j/k), lower-corner offset."""
+    """Cube tables (plain and centre-fanned) and per local edge: family (i/j/k), lower-corner offset."""
     table, ntri = tables.cube_table()
+    centre_table, centre_ntri = tables.cube_centre_table()
     pairs = np.array(tables.PAIRS)
     lower = tables.CORNERS[pairs[:, 0]]
     family = np.argmax(tables.CORNERS[pairs[:, 1]] - lower, axis=1)
-    return table, ntri, family, lower
+    return table, ntri, centre_table, centre_ntri, family, lower
 
 
 @lru_cache(maxsize=None)
@@ -163,9 +166,10 @@ def isosurface(points, values, level, *, periodic_lon=False, method="cubes", att
     has_nan = bool(nan.any())
 
     if method == "cubes":
-        a, b, faces = _cubes(above, nan if has_nan else None, periodic_lon)
+        a, b, faces, ncentre = _cubes(above, nan if has_nan else None, periodic_lon, pole_rows)
     else:
         a, b, faces = _tetra(above, nan if has_nan else None, periodic_lon)
+        ncentre = 0
     if len(faces) == 0:
         return Mesh.empty(attributes)
 
@@ -177,21 +181,41 @@ def isosurface(points, values, level, *, periodic_lon=False, method="cubes", att
     # zero-area triangles.
     t = np.clip((np.float64(level) - va) / (vb - va), EDGE_MARGIN, 1.0 - EDGE_MARGIN)
 
-    faces, keep = _weld(a, b, faces, values.shape, pole_rows, drop_unused=has_nan)
-    if keep is not None:
-        a, b, t = a[keep], b[keep], t[keep]
-    if len(faces) == 0:
-        return Mesh.empty(attributes)
-
     pflat = points.reshape(-1, 3)
     pa = np.take(pflat, a, axis=0).astype(np.float64)  # take: rows gathered ~4x faster than fancy indexing
-    vertices = (pa + t[:, None] * (np.take(pflat, b, axis=0) - pa)).astype(np.float32)
+    vertices = pa + t[:, None] * (np.take(pflat, b, axis=0) - pa)
     attrs = {}
     for name, arr in attributes.items():
         f = arr.reshape(-1)
         fa = f[a].astype(np.float64)
-        attrs[name] = (fa + t * (f[b] - fa)).astype(np.float32)
+        attrs[name] = fa + t * (f[b] - fa)
+    if ncentre:
+        vertices = _with_centres(vertices, faces, ncentre)
+        attrs = {name: _with_centres(x, faces, ncentre) for name, x in attrs.items()}
+
+    faces, keep = _weld(a, b, faces, values.shape, pole_rows, len(vertices), drop_unused=has_nan or ncentre > 0)
+    if len(faces) == 0:
+        return Mesh.empty(attributes)
+    if keep is not None:
+        vertices = vertices[keep]
+        attrs = {name: x[keep] for name, x in attrs.items()}
+    vertices = vertices.astype(np.float32)
+    attrs = {name: x.astype(np.float32) for name, x in attrs.items()}
     return Mesh(vertices, faces, vertex_normals(vertices, faces), attrs)
+
+
+def _with_centres(x, faces, ncentre):
+    """Append the loop-centre values: the mean over each centre's triangles of their second vertex
+    (every loop vertex is the second vertex of exactly one triangle of its fan)."""
+    n = len(x)
+    fan = np.flatnonzero(faces[:, 0] >= n)
+    centre = faces[fan, 0] - n
+    count = np.bincount(centre, minlength=ncentre)
+    rim = x[faces[fan, 1]]
+    cols = rim.reshape(len(rim), int(np.prod(x.shape[1:]))).T
+    mean = np.stack([np.bincount(centre, c, ncentre).astype(np.float64) for c in cols], axis=1)
+    mean = (mean / np.maximum(count, 1)[:, None]).reshape((ncentre,) + x.shape[1:])
+    return np.concatenate([x, mean])
 
 
 def _collapsed_rows(points):
@@ -281,11 +305,9 @@ def _cell_config(above, nan, periodic):
     return cfg
 
 
-def _expand(cfg, ntri):
-    """Active cells repeated once per triangle, and each triangle's slot in the table."""
-    flat = cfg.reshape(-1)
-    active = np.flatnonzero((flat != 0) & (flat != 255))
-    counts = ntri[flat[active]]
+def _expand(active, cfg, ntri):
+    """Cells repeated once per triangle, and each triangle's slot in the table."""
+    counts = ntri[cfg[active]]
     cells = np.repeat(active, counts)
     starts = np.cumsum(counts) - counts
     slot = np.arange(len(cells)) - np.repeat(starts, counts)
@@ -299,28 +321,51 @@ def _cell_ijk(cells, cfg_shape):
     return r // cfg_shape[1], r % cfg_shape[1], i
 
 
-def _cubes(above, nan, periodic):
-    """Marching cubes: vertex endpoints (a, b) per crossed edge and faces into them."""
+def _cubes(above, nan, periodic, pole_rows):
+    """Marching cubes.
+
+    Returns the grid points ``(a, b)`` at the ends of each crossed edge (one
+    vertex each), the faces, and the number of loop-centre vertices numbered
+    after them (cells touching a pole row; each centre triangle starts with it).
+    """
     nk, nj, ni = above.shape
     nv = nk * nj * ni
     idx = np.int32 if 3 * nv < 2**31 else np.int64
-    table, ntri, family, lower = _cube_lookup()
+    table, ntri, centre_table, centre_ntri, family, lower = _cube_lookup()
     cfg = _cell_config(above, nan, periodic)
-    cells, slot = _expand(cfg, ntri)
-    if len(cells) == 0:
-        return None, None, np.zeros((0, 3), np.int64)
-    k, j, i = _cell_ijk(cells.astype(idx), cfg.shape)
-    base = (k * nj + j) * ni + i
-    local = table[cfg.reshape(-1)[cells], slot]  # (T, 3) local edge numbers
+    flat = cfg.reshape(-1)
+    active = np.flatnonzero((flat != 0) & (flat != 255)).astype(idx)
+    if len(active) == 0:
+        return None, None, np.zeros((0, 3), np.int64), 0
+    polar = np.zeros(0, idx)
+    if pole_rows is not None:
+        k, j, _ = _cell_ijk(active, cfg.shape)
+        touch = pole_rows[k, j] | pole_rows[k, j + 1] | pole_rows[k + 1, j] | pole_rows[k + 1, j + 1]
+        polar, active = active[touch], active[~touch]
 
     # Arithmetic edge number: family * nv + flat index of the edge's lower corner.
     stride = np.array([1, ni, nj * ni])
-    delta = (family * nv + lower @ stride).astype(idx)
-    edge = base[:, None] + delta[local]
-    if periodic:
-        # Corners in the column after the last one are column 0.
-        seam = np.flatnonzero(i == ni - 1)
-        edge[seam] -= (ni * lower[local[seam], 0]).astype(idx)
+    delta = np.zeros(tables.CENTRE + 4, idx)
+    delta[: tables.CENTRE] = family * nv + lower @ stride
+    wraps = np.zeros(tables.CENTRE + 4, idx)
+    wraps[: tables.CENTRE] = ni * lower[:, 0]
+
+    def edges(cells, tab, counts):
+        cells, slot = _expand(cells, flat, counts)
+        k, j, i = _cell_ijk(cells, cfg.shape)
+        local = tab[flat[cells], slot]  # (T, 3) local edge numbers
+        edge = ((k * nj + j) * ni + i)[:, None] + delta[local]
+        if periodic:
+            # Corners in the column after the last one are column 0.
+            seam = np.flatnonzero(i == ni - 1)
+            edge[seam] -= wraps[local[seam]]
+        return cells, local, edge
+
+    _, _, edge = edges(active, table, ntri)
+    if len(polar):
+        cells, local, pedge = edges(polar, centre_table, centre_ntri)
+        # Centre vertex ids: 4 per polar cell, after the crossed-edge vertices.
+        centre = np.searchsorted(polar, cells)[:, None] * 4 + (local - tables.CENTRE)
 
     # Crossed edges, family by family, numbered in order: vertex id = lut[edge].
     ia = np.zeros((nk, nj, ni), bool)
@@ -349,7 +394,10 @@ def _cubes(above, nan, periodic):
         a_parts.append(ids)
         b_parts.append(b)
     faces = lut[edge]
-    return np.concatenate(a_parts), np.concatenate(b_parts), faces
+    if len(polar):
+        pfaces = np.where(local >= tables.CENTRE, n + centre, lut[np.where(local >= tables.CENTRE, 0, pedge)])
+        faces = np.concatenate([faces, pfaces])
+    return np.concatenate(a_parts), np.concatenate(b_parts), faces, 4 * len(polar)
 
 
 def _tetra(above, nan, periodic):
@@ -411,10 +459,13 @@ def _tetra(above, nan, periodic):
     return ends[0], ends[1], faces
 
 
-def _weld(a, b, faces, shape, pole_rows, drop_unused):
+def _weld(a, b, faces, shape, pole_rows, n, drop_unused):
     """Merge the vertices that coincide along a pole and drop the triangles that collapse.
 
-    Returns the new faces and the indices of the vertices kept (None: all, in order).
+    ``a``, ``b``: grid points at the ends of the edge of each of the first
+    ``len(a)`` vertices; vertices ``len(a)..n-1`` (loop centres) are never
+    merged.  Returns the new faces and the indices of the vertices kept
+    (None: all, in order).
     """
     nk, nj, ni = shape
     if pole_rows is not None:
@@ -432,13 +483,13 @@ def _weld(a, b, faces, shape, pole_rows, drop_unused):
             nb = np.where(pb[near], nb - nb % ni, nb)
             key = np.minimum(na, nb) * nv + np.maximum(na, nb)
             _, first, inverse = np.unique(key, return_index=True, return_inverse=True)
-            rep = np.arange(len(a))
+            rep = np.arange(n)
             rep[near] = near[first[inverse.reshape(-1)]]
             f = rep[faces]
             good = (f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])
-            return _compact(f[good], len(a))
+            return _compact(f[good], n)
     if drop_unused:
-        return _compact(faces, len(a))
+        return _compact(faces, n)
     return faces, None
 
 

@@ -179,6 +179,24 @@ def test_pole_rows_with_different_values_per_longitude(method):
     assert_closed_manifold(mesh)
 
 
+@pytest.mark.parametrize("method", METHODS)
+def test_random_fields_at_the_poles_stay_manifold(method):
+    # Merging the pole vertices must never join more than two triangles at an edge
+    # (a fan diagonal in one polar cell could otherwise meet its twin in the next).
+    rng = np.random.default_rng(11)
+    for _ in range(40):
+        ni, nj, nk = (int(n) for n in rng.integers((3, 3, 2), (14, 9, 6)))
+        p = shell_points(ni, nj, nk, r=(0.5, 1.5))
+        v = rng.integers(0, 3, size=(nk, nj, ni)).astype(float) if rng.random() < 0.5 else rng.random((nk, nj, ni))
+        mesh = isosurface(p, v, 1.0 if rng.random() < 0.5 else 0.5, periodic_lon=True, method=method)
+        if mesh.is_empty:
+            continue
+        assert edge_counts(mesh.faces).max() == 2
+        assert directed_edges_unique(mesh.faces)
+        assert triangle_areas(mesh.vertices, mesh.faces).min() > 0
+        assert np.all(np.isfinite(mesh.normals))
+
+
 def test_globe_grid_points_at_the_poles():
     lon = np.arange(32) * 360.0 / 32
     lat = np.linspace(-90, 90, 17)
