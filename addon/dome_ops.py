@@ -5,7 +5,9 @@ theatre frame of :mod:`nephele.core.dome` (x right, y front, z up; move or
 turn the rig to place the audience), with one fisheye camera ``DomeCamera``
 or, in stereo, ``DomeCamera_L`` / ``DomeCamera_R`` a fixed baseline apart
 along the rig's x axis (see :func:`nephele.core.dome.stereo_eyes` for why not
-Cycles' spherical stereo).  Stereo renders use Blender's multi-view with the
+Cycles' spherical stereo; Blender's own stereo also offsets the eyes along
+the camera's x axis, which on the front-at-top Omnimax frame is the
+audience's *left*, swapping the eyes).  Stereo renders use Blender's multi-view with the
 ``_L`` / ``_R`` camera suffixes, so every frame is written as
 ``name_L.png`` and ``name_R.png`` for the farm's post-processing.
 

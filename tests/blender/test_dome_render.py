@@ -224,3 +224,45 @@ def test_bad_preset_in_api(empty_scene):
 
     with pytest.raises(DataError, match="preset"):
         dome_ops.add_dome_camera("imax")
+
+
+def test_fixed_baseline_against_blenders_spherical_stereo(empty_scene, tmp_path):
+    """Why the rig has its own two cameras: at the side of a forward-facing audience (90 deg right,
+    10 deg up) Blender's spherical stereo puts a false elevation difference between the eyes, and
+    its eyes follow the camera's x axis, which on a front-at-top Omnimax frame is the audience's left."""
+    scene = empty_scene
+    mk = {"red": (10, 90), "green": (10, 0)}
+    _markers(scene, distance=2.0, radius=0.05, markers=mk)
+    cam = dome.dome_camera("omnimax", width=256, height=188)
+
+    def measure(prefix):
+        _render(scene, tmp_path / f"{prefix}.png", samples=8)
+        out = {}
+        for eye in "LR":
+            c = _centroids(dome_ops.read_image(tmp_path / f"{prefix}_{eye}.png"))
+            for name in mk:
+                d, _ = cam.pixel_to_direction(*c[name])
+                out[eye, name] = (math.degrees(math.asin(d[2])), math.degrees(math.atan2(d[0], d[1])))
+        return out
+
+    dome_ops.add_dome_camera("omnimax", width=256, height=188, stereo=True, separation=0.2)
+    fixed = measure("fixed")
+    dome_ops.add_dome_camera("omnimax", width=256, height=188)
+    r = scene.render
+    r.use_multiview, r.views_format, r.image_settings.views_format = True, "STEREO_3D", "INDIVIDUAL"
+    st = scene.camera.data.stereo
+    st.convergence_mode, st.interocular_distance, st.use_spherical_stereo = "PARALLEL", 0.2, True
+    sph = measure("spherical")
+
+    # fixed baseline: the true elevations of the marker from each eye (eyes 0.1 either side on x)
+    h = 2.0 * math.cos(math.radians(10))
+    z = 2.0 * math.sin(math.radians(10))
+    true_l, true_r = math.degrees(math.atan2(z, h + 0.1)), math.degrees(math.atan2(z, h - 0.1))
+    assert fixed["L", "red"][0] == pytest.approx(true_l, abs=0.3)
+    assert fixed["R", "red"][0] == pytest.approx(true_r, abs=0.3)
+    err_fixed = abs(fixed["R", "red"][0] - fixed["L", "red"][0])
+    err_sph = abs(sph["R", "red"][0] - sph["L", "red"][0])
+    assert err_sph > 3 * err_fixed  # measured 5.3 deg against 1.0 deg
+    # ahead: the right eye sees the marker to the audience's left; Blender's eyes are swapped
+    assert fixed["R", "green"][1] < fixed["L", "green"][1]
+    assert sph["R", "green"][1] > sph["L", "green"][1]
