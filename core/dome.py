@@ -108,7 +108,11 @@ def _check_finite(value, field):
 
 
 def _check_size(value, field):
-    if isinstance(value, bool) or int(value) != value or int(value) <= 0:
+    try:
+        ok = not isinstance(value, bool) and int(value) == value and int(value) > 0
+    except (TypeError, ValueError, OverflowError):
+        ok = False
+    if not ok:
         raise DataError(f"must be a positive whole number of pixels, got {value!r}", field=field)
     return int(value)
 
