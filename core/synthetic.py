@@ -34,7 +34,10 @@ maps,
 * Conjugating by ``Z_{s_i}`` (``s_i`` = middle of the spin-up) places the
   storms in the jets' frame: they drift with the jet at their latitude, and
   the jets shear them only by what builds up over their own life, so the
-  winds stay bounded (≤ ~50 m/s) over the 10 days.
+  winds stay bounded (≤ ~50 m/s) over the 10 days.  (For speed, the cosine
+  and sine of each frame's angle are tabulated per level on 2049 nodes in
+  ``z`` and interpolated with renormalisation: still an exact rotation, the
+  same one in the map and its inverse.)
 
 Rotations and differential rotations preserve area, so the horizontal wind on
 every level is non-divergent.  The fields follow from the map:
@@ -117,6 +120,9 @@ _ZNODES = np.linspace(-1.0, 1.0, 8193)
 """Nodes in z = sin(latitude) of the zonal rotation tables (linear interpolation between them
 defines Θ exactly for the forward and the inverse map alike)."""
 
+_FNODES = np.linspace(-1.0, 1.0, 2049)
+"""Nodes in z of the storms' frame-rotation tables (cos and sin per jet factor)."""
+
 
 # Zonal jets: (centre latitude, width, peak m/s at the jet level, relative oscillation,
 # period in days, phase).  January: the northern jet is the stronger.
@@ -192,7 +198,14 @@ class SyntheticClimate(Dataset):
         self._storms = self._make_storms(rng, days, n_storms)
         phi = np.rad2deg(np.arcsin(_ZNODES))
         self._jet_shapes = [peak / np.cos(np.deg2rad(lat0)) * _gauss(phi, lat0, width) / EARTH_RADIUS for lat0, width, peak, *_ in _JETS]
-        self._frames = [self._theta_table(g["frame"]) for g in self._storms]
+        # Storm frames Z_s: per group, per distinct jet factor, cos and sin of the rotation angle
+        # j Θ(z, s) on _FNODES; between nodes they are interpolated and normalised, which defines
+        # the frame rotation exactly (and without trigonometry) for the map and its inverse alike.
+        self._jet_values = np.unique(self._jet_factor)
+        self._frames = []
+        for g in self._storms:
+            angle = self._jet_values[:, None] * np.interp(_FNODES, _ZNODES, self._theta_table(g["frame"]))[None, :]
+            self._frames.append((np.cos(angle).ravel(), np.sin(angle).ravel()))
         self._noise = [self._make_waves(rng, 10, 3.0, 7.0, 4.0), self._make_waves(rng, 16, 12.0, 22.0, 25.0), self._make_waves(rng, 10, 4.0, 12.0, 3.0)]
         # Grid points as unit vectors (float64) and east/north unit vectors, shape (nj, ni).
         lam, phi = np.deg2rad(lon)[None, :], np.deg2rad(lat)[:, None]
@@ -273,13 +286,32 @@ class SyntheticClimate(Dataset):
         c, s = np.cos(ang), np.sin(ang)
         return c * x - s * y, s * x + c * y
 
+    def _frame_rotation(self, frame, rows, z):
+        """cos and sin of the storm frame's rotation at ``z`` for jet-factor rows ``rows``."""
+        cos_t, sin_t = frame
+        m = _FNODES.size
+        x = (np.clip(z, -1.0, 1.0) + 1.0) * (0.5 * (m - 1))
+        i = np.minimum(x.astype(np.intp), m - 2)
+        f = x - i
+        i += rows * m
+        c = cos_t[i] * (1.0 - f) + cos_t[i + 1] * f
+        s = sin_t[i] * (1.0 - f) + sin_t[i + 1] * f
+        n = np.hypot(c, s)
+        return c / n, s / n
+
+    def _jet_rows(self, jet):
+        rows = np.minimum(np.searchsorted(self._jet_values, jet), self._jet_values.size - 1)
+        if not np.array_equal(self._jet_values[rows], jet):
+            raise ValueError("jet factors must come from level_factors()")
+        return rows
+
     def _twists(self, p, t, jet, storm, inverse):
         """Apply the storms' twists ``Z_s⁻¹ V_i Z_s`` (or their inverses, in reverse order) to ``p`` in place.
 
         The vortices of one group have disjoint caps, so they commute and are applied together."""
         x, y, z = p
         pairs = list(zip(self._storms, self._frames))
-        for g, table in reversed(pairs) if inverse else pairs:
+        for g, frame in reversed(pairs) if inverse else pairs:
             grow = _smootherstep((t - g["birth"]) / g["life"])
             if grow == 0.0:
                 continue
@@ -288,34 +320,34 @@ class SyntheticClimate(Dataset):
             cand = np.nonzero((z > zlo) & (z < zhi))[0]
             if cand.size == 0:
                 continue
-            cj = jet[cand]
+            rows = self._jet_rows(jet[cand])
             pz = z[cand]
-            # Longitude in the storm's frame (Z_s adds jet·Θ_s(z) to it), its sector's vortex, and the chord test.
-            shift = cj * self._lookup(table, pz)
-            lam = np.arctan2(y[cand], x[cand]) + shift
+            c, s = self._frame_rotation(frame, rows, pz)
+            x0, y0 = x[cand], y[cand]
+            px, py = c * x0 - s * y0, s * x0 + c * y0  # into the storm's frame
             count = g["count"]
-            if count > 1:
-                sector = np.floor((lam - g["lon0"]) * (count / (2 * np.pi)) + 0.5).astype(np.intp) % count
+            if count > 1:  # the vortex of the point's longitude sector
+                sector = np.floor((np.arctan2(py, px) - g["lon0"]) * (count / (2 * np.pi)) + 0.5).astype(np.intp) % count
             else:
                 sector = np.zeros(cand.size, dtype=np.intp)
-            rh = np.sqrt(np.maximum(1.0 - pz * pz, 0.0))
-            cdot = g["cos_lat"] * rh * np.cos(lam - g["lons"][sector]) + g["sin_lat"] * pz
+            cen = g["centres"]
+            cx, cy, cz = cen[sector, 0], cen[sector, 1], cen[sector, 2]
+            cdot = cx * px + cy * py + cz * pz
             s2 = 2.0 * (1.0 - cdot) / (g["rho"] ** 2)
             inside = np.nonzero(s2 < 1.0)[0]
-            cand, cj, pz, cdot, s2, sector, shift = (v[inside] for v in (cand, cj, pz, cdot, s2, sector, shift))
-            px, py = self._rotate_z(x[cand], y[cand], shift)  # into the storm's frame
-            c = g["centres"][sector]
+            cand, rows, px, py, pz, cx, cy, cz, cdot, s2, sector = (
+                v[inside] for v in (cand, rows, px, py, pz, cx, cy, cz, cdot, s2, sector)
+            )
             psi = g["strengths"][sector] * grow * storm[cand] * (1.0 - s2) ** 3
             if inverse:
                 psi = -psi
             cs, sn = np.cos(psi), np.sin(psi)
             k = cdot * (1.0 - cs)
-            cx, cy, cz = c[:, 0], c[:, 1], c[:, 2]
             qx = px * cs + (cy * pz - cz * py) * sn + cx * k
             qy = py * cs + (cz * px - cx * pz) * sn + cy * k
             qz = pz * cs + (cx * py - cy * px) * sn + cz * k
-            x[cand], y[cand] = self._rotate_z(qx, qy, -cj * self._lookup(table, qz))  # back from the storm's frame
-            z[cand] = qz
+            c, s = self._frame_rotation(frame, rows, qz)
+            x[cand], y[cand], z[cand] = c * qx + s * qy, c * qy - s * qx, qz  # back from the storm's frame
         return p
 
     def forward(self, a, t, jet, storm):
