@@ -102,7 +102,9 @@ def jobqueue_cluster(system, *, queue=None, account=None, walltime="01:00:00", j
 def _scheduler_config():
     import dask
 
-    with dask.config.set({"distributed.scheduler.allowed-failures": 0}):
+    # allowed-failures 0: a worker death fails its task at once, the client's --retries count it.
+    # No pre-spawn environment (MALLOC_TRIM_THRESHOLD_, OMP_NUM_THREADS=1): bpy runs as in Blender.
+    with dask.config.set({"distributed.scheduler.allowed-failures": 0, "distributed.nanny.pre-spawn-environ": {}}):
         yield
 
 

@@ -92,6 +92,8 @@ def add_arguments(p):
     r.add_argument("--resolution", metavar="WxH", help="frame size in pixels")
     r.add_argument("--percentage", type=int, help="resolution percentage")
     r.add_argument("--device", type=str.upper, help="Cycles device: CPU, OPTIX, CUDA, HIP, METAL or ONEAPI")
+    r.add_argument("--persistent-data", action="store_true",
+                   help="Cycles keeps scene data between a worker's frames (faster, more memory)")
     r.add_argument("--format", default="PNG", type=str.upper, help="PNG (default) or EXR")
     f = p.add_argument_group("robustness")
     f.add_argument("--chunk", type=int, default=1, help="frames per Dask task (default 1)")
@@ -100,6 +102,7 @@ def add_arguments(p):
     f.add_argument("--overwrite", action="store_true", help="re-render every frame, even valid ones")
     f.add_argument("--verify", action="store_true", help="on resume, re-hash frames against the manifest")
     f.add_argument("--precompute", action="store_true", help="run the scene's core tasks into the cache first")
+    f.add_argument("--cache", help="cache directory of an example script's scene (default: beside the script)")
     f.add_argument("--quiet", action="store_true", help="no progress line")
     add_cluster_arguments(p)
 
@@ -111,9 +114,9 @@ def run(args):
     settings = dict(
         engine=args.engine, samples=args.samples,
         resolution=parse_resolution(args.resolution) if args.resolution else None,
-        percentage=args.percentage, device=args.device, fmt=args.format, chunk=args.chunk,
-        retries=args.retries, timeout=args.timeout, scene_options=parse_options(args.set),
-        precompute=args.precompute, overwrite=args.overwrite, verify=args.verify,
+        percentage=args.percentage, device=args.device, persistent=args.persistent_data, fmt=args.format,
+        chunk=args.chunk, retries=args.retries, timeout=args.timeout, scene_options=parse_options(args.set),
+        precompute=args.precompute, cache_dir=args.cache, overwrite=args.overwrite, verify=args.verify,
     )
     if args.dry_run:
         return _dry_run(args, settings, kwargs)

@@ -205,7 +205,7 @@ def _clock(seconds):
 
 
 def render_sequence(scene, frames, out_dir, *, workers=None, engine=None, samples=None, resolution=None,
-                    percentage=None, device=None, fmt="PNG", chunk=1, retries=2, timeout=None,
+                    percentage=None, device=None, persistent=False, fmt="PNG", chunk=1, retries=2, timeout=None,
                     scheduler=None, security=None, jobqueue=None, jobs=1, progress=True,
                     scene_options=None, precompute=False, cache_dir=None, overwrite=False, verify=False):
     """Render ``frames`` of ``scene`` into ``out_dir`` on Dask; valid frames already there are kept.
@@ -226,6 +226,9 @@ def render_sequence(scene, frames, out_dir, *, workers=None, engine=None, sample
         samples, ``(width, height)``, resolution percentage, Cycles device
         (``"CPU"``, ``"OPTIX"``, ``"CUDA"``, ``"HIP"``, ``"METAL"``, ``"ONEAPI"``;
         an absent GPU is a :class:`DataError`).
+    persistent : bool
+        Cycles keeps its scene data between the frames of a worker (``render.use_persistent_data``):
+        faster for long sequences, more memory.
     fmt : {"PNG", "EXR"}
     chunk : int
         Frames per Dask task.
@@ -282,7 +285,8 @@ def render_sequence(scene, frames, out_dir, *, workers=None, engine=None, sample
         shutil.rmtree(out / TMP_DIR, ignore_errors=True)  # leftovers of a killed run
         settings = {
             "scene": str(scene_path), "frames": format_frames(frame_list), "engine": engine, "samples": samples,
-            "resolution": resolution, "percentage": percentage, "device": device, "format": fmt,
+            "resolution": resolution, "percentage": percentage, "device": device, "persistent": bool(persistent),
+            "format": fmt,
             "scene_options": scene_options or {},
         }
         manifest.run = {**settings, "started": _now(), "finished": None, "failed": []}
@@ -381,11 +385,16 @@ def _after_lost_task(out, frame, fmt, exc, since_ns):
             return file_entry(path, seconds=None, worker=None, log=log, recovered=True)
     except (InvalidFrame, OSError):
         pass
-    reason = f"{type(exc).__name__}: {exc}".splitlines()[0]
+    from distributed import KilledWorker
+
+    reason = (f"{type(exc).__name__}: {exc}".strip().splitlines() or ["?"])[0]
+    if isinstance(exc, KilledWorker):
+        what = f"worker lost ({reason}): it crashed, was killed or exceeded --timeout"
+    else:  # e.g. a precompute task this frame needs failed
+        what = f"task failed ({reason})"
     with contextlib.suppress(OSError), open(out / log, "a") as f:
-        f.write(f"nephele: the task rendering frame {frame} was lost ({reason}): the worker crashed, "
-                "was killed or exceeded --timeout\n")
-    return {"status": "failed", "error": f"worker lost ({reason})", "log": log}
+        f.write(f"nephele: frame {frame}: {what}\n")
+    return {"status": "failed", "error": what, "log": log}
 
 
 def _spec(scene_path, kind, settings, cache_dir, **extra):
@@ -399,6 +408,7 @@ def _spec(scene_path, kind, settings, cache_dir, **extra):
         "options": settings.get("scene_options") or {}, "engine": settings.get("engine"),
         "samples": settings.get("samples"), "resolution": settings.get("resolution"),
         "percentage": settings.get("percentage"), "device": settings.get("device"),
+        "persistent": settings.get("persistent", False),
         "fmt": settings.get("format", "PNG"), "cache_dir": str(Path(cache_dir).resolve()), **extra,
     }
 

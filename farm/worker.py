@@ -156,6 +156,8 @@ def load_scene(spec):
             scene.display.render_aa = [name for k, name in _WORKBENCH_AA if k <= n][-1]
     if r.engine == "CYCLES":
         _set_device(scene, spec.get("device") or "CPU")
+        if spec.get("persistent"):
+            r.use_persistent_data = True
     elif spec.get("device") not in (None, "CPU"):
         raise FrameError(f"--device {spec['device']} needs the CYCLES engine, the scene uses {r.engine}")
     threads = spec.get("threads") or render_threads()

@@ -59,3 +59,30 @@ def test_precompute_then_render_reads_cache(cluster, tmp_path, capsys):
     assert cache.file(kind, params).is_file()
     files = sorted(p.name for p in (tmp_path / "cache" / "contour").rglob("*.npz"))
     assert len(files) == 4  # content-addressed: one entry per distinct task, no stray temporaries
+
+
+def test_saved_blend_with_nephele_object_renders_without_addon(cluster, tmp_path):
+    """A .blend saved with a contour object: workers open it, install the frame handler, the cloud moves."""
+    import importlib.util
+
+    import bpy
+    import numpy as np
+
+    from nephele.farm.post import read_rgba
+
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    spec = importlib.util.spec_from_file_location("contour_scene_blend", SCENE)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    mod.build(size=(48, 36))
+    blend = tmp_path / "clouds.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+
+    res = render_sequence(blend, [1, 9], tmp_path / "out", scheduler=cluster.scheduler_address, progress=False)
+    assert res.ok and res.rendered == [1, 9]
+    a, b = (read_rgba(p) for p in res.paths)
+    assert a.shape == (36, 48, 4) and a[..., :3].std() > 0.05
+    assert np.abs(a - b).mean() > 0.01  # 48 model hours apart: the clouds moved
+    # The updater cached its meshes beside the .blend, where the add-on looks.
+    assert len(list((tmp_path / "clouds_nephele_cache" / "contour").rglob("*.npz"))) == 2
