@@ -22,8 +22,7 @@ def _direction(el, az):
 
 def _markers(scene, distance=10.0, radius=0.3, markers=MARKERS):
     """Small emissive spheres at known directions from the origin, in a black world."""
-    scene.world = bpy.data.worlds.new("black")
-    scene.world.color = (0, 0, 0)
+    scene.world = None  # black background in Cycles and EEVEE
     scene.view_settings.view_transform = "Standard"
     for name, (el, az) in markers.items():
         mesh = bpy.data.meshes.new(name)
