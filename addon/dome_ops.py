@@ -372,6 +372,31 @@ def render_dome_eevee(filepath, *, scene=None, face_size=None, supersample=None,
     return written
 
 
+def render_dome_frame(filepath, *, scene=None):
+    """Render the current frame of a scene with a dome rig, whatever the engine; returns the paths.
+
+    Cycles (and any engine with panoramic cameras) renders the fisheye frame
+    directly; EEVEE goes through :func:`render_dome_eevee`.  Stereo rigs
+    write ``<stem>_L`` and ``<stem>_R`` either way.  For the farm: call this
+    instead of ``bpy.ops.render.render`` when :func:`dome_rig` finds a rig.
+    """
+    scene = scene or bpy.context.scene
+    filepath = Path(filepath)
+    if scene.render.engine in EEVEE_ENGINES:
+        return render_dome_eevee(filepath, scene=scene)
+    if dome_rig(scene) is None:
+        raise DataError("no dome camera in the scene: add one first (Add dome camera)", field="camera")
+    saved = scene.render.filepath
+    try:
+        scene.render.filepath = str(filepath)
+        bpy.ops.render.render(write_still=True)
+    finally:
+        scene.render.filepath = saved
+    if scene.render.use_multiview:
+        return [filepath.with_name(f"{filepath.stem}_{s}{filepath.suffix}") for s in "LR"]
+    return [filepath]
+
+
 # --- UI -----------------------------------------------------------------------------------------
 
 _PRESET_ITEMS = [

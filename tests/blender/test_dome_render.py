@@ -123,7 +123,10 @@ def test_stereo_left_right_frames_fixed_baseline(empty_scene, tmp_path):
     _markers(scene, distance=2.0, radius=0.06, markers=near)
     sep = 0.4
     dome_ops.add_dome_camera("omnimax", width=128, height=94, stereo=True, separation=sep)
-    _render(scene, tmp_path / "st.png")
+    scene.render.engine = "CYCLES"
+    scene.cycles.samples = 8
+    paths = dome_ops.render_dome_frame(tmp_path / "st.png", scene=scene)
+    assert [p.name for p in paths] == ["st_L.png", "st_R.png"] and all(p.is_file() for p in paths)
     cam = dome.dome_camera("omnimax", width=128, height=94)
     left, right = (dome_ops.read_image(tmp_path / f"st_{s}.png") for s in "LR")
     eyes = dome.stereo_eyes(sep)
