@@ -147,7 +147,14 @@ def open_client(*, workers=None, scheduler=None, security=None, jobqueue=None, j
     from distributed import Client
 
     if scheduler:
-        client = Client(scheduler, security=security, timeout="30s")
+        try:
+            client = Client(scheduler, security=security, timeout="30s")
+        except (OSError, TimeoutError, TypeError, ValueError) as exc:
+            from ..core.errors import DataError
+
+            hint = " (a tls:// scheduler needs --tls-ca-file, --tls-cert and --tls-key)" if "TLS" in str(exc) else ""
+            raise DataError(f"cannot connect to the Dask scheduler: {exc}{hint}", path=scheduler,
+                            field="--scheduler") from None
         try:
             yield client
         finally:
