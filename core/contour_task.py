@@ -157,6 +157,9 @@ def contour_mesh(params):
         if color_var not in ds:
             raise DataError("colour variable not in the dataset", path=ds.source, field=color_var)
         attributes[color_var] = ds.read_at(color_var, params["hours"])
-    mesh = isosurface(points, values, level, periodic_lon=ds.grid.periodic_lon,
-                      method=params.get("method", "cubes"), attributes=attributes)
+    # Global grids with cell-centred latitudes get the poles added, so clouds
+    # over a pole are closed instead of keeping a hole the size of the polar cap.
+    periodic = ds.grid.periodic_lon
+    mesh = isosurface(points, values, level, periodic_lon=periodic, method=params.get("method", "cubes"),
+                      attributes=attributes, close_poles=periodic)
     return mesh.to_arrays()
