@@ -115,20 +115,56 @@ CENTRE = len(PAIRS)
 """Local ids ``CENTRE + q``: a vertex at the centre of the cell's loop ``q``."""
 
 
-def cube_centre_table():
-    """Like :func:`cube_table` but each loop fanned from a vertex at its centre.
+def _centre_fan(q, loop):
+    n = len(loop)
+    return [(CENTRE + q, loop[(m + 1) % n], loop[m]) for m in range(n)]
 
-    Used for cells next to a pole, where one face is collapsed: a fan from a
-    loop vertex could draw a diagonal that, once the pole vertices merge,
-    lies in a face shared with the next cell; spokes from a centre vertex of
-    the cell's own never do.
+
+def cube_centre_table():
+    """Like :func:`cube_table` but each loop fanned from a vertex at its centre
+    (a vertex of the cell's own: its spokes are shared with no other cell)."""
+    return _table([[t for q, loop in enumerate(_cube_loops(c)) for t in _centre_fan(q, loop)] for c in range(256)])
+
+
+def _faces_of(a, b):
+    return {f for f, face in enumerate(FACES) if a in face and b in face}
+
+
+def polar_table(side):
+    """Cube table for a cell whose corners with ``dj == side`` sit on a pole.
+
+    Those corners coincide pairwise (``2 ≡ 3, 6 ≡ 7`` for ``side = 1``), carry
+    one value, and the vertices on the two pole edges merge into one.  Each
+    loop is contracted accordingly and fanned from a vertex whose diagonals
+    never lie in a face of the cell (a diagonal there could meet its twin from
+    the neighbouring cell once the pole vertices merge); a loop with no such
+    vertex is fanned from a centre vertex instead (ids ``CENTRE + q``).
     """
+    pole = [c for c in range(8) if CORNERS[c][1] == side]
+    ka, kb = sorted(_edge(c, c | 4) for c in pole if not CORNERS[c][2])  # the two pole edges along k
+    collapsed = next(f for f, face in enumerate(FACES) if all(CORNERS[c][1] == side for c in face))
+    # Faces (other than the collapsed one) each vertex lies on; the merged pole vertex on both edges' faces.
+    where = {e: _faces_of(*PAIRS[e]) - {collapsed} for e in range(len(PAIRS))}
+    where[ka] = where[ka] | where[kb]
+
+    def risky(e1, e2):
+        return bool(where[e1] & where[e2])
+
     tris = []
     for config in range(256):
         t = []
         for q, loop in enumerate(_cube_loops(config)):
-            n = len(loop)
-            t += [(CENTRE + q, loop[(m + 1) % n], loop[m]) for m in range(n)]
+            c = [ka if e == kb else e for e in loop]
+            c = [e for m, e in enumerate(c) if e != c[m - 1]]  # merge the pole pair (cyclic)
+            n = len(c)
+            if n < 3:
+                continue
+            for a in range(n):
+                if not any(risky(c[a], c[(a + m) % n]) for m in range(2, n - 1)):
+                    t += [(c[a], c[(a + m + 1) % n], c[(a + m) % n]) for m in range(1, n - 1)]
+                    break
+            else:
+                t += _centre_fan(q, c)
         tris.append(t)
     return _table(tris)
 

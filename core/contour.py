@@ -22,9 +22,9 @@ surface:
   the seam column uses a 6-tetrahedron split, see :mod:`._mc_tables`);
 * rows of grid points that coincide (the poles of a longitude-latitude grid)
   are one point: their values are averaged, their vertices merged, so no
-  degenerate triangle or crack remains there; the cells touching such a row
-  fan each loop from a vertex at its centre, so that merging never makes an
-  edge shared by more than two triangles.
+  degenerate triangle or crack remains there; the cells on such a row use
+  tables whose fans draw no diagonal inside a face shared with the next cell,
+  so that merging never makes an edge shared by more than two triangles.
 
 References
 ----------
@@ -71,13 +71,13 @@ def regular_points(shape, spacing=(1.0, 1.0, 1.0), origin=(0.0, 0.0, 0.0), dtype
 
 @lru_cache(maxsize=None)
 def _cube_lookup():
-    """Cube tables (plain and centre-fanned) and per local edge: family (i/j/k), lower-corner offset."""
-    table, ntri = tables.cube_table()
-    centre_table, centre_ntri = tables.cube_centre_table()
+    """Cube tables (plain; for cells on a south / north pole row; centre-fanned)
+    and per local edge: family (i/j/k), lower-corner offset."""
+    tabs = (tables.cube_table(), tables.polar_table(0), tables.polar_table(1), tables.cube_centre_table())
     pairs = np.array(tables.PAIRS)
     lower = tables.CORNERS[pairs[:, 0]]
     family = np.argmax(tables.CORNERS[pairs[:, 1]] - lower, axis=1)
-    return table, ntri, centre_table, centre_ntri, family, lower
+    return tabs, family, lower
 
 
 @lru_cache(maxsize=None)
@@ -331,17 +331,22 @@ def _cubes(above, nan, periodic, pole_rows):
     nk, nj, ni = above.shape
     nv = nk * nj * ni
     idx = np.int32 if 3 * nv < 2**31 else np.int64
-    table, ntri, centre_table, centre_ntri, family, lower = _cube_lookup()
+    tabs, family, lower = _cube_lookup()
     cfg = _cell_config(above, nan, periodic)
     flat = cfg.reshape(-1)
     active = np.flatnonzero((flat != 0) & (flat != 255)).astype(idx)
     if len(active) == 0:
         return None, None, np.zeros((0, 3), np.int64), 0
-    polar = np.zeros(0, idx)
+    groups = [active]
     if pole_rows is not None:
+        # Cells on a pole row (both levels) use the polar tables; cells touching
+        # one in some other way (a pole at one level only) fan from centres.
         k, j, _ = _cell_ijk(active, cfg.shape)
+        south = pole_rows[k, j] & pole_rows[k + 1, j]
+        north = pole_rows[k, j + 1] & pole_rows[k + 1, j + 1] & ~south
         touch = pole_rows[k, j] | pole_rows[k, j + 1] | pole_rows[k + 1, j] | pole_rows[k + 1, j + 1]
-        polar, active = active[touch], active[~touch]
+        other = touch & ~south & ~north
+        groups = [active[~touch], active[south], active[north], active[other]]
 
     # Arithmetic edge number: family * nv + flat index of the edge's lower corner.
     stride = np.array([1, ni, nj * ni])
@@ -350,7 +355,9 @@ def _cubes(above, nan, periodic, pole_rows):
     wraps = np.zeros(tables.CENTRE + 4, idx)
     wraps[: tables.CENTRE] = ni * lower[:, 0]
 
-    def edges(cells, tab, counts):
+    parts = []
+    ncentre = 0
+    for cells, (tab, counts) in zip(groups, tabs):
         cells, slot = _expand(cells, flat, counts)
         k, j, i = _cell_ijk(cells, cfg.shape)
         local = tab[flat[cells], slot]  # (T, 3) local edge numbers
@@ -359,13 +366,13 @@ def _cubes(above, nan, periodic, pole_rows):
             # Corners in the column after the last one are column 0.
             seam = np.flatnonzero(i == ni - 1)
             edge[seam] -= wraps[local[seam]]
-        return cells, local, edge
-
-    _, _, edge = edges(active, table, ntri)
-    if len(polar):
-        cells, local, pedge = edges(polar, centre_table, centre_ntri)
-        # Centre vertex ids: 4 per polar cell, after the crossed-edge vertices.
-        centre = np.searchsorted(polar, cells)[:, None] * 4 + (local - tables.CENTRE)
+        centre = None
+        if (local >= tables.CENTRE).any():
+            # Centre vertex ids: 4 per cell of the group, after the crossed-edge vertices.
+            owners = np.unique(cells)
+            centre = ncentre + np.searchsorted(owners, cells)[:, None] * 4 + (local - tables.CENTRE)
+            ncentre += 4 * len(owners)
+        parts.append((local, edge, centre))
 
     # Crossed edges, family by family, numbered in order: vertex id = lut[edge].
     ia = np.zeros((nk, nj, ni), bool)
@@ -393,11 +400,15 @@ def _cubes(above, nan, periodic, pole_rows):
             b -= ni * (ids % ni == ni - 1)
         a_parts.append(ids)
         b_parts.append(b)
-    faces = lut[edge]
-    if len(polar):
-        pfaces = np.where(local >= tables.CENTRE, n + centre, lut[np.where(local >= tables.CENTRE, 0, pedge)])
-        faces = np.concatenate([faces, pfaces])
-    return np.concatenate(a_parts), np.concatenate(b_parts), faces, 4 * len(polar)
+    faces = []
+    for local, edge, centre in parts:
+        if centre is None:
+            faces.append(lut[edge])
+        else:
+            is_centre = local >= tables.CENTRE
+            faces.append(np.where(is_centre, n + centre, lut[np.where(is_centre, 0, edge)]))
+    faces = faces[0] if len(faces) == 1 else np.concatenate(faces)
+    return np.concatenate(a_parts), np.concatenate(b_parts), faces, ncentre
 
 
 def _tetra(above, nan, periodic):

@@ -197,6 +197,20 @@ def test_random_fields_at_the_poles_stay_manifold(method):
         assert np.all(np.isfinite(mesh.normals))
 
 
+def test_pole_at_one_level_only():
+    # A row that collapses at the lowest level only (a cone's apex): its cells
+    # take the centre-fanned table; still no edge with more than two triangles.
+    rng = np.random.default_rng(2)
+    p = shell_points(9, 7, 4, r=(0.5, 1.5))
+    p[0, -1] = p[0, -1].mean(axis=0)
+    for _ in range(30):
+        v = rng.random(p.shape[:3])
+        mesh = isosurface(p, v, 0.5, periodic_lon=True)
+        assert edge_counts(mesh.faces).max() == 2
+        assert directed_edges_unique(mesh.faces)
+        assert triangle_areas(mesh.vertices, mesh.faces).min() > 0
+
+
 def test_globe_grid_points_at_the_poles():
     lon = np.arange(32) * 360.0 / 32
     lat = np.linspace(-90, 90, 17)
