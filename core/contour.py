@@ -326,7 +326,8 @@ def _cubes(above, nan, periodic, pole_rows):
 
     Returns the grid points ``(a, b)`` at the ends of each crossed edge (one
     vertex each), the faces, and the number of loop-centre vertices numbered
-    after them (cells touching a pole row; each centre triangle starts with it).
+    after them (cells where a pole collapses at one level only; each centre
+    triangle starts with its centre).
     """
     nk, nj, ni = above.shape
     nv = nk * nj * ni
