@@ -101,8 +101,20 @@ def read_grid(path, name=DENSITY):
     return a, np.array(lo), vs
 
 
-def bake_sequence(obj_params, frames, directory, prefix="clouds", *, cache=None, progress=None):
+def file_key(path):
+    """The ``nephele_key`` metadata of a ``.vdb`` file (None if absent or unreadable)."""
+    try:
+        return openvdb().readMetadata(str(path)).get("nephele_key")
+    except (OSError, RuntimeError, ValueError, KeyError):
+        return None
+
+
+def bake_sequence(obj_params, frames, directory, prefix="clouds", *, cache=None, progress=None, reuse=True):
     """Resample and write one ``.vdb`` per frame of ``frames`` (ascending ints).
+
+    Each file records the cache key of its exact inputs; with ``reuse`` an
+    existing file with the same key is kept as it is (a re-run, or every
+    farm worker building the same scene, costs one metadata read per frame).
 
     ``obj_params`` as for :func:`nephele.core.volume.frame_params`; file
     ``k`` (1-based) holds ``frames[k-1]``, so ``frames`` must be consecutive
@@ -111,10 +123,11 @@ def bake_sequence(obj_params, frames, directory, prefix="clouds", *, cache=None,
     (None: no cache).  ``progress(i, n, info)`` is called after each frame.
 
     Returns a list of dicts per frame: ``frame``, ``path``, ``hours``,
-    ``blocks``, ``active_voxels``, ``value_max``, ``seconds``.
+    ``blocks``, ``active_voxels``, ``value_max``, ``seconds``, ``reused``.
     """
     import time
 
+    from ..core.cache import cache_key
     from ..core.tasks import run_cached
     from ..core.volume import SparseVolume, frame_params
 
@@ -127,19 +140,30 @@ def bake_sequence(obj_params, frames, directory, prefix="clouds", *, cache=None,
     for n, frame in enumerate(frames, start=1):
         t0 = time.perf_counter()
         params = frame_params(obj_params, frame)
-        arrays = run_cached("volume", params, cache)
-        vol = SparseVolume.from_arrays(arrays, color_name=params["color_var"] or None)
-        path = write_volume(frame_path(directory, prefix, n), vol,
-                            metadata={"nephele_hours": params["hours"], "nephele_var": params["var"]})
-        info = {
-            "frame": frame, "path": str(path), "hours": params["hours"], "blocks": int(vol.blocks.shape[0]),
-            "active_voxels": int(np.count_nonzero(vol.density)), "value_max": float(arrays["value_max"]),
-            "seconds": time.perf_counter() - t0,
-        }
+        key = cache_key("volume", params)
+        path = frame_path(directory, prefix, n)
+        if reuse and path.is_file() and file_key(path) == key:
+            meta = openvdb().readMetadata(str(path))
+            info = {"frame": frame, "path": str(path), "hours": params["hours"], "blocks": int(meta["nephele_blocks"]),
+                    "active_voxels": int(meta["nephele_active_voxels"]), "value_max": float(meta["nephele_value_max"]),
+                    "seconds": time.perf_counter() - t0, "reused": True}
+        else:
+            arrays = run_cached("volume", params, cache)
+            vol = SparseVolume.from_arrays(arrays, color_name=params["color_var"] or None)
+            info = {
+                "frame": frame, "path": str(path), "hours": params["hours"], "blocks": int(vol.blocks.shape[0]),
+                "active_voxels": int(np.count_nonzero(vol.density)), "value_max": float(arrays["value_max"]),
+                "reused": False,
+            }
+            write_volume(path, vol, metadata={
+                "nephele_key": key, "nephele_hours": params["hours"], "nephele_var": params["var"],
+                "nephele_blocks": info["blocks"], "nephele_active_voxels": info["active_voxels"],
+                "nephele_value_max": info["value_max"]})
+            info["seconds"] = time.perf_counter() - t0
         out.append(info)
         if progress is not None:
             progress(n, len(frames), info)
     return out
 
 
-__all__ = ["DENSITY", "bake_sequence", "frame_path", "openvdb", "read_grid", "write_volume"]
+__all__ = ["DENSITY", "bake_sequence", "file_key", "frame_path", "openvdb", "read_grid", "write_volume"]

@@ -111,20 +111,32 @@ def reference_optical_depth(field, name, tf, origins, dirs, step, chunk=200_000)
     """Optical depth along rays through a :class:`CurvilinearField`, by exact
     piecewise-linear integration between samples ``step`` apart.
 
-    Rays run through the atmosphere shell and stop at the lowest level's
-    smallest radius (the ground).  Returns ``(tau, t0, t1)`` per ray.
+    Rays run through the atmosphere shell and stop at the ground: at the
+    last sample above the lowest level (the terrain), or at the lowest
+    level's smallest radius.  Returns ``(tau, t0, t1)`` per ray, ``t1`` where it
+    stopped.
     """
     r_in, r_out = field.radius_range()
     t0, t1 = sphere_span(origins, dirs, r_out, r_in)
     pts, seg = ray_samples(origins, dirs, t0, t1, step)
     n, m = seg.shape[0], pts.shape[1]
     s = np.empty(n * m)
+    below = np.empty(n * m, bool)
     flat_pts = pts.reshape(-1, 3)
     for a in range(0, flat_pts.shape[0], chunk):
         s[a : a + chunk] = field.sample(name, flat_pts[a : a + chunk])
+        below[a : a + chunk] = field.below_ground(flat_pts[a : a + chunk])
     s = s.reshape(n, m)
-    tau = segment_optical_depth(tf, s[:, :-1], s[:, 1:], seg).sum(axis=1)
-    return tau, t0, t1
+    below = below.reshape(n, m)
+    # Stop at the last sample above the terrain: the ground is opaque.
+    hit = below.any(axis=1)
+    first = np.where(hit, np.maximum(np.argmax(below, axis=1) - 1, 0), m - 1)
+    u = np.arange(m)[None, :]
+    keep = u[:, :-1] < first[:, None]
+    tau = np.where(keep, segment_optical_depth(tf, s[:, :-1], s[:, 1:], seg), 0.0).sum(axis=1)
+    t_samples = t0[:, None] + np.concatenate([np.zeros((n, 1)), np.cumsum(seg, axis=1)], axis=1)
+    t_end = np.take_along_axis(t_samples, first[:, None], axis=1)[:, 0]
+    return tau, t0, t_end
 
 
 def volume_optical_depth(volume, origins, dirs, t0, t1, step, chunk=200_000):

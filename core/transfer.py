@@ -195,8 +195,9 @@ class ColorMap:
             raise DataError(f"is not valid JSON: {exc}", field="colour map") from None
 
 
-# Cloud colour by altitude (metres): grey-blue low cloud to white high cloud.
-ALTITUDE_COLORS = ColorMap(points=((0.0, (0.55, 0.6, 0.7)), (4000.0, (0.85, 0.87, 0.9)), (12000.0, (1.0, 1.0, 1.0))))
+# Cloud colour (scattering albedo) by altitude in metres: warm grey low
+# cloud, white in the middle, pale blue cirrus high up.
+ALTITUDE_COLORS = ColorMap(points=((0.0, (0.85, 0.78, 0.7)), (5000.0, (0.97, 0.97, 0.97)), (12000.0, (0.75, 0.85, 1.0))))
 # Cloud colour by temperature (K): white cold tops to warm grey-pink.
 TEMPERATURE_COLORS = ColorMap(points=((210.0, (1.0, 1.0, 1.0)), (260.0, (0.85, 0.9, 1.0)), (300.0, (0.9, 0.7, 0.6))))
 

@@ -38,13 +38,15 @@ from .errors import DataError
 from .grid import DEFAULT_EXAGGERATION, EARTH_RADIUS, globe_radius, height_from_radius, xyz_to_lonlat
 from .transfer import TransferFunction
 
-DEFAULT_VOXEL_SIZE = 0.004
-"""Scene units (the sea-level globe has radius 1): ~850 m of height at the
-default exaggeration, 25 km across.  Chosen by ``benchmarks/bench_volume.py``."""
+DEFAULT_VOXEL_SIZE = 0.003
+"""Scene units (the sea-level globe has radius 1): ~640 m of height at the
+default exaggeration, 19 km across.  The largest size keeping the opacity
+error along rays near 2 % of full scale on the demo climate
+(``benchmarks/bench_volume.py``)."""
 
-DEFAULT_EXTINCTION = 100.0
-"""Extinction per scene unit at opacity 1: a full cloud 0.01 units thick
-(~2 km at exaggeration 30) has optical depth 1."""
+DEFAULT_EXTINCTION = 300.0
+"""Extinction per scene unit at opacity 1: a full cloud 0.0033 units thick
+(~700 m at exaggeration 30) has optical depth 1."""
 
 ALTITUDE = "altitude"
 """Colour-variable name meaning "the height above sea level in metres"."""
@@ -122,7 +124,7 @@ class CurvilinearField:
             float(globe_radius(self.height[-1].max(), self.radius, self.exaggeration)),
         )
 
-    def locate(self, xyz, levels=None):
+    def locate(self, xyz, levels=None, clamp_below=0.0):
         """Cell and fractions of Cartesian points.
 
         Parameters
@@ -132,6 +134,11 @@ class CurvilinearField:
             Per column, the only cells worth locating (``kmin > kmax`` for
             none); points elsewhere come back with ``ok`` False.  Used by
             :func:`resample` to skip transparent cells.
+        clamp_below : float
+            Points up to this many metres under the lowest level (below the
+            terrain) take the lowest level's values instead of being outside.  The ground hides them;
+            extending the field there keeps voxels straddling the ground from
+            blending the cloud with empty space.
 
         Returns
         -------
@@ -181,7 +188,12 @@ class CurvilinearField:
                 return w[0] * hf[base + corners[0]] + w[1] * hf[base + corners[1]] + w[2] * hf[base + corners[2]] + w[3] * hf[base + corners[3]]
 
             lo, hi = k0[sel], k1[sel] + 1
-            inside = (h_s >= column_height(lo)) & (h_s <= column_height(hi))
+            bottom = column_height(lo)
+            inside = h_s <= column_height(hi)
+            if clamp_below > 0:
+                inside &= (h_s >= bottom) | ((lo == 0) & (h_s >= bottom - clamp_below))
+            else:
+                inside &= h_s >= bottom
             # Binary search of the level: heights increase upward in every
             # column, so the bilinear mix of four columns does too.
             while True:
@@ -215,6 +227,16 @@ class CurvilinearField:
                     out += (wk * wj * wi) * a[flat + dk * nj * ni + dj * ni + di]
         out[~ok] = np.nan
         return out
+
+    def below_ground(self, xyz):
+        """True for points within the grid's longitudes and latitudes but under its lowest level."""
+        flat, f, h, ok = self.locate(xyz, clamp_below=np.inf)
+        nk, nj, ni = self.shape
+        col = flat % (nj * ni)
+        hf = self.height.reshape(nk, -1)[0]
+        fj, fi = f[:, 1], f[:, 2]
+        ground = ((1 - fj) * ((1 - fi) * hf[col] + fi * hf[col + 1]) + fj * ((1 - fi) * hf[col + ni] + fi * hf[col + ni + 1]))
+        return ok & (h < ground)
 
     def sample(self, name, xyz):
         """Field ``name`` at Cartesian points (NaN outside the grid or missing)."""
@@ -392,6 +414,9 @@ def candidate_blocks(field, name, tf, voxel_size, block=8):
     dang = np.deg2rad(max(np.diff(field.lon).max(), np.diff(field.lat).max()))
     rmax = field.radius_range()[1]
     pad = rmax * (1 - np.cos(dang / 2)) + 1e-9
+    # Cells on the lowest level also reach one voxel diagonal into the ground
+    # (the resampler extends the field there, see CurvilinearField.locate).
+    pad = pad + np.where(kk == 0, 1.75 * voxel_size, 0.0)[:, None]
     first = np.ceil((bmin - pad) / voxel_size).astype(np.int64)
     last = np.floor((bmax + pad) / voxel_size).astype(np.int64)
     b0 = np.floor_divide(first, block)
@@ -497,13 +522,14 @@ def resample(
         np.where(has, nkc - 1 - np.argmax(cells[::-1], axis=0), 0),
     )
     n = blocks.shape[0]
+    depth = 1.75 * voxel_size / height_scale(exaggeration, radius)
     local = np.indices((sub,) * 3).reshape(3, -1).T
     with_color = color_name is not None
 
     def run(start):
         b = blocks[start : start + chunk_blocks].astype(np.int64)
         idx = (b[:, None, :] * sub + local[None]).reshape(-1, 3)
-        flat, f, h, ok = field.locate(idx * voxel_size, levels)
+        flat, f, h, ok = field.locate(idx * voxel_size, levels, clamp_below=depth)
         dens = np.zeros(idx.shape[0], dtype=np.float32)
         col = np.zeros(idx.shape[0], dtype=np.float32) if with_color else None
         if ok.any():

@@ -66,6 +66,14 @@ def test_sequence_files_follow_frames(scene, tmp_path):
     np.testing.assert_allclose(np.diff(lons), 10.0, atol=3.0)
     p = frame.params(obj)
     assert p["kind"] == "volume" and not p["empty"]
+    # Baking again with the same inputs keeps the files; a new transfer function rewrites them.
+    _, again = volume_ops.add_volume_clouds("cloud", TransferFunction.ramp(0.3, 1.0), directory=str(tmp_path),
+                                            voxel_size=0.01, scene=scene)
+    assert all(i["reused"] for i in again)
+    _, new = volume_ops.add_volume_clouds("cloud", TransferFunction.ramp(0.5, 1.0), directory=str(tmp_path),
+                                          voxel_size=0.01, scene=scene)
+    assert not any(i["reused"] for i in new)
+    assert new[0]["active_voxels"] < infos[0]["active_voxels"]
 
 
 def test_threshold_above_maximum_gives_empty_volume_and_warning(scene, tmp_path):
@@ -184,3 +192,28 @@ def test_render_has_cloud_pixels_where_the_field_says(scene, tmp_path, engine):
     assert lum[clear].max() < 0.02, lum[clear].max()
     # ... and cloud pixels where it says so.
     assert np.mean(lum[cloudy] > 0.02) > 0.95
+
+
+def test_saved_blend_plays_the_sequence_without_the_addon(scene, tmp_path):
+    import nephele
+
+    blend = tmp_path / "clouds.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
+    # Saved first: the sequence goes beside the .blend and is linked relatively.
+    obj, infos = volume_ops.add_volume_clouds("cloud", TransferFunction.ramp(0.3, 1.0), voxel_size=0.02, scene=scene)
+    assert obj.data.filepath.startswith("//")
+    assert str(tmp_path) in infos[0]["path"]
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
+    nephele.unregister()
+    try:
+        bpy.ops.wm.read_factory_settings(use_empty=True)
+        bpy.ops.wm.open_mainfile(filepath=str(blend))
+        sc = bpy.context.scene
+        vol_obj = bpy.data.objects[volume_ops.OBJECT_NAME]
+        for f in (1, 3):
+            sc.frame_set(f)
+            ev = vol_obj.evaluated_get(bpy.context.evaluated_depsgraph_get())
+            assert ev.data.grids.frame_filepath.endswith(f"clouds_{f:04d}.vdb")
+            assert "density" in {g.name for g in ev.data.grids}
+    finally:
+        nephele.register()  # the fixture unregisters

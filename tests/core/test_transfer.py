@@ -45,7 +45,7 @@ def test_json_roundtrip_and_normalized_colormap():
     norm = cm.normalized()
     assert norm[0][0] == 0.0 and norm[-1][0] == 1.0
     np.testing.assert_allclose(cm(np.array([0.0, 12000.0, 1e6])), [cm.colors[0], cm.colors[-1], cm.colors[-1]])
-    np.testing.assert_allclose(cm(2000.0), 0.5 * (cm.colors[0] + cm.colors[1]))
+    np.testing.assert_allclose(cm(0.5 * (cm.values[0] + cm.values[1])), 0.5 * (cm.colors[0] + cm.colors[1]))
 
 
 @pytest.mark.parametrize(
