@@ -291,7 +291,7 @@ def render_cube_faces(scene, eye_matrix, face_size, workdir):
     """
     r = scene.render
     saved = (scene.camera, r.resolution_x, r.resolution_y, r.resolution_percentage, r.use_multiview, r.filepath,
-             r.image_settings.file_format, r.image_settings.color_mode, r.film_transparent, r.pixel_aspect_x, r.pixel_aspect_y)
+             r.image_settings.file_format, r.image_settings.color_mode, r.pixel_aspect_x, r.pixel_aspect_y)
     data = bpy.data.cameras.new("NepheleCubeFace")
     data.type = "PERSP"
     data.sensor_fit = "HORIZONTAL"
@@ -317,8 +317,7 @@ def render_cube_faces(scene, eye_matrix, face_size, workdir):
             faces.append(read_image(r.filepath))
     finally:
         (scene.camera, r.resolution_x, r.resolution_y, r.resolution_percentage, r.use_multiview, r.filepath,
-         r.image_settings.file_format, r.image_settings.color_mode, r.film_transparent, r.pixel_aspect_x,
-         r.pixel_aspect_y) = saved
+         r.image_settings.file_format, r.image_settings.color_mode, r.pixel_aspect_x, r.pixel_aspect_y) = saved
         bpy.data.objects.remove(ob, do_unlink=True)
         bpy.data.cameras.remove(data)
     return np.stack(faces)
