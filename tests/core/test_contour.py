@@ -489,3 +489,21 @@ def test_agrees_with_skimage_on_a_regular_grid():
     sv, sf, _, _ = measure.marching_cubes(v, 0.8, spacing=(h, h, h))
     assert mesh.area() == pytest.approx(triangle_areas(sv, sf).sum(), rel=1e-3)
     assert abs(len(mesh.faces) / len(sf) - 1) < 0.01
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_real_grads_sample_with_poles_and_missing_values(shared_data, method):
+    # The GrADS sample: pressure levels (NaN under the ground), rows at ±90°, periodic longitudes.
+    from nephele.core.readers import open_dataset
+
+    ds = open_dataset(shared_data / "climate" / "model.ctl")
+    grid = ds.grid
+    cloud = ds.read("cloud", 1)
+    assert np.isnan(cloud).any() and grid.lat[0] == -90.0 and grid.periodic_lon
+    mesh = isosurface(grid.points(), cloud, 0.15, periodic_lon=True, close_poles=True, method=method,
+                      attributes={"altitude": grid.height})
+    assert len(mesh.faces) > 1000
+    assert np.all(np.isfinite(mesh.vertices)) and np.all(np.isfinite(mesh.attributes["altitude"]))
+    assert edge_counts(mesh.faces).max() == 2
+    assert directed_edges_unique(mesh.faces)
+    assert triangle_areas(mesh.vertices, mesh.faces).min() > 0
