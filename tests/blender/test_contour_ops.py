@@ -180,3 +180,26 @@ def test_saved_blend_renders_the_same_in_a_fresh_process(empty_scene, tmp_path, 
     assert np.abs(a - b).mean() < 0.005, np.abs(a - b).mean()
     # ... and the frame really changed the clouds.
     assert np.abs(b - c).mean() > 0.01
+
+
+@pytest.mark.parametrize("name", ["model.ctl", "rectilinear_grid_3D.nc"])
+def test_real_files_through_the_operators(empty_scene, shared_data, tmp_path, monkeypatch, name):
+    # GrADS sample model output (NaN below ground) and ECHAM5 NetCDF: cloud from relative humidity.
+    monkeypatch.setenv("NEPHELE_CACHE", str(tmp_path / "cache"))
+    path = shared_data / "climate" / name
+    assert bpy.ops.nephele.import_dataset(kind="FILE", filepath=str(path)) == {"FINISHED"}
+    scene = bpy.context.scene
+    assert scene.nephele_data.source == str(path)
+    assert bpy.ops.nephele.add_contour(var="cloud", level=0.15) == {"FINISHED"}
+    obj = next(o for o in scene.objects if frame.params(o).get("kind") == "contour")
+    v, f = mesh_arrays(obj.data)
+    assert len(f) > 100 and np.isfinite(v).all()
+    r = np.linalg.norm(v, axis=1)
+    ds = data_ops.dataset(scene=scene)
+    from nephele.core.grid import globe_radius
+
+    # Inside the grid's shell (pressure levels can lie below sea level: 1000 hPa over a low),
+    # less the sagitta of a straight grid edge between points on a sphere.
+    lo, hi = (globe_radius(h, 1.0, scene.nephele_data.exaggeration) for h in (ds.grid.height.min(), ds.grid.height.max()))
+    step = np.deg2rad(max(np.diff(ds.grid.lon).max(), np.diff(ds.grid.lat).max()))
+    assert r.min() >= lo * np.cos(step / 2) - 1e-5 and r.max() <= hi + 1e-5
