@@ -109,12 +109,16 @@ def main(argv=None):
     ap.add_argument("--level", type=float, default=DEFAULTS["level"])
     ap.add_argument("--strategy", choices=("restart", "compose", "full"), default=DEFAULTS["strategy"])
     ap.add_argument("--period", type=int, default=DEFAULTS["period"], help="restart period in frames (even)")
+    ap.add_argument("--hours-per-frame", type=float, default=DEFAULTS["hours_per_frame"], help="model hours per frame")
+    ap.add_argument("--camera", type=float, nargs=3, metavar=("LON", "LAT", "DIST"),
+                    default=(DEFAULTS["camera_lon"], DEFAULTS["camera_lat"], DEFAULTS["camera_distance"]))
     ap.add_argument("--no-haze", action="store_true", help="leave out the blue haze (renders ~3x faster)")
     args = ap.parse_args(argv)
 
     bpy.ops.wm.read_factory_settings(use_empty=True)
     build(source=args.source, level=args.level, frames=args.frames, size=args.size, samples=args.samples,
-          haze=not args.no_haze, strategy=args.strategy, period=args.period)
+          haze=not args.no_haze, strategy=args.strategy, period=args.period, hours_per_frame=args.hours_per_frame,
+          camera_lon=args.camera[0], camera_lat=args.camera[1], camera_distance=args.camera[2])
     scene = bpy.context.scene
     if args.save:
         Path(args.save).parent.mkdir(parents=True, exist_ok=True)
