@@ -33,7 +33,6 @@ from collections import OrderedDict
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import ndimage
 
 from .errors import DataError
 from .flows import tangent_velocity
@@ -766,7 +765,7 @@ def _strategy(params, ds):
     key = (params["stamp"], params["strategy"], params["period"], params["integrator"], params["order"], params["band"],
            params["hours_per_frame"], params["nan"])
     hit = _STRATEGIES.get(key)
-    if hit is not None and hit.frame_hours[-1] >= params["frame"] * params["hours_per_frame"] - 1e-9:
+    if hit is not None:  # kept per process, so frames rendered in order stream
         _STRATEGIES.move_to_end(key)
         return hit
     wkey = (params["stamp"], params["nan"])
