@@ -52,11 +52,17 @@ def _size(text):
 
 
 class PeakMemory:
-    """Samples the summed resident memory of this process and all its descendants."""
+    """Samples the summed memory of this process and all its descendants.
+
+    ``peak_total`` sums resident set sizes (pages shared between processes
+    counted in each: an upper bound); ``peak_pss`` sums proportional set sizes
+    (shared pages split between their users), where the system reports them.
+    """
 
     def __init__(self, interval=0.25):
         self.interval = interval
         self.peak_total = 0
+        self.peak_pss = 0
         self.peak_process = 0
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
@@ -65,15 +71,17 @@ class PeakMemory:
         import psutil
 
         me = psutil.Process()
-        total = 0
+        total = pss = 0
         for p in [me] + me.children(recursive=True):
             try:
-                rss = p.memory_info().rss
+                info = p.memory_full_info()
             except (psutil.NoSuchProcess, psutil.AccessDenied):
                 continue
-            total += rss
-            self.peak_process = max(self.peak_process, rss)
+            total += info.rss
+            pss += getattr(info, "pss", info.rss)
+            self.peak_process = max(self.peak_process, info.rss)
         self.peak_total = max(self.peak_total, total)
+        self.peak_pss = max(self.peak_pss, pss)
 
     def _run(self):
         while not self._stop.is_set():
@@ -160,6 +168,7 @@ def run(args):
         "samples": args.samples,
         "seconds": round(seconds, 1),
         "peak_memory_total_mb": round(mem.peak_total / 2**20),
+        "peak_memory_pss_mb": round(mem.peak_pss / 2**20),
         "peak_memory_one_process_mb": round(mem.peak_process / 2**20),
         "contact_sheet": str(Path(sheet).name if sheet else "contact_sheet.png"),
         "scene": blend.name,
@@ -167,6 +176,7 @@ def run(args):
     }
     _write_json(out / "demo.json", summary)
     print(f"{len(frames)} frames in {out} ({len(result.rendered)} rendered, {len(result.skipped)} kept) "
-          f"in {seconds:.0f} s; peak memory {summary['peak_memory_total_mb']} MB (all processes); "
+          f"in {seconds:.0f} s; peak memory {summary['peak_memory_total_mb']} MB resident summed over all processes "
+          f"({summary['peak_memory_pss_mb']} MB proportional); "
           f"contact sheet {out / 'contact_sheet.png'}")
     return 0

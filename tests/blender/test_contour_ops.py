@@ -203,3 +203,13 @@ def test_real_files_through_the_operators(empty_scene, shared_data, tmp_path, mo
     lo, hi = (globe_radius(h, 1.0, scene.nephele_data.exaggeration) for h in (ds.grid.height.min(), ds.grid.height.max()))
     step = np.deg2rad(max(np.diff(ds.grid.lon).max(), np.diff(ds.grid.lat).max()))
     assert r.min() >= lo * np.cos(step / 2) - 1e-5 and r.max() <= hi + 1e-5
+
+
+def test_tetra5_method(blob_source):
+    scene = bpy.context.scene
+    cubes = contour_ops.add_contour("cloud", 0.5, scene=scene, name="cubes")
+    tetra = contour_ops.add_contour("cloud", 0.5, scene=scene, method="tetra5", name="tetra")
+    assert frame.params(tetra)["method"] == "tetra5"
+    # The paper's 5-tetrahedra split cuts more, smaller triangles through the same cells.
+    assert len(tetra.data.polygons) > len(cubes.data.polygons)
+    assert mean_lon(tetra) == pytest.approx(mean_lon(cubes), abs=1.0)
