@@ -50,8 +50,14 @@ def security(ca_file=None, cert=None, key=None):
 
 
 def default_workers():
-    """Two local workers when there are two cores or more: per-frame set-up overlaps with rendering."""
-    return max(1, min(2, os.cpu_count() or 1))
+    """One local worker per 8 cores (at least 1, at most 4).
+
+    Cycles uses every thread it is given; a second worker only pays off when
+    there are enough cores for its single-threaded parts (scene sync, file
+    output) to overlap.  On 2 cores, 2 workers of 1 thread were ~20% slower
+    per frame than 1 worker of 2 threads (docs/benchmarks.md, farm).
+    """
+    return max(1, min(4, (os.cpu_count() or 1) // 8))
 
 
 def jobqueue_cluster(system, *, queue=None, account=None, walltime="01:00:00", job_cpus=1, job_mem="4GB",

@@ -11,7 +11,7 @@ HELP = "render frames of a .blend or example script on Dask (local, a scheduler,
 def add_cluster_arguments(p):
     """Options choosing where work runs (shared with ``nephele precompute``)."""
     g = p.add_argument_group("where to run")
-    g.add_argument("--workers", type=int, help="local Dask workers, one bpy each (default: 2, or 1 on one core)")
+    g.add_argument("--workers", type=int, help="local Dask workers, one bpy each (default: one per 8 cores, 1 to 4)")
     g.add_argument("--scheduler", metavar="ADDRESS", help="use a running Dask scheduler, e.g. tls://head:8786")
     g.add_argument("--tls-ca-file", metavar="PEM", help="CA certificate for a TLS scheduler")
     g.add_argument("--tls-cert", metavar="PEM", help="client certificate for a TLS scheduler")

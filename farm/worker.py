@@ -44,7 +44,7 @@ THREAD_VARS = ("NEPHELE_THREADS", "SLURM_CPUS_PER_TASK", "NCPUS", "PBS_NUM_PPN")
 _WORKBENCH_AA = ((1, "OFF"), (5, "5"), (8, "8"), (11, "11"), (16, "16"), (32, "32"))
 
 # Which run's scene this process's bpy holds (one bpy per process).
-_LOADED = {"token": None, "spec": None}
+_LOADED = {"token": None}
 
 
 class FrameError(RuntimeError):
@@ -77,7 +77,7 @@ class BlenderScene(WorkerPlugin):
     def ensure_loaded(self):
         if _LOADED["token"] != self.spec["token"]:
             load_scene(self.spec)
-            _LOADED.update(token=self.spec["token"], spec=self.spec)
+            _LOADED["token"] = self.spec["token"]
         import bpy
 
         return bpy.context.scene

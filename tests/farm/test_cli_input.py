@@ -88,3 +88,24 @@ def test_bad_job_memory(tmp_path, capsys, monkeypatch):
     rc = cli.main(["render", str(SCENE), "--frames", "1", "--out", str(tmp_path / "o"), "--slurm",
                    "--job-mem", "lots", "--dry-run"])
     assert rc == 2 and "--job-mem" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    "env, threads",
+    [
+        ({}, None),
+        ({"SLURM_CPUS_PER_TASK": "16"}, 16),
+        ({"NCPUS": "8"}, 8),
+        ({"PBS_NUM_PPN": "4"}, 4),
+        ({"NEPHELE_THREADS": "3", "SLURM_CPUS_PER_TASK": "16"}, 3),
+        ({"SLURM_CPUS_PER_TASK": "0", "NCPUS": "bad"}, None),
+    ],
+)
+def test_render_threads_from_the_allocation(monkeypatch, env, threads):
+    from nephele.farm.worker import THREAD_VARS, render_threads
+
+    for var in THREAD_VARS:
+        monkeypatch.delenv(var, raising=False)
+    for k, v in env.items():
+        monkeypatch.setenv(k, v)
+    assert render_threads() == threads
