@@ -81,7 +81,7 @@ def set_point_attribute(me, name, values):
     n = len(me.vertices)
     if values.shape[0] != n:
         raise ValueError(f"attribute {name!r} has {values.shape[0]} values for {n} vertices")
-    values = values.reshape(n, -1)
+    values = values.reshape(n, 1) if values.ndim == 1 else values.reshape(n, int(np.prod(values.shape[1:])))
     k = values.shape[1]
     if k not in _VECTOR_TYPES:
         for c in range(k):

@@ -133,9 +133,10 @@ FRESH = textwrap.dedent("""
     import sys, bpy
     bpy.ops.wm.open_mainfile(filepath=sys.argv[1], load_ui=False)
     assert not hasattr(bpy.types.Scene, "nephele_data"), "the add-on must not be registered"
-    from nephele.addon import frame
+    from nephele.addon import data_ops, frame
     frame.install()
     scene = bpy.context.scene
+    assert data_ops.settings(scene)["hours_per_frame"] == 3.0  # the mirrored settings survived
     for f, out in ((13, sys.argv[2]), (1, sys.argv[3])):
         scene.frame_set(f)
         scene.render.filepath = out
@@ -203,6 +204,14 @@ def test_real_files_through_the_operators(empty_scene, shared_data, tmp_path, mo
     lo, hi = (globe_radius(h, 1.0, scene.nephele_data.exaggeration) for h in (ds.grid.height.min(), ds.grid.height.max()))
     step = np.deg2rad(max(np.diff(ds.grid.lon).max(), np.diff(ds.grid.lat).max()))
     assert r.min() >= lo * np.cos(step / 2) - 1e-5 and r.max() <= hi + 1e-5
+
+
+def test_empty_contour(blob_source):
+    scene = bpy.context.scene
+    obj = contour_ops.add_contour("cloud", 5.0, scene=scene)  # the field never reaches 5
+    assert len(obj.data.vertices) == 0 and len(obj.data.polygons) == 0
+    scene.frame_set(5)
+    assert len(obj.data.polygons) == 0 and obj["nephele_hours"] == 4.0
 
 
 def test_tetra5_method(blob_source):
