@@ -1,8 +1,9 @@
 """Which dataset a scene shows, and how frames map to model time.
 
-The settings live in a PropertyGroup ``scene.nephele_data`` for the panel and
-are mirrored as a JSON ID property ``scene["nephele_settings"]``, so a saved
-.blend opened without the add-on (the farm) still knows them.  Every layer
+The settings live in a JSON ID property ``scene["nephele_settings"]``, so a
+saved .blend opened without the add-on (the farm) still knows them; the
+PropertyGroup ``scene.nephele_data`` that the panel shows reads and writes
+that same property.  Every layer
 reads the radius and vertical exaggeration from here, so the globe, contours,
 volumes and textures line up.
 """
@@ -39,7 +40,7 @@ def settings(scene=None):
 
 
 def set_settings(scene=None, **values):
-    """Change settings: written to the mirror and, when registered, to ``scene.nephele_data``."""
+    """Change settings (written to the mirror, which ``scene.nephele_data`` reads too)."""
     scene = scene or bpy.context.scene
     unknown = set(values) - set(DEFAULTS)
     if unknown:
@@ -52,16 +53,6 @@ def set_settings(scene=None, **values):
     cfg["exaggeration"] = float(cfg["exaggeration"])
     cfg["radius"] = float(cfg["radius"])
     scene[MIRROR_KEY] = json.dumps(cfg, sort_keys=True)
-    group = getattr(scene, "nephele_data", None)
-    if group is not None:
-        global _SYNCING
-        _SYNCING = True
-        try:
-            for k, v in cfg.items():
-                if getattr(group, k) != v:
-                    setattr(group, k, v)
-        finally:
-            _SYNCING = False
     return cfg
 
 
@@ -74,34 +65,38 @@ def dataset(source=None, scene=None):
     return open_source(source)
 
 
-_SYNCING = False
+def _mirrored(key):
+    """Getter and setter that keep a panel property in the mirror: one source of truth,
+    also for files saved without the add-on."""
 
+    def get(self):
+        return settings(self.id_data)[key]
 
-def _on_change(self, context):
-    if _SYNCING:
-        return
-    set_settings(self.id_data, **{k: getattr(self, k) for k in DEFAULTS})
+    def set(self, value):
+        set_settings(self.id_data, **{key: value})
+
+    return {"get": get, "set": set}
 
 
 class NephelePropsData(bpy.types.PropertyGroup):
     source: bpy.props.StringProperty(
-        name="Source", default=DEFAULTS["source"], update=_on_change,
+        name="Source", **_mirrored("source"),
         description='"demo", "demo:small", or the path of a NetCDF (.nc) or GrADS (.ctl) file',
     )
     hours_per_frame: bpy.props.FloatProperty(
-        name="Hours per frame", default=DEFAULTS["hours_per_frame"], min=1e-3, update=_on_change,
+        name="Hours per frame", min=1e-3, **_mirrored("hours_per_frame"),
         description="Model hours advanced by one frame",
     )
     frame_start: bpy.props.IntProperty(
-        name="First frame", default=DEFAULTS["frame_start"], update=_on_change,
+        name="First frame", **_mirrored("frame_start"),
         description="The frame showing the first time step",
     )
     exaggeration: bpy.props.FloatProperty(
-        name="Vertical exaggeration", default=DEFAULTS["exaggeration"], min=0.0, update=_on_change,
+        name="Vertical exaggeration", min=0.0, **_mirrored("exaggeration"),
         description="Heights are drawn this many times taller (globe and every layer)",
     )
     radius: bpy.props.FloatProperty(
-        name="Globe radius", default=DEFAULTS["radius"], min=1e-3, update=_on_change,
+        name="Globe radius", min=1e-3, **_mirrored("radius"),
         description="Radius of sea level in scene units",
     )
 

@@ -222,3 +222,21 @@ def test_tetra5_method(blob_source):
     # The paper's 5-tetrahedra split cuts more, smaller triangles through the same cells.
     assert len(tetra.data.polygons) > len(cubes.data.polygons)
     assert mean_lon(tetra) == pytest.approx(mean_lon(cubes), abs=1.0)
+
+
+def test_settings_saved_without_the_addon_show_in_the_panel(empty_scene, tmp_path):
+    import nephele
+
+    nephele.unregister()
+    try:
+        assert not hasattr(bpy.types.Scene, "nephele_data")
+        data_ops.set_settings(empty_scene, source="demo:small", exaggeration=12.0)
+        blend = tmp_path / "plain.blend"
+        bpy.ops.wm.save_as_mainfile(filepath=str(blend))
+    finally:
+        nephele.register()
+    bpy.ops.wm.open_mainfile(filepath=str(blend))
+    scene = bpy.context.scene
+    assert scene.nephele_data.source == "demo:small" and scene.nephele_data.exaggeration == 12.0
+    scene.nephele_data.radius = 3.0  # editing one field keeps the others
+    assert data_ops.settings(scene) == dict(data_ops.DEFAULTS, source="demo:small", exaggeration=12.0, radius=3.0)
