@@ -9,7 +9,6 @@ pytest.importorskip("bpy")
 from nephele.core import tasks  # noqa: E402
 from nephele.core.cache import Cache  # noqa: E402
 from nephele.farm import cli  # noqa: E402
-from nephele.farm.cluster import local_cluster  # noqa: E402
 from nephele.farm.render import precompute_scene, render_sequence  # noqa: E402
 
 SCENE = Path(__file__).with_name("contour_scene.py")
@@ -17,11 +16,9 @@ PARAMS = {"kind": "contour", "source": "demo:small", "var": "cloud", "level": 0.
           "frame_start": 1}
 
 
-@pytest.fixture(scope="module")
-def cluster():
-    c = local_cluster(workers=2)
-    yield c
-    c.close()
+@pytest.fixture
+def cluster(farm_cluster):
+    return farm_cluster
 
 
 def test_precompute_then_render_reads_cache(cluster, tmp_path, capsys):

@@ -19,7 +19,6 @@ import pytest
 bpy = pytest.importorskip("bpy")
 
 from nephele.farm import cli  # noqa: E402
-from nephele.farm.cluster import local_cluster  # noqa: E402
 from nephele.farm.frames import TMP_DIR, check_image, frame_name, sha256_file  # noqa: E402
 from nephele.farm.render import render_sequence  # noqa: E402
 
@@ -27,11 +26,9 @@ ROOT = Path(__file__).resolve().parents[2]
 SCENE = Path(__file__).with_name("cube_scene.py")
 
 
-@pytest.fixture(scope="module")
-def cluster():
-    c = local_cluster(workers=2)
-    yield c
-    c.close()
+@pytest.fixture
+def cluster(farm_cluster):
+    return farm_cluster
 
 
 def pixels(path):
@@ -91,6 +88,12 @@ def test_render_resume_and_repair(cluster, tmp_path):
     assert (out / "frame_0001.png").stat().st_mtime_ns == kept
     # Same scene, same frame: the re-render is pixel-identical to the original.
     assert np.abs(pixels(out / "frame_0002.png") - original).max() < 2 / 255
+
+    # --overwrite renders every frame again, valid or not.
+    again = render_sequence(SCENE, "1-6", out, scheduler=cluster.scheduler_address, overwrite=True, progress=False)
+    assert again.rendered == [1, 2, 3, 4, 5, 6] and again.skipped == []
+    assert (out / "frame_0001.png").stat().st_mtime_ns > kept
+    only_frames(out, range(1, 7))
 
 
 def test_frame_that_breaks_is_reported_others_finish(cluster, tmp_path, capsys):
