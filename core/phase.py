@@ -175,7 +175,7 @@ def _phase_matrix_cached(g, sub, delta, transport_sub):
     return m
 
 
-def phase_matrix(g, sub=8, delta=True, transport_sub=2):
+def phase_matrix(g, sub=6, delta=True, transport_sub=2):
     """The 96x96 bin-to-bin scattering matrix ``M[i, j]`` (columns sum to 1).
 
     Parameters
@@ -245,7 +245,7 @@ def _view_table(g, res, sub):
     return table
 
 
-def bin_phase_toward(directions, g, res=32, sub=8):
+def bin_phase_toward(directions, g, res=24, sub=6):
     """``p_bar[n, j]``: HG averaged over incoming bin ``j``, toward each outgoing direction.
 
     Per steradian: the radiance scattered toward ``directions[n]`` by flux

@@ -86,7 +86,7 @@ def _shift_indices(n, shift, periodic, margin):
     return base + margin, base - 1 + margin, 1.0 - f, f
 
 
-def _sweep(sigma, h, dirs, wsub, emis, inflow, periodic, axis):
+def _sweep(sigma, h, dirs, wsub, emis, inflow, periodic, axis, cache=None):
     """Sweep a group of beams through ``sigma`` layer by layer along array ``axis``.
 
     ``dirs`` (g, ns, 3): ``ns`` sub-directions for each of ``g`` bins, all with
@@ -94,6 +94,8 @@ def _sweep(sigma, h, dirs, wsub, emis, inflow, periodic, axis):
     each carries; ``emis`` (g, nz, ny, nx) or None: unshot power per bin and
     voxel; ``inflow`` (g, ns): beam power per transverse cell entering from
     outside (upstream face and non-periodic sides).
+    ``cache``: a dict kept between calls with the same beams; it stores the
+    per-layer transmittances (float32) so later passes skip the exponentials.
     Returns received (g, ...), total (g, ...) and the exit power (g,) through
     the far face.
     """
@@ -121,12 +123,13 @@ def _sweep(sigma, h, dirs, wsub, emis, inflow, periodic, axis):
     kb = kk[:, :, None]
     ar = np.arange(A)[None, :, None]
     wa0, wa1, wb0, wb1 = (x[:, None, None] for x in (wa0, wa1, wb0, wb1))
-    recv = np.zeros((g, L, A, B))
-    total = np.zeros((g, L, A, B))
+    recv = np.zeros((g, L, A, B), np.float32)
+    total = np.zeros((g, L, A, B), np.float32)
     em = None if emis is None else np.moveaxis(emis, axis + 1, 1)
-    pad = np.asarray(inflow, dtype=np.float64).reshape(K, 1, 1)
+    pad = np.asarray(inflow, dtype=np.float32).reshape(K, 1, 1)
     beam = np.broadcast_to(pad, (K, A, B)).copy()
-    w = np.asarray(wsub, dtype=np.float64).reshape(g, ns, 1, 1)
+    w = np.asarray(wsub, dtype=np.float32).reshape(g, ns, 1, 1)
+    wa0, wa1, wb0, wb1 = (x.astype(np.float32) for x in (wa0, wa1, wb0, wb1))
     order = range(L) if sign > 0 else range(L - 1, -1, -1)
     for n, k in enumerate(order):
         if n:  # move to this layer: bilinear transverse shift, inflow outside the grid
@@ -136,7 +139,13 @@ def _sweep(sigma, h, dirs, wsub, emis, inflow, periodic, axis):
             if mb:
                 beam = np.concatenate([np.broadcast_to(pad, (K, A, mb)), beam, np.broadcast_to(pad, (K, A, mb))], 2)
             beam = wb0 * beam[kb, ar, ib0[:, None, :]] + wb1 * beam[kb, ar, ib1[:, None, :]]
-        t, esc = _transport_factors(sig[k][None] * ell[:, None, None])
+        if cache is not None and k in cache:
+            t, esc = cache[k]
+        else:
+            t, esc = _transport_factors(sig[k][None] * ell[:, None, None])
+            t, esc = t.astype(np.float32), esc.astype(np.float32)
+            if cache is not None:
+                cache[k] = (t, esc)
         if em is None:
             r = beam * (1.0 - t)
             tot = beam
@@ -148,7 +157,7 @@ def _sweep(sigma, h, dirs, wsub, emis, inflow, periodic, axis):
             beam = beam * t + e * esc
         recv[:, k] = r.reshape(g, ns, A, B).sum(1)
         total[:, k] = tot.reshape(g, ns, A, B).sum(1)
-    exit_power = beam.reshape(g, ns, A, B).sum((1, 2, 3))
+    exit_power = beam.reshape(g, ns, A, B).sum((1, 2, 3), dtype=np.float64)
     return np.moveaxis(recv, 1, axis + 1), np.moveaxis(total, 1, axis + 1), exit_power
 
 
@@ -263,7 +272,7 @@ def _scatter_into(unshot, m_cols, recv, albedo, chunk=1 << 16):
 
 def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun_irradiance=1.0,
                 sky_radiance=0.0, tol=1e-3, max_passes=100, sub=2, periodic=(False, False, False),
-                delta_m=True, phase_sub=8, first_sub=4):
+                delta_m=True, phase_sub=6, first_sub=4):
     """The shooting solve as a generator: yields :class:`Progress` after each group of bins,
     returns the :class:`Solution` (``StopIteration.value``; :func:`solve` unwraps it).
 
@@ -369,11 +378,14 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
 
     passes = 0
     converged = residual <= tol
+    # transmittance caches per group (float32, 2 x beams x voxels each) when they fit
+    fits = 2 * NB * dirs.shape[1] * sigma.size <= 1 << 27
+    caches = [{} if fits else None for _ in groups]
     while not converged and passes < int(max_passes):
         passes += 1
         for gi, (axis, bs) in enumerate(groups):
-            r, tot, ex = _sweep(sig_s, h, dirs[bs], wsub[bs], unshot[bs].astype(np.float64),
-                                np.zeros(wsub[bs].shape), periodic, axis)
+            r, tot, ex = _sweep(sig_s, h, dirs[bs], wsub[bs], unshot[bs], np.zeros(wsub[bs].shape),
+                                periodic, axis, caches[gi])
             unshot[bs] = 0.0
             received[bs] += r.astype(np.float32)
             total[bs] += tot.astype(np.float32)

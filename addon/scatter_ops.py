@@ -1,0 +1,538 @@
+"""Blender side of the multiple-scattering cloud (Fig. 6).
+
+"Add scattering cloud" builds the droplet density (:mod:`..core.cloud_density`),
+runs the 96-bin shooting solve (:mod:`..core.scatter`) as a modal operator that
+advances one group of bins per timer tick (progress in the status bar and the
+panel; the interface stays live; Esc cancels), then writes one VDB per frame
+with ``density`` (extinction) and ``emission`` (in-scattered radiance toward
+that frame's camera, exact sun single scattering included) and loads them as a
+native volume sequence.  The material is Volume Absorption + Emission driven by
+those grids, so Cycles renders an emission-absorption volume: no scattering
+left to path trace.
+
+:func:`add_pathtraced_cloud` builds the same medium for Cycles' own volume path
+tracing (the benchmark's reference).
+"""
+
+import math
+import os
+import tempfile
+from pathlib import Path
+
+import bpy
+import numpy as np
+
+from ..core import cloud_density as cd
+from ..core import scatter
+
+_SOLVES = {}  # operator id -> running generator state (kept out of bpy data)
+
+
+def _openvdb():
+    try:
+        import openvdb
+    except ImportError:
+        bpy.utils.expose_bundled_modules()
+        import openvdb
+    return openvdb
+
+
+def write_vdb(path, grids, size):
+    """Write float grids ``{name: (nz, ny, nx) array}`` to ``path`` atomically.
+
+    Voxel ``(k, j, i)`` is centred at ``((i+.5)dx, (j+.5)dy, (k+.5)dz)`` in object space.
+    """
+    vdb = _openvdb()
+    shape = next(iter(grids.values())).shape
+    h = np.asarray(size, float) / np.asarray(shape[::-1])
+    xf = vdb.createLinearTransform([[h[0], 0, 0, 0], [0, h[1], 0, 0], [0, 0, h[2], 0],
+                                    [0.5 * h[0], 0.5 * h[1], 0.5 * h[2], 1]])
+    out = []
+    for name, a in grids.items():
+        g = vdb.FloatGrid()
+        g.copyFromArray(np.ascontiguousarray(np.asarray(a, np.float32).transpose(2, 1, 0)))
+        g.name = name
+        g.transform = xf
+        out.append(g)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".vdb")
+    os.close(fd)
+    vdb.write(tmp, grids=out)
+    os.replace(tmp, path)
+    return path
+
+
+def _look_at(obj, target):
+    from mathutils import Vector
+
+    d = Vector(target) - obj.location
+    obj.rotation_euler = d.to_track_quat("-Z", "Y").to_euler()
+
+
+def add_camera(cam, name="Scatter camera"):
+    """A Blender camera matching :class:`..core.scatter.Camera` ``cam``."""
+    data = bpy.data.cameras.new(name)
+    data.sensor_fit = "HORIZONTAL"
+    data.angle = cam.fov
+    data.clip_start = 0.01
+    obj = bpy.data.objects.new(name, data)
+    bpy.context.scene.collection.objects.link(obj)
+    obj.location = cam.position
+    _look_at(obj, cam.target)
+    scene = bpy.context.scene
+    scene.camera = obj
+    scene.render.resolution_x, scene.render.resolution_y = cam.width, cam.height
+    scene.render.resolution_percentage = 100
+    return obj
+
+
+def add_sun(sun_dir, irradiance, name="Sun"):
+    """A Sun light shining from ``sun_dir`` (toward the sun) with ``irradiance`` W/m^2, angle 0."""
+    from mathutils import Vector
+
+    data = bpy.data.lights.new(name, "SUN")
+    data.energy = float(irradiance)
+    data.angle = 0.0
+    obj = bpy.data.objects.new(name, data)
+    bpy.context.scene.collection.objects.link(obj)
+    obj.rotation_euler = Vector(sun_dir).to_track_quat("Z", "Y").to_euler()
+    return obj
+
+
+def black_world():
+    world = bpy.data.worlds.new("Scatter world")
+    world.use_nodes = True
+    bg = world.node_tree.nodes.get("Background")
+    if bg is not None:
+        bg.inputs["Color"].default_value = (0, 0, 0, 1)
+        bg.inputs["Strength"].default_value = 0.0
+    bpy.context.scene.world = world
+    return world
+
+
+def _volume_object(name, filepath, sequence=None):
+    vol = bpy.data.volumes.new(name)
+    vol.filepath = str(filepath)
+    if sequence is not None:
+        start, count = sequence
+        vol.is_sequence = True
+        vol.frame_start = start
+        vol.frame_duration = count
+        vol.sequence_mode = "CLIP"
+    obj = bpy.data.objects.new(name, vol)
+    bpy.context.scene.collection.objects.link(obj)
+    return obj
+
+
+def emission_material(name="Scattering cloud"):
+    """Volume Absorption (density grid) + Emission (emission grid): an emission-absorption medium."""
+    mat = bpy.data.materials.new(name)
+    mat.use_nodes = True
+    nt = mat.node_tree
+    nt.nodes.clear()
+    out = nt.nodes.new("ShaderNodeOutputMaterial")
+    dens = nt.nodes.new("ShaderNodeAttribute")
+    dens.attribute_name = "density"
+    emis = nt.nodes.new("ShaderNodeAttribute")
+    emis.attribute_name = "emission"
+    absorb = nt.nodes.new("ShaderNodeVolumeAbsorption")
+    absorb.inputs["Color"].default_value = (0, 0, 0, 1)
+    em = nt.nodes.new("ShaderNodeEmission")
+    em.inputs["Color"].default_value = (1, 1, 1, 1)
+    add = nt.nodes.new("ShaderNodeAddShader")
+    nt.links.new(dens.outputs["Fac"], absorb.inputs["Density"])
+    nt.links.new(emis.outputs["Fac"], em.inputs["Strength"])
+    nt.links.new(absorb.outputs[0], add.inputs[0])
+    nt.links.new(em.outputs[0], add.inputs[1])
+    nt.links.new(add.outputs[0], out.inputs["Volume"])
+    return mat
+
+
+def scattering_material(albedo, g, name="Path-traced cloud"):
+    """Principled Volume: colour = albedo, density from the grid (extinction), anisotropy g."""
+    mat = bpy.data.materials.new(name)
+    mat.use_nodes = True
+    nt = mat.node_tree
+    nt.nodes.clear()
+    out = nt.nodes.new("ShaderNodeOutputMaterial")
+    pv = nt.nodes.new("ShaderNodeVolumePrincipled")
+    pv.inputs["Color"].default_value = (albedo, albedo, albedo, 1)
+    pv.inputs["Density"].default_value = 1.0
+    pv.inputs["Anisotropy"].default_value = g
+    pv.inputs["Density Attribute"].default_value = "density"
+    nt.links.new(pv.outputs[0], out.inputs["Volume"])
+    return mat
+
+
+def cycles_settings(scene, samples, *, denoise=False, threads=None, bounces=256):
+    """Cycles for volumes: many volume bounces, no clamping, box pixel filter, CPU."""
+    scene.render.engine = "CYCLES"
+    c = scene.cycles
+    c.device = "CPU"
+    c.samples = int(samples)
+    c.use_adaptive_sampling = False
+    c.use_denoising = bool(denoise)
+    if denoise:
+        c.denoiser = "OPENIMAGEDENOISE"
+    c.max_bounces = bounces
+    c.volume_bounces = bounces
+    c.transparent_max_bounces = bounces
+    c.sample_clamp_direct = 0.0
+    c.sample_clamp_indirect = 0.0
+    c.pixel_filter_type = "BOX"
+    c.filter_width = 1.0
+    scene.view_settings.view_transform = "Standard"
+    scene.view_settings.look = "None"
+    if threads:
+        scene.render.threads_mode = "FIXED"
+        scene.render.threads = int(threads)
+
+
+def render_array(scene, path):
+    """Render the scene to an OpenEXR at ``path`` and return its luminance-free red channel
+    as float32 (height, width), row 0 at the top (all channels are equal for grey media)."""
+    scene.render.image_settings.file_format = "OPEN_EXR"
+    scene.render.image_settings.color_depth = "32"
+    scene.render.filepath = str(path)
+    bpy.ops.render.render(write_still=True)
+    img = bpy.data.images.load(str(path), check_existing=False)
+    w, h = img.size
+    px = np.empty(w * h * 4, np.float32)
+    img.pixels.foreach_get(px)
+    bpy.data.images.remove(img)
+    return px.reshape(h, w, 4)[::-1, :, 0].copy()
+
+
+def add_pathtraced_cloud(sigma, size, *, albedo, g, vdb_path, name="Path-traced cloud"):
+    """The same medium for Cycles' volume path tracing (the reference)."""
+    write_vdb(vdb_path, {"density": sigma}, size)
+    obj = _volume_object(name, vdb_path)
+    obj.data.materials.append(scattering_material(albedo, g))
+    return obj
+
+
+# --------------------------------------------------------------------------- operator
+
+KIND = "scatter"
+OBJECT_NAME = "Scattering cloud"
+
+
+def sun_direction(elevation_deg, azimuth_deg):
+    """Unit vector toward the sun from elevation and azimuth (degrees, azimuth from +x toward +y)."""
+    e, a = math.radians(elevation_deg), math.radians(azimuth_deg)
+    return (math.cos(e) * math.cos(a), math.cos(e) * math.sin(a), math.sin(e))
+
+
+def cloud_params(props):
+    """:class:`..core.cloud_density.CloudParams` from the panel's properties."""
+    nx, ny, nz = props.resolution
+    return cd.CloudParams(shape=(int(nz), int(ny), int(nx)), size=tuple(props.size),
+                          noise_amplitude=props.noise_amplitude, noise_scale=props.noise_scale,
+                          octaves=props.octaves, seed=props.seed)
+
+
+def add_orbit_camera(center, radius, height, frames, fov=math.radians(40.0), name="Scatter orbit"):
+    """A camera looping once around ``center`` over ``frames`` (the paper's animation):
+    parented to an empty whose z rotation is keyed linearly from 0 to 360 degrees."""
+    scene = bpy.context.scene
+    pivot = bpy.data.objects.new(name + " pivot", None)
+    scene.collection.objects.link(pivot)
+    pivot.location = center
+    data = bpy.data.cameras.new(name)
+    data.sensor_fit = "HORIZONTAL"
+    data.angle = fov
+    data.clip_start = 0.01
+    cam = bpy.data.objects.new(name, data)
+    scene.collection.objects.link(cam)
+    cam.parent = pivot
+    cam.location = (radius, 0.0, height)
+    _look_at(cam, (0.0, 0.0, 0.0))
+    first, last = frames[0], frames[-1]
+    n = max(len(frames), 1)
+    pivot.rotation_euler = (0.0, 0.0, 0.0)
+    pivot.keyframe_insert("rotation_euler", index=2, frame=first)
+    pivot.rotation_euler = (0.0, 0.0, 2 * math.pi * (last + 1 - first) / n)
+    pivot.keyframe_insert("rotation_euler", index=2, frame=last + 1)
+    fcurves = _fcurves(pivot)
+    for fc in fcurves:
+        for k in fc.keyframe_points:
+            k.interpolation = "LINEAR"
+    scene.camera = cam
+    return cam
+
+
+def _fcurves(obj):
+    ad = obj.animation_data
+    act = ad.action if ad else None
+    if act is None:
+        return []
+    if hasattr(act, "fcurves"):
+        return list(act.fcurves)
+    # Blender 5 layered actions: fcurves live in the channelbags of the strips.
+    out = []
+    for layer in act.layers:
+        for strip in layer.strips:
+            for bag in strip.channelbags:
+                out.extend(bag.fcurves)
+    return out
+
+
+def output_directory(text):
+    """Absolute output directory; a blend-relative ``//`` path in an unsaved file goes
+    to the Nephele cache directory instead of the file system root."""
+    from ..core.cache import default_cache_dir
+
+    if text.startswith("//") and not bpy.data.filepath:
+        return Path(default_cache_dir()) / "scatter" / text[2:].strip("/\\")
+    return Path(bpy.path.abspath(text)).resolve()
+
+
+class ScatterJob:
+    """The whole "Add scattering cloud" work in small steps (the modal operator calls
+    :meth:`step` on each timer tick, so the interface stays live).
+
+    Stages: the shooting solve (one group of bins per step), then one frame's
+    view (source toward that frame's camera + VDB) per step, then the object.
+    """
+
+    def __init__(self, context, props):
+        self.scene = context.scene
+        self.props = props
+        self.params = cloud_params(props)
+        self.sigma = props.extinction * cd.cloud_density(self.params)
+        self.size = tuple(props.size)
+        self.origin = (-0.5 * self.size[0], -0.5 * self.size[1], 0.0)
+        self.sun = sun_direction(props.sun_elevation, props.sun_azimuth)
+        self.directory = output_directory(props.directory)
+        self.frames = list(range(self.scene.frame_start, self.scene.frame_end + 1))
+        self.gen = scatter.solve_steps(
+            self.sigma, self.size, albedo=props.albedo, g=props.anisotropy, sun_dir=self.sun,
+            sun_irradiance=props.sun_irradiance, sky_radiance=props.sky_radiance,
+            tol=props.tolerance, max_passes=props.max_passes)
+        self.solution = None
+        self.last = None
+        self.view_index = 0
+        self.obj = None
+        if self.scene.camera is None and props.orbit_camera:
+            c = (0.0, 0.0, 0.5 * self.size[2])
+            r = 1.7 * max(self.size)
+            add_orbit_camera(c, r * math.cos(math.radians(15)), r * math.sin(math.radians(15)), self.frames)
+        if self.scene.camera is None:
+            raise RuntimeError("the scene has no camera: add one or enable 'Orbit camera'")
+
+    @property
+    def fraction(self):
+        if self.solution is None:
+            if self.last is None:
+                return 0.0
+            # passes are unknown ahead: progress by residual on a log scale to the tolerance
+            r = max(self.last.residual, 1e-300)
+            done = math.log(max(r, self.props.tolerance)) / math.log(self.props.tolerance)
+            return 0.7 * min(max(done, 0.0), 1.0)
+        return 0.7 + 0.3 * self.view_index / max(len(self.frames), 1)
+
+    @property
+    def status(self):
+        if self.solution is None:
+            if self.last is None:
+                return "Scattering: starting"
+            return (f"Scattering: pass {self.last.pass_index}, bins {self.last.group}/{self.last.groups}, "
+                    f"residual {self.last.residual:.2e}")
+        if self.obj is None:
+            return f"Scattering: {self.solution.report}; view {self.view_index}/{len(self.frames)}"
+        return f"Scattering cloud: {self.solution.report}"
+
+    def step(self, budget=0.15):
+        """Work for about ``budget`` seconds; True when everything is done."""
+        import time
+
+        t_end = time.perf_counter() + budget
+        while True:  # at least one unit of work per call
+            if self.solution is None:
+                try:
+                    self.last = next(self.gen)
+                except StopIteration as stop:
+                    self.solution = stop.value
+                    scatter.save_solution(self.solution, self.directory / "solution.npz")
+            elif self.view_index < len(self.frames):
+                self._write_view(self.frames[self.view_index])
+                self.view_index += 1
+            else:
+                self._finish()
+                return True
+            if time.perf_counter() >= t_end:
+                return False
+
+    def _write_view(self, frame_number):
+        from mathutils import Vector
+
+        scene = self.scene
+        scene.frame_set(frame_number)
+        cam = scene.camera.matrix_world.translation
+        local = Vector(cam) - Vector(self.origin)
+        src = scatter.view_source(self.solution, tuple(local))
+        write_vdb(self.directory / f"scatter_{self.view_index + 1:04d}.vdb",
+                  {"density": self.solution.sigma, "emission": src}, self.size)
+
+    def _finish(self):
+        from . import frame
+
+        scene = self.scene
+        scene.frame_set(self.frames[0])
+        obj = _volume_object(OBJECT_NAME, self.directory / "scatter_0001.vdb", (self.frames[0], len(self.frames)))
+        obj.location = self.origin
+        obj.data.materials.append(emission_material())
+        frame.set_params(obj, {"kind": KIND, "directory": str(self.directory), "frames": self.frames,
+                               "report": self.solution.report, "sun_dir": list(self.sun)})
+        self.obj = obj
+        self.props.status = self.solution.report
+
+
+def _props_to_scene_check(props):
+    if props.resolution[0] < 2 or props.resolution[1] < 2 or props.resolution[2] < 2:
+        raise ValueError("resolution must be at least 2 in each direction")
+
+
+class NEPHELE_OT_add_scattering_cloud(bpy.types.Operator):
+    """Build a cloud, solve multiple scattering (96 bins) and write per-frame emission volumes"""
+
+    bl_idname = "nephele.add_scattering_cloud"
+    bl_label = "Add scattering cloud"
+    bl_options = {"REGISTER", "UNDO"}
+
+    _timer = None
+    _job = None
+
+    def _start(self, context):
+        props = context.scene.nephele_scatter
+        _props_to_scene_check(props)
+        self._job = ScatterJob(context, props)
+
+    def execute(self, context):
+        try:
+            self._start(context)
+            while not self._job.step(budget=1e9):
+                pass
+        except (ValueError, RuntimeError, OSError) as exc:
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        self.report({"INFO"}, self._job.status)
+        return {"FINISHED"}
+
+    def invoke(self, context, event):
+        try:
+            self._start(context)
+        except (ValueError, RuntimeError, OSError) as exc:
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        wm = context.window_manager
+        self._timer = wm.event_timer_add(0.05, window=context.window)
+        wm.progress_begin(0.0, 1.0)
+        wm.modal_handler_add(self)
+        return {"RUNNING_MODAL"}
+
+    def _end(self, context):
+        wm = context.window_manager
+        if self._timer is not None:
+            wm.event_timer_remove(self._timer)
+            self._timer = None
+        wm.progress_end()
+        if context.workspace:
+            context.workspace.status_text_set(None)
+
+    def modal(self, context, event):
+        props = context.scene.nephele_scatter
+        if event.type == "ESC":
+            self._end(context)
+            props.status = "Cancelled"
+            props.progress = 0.0
+            self.report({"WARNING"}, "Scattering cancelled")
+            return {"CANCELLED"}
+        if event.type != "TIMER":
+            return {"PASS_THROUGH"}
+        try:
+            done = self._job.step(budget=0.15)
+        except (ValueError, RuntimeError, OSError) as exc:
+            self._end(context)
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        props.progress = self._job.fraction
+        props.status = self._job.status
+        context.window_manager.progress_update(self._job.fraction)
+        if context.workspace:
+            context.workspace.status_text_set(self._job.status)
+        for area in context.screen.areas if context.screen else ():
+            if area.type == "VIEW_3D":
+                area.tag_redraw()
+        if done:
+            self._end(context)
+            props.progress = 1.0
+            self.report({"INFO"}, self._job.status)
+            return {"FINISHED"}
+        return {"RUNNING_MODAL"}
+
+
+class NepheleScatterProps(bpy.types.PropertyGroup):
+    resolution: bpy.props.IntVectorProperty(name="Grid", size=3, default=(24, 24, 18), min=2, max=512)
+    size: bpy.props.FloatVectorProperty(name="Box", size=3, default=(1.0, 1.0, 0.75), min=1e-3)
+    extinction: bpy.props.FloatProperty(name="Extinction", default=40.0, min=0.0,
+                                        description="Extinction per scene unit at density 1")
+    albedo: bpy.props.FloatProperty(name="Albedo", default=0.99, min=0.0, max=1.0)
+    anisotropy: bpy.props.FloatProperty(name="Anisotropy g", default=0.8, min=-0.999, max=0.999,
+                                        description="Henyey-Greenstein asymmetry (0.8: water droplets)")
+    noise_amplitude: bpy.props.FloatProperty(name="Noise", default=0.7, min=0.0)
+    noise_scale: bpy.props.FloatProperty(name="Noise scale", default=5.0, min=0.01)
+    octaves: bpy.props.IntProperty(name="Octaves", default=4, min=1, max=8)
+    seed: bpy.props.IntProperty(name="Seed", default=0)
+    sun_elevation: bpy.props.FloatProperty(name="Sun elevation", default=38.0, min=-90.0, max=90.0)
+    sun_azimuth: bpy.props.FloatProperty(name="Sun azimuth", default=-30.0)
+    sun_irradiance: bpy.props.FloatProperty(name="Sun irradiance", default=1.0, min=0.0)
+    sky_radiance: bpy.props.FloatProperty(name="Sky radiance", default=0.0, min=0.0)
+    tolerance: bpy.props.FloatProperty(name="Tolerance", default=1e-3, min=1e-8, max=0.5)
+    max_passes: bpy.props.IntProperty(name="Max passes", default=100, min=1)
+    orbit_camera: bpy.props.BoolProperty(name="Orbit camera", default=True,
+                                         description="Add a camera looping around the cloud if the scene has none")
+    directory: bpy.props.StringProperty(name="Output", default="//nephele_scatter", subtype="DIR_PATH")
+    progress: bpy.props.FloatProperty(name="Progress", default=0.0, min=0.0, max=1.0, subtype="FACTOR")
+    status: bpy.props.StringProperty(name="Status", default="")
+
+
+class NEPHELE_PT_scatter(bpy.types.Panel):
+    bl_label = "Scattering cloud (Fig. 6)"
+    bl_idname = "NEPHELE_PT_scatter"
+    bl_space_type = "VIEW_3D"
+    bl_region_type = "UI"
+    bl_category = "Nephele"
+    bl_parent_id = "NEPHELE_PT_main"
+    bl_options = {"DEFAULT_CLOSED"}
+
+    def draw(self, context):
+        p = context.scene.nephele_scatter
+        col = self.layout.column()
+        col.prop(p, "resolution")
+        col.prop(p, "size")
+        col.prop(p, "extinction")
+        col.prop(p, "noise_amplitude")
+        col.prop(p, "noise_scale")
+        col.prop(p, "octaves")
+        col.prop(p, "seed")
+        col.separator()
+        col.prop(p, "albedo")
+        col.prop(p, "anisotropy")
+        col.prop(p, "sun_elevation")
+        col.prop(p, "sun_azimuth")
+        col.prop(p, "sun_irradiance")
+        col.prop(p, "sky_radiance")
+        col.prop(p, "tolerance")
+        col.prop(p, "max_passes")
+        col.prop(p, "orbit_camera")
+        col.prop(p, "directory")
+        col.operator(NEPHELE_OT_add_scattering_cloud.bl_idname)
+        if p.status:
+            col.prop(p, "progress")
+            col.label(text=p.status)
+
+
+CLASSES = (NepheleScatterProps, NEPHELE_OT_add_scattering_cloud, NEPHELE_PT_scatter)
+SCENE_PROPERTIES = {"nephele_scatter": NepheleScatterProps}
