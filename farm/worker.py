@@ -14,12 +14,14 @@ fsync'ed, then moved into place with :func:`os.replace`.  Blender's output
 during the frame goes to ``OUT/logs/frame_NNNN.log``.  Python errors that
 Blender swallows (a frame handler raising) are caught through
 ``sys.excepthook`` and fail the frame.  A per-frame timeout kills the worker
-process (a Blender render cannot be interrupted from Python); the nanny
-restarts it and the client counts the attempt.
+process (a Blender render cannot be interrupted from Python), leaving the
+stacks of all threads in the frame's log; the nanny restarts the worker and
+the client counts the attempt.
 """
 
 import contextlib
 import datetime
+import faulthandler
 import hashlib
 import importlib.util
 import json
@@ -27,7 +29,6 @@ import os
 import signal
 import socket
 import sys
-import threading
 import time
 import traceback
 from pathlib import Path
@@ -274,24 +275,23 @@ def _swallowed_errors():
 
 
 @contextlib.contextmanager
-def _watchdog(seconds, log_path, frame):
-    """Kill this worker process if the frame takes longer than ``seconds``."""
+def _watchdog(seconds, log_path):
+    """End this worker process if the frame takes longer than ``seconds``.
+
+    :func:`faulthandler.dump_traceback_later` runs in a C thread that needs
+    no GIL, so it fires even when Blender hangs in C code holding it; it
+    writes every thread's stack to the frame's log ("Timeout (h:mm:ss)!") and
+    exits the process.  The nanny starts a fresh worker.
+    """
     if not seconds:
         yield
         return
-
-    def expire():
-        with open(log_path, "a") as f:
-            f.write(f"\nnephele: frame {frame} exceeded the {seconds} s timeout; killing worker pid {os.getpid()}\n")
-        os.kill(os.getpid(), signal.SIGKILL)
-
-    timer = threading.Timer(seconds, expire)
-    timer.daemon = True
-    timer.start()
-    try:
-        yield
-    finally:
-        timer.cancel()
+    with open(log_path, "a") as f:
+        faulthandler.dump_traceback_later(seconds, repeat=False, file=f, exit=True)
+        try:
+            yield
+        finally:
+            faulthandler.cancel_dump_traceback_later()
 
 
 def _fsync(path):
@@ -314,7 +314,7 @@ def render_one(scene, spec, frame, address):
     with open(log, "a") as f:
         f.write(f"=== frame {frame} on {address} (pid {os.getpid()}) {datetime.datetime.now().isoformat()} ===\n")
     try:
-        with _logged(log), _watchdog(spec.get("timeout"), log, frame), _swallowed_errors() as caught:
+        with _logged(log), _watchdog(spec.get("timeout"), log), _swallowed_errors() as caught:
             scene.frame_set(frame)
             scene.render.filepath = str(tmp)
             result = bpy.ops.render.render(write_still=True)

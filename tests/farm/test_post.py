@@ -111,3 +111,29 @@ def test_post_bad_input(tmp_path, capsys):
     (tmp_path / "empty").mkdir()
     rc = cli.main(["post", "contact-sheet", str(tmp_path / "empty"), "--out", str(tmp_path / "s.png")])
     assert rc == 2 and "no frame_" in capsys.readouterr().err
+
+
+def test_post_cli_exr2png_and_stereo(tmp_path, capsys):
+    rng = np.random.default_rng(3)
+    lin = np.concatenate([rng.random((6, 10, 3)) * 0.8, np.ones((6, 10, 1))], axis=2)
+    (tmp_path / "exr").mkdir()
+    post.write_image(tmp_path / "exr" / "frame_0001.exr", lin)
+    rc = cli.main(["post", "exr2png", str(tmp_path / "exr"), "--out", str(tmp_path / "png")])
+    assert rc == 0
+    png = post.read_rgba(tmp_path / "png" / "frame_0001.png")
+    # The sRGB transfer function, written out (IEC 61966-2-1), on half-float input, to 8 bits.
+    x = lin[..., :3].astype(np.float16).astype(np.float64)
+    srgb = np.where(x <= 0.0031308, 12.92 * x, 1.055 * x ** (1 / 2.4) - 0.055)
+    assert np.abs(png[..., :3] - srgb).max() <= 0.6 / 255
+
+    for eye in ("left", "right"):
+        (tmp_path / eye).mkdir()
+        for f in (1, 2):
+            solid(tmp_path / eye / f"frame_{f:04d}.png", (1.0, 0.0, 0.0) if eye == "left" else (0.0, 1.0, 1.0))
+    rc = cli.main(["post", "stereo", str(tmp_path / "left"), str(tmp_path / "right"), "--out", str(tmp_path / "st")])
+    assert rc == 0
+    names = sorted(p.name for p in (tmp_path / "st").iterdir())
+    assert names == ["anaglyph_frame_0001.png", "anaglyph_frame_0002.png", "sbs_frame_0001.png", "sbs_frame_0002.png"]
+    ana = post.read_rgba(tmp_path / "st" / "anaglyph_frame_0002.png")
+    assert np.allclose(ana[..., :3], 1.0)  # red from the left eye + cyan from the right eye = white
+    capsys.readouterr()

@@ -152,7 +152,9 @@ def test_timeout_kills_the_frame_not_the_run(cluster, tmp_path):
     res = render_sequence(SCENE, "1-4", out, scheduler=cluster.scheduler_address, progress=False,
                           scene_options={"hang_frame": 2}, timeout=5, retries=0)
     assert res.failed == [2] and res.rendered == [1, 3, 4]
-    assert "exceeded the 5 s timeout" in (out / "logs" / "frame_0002.log").read_text()
+    log = (out / "logs" / "frame_0002.log").read_text()
+    assert "Timeout (0:00:05)!" in log and "cube_scene.py" in log  # where it hung
+    assert res.manifest["frames"]["2"]["error"].startswith("worker lost")
     only_frames(out, [1, 3, 4])
 
 
