@@ -51,6 +51,8 @@ def _grid(vdb, name, blocks, data, block, voxel_size, background=0.0):
     grid.transform = vdb.createLinearTransform(voxelSize=float(voxel_size))
     grid.name = name
     grid.gridClass = vdb.GridClass.FOG_VOLUME
+    # 16-bit floats on disk: opacity to ~1e-3, altitude to ~8 m; half the size.
+    grid.saveFloatAsHalf = True
     return grid
 
 
@@ -76,6 +78,10 @@ def write_volume(path, volume, *, metadata=None):
     os.close(fd)
     try:
         vdb.write(tmp, grids=grids, metadata=meta)
+        # mkstemp makes the file private; a render farm's other users must read it.
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):

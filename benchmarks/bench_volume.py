@@ -99,7 +99,8 @@ def main(argv=None):
             f"{vs * 6371 / 30 * 1000:.0f} / {vs * 6371:.0f}",
             st["blocks"], st["active_voxels"], f"{st['bytes'] / 1e6:.1f}", f"{dense_mb:.0f}",
             f"{wall:.2f}", f"{cpu:.2f}", f"{wall2:.2f}",
-            f"{np.abs(err).max() * 100:.2f}", f"{np.sqrt(np.mean(err**2)) * 100:.3f}",
+            f"{np.abs(err).max() * 100:.2f}", f"{np.percentile(np.abs(err), 99) * 100:.2f}",
+            f"{np.sqrt(np.mean(err**2)) * 100:.3f}",
         ])
         print(rows[-1], flush=True)
 
@@ -130,7 +131,12 @@ times are inflated; CPU seconds are the fairer figure.** Memory: the kept blocks
 + coordinates); "dense shell" is what two float32 grids covering the whole atmosphere shell would take.
 
 {md_table(["voxel (scene units)", "voxel height / width (m)", "blocks (8³)", "active voxels", "memory MB",
-           "dense shell MB", "wall s", "CPU s", "2 thr wall s", "max opacity err %FS", "rms %FS"], rows)}
+           "dense shell MB", "wall s", "CPU s", "2 thr wall s", "max opacity err %FS", "99th pct %FS", "rms %FS"], rows)}
+
+Where the error comes from (checked on the worst rays at 0.003): cloud on the lowest levels, 0.8–3 km
+above the ground, where the terrain-following levels are 200–600 m apart (0.001–0.003 scene units at
+exaggeration 30). Isotropic Cartesian voxels of 500–850 m smooth those layers, so the maximum error
+falls only about linearly with the voxel size; the 99th percentile and the rms error are much lower.
 
 Memory against cloudy volume at the default voxel size ({DEFAULT_VOXEL_SIZE:g}): the threshold sets how much
 of the atmosphere is cloud; bytes per active voxel stay about constant, so memory is proportional to the

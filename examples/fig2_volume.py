@@ -11,7 +11,7 @@ clouds at an angle.
     .venv/bin/python examples/fig2_volume.py --save out/fig2.blend --frames 1-24
 
 The ``.vdb`` files go beside the saved .blend (or into ``--vdb-dir``, default
-``examples/fig2_volume_vdb``); Blender reads them natively, so a farm render
+``out/fig2_volume_vdb``); Blender reads them natively, so a farm render
 of the saved .blend needs no add-on.
 
 References
@@ -36,14 +36,14 @@ DEFAULTS = {
     "hours_per_frame": 1.0,
     "exaggeration": None,  # None: nephele.core.grid.DEFAULT_EXAGGERATION
     "haze": True,
-    "camera_lon": -125.0,
-    "camera_lat": 25.0,
-    "camera_distance": 3.2,
+    "camera_lon": -115.0,
+    "camera_lat": 28.0,
+    "camera_distance": 3.0,
     "engine": "CYCLES",
     "frames": (1, 24),
     "size": (640, 480),
     "samples": 32,
-    "vdb_dir": None,  # None: beside the saved .blend, else examples/fig2_volume_vdb
+    "vdb_dir": None,  # None: beside the saved .blend, else out/fig2_volume_vdb
 }
 
 
@@ -77,7 +77,7 @@ def build(**options):
                                      sun_strength=4.5)
     vdb_dir = o["vdb_dir"]
     if vdb_dir is None and not bpy.data.filepath:
-        vdb_dir = str(Path(__file__).resolve().parent / "fig2_volume_vdb")
+        vdb_dir = str(Path(__file__).resolve().parent.parent / "out" / "fig2_volume_vdb")
     clouds, infos = volume_ops.add_volume_clouds(
         "cloud", TransferFunction.ramp(float(o["threshold"]), float(o["full"])), scene=scene,
         color_var=o["color_var"],

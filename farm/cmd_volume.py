@@ -105,6 +105,9 @@ def run(args):
     fd, tmp = tempfile.mkstemp(dir=out, prefix=".sequence.", suffix=".json")
     with os.fdopen(fd, "w") as f:
         json.dump(meta, f, indent=1)
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(tmp, 0o666 & ~umask)
     os.replace(tmp, out / "sequence.json")
     voxels = sum(i["active_voxels"] for i in infos)
     print(f"{out}: {len(infos)} VDB files ({args.prefix}_0001.vdb ...), {voxels} active voxels")
