@@ -25,7 +25,7 @@ DEFAULTS = {
     "hours_per_frame": 1.0,
     "exaggeration": None,  # None: nephele.core.grid.DEFAULT_EXAGGERATION
     "method": "cubes",
-    "haze": True,
+    "haze": "volume",  # "volume", "shell" (cheap, closed form) or "none"
     "camera_lon": -40.0,
     "camera_lat": 22.0,
     "camera_distance": 4.5,
@@ -57,8 +57,9 @@ def build(**options):
     scene.frame_current = scene.frame_start
 
     globe = globe_ops.add_globe(scene=scene)
-    sky = globe_ops.add_sky_and_haze(scene, haze=bool(o["haze"]), sun_direction=(0.55, -0.75, 0.35),
-                                     sun_strength=4.5)
+    haze = {True: "volume", False: "none"}.get(o["haze"], o["haze"])
+    sky = globe_ops.add_sky_and_haze(scene, haze=haze != "none", haze_mode=haze if haze != "none" else "volume",
+                                     sun_direction=(0.55, -0.75, 0.35), sun_strength=4.5)
     clouds = contour_ops.add_contour("cloud", o["level"], scene=scene, color_var="altitude",
                                      method=o["method"], name="Clouds 15%")
     camera = globe_ops.add_camera(scene, lon=o["camera_lon"], lat=o["camera_lat"], distance=o["camera_distance"])
@@ -97,12 +98,13 @@ def main(argv=None):
     ap.add_argument("--source", default=DEFAULTS["source"], help='"demo", "demo:small", a .nc or a .ctl')
     ap.add_argument("--level", type=float, default=DEFAULTS["level"])
     ap.add_argument("--hours-per-frame", type=float, default=DEFAULTS["hours_per_frame"])
-    ap.add_argument("--no-haze", action="store_true", help="leave out the blue haze (renders ~3x faster)")
+    ap.add_argument("--haze", choices=("volume", "shell", "none"), default=DEFAULTS["haze"],
+                    help="blue haze: a volume (default; ~3x render time), a closed-form shell (cheap) or none")
     args = ap.parse_args(argv)
 
     bpy.ops.wm.read_factory_settings(use_empty=True)
     build(source=args.source, level=args.level, frames=args.frames, size=args.size, samples=args.samples,
-          hours_per_frame=args.hours_per_frame, haze=not args.no_haze)
+          hours_per_frame=args.hours_per_frame, haze=args.haze)
     scene = bpy.context.scene
     if args.save:
         Path(args.save).parent.mkdir(parents=True, exist_ok=True)

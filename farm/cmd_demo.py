@@ -38,7 +38,8 @@ def add_arguments(p):
     p.add_argument("--source", default="demo", help='data: "demo" (default), "demo:small", a .nc or .ctl file')
     p.add_argument("--hours-per-frame", type=float, default=6.0,
                    help="model hours per frame (default 6: 24 frames show six days)")
-    p.add_argument("--haze", action="store_true", help="add the blue haze volume (about 3x slower)")
+    p.add_argument("--haze", choices=("none", "shell", "volume"), default="none",
+                   help="blue haze: none (default), a closed-form shell (cheap) or a volume (about 3x slower)")
 
 
 def _size(text):
@@ -113,9 +114,8 @@ def build_blend(out, options):
         return blend
     cmd = [sys.executable, str(SCRIPT), "--save", str(blend), "--source", options["source"],
            "--frames", "{}-{}".format(*options["frames"]), "--size", "{}x{}".format(*options["size"]),
-           "--samples", str(options["samples"]), "--hours-per-frame", repr(options["hours_per_frame"])]
-    if not options["haze"]:
-        cmd.append("--no-haze")
+           "--samples", str(options["samples"]), "--hours-per-frame", repr(options["hours_per_frame"]),
+           "--haze", options["haze"]]
     res = subprocess.run(cmd, capture_output=True, text=True)
     if res.returncode != 0 or not blend.is_file():
         tail = "\n".join((res.stdout + res.stderr).strip().splitlines()[-5:])
@@ -147,7 +147,7 @@ def run(args):
         "size": list(size),
         "samples": args.samples,
         "hours_per_frame": args.hours_per_frame,
-        "haze": bool(args.haze),
+        "haze": args.haze,
     }
     t0 = time.perf_counter()
     with PeakMemory() as mem:

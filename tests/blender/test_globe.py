@@ -138,3 +138,11 @@ def test_render_sea_land_space_and_haze(empty_scene, tmp_path):
     hz, cl = halo.reshape(-1, 3).mean(0), space.reshape(-1, 3).mean(0)
     assert hz.sum() > cl.sum() + 0.02
     assert hz[2] > hz[0]
+    # The closed-form shell gives a blue limb too, and leaves the centre's colour nearly alone.
+    parts = globe_ops.add_sky_and_haze(scene, haze_mode="shell", sun_direction=(1.0, -0.6, 0.2))
+    assert parts["haze"].active_material["nephele_haze"]["mode"] == "shell"
+    shell = _render(scene, tmp_path / "shell.png")
+    sh = shell[rows, right:right + 3].reshape(-1, 3).mean(0)
+    assert sh.sum() > cl.sum() + 0.02 and sh[2] > sh[0]
+    centre = (slice(cy - 2, cy + 3), slice(cx - 2, cx + 3))
+    assert np.abs(shell[centre].mean((0, 1)) - without[centre].mean((0, 1))).max() < 0.1
