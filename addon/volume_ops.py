@@ -304,6 +304,10 @@ class NephelePropsVolume(bpy.types.PropertyGroup):
                                         description="Extinction per scene unit at opacity 1")
     directory: bpy.props.StringProperty(name="Directory", default="", subtype="DIR_PATH",
                                         description="Where the .vdb sequence goes (empty: beside the .blend)")
+    current_only: bpy.props.BoolProperty(
+        name="Current frame only", default=False,
+        description="Bake only the current frame (a quick look) instead of the scene's frame range",
+    )
 
 
 class NEPHELE_OT_add_volume_clouds(bpy.types.Operator):
@@ -315,15 +319,25 @@ class NEPHELE_OT_add_volume_clouds(bpy.types.Operator):
 
     def execute(self, context):
         s = _settings(context.scene)
+        wm = context.window_manager
+        frames = (context.scene.frame_current,) * 2 if s.current_only else None
+
+        def progress(i, n, info):
+            wm.progress_update(int(100 * i / max(n, 1)))
+
+        wm.progress_begin(0, 100)
         try:
             tf = panel_tf(s)
             obj, infos = add_volume_clouds(
                 s.var, tf, color_var=s.color_var, cmap=panel_cmap(s), voxel_size=s.voxel_size,
-                extinction=s.extinction, directory=s.directory or None, scene=context.scene,
+                extinction=s.extinction, directory=s.directory or None, scene=context.scene, frames=frames,
+                progress=progress,
             )
         except (DataError, ValueError, OSError, ImportError) as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
+        finally:
+            wm.progress_end()
         p = frame.params(obj)
         msg = empty_message(p)
         if msg:
@@ -364,6 +378,7 @@ class NEPHELE_PT_volume(bpy.types.Panel):
         col.prop(s, "voxel_size")
         col.prop(s, "extinction")
         col.prop(s, "directory")
+        col.prop(s, "current_only")
         objs = _active_volumes(context)
         if objs:
             msg = empty_message(frame.params(objs[0]))

@@ -81,7 +81,10 @@ def test_threshold_above_maximum_gives_empty_volume_and_warning(scene, tmp_path)
     s.threshold, s.full = 1.5, 2.0
     s.voxel_size = 0.02
     s.directory = str(tmp_path)
+    s.current_only = True
+    scene.frame_set(2)
     assert bpy.ops.nephele.add_volume_clouds() == {"FINISHED"}
+    assert [p.name for p in tmp_path.glob("*.vdb")] == ["clouds_0001.vdb"]
     obj = bpy.data.objects[volume_ops.OBJECT_NAME]
     p = frame.params(obj)
     assert p["empty"]
