@@ -130,7 +130,7 @@ threads. **The machine was shared with other jobs (load average well above 2 on 
 times are inflated; CPU seconds are the fairer figure.** Memory: the kept blocks (density + colour float32
 + coordinates); "dense shell" is what two float32 grids covering the whole atmosphere shell would take.
 
-{md_table(["voxel (scene units)", "voxel height / width (m)", "blocks (8³)", "active voxels", "memory MB",
+{md_table(["voxel (scene units)", "voxel height m / width km", "blocks (8³)", "active voxels", "memory MB",
            "dense shell MB", "wall s", "CPU s", "2 thr wall s", "max opacity err %FS", "99th pct %FS", "rms %FS"], rows)}
 
 Where the error comes from (checked on the worst rays at 0.003): cloud on the lowest levels, 0.8–3 km
