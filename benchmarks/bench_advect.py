@@ -144,7 +144,7 @@ def part2(quick):
     setups = [
         ("(c) restart P=24, incremental", "rk4", lambda: advect.RestartTrace(wind, fh, grid, period=24)),
         ("(c) restart P=24, incremental", "rk2", lambda: advect.RestartTrace(wind, fh, grid, period=24, method="rk2")),
-        ("(b) compose, bicubic, band 3", "rk4", lambda: advect.ComposedTrace(wind, fh, grid)),
+        ("(b) compose, bicubic, band 4", "rk4", lambda: advect.ComposedTrace(wind, fh, grid)),
     ]
     for label, method, make in setups:
         st = make()

@@ -33,6 +33,7 @@ from collections import OrderedDict
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import ndimage
 
 from .errors import DataError
 from .flows import tangent_velocity
@@ -484,10 +485,14 @@ class _StreamedMap:
 
     ``S_n(x) = S_{n-1}(Φ(x))`` with ``Φ`` the one-frame backward trajectory and
     ``S_{n-1}`` interpolated from the vertices where it is stored (trilinear,
-    or Catmull-Rom bicubic in latitude/longitude and linear in level).  Only a
-    band of vertices around those asked for is kept (one grid-sized array:
-    memory does not grow with the film); a vertex whose interpolation stencil
-    leaves the band is traced directly back to the start frame instead.
+    or Catmull-Rom bicubic in latitude/longitude and linear in level).  The map
+    is kept as the displacement ``D = S - x`` (smooth where ``S`` is not, e.g.
+    in longitude) on a band of vertices around those asked for (one grid-sized
+    array: memory does not grow with the film).  Before each step ``D`` is
+    extended ``band + 2`` cells beyond the band from the nearest stored vertex,
+    so the band's edge always has a stencil; a requested vertex whose stencil
+    still finds no data (a cloud appearing far from any stored one) is traced
+    directly back to the start frame instead.
     """
 
     def __init__(self, strategy, order, band):
@@ -500,17 +505,15 @@ class _StreamedMap:
         self.fallbacks = 0
 
     def reset(self, n):
-        """Identity at frame ``n``: every vertex starts where it is."""
-        g = self.st.grid
-        nk = g.shape[0]
-        xyz = grid_vertices(g)
-        s = np.broadcast_to(np.arange(nk, dtype=np.float64)[:, None], (nk, xyz.shape[0] // nk)).reshape(-1)
-        self._store(np.arange(xyz.shape[0]), np.concatenate([xyz, s[:, None]], axis=1))
+        """Identity at frame ``n``: every vertex starts where it is (zero displacement)."""
+        self.map = self.index.pad_rows(np.zeros(self.st.grid.shape + (4,), dtype=np.float32))
         self.frame = self.start = n
 
     def _store(self, index, values):
         m = np.full(self.st.grid.shape + (4,), np.nan, dtype=np.float32)
         m.reshape(-1, 4)[index] = values
+        if self.band is not None:
+            m = _extend(m, self.band + 2)
         self.map = self.index.pad_rows(m)
 
     def _band(self, index):
@@ -525,29 +528,25 @@ class _StreamedMap:
         st = self.st
         need = self._band(index)
         xyz, s, y, z = st._one_frame(n, need)
-        if n - 1 == self.start:
-            vals = np.concatenate([y, z[:, None]], axis=1)
-        else:
-            fr = self.index.fractional(y, z)
-            vals = self.index.cubic(self.map, *fr) if self.order == 3 else self.index.trilinear(self.map, *fr)
-            bad = ~np.all(np.isfinite(vals), axis=1)
-            if bad.any():
-                self.fallbacks += int(bad.sum())
-                xb, zb = trace(st.wind, xyz[bad], s[bad], st.frame_hours[n], st.frame_hours[self.start], **st.opts)
-                vals[bad] = np.concatenate([xb, zb[:, None]], axis=1)
-            vals[:, :3] = _normalise(vals[:, :3])
-            vals[:, 3] = np.clip(vals[:, 3], 0.0, st.grid.shape[0] - 1)
-        self._store(need, vals)
+        fr = self.index.fractional(y, z)
+        d = self.index.cubic(self.map, *fr) if self.order == 3 else self.index.trilinear(self.map, *fr)
+        start = np.concatenate([_normalise(y + d[:, :3]), np.clip(z + d[:, 3], 0.0, st.grid.shape[0] - 1)[:, None]], axis=1)
+        bad = ~np.all(np.isfinite(d), axis=1)
+        if bad.any():
+            asked = np.isin(need, index) & bad
+            self.fallbacks += int(asked.sum())
+            if asked.any():
+                xb, zb = trace(st.wind, xyz[asked], s[asked], st.frame_hours[n], st.frame_hours[self.start], **st.opts)
+                start[asked] = np.concatenate([xb, zb[:, None]], axis=1)
+        self._store(need, start - np.concatenate([xyz, s[:, None]], axis=1))
         self.frame = n
 
     def lookup(self, index):
-        v = self._unpadded()[np.asarray(index)]
-        return np.asarray(v[:, :3], dtype=np.float64), np.asarray(v[:, 3], dtype=np.float64)
-
-    def _unpadded(self):
+        index = np.asarray(index, dtype=np.int64)
         p = self.index.pad
-        m = self.map[:, p : self.map.shape[1] - p] if p else self.map
-        return m.reshape(-1, 4)
+        d = (self.map[:, p : self.map.shape[1] - p] if p else self.map).reshape(-1, 4)[index].astype(np.float64)
+        xyz, s = self.st._points(index)
+        return _normalise(xyz + d[:, :3]), np.clip(s + d[:, 3], 0.0, self.st.grid.shape[0] - 1)
 
     def at(self, n, index, start):
         """The map at frame ``n`` (streaming from ``start``) for vertices ``index``."""
@@ -556,6 +555,18 @@ class _StreamedMap:
         while self.frame < n:
             self.advance(self.frame + 1, index)
         return self.lookup(index)
+
+
+def _extend(m, cells):
+    """Fill NaN vertices of ``m`` (nk, nj, ni, c) within ``cells`` of stored ones with the nearest stored value."""
+    missing = np.isnan(m[..., 0])
+    if not missing.any() or missing.all():
+        return m
+    # Levels count as far apart so the nearest value comes from the same level when there is one.
+    dist, near = ndimage.distance_transform_edt(missing, sampling=(4.0, 1.0, 1.0), return_indices=True)
+    fill = missing & (dist <= cells)
+    m[fill] = m[tuple(a[fill] for a in near)]
+    return m
 
 
 def dilate(mask, cells, periodic_lon=False):
@@ -590,7 +601,7 @@ class ComposedTrace(_Strategy):
 
     name = "compose"
 
-    def __init__(self, wind, frame_hours, grid, *, order=3, band=3, **opts):
+    def __init__(self, wind, frame_hours, grid, *, order=3, band=4, **opts):
         super().__init__(wind, frame_hours, grid, **opts)
         if order not in (1, 3):
             raise ValueError(f"order must be 1 or 3, got {order!r}")
@@ -616,7 +627,7 @@ class RestartTrace(_Strategy):
 
     name = "restart"
 
-    def __init__(self, wind, frame_hours, grid, *, period=24, incremental=True, order=3, band=3, **opts):
+    def __init__(self, wind, frame_hours, grid, *, period=24, incremental=True, order=3, band=4, **opts):
         super().__init__(wind, frame_hours, grid, **opts)
         if int(period) != period or int(period) < 2 or int(period) % 2:
             raise ValueError(f"period must be an even number of frames >= 2, got {period!r}")
@@ -727,7 +738,7 @@ def great_circle_km(a, b):
 
 
 # ---------------------------------------------------------------- per-frame task
-ADVECT_DEFAULTS = {"strategy": "restart", "period": 24, "integrator": "rk4", "order": 3, "band": 3, "nan": "error"}
+ADVECT_DEFAULTS = {"strategy": "restart", "period": 24, "integrator": "rk4", "order": 3, "band": 4, "nan": "error"}
 """Texture-advection settings an advected contour object stores (besides its contour's)."""
 
 START = "nephele_start_{}"

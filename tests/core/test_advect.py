@@ -198,7 +198,7 @@ def test_strategies_agree_on_solid_body_rotation():
     assert len(full) == 1 and full[0].weight == 1.0 and full[0].start_hours == 0.0
     e_full = advect.great_circle_km(full[0].xyz, exact)
     assert e_full.max() < 60  # coarse 64x32 grid (625 km cells)
-    for band in (None, 2):
+    for band in (None, 4):
         comp = advect.ComposedTrace(wind, fh, grid, band=band)
         for n in range(9):  # streamed in order
             c = comp.copies(n, idx)
