@@ -546,8 +546,14 @@ def render(sigma, source, size, camera, *, step=0.4, background=0.0, chunk=8192)
         raise ValueError("render: sigma and source must be 3-D arrays of one shape")
     shape = sigma.shape
     h = np.asarray(size, float) / np.asarray(shape[::-1])
-    lo, hi = -0.5 * h, np.asarray(size, float) + 0.5 * h
     o = np.asarray(camera.position, float)
+    # march only through the box around the non-empty voxels (+ the half-voxel ramp)
+    nz = np.nonzero((sigma > 0) | (source != 0))
+    if len(nz[0]) == 0:
+        return np.full((camera.height, camera.width), float(background), np.float32)
+    first = np.array([nz[2].min(), nz[1].min(), nz[0].min()], float)
+    last = np.array([nz[2].max(), nz[1].max(), nz[0].max()], float)
+    lo, hi = first * h - 0.5 * h, (last + 1.0) * h + 0.5 * h
     d = camera.rays().reshape(-1, 3)
     with np.errstate(divide="ignore", invalid="ignore"):
         inv = 1.0 / d

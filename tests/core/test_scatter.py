@@ -50,7 +50,7 @@ def test_slab_conserves_energy_at_albedo_one(tau, g):
 
 def test_slab_transmission_of_pure_absorber():
     sol, (r, t) = slab(2.0, 0.5, 0.0)
-    assert r == 0.0 and t == pytest.approx(np.exp(-2.0), rel=1e-12)
+    assert r == 0.0 and t == pytest.approx(np.exp(-2.0), rel=1e-6)  # float32 beams
 
 
 def small_cloud(shape=(8, 10, 10), value=5.0):

@@ -1,0 +1,29 @@
+"""``nephele scatter``: solve, orbit views, optional VDBs; bad values exit with code 2."""
+
+import json
+
+import numpy as np
+
+from nephele.core import scatter
+from nephele.farm import cli
+
+
+def test_scatter_command_writes_views_and_solution(tmp_path):
+    out = tmp_path / "s"
+    rc = cli.main(["scatter", "--out", str(out), "--grid", "8x8x6", "--views", "2", "--size", "24x20",
+                   "--tol", "1e-2", "--vdb", "--quiet"])
+    assert rc == 0
+    meta = json.loads((out / "scatter.json").read_text())
+    assert meta["converged"] and meta["views"] == 2
+    sol = scatter.load_solution(out / "solution.npz")
+    assert sol.received.shape == (96, 6, 8, 8)
+    img = np.load(out / "view_0001.npy")
+    assert img.shape == (20, 24) and img.max() > 0 and np.all(np.isfinite(img))
+    assert (out / "view_0002.png").stat().st_size > 0
+    assert (out / "scatter_0002.vdb").stat().st_size > 0
+
+
+def test_scatter_command_bad_values(tmp_path, capsys):
+    assert cli.main(["scatter", "--out", str(tmp_path), "--grid", "8x8"]) == 2
+    assert "--grid" in capsys.readouterr().err
+    assert cli.main(["scatter", "--out", str(tmp_path), "--g", "1.0"]) == 2
