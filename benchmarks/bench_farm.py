@@ -10,6 +10,7 @@ Run: ``.venv/bin/python benchmarks/bench_farm.py [--frames 16 --rounds 3]``; wri
 """
 
 import argparse
+import json
 import os
 import shutil
 import statistics
@@ -67,6 +68,42 @@ def process_per_frame(out, frames, threads):
         """)
         subprocess.run([sys.executable, "-c", code], check=True, capture_output=True)
     return time.perf_counter() - t0
+
+
+def in_process(out, n, rounds, threads):
+    """Seconds per frame, one process, interleaved: a bare write_still render loop vs the worker's render_one.
+
+    Isolates the farm's own per-frame work (logs, handler error trap, OpenImageIO decode, PNG check,
+    sha256, fsync, os.replace) from Dask and from the load drifting between separate runs.
+    """
+    code = textwrap.dedent(f"""
+        import json, os, statistics, time
+        from pathlib import Path
+        from nephele.farm import worker
+        out = Path({str(out)!r})
+        for d in ("logs", ".nephele-tmp", "bare"):
+            (out / d).mkdir(parents=True, exist_ok=True)
+        spec = dict(token="b", scene={str(SCENE)!r}, kind="script", options=dict(size={list(SIZE)!r}, engine="CYCLES"),
+                    engine="CYCLES", samples={SAMPLES}, fmt="PNG", out_dir=str(out), timeout=None, threads={threads})
+        scene = worker.load_scene(spec)
+        import bpy
+        worker.render_one(scene, spec, 1, "bench")
+        bare, farm = [], []
+        for r in range({rounds}):
+            t = time.perf_counter()
+            for f in range(2, {n} + 2):
+                scene.frame_set(f)
+                scene.render.filepath = str(out / "bare" / f"{{f:04d}}.png")
+                bpy.ops.render.render(write_still=True)
+            bare.append((time.perf_counter() - t) / {n})
+            t = time.perf_counter()
+            for f in range(2, {n} + 2):
+                worker.render_one(scene, spec, f, "bench")
+            farm.append((time.perf_counter() - t) / {n})
+        print(json.dumps([min(bare), statistics.median(bare), min(farm), statistics.median(farm)]))
+    """)
+    res = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True)
+    return json.loads(res.stdout.strip().splitlines()[-1])
 
 
 def farm(out, n, workers, persistent=False):
@@ -138,6 +175,7 @@ def main():
                 per = total / count if label.startswith("one subprocess") else steady(d)[0]
                 assert steady(d)[1] == count
                 seen[label].append((total, per, count))
+        one = in_process(work / "inproc", n, 2 * args.rounds, cores)
         resume, cli, verify, adopt = resume_times(work)
     finally:
         shutil.rmtree(work, ignore_errors=True)
@@ -171,6 +209,15 @@ cluster, the scene).  The one-process-per-frame row pays the start-up on every f
 decoding the frame with OpenImageIO, the PNG check, sha256, fsync and the move into place.
 
 {table}
+
+The farm's own per-frame work, measured in one process with the same scene ({2 * args.rounds}
+interleaved rounds of {n} frames, so load drift hits both alike):
+
+| loop in one bpy process | s/frame, best | s/frame, median |
+|---|---|---|
+| bare `frame_set` + `render(write_still=True)` | {one[0]:.4f} | {one[1]:.4f} |
+| the worker's `render_one` (log, error trap, decode, check, sha256, fsync, `os.replace`) | {one[2]:.4f} | {one[3]:.4f} |
+| difference | {(one[2] - one[0]) / one[0]:+.1%} | {(one[3] - one[1]) / one[1]:+.1%} |
 
 Resume of an already complete 240-frame directory (nothing to render, no cluster started):
 
