@@ -25,9 +25,6 @@ import numpy as np
 from ..core import cloud_density as cd
 from ..core import scatter
 
-_SOLVES = {}  # operator id -> running generator state (kept out of bpy data)
-
-
 def _openvdb():
     try:
         import openvdb

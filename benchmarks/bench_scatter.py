@@ -23,7 +23,6 @@ Run: ``.venv/bin/python benchmarks/bench_scatter.py [--ref-spp 4096] [--quick]``
 
 import argparse
 import json
-import os
 import sys
 import time
 from pathlib import Path
