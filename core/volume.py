@@ -124,16 +124,30 @@ class CurvilinearField:
             float(globe_radius(self.height[-1].max(), self.radius, self.exaggeration)),
         )
 
+    def __post_init__(self):
+        object.__setattr__(self, "_index_tables", (_IndexTable(self.lon), _IndexTable(self.lat)))
+        object.__setattr__(self, "_all_levels", None)
+
+    def level_table(self, levels=None, clamp_below=0.0):
+        """A :class:`LevelTable` for :meth:`locate` (build once, locate many points)."""
+        if levels is None and clamp_below == 0.0:
+            if self._all_levels is None:
+                object.__setattr__(self, "_all_levels", LevelTable(self, None, 0.0))
+            return self._all_levels
+        return LevelTable(self, levels, clamp_below)
+
     def locate(self, xyz, levels=None, clamp_below=0.0):
         """Cell and fractions of Cartesian points.
 
         Parameters
         ----------
         xyz : (n, 3) array
-        levels : (kmin, kmax) pair of ``(nj-1, ni-1)`` int arrays, optional
+        levels : (kmin, kmax) pair of ``(nj-1, ni-1)`` int arrays, or LevelTable, optional
             Per column, the only cells worth locating (``kmin > kmax`` for
             none); points elsewhere come back with ``ok`` False.  Used by
-            :func:`resample` to skip transparent cells.
+            :func:`resample` to skip transparent cells.  A :class:`LevelTable`
+            (from :meth:`level_table`, which then also holds ``clamp_below``)
+            saves rebuilding it per call.
         clamp_below : float
             Points up to this many metres under the lowest level (below the
             terrain) take the lowest level's values instead of being outside.  The ground hides them;
@@ -152,23 +166,22 @@ class CurvilinearField:
             Inside the grid (and the ``levels``).  Other rows hold arbitrary
             in-range indices.
         """
+        table = levels if isinstance(levels, LevelTable) else self.level_table(levels, clamp_below)
+        clamp_below = table.clamp_below
         xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
         lon, lat, r = xyz_to_lonlat(xyz)
         h = height_from_radius(r, self.radius, self.exaggeration)
         nk, nj, ni = self.shape
         x = np.mod(lon - self.lon0, 360.0)
-        i = _axis_index(self.lon, x)
+        ti, tj = self._index_tables
+        i = ti(x)
         fi = (x - self.lon[i]) / (self.lon[i + 1] - self.lon[i])
-        j = _axis_index(self.lat, lat)
+        j = tj(lat)
         fj = (lat - self.lat[j]) / (self.lat[j + 1] - self.lat[j])
-        ok = (fi >= 0) & (fi <= 1) & (fj >= 0) & (fj <= 1)
-        if levels is None:
-            k0 = np.zeros(h.shape, dtype=np.intp)
-            k1 = np.full(h.shape, nk - 2, dtype=np.intp)
-        else:
-            k0 = levels[0][j, i].astype(np.intp)
-            k1 = levels[1][j, i].astype(np.intp)
-            ok &= k0 <= k1
+        cell = j * (ni - 1) + i
+        # Cheap rejections first: outside the grid's columns, or outside the
+        # height range that the column's candidate cells can reach.
+        ok = (fi >= 0) & (fi <= 1) & (fj >= 0) & (fj <= 1) & (h >= table.hlo[cell]) & (h <= table.hhi[cell])
         fk = np.zeros(h.shape)
         flat = j * ni + i
         sel = np.flatnonzero(ok)
@@ -178,6 +191,7 @@ class CurvilinearField:
             fj_s = np.clip(fj[sel], 0.0, 1.0)
             h_s = h[sel]
             col = flat[sel]
+            c_s = cell[sel]
             hf = self.height.reshape(-1)
             w = ((1 - fj_s) * (1 - fi_s), (1 - fj_s) * fi_s, fj_s * (1 - fi_s), fj_s * fi_s)
             corners = (col, col + 1, col + ni, col + ni + 1)
@@ -187,24 +201,27 @@ class CurvilinearField:
                 base = level * layer
                 return w[0] * hf[base + corners[0]] + w[1] * hf[base + corners[1]] + w[2] * hf[base + corners[2]] + w[3] * hf[base + corners[3]]
 
-            lo, hi = k0[sel], k1[sel] + 1
-            bottom = column_height(lo)
-            inside = h_s <= column_height(hi)
-            if clamp_below > 0:
-                inside &= (h_s >= bottom) | ((lo == 0) & (h_s >= bottom - clamp_below))
-            else:
-                inside &= h_s >= bottom
-            # Binary search of the level: heights increase upward in every
-            # column, so the bilinear mix of four columns does too.
+            # The level: bracketed by the column's height table, then a binary
+            # search (heights increase upward in every column, so the bilinear
+            # mix of four columns does too).  Invariant: the answer is in
+            # [lo, hi), the largest level whose mixed height is <= h.
+            lo, hi = table.bracket(c_s, h_s)
             while True:
-                open_ = hi - lo > 1
-                if not open_.any():
+                open_ = np.flatnonzero(hi - lo > 1)
+                if not open_.size:
                     break
-                mid = (lo + hi) // 2
-                go = column_height(mid) <= h_s
-                lo = np.where(open_ & go, mid, lo)
-                hi = np.where(open_ & ~go, mid, hi)
+                mid = (lo[open_] + hi[open_]) // 2
+                base = mid * layer
+                ww = [a[open_] for a in w]
+                cc = [a[open_] for a in corners]
+                hm = ww[0] * hf[base + cc[0]] + ww[1] * hf[base + cc[1]] + ww[2] * hf[base + cc[2]] + ww[3] * hf[base + cc[3]]
+                go = hm <= h_s[open_]
+                lo[open_] = np.where(go, mid, lo[open_])
+                hi[open_] = np.where(go, hi[open_], mid)
             h0, h1 = column_height(lo), column_height(lo + 1)
+            inside = (h_s <= h1) & (h_s >= h0)
+            if clamp_below > 0:
+                inside |= (lo == 0) & (h_s < h0) & (h_s >= h0 - clamp_below)
             fk[sel] = np.clip((h_s - h0) / (h1 - h0), 0.0, 1.0)
             fi[sel], fj[sel] = fi_s, fj_s
             flat[sel] = lo * layer + col
@@ -252,19 +269,91 @@ class CurvilinearField:
         return np.stack(np.broadcast_arrays(r * cphi * np.cos(lam), r * cphi * np.sin(lam), r * np.sin(phi)), axis=-1)
 
 
-def _axis_index(axis, x):
-    """``searchsorted(axis, x, "right") - 1`` clipped to ``[0, n-2]``, by
-    arithmetic on a nearly uniform axis with a correction step each way."""
-    n = axis.size
-    step = (axis[-1] - axis[0]) / (n - 1)
-    i = np.clip(np.floor((x - axis[0]) / step).astype(np.intp), 0, n - 2)
-    for _ in range(2):
-        i = np.where((x < axis[i]) & (i > 0), i - 1, i)
-        i = np.where((x >= axis[i + 1]) & (i < n - 2), i + 1, i)
-    bad = ((x < axis[i]) & (i > 0)) | ((x >= axis[i + 1]) & (i < n - 2))
-    if bad.any():
-        i[bad] = np.clip(np.searchsorted(axis, x[bad], side="right") - 1, 0, n - 2)
-    return i
+class _IndexTable:
+    """``searchsorted(axis, x, "right") - 1`` clipped to ``[0, n-2]`` by a
+    lookup table finer than the smallest spacing and one correction step."""
+
+    def __init__(self, axis):
+        self.axis = np.asarray(axis, dtype=np.float64)
+        n = self.axis.size
+        span = self.axis[-1] - self.axis[0]
+        cells = int(min(np.ceil(span / np.diff(self.axis).min()) + 1, 1 << 20))
+        self.scale = cells / span
+        edges = self.axis[0] + np.arange(cells) / self.scale
+        self.table = np.clip(np.searchsorted(self.axis, edges, side="right") - 1, 0, n - 2).astype(np.intp)
+        self.cells = cells
+
+    def __call__(self, x):
+        t = np.clip(((x - self.axis[0]) * self.scale), 0, self.cells - 1).astype(np.intp)
+        i = self.table[t]
+        # A table cell holds at most one axis point: one step up at most, and
+        # one step down where rounding put x just below its cell's edge.
+        n = self.axis.size
+        i += (x >= self.axis[i + 1]) & (i < n - 2)
+        i -= (x < self.axis[i]) & (i > 0)
+        return i
+
+
+class LevelTable:
+    """Per grid column, what :meth:`CurvilinearField.locate` needs to find levels fast.
+
+    For the candidate levels ``kmin..kmax`` of each column (all by default):
+    the height range ``hlo..hhi`` the column's cells can reach (the corners'
+    extremes: a bilinear mix stays between them; ``hlo`` lowered by
+    ``clamp_below`` where the range starts at the ground), and a table over
+    ``bins`` height bins giving, for any height in a bin, a level range
+    certain to hold the point's level (from the corners' lowest and highest
+    heights per level), so that the binary search takes one or two steps.
+    """
+
+    def __init__(self, field, levels=None, clamp_below=0.0, bins=32):
+        nk, nj, ni = field.shape
+        H = field.height
+        hmin = np.minimum(np.minimum(H[:, :-1, :-1], H[:, :-1, 1:]), np.minimum(H[:, 1:, :-1], H[:, 1:, 1:])).reshape(nk, -1)
+        hmax = np.maximum(np.maximum(H[:, :-1, :-1], H[:, :-1, 1:]), np.maximum(H[:, 1:, :-1], H[:, 1:, 1:])).reshape(nk, -1)
+        ncol = hmin.shape[1]
+        if levels is None:
+            k0 = np.zeros(ncol, np.intp)
+            k1 = np.full(ncol, nk - 2, np.intp)
+        else:
+            k0 = np.asarray(levels[0]).reshape(-1).astype(np.intp)
+            k1 = np.asarray(levels[1]).reshape(-1).astype(np.intp)
+        c = np.arange(ncol)
+        none = k0 > k1
+        k0c, k1c = np.clip(k0, 0, nk - 2), np.clip(k1, 0, nk - 2)
+        hlo = hmin[k0c, c] - np.where(k0c == 0, clamp_below, 0.0)
+        hhi = hmax[k1c + 1, c]
+        self.hlo = np.where(none, np.inf, hlo)
+        self.hhi = np.where(none, -np.inf, hhi)
+        self.k0, self.k1 = k0c, k1c
+        self.clamp_below = float(clamp_below)
+        # Bin edges per column over [ground min, top max]; levels stacked
+        # per column with an offset so one searchsorted serves all columns.
+        self.bins = int(bins)
+        self.base = hmin[0]
+        top = hmax[-1]
+        self.inv = self.bins / np.maximum(top - self.base, 1e-9)
+        edges = self.base[:, None] + np.arange(self.bins + 1)[None, :] / self.inv[:, None]
+        off = (np.arange(ncol) * (4.0 * (top - self.base).max() + 1.0))[:, None]
+        tol = 1e-6  # metres: bins rounded at their edges stay bracketed
+        # g: last level whose highest corner is <= the bin's lower edge (its
+        # mixed height is then <= any height in the bin); u: first level whose
+        # lowest corner is above the bin's upper edge.
+        g = np.searchsorted((hmax.T + off).ravel(), (edges[:, :-1] - tol + off).ravel(), side="right").reshape(ncol, -1)
+        g = g - (c * nk)[:, None] - 1
+        u = np.searchsorted((hmin.T + off).ravel(), (edges[:, 1:] + tol + off).ravel(), side="right").reshape(ncol, -1)
+        u = u - (c * nk)[:, None]
+        self.g = np.clip(g, 0, nk - 2).astype(np.int8 if nk < 128 else np.int32)
+        self.u = np.clip(u, 1, nk - 1).astype(self.g.dtype)
+
+    def bracket(self, cell, h):
+        """``(lo, hi)``: the level of heights ``h`` in columns ``cell`` lies in ``[lo, hi)``,
+        narrowed to the column's candidate levels."""
+        b = np.clip((h - self.base[cell]) * self.inv[cell], 0, self.bins - 1).astype(np.intp)
+        t = cell * self.bins + b
+        lo = np.maximum(self.g.reshape(-1)[t], self.k0[cell])
+        hi = np.minimum(self.u.reshape(-1)[t], self.k1[cell] + 1)
+        return lo.astype(np.intp), np.maximum(hi, lo + 1).astype(np.intp)
 
 
 @dataclass(eq=False)
@@ -523,13 +612,14 @@ def resample(
     )
     n = blocks.shape[0]
     depth = 1.75 * voxel_size / height_scale(exaggeration, radius)
+    table = field.level_table(levels, depth)
     local = np.indices((sub,) * 3).reshape(3, -1).T
     with_color = color_name is not None
 
     def run(start):
         b = blocks[start : start + chunk_blocks].astype(np.int64)
         idx = (b[:, None, :] * sub + local[None]).reshape(-1, 3)
-        flat, f, h, ok = field.locate(idx * voxel_size, levels, clamp_below=depth)
+        flat, f, h, ok = field.locate(idx * voxel_size, table)
         dens = np.zeros(idx.shape[0], dtype=np.float32)
         col = np.zeros(idx.shape[0], dtype=np.float32) if with_color else None
         if ok.any():
