@@ -167,82 +167,97 @@ class CurvilinearField:
             in-range indices.
         """
         table = levels if isinstance(levels, LevelTable) else self.level_table(levels, clamp_below)
-        clamp_below = table.clamp_below
         xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
-        lon, lat, r = xyz_to_lonlat(xyz)
+        sel, flat_s, fk, fj, fi, h = self._locate_inside(xyz, table)
+        flat = np.zeros(h.shape, dtype=np.intp)
+        f = np.zeros((h.size, 3))
+        ok = np.zeros(h.shape, bool)
+        flat[sel] = flat_s
+        f[sel, 0], f[sel, 1], f[sel, 2] = fk, fj, fi
+        ok[sel] = True
+        return flat, f, h, ok
+
+    def _locate_inside(self, xyz, table):
+        """:meth:`locate` for the points inside only: ``(sel, flat, fk, fj, fi, h)``,
+        ``sel`` the indices of the inside points, ``h`` the heights of all."""
+        clamp_below = table.clamp_below
+        x, y, z = xyz[:, 0], xyz[:, 1], xyz[:, 2]
+        rxy2 = x * x + y * y
+        r = np.sqrt(rxy2 + z * z)
         h = height_from_radius(r, self.radius, self.exaggeration)
+        lat = np.arctan2(z, np.sqrt(rxy2))
+        lat *= 180.0 / np.pi
+        lon = np.arctan2(y, x)
+        lon *= 180.0 / np.pi
+        lon -= self.lon0
         nk, nj, ni = self.shape
-        x = np.mod(lon - self.lon0, 360.0)
+        x = np.mod(lon, 360.0, out=lon)
         ti, tj = self._index_tables
         i = ti(x)
-        fi = (x - self.lon[i]) / (self.lon[i + 1] - self.lon[i])
         j = tj(lat)
-        fj = (lat - self.lat[j]) / (self.lat[j + 1] - self.lat[j])
         cell = j * (ni - 1) + i
         # Cheap rejections first: outside the grid's columns, or outside the
         # height range that the column's candidate cells can reach.
-        ok = (fi >= 0) & (fi <= 1) & (fj >= 0) & (fj <= 1) & (h >= table.hlo[cell]) & (h <= table.hhi[cell])
-        fk = np.zeros(h.shape)
-        flat = j * ni + i
+        lon_ax, lat_ax = self.lon, self.lat
+        ok = (x >= lon_ax[0]) & (x <= lon_ax[-1]) & (lat >= lat_ax[0]) & (lat <= lat_ax[-1])
+        ok &= (h >= table.hlo[cell]) & (h <= table.hhi[cell])
         sel = np.flatnonzero(ok)
-        ok[:] = False
-        if sel.size:
-            fi_s = np.clip(fi[sel], 0.0, 1.0)
-            fj_s = np.clip(fj[sel], 0.0, 1.0)
-            h_s = h[sel]
-            col = flat[sel]
-            c_s = cell[sel]
-            hf = self.height.reshape(-1)
-            w = ((1 - fj_s) * (1 - fi_s), (1 - fj_s) * fi_s, fj_s * (1 - fi_s), fj_s * fi_s)
-            corners = (col, col + 1, col + ni, col + ni + 1)
-            layer = nj * ni
+        i, j, x, lat, cell = i[sel], j[sel], x[sel], lat[sel], cell[sel]
+        fi = np.clip((x - lon_ax[i]) / (lon_ax[i + 1] - lon_ax[i]), 0.0, 1.0)
+        fj = np.clip((lat - lat_ax[j]) / (lat_ax[j + 1] - lat_ax[j]), 0.0, 1.0)
+        h_s = h[sel]
+        col = j * ni + i
+        hf = self.height.reshape(-1)
+        w = ((1 - fj) * (1 - fi), (1 - fj) * fi, fj * (1 - fi), fj * fi)
+        corners = (col, col + 1, col + ni, col + ni + 1)
+        layer = nj * ni
 
-            def column_height(level):
-                base = level * layer
-                return w[0] * hf[base + corners[0]] + w[1] * hf[base + corners[1]] + w[2] * hf[base + corners[2]] + w[3] * hf[base + corners[3]]
+        def column_height(level):
+            base = level * layer
+            return w[0] * hf[base + corners[0]] + w[1] * hf[base + corners[1]] + w[2] * hf[base + corners[2]] + w[3] * hf[base + corners[3]]
 
-            # The level: bracketed by the column's height table, then a binary
-            # search (heights increase upward in every column, so the bilinear
-            # mix of four columns does too).  Invariant: the answer is in
-            # [lo, hi), the largest level whose mixed height is <= h.
-            lo, hi = table.bracket(c_s, h_s)
-            while True:
-                open_ = np.flatnonzero(hi - lo > 1)
-                if not open_.size:
-                    break
-                mid = (lo[open_] + hi[open_]) // 2
-                base = mid * layer
-                ww = [a[open_] for a in w]
-                cc = [a[open_] for a in corners]
-                hm = ww[0] * hf[base + cc[0]] + ww[1] * hf[base + cc[1]] + ww[2] * hf[base + cc[2]] + ww[3] * hf[base + cc[3]]
-                go = hm <= h_s[open_]
-                lo[open_] = np.where(go, mid, lo[open_])
-                hi[open_] = np.where(go, hi[open_], mid)
-            h0, h1 = column_height(lo), column_height(lo + 1)
-            inside = (h_s <= h1) & (h_s >= h0)
-            if clamp_below > 0:
-                inside |= (lo == 0) & (h_s < h0) & (h_s >= h0 - clamp_below)
-            fk[sel] = np.clip((h_s - h0) / (h1 - h0), 0.0, 1.0)
-            fi[sel], fj[sel] = fi_s, fj_s
-            flat[sel] = lo * layer + col
-            ok[sel] = inside
-        return flat, np.stack([fk, np.clip(fj, 0, 1), np.clip(fi, 0, 1)], axis=1), h, ok
+        # The level: bracketed by the column's height table, then a binary
+        # search (heights increase upward in every column, so the bilinear
+        # mix of four columns does too).  Invariant: the answer is in
+        # [lo, hi), the largest level whose mixed height is <= h.
+        lo, hi = table.bracket(cell, h_s)
+        while True:
+            open_ = np.flatnonzero(hi - lo > 1)
+            if not open_.size:
+                break
+            mid = (lo[open_] + hi[open_]) // 2
+            base = mid * layer
+            ww = [a[open_] for a in w]
+            cc = [a[open_] for a in corners]
+            hm = ww[0] * hf[base + cc[0]] + ww[1] * hf[base + cc[1]] + ww[2] * hf[base + cc[2]] + ww[3] * hf[base + cc[3]]
+            go = hm <= h_s[open_]
+            lo[open_] = np.where(go, mid, lo[open_])
+            hi[open_] = np.where(go, hi[open_], mid)
+        h0, h1 = column_height(lo), column_height(lo + 1)
+        inside = (h_s <= h1) & (h_s >= h0)
+        if clamp_below > 0:
+            inside |= (lo == 0) & (h_s < h0) & (h_s >= h0 - clamp_below)
+        fk = np.clip((h_s - h0) / (h1 - h0), 0.0, 1.0)
+        keep = np.flatnonzero(inside)
+        return sel[keep], (lo * layer + col)[keep], fk[keep], fj[keep], fi[keep], h
 
     def interpolate(self, name, flat, f, ok):
         """Trilinear value of field ``name`` at located points; NaN outside or
         where a corner of the cell is missing."""
+        out = self._trilinear(name, flat, f[:, 0], f[:, 1], f[:, 2])
+        out[~ok] = np.nan
+        return out
+
+    def _trilinear(self, name, flat, fk, fj, fi):
         a = self.values[name].reshape(-1)
         nk, nj, ni = self.shape
-        fk, fj, fi = f[:, 0], f[:, 1], f[:, 2]
         out = np.zeros(flat.shape, dtype=np.float64)
         for dk in (0, 1):
             wk = fk if dk else 1 - fk
             for dj in (0, 1):
-                wj = fj if dj else 1 - fj
+                wjk = wk * (fj if dj else 1 - fj)
                 for di in (0, 1):
-                    wi = fi if di else 1 - fi
-                    out += (wk * wj * wi) * a[flat + dk * nj * ni + dj * ni + di]
-        out[~ok] = np.nan
+                    out += (wjk * (fi if di else 1 - fi)) * a[flat + (dk * nj * ni + dj * ni + di)]
         return out
 
     def below_ground(self, xyz):
@@ -374,7 +389,9 @@ class SparseVolume:
         The colour variable, NaN replaced by 0.
     color_name : str or None
     stats : dict
-        ``candidate_cells``, ``candidate_blocks``, ``blocks``, ``active_voxels``,
+        ``candidate_cells``, ``boxed_blocks`` (sub-blocks meeting the
+        candidate cells' boxes), ``candidate_blocks`` (those evaluated),
+        ``blocks``, ``active_voxels``,
         ``bytes`` of the kept arrays.
     """
 
@@ -534,6 +551,48 @@ def candidate_blocks(field, name, tf, voxel_size, block=8):
     return _keys_to_blocks(np.unique(np.concatenate(keys))), cand
 
 
+def _near_candidates(field, table, blocks, sub, voxel_size):
+    """Which blocks of ``sub``³ voxels can hold a located point: their
+    bounding ball, seen from the globe's centre, is tested against the
+    candidate height range of every grid column it may overlap (blocks near
+    a pole or with a wide window are kept)."""
+    n = blocks.shape[0]
+    keep = np.ones(n, bool)
+    if n == 0:
+        return keep
+    c = (blocks.astype(np.float64) * sub + 0.5 * (sub - 1)) * voxel_size
+    R = 0.5 * (sub - 1) * np.sqrt(3.0) * voxel_size * 1.001 + 1e-12
+    lon, lat, r = xyz_to_lonlat(c)
+    h = height_from_radius(r, field.radius, field.exaggeration)
+    dh = R / height_scale(field.exaggeration, field.radius)
+    theta = np.rad2deg(np.arcsin(np.minimum(R / np.maximum(r, R), 1.0)))
+    a = np.deg2rad(np.minimum(np.abs(lat) + theta, 90.0))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        tl = np.rad2deg(np.arcsin(np.minimum(np.sin(np.deg2rad(theta)) / np.cos(a), 1.0)))
+    testable = (np.abs(lat) + theta < 90.0) & (tl < 45.0) & (r > R)
+    ti, tj = field._index_tables
+    nci = field.lon.size - 1
+    periodic = field.lon[-1] == 360.0
+    x = np.mod(lon - field.lon0, 360.0)
+    x0, x1 = x - tl, x + tl
+    if periodic:
+        x0, x1 = np.mod(x0, 360.0), np.mod(x1, 360.0)
+    i0, i1 = ti(x0), ti(x1)
+    j0, j1 = tj(lat - theta), tj(lat + theta)
+    wi = np.mod(i1 - i0, nci) if periodic else i1 - i0
+    wj = j1 - j0
+    widest = 2
+    testable &= (wi <= widest) & (wj <= widest)
+    hit = np.zeros(n, bool)
+    for dj in range(widest + 1):
+        for di in range(widest + 1):
+            m = testable & (dj <= wj) & (di <= wi)
+            cell = np.minimum(j0 + dj, field.lat.size - 2) * nci + (np.mod(i0 + di, nci) if periodic else np.minimum(i0 + di, nci - 1))
+            hit |= m & (table.hlo[cell] <= h + dh) & (table.hhi[cell] >= h - dh)
+    keep[testable] = hit[testable]
+    return keep
+
+
 def resample(
     grid,
     values,
@@ -610,26 +669,26 @@ def resample(
         np.where(has, np.argmax(cells, axis=0), 1),
         np.where(has, nkc - 1 - np.argmax(cells[::-1], axis=0), 0),
     )
-    n = blocks.shape[0]
     depth = 1.75 * voxel_size / height_scale(exaggeration, radius)
     table = field.level_table(levels, depth)
+    boxed = blocks.shape[0]
+    blocks = blocks[_near_candidates(field, table, blocks, sub, voxel_size)]
+    n = blocks.shape[0]
     local = np.indices((sub,) * 3).reshape(3, -1).T
     with_color = color_name is not None
 
     def run(start):
         b = blocks[start : start + chunk_blocks].astype(np.int64)
         idx = (b[:, None, :] * sub + local[None]).reshape(-1, 3)
-        flat, f, h, ok = field.locate(idx * voxel_size, table)
+        sel, flat, fk, fj, fi, h = field._locate_inside(idx * voxel_size, table)
         dens = np.zeros(idx.shape[0], dtype=np.float32)
         col = np.zeros(idx.shape[0], dtype=np.float32) if with_color else None
-        if ok.any():
-            sel = np.flatnonzero(ok)
-            inside = np.ones(sel.size, bool)
-            dens[sel] = np.nan_to_num(tf(field.interpolate("value", flat[sel], f[sel], inside)), nan=0.0)
+        if sel.size:
+            dens[sel] = np.nan_to_num(tf(field._trilinear("value", flat, fk, fj, fi)), nan=0.0)
             if color_name == ALTITUDE:
                 col[sel] = h[sel]
             elif with_color:
-                col[sel] = np.nan_to_num(field.interpolate("color", flat[sel], f[sel], inside), nan=0.0)
+                col[sel] = np.nan_to_num(field._trilinear("color", flat, fk, fj, fi), nan=0.0)
         dens = dens.reshape(-1, sub, sub, sub)
         keep = dens.reshape(dens.shape[0], -1).max(axis=1) > 0
         return b[keep], dens[keep], None if col is None else col.reshape(-1, sub, sub, sub)[keep]
@@ -663,6 +722,7 @@ def resample(
             kc[ib, ix, iy, iz] = sc
     stats = {
         "candidate_cells": ncells,
+        "boxed_blocks": int(boxed),
         "candidate_blocks": int(n),
         "blocks": int(kb.shape[0]),
         "active_voxels": int(np.count_nonzero(kd)),

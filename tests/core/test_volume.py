@@ -136,6 +136,33 @@ def test_sparse_blocks_are_exactly_the_nonzero_ones():
     np.testing.assert_allclose(vol.color[b, x, y, z], alt, rtol=1e-5, atol=0.5)
 
 
+def test_fine_voxels_over_steep_regional_terrain_miss_nothing():
+    # The block pre-tests (column height ranges, the level table) must never
+    # drop a voxel: brute force every voxel of a regional grid's bounding box.
+    lon, lat = np.linspace(0.0, 16.0, 33), np.linspace(40.0, 56.0, 33)
+    L, P = np.meshgrid(np.deg2rad(lon), np.deg2rad(lat))
+    ter = np.maximum(0.0, 4000.0 * np.sin(9 * L) * np.sin(7 * P))
+    s = np.linspace(0.0, 1.0, 9) ** 1.6
+    g = GlobeGrid(lon, lat, ter[None] + s[:, None, None] * (14000.0 - ter[None]), ter)
+    c = smooth_cloud(g) + 0.3 * (g.height < ter[None] + 2500.0)
+    tf = TransferFunction.ramp(0.45, 0.9)
+    vs = 0.004
+    vol = resample(g, c, tf, voxel_size=vs)
+    assert not vol.empty
+    field = CurvilinearField.from_grid(g, {"v": c})
+    p = g.points(dtype=np.float64).reshape(-1, 3)
+    lo, hi = np.floor(p.min(axis=0) / vs) - 2, np.ceil(p.max(axis=0) / vs) + 2
+    idx = np.stack(np.meshgrid(*(np.arange(a, b + 1) for a, b in zip(lo, hi)), indexing="ij"), axis=-1).reshape(-1, 3)
+    r = np.linalg.norm(idx * vs, axis=1)
+    idx = idx[(r > 0.995) & (r < 1.07)]
+    flat, f, _, ok = field.locate(idx * vs, clamp_below=1.75 * vs * 6_371_000.0 / 30.0)
+    dense = np.nan_to_num(tf(field.interpolate("v", flat, f, ok)), nan=0.0)
+    np.testing.assert_allclose(vol.sample(idx * vs), dense, atol=1e-6)
+    assert np.count_nonzero(dense) == vol.stats["active_voxels"]
+    assert vol.stats["candidate_blocks"] < vol.stats["boxed_blocks"]  # the pre-test did act
+    assert vol.stats["active_voxels"] > 5000
+
+
 def test_threshold_above_maximum_gives_empty_volume():
     g = grid()
     c = smooth_cloud(g)
