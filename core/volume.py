@@ -349,15 +349,20 @@ class LevelTable:
         top = hmax[-1]
         self.inv = self.bins / np.maximum(top - self.base, 1e-9)
         edges = self.base[:, None] + np.arange(self.bins + 1)[None, :] / self.inv[:, None]
-        off = (np.arange(ncol) * (4.0 * (top - self.base).max() + 1.0))[:, None]
         tol = 1e-6  # metres: bins rounded at their edges stay bracketed
         # g: last level whose highest corner is <= the bin's lower edge (its
         # mixed height is then <= any height in the bin); u: first level whose
         # lowest corner is above the bin's upper edge.
-        g = np.searchsorted((hmax.T + off).ravel(), (edges[:, :-1] - tol + off).ravel(), side="right").reshape(ncol, -1)
-        g = g - (c * nk)[:, None] - 1
-        u = np.searchsorted((hmin.T + off).ravel(), (edges[:, 1:] + tol + off).ravel(), side="right").reshape(ncol, -1)
-        u = u - (c * nk)[:, None]
+        # Only columns with candidate cells need a table (others are rejected first).
+        use = np.flatnonzero(~none)
+        g = np.zeros((ncol, self.bins), np.intp)
+        u = np.ones((ncol, self.bins), np.intp)
+        if use.size:
+            off = (np.arange(use.size) * (hmax.max() - hmin.min() + 1.0))[:, None]
+            g[use] = np.searchsorted((hmax.T[use] + off).ravel(), (edges[use, :-1] - tol + off).ravel(),
+                                     side="right").reshape(use.size, -1) - (np.arange(use.size) * nk)[:, None] - 1
+            u[use] = np.searchsorted((hmin.T[use] + off).ravel(), (edges[use, 1:] + tol + off).ravel(),
+                                     side="right").reshape(use.size, -1) - (np.arange(use.size) * nk)[:, None]
         self.g = np.clip(g, 0, nk - 2).astype(np.int8 if nk < 128 else np.int32)
         self.u = np.clip(u, 1, nk - 1).astype(self.g.dtype)
 
@@ -534,13 +539,19 @@ def candidate_blocks(field, name, tf, voxel_size, block=8):
     # and duplicate-free for free), else collect keys and sort them.
     mark = np.zeros(shape, bool) if np.prod(shape, dtype=np.float64) <= 64e6 else None
     keys = []
+    # Offsets nested axis by axis, each level keeping only the cells that
+    # reach that far (most boxes span one or two blocks).
     for ox in range(int(span[:, 0].max()) + 1):
-        for oy in range(int(span[:, 1].max()) + 1):
-            for oz in range(int(span[:, 2].max()) + 1):
-                off = np.array([ox, oy, oz])
-                sel = np.all(span >= off, axis=1)
-                if not sel.any():
+        sx = np.flatnonzero(span[:, 0] >= ox)
+        for oy in range(int(span[sx, 1].max()) + 1):
+            sy = sx[span[sx, 1] >= oy]
+            if not sy.size:
+                continue
+            for oz in range(int(span[sy, 2].max()) + 1):
+                sel = sy[span[sy, 2] >= oz]
+                if not sel.size:
                     continue
+                off = np.array([ox, oy, oz])
                 if mark is not None:
                     b = b0[sel] + (off - lo)
                     mark[b[:, 0], b[:, 1], b[:, 2]] = True
@@ -708,18 +719,15 @@ def resample(
     kc = np.zeros_like(kd) if with_color else None
     if sb.shape[0]:
         inverse = inverse.reshape(-1)
-        off = (sb - np.floor_divide(sb, block // sub) * (block // sub)) * sub
+        ratio = block // sub
+        off = sb - np.floor_divide(sb, ratio) * ratio
         sd = np.concatenate([p[1] for p in parts])
-        sc = np.concatenate([p[2] for p in parts]) if with_color else None
-        r = np.arange(sub)
-        # Scatter every sub-block into its block with one fancy assignment.
-        ix = (off[:, 0, None] + r)[:, :, None, None]
-        iy = (off[:, 1, None] + r)[:, None, :, None]
-        iz = (off[:, 2, None] + r)[:, None, None, :]
-        ib = inverse[:, None, None, None]
-        kd[ib, ix, iy, iz] = sd
+        # Scatter every sub-block into its block: axes (block, ox, x, oy, y, oz, z),
+        # contiguous runs of ``sub`` voxels per copy.
+        view = (keys.size, ratio, sub, ratio, sub, ratio, sub)
+        kd.reshape(view)[inverse, off[:, 0], :, off[:, 1], :, off[:, 2], :] = sd
         if with_color:
-            kc[ib, ix, iy, iz] = sc
+            kc.reshape(view)[inverse, off[:, 0], :, off[:, 1], :, off[:, 2], :] = np.concatenate([p[2] for p in parts])
     stats = {
         "candidate_cells": ncells,
         "boxed_blocks": int(boxed),
