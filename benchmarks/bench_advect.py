@@ -176,8 +176,8 @@ def main(argv=None):
     ap.add_argument("--part", choices=("demo", "exact", "all"), default="all",
                     help="demo: speed on the demo (section advect); exact: the analytic cases (section advect_exact)")
     args = ap.parse_args(argv)
-    note = ("Shared 2-core machine under heavy load from other jobs (load average 10-20): seconds are upper "
-            "bounds.  Errors are great-circle km; one grid cell is ~125 km, so the data interpolation floor "
+    note = ("Shared 2-core machine with other jobs running (load average 3-20 during these runs): seconds are "
+            "upper bounds.  Errors are great-circle km; one grid cell is ~125 km, so the data interpolation floor "
             "(a tenth of a cell) is ~12 km.\n\n")
     if args.part in ("demo", "all"):
         r2, ds = part2(args.quick)
