@@ -115,28 +115,64 @@ def file_key(path):
         return None
 
 
-def bake_sequence(obj_params, frames, directory, prefix="clouds", *, cache=None, progress=None, reuse=True):
-    """Resample and write one ``.vdb`` per frame of ``frames`` (ascending ints).
+def bake_frame(obj_params, frame, number, directory, prefix="clouds", *, cache=None, reuse=True):
+    """Write sequence file ``number`` (1-based) holding the volume at ``frame``.
 
-    Each file records the cache key of its exact inputs; with ``reuse`` an
-    existing file with the same key is kept as it is (a re-run, or every
-    farm worker building the same scene, costs one metadata read per frame).
+    ``obj_params`` as for :func:`nephele.core.volume.frame_params`.  The file
+    records the cache key of its exact inputs; with ``reuse`` an existing
+    file with that key is kept (one metadata read).  ``cache``: a
+    :class:`~nephele.core.cache.Cache` or directory holding resampled volumes,
+    e.g. filled by ``nephele precompute`` on Dask workers; an entry there is
+    used instead of resampling.  Interactive bakes do not add entries (the
+    .vdb files are the lasting result; a cache copy would double the disk use).
 
-    ``obj_params`` as for :func:`nephele.core.volume.frame_params`; file
-    ``k`` (1-based) holds ``frames[k-1]``, so ``frames`` must be consecutive
-    for Blender's sequence to line up.  ``cache``: a
-    :class:`~nephele.core.cache.Cache` or directory for the resampled arrays
-    (None: no cache).  ``progress(i, n, info)`` is called after each frame.
-
-    Returns a list of dicts per frame: ``frame``, ``path``, ``hours``,
-    ``blocks``, ``active_voxels``, ``value_max``, ``seconds``, ``reused``.
+    Returns a dict: ``frame``, ``path``, ``hours``, ``blocks``,
+    ``active_voxels``, ``value_max``, ``seconds``, ``reused``, ``cached``.
     """
     import time
 
-    from ..core.cache import cache_key
-    from ..core.tasks import run_cached
+    from ..core.cache import Cache, cache_key
+    from ..core.tasks import run
     from ..core.volume import SparseVolume, frame_params
 
+    t0 = time.perf_counter()
+    params = frame_params(obj_params, frame)
+    key = cache_key("volume", params)
+    path = frame_path(directory, prefix, number)
+    if reuse and path.is_file() and file_key(path) == key:
+        meta = openvdb().readMetadata(str(path))
+        return {"frame": frame, "path": str(path), "hours": params["hours"], "blocks": int(meta["nephele_blocks"]),
+                "active_voxels": int(meta["nephele_active_voxels"]), "value_max": float(meta["nephele_value_max"]),
+                "seconds": time.perf_counter() - t0, "reused": True, "cached": False}
+    arrays = None
+    if cache is not None:
+        arrays = (cache if isinstance(cache, Cache) else Cache(cache)).load("volume", params)
+    cached = arrays is not None
+    if arrays is None:
+        arrays = run("volume", params)
+    vol = SparseVolume.from_arrays(arrays, color_name=params["color_var"] or None)
+    info = {
+        "frame": frame, "path": str(path), "hours": params["hours"], "blocks": int(vol.blocks.shape[0]),
+        "active_voxels": int(np.count_nonzero(vol.density)), "value_max": float(arrays["value_max"]),
+        "reused": False, "cached": cached,
+    }
+    write_volume(path, vol, metadata={
+        "nephele_key": key, "nephele_hours": params["hours"], "nephele_var": params["var"],
+        "nephele_blocks": info["blocks"], "nephele_active_voxels": info["active_voxels"],
+        "nephele_value_max": info["value_max"]})
+    info["seconds"] = time.perf_counter() - t0
+    return info
+
+
+def bake_sequence(obj_params, frames, directory, prefix="clouds", *, cache=None, progress=None, reuse=True):
+    """Resample and write one ``.vdb`` per frame of ``frames`` (ascending ints) with :func:`bake_frame`.
+
+    File ``k`` (1-based) holds ``frames[k-1]``, so ``frames`` must be
+    consecutive for Blender's sequence to line up.  ``progress(i, n, info)``
+    is called after each frame.
+
+    Returns the list of :func:`bake_frame` dicts.
+    """
     frames = [int(f) for f in frames]
     if not frames:
         return []
@@ -144,32 +180,10 @@ def bake_sequence(obj_params, frames, directory, prefix="clouds", *, cache=None,
         raise ValueError(f"frames must be consecutive, got {frames[:5]}...")
     out = []
     for n, frame in enumerate(frames, start=1):
-        t0 = time.perf_counter()
-        params = frame_params(obj_params, frame)
-        key = cache_key("volume", params)
-        path = frame_path(directory, prefix, n)
-        if reuse and path.is_file() and file_key(path) == key:
-            meta = openvdb().readMetadata(str(path))
-            info = {"frame": frame, "path": str(path), "hours": params["hours"], "blocks": int(meta["nephele_blocks"]),
-                    "active_voxels": int(meta["nephele_active_voxels"]), "value_max": float(meta["nephele_value_max"]),
-                    "seconds": time.perf_counter() - t0, "reused": True}
-        else:
-            arrays = run_cached("volume", params, cache)
-            vol = SparseVolume.from_arrays(arrays, color_name=params["color_var"] or None)
-            info = {
-                "frame": frame, "path": str(path), "hours": params["hours"], "blocks": int(vol.blocks.shape[0]),
-                "active_voxels": int(np.count_nonzero(vol.density)), "value_max": float(arrays["value_max"]),
-                "reused": False,
-            }
-            write_volume(path, vol, metadata={
-                "nephele_key": key, "nephele_hours": params["hours"], "nephele_var": params["var"],
-                "nephele_blocks": info["blocks"], "nephele_active_voxels": info["active_voxels"],
-                "nephele_value_max": info["value_max"]})
-            info["seconds"] = time.perf_counter() - t0
-        out.append(info)
+        out.append(bake_frame(obj_params, frame, n, directory, prefix, cache=cache, reuse=reuse))
         if progress is not None:
-            progress(n, len(frames), info)
+            progress(n, len(frames), out[-1])
     return out
 
 
-__all__ = ["DENSITY", "bake_sequence", "file_key", "frame_path", "openvdb", "read_grid", "write_volume"]
+__all__ = ["DENSITY", "bake_frame", "bake_sequence", "file_key", "frame_path", "openvdb", "read_grid", "write_volume"]

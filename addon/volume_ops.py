@@ -26,10 +26,11 @@ from ..core.errors import DataError
 from ..core.transfer import ALTITUDE_COLORS, TEMPERATURE_COLORS, ColorMap, TransferFunction
 from ..core.volume import ALTITUDE, DEFAULT_EXTINCTION, DEFAULT_VOXEL_SIZE
 from . import data_ops, frame, materials
-from .vdb import bake_sequence
+from .vdb import bake_frame, bake_sequence, frame_path
 
 KIND = "volume"
 OBJECT_NAME = "Nephele Clouds"
+PREFIX = "clouds"
 COLOR_MAPS = {"altitude": ALTITUDE_COLORS, "temperature": TEMPERATURE_COLORS}
 """Default colour map per colour variable (others: grey over the field's range)."""
 
@@ -107,7 +108,7 @@ def volume_dir(name, directory=None):
 def add_volume_clouds(var="cloud", tf=None, *, source=None, color_var=ALTITUDE, cmap=None,
                       voxel_size=DEFAULT_VOXEL_SIZE, extinction=DEFAULT_EXTINCTION, frames=None,
                       directory=None, exaggeration=None, radius=None, scene=None, collection=None,
-                      name=OBJECT_NAME, progress=None):
+                      name=OBJECT_NAME, progress=None, bake="all", cache=None):
     """Bake a VDB sequence and add (or update) a volume object showing it.
 
     Parameters
@@ -130,6 +131,14 @@ def add_volume_clouds(var="cloud", tf=None, *, source=None, color_var=ALTITUDE, 
         Default: :func:`volume_dir`.
     exaggeration, radius : float, optional
         Default: the scene's (the globe's).
+    bake : {"all", "lazy"}
+        ``"all"`` writes every frame's file now; ``"lazy"`` writes none: the
+        frame handler writes each frame's file when the frame is shown (a
+        farm render after ``nephele precompute`` filled the cache on Dask
+        workers then only converts cached arrays into .vdb files).
+    cache : str or Cache, optional
+        Resampled volumes to use instead of resampling (default: the
+        scene's cache, :func:`~nephele.core.cache.default_cache_dir`).
 
     Returns
     -------
@@ -172,20 +181,26 @@ def add_volume_clouds(var="cloud", tf=None, *, source=None, color_var=ALTITUDE, 
         "hours_per_frame": cfg["hours_per_frame"],
         "frames": [f0, f1],
     }
+    if bake not in ("all", "lazy"):
+        raise DataError(f'must be "all" or "lazy", got {bake!r}', field="bake")
     out_dir = volume_dir(name, directory)
-    prefix = "clouds"
-    infos = bake_sequence(params, range(f0, f1 + 1), out_dir, prefix, progress=progress)
+    cache = default_cache_dir(bpy.data.filepath or None) if cache is None else cache
+    if bake == "all":
+        infos = bake_sequence(params, range(f0, f1 + 1), out_dir, PREFIX, cache=cache, progress=progress)
+    else:
+        infos = []
+        out_dir.mkdir(parents=True, exist_ok=True)
     # Drop files of an older, longer bake so the directory holds one sequence.
-    for stale in out_dir.glob(f"{prefix}_*.vdb"):
+    for stale in out_dir.glob(f"{PREFIX}_*.vdb"):
         num = stale.stem.rsplit("_", 1)[-1]
-        if num.isdigit() and int(num) > len(infos):
+        if num.isdigit() and int(num) > f1 - f0 + 1:
             stale.unlink()
-    first = infos[0]["path"]
+    first = str(frame_path(out_dir, PREFIX, 1))
     vol = bpy.data.volumes.get(name) or bpy.data.volumes.new(name)
     vol.filepath = bpy.path.relpath(first) if bpy.data.filepath else first
-    vol.is_sequence = len(infos) > 1
+    vol.is_sequence = f1 > f0
     vol.frame_start = f0
-    vol.frame_duration = len(infos)
+    vol.frame_duration = f1 - f0 + 1
     vol.frame_offset = 0
     vol.sequence_mode = "EXTEND"
     obj = bpy.data.objects.get(name)
@@ -201,10 +216,23 @@ def add_volume_clouds(var="cloud", tf=None, *, source=None, color_var=ALTITUDE, 
     obj.scale = (1.0, 1.0, 1.0)
     params["directory"] = str(out_dir)
     params["value_max"] = max((i["value_max"] for i in infos), default=float("nan"))
-    params["empty"] = all(i["active_voxels"] == 0 for i in infos)
+    params["empty"] = bool(infos) and all(i["active_voxels"] == 0 for i in infos)
+    params["lazy"] = bake == "lazy"
     frame.set_params(obj, params)
     refresh_material(obj)
     return obj, infos
+
+
+@frame.register_updater(KIND)
+def _write_frame(obj, params, scene, frame_number):
+    """A lazily baked volume: write the shown frame's file if it is missing
+    or stale (from the scene's cache when precomputed), before Blender reads it."""
+    if not params.get("lazy"):
+        return
+    f0, f1 = params["frames"]
+    f = min(max(int(round(frame_number)), int(f0)), int(f1))
+    bake_frame(params, f, f - int(f0) + 1, params["directory"], PREFIX,
+               cache=default_cache_dir(bpy.data.filepath or None))
 
 
 def eevee_volume_settings(scene, tile_size="2", samples=64):

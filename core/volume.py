@@ -30,7 +30,10 @@ References
    topology", ACM Trans. Graph. 32(3), 2013 (8³ leaf nodes).
 """
 
+import hashlib
 from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
 
 import numpy as np
 
@@ -770,7 +773,18 @@ def frame_params(obj_params, frame):
         "voxel_size": float(obj_params.get("voxel_size", DEFAULT_VOXEL_SIZE)),
         "exaggeration": float(obj_params.get("exaggeration", DEFAULT_EXAGGERATION)),
         "radius": float(obj_params.get("radius", 1.0)),
+        "code": code_stamp(),
     }
+
+
+@lru_cache(maxsize=1)
+def code_stamp():
+    """Short hash of the resampling code, part of every cache key: a changed
+    algorithm never serves volumes cached (or .vdb files baked) by the old one."""
+    h = hashlib.sha256()
+    for name in ("volume.py", "transfer.py", "grid.py"):
+        h.update((Path(__file__).resolve().parent / name).read_bytes())
+    return h.hexdigest()[:16]
 
 
 def _volume_task(params):
@@ -794,10 +808,21 @@ def _volume_task(params):
     return out
 
 
+def plan_volume(obj_params, frame):
+    """Planner ``"volume"``: the one ``("volume", params)`` task a volume object
+    needs at ``frame`` (none outside its baked frame range ``frames``, where
+    the sequence holds its end files)."""
+    frames = obj_params.get("frames")
+    if frames and not int(frames[0]) <= int(frame) <= int(frames[1]):
+        return []
+    return [("volume", frame_params(obj_params, frame))]
+
+
 def _register_task():
-    from .tasks import task
+    from .tasks import planner, task
 
     task("volume")(_volume_task)
+    planner("volume")(plan_volume)
 
 
 _register_task()
@@ -817,5 +842,6 @@ __all__ = [
     "candidate_blocks",
     "frame_params",
     "height_scale",
+    "plan_volume",
     "resample",
 ]

@@ -44,6 +44,7 @@ DEFAULTS = {
     "size": (640, 480),
     "samples": 32,
     "vdb_dir": None,  # None: beside the saved .blend, else out/fig2_volume_vdb
+    "bake": "all",  # "lazy": each frame's .vdb written when shown (farm: after nephele precompute)
 }
 
 
@@ -54,7 +55,9 @@ def build(**options):
     ``extinction``, ``voxel_size``, ``color_var``, ``hours_per_frame``,
     ``exaggeration``, ``haze``, ``camera_lon``, ``camera_lat``,
     ``camera_distance``, ``engine`` (CYCLES or BLENDER_EEVEE), ``frames``
-    (first, last), ``size`` (w, h), ``samples``, ``vdb_dir``.
+    (first, last), ``size`` (w, h), ``samples``, ``vdb_dir``, ``bake``
+    (``"all"`` now, or ``"lazy"``: per frame when shown, from the cache
+    that ``nephele precompute`` fills in parallel).
     """
     from nephele.addon import data_ops, frame, globe_ops, volume_ops
     from nephele.core.grid import DEFAULT_EXAGGERATION
@@ -83,7 +86,7 @@ def build(**options):
         color_var=o["color_var"],
         voxel_size=DEFAULT_VOXEL_SIZE if o["voxel_size"] is None else float(o["voxel_size"]),
         extinction=DEFAULT_EXTINCTION if o["extinction"] is None else float(o["extinction"]),
-        directory=vdb_dir,
+        directory=vdb_dir, bake=o["bake"],
     )
     camera = globe_ops.add_camera(scene, lon=o["camera_lon"], lat=o["camera_lat"], distance=o["camera_distance"])
 

@@ -220,3 +220,42 @@ def test_saved_blend_plays_the_sequence_without_the_addon(scene, tmp_path):
             assert "density" in {g.name for g in ev.data.grids}
     finally:
         nephele.register()  # the fixture unregisters
+
+
+def test_lazy_volume_is_written_per_frame_from_the_precomputed_cache(scene, tmp_path, monkeypatch):
+    # The farm's flow: plan the scene's tasks, run them (on Dask workers in
+    # `nephele precompute`; here in-process through the same worker function)
+    # into the scene's cache, then each shown frame only converts the cached
+    # arrays into its .vdb file: nothing is resampled in Blender.
+    from nephele.core import tasks
+    from nephele.core import volume as vmod
+    from nephele.farm.worker import precompute
+
+    cache = tmp_path / "cache"
+    monkeypatch.setenv("NEPHELE_CACHE", str(cache))
+    out = tmp_path / "vdb"
+    frame.install()
+    obj, infos = volume_ops.add_volume_clouds("cloud", TransferFunction.ramp(0.3, 1.0), directory=str(out),
+                                              voxel_size=0.01, scene=scene, bake="lazy")
+    assert infos == [] and not list(out.glob("*.vdb"))
+    assert obj.data.is_sequence and obj.data.frame_duration == NT
+    p = frame.params(obj)
+    planned = [t for f in range(1, NT + 2) for t in tasks.plan(p, f)]
+    assert len(planned) == NT  # frame NT + 1 is outside the baked range
+    for kind, params in planned:
+        key, computed, _ = precompute(kind, params, str(cache))
+        assert computed
+    monkeypatch.setattr(vmod, "resample", lambda *a, **k: pytest.fail("resampled in Blender"))
+    for f in (2, 1, 3):
+        scene.frame_set(f)
+        path = out / f"clouds_{f:04d}.vdb"
+        assert path.is_file()
+        ev = obj.evaluated_get(bpy.context.evaluated_depsgraph_get())
+        assert ev.data.grids.frame_filepath.endswith(path.name)
+        assert {"density", "altitude"} <= {g.name for g in ev.data.grids}
+        dense, lo, vs = read_grid(path)
+        cached = tasks.run_cached(*planned[f - 1], cache)
+        assert vs == pytest.approx(0.01)
+        # Half floats on disk: the same opacities to ~1e-3.
+        assert dense.max() == pytest.approx(float(cached["density"].max()), abs=2e-3)
+        assert np.count_nonzero(dense) == np.count_nonzero(cached["density"])

@@ -240,3 +240,26 @@ def test_arrays_roundtrip_and_bad_input():
         resample(g, c, TransferFunction.ramp(0.3, 1.0), color_name="temperature")
     with pytest.raises(DataError, match="TransferFunction"):
         resample(g, c, [(0.3, 0.0)])
+
+
+def test_planner_feeds_the_cache_the_blender_bake_reads(tmp_path, monkeypatch):
+    from nephele.core import tasks
+    from nephele.core import volume as vmod
+    from nephele.core.contour_task import open_source
+
+    obj = {"kind": "volume", "source": "demo:small", "var": "cloud", "tf": TransferFunction.ramp(0.3, 1.0).to_dict(),
+           "color_var": "altitude", "voxel_size": 0.02, "frame_start": 1, "hours_per_frame": 1.5, "frames": [1, 3]}
+    assert tasks.plan(obj, 4) == [] and tasks.plan(obj, 0) == []
+    (kind, params), = tasks.plan(obj, 3)
+    assert kind == "volume" and params["hours"] == 3.0 and params["voxel_size"] == 0.02
+    out = tasks.run_cached(kind, params, tmp_path)
+    ds = open_source("demo:small")
+    direct = resample(ds.grid, ds.read_at("cloud", 3.0), TransferFunction.ramp(0.3, 1.0), voxel_size=0.02,
+                      color_name=ALTITUDE)
+    assert not direct.empty
+    np.testing.assert_array_equal(out["blocks"], direct.blocks)
+    np.testing.assert_array_equal(out["density"], direct.density)
+    # A second run is served from the cache: nothing is resampled.
+    monkeypatch.setattr(vmod, "resample", lambda *a, **k: pytest.fail("resampled again"))
+    again = tasks.run_cached(kind, params, tmp_path)
+    np.testing.assert_array_equal(again["density"], direct.density)
