@@ -229,6 +229,35 @@ def direct_fractions(direction, g, sub=48, into_sub=None):
 
 
 @lru_cache(maxsize=8)
+def _sub_phase_matrix_cached(g, sub, out_sub):
+    _, _, dirs, _ = bins(sub)
+    _, _, od, ow = bins(out_sub)
+    flat_d = od.reshape(-1, 3)
+    m = np.empty((NBINS, NBINS, dirs.shape[1]))
+    for j in range(NBINS):
+        q = hg(dirs[j] @ flat_d.T, g) * ow.reshape(-1)[None, :]
+        q /= q.sum(1, keepdims=True)
+        m[:, j, :] = q.reshape(dirs.shape[1], NBINS, -1).sum(2).T
+    m.setflags(write=False)
+    return m
+
+
+def sub_phase_matrix(g, sub=4, out_sub=8):
+    """``m[i, j, a]``: fraction of flux travelling along sub-direction ``a`` of bin ``j``
+    (the centres of :func:`bins` ``(sub)``) that HG scatters into bin ``i``.
+
+    Integrated on ``out_sub x out_sub`` sub-squares per outgoing bin and
+    normalised per incoming direction (``m.sum(0) == 1``).  For flux whose
+    distribution inside its bin is known (the sun's first scattering), this
+    replaces :func:`phase_matrix`, which assumes flux spread evenly over the bin.
+    """
+    g = float(g)
+    if not -1.0 < g < 1.0:
+        raise ValueError(f"sub_phase_matrix: g must be in (-1, 1), got {g}")
+    return _sub_phase_matrix_cached(g, int(sub), int(out_sub))
+
+
+@lru_cache(maxsize=8)
 def _view_table(g, res, sub):
     # Cube map of res x res directions per face: p_bar_j(w) = (1/Omega_j) int_j p(w'.w) dw'.
     _, omega, dirs, w = bins(sub)

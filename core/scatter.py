@@ -86,7 +86,7 @@ def _shift_indices(n, shift, periodic, margin):
     return base + margin, base - 1 + margin, 1.0 - f, f
 
 
-def _sweep(sigma, h, dirs, wsub, emis, inflow, periodic, axis, cache=None):
+def _sweep(sigma, h, dirs, wsub, emis, inflow, periodic, axis, cache=None, per_sub=False):
     """Sweep a group of beams through ``sigma`` layer by layer along array ``axis``.
 
     ``dirs`` (g, ns, 3): ``ns`` sub-directions for each of ``g`` bins, all with
@@ -96,8 +96,8 @@ def _sweep(sigma, h, dirs, wsub, emis, inflow, periodic, axis, cache=None):
     outside (upstream face and non-periodic sides).
     ``cache``: a dict kept between calls with the same beams; it stores the
     per-layer transmittances (float32) so later passes skip the exponentials.
-    Returns received (g, ...), total (g, ...) and the exit power (g,) through
-    the far face.
+    Returns received (g, ...) (``per_sub``: (g, ns, ...) per sub-direction),
+    total (g, ...) and the exit power (g,) through the far face.
     """
     g, ns, _ = dirs.shape
     d = dirs.reshape(-1, 3)
@@ -123,7 +123,7 @@ def _sweep(sigma, h, dirs, wsub, emis, inflow, periodic, axis, cache=None):
     kb = kk[:, :, None]
     ar = np.arange(A)[None, :, None]
     wa0, wa1, wb0, wb1 = (x[:, None, None] for x in (wa0, wa1, wb0, wb1))
-    recv = np.zeros((g, L, A, B), np.float32)
+    recv = np.zeros((g, ns, L, A, B) if per_sub else (g, L, A, B), np.float32)
     total = np.zeros((g, L, A, B), np.float32)
     em = None if emis is None else np.moveaxis(emis, axis + 1, 1)
     pad = np.asarray(inflow, dtype=np.float32).reshape(K, 1, 1)
@@ -155,10 +155,13 @@ def _sweep(sigma, h, dirs, wsub, emis, inflow, periodic, axis, cache=None):
             r = beam * (1.0 - t) + e * (1.0 - esc)
             tot = beam + e
             beam = beam * t + e * esc
-        recv[:, k] = r.reshape(g, ns, A, B).sum(1)
+        if per_sub:
+            recv[:, :, k] = r.reshape(g, ns, A, B)
+        else:
+            recv[:, k] = r.reshape(g, ns, A, B).sum(1)
         total[:, k] = tot.reshape(g, ns, A, B).sum(1)
     exit_power = beam.reshape(g, ns, A, B).sum((1, 2, 3), dtype=np.float64)
-    return np.moveaxis(recv, 1, axis + 1), np.moveaxis(total, 1, axis + 1), exit_power
+    return np.moveaxis(recv, -3, axis - 3), np.moveaxis(total, 1, axis + 1), exit_power
 
 
 # --------------------------------------------------------------------------- solve
@@ -261,8 +264,9 @@ def _check_inputs(sigma, size, albedo, g, sun_dir, sun_irradiance, sky_radiance)
 
 
 def _scatter_into(unshot, m_cols, recv, albedo, chunk=1 << 16):
-    """``unshot += albedo * M[:, group] @ recv`` in float32 chunks (memory stays small)."""
-    g = recv.shape[0]
+    """``unshot += albedo * M[:, group] @ recv`` in float32 chunks (memory stays small);
+    ``m_cols`` (96, k) with ``recv`` (k, ...): k bins, or bins x sub-directions."""
+    g = m_cols.shape[1]
     u = unshot.reshape(NB, -1)
     r = recv.reshape(g, -1)
     m = (albedo * m_cols).astype(np.float32)
@@ -344,19 +348,27 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
 
     # The sun's first scattering, shot at once on first_sub x first_sub sub-directions
     # weighted by the exact phase function about the true sun direction: the forward
-    # lobe keeps its shape inside its bins for the next interception.
+    # lobe keeps its shape inside its bins.  Its interceptions are kept per
+    # sub-direction and scattered again from each sub-direction's own direction
+    # (phase.sub_phase_matrix): treating this still forward-peaked flux as uniform
+    # over its bin overstated the second scattering's reflectance (slab tau=4,
+    # g=0.8: R +0.011 -> +0.009 against adding-doubling).
     qs = phase.direct_fractions(prop, g_s, sub=48, into_sub=first_sub)
     q = qs.sum(1)
     wq = np.where(q[:, None] > 1e-12, qs / np.maximum(q[:, None], 1e-300), 1.0 / qs.shape[1])
     fdirs = phase.bins(first_sub)[2]
-    for axis, bs in groups:
-        em = (alb_s * q[bs])[:, None] * r_sun_s.reshape(1, -1)
-        r, tot, ex = _sweep(sig_s, h, fdirs[bs], wq[bs], em.reshape((len(bs),) + shape),
-                            np.zeros(wq[bs].shape), periodic, axis)
-        received[bs] += r.astype(np.float32)
-        total[bs] += tot.astype(np.float32)
-        exit_flux[bs] += ex
-        _scatter_into(unshot, M[:, bs], r, alb_s)
+    m_sub = phase.sub_phase_matrix(g_s, first_sub)  # (96, 96, first_sub**2)
+    per = max(1, (1 << 24) // (fdirs.shape[1] * sigma.size))  # bins per sweep: <= 64 MB of float32
+    for axis, group in groups:
+        for s in range(0, len(group), per):
+            bs = group[s:s + per]
+            em = (alb_s * q[bs])[:, None] * r_sun_s.reshape(1, -1)
+            r, tot, ex = _sweep(sig_s, h, fdirs[bs], wq[bs], em.reshape((len(bs),) + shape),
+                                np.zeros(wq[bs].shape), periodic, axis, per_sub=True)
+            received[bs] += r.sum(1, dtype=np.float32)
+            total[bs] += tot.astype(np.float32)
+            exit_flux[bs] += ex
+            _scatter_into(unshot, m_sub[:, bs].reshape(NB, -1), r.reshape((-1,) + shape), alb_s)
 
     # The sky: binned beams entering through the boundary, travelling downward.
     if sky_radiance > 0:

@@ -87,3 +87,16 @@ def test_bin_phase_toward_normalised():
     # forward: radiance toward the bin's own centre is the largest
     own = phase.bin_phase_toward(cen, 0.8)
     assert np.all(np.argmax(own, axis=1) == np.arange(96))
+
+
+@pytest.mark.parametrize("g", [0.0, 0.8, -0.6])
+def test_sub_phase_matrix_matches_exact_fractions(g):
+    m = phase.sub_phase_matrix(g, sub=4)
+    assert m.shape == (96, 96, 16)
+    np.testing.assert_allclose(m.sum(0), 1.0, atol=1e-12)
+    if g == 0.0:  # isotropic: each bin gets its share of the sphere
+        np.testing.assert_allclose(m[:, 7, 5], phase.bins(1)[1] / (4 * np.pi), atol=1e-12)
+    # against the finer integral about each exact sub-direction
+    dirs = phase.bins(4)[2]
+    for j, a in [(90, 0), (90, 15), (3, 6), (50, 9)]:
+        np.testing.assert_allclose(m[:, j, a], phase.direct_fractions(dirs[j, a], g, sub=48), atol=2e-3)
