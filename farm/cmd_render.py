@@ -146,7 +146,8 @@ def _dry_run(args, settings, kwargs):
                    settings["device"], settings["fmt"], settings["retries"], settings["timeout"],
                    settings["chunk"], kwargs["workers"], settings["scene_options"])
     out = check_out_dir(args.out)
-    done, todo = classify(Manifest.load(out), frames, settings["fmt"])
+    manifest = Manifest.load(out)
+    done, todo = classify(manifest, frames, settings["fmt"], views=tuple(manifest.run.get("views") or ("",)))
     print(f"scene: {scene} ({kind})\nframes: {format_frames(frames)}\n"
           f"already valid: {format_frames(done) or 'none'}\nto render: {format_frames(todo) or 'none'}")
     if kwargs["jobqueue"]:

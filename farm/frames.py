@@ -86,9 +86,12 @@ def chunks(frames, size):
     return [list(frames[i : i + size]) for i in range(0, len(frames), size)]
 
 
-def frame_name(frame, fmt="PNG"):
-    """``frame_0001.png``: zero-padded to 4 digits (more when needed)."""
-    return f"{PREFIX}{frame:04d}{FORMATS[fmt]}"
+def frame_name(frame, fmt="PNG", view=""):
+    """``frame_0001.png``: zero-padded to 4 digits (more when needed); ``view="_L"`` gives ``frame_0001_L.png``.
+
+    ``view`` is a multi-view file suffix (Blender's ``_L`` / ``_R`` for stereo), ``""`` for one view.
+    """
+    return f"{PREFIX}{frame:04d}{view}{FORMATS[fmt]}"
 
 
 def sha256_file(path):

@@ -7,6 +7,10 @@ Layout::
                       "worker": "tcp://...", "size": 1551, "mtime_ns": ..., "sha256": "...",
                       "attempts": 1, "log": "logs/frame_0001.log"}, ...}}
 
+A multi-view (stereo) frame has, instead of ``file``/``size``/``mtime_ns``/``sha256``,
+``"views": {"_L": {"file": "frame_0001_L.png", "size": ..., "mtime_ns": ..., "sha256": ...},
+"_R": {...}}``; ``run["views"]`` lists the run's view suffixes (``[""]`` for one view).
+
 Only the client writes it (one writer), through a temp file and ``os.replace``,
 so a crash leaves the previous complete manifest.
 """
@@ -77,59 +81,80 @@ class Manifest:
 
 def file_entry(path, **extra):
     """A manifest entry for a frame file already on disk and valid."""
+    return {"status": "ok", **_file_record(path), **extra}
+
+
+def _file_record(path):
     st = os.stat(path)
-    return {
-        "status": "ok",
-        "file": os.path.basename(path),
-        "size": st.st_size,
-        "mtime_ns": st.st_mtime_ns,
-        "sha256": sha256_file(path),
-        **extra,
-    }
+    return {"file": os.path.basename(path), "size": st.st_size, "mtime_ns": st.st_mtime_ns, "sha256": sha256_file(path)}
 
 
-def classify(manifest, frames, fmt, verify=False):
+def views_entry(paths, views, **extra):
+    """A manifest entry for a multi-view frame whose files (one per view suffix) are on disk and valid."""
+    return {"status": "ok", "views": {v: _file_record(p) for v, p in zip(views, paths)}, **extra}
+
+
+def entry_files(entry, views):
+    """``[(view, record)]`` of an ``ok`` entry for ``views``; None when the entry is not for them."""
+    if not entry or entry.get("status") != "ok":
+        return None
+    if tuple(views) == ("",):
+        return [("", entry)] if "file" in entry else None
+    recorded = entry.get("views") or {}
+    if set(recorded) != set(views):
+        return None
+    return [(v, recorded[v]) for v in views]
+
+
+def _matches(record, name, st, path, verify):
+    return (
+        record.get("file") == name
+        and record.get("size") == st.st_size
+        and record.get("mtime_ns") == st.st_mtime_ns
+        and st.st_size > 0
+        and (not verify or record.get("sha256") == sha256_file(path))
+    )
+
+
+def classify(manifest, frames, fmt, verify=False, views=("",)):
     """Split ``frames`` into those already valid on disk and those to render.
 
-    A frame is valid when the manifest says ``ok`` and the file's size and
-    mtime match (``verify`` also compares the sha256); a file that is on disk
-    but not (or no longer) matching the manifest is checked with
-    :func:`~nephele.farm.frames.check_image` and adopted when whole.  Missing,
-    zero-byte and corrupt frames are to render.  The manifest is updated in
-    memory: adopted frames get an entry, re-rendered ones lose theirs.
+    A frame is valid when, for every view (``views``: file suffixes, ``("",)``
+    for one view, ``("_L", "_R")`` for stereo), the manifest records the file
+    as ``ok`` and its size and mtime match (``verify`` also compares the
+    sha256).  A frame whose files are all on disk but not (or no longer)
+    matching the manifest is checked with
+    :func:`~nephele.farm.frames.check_image` and adopted when every file is
+    whole.  A frame with any view missing, zero-byte or corrupt is to render
+    (all its views).  The manifest is updated in memory: adopted frames get
+    an entry, re-rendered ones lose theirs.
 
     Returns
     -------
     done, todo : list of int
     """
+    views = tuple(views)
     done, todo = [], []
     for f in frames:
-        name = frame_name(f, fmt)
-        path = manifest.out_dir / name
-        entry = manifest.entry(f)
+        paths = [manifest.out_dir / frame_name(f, fmt, v) for v in views]
         try:
-            st = os.stat(path)
+            stats = [os.stat(p) for p in paths]
         except FileNotFoundError:
             todo.append(f)
             manifest.frames.pop(str(f), None)
             continue
-        if (
-            entry
-            and entry.get("status") == "ok"
-            and entry.get("file") == name
-            and entry.get("size") == st.st_size
-            and entry.get("mtime_ns") == st.st_mtime_ns
-            and st.st_size > 0
-            and (not verify or entry.get("sha256") == sha256_file(path))
-        ):
+        records = entry_files(manifest.entry(f), views)
+        if records and all(_matches(r, p.name, st, p, verify) for (_, r), p, st in zip(records, paths, stats)):
             done.append(f)
             continue
         try:
-            check_image(path)
+            for p in paths:
+                check_image(p)
         except (InvalidFrame, OSError):
             todo.append(f)
             manifest.frames.pop(str(f), None)
             continue
-        manifest.set(f, file_entry(path, seconds=None, worker=None, attempts=0, adopted=True))
+        extra = dict(seconds=None, worker=None, attempts=0, adopted=True)
+        manifest.set(f, file_entry(paths[0], **extra) if views == ("",) else views_entry(paths, views, **extra))
         done.append(f)
     return done, todo

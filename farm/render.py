@@ -24,7 +24,7 @@ from pathlib import Path
 from ..core.errors import DataError
 from .cli import UsageError
 from .frames import FORMATS, TMP_DIR, InvalidFrame, check_image, chunks, format_frames, frame_name, parse_frames
-from .manifest import Manifest, classify, file_entry
+from .manifest import Manifest, classify, file_entry, views_entry
 
 ENGINES = ("CYCLES", "BLENDER_EEVEE", "BLENDER_WORKBENCH")
 DEVICES = ("CPU", "OPTIX", "CUDA", "HIP", "METAL", "ONEAPI")
@@ -51,12 +51,14 @@ class RenderResult:
     skipped: list = field(default_factory=list)
     failed: list = field(default_factory=list)
     seconds: float = 0.0
+    views: tuple = ("",)
+    """File suffixes of each frame's views: ``("",)``, or ``("_L", "_R")`` for stereo."""
 
     @property
     def paths(self):
-        """Paths of the valid frames, in frame order."""
+        """Paths of the valid frames, in frame order (every view of a frame, in view order)."""
         bad = set(self.failed)
-        return [self.out_dir / frame_name(f, self.fmt) for f in self.frames if f not in bad]
+        return [self.out_dir / frame_name(f, self.fmt, v) for f in self.frames if f not in bad for v in self.views]
 
     @property
     def ok(self):
@@ -257,6 +259,14 @@ def render_sequence(scene, frames, out_dir, *, workers=None, engine=None, sample
     verify : bool
         On resume, re-hash every frame against the manifest's sha256 instead of trusting size and mtime.
 
+    A stereo (multi-view) scene writes ``frame_0001_L.png`` and
+    ``frame_0001_R.png`` (Blender's view suffixes); a frame counts as done only
+    when every view is valid.  A scene with a dome rig and an engine without
+    panoramic cameras (EEVEE, Workbench) renders each frame through the
+    dome cube-map route (:func:`nephele.addon.dome_ops.render_dome_eevee`).
+    Which views a scene has is known once a worker has loaded it; resume
+    first assumes the views recorded by the previous run in ``OUT``.
+
     Returns
     -------
     RenderResult
@@ -278,10 +288,11 @@ def render_sequence(scene, frames, out_dir, *, workers=None, engine=None, sample
 
     with _lock(out):
         manifest = Manifest.load(out)
+        views = tuple(manifest.run.get("views") or ("",))  # the previous run's, until a worker says
         if overwrite:
             done, todo = [], list(frame_list)
         else:
-            done, todo = classify(manifest, frame_list, fmt, verify=verify)
+            done, todo = classify(manifest, frame_list, fmt, verify=verify, views=views)
         shutil.rmtree(out / TMP_DIR, ignore_errors=True)  # leftovers of a killed run
         settings = {
             "scene": str(scene_path), "frames": format_frames(frame_list), "engine": engine, "samples": samples,
@@ -289,10 +300,15 @@ def render_sequence(scene, frames, out_dir, *, workers=None, engine=None, sample
             "format": fmt,
             "scene_options": scene_options or {},
         }
-        manifest.run = {**settings, "started": _now(), "finished": None, "failed": []}
-        result = RenderResult(out, fmt, {}, frame_list, skipped=done)
+        manifest.run = {**settings, "views": list(views), "started": _now(), "finished": None, "failed": []}
+        result = RenderResult(out, fmt, {}, frame_list, skipped=done, views=views)
         if todo:
-            _render(manifest, result, todo, scene_path, kind, settings, out, workers=workers, chunk=chunk,
+            def reclassify(views):
+                if overwrite:
+                    return [], list(frame_list)
+                return classify(manifest, frame_list, fmt, verify=verify, views=views)
+
+            _render(manifest, result, todo, reclassify, scene_path, kind, settings, out, workers=workers, chunk=chunk,
                     retries=retries, timeout=timeout, scheduler=scheduler, security=security,
                     jobqueue=jobqueue, jobs=jobs, progress=progress, precompute=precompute,
                     cache_dir=cache_dir, total=len(frame_list), already=len(done))
@@ -307,8 +323,13 @@ def _now():
     return datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
 
 
-def _render(manifest, result, todo, scene_path, kind, settings, out, *, workers, chunk, retries, timeout,
+def _render(manifest, result, todo, reclassify, scene_path, kind, settings, out, *, workers, chunk, retries, timeout,
             scheduler, security, jobqueue, jobs, progress, precompute, cache_dir, total, already):
+    """Render ``todo`` on Dask into ``result``/``manifest``.
+
+    ``reclassify(views)`` gives ``(done, todo)`` again when the loaded scene's
+    views differ from those ``todo`` was planned with.
+    """
     from distributed import as_completed
 
     from .cluster import open_client
@@ -319,13 +340,19 @@ def _render(manifest, result, todo, scene_path, kind, settings, out, *, workers,
     spec = _spec(scene_path, kind, settings, cache_dir, out_dir=str(out), timeout=timeout)
     token = spec["token"]
     since_ns = time.time_ns() - 2_000_000_000  # frames this run moves into place are newer (2 s clock slack)
-    bar = Progress(total, already, enabled=progress)
-    attempts = {f: 0 for f in todo}
     futures = {}
     try:
         with open_client(workers=workers, scheduler=scheduler, security=security, jobqueue=jobqueue, jobs=jobs) as client:
             name, info = _start(client, spec)
-            manifest.run["worker_scene"] = {k: info[k] for k in ("engine", "size", "device", "threads")}
+            manifest.run["worker_scene"] = {k: info[k] for k in ("engine", "size", "device", "threads", "dome_route")}
+            views = tuple(info["views"])
+            if views != result.views:
+                result.views = views
+                manifest.run["views"] = list(views)
+                result.skipped, todo = reclassify(views)
+                already = len(result.skipped)
+            bar = Progress(total, already, enabled=progress)
+            attempts = {f: 0 for f in todo}
             deps = {}
             if precompute:
                 deps, pre = _precompute(client, info["objects"], todo, spec["cache_dir"])
@@ -341,13 +368,13 @@ def _render(manifest, result, todo, scene_path, kind, settings, out, *, workers,
                 futures[fut] = frames
                 return fut
 
-            pending = as_completed([submit(c) for c in chunks(todo, chunk)])
+            pending = as_completed([submit(c) for c in chunks(todo, chunk)] if todo else [])
             for fut in pending:
                 frames = futures.pop(fut)
                 try:
                     entries = fut.result()
                 except Exception as exc:  # the worker died (crash, kill, timeout) or the task was lost
-                    entries = {f: _after_lost_task(out, f, settings["format"], exc, since_ns) for f in frames}
+                    entries = {f: _after_lost_task(out, f, settings["format"], views, exc, since_ns) for f in frames}
                 retry = []
                 for f in frames:
                     e = entries[f]
@@ -365,7 +392,8 @@ def _render(manifest, result, todo, scene_path, kind, settings, out, *, workers,
                 for f in retry:
                     pending.add(submit([f]))
                 manifest.save(min_interval=0.5)
-            bar.update(None, None, final=True)
+            if todo:
+                bar.update(None, None, final=True)
             with contextlib.suppress(Exception):
                 client.unregister_worker_plugin(name)
     finally:
@@ -375,14 +403,16 @@ def _render(manifest, result, todo, scene_path, kind, settings, out, *, workers,
         manifest.save()
 
 
-def _after_lost_task(out, frame, fmt, exc, since_ns):
-    """Entry for a frame whose task did not return: kept if this run moved it into place whole, else failed."""
-    path = out / frame_name(frame, fmt)
-    log = f"logs/{path.stem}.log"
+def _after_lost_task(out, frame, fmt, views, exc, since_ns):
+    """Entry for a frame whose task did not return: kept if this run moved all its views into place whole, else failed."""
+    paths = [out / frame_name(frame, fmt, v) for v in views]
+    log = f"logs/{Path(frame_name(frame, fmt)).stem}.log"
     try:
-        check_image(path)
-        if path.stat().st_mtime_ns >= since_ns:
-            return file_entry(path, seconds=None, worker=None, log=log, recovered=True)
+        for path in paths:
+            check_image(path)
+        if all(path.stat().st_mtime_ns >= since_ns for path in paths):
+            extra = dict(seconds=None, worker=None, log=log, recovered=True)
+            return file_entry(paths[0], **extra) if views == ("",) else views_entry(paths, views, **extra)
     except (InvalidFrame, OSError):
         pass
     from distributed import KilledWorker

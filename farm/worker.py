@@ -10,7 +10,12 @@ driven from one thread.
 
 Each frame is rendered to ``OUT/.nephele-tmp/``, decoded with OpenImageIO
 (every pixel, expected size) and by :func:`~nephele.farm.frames.check_image`,
-fsync'ed, then moved into place with :func:`os.replace`.  Blender's output
+fsync'ed, then moved into place with :func:`os.replace`.  A multi-view
+(stereo) scene writes one file per view (``frame_0001_L.png``,
+``frame_0001_R.png``); all are checked before any is moved.  A scene with a
+dome rig (:mod:`nephele.addon.dome_ops`) and an engine without panoramic
+cameras (EEVEE, Workbench) is rendered through the cube-map route, since
+those engines would silently render the fisheye as a perspective view.  Blender's output
 during the frame goes to ``OUT/logs/frame_NNNN.log``.  Python errors that
 Blender swallows (a frame handler raising) are caught through
 ``sys.excepthook`` and fail the frame.  A per-frame timeout kills the worker
@@ -173,6 +178,7 @@ def load_scene(spec):
     r.use_file_extension = True
     r.use_overwrite = True
     r.use_placeholder = False
+    fit_dome(scene)
     return scene
 
 
@@ -302,53 +308,137 @@ def _fsync(path):
         os.close(fd)
 
 
-def render_one(scene, spec, frame, address):
-    """Render ``frame`` of the loaded ``scene`` into place; returns its manifest entry."""
+def output_views(scene):
+    """The file suffixes Blender writes each frame under: ``[""]``, or one per view (``["_L", "_R"]``).
+
+    Multi-view scenes saved as individual files (stereo 3D or multi-view
+    mode) write one file per view, the view's ``file_suffix`` inserted before
+    the extension; a stereo 3D image format (one packed file) is one view.
+    A dome rig rendered through the cube-map route writes ``_L`` / ``_R``
+    when the rig is stereo.
+    """
+    if _dome_cube_route(scene):
+        from ..addon import frame as nframe
+
+        return ["_L", "_R"] if nframe.params(_dome_rig(scene)).get("stereo") else [""]
+    r = scene.render
+    if not r.use_multiview or r.image_settings.views_format != "INDIVIDUAL":
+        return [""]
+    if r.views_format == "STEREO_3D":
+        return [r.views["left"].file_suffix, r.views["right"].file_suffix]
+    return [v.file_suffix for v in r.views if v.use]
+
+
+def _dome_rig(scene):
+    from ..addon import dome_ops
+
+    return dome_ops.dome_rig(scene)
+
+
+def _dome_cube_route(scene):
+    """True when the scene has a dome rig and an engine without panoramic cameras (EEVEE, Workbench).
+
+    Those engines would render the fisheye camera as a plain perspective
+    view; the frame is made from six cube faces per eye instead
+    (:func:`nephele.addon.dome_ops.render_dome_eevee`).
+    """
+    return scene.render.engine != "CYCLES" and _dome_rig(scene) is not None
+
+
+def fit_dome(scene):
+    """Make a dome rig's frame size the scene's output size (after ``--resolution``/``--percentage``).
+
+    The rig's cameras are re-set for the new aspect (Cycles) and its stored
+    size is what the cube-map route writes, so both routes give frames of the
+    size the worker checks.
+    """
+    rig = _dome_rig(scene)
+    if rig is None:
+        return
+    from ..addon import dome_ops, frame as nframe
+
+    r = scene.render
+    size = (r.resolution_x * r.resolution_percentage // 100, r.resolution_y * r.resolution_percentage // 100)
+    r.resolution_x, r.resolution_y, r.resolution_percentage = *size, 100
+    p = nframe.params(rig)
+    if (p["width"], p["height"]) == size:
+        return
+    p["width"], p["height"] = size
+    camera = dome_ops.dome_from_params(p)
+    for ob in rig.children:
+        if ob.type == "CAMERA":
+            dome_ops.configure_fisheye(ob.data, camera)
+    nframe.set_params(rig, p)
+
+
+def _render_to(scene, tmp):
+    """Render the current frame to ``tmp`` (Blender adds view suffixes); the dome cube route where needed."""
     import bpy
 
+    if _dome_cube_route(scene):
+        from ..addon import dome_ops
+
+        dome_ops.render_dome_eevee(tmp, scene=scene)
+        return
+    scene.render.filepath = str(tmp)
+    result = bpy.ops.render.render(write_still=True)
+    if "FINISHED" not in result:
+        raise FrameError(f"render operator returned {sorted(result)}")
+
+
+def render_one(scene, spec, frame, address):
+    """Render ``frame`` of the loaded ``scene`` into place; returns its manifest entry.
+
+    Every view's file (both eyes of a stereo frame) is decoded and checked
+    before any is moved into place; each move is an :func:`os.replace`.  A
+    crash between the moves leaves a frame with one eye new and the other old
+    or missing, which the client's resume check (every view valid) re-renders.
+    """
     out = Path(spec["out_dir"])
-    name = frame_name(frame, spec["fmt"])
-    log = out / "logs" / f"{Path(name).stem}.log"
-    tmp = out / TMP_DIR / f"{Path(name).stem}.{os.getpid()}.{time.monotonic_ns()}{FORMATS[spec['fmt']]}"
+    views = output_views(scene)
+    fmt = spec["fmt"]
+    stem = Path(frame_name(frame, fmt)).stem
+    log = out / "logs" / f"{stem}.log"
+    tmp = out / TMP_DIR / f"{stem}.{os.getpid()}.{time.monotonic_ns()}{FORMATS[fmt]}"
+    tmps = [tmp.with_name(f"{tmp.stem}{v}{tmp.suffix}") for v in views]
+    names = [frame_name(frame, fmt, v) for v in views]
     t0 = time.perf_counter()
     with open(log, "a") as f:
         f.write(f"=== frame {frame} on {address} (pid {os.getpid()}) {datetime.datetime.now().isoformat()} ===\n")
     try:
         with _logged(log), _watchdog(spec.get("timeout"), log), _swallowed_errors() as caught:
             scene.frame_set(frame)
-            scene.render.filepath = str(tmp)
-            result = bpy.ops.render.render(write_still=True)
+            _render_to(scene, tmp)
         if caught:  # the traceback itself is already in the log
             raise FrameError(f"a Python error during frame {frame}: {caught[0].strip().splitlines()[-1]}")
-        if "FINISHED" not in result:
-            raise FrameError(f"render operator returned {sorted(result)}")
-        if not tmp.is_file():
-            raise FrameError(f"Blender wrote no file for frame {frame}")
-        decode(tmp, expected_size(scene))
-        _fsync(tmp)
-        digest = sha256_file(tmp)
-        final = out / name
-        os.replace(tmp, final)
-        st = final.stat()
+        size = expected_size(scene)
+        records = []
+        for t, v in zip(tmps, views):
+            if not t.is_file():
+                raise FrameError(f"Blender wrote no file for frame {frame}" + (f" view {v}" if v else ""))
+            decode(t, size)
+            _fsync(t)
+            records.append(sha256_file(t))
+        stats = []
+        for t, name in zip(tmps, names):
+            os.replace(t, out / name)
+            stats.append((out / name).stat())
     except BaseException as exc:
         with open(log, "a") as f:
             f.write("".join(traceback.format_exception(exc)))
-        with contextlib.suppress(OSError):
-            tmp.unlink()
+        for t in tmps:
+            with contextlib.suppress(OSError):
+                t.unlink()
         raise
     seconds = time.perf_counter() - t0
     with open(log, "a") as f:
-        f.write(f"nephele: frame {frame} ok in {seconds:.3f} s -> {name}\n")
-    return {
-        "status": "ok",
-        "file": name,
-        "seconds": round(seconds, 4),
-        "worker": address,
-        "size": st.st_size,
-        "mtime_ns": st.st_mtime_ns,
-        "sha256": digest,
-        "log": str(log.relative_to(out)),
-    }
+        f.write(f"nephele: frame {frame} ok in {seconds:.3f} s -> {', '.join(names)}\n")
+    files = [{"file": n, "size": st.st_size, "mtime_ns": st.st_mtime_ns, "sha256": d}
+             for n, st, d in zip(names, stats, records)]
+    common = {"seconds": round(seconds, 4), "worker": address, "log": str(log.relative_to(out))}
+    if views == [""]:
+        return {"status": "ok", **files[0], **common}
+    return {"status": "ok", "views": dict(zip(views, files)), **common}
 
 
 def render_frames(name, frames, *needs):
@@ -379,9 +469,11 @@ def render_frames(name, frames, *needs):
 def probe(name):
     """Dask task: load the scene and report what the client needs before rendering.
 
-    Returns the engine, the frame size, the device, and the ``obj["nephele"]``
-    parameters of every Nephele object (for precompute).  Raises on a scene that
-    does not load or a device that is absent.
+    Returns the engine, the frame size, the device, the output views (file
+    suffixes), the dome route (``"cube"``, ``"fisheye"`` or None), and the
+    ``obj["nephele"]`` parameters of every Nephele object (for precompute).
+    Raises on a scene that does not load, a device that is absent, or EXR
+    output of the dome cube-map route.
     """
     plugin = _plugin(name)
     scene = plugin.ensure_loaded()
@@ -390,9 +482,17 @@ def probe(name):
         raw = obj.get("nephele")
         if raw:
             objects[obj.name] = json.loads(raw)
+    views = output_views(scene)
+    if plugin.spec["fmt"] == "EXR" and _dome_cube_route(scene):
+        from ..core.errors import DataError
+
+        raise DataError("the dome cube-map route (EEVEE, Workbench) writes 8-bit frames: use --format PNG, "
+                        "or --engine CYCLES for EXR dome frames", field="--format")
     return {
         "engine": scene.render.engine,
         "size": expected_size(scene),
+        "views": views,
+        "dome_route": "cube" if _dome_cube_route(scene) else ("fisheye" if _dome_rig(scene) is not None else None),
         "device": scene.cycles.device if scene.render.engine == "CYCLES" else None,
         "objects": objects,
         "threads": scene.render.threads,

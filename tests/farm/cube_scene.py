@@ -3,7 +3,8 @@
 Options: ``fail_frame`` makes a frame handler raise on that frame (a scene
 that breaks on one frame); ``delay`` sleeps that many seconds per frame, so
 tests can act in the middle of a run; ``hang_frame`` sleeps 60 s on that
-frame (for the timeout).
+frame (for the timeout); ``stereo`` renders both eyes (Blender's stereo 3D
+multi-view, one file per eye).
 """
 
 import time
@@ -11,7 +12,7 @@ import time
 import bpy
 
 
-def build(fail_frame=None, delay=0.0, hang_frame=None, size=(32, 24), engine="BLENDER_WORKBENCH"):
+def build(fail_frame=None, delay=0.0, hang_frame=None, size=(32, 24), engine="BLENDER_WORKBENCH", stereo=False):
     scene = bpy.context.scene
     mesh = bpy.data.meshes.new("cube")
     verts = [(x, y, z) for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]
@@ -35,6 +36,11 @@ def build(fail_frame=None, delay=0.0, hang_frame=None, size=(32, 24), engine="BL
     scene.render.resolution_x, scene.render.resolution_y = size
     scene.render.resolution_percentage = 100
     scene.frame_start, scene.frame_end = 1, 240
+    if stereo:
+        scene.render.use_multiview = True
+        scene.render.views_format = "STEREO_3D"
+        scene.render.image_settings.views_format = "INDIVIDUAL"
+        cam.data.stereo.interocular_distance = 0.6  # wide, so the eyes differ visibly at 32 px
     if engine == "CYCLES":
         scene.cycles.samples = 1
         scene.cycles.device = "CPU"
