@@ -258,9 +258,12 @@ def sub_phase_matrix(g, sub=4, out_sub=8):
 
 
 @lru_cache(maxsize=8)
-def _view_table(g, res, sub):
-    # Cube map of res x res directions per face: p_bar_j(w) = (1/Omega_j) int_j p(w'.w) dw'.
+def _view_table(g, res, sub, weights=None):
+    # Cube map of res x res directions per face: p_bar_j(w) = sum_a u_ja p(d_ja . w), with
+    # u_ja the solid-angle share of sub-square a of bin j (flux spread evenly over the bin)
+    # or the given weights (a known distribution inside each bin).
     _, omega, dirs, w = bins(sub)
+    u = w / omega[:, None] if weights is None else np.frombuffer(weights).reshape(NBINS, -1)
     edges = np.linspace(-1.0, 1.0, res + 1)
     mid = 0.5 * (edges[:-1] + edges[1:])
     uu, vv = np.meshgrid(mid, mid, indexing="ij")
@@ -268,21 +271,28 @@ def _view_table(g, res, sub):
     flat_d = dirs.reshape(-1, 3)
     for f in range(6):
         d = _face_dirs(f, uu, vv).reshape(-1, 3)
-        p = hg(d @ flat_d.T, g) * w.reshape(-1)[None, :]
-        table[f] = (p.reshape(-1, NBINS, dirs.shape[1]).sum(2) / omega[None, :]).reshape(res, res, NBINS)
+        p = hg(d @ flat_d.T, g) * u.reshape(-1)[None, :]
+        table[f] = p.reshape(-1, NBINS, dirs.shape[1]).sum(2).reshape(res, res, NBINS)
     table.setflags(write=False)
     return table
 
 
-def bin_phase_toward(directions, g, res=24, sub=6):
+def bin_phase_toward(directions, g, res=24, sub=6, weights=None):
     """``p_bar[n, j]``: HG averaged over incoming bin ``j``, toward each outgoing direction.
 
     Per steradian: the radiance scattered toward ``directions[n]`` by flux
-    spread uniformly over bin ``j``.  Looked up in a cube map of ``res x res``
-    directions per face (nearest), computed once per ``g``.
+    spread uniformly over bin ``j``, or with ``weights`` (96, sub*sub) (rows
+    summing to 1) distributed over the sub-squares of :func:`bins` ``(sub)``.
+    Looked up in a cube map of ``res x res`` directions per face (nearest),
+    computed once per ``g`` (and weights).
     """
     d = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
-    table = _view_table(float(g), int(res), int(sub))
+    if weights is not None:
+        weights = np.ascontiguousarray(weights, dtype=np.float64)
+        if weights.shape != (NBINS, int(sub) ** 2):
+            raise ValueError(f"bin_phase_toward: weights must have shape (96, {int(sub) ** 2})")
+        weights = weights.tobytes()
+    table = _view_table(float(g), int(res), int(sub), weights)
     axis = np.argmax(np.abs(d), axis=1)
     comp = d[np.arange(len(d)), axis]
     face = 2 * axis + (comp < 0)

@@ -11,7 +11,11 @@ passing through it, and the ``unshot`` scattered flux not yet propagated.
   ``albedo * R_sun * p(sun . view) / V`` with the exact phase function, so the
   narrow forward lobe (silver lining) is sharp.  For further scattering the
   sun's received flux is distributed over the bins with exact integrals of the
-  phase function about the true sun direction (:func:`.phase.direct_fractions`).
+  phase function about the true sun direction (:func:`.phase.direct_fractions`),
+  on 4x4 sub-directions per bin.  That once-scattered flux is still peaked
+  inside its bins, so it is intercepted per sub-direction and scattered again
+  from each sub-direction (:func:`.phase.sub_phase_matrix`) and, at render
+  time, toward the viewer with the same sub-direction weights.
 * Skylight (constant radiance from the upper hemisphere) enters through the
   boundary as 96 binned beams and is received like scattered flux.
 * Shooting passes (Gauss-Seidel by groups of bins): all voxels shoot the unshot
@@ -188,6 +192,8 @@ class Solution:
     received : (96, …) power intercepted per bin from scattered light and sky.
     total : (96, …) power passing through each voxel per bin (the paper's 'total' flux).
     received_sun : power intercepted from the direct sun beam.
+    received_first : (96, …) the part of ``received`` that was scattered once (by the sun).
+    first_weights : (96, s*s) how that flux is distributed over the sub-directions of each bin.
     unshot : (96, …) scattered power left unpropagated when the solve stopped.
     exit_flux : (96,) power leaving the grid through the far face of each bin's sweep.
     sun_exit : direct sun power leaving through the far face of the sun sweep.
@@ -207,6 +213,8 @@ class Solution:
     received: np.ndarray
     total: np.ndarray
     received_sun: np.ndarray
+    received_first: np.ndarray
+    first_weights: np.ndarray
     unshot: np.ndarray
     exit_flux: np.ndarray
     sun_exit: float
@@ -357,6 +365,7 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
     q = qs.sum(1)
     wq = np.where(q[:, None] > 1e-12, qs / np.maximum(q[:, None], 1e-300), 1.0 / qs.shape[1])
     fdirs = phase.bins(first_sub)[2]
+    received_first = np.zeros((NB,) + shape, np.float32)
     m_sub = phase.sub_phase_matrix(g_s, first_sub)  # (96, 96, first_sub**2)
     per = max(1, (1 << 24) // (fdirs.shape[1] * sigma.size))  # bins per sweep: <= 64 MB of float32
     for axis, group in groups:
@@ -366,6 +375,7 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
             r, tot, ex = _sweep(sig_s, h, fdirs[bs], wq[bs], em.reshape((len(bs),) + shape),
                                 np.zeros(wq[bs].shape), periodic, axis, per_sub=True)
             received[bs] += r.sum(1, dtype=np.float32)
+            received_first[bs] = r.sum(1, dtype=np.float32)
             total[bs] += tot.astype(np.float32)
             exit_flux[bs] += ex
             _scatter_into(unshot, m_sub[:, bs].reshape(NB, -1), r.reshape((-1,) + shape), alb_s)
@@ -411,7 +421,8 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
         sigma=sigma.astype(np.float32), size=size, albedo=float(albedo), g=float(g),
         sun_dir=tuple(float(v) for v in sun), sun_irradiance=float(sun_irradiance),
         sky_radiance=float(sky_radiance), received=received, total=total,
-        received_sun=r_sun.astype(np.float32), unshot=unshot, exit_flux=exit_flux,
+        received_sun=r_sun.astype(np.float32), received_first=received_first,
+        first_weights=wq.astype(np.float32), unshot=unshot, exit_flux=exit_flux,
         sun_exit=sun_exit, injected=injected, passes=passes, residual=residual,
         converged=bool(converged), history=history, sub=int(sub), periodic=periodic,
         albedo_binned=float(alb_s), g_binned=float(g_s), delta_f=float(f))
@@ -501,7 +512,9 @@ def view_source(sol, camera_position, chunk=1 << 15):
     first scattering of the sun plus the full phase function ``p`` (averaged
     over each bin) applied to the binned radiance ``R_j / (sigma* V Omega_j)``,
     ``sigma* = sigma (1 - albedo f)`` the delta-M scaled extinction the bins were
-    transported in (multiple scattering and sky).
+    transported in (multiple scattering and sky).  For the once-scattered part
+    of ``R_j`` (``received_first``) ``pbar_j`` weights the bin's sub-directions
+    as the sun's first scattering filled them (``first_weights``).
 
     Returns
     -------
@@ -525,9 +538,16 @@ def view_source(sol, camera_position, chunk=1 << 15):
     # Binned radiance in the real medium: L_j = R_j / (sigma* V Omega_j) with
     # sigma* = sigma (1 - albedo f), scattered by the full HG(g) of the real medium.
     diffuse = sol.albedo / (1.0 - sol.albedo * sol.delta_f) if sol.albedo * sol.delta_f < 1 else 0.0
+    rec1 = sol.received_first.reshape(NB, -1)
+    fw = np.asarray(sol.first_weights, np.float64)
+    sub = int(round(np.sqrt(fw.shape[1])))
     for s in range(0, len(pts), chunk):
-        pb = phase.bin_phase_toward(w[s:s + chunk], sol.g)
-        out[s:s + chunk] += diffuse * np.einsum("nj,jn->n", pb, rec[:, s:s + chunk])
+        ww = w[s:s + chunk]
+        pb = phase.bin_phase_toward(ww, sol.g)
+        p1 = phase.bin_phase_toward(ww, sol.g, res=48, sub=sub, weights=fw)
+        r1 = rec1[:, s:s + chunk]
+        out[s:s + chunk] += diffuse * (np.einsum("nj,jn->n", pb, rec[:, s:s + chunk] - r1)
+                                       + np.einsum("nj,jn->n", p1, r1))
     return (out / vol).reshape(shape).astype(np.float32)
 
 
@@ -600,7 +620,8 @@ def render(sigma, source, size, camera, *, step=0.4, background=0.0, chunk=8192)
 
 # --------------------------------------------------------------------------- files
 
-_ARRAYS = ("sigma", "received", "total", "received_sun", "unshot", "exit_flux")
+_ARRAYS = ("sigma", "received", "total", "received_sun", "received_first", "first_weights", "unshot",
+           "exit_flux")
 
 
 def save_solution(sol, path):

@@ -100,3 +100,22 @@ def test_sub_phase_matrix_matches_exact_fractions(g):
     dirs = phase.bins(4)[2]
     for j, a in [(90, 0), (90, 15), (3, 6), (50, 9)]:
         np.testing.assert_allclose(m[:, j, a], phase.direct_fractions(dirs[j, a], g, sub=48), atol=2e-3)
+
+
+def test_bin_phase_toward_with_weights():
+    _, omega, dirs, w = phase.bins(4)
+    d = np.random.default_rng(1).normal(size=(200, 3))
+    # even weights reproduce the bin average
+    np.testing.assert_allclose(phase.bin_phase_toward(d, 0.8, sub=4, weights=w / omega[:, None]),
+                               phase.bin_phase_toward(d, 0.8, sub=4), rtol=1e-12)
+    # all of bin 90's flux along one sub-direction: HG about that direction (cube-map cell centres)
+    u = np.full((96, 16), 1.0 / 16)
+    u[90] = 0.0
+    u[90, 5] = 1.0
+    res = 48
+    cells = phase._face_dirs(4, *np.meshgrid((np.arange(res) + 0.5) / res * 2 - 1, (np.arange(res) + 0.5) / res * 2 - 1,
+                                             indexing="ij")).reshape(-1, 3)
+    p = phase.bin_phase_toward(cells, 0.8, res=res, sub=4, weights=u)[:, 90]
+    np.testing.assert_allclose(p, phase.hg(cells @ dirs[90, 5], 0.8), rtol=1e-10)
+    with pytest.raises(ValueError):
+        phase.bin_phase_toward(d, 0.8, sub=4, weights=np.ones((96, 4)))
