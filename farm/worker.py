@@ -308,16 +308,18 @@ def _fsync(path):
         os.close(fd)
 
 
-def output_views(scene):
+def output_views(scene, cube=None):
     """The file suffixes Blender writes each frame under: ``[""]``, or one per view (``["_L", "_R"]``).
 
     Multi-view scenes saved as individual files (stereo 3D or multi-view
     mode) write one file per view, the view's ``file_suffix`` inserted before
     the extension; a stereo 3D image format (one packed file) is one view.
     A dome rig rendered through the cube-map route writes ``_L`` / ``_R``
-    when the rig is stereo.
+    when the rig is stereo (``cube``: whether that route is taken, if already known).
     """
-    if _dome_cube_route(scene):
+    if cube is None:
+        cube = _dome_cube_route(scene)
+    if cube:
         from ..addon import frame as nframe
 
         return ["_L", "_R"] if nframe.params(_dome_rig(scene)).get("stereo") else [""]
@@ -371,11 +373,11 @@ def fit_dome(scene):
     nframe.set_params(rig, p)
 
 
-def _render_to(scene, tmp):
-    """Render the current frame to ``tmp`` (Blender adds view suffixes); the dome cube route where needed."""
+def _render_to(scene, tmp, cube):
+    """Render the current frame to ``tmp`` (Blender adds view suffixes); ``cube``: the dome cube-map route."""
     import bpy
 
-    if _dome_cube_route(scene):
+    if cube:
         from ..addon import dome_ops
 
         dome_ops.render_dome_eevee(tmp, scene=scene)
@@ -395,7 +397,8 @@ def render_one(scene, spec, frame, address):
     or missing, which the client's resume check (every view valid) re-renders.
     """
     out = Path(spec["out_dir"])
-    views = output_views(scene)
+    cube = _dome_cube_route(scene)
+    views = output_views(scene, cube)
     fmt = spec["fmt"]
     stem = Path(frame_name(frame, fmt)).stem
     log = out / "logs" / f"{stem}.log"
@@ -408,7 +411,7 @@ def render_one(scene, spec, frame, address):
     try:
         with _logged(log), _watchdog(spec.get("timeout"), log), _swallowed_errors() as caught:
             scene.frame_set(frame)
-            _render_to(scene, tmp)
+            _render_to(scene, tmp, cube)
         if caught:  # the traceback itself is already in the log
             raise FrameError(f"a Python error during frame {frame}: {caught[0].strip().splitlines()[-1]}")
         size = expected_size(scene)

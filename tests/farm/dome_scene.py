@@ -31,7 +31,10 @@ def build(engine="BLENDER_EEVEE", preset="domemaster", size=(48, 48), stereo=Fal
     world.use_nodes = True
     world.node_tree.nodes["Background"].inputs["Color"].default_value = (sky, sky, sky, 1.0)
     world.node_tree.nodes["Background"].inputs["Strength"].default_value = 1.0
+    world.color = (sky, sky, sky)  # Workbench's background
     scene.world = world
+    scene.display.shading.light = "FLAT"  # Workbench: markers in their plain colours
+    scene.display.shading.color_type = "MATERIAL"
     scene.view_settings.view_transform = "Standard"
     for name, (el, az) in MARKERS.items():
         mesh = bpy.data.meshes.new(name)
@@ -47,6 +50,7 @@ def build(engine="BLENDER_EEVEE", preset="domemaster", size=(48, 48), stereo=Fal
         em.inputs["Strength"].default_value = 4.0
         out = nt.nodes.new("ShaderNodeOutputMaterial")
         nt.links.new(em.outputs[0], out.inputs[0])
+        mat.diffuse_color = (*COLOURS[name], 1.0)  # Workbench
         mesh.materials.append(mat)
         ob = bpy.data.objects.new(name, mesh)
         ob.location = tuple(DISTANCE * c for c in direction(el, az))

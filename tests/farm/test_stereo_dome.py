@@ -108,11 +108,52 @@ def _centroid(img, colour):
     return (w * cc).sum() / w.sum(), (w * rr).sum() / w.sum()
 
 
+def _dome_scene():
+    spec = importlib.util.spec_from_file_location("nephele_test_dome_scene", DOME)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _check_fisheye(img, cam, markers):
+    """Empty outside the fisheye circle, sky inside, each marker where the core mapping puts it."""
+    rows, cols = np.mgrid[: cam.height, : cam.width]
+    r = np.hypot(cols - cam.centre[0], rows - cam.centre[1])
+    rgb = img[..., :3]
+    # Outside the circle (1.5 px margin for antialiasing) the frame is empty; inside, the grey sky
+    # fills it.  A perspective view would be sky everywhere, corners included.
+    outside, inside = r > cam.radius + 1.5, r < cam.radius - 1.5
+    assert outside.sum() > 0.1 * r.size and rgb[outside].max() < 0.02
+    sky = np.median(rgb[inside], axis=0)
+    assert np.all(sky > 0.05) and np.abs(sky - sky.mean()).max() < 0.02
+    for name, (colour, direction) in markers.items():
+        col, row, vis = cam.direction_to_pixel(np.array(direction))
+        assert vis
+        found = _centroid(img, colour)
+        assert found is not None, f"{name} marker missing"
+        err = math.hypot(found[0] - col, found[1] - row)
+        assert err < 1.5, f"{name}: rendered at {found}, the core mapping says ({col:.2f}, {row:.2f})"
+
+
+@pytest.mark.parametrize("engine, route", [("BLENDER_WORKBENCH", "cube"), ("CYCLES", "fisheye")])
+def test_dome_resolution_override_resizes_the_rig(farm_cluster, tmp_path, engine, route):
+    """``--resolution`` on a dome scene: the rig follows, so both routes give the fisheye of the new size."""
+    ds = _dome_scene()
+    out = tmp_path / "dome"
+    res = render_sequence(DOME, "1", out, scheduler=farm_cluster.scheduler_address, progress=False,
+                          resolution=(40, 40), samples=4,
+                          scene_options={"engine": engine, "size": [48, 48], "face": 24})
+    assert res.ok, res.failure_report()
+    assert res.views == ("",) and res.manifest["run"]["worker_scene"]["dome_route"] == route
+    img = pixels(out / "frame_0001.png")
+    assert img.shape == (40, 40, 4)
+    cam = dome.dome_camera("domemaster", width=40, height=40)
+    _check_fisheye(img, cam, {n: (ds.COLOURS[n], ds.direction(*m)) for n, m in ds.MARKERS.items()})
+
+
 @pytest.mark.slow
 def test_eevee_dome_through_the_farm_is_a_fisheye(farm_cluster, tmp_path):
-    spec = importlib.util.spec_from_file_location("nephele_test_dome_scene", DOME)
-    dome_scene = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(dome_scene)
+    dome_scene = _dome_scene()
     out = tmp_path / "dome"
     size = (48, 48)
     res = render_sequence(DOME, "1", out, scheduler=farm_cluster.scheduler_address, progress=False,
@@ -122,25 +163,11 @@ def test_eevee_dome_through_the_farm_is_a_fisheye(farm_cluster, tmp_path):
     assert res.manifest["run"]["worker_scene"]["dome_route"] == "cube"
     assert sorted(p.name for p in out.iterdir()) == ["frame_0001_L.png", "frame_0001_R.png", "logs", "manifest.json"]
     cam = dome.dome_camera("domemaster", width=size[0], height=size[1])
-    rows, cols = np.mgrid[: size[1], : size[0]]
-    r = np.hypot(cols - cam.centre[0], rows - cam.centre[1])
+    markers = {n: (dome_scene.COLOURS[n], dome_scene.direction(*m)) for n, m in dome_scene.MARKERS.items()}
     for v in EYES:
         img = pixels(out / frame_name(1, "PNG", v))
         assert img.shape == (size[1], size[0], 4)
-        rgb = img[..., :3]
-        # Outside the fisheye circle (1.5 px margin for antialiasing) the frame is empty; inside, the
-        # grey sky fills it.  A perspective view would be sky everywhere, corners included.
-        outside, inside = r > cam.radius + 1.5, r < cam.radius - 1.5
-        assert outside.sum() > 0.1 * r.size and rgb[outside].max() < 0.02
-        sky = np.median(rgb[inside], axis=0)
-        assert np.all(sky > 0.05) and np.abs(sky - sky.mean()).max() < 0.02
-        for name, (el, az) in dome_scene.MARKERS.items():
-            col, row, vis = cam.direction_to_pixel(np.array(dome_scene.direction(el, az)))
-            assert vis
-            found = _centroid(img, dome_scene.COLOURS[name])
-            assert found is not None, f"{name} marker missing in eye {v}"
-            err = math.hypot(found[0] - col, found[1] - row)
-            assert err < 1.5, f"eye {v}, {name}: rendered at {found}, the core mapping says ({col:.2f}, {row:.2f})"
+        _check_fisheye(img, cam, markers)
 
 
 def test_dome_example_renders_through_the_farm(farm_cluster, tmp_path, capsys):
