@@ -183,8 +183,8 @@ def update_advected(obj, params, scene, frame_number):
     obj["nephele_hours"] = tp["hours"]
 
 
-def add_advected_texture(obj, *, strategy="restart", period=24, integrator="rk4", fractal=Fractal(), lo=0.08, hi=0.28,
-                         scene=None):
+def add_advected_texture(obj, *, strategy="restart", period=24, integrator="rk4", vertical="w", fractal=Fractal(),
+                         lo=0.08, hi=0.28, scene=None):
     """Give the contour object ``obj`` the advected cloud texture; returns ``obj``.
 
     Parameters
@@ -197,6 +197,9 @@ def add_advected_texture(obj, *, strategy="restart", period=24, integrator="rk4"
         ``period`` frames; compose: one copy composed frame by frame; full:
         the paper's trace back to the first frame, cost growing with the frame).
     integrator : {"rk4", "rk2", "euler"}
+    vertical : {"w", "levels"}
+        Vertical motion from ``w``, or points keep their level (see
+        :class:`nephele.core.advect.WindField`; exact for the demo climate).
     fractal : Fractal
     lo, hi : float
         Texture values mapped to fully transparent and fully opaque.
@@ -207,7 +210,10 @@ def add_advected_texture(obj, *, strategy="restart", period=24, integrator="rk4"
         raise ValueError(f"{obj.name} is not a Nephele contour surface (kind {params.get('kind')!r})")
     if strategy not in advect.STRATEGIES:
         raise ValueError(f"strategy must be one of {sorted(advect.STRATEGIES)}, got {strategy!r}")
-    params.update({"kind": KIND, "strategy": strategy, "period": int(period), "integrator": integrator})
+    if vertical not in ("w", "levels"):
+        raise ValueError(f"vertical must be 'w' or 'levels', got {vertical!r}")
+    params.update({"kind": KIND, "strategy": strategy, "period": int(period), "integrator": integrator,
+                   "vertical": vertical})
     frame.set_params(obj, params)
     obj.pop("nephele_shown", None)
     materials.assign(obj, cloud_material(f"{obj.name} advected texture", fractal, lo, hi))
@@ -234,6 +240,9 @@ class NEPHELE_OT_add_advected_texture(bpy.types.Operator):
     period: bpy.props.IntProperty(name="Restart period (frames)", default=24, min=2, step=2)
     integrator: bpy.props.EnumProperty(name="Integrator", default="rk4", items=[
         ("rk4", "RK4", ""), ("rk2", "RK2", ""), ("euler", "Euler", "")])
+    vertical: bpy.props.EnumProperty(name="Vertical motion", default="w", items=[
+        ("w", "From w", "Level rate from the vertical wind and the slope of the levels"),
+        ("levels", "Keep levels", "Points stay on their terrain-following level")])
     lo: bpy.props.FloatProperty(name="Clear below", default=0.08, min=0.0, max=1.0)
     hi: bpy.props.FloatProperty(name="Opaque above", default=0.28, min=0.0, max=1.0)
 
@@ -249,7 +258,8 @@ class NEPHELE_OT_add_advected_texture(bpy.types.Operator):
             return {"CANCELLED"}
         try:
             obj = add_advected_texture(context.active_object, strategy=self.strategy, period=self.period,
-                                       integrator=self.integrator, lo=self.lo, hi=max(self.hi, self.lo + 1e-3),
+                                       integrator=self.integrator, vertical=self.vertical, lo=self.lo,
+                                       hi=max(self.hi, self.lo + 1e-3),
                                        scene=context.scene)
         except (DataError, OSError, ValueError) as exc:
             self.report({"ERROR"}, str(exc))

@@ -144,6 +144,8 @@ def part2(quick):
     setups = [
         ("(c) restart P=24, incremental", "rk4", lambda: advect.RestartTrace(wind, fh, grid, period=24)),
         ("(c) restart P=24, incremental", "rk2", lambda: advect.RestartTrace(wind, fh, grid, period=24, method="rk2")),
+        ("(c) restart P=24, incremental, levels kept", "rk4",
+         lambda: advect.RestartTrace(advect.WindField(ds, vertical="levels"), fh, grid, period=24)),
         ("(b) compose, bicubic, band 4", "rk4", lambda: advect.ComposedTrace(wind, fh, grid)),
     ]
     for label, method, make in setups:

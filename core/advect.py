@@ -183,11 +183,19 @@ class WindField:
         Needs ``u`` and ``v`` (m/s); ``w`` (m/s) is optional.
     nan : {"error", "zero"}
         Missing winds raise :class:`DataError` naming the step, or count as calm.
+    vertical : {"w", "levels"}
+        ``"w"``: the level rate above; ``"levels"``: points keep their level
+        (``ds/dt = 0``), right when the data's ``w`` is just the lift of air
+        riding its terrain-following level (the demo's), whose finite-difference
+        reconstruction would otherwise add spurious vertical motion.
     """
 
-    def __init__(self, dataset, nan="error", cache_steps=6):
+    def __init__(self, dataset, nan="error", cache_steps=6, vertical="w"):
         if nan not in ("error", "zero"):
             raise ValueError(f"nan must be 'error' or 'zero', got {nan!r}")
+        if vertical not in ("w", "levels"):
+            raise ValueError(f"vertical must be 'w' or 'levels', got {vertical!r}")
+        self.vertical = vertical
         for name in ("u", "v"):
             if name not in dataset:
                 raise DataError("is needed to advect textures but the dataset has no such field", path=dataset.source, field=name)
@@ -245,8 +253,11 @@ class WindField:
                     )
                 a[bad] = 0.0
         vel = tangent_velocity(self._lon, self._lat, u, v) * (HOUR / EARTH_RADIUS)
-        wz = w if self._dhdx is None else w - u * self._dhdx - v * self._dhdy
-        sdot = wz * self._inv_dhds * HOUR
+        if self.vertical == "levels":
+            sdot = np.zeros_like(w)
+        else:
+            wz = w if self._dhdx is None else w - u * self._dhdx - v * self._dhdy
+            sdot = wz * self._inv_dhds * HOUR
         f = self.index.pad_rows(np.concatenate([vel, sdot[..., None]], axis=-1).astype(np.float32))
         self._speed[t] = (float(np.sqrt(np.max(np.sum(vel.astype(np.float64) ** 2, axis=-1)))), float(np.max(np.abs(sdot))))
         self._steps[t] = f
@@ -738,7 +749,8 @@ def great_circle_km(a, b):
 
 
 # ---------------------------------------------------------------- per-frame task
-ADVECT_DEFAULTS = {"strategy": "restart", "period": 24, "integrator": "rk4", "order": 3, "band": 4, "nan": "error"}
+ADVECT_DEFAULTS = {"strategy": "restart", "period": 24, "integrator": "rk4", "order": 3, "band": 4, "nan": "error",
+                   "vertical": "w"}
 """Texture-advection settings an advected contour object stores (besides its contour's)."""
 
 START = "nephele_start_{}"
@@ -774,15 +786,15 @@ def advect_task_params(obj_params, frame):
 
 def _strategy(params, ds):
     key = (params["stamp"], params["strategy"], params["period"], params["integrator"], params["order"], params["band"],
-           params["hours_per_frame"], params["nan"])
+           params["hours_per_frame"], params["nan"], params["vertical"])
     hit = _STRATEGIES.get(key)
     if hit is not None:  # kept per process, so frames rendered in order stream
         _STRATEGIES.move_to_end(key)
         return hit
-    wkey = (params["stamp"], params["nan"])
+    wkey = (params["stamp"], params["nan"], params["vertical"])
     wind = _WINDS.get(wkey)
     if wind is None:
-        wind = _WINDS[wkey] = WindField(ds, nan=params["nan"])
+        wind = _WINDS[wkey] = WindField(ds, nan=params["nan"], vertical=params["vertical"])
         while len(_WINDS) > 2:
             _WINDS.popitem(last=False)
     last = float(ds.hours[-1])

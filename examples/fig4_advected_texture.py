@@ -35,6 +35,7 @@ DEFAULTS = {
     "method": "cubes",
     "strategy": "restart",
     "period": 24,
+    "vertical": "levels",  # the demo's w is the lift of air riding its level: keep levels (exact there)
     "haze": True,
     "camera_lon": -40.0,
     "camera_lat": 30.0,
@@ -49,7 +50,7 @@ def build(**options):
     """Build the Fig. 4 scene into the current scene; returns a dict of the main objects.
 
     Options (see :data:`DEFAULTS`): ``source``, ``level``, ``hours_per_frame``,
-    ``exaggeration``, ``method``, ``strategy``, ``period``, ``haze``, ``camera_lon``, ``camera_lat``,
+    ``exaggeration``, ``method``, ``strategy``, ``period``, ``vertical``, ``haze``, ``camera_lon``, ``camera_lat``,
     ``camera_distance``, ``frames`` (first, last), ``size`` (w, h), ``samples``.
     """
     from nephele.addon import advect_ops, contour_ops, data_ops, frame, globe_ops
@@ -71,7 +72,8 @@ def build(**options):
                                      sun_strength=4.5)
     clouds = contour_ops.add_contour("cloud", o["level"], scene=scene, color_var="altitude",
                                      method=o["method"], name="Clouds 15%")
-    advect_ops.add_advected_texture(clouds, strategy=o["strategy"], period=int(o["period"]), scene=scene)
+    advect_ops.add_advected_texture(clouds, strategy=o["strategy"], period=int(o["period"]), vertical=o["vertical"],
+                                    scene=scene)
     camera = globe_ops.add_camera(scene, lon=o["camera_lon"], lat=o["camera_lat"], distance=o["camera_distance"])
 
     render = scene.render
@@ -109,6 +111,8 @@ def main(argv=None):
     ap.add_argument("--level", type=float, default=DEFAULTS["level"])
     ap.add_argument("--strategy", choices=("restart", "compose", "full"), default=DEFAULTS["strategy"])
     ap.add_argument("--period", type=int, default=DEFAULTS["period"], help="restart period in frames (even)")
+    ap.add_argument("--vertical", choices=("w", "levels"), default=DEFAULTS["vertical"],
+                    help="vertical motion from w, or keep levels (default; exact for the demo)")
     ap.add_argument("--hours-per-frame", type=float, default=DEFAULTS["hours_per_frame"], help="model hours per frame")
     ap.add_argument("--camera", type=float, nargs=3, metavar=("LON", "LAT", "DIST"),
                     default=(DEFAULTS["camera_lon"], DEFAULTS["camera_lat"], DEFAULTS["camera_distance"]))
@@ -117,7 +121,7 @@ def main(argv=None):
 
     bpy.ops.wm.read_factory_settings(use_empty=True)
     build(source=args.source, level=args.level, frames=args.frames, size=args.size, samples=args.samples,
-          haze=not args.no_haze, strategy=args.strategy, period=args.period, hours_per_frame=args.hours_per_frame,
+          haze=not args.no_haze, strategy=args.strategy, period=args.period, hours_per_frame=args.hours_per_frame, vertical=args.vertical,
           camera_lon=args.camera[0], camera_lat=args.camera[1], camera_distance=args.camera[2])
     scene = bpy.context.scene
     if args.save:

@@ -22,6 +22,8 @@ def add_arguments(p):
                    help="restart: 2 cross-faded copies; compose: one copy composed frame by frame; full: the paper's")
     p.add_argument("--period", type=int, default=24, help="restart period in frames (even, default 24)")
     p.add_argument("--integrator", choices=("rk4", "rk2", "euler"), default="rk4")
+    p.add_argument("--vertical", choices=("w", "levels"), default="w",
+                   help="vertical motion from w, or points keep their level (exact for the demo)")
     p.add_argument("--hours-per-frame", type=float, default=1.0)
     p.add_argument("--frame-start", type=int, default=1, help="frame showing model time 0 (default 1)")
     p.add_argument("--exaggeration", type=float, help="vertical exaggeration (default 30, as the add-on)")
@@ -61,6 +63,7 @@ def run(args):
         "radius": args.radius, "color_var": args.color_var, "method": args.method,
         "hours_per_frame": args.hours_per_frame, "frame_start": args.frame_start,
         "strategy": args.strategy, "period": args.period, "integrator": args.integrator,
+        "vertical": args.vertical,
     }
     cache = Cache(args.cache) if args.cache else Cache(default_cache_dir(args.blend))
     total = 0.0

@@ -277,3 +277,13 @@ def test_start_height_and_bad_inputs():
         advect.trace(wind, x, np.zeros(5), 1.0, 0.0, method="rk5")
     with pytest.raises(DataError, match="field 'v'"):
         advect.WindField(ArrayDataset(g, hourly("2000-01-01", 2), {"u": np.zeros((2,) + g.shape)}, source="x.nc"))
+
+
+def test_vertical_levels_mode_keeps_levels():
+    g = flat_grid(nk=4)
+    x = random_points(10)
+    wind = advect.WindField(wind_dataset(g, u=5.0, w=0.3), vertical="levels")
+    _, s0 = advect.trace(wind, x, np.full(10, 1.5), 3.0, 0.0)
+    np.testing.assert_allclose(s0, 1.5)
+    with pytest.raises(ValueError):
+        advect.WindField(wind_dataset(g), vertical="up")
