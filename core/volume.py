@@ -300,15 +300,23 @@ class _IndexTable:
         edges = self.axis[0] + np.arange(cells) / self.scale
         self.table = np.clip(np.searchsorted(self.axis, edges, side="right") - 1, 0, n - 2).astype(np.intp)
         self.cells = cells
+        # Cell bounds for the correction steps, open at the ends so that the
+        # index never leaves [0, n-2].
+        self.upper = self.axis[1:].copy()
+        self.upper[-1] = np.inf
+        self.lower = self.axis[:-1].copy()
+        self.lower[0] = -np.inf
 
     def __call__(self, x):
-        t = np.clip(((x - self.axis[0]) * self.scale), 0, self.cells - 1).astype(np.intp)
-        i = self.table[t]
+        t = x - self.axis[0]
+        t *= self.scale
+        np.maximum(t, 0, out=t)
+        np.minimum(t, self.cells - 1, out=t)
+        i = self.table[t.astype(np.intp)]
         # A table cell holds at most one axis point: one step up at most, and
         # one step down where rounding put x just below its cell's edge.
-        n = self.axis.size
-        i += (x >= self.axis[i + 1]) & (i < n - 2)
-        i -= (x < self.axis[i]) & (i > 0)
+        i += x >= self.upper[i]
+        i -= x < self.lower[i]
         return i
 
 
