@@ -121,7 +121,8 @@ def main(argv=None):
 
     bpy.ops.wm.read_factory_settings(use_empty=True)
     build(source=args.source, level=args.level, frames=args.frames, size=args.size, samples=args.samples,
-          haze=not args.no_haze, strategy=args.strategy, period=args.period, hours_per_frame=args.hours_per_frame, vertical=args.vertical,
+          haze=not args.no_haze, strategy=args.strategy, period=args.period, hours_per_frame=args.hours_per_frame,
+          vertical=args.vertical,
           camera_lon=args.camera[0], camera_lat=args.camera[1], camera_distance=args.camera[2])
     scene = bpy.context.scene
     if args.save:
