@@ -12,6 +12,14 @@ and zenith marked in orange).
     .venv/bin/python examples/dome_omnimax.py --out out/dome --full     # 2048x1500 and 2048x2048
     .venv/bin/python examples/dome_omnimax.py --out out/dome --engine eevee --mono   # cube-map route
 
+A film through the farm (``build()`` options with ``--set``; frame f shows the
+climate at ``hours_per_frame * (f - 1)`` h; stereo frames come out as
+``frame_NNNN_L.png`` / ``frame_NNNN_R.png``, EEVEE goes through the cube-map route)::
+
+    nephele render examples/dome_omnimax.py --frames 1-48 --out out/omni --set size='[512,375]'
+    nephele render examples/dome_omnimax.py --frames 1-48 --out out/dm --set preset=domemaster --set stereo=false
+    nephele post stereo out/omni --out out/omni_stereo
+
 References
 ----------
 .. [1] N. Max and R. Crawfis, "Advances in Scientific Visualization", Figs. 1 and 7.
@@ -39,6 +47,8 @@ DEFAULTS = {
     "haze": False,
     "size": None,
     "samples": 16,
+    "frames": (1, 1),
+    "hours_per_frame": 1.0,
 }
 SMALL = {"omnimax": (256, 188), "domemaster": (192, 192)}
 FULL = {"omnimax": (2048, 1500), "domemaster": (2048, 2048)}
@@ -70,7 +80,8 @@ def build(**options):
     Options (:data:`DEFAULTS`): ``preset``, ``stereo``, ``separation``,
     ``distance`` (of the audience from the globe's centre), ``elevation`` (of
     the globe's centre above the dome's front horizon), ``source``, ``haze``,
-    ``size`` (w, h; default small), ``samples``.
+    ``size`` (w, h; default small), ``samples``, ``frames`` (first, last: the
+    scene's frame range) and ``hours_per_frame`` (climate hours per frame).
     """
     from nephele.addon import dome_ops
     from nephele.core.grid import lonlat_to_xyz
@@ -80,7 +91,8 @@ def build(**options):
         raise TypeError(f"unknown options {sorted(unknown)}; known: {sorted(DEFAULTS)}")
     o = dict(DEFAULTS, **options)
     size = o["size"] or SMALL[o["preset"]]
-    objs = _fig1().build(source=o["source"], haze=o["haze"], samples=o["samples"], frames=(1, 1), size=size)
+    objs = _fig1().build(source=o["source"], haze=o["haze"], samples=o["samples"], frames=tuple(o["frames"]),
+                         hours_per_frame=o["hours_per_frame"], size=size)
     rig = dome_ops.add_dome_camera(o["preset"], width=size[0], height=size[1], stereo=o["stereo"],
                                    separation=o["separation"])
     eye = o["distance"] * lonlat_to_xyz(-40.0, 22.0)
