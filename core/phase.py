@@ -257,6 +257,32 @@ def sub_phase_matrix(g, sub=4, out_sub=8):
     return _sub_phase_matrix_cached(g, int(sub), int(out_sub))
 
 
+@lru_cache(maxsize=4)
+def _sub_sub_cached(g, sub, k):
+    _, _, dirs, _ = bins(sub)
+    _, _, od, ow = bins(sub * k)
+    flat_d = od.reshape(-1, 3)
+    ns = sub * sub
+    m = np.empty((NBINS, ns, NBINS, ns))
+    for j in range(NBINS):
+        q = hg(dirs[j] @ flat_d.T, g) * ow.reshape(-1)[None, :]
+        q /= q.sum(1, keepdims=True)
+        q = q.reshape(ns, NBINS, sub, k, sub, k).sum((3, 5)).reshape(ns, NBINS, ns)
+        m[:, :, j, :] = q.transpose(1, 2, 0)
+    m.setflags(write=False)
+    return m
+
+
+def sub_sub_phase_matrix(g, sub=4, k=2):
+    """``m[i, b, j, a]``: fraction of flux along sub-direction ``a`` of bin ``j`` that HG
+    scatters into sub-square ``b`` of bin ``i`` (:func:`bins` ``(sub)``), integrated on
+    ``k x k`` finer squares each and normalised per incoming direction."""
+    g = float(g)
+    if not -1.0 < g < 1.0:
+        raise ValueError(f"sub_sub_phase_matrix: g must be in (-1, 1), got {g}")
+    return _sub_sub_cached(g, int(sub), int(k))
+
+
 @lru_cache(maxsize=8)
 def _view_table(g, res, sub, weights=None):
     # Cube map of res x res directions per face: p_bar_j(w) = sum_a u_ja p(d_ja . w), with

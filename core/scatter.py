@@ -12,10 +12,11 @@ passing through it, and the ``unshot`` scattered flux not yet propagated.
   narrow forward lobe (silver lining) is sharp.  For further scattering the
   sun's received flux is distributed over the bins with exact integrals of the
   phase function about the true sun direction (:func:`.phase.direct_fractions`),
-  on 4x4 sub-directions per bin.  That once-scattered flux is still peaked
-  inside its bins, so it is intercepted per sub-direction and scattered again
-  from each sub-direction (:func:`.phase.sub_phase_matrix`) and, at render
-  time, toward the viewer with the same sub-direction weights.
+  on 4x4 sub-directions per bin.  That once-scattered flux, and the
+  twice-scattered flux it makes, are still peaked inside their bins, so they
+  are swept on weighted sub-directions, intercepted per sub-direction and
+  scattered again from each sub-direction (:func:`.phase.sub_phase_matrix`)
+  and, at render time, toward the viewer with the same weights.
 * Skylight (constant radiance from the upper hemisphere) enters through the
   boundary as 96 binned beams and is received like scattered flux.
 * Shooting passes (Gauss-Seidel by groups of bins): all voxels shoot the unshot
@@ -192,8 +193,8 @@ class Solution:
     received : (96, …) power intercepted per bin from scattered light and sky.
     total : (96, …) power passing through each voxel per bin (the paper's 'total' flux).
     received_sun : power intercepted from the direct sun beam.
-    received_first : (96, …) the part of ``received`` that was scattered once (by the sun).
-    first_weights : (96, s*s) how that flux is distributed over the sub-directions of each bin.
+    received_peaked : (2, 96, …) the parts of ``received`` scattered once and twice (sun light).
+    peaked_weights : (2, 96, s*s) how those are distributed over the sub-directions of each bin.
     unshot : (96, …) scattered power left unpropagated when the solve stopped.
     exit_flux : (96,) power leaving the grid through the far face of each bin's sweep.
     sun_exit : direct sun power leaving through the far face of the sun sweep.
@@ -213,8 +214,8 @@ class Solution:
     received: np.ndarray
     total: np.ndarray
     received_sun: np.ndarray
-    received_first: np.ndarray
-    first_weights: np.ndarray
+    received_peaked: np.ndarray
+    peaked_weights: np.ndarray
     unshot: np.ndarray
     exit_flux: np.ndarray
     sun_exit: float
@@ -354,31 +355,50 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
     r_sun_s, sun_exit = sun_sweep(sig_s) if f > 0 else (r_sun, sun_exit_real)
     injected = float(r_sun_s.sum())
 
-    # The sun's first scattering, shot at once on first_sub x first_sub sub-directions
-    # weighted by the exact phase function about the true sun direction: the forward
-    # lobe keeps its shape inside its bins.  Its interceptions are kept per
-    # sub-direction and scattered again from each sub-direction's own direction
-    # (phase.sub_phase_matrix): treating this still forward-peaked flux as uniform
-    # over its bin overstated the second scattering's reflectance (slab tau=4,
-    # g=0.8: R +0.011 -> +0.009 against adding-doubling).
+    # The sun's first scattering, shot on first_sub x first_sub sub-directions per bin
+    # weighted by the exact phase function about the true sun direction, so the
+    # forward lobe keeps its shape inside its bins.  This once-scattered flux, and
+    # the twice-scattered flux it makes, are still peaked inside their bins:
+    # treating them as spread evenly over a bin (the 96x96 matrix) overstates the
+    # next scattering's reflectance (slab tau=4, g=0.8 against adding-doubling:
+    # R +0.0114 evenly, +0.0088 with order 1 per sub-direction, +0.0070 with
+    # orders 1 and 2).  So both are intercepted per sub-direction and scattered
+    # from each sub-direction's own direction (phase.sub_phase_matrix); order 2
+    # is shot on sub-direction weights of each bin summed over the grid
+    # (phase.sub_sub_phase_matrix applied to order 1's interceptions).
     qs = phase.direct_fractions(prop, g_s, sub=48, into_sub=first_sub)
     q = qs.sum(1)
     wq = np.where(q[:, None] > 1e-12, qs / np.maximum(q[:, None], 1e-300), 1.0 / qs.shape[1])
     fdirs = phase.bins(first_sub)[2]
-    received_first = np.zeros((NB,) + shape, np.float32)
     m_sub = phase.sub_phase_matrix(g_s, first_sub)  # (96, 96, first_sub**2)
     per = max(1, (1 << 24) // (fdirs.shape[1] * sigma.size))  # bins per sweep: <= 64 MB of float32
-    for axis, group in groups:
-        for s in range(0, len(group), per):
-            bs = group[s:s + per]
-            em = (alb_s * q[bs])[:, None] * r_sun_s.reshape(1, -1)
-            r, tot, ex = _sweep(sig_s, h, fdirs[bs], wq[bs], em.reshape((len(bs),) + shape),
-                                np.zeros(wq[bs].shape), periodic, axis, per_sub=True)
-            received[bs] += r.sum(1, dtype=np.float32)
-            received_first[bs] = r.sum(1, dtype=np.float32)
-            total[bs] += tot.astype(np.float32)
-            exit_flux[bs] += ex
-            _scatter_into(unshot, m_sub[:, bs].reshape(NB, -1), r.reshape((-1,) + shape), alb_s)
+
+    def shoot_peaked(emission, weights):
+        """Shoot ``emission(bins)`` on the sub-directions with ``weights``; scatter per sub-direction."""
+        rec = np.zeros((NB,) + shape, np.float32)
+        rsub = np.zeros(weights.shape)
+        for axis, group in groups:
+            for s in range(0, len(group), per):
+                bs = group[s:s + per]
+                r, tot, ex = _sweep(sig_s, h, fdirs[bs], weights[bs], emission(bs), np.zeros(weights[bs].shape),
+                                    periodic, axis, per_sub=True)
+                rec[bs] = r.sum(1, dtype=np.float32)
+                rsub[bs] = r.reshape(len(bs), r.shape[1], -1).sum(2, dtype=np.float64)
+                total[bs] += tot.astype(np.float32)
+                exit_flux[bs] += ex
+                _scatter_into(unshot, m_sub[:, bs].reshape(NB, -1), r.reshape((-1,) + shape), alb_s)
+        received[:] += rec
+        return rec, rsub
+
+    rec1, rsub1 = shoot_peaked(lambda bs: ((alb_s * q[bs])[:, None] * r_sun_s.reshape(1, -1))
+                               .reshape((len(bs),) + shape), wq)
+    w2 = np.einsum("ibja,ja->ib", phase.sub_sub_phase_matrix(g_s, first_sub), rsub1)
+    w2 = np.where(w2.sum(1, keepdims=True) > 0, w2 / np.maximum(w2.sum(1, keepdims=True), 1e-300),
+                  1.0 / w2.shape[1])
+    second = unshot.copy()
+    unshot[:] = 0.0
+    rec2, _ = shoot_peaked(lambda bs: second[bs], w2)
+    del second
 
     # The sky: binned beams entering through the boundary, travelling downward.
     if sky_radiance > 0:
@@ -421,8 +441,8 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
         sigma=sigma.astype(np.float32), size=size, albedo=float(albedo), g=float(g),
         sun_dir=tuple(float(v) for v in sun), sun_irradiance=float(sun_irradiance),
         sky_radiance=float(sky_radiance), received=received, total=total,
-        received_sun=r_sun.astype(np.float32), received_first=received_first,
-        first_weights=wq.astype(np.float32), unshot=unshot, exit_flux=exit_flux,
+        received_sun=r_sun.astype(np.float32), received_peaked=np.stack([rec1, rec2]),
+        peaked_weights=np.stack([wq, w2]).astype(np.float32), unshot=unshot, exit_flux=exit_flux,
         sun_exit=sun_exit, injected=injected, passes=passes, residual=residual,
         converged=bool(converged), history=history, sub=int(sub), periodic=periodic,
         albedo_binned=float(alb_s), g_binned=float(g_s), delta_f=float(f))
@@ -512,9 +532,9 @@ def view_source(sol, camera_position, chunk=1 << 15):
     first scattering of the sun plus the full phase function ``p`` (averaged
     over each bin) applied to the binned radiance ``R_j / (sigma* V Omega_j)``,
     ``sigma* = sigma (1 - albedo f)`` the delta-M scaled extinction the bins were
-    transported in (multiple scattering and sky).  For the once-scattered part
-    of ``R_j`` (``received_first``) ``pbar_j`` weights the bin's sub-directions
-    as the sun's first scattering filled them (``first_weights``).
+    transported in (multiple scattering and sky).  For the once- and twice-scattered
+    parts of ``R_j`` (``received_peaked``) ``pbar_j`` weights the bin's
+    sub-directions as the solve filled them (``peaked_weights``).
 
     Returns
     -------
@@ -538,16 +558,17 @@ def view_source(sol, camera_position, chunk=1 << 15):
     # Binned radiance in the real medium: L_j = R_j / (sigma* V Omega_j) with
     # sigma* = sigma (1 - albedo f), scattered by the full HG(g) of the real medium.
     diffuse = sol.albedo / (1.0 - sol.albedo * sol.delta_f) if sol.albedo * sol.delta_f < 1 else 0.0
-    rec1 = sol.received_first.reshape(NB, -1)
-    fw = np.asarray(sol.first_weights, np.float64)
-    sub = int(round(np.sqrt(fw.shape[1])))
+    peaked = sol.received_peaked.reshape(len(sol.received_peaked), NB, -1)
+    fw = np.asarray(sol.peaked_weights, np.float64)
+    sub = int(round(np.sqrt(fw.shape[2])))
     for s in range(0, len(pts), chunk):
         ww = w[s:s + chunk]
-        pb = phase.bin_phase_toward(ww, sol.g)
-        p1 = phase.bin_phase_toward(ww, sol.g, res=48, sub=sub, weights=fw)
-        r1 = rec1[:, s:s + chunk]
-        out[s:s + chunk] += diffuse * (np.einsum("nj,jn->n", pb, rec[:, s:s + chunk] - r1)
-                                       + np.einsum("nj,jn->n", p1, r1))
+        rest = rec[:, s:s + chunk] - peaked[:, :, s:s + chunk].sum(0)
+        acc = np.einsum("nj,jn->n", phase.bin_phase_toward(ww, sol.g), rest)
+        for k in range(len(peaked)):
+            pk = phase.bin_phase_toward(ww, sol.g, res=48, sub=sub, weights=fw[k])
+            acc += np.einsum("nj,jn->n", pk, peaked[k][:, s:s + chunk])
+        out[s:s + chunk] += diffuse * acc
     return (out / vol).reshape(shape).astype(np.float32)
 
 
@@ -620,7 +641,7 @@ def render(sigma, source, size, camera, *, step=0.4, background=0.0, chunk=8192)
 
 # --------------------------------------------------------------------------- files
 
-_ARRAYS = ("sigma", "received", "total", "received_sun", "received_first", "first_weights", "unshot",
+_ARRAYS = ("sigma", "received", "total", "received_sun", "received_peaked", "peaked_weights", "unshot",
            "exit_flux")
 
 

@@ -119,3 +119,15 @@ def test_bin_phase_toward_with_weights():
     np.testing.assert_allclose(p, phase.hg(cells @ dirs[90, 5], 0.8), rtol=1e-10)
     with pytest.raises(ValueError):
         phase.bin_phase_toward(d, 0.8, sub=4, weights=np.ones((96, 4)))
+
+
+def test_sub_sub_phase_matrix_refines_sub_phase_matrix():
+    m = phase.sub_sub_phase_matrix(0.8, sub=4, k=2)
+    assert m.shape == (96, 16, 96, 16)
+    np.testing.assert_allclose(m.sum((0, 1)), 1.0, atol=1e-12)
+    np.testing.assert_allclose(m.sum(1), phase.sub_phase_matrix(0.8, sub=4, out_sub=8), atol=1e-12)
+    assert np.all(m >= 0)
+    # against the exact integral about one sub-direction, on 2x2 finer squares per sub-square
+    d = phase.bins(4)[2][37, 6]
+    q = phase.direct_fractions(d, 0.8, sub=48, into_sub=4)
+    np.testing.assert_allclose(m[:, :, 37, 6], q, atol=2e-3)
