@@ -303,10 +303,12 @@ class ScatterJob:
         self.sun = sun_direction(props.sun_elevation, props.sun_azimuth)
         self.directory = output_directory(props.directory)
         self.frames = list(range(self.scene.frame_start, self.scene.frame_end + 1))
-        self.gen = scatter.solve_steps(
-            self.sigma, self.size, albedo=props.albedo, g=props.anisotropy, sun_dir=self.sun,
+        # the same solve as the farm's "scatter" task (nephele precompute), cached under its key
+        self.task = scatter.task_params(
+            self.params, props.extinction, albedo=props.albedo, g=props.anisotropy, sun_dir=list(self.sun),
             sun_irradiance=props.sun_irradiance, sky_radiance=props.sky_radiance,
             tol=props.tolerance, max_passes=props.max_passes)
+        self.gen = scatter.solve_steps(self.sigma, self.size, **self.task["solve"])
         self.solution = None
         self.last = None
         self.view_index = 0
@@ -352,6 +354,10 @@ class ScatterJob:
                 except StopIteration as stop:
                     self.solution = stop.value
                     scatter.save_solution(self.solution, self.directory / "solution.npz")
+                    from ..core.cache import Cache, default_cache_dir
+
+                    Cache(default_cache_dir(bpy.data.filepath or None)).store(
+                        "scatter", self.task, scatter.solution_arrays(self.solution))
             elif self.view_index < len(self.frames):
                 self._write_view(self.frames[self.view_index])
                 self.view_index += 1
@@ -381,7 +387,8 @@ class ScatterJob:
         obj.location = self.origin
         obj.data.materials.append(emission_material())
         frame.set_params(obj, {"kind": KIND, "directory": str(self.directory), "frames": self.frames,
-                               "report": self.solution.report, "sun_dir": list(self.sun)})
+                               "report": self.solution.report, "sun_dir": list(self.sun),
+                               "solve_task": self.task})
         self.obj = obj
         self.props.status = self.solution.report
 

@@ -67,6 +67,7 @@ import numpy as np
 
 from . import phase
 from .errors import DataError
+from .tasks import planner, task
 
 NB = phase.NBINS
 
@@ -645,17 +646,30 @@ _ARRAYS = ("sigma", "received", "total", "received_sun", "received_peaked", "pea
            "exit_flux")
 
 
-def save_solution(sol, path):
-    """Write a :class:`Solution` to ``path`` (.npz: plain arrays + JSON metadata, no pickle), atomically."""
+def solution_arrays(sol):
+    """A :class:`Solution` as a dict of plain arrays (metadata as a JSON string array)."""
     meta = {k: getattr(sol, k) for k in sol.__dataclass_fields__ if k not in _ARRAYS}
     meta = json.loads(json.dumps(meta, default=float))
+    return {"meta": np.array(json.dumps(meta)), **{k: getattr(sol, k) for k in _ARRAYS}}
+
+
+def solution_from_arrays(arrays):
+    """Inverse of :func:`solution_arrays`."""
+    meta = json.loads(str(arrays["meta"]))
+    for k in ("size", "sun_dir", "periodic"):
+        meta[k] = tuple(meta[k])
+    return Solution(**{k: np.asarray(arrays[k]) for k in _ARRAYS}, **meta)
+
+
+def save_solution(sol, path):
+    """Write a :class:`Solution` to ``path`` (.npz: plain arrays + JSON metadata, no pickle), atomically."""
     path = os.fspath(path)
     d = os.path.dirname(os.path.abspath(path))
     os.makedirs(d, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=d, suffix=".npz")
     os.close(fd)
     with open(tmp, "wb") as f:
-        np.savez(f, meta=np.array(json.dumps(meta)), **{k: getattr(sol, k) for k in _ARRAYS})
+        np.savez(f, **solution_arrays(sol))
     os.replace(tmp, path)
     return path
 
@@ -664,10 +678,44 @@ def load_solution(path):
     """Read a :class:`Solution` written by :func:`save_solution`."""
     try:
         z = np.load(path, allow_pickle=False)
-        meta = json.loads(str(z["meta"]))
-        arrays = {k: z[k] for k in _ARRAYS}
-    except (OSError, KeyError, ValueError) as exc:
+        return solution_from_arrays({k: z[k] for k in ("meta",) + _ARRAYS})
+    except (OSError, KeyError, ValueError, TypeError) as exc:
         raise DataError(f"not a scattering solution file ({exc})", path=path) from exc
-    for k in ("size", "sun_dir", "periodic"):
-        meta[k] = tuple(meta[k])
-    return Solution(**arrays, **meta)
+
+
+# --------------------------------------------------------------------------- farm task
+
+_SOLVE_KEYS = ("albedo", "g", "sun_dir", "sun_irradiance", "sky_radiance", "tol", "max_passes")
+
+
+def task_params(cloud, extinction=40.0, **solve):
+    """JSON parameters of the ``"scatter"`` task: a cloud (:class:`.cloud_density.CloudParams`),
+    its extinction per unit density and :func:`solve` keywords (``_SOLVE_KEYS``)."""
+    from dataclasses import asdict
+
+    bad = sorted(set(solve) - set(_SOLVE_KEYS))
+    if bad:
+        raise DataError(f"unknown scattering parameters {bad}", field="scatter")
+    return json.loads(json.dumps({"cloud": asdict(cloud), "extinction": float(extinction), "solve": solve},
+                                 default=float))
+
+
+@task("scatter")
+def solve_task(params):
+    """The ``"scatter"`` task: build the cloud of :func:`task_params` and solve it;
+    returns :func:`solution_arrays` (:func:`solution_from_arrays` reads them back)."""
+    from . import cloud_density as cd
+
+    c = dict(params["cloud"])
+    c["ellipsoids"] = tuple(cd.Ellipsoid(tuple(e["center"]), tuple(e["radii"]), float(e["weight"]))
+                            for e in c.get("ellipsoids", ()))
+    for k in ("shape", "size"):
+        c[k] = tuple(c[k])
+    sigma = float(params["extinction"]) * cd.cloud_density(cd.CloudParams(**c))
+    return solution_arrays(solve(sigma, c["size"], **params["solve"]))
+
+
+@planner("scatter")
+def plan_solve(obj_params, frame):
+    """A scattering cloud object needs its one solve (the same task for every frame)."""
+    return [("scatter", obj_params["solve_task"])] if "solve_task" in obj_params else []

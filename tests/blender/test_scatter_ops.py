@@ -24,7 +24,8 @@ def test_panel_and_operator_registered(empty_scene):
     assert hasattr(bpy.ops.nephele, "add_scattering_cloud")
 
 
-def test_operator_writes_volume_sequence(empty_scene, tmp_path):
+def test_operator_writes_volume_sequence(empty_scene, tmp_path, monkeypatch):
+    monkeypatch.setenv("NEPHELE_CACHE", str(tmp_path / "cache"))
     scene = empty_scene
     _setup(scene, tmp_path, frames=2)
     assert bpy.ops.nephele.add_scattering_cloud() == {"FINISHED"}
@@ -46,6 +47,13 @@ def test_operator_writes_volume_sequence(empty_scene, tmp_path):
     scene.frame_set(2)
     cam = np.array(scene.camera.matrix_world.translation) - np.array(obj.location)
     np.testing.assert_allclose(arr.transpose(2, 1, 0), scatter.view_source(sol, cam), rtol=1e-5, atol=1e-9)
+    # the farm's plan for the object is the solve the operator ran, already in the cache
+    from nephele.addon import frame
+    from nephele.core import cache, tasks
+
+    kind, params = tasks.plan(frame.params(obj), 2)[0]
+    cached = cache.Cache(tmp_path / "cache").load(kind, params)
+    np.testing.assert_array_equal(scatter.solution_from_arrays(cached).received, sol.received)
 
 
 def test_job_runs_in_small_steps(empty_scene, tmp_path):

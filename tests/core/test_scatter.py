@@ -165,3 +165,23 @@ def test_save_load_roundtrip(tmp_path):
     (tmp_path / "bad.npz").write_bytes(b"nope")
     with pytest.raises(DataError):
         scatter.load_solution(tmp_path / "bad.npz")
+
+
+def test_scatter_task_matches_solve_and_is_planned(tmp_path):
+    from nephele.core import cloud_density as cd
+    from nephele.core import tasks
+
+    cloud = cd.CloudParams(shape=(6, 8, 8), size=(1.0, 1.0, 0.75), seed=3)
+    params = scatter.task_params(cloud, 30.0, albedo=0.9, g=0.8, sun_dir=[0.3, 0.1, 1.0], tol=1e-2)
+    arrays = tasks.run_cached("scatter", params, tmp_path)
+    again = tasks.run_cached("scatter", params, tmp_path)  # from the cache
+    sol = scatter.solve(30.0 * cd.cloud_density(cloud), cloud.size, albedo=0.9, g=0.8, sun_dir=(0.3, 0.1, 1.0),
+                        tol=1e-2)
+    for a in (arrays, again):
+        back = scatter.solution_from_arrays(a)
+        assert back.report == sol.report
+        np.testing.assert_array_equal(back.received, sol.received)
+    assert tasks.plan({"kind": "scatter", "solve_task": params}, 7) == [("scatter", params)]
+    assert tasks.plan({"kind": "scatter"}, 7) == []
+    with pytest.raises(DataError):
+        scatter.task_params(cloud, 30.0, colour="red")
