@@ -312,7 +312,8 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
         ``g^8`` / no scaling (thick slabs), and it needs fewer passes.
     phase_sub : sub-squares per bin side for the phase matrix integrals.
     first_sub : sub-directions per bin side (a divisor of 48) carrying the sun's first
-        scattering, weighted by the exact phase function within each bin.
+        scattering (weighted by the exact phase function within each bin) and its second
+        (weighted by the first's interceptions scattered per sub-direction).
 
     References
     ----------
