@@ -21,7 +21,6 @@ References
    textures", Proc. Visualization '92.
 """
 
-import argparse
 import sys
 from pathlib import Path
 
@@ -53,61 +52,27 @@ def build(**options):
     ``exaggeration``, ``method``, ``strategy``, ``period``, ``vertical``, ``haze``, ``camera_lon``, ``camera_lat``,
     ``camera_distance``, ``frames`` (first, last), ``size`` (w, h), ``samples``.
     """
-    from nephele.addon import advect_ops, contour_ops, data_ops, frame, globe_ops
-    from nephele.core.grid import DEFAULT_EXAGGERATION
+    from nephele.addon import advect_ops, contour_ops, frame, globe_ops, globe_scene
 
-    unknown = set(options) - set(DEFAULTS)
-    if unknown:
-        raise TypeError(f"unknown options {sorted(unknown)}; known: {sorted(DEFAULTS)}")
-    o = dict(DEFAULTS, **options)
+    o = globe_scene.merge_options(DEFAULTS, options)
     scene = bpy.context.scene
-    exaggeration = DEFAULT_EXAGGERATION if o["exaggeration"] is None else float(o["exaggeration"])
-    data_ops.set_settings(scene, source=o["source"], hours_per_frame=o["hours_per_frame"],
-                          frame_start=int(o["frames"][0]), exaggeration=exaggeration, radius=1.0)
-    scene.frame_start, scene.frame_end = int(o["frames"][0]), int(o["frames"][1])
-    scene.frame_current = scene.frame_start
-
-    globe = globe_ops.add_globe(scene=scene)
-    sky = globe_ops.add_sky_and_haze(scene, haze=bool(o["haze"]), sun_direction=(0.55, -0.75, 0.35),
-                                     sun_strength=4.5)
+    globe, sky = globe_scene.globe_scene(scene, o, sun_direction=(0.55, -0.75, 0.35), haze=bool(o["haze"]))
     clouds = contour_ops.add_contour("cloud", o["level"], scene=scene, color_var="altitude",
                                      method=o["method"], name="Clouds 15%")
     advect_ops.add_advected_texture(clouds, strategy=o["strategy"], period=int(o["period"]), vertical=o["vertical"],
                                     scene=scene)
     camera = globe_ops.add_camera(scene, lon=o["camera_lon"], lat=o["camera_lat"], distance=o["camera_distance"])
 
-    render = scene.render
-    render.engine = "CYCLES"
-    scene.cycles.device = "CPU"
-    scene.cycles.samples = int(o["samples"])
-    scene.cycles.use_denoising = True
-    render.resolution_x, render.resolution_y = (int(v) for v in o["size"])
-    render.resolution_percentage = 100
-    render.image_settings.file_format = "PNG"
-    render.film_transparent = False
+    globe_scene.render_settings(scene, o["size"], o["samples"])
     frame.install()
     return {"globe": globe, "clouds": clouds, "camera": camera, **sky}
 
 
-def _parse_frames(text):
-    a, _, b = text.partition("-")
-    return int(a), int(b or a)
-
-
-def _parse_size(text):
-    w, _, h = text.lower().partition("x")
-    return int(w), int(h)
-
-
 def main(argv=None):
+    from nephele.addon import globe_scene
+
     argv = sys.argv[1:] if argv is None else argv
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--out", help="render the frames into this directory (frame_####.png)")
-    ap.add_argument("--save", help="save the scene to this .blend")
-    ap.add_argument("--frames", type=_parse_frames, default=DEFAULTS["frames"], help="A-B (default 1-13)")
-    ap.add_argument("--size", type=_parse_size, default=DEFAULTS["size"], help="WxH (default 480x360)")
-    ap.add_argument("--samples", type=int, default=DEFAULTS["samples"])
-    ap.add_argument("--source", default=DEFAULTS["source"], help='"demo", "demo:small", a .nc or a .ctl')
+    ap = globe_scene.argument_parser(__doc__.split("\n\n")[0], DEFAULTS)
     ap.add_argument("--level", type=float, default=DEFAULTS["level"])
     ap.add_argument("--strategy", choices=("restart", "compose", "full"), default=DEFAULTS["strategy"])
     ap.add_argument("--period", type=int, default=DEFAULTS["period"], help="restart period in frames (even)")
@@ -124,19 +89,11 @@ def main(argv=None):
           haze=not args.no_haze, strategy=args.strategy, period=args.period, hours_per_frame=args.hours_per_frame,
           vertical=args.vertical,
           camera_lon=args.camera[0], camera_lat=args.camera[1], camera_distance=args.camera[2])
-    scene = bpy.context.scene
     if args.save:
-        Path(args.save).parent.mkdir(parents=True, exist_ok=True)
-        bpy.ops.wm.save_as_mainfile(filepath=str(Path(args.save).resolve()))
+        globe_scene.save(args.save)
     if args.out:
         out = Path(args.out)
-        out.mkdir(parents=True, exist_ok=True)
-        paths = []
-        for f in range(args.frames[0], args.frames[1] + 1):
-            scene.frame_set(f)
-            scene.render.filepath = str((out / f"frame_{f:04d}.png").resolve())
-            bpy.ops.render.render(write_still=True)
-            paths.append(scene.render.filepath)
+        paths = globe_scene.render_frames(bpy.context.scene, args.frames, out)
         if len(paths) > 1:
             from nephele.farm.post import contact_sheet
 
