@@ -188,6 +188,11 @@ class WindField:
         (``ds/dt = 0``), right when the data's ``w`` is just the lift of air
         riding its terrain-following level (the demo's), whose finite-difference
         reconstruction would otherwise add spurious vertical motion.
+    cache_steps : int
+        Hourly steps kept converted (float32, ``nk × (nj+4) × ni × 4`` values
+        each: 16 MB on the 320×160×19 demo), least recently used dropped.  A
+        restart strategy with period ``P`` frames reads back up to ``P`` frames
+        of steps for its fallback traces: see :func:`steps_to_keep`.
     """
 
     def __init__(self, dataset, nan="error", cache_steps=6, vertical="w"):
@@ -310,6 +315,18 @@ class WindField:
     def start_height(self, xyz, s):
         """Height in metres of the points (the grid's level heights interpolated)."""
         return self.index.trilinear(self.height_field, *self.index.fractional(xyz, s))[:, 0]
+
+
+def steps_to_keep(grid, period_hours, budget_mb=512):
+    """Wind steps a :class:`WindField` should keep for a restart period of ``period_hours``.
+
+    The period's steps plus two (the next frame's), capped so they fit in
+    ``budget_mb`` megabytes; at least 6.  The bound depends on the grid and
+    the period, not on the film's length.
+    """
+    nk, nj, ni = grid.shape
+    step_mb = nk * (nj + 4) * ni * 4 * 4 / 2**20
+    return int(max(6, min(np.ceil(period_hours) + 2, budget_mb // step_mb)))
 
 
 class AnalyticWind:
@@ -750,8 +767,15 @@ def great_circle_km(a, b):
 
 # ---------------------------------------------------------------- per-frame task
 ADVECT_DEFAULTS = {"strategy": "restart", "period": 24, "integrator": "rk4", "order": 3, "band": 4, "nan": "error",
-                   "vertical": "w"}
-"""Texture-advection settings an advected contour object stores (besides its contour's)."""
+                   "vertical": "w", "cfl": 2.0}
+"""Texture-advection settings an advected contour object stores (besides its contour's).
+
+``cfl`` 2 (RK4 steps up to two grid spacings) halves the tracing of
+:func:`trace`'s default 1 at no measured cost on the demo (restart copies over
+24 frames, levels kept: 0.045 vs 0.044 km rms, 3.94 km max either way; see
+benchmarks/bench_advect.py).  Each process keeps at most two winds, each with
+:func:`steps_to_keep` steps (416 MB on the demo for 24 hourly frames).
+"""
 
 START = "nephele_start_{}"
 """Vector attribute: start position (unit vector) of copy ``a`` or ``b`` at each mesh vertex."""
@@ -786,20 +810,22 @@ def advect_task_params(obj_params, frame):
 
 def _strategy(params, ds):
     key = (params["stamp"], params["strategy"], params["period"], params["integrator"], params["order"], params["band"],
-           params["hours_per_frame"], params["nan"], params["vertical"])
+           params["hours_per_frame"], params["nan"], params["vertical"], params["cfl"])
     hit = _STRATEGIES.get(key)
     if hit is not None:  # kept per process, so frames rendered in order stream
         _STRATEGIES.move_to_end(key)
         return hit
     wkey = (params["stamp"], params["nan"], params["vertical"])
     wind = _WINDS.get(wkey)
+    keep = steps_to_keep(ds.grid, float(params["period"]) * params["hours_per_frame"])
     if wind is None:
-        wind = _WINDS[wkey] = WindField(ds, nan=params["nan"], vertical=params["vertical"])
+        wind = _WINDS[wkey] = WindField(ds, nan=params["nan"], vertical=params["vertical"], cache_steps=keep)
         while len(_WINDS) > 2:
             _WINDS.popitem(last=False)
+    wind._cache_steps = max(wind._cache_steps, keep)  # a longer period sharing this wind
     last = float(ds.hours[-1])
     fh = np.arange(int(np.floor(last / params["hours_per_frame"] + 1e-9)) + 1) * params["hours_per_frame"]
-    opts = dict(method=params["integrator"])
+    opts = dict(method=params["integrator"], cfl=float(params["cfl"]))
     name = params["strategy"]
     if name == "restart":
         st = RestartTrace(wind, fh, ds.grid, period=int(params["period"]), order=int(params["order"]), band=params["band"], **opts)
@@ -891,6 +917,7 @@ __all__ = [
     "grid_vertices",
     "great_circle_km",
     "start_coordinates",
+    "steps_to_keep",
     "trace",
     "vertex_levels",
 ]
