@@ -27,6 +27,7 @@ from ..core.tasks import run_cached
 from . import frame, materials
 from .contour_ops import cache_dir
 from .mesh import fill_mesh
+from .panel import SubPanel
 
 GROUP_NAME = "Nephele Poor-Man's Fractal"
 KIND = "advected_contour"
@@ -268,13 +269,9 @@ class NEPHELE_OT_add_advected_texture(bpy.types.Operator):
         return {"FINISHED"}
 
 
-class NEPHELE_PT_advect(bpy.types.Panel):
+class NEPHELE_PT_advect(SubPanel, bpy.types.Panel):
     bl_label = "Advected texture"
     bl_idname = "NEPHELE_PT_advect"
-    bl_parent_id = "NEPHELE_PT_main"
-    bl_space_type = "VIEW_3D"
-    bl_region_type = "UI"
-    bl_category = "Nephele"
     bl_options = {"DEFAULT_CLOSED"}
 
     def draw(self, context):

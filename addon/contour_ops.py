@@ -16,6 +16,7 @@ from ..core.mesh import Mesh
 from ..core.tasks import run_cached
 from . import data_ops, frame, materials
 from .mesh import fill_mesh
+from .panel import SubPanel
 
 COLOR_RANGES = {"altitude": (0.0, 12000.0), "temperature": (220.0, 300.0), "cloud": (0.0, 1.0)}
 """Default colour-ramp ranges per attribute (others: the level's field range is unknown, 0..1)."""
@@ -157,13 +158,9 @@ class NEPHELE_OT_update_contours(bpy.types.Operator):
         return {"FINISHED"}
 
 
-class NEPHELE_PT_contour(bpy.types.Panel):
+class NEPHELE_PT_contour(SubPanel, bpy.types.Panel):
     bl_label = "Contour surfaces"
     bl_idname = "NEPHELE_PT_contour"
-    bl_parent_id = "NEPHELE_PT_main"
-    bl_space_type = "VIEW_3D"
-    bl_region_type = "UI"
-    bl_category = "Nephele"
 
     def draw(self, context):
         col = self.layout.column(align=True)

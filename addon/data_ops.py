@@ -13,6 +13,7 @@ import json
 import bpy
 
 from ..core.grid import DEFAULT_EXAGGERATION
+from .panel import SubPanel
 
 MIRROR_KEY = "nephele_settings"
 
@@ -151,13 +152,9 @@ class NEPHELE_OT_import_dataset(bpy.types.Operator):
         return {"FINISHED"}
 
 
-class NEPHELE_PT_data(bpy.types.Panel):
+class NEPHELE_PT_data(SubPanel, bpy.types.Panel):
     bl_label = "Dataset"
     bl_idname = "NEPHELE_PT_data"
-    bl_parent_id = "NEPHELE_PT_main"
-    bl_space_type = "VIEW_3D"
-    bl_region_type = "UI"
-    bl_category = "Nephele"
 
     def draw(self, context):
         layout = self.layout

@@ -41,6 +41,7 @@ from mathutils import Matrix, Vector
 from ..core import dome as core_dome
 from ..core.errors import DataError
 from . import frame
+from .panel import SubPanel
 
 RIG_NAME = "DomeRig"
 CAMERA_NAME = "DomeCamera"
@@ -491,13 +492,9 @@ class NEPHELE_OT_render_dome_eevee(bpy.types.Operator):
         return {"FINISHED"}
 
 
-class NEPHELE_PT_dome(bpy.types.Panel):
+class NEPHELE_PT_dome(SubPanel, bpy.types.Panel):
     bl_label = "Dome"
     bl_idname = "NEPHELE_PT_dome"
-    bl_parent_id = "NEPHELE_PT_main"
-    bl_space_type = "VIEW_3D"
-    bl_region_type = "UI"
-    bl_category = "Nephele"
 
     def draw(self, context):
         s = context.scene.nephele_dome

@@ -23,6 +23,7 @@ from ..core import relief as core_relief
 from ..core.grid import EARTH_RADIUS, globe_radius, lonlat_to_xyz
 from . import data_ops, materials
 from .mesh import fill_mesh
+from .panel import SubPanel
 
 GLOBE_NAME = "Nephele Globe"
 HAZE_NAME = "Nephele Haze"
@@ -573,13 +574,9 @@ class NEPHELE_OT_add_camera(bpy.types.Operator):
         return {"FINISHED"}
 
 
-class NEPHELE_PT_globe(bpy.types.Panel):
+class NEPHELE_PT_globe(SubPanel, bpy.types.Panel):
     bl_label = "Globe and sky"
     bl_idname = "NEPHELE_PT_globe"
-    bl_parent_id = "NEPHELE_PT_main"
-    bl_space_type = "VIEW_3D"
-    bl_region_type = "UI"
-    bl_category = "Nephele"
 
     def draw(self, context):
         col = self.layout.column(align=True)

@@ -3,12 +3,23 @@
 import bpy
 
 
-class NEPHELE_PT_main(bpy.types.Panel):
-    bl_label = "Nephele"
-    bl_idname = "NEPHELE_PT_main"
+class SidebarTab:
+    """Where every Nephele panel lives: the 3D viewport's sidebar, tab "Nephele"."""
+
     bl_space_type = "VIEW_3D"
     bl_region_type = "UI"
     bl_category = "Nephele"
+
+
+class SubPanel(SidebarTab):
+    """Mixin for a feature's panel: ``class NEPHELE_PT_x(SubPanel, bpy.types.Panel)``."""
+
+    bl_parent_id = "NEPHELE_PT_main"
+
+
+class NEPHELE_PT_main(SidebarTab, bpy.types.Panel):
+    bl_label = "Nephele"
+    bl_idname = "NEPHELE_PT_main"
 
     def draw(self, context):
         self.layout.label(text="Scientific fields into films")

@@ -24,6 +24,8 @@ import numpy as np
 
 from ..core import cloud_density as cd
 from ..core import scatter
+from .panel import SubPanel
+
 
 def _openvdb():
     try:
@@ -502,13 +504,9 @@ class NepheleScatterProps(bpy.types.PropertyGroup):
     status: bpy.props.StringProperty(name="Status", default="")
 
 
-class NEPHELE_PT_scatter(bpy.types.Panel):
+class NEPHELE_PT_scatter(SubPanel, bpy.types.Panel):
     bl_label = "Scattering cloud (Fig. 6)"
     bl_idname = "NEPHELE_PT_scatter"
-    bl_space_type = "VIEW_3D"
-    bl_region_type = "UI"
-    bl_category = "Nephele"
-    bl_parent_id = "NEPHELE_PT_main"
     bl_options = {"DEFAULT_CLOSED"}
 
     def draw(self, context):

@@ -26,6 +26,7 @@ from ..core.errors import DataError
 from ..core.transfer import ALTITUDE_COLORS, TEMPERATURE_COLORS, ColorMap, TransferFunction
 from ..core.volume import ALTITUDE, DEFAULT_EXTINCTION, DEFAULT_VOXEL_SIZE
 from . import data_ops, frame, materials
+from .panel import SubPanel
 from .vdb import bake_frame, bake_sequence, frame_path
 
 KIND = "volume"
@@ -377,13 +378,9 @@ class NEPHELE_OT_add_volume_clouds(bpy.types.Operator):
         return {"FINISHED"}
 
 
-class NEPHELE_PT_volume(bpy.types.Panel):
+class NEPHELE_PT_volume(SubPanel, bpy.types.Panel):
     bl_label = "Volume clouds"
     bl_idname = "NEPHELE_PT_volume"
-    bl_parent_id = "NEPHELE_PT_main"
-    bl_space_type = "VIEW_3D"
-    bl_region_type = "UI"
-    bl_category = "Nephele"
     bl_options = {"DEFAULT_CLOSED"}
 
     def draw(self, context):
