@@ -42,8 +42,24 @@ def _check_points(points, what, width):
     return values, outs
 
 
+class _JsonRoundTrip:
+    """``to_json``/``from_json`` on top of a class's ``to_dict``/``from_dict``."""
+
+    _field = ""
+
+    def to_json(self):
+        return json.dumps(self.to_dict())
+
+    @classmethod
+    def from_json(cls, text):
+        try:
+            return cls.from_dict(json.loads(text))
+        except json.JSONDecodeError as exc:
+            raise DataError(f"is not valid JSON: {exc}", field=cls._field) from None
+
+
 @dataclass(frozen=True, eq=False)
-class TransferFunction:
+class TransferFunction(_JsonRoundTrip):
     """Piecewise-linear opacity of a scalar.
 
     Parameters
@@ -54,6 +70,7 @@ class TransferFunction:
         stays at the end value.  Two points with the same value make a step.
     """
 
+    _field = "transfer function"
     points: tuple
 
     def __post_init__(self):
@@ -131,19 +148,9 @@ class TransferFunction:
             raise DataError("needs a dict with 'points'", field="transfer function")
         return cls(points=tuple(tuple(p) for p in d["points"]))
 
-    def to_json(self):
-        return json.dumps(self.to_dict())
-
-    @classmethod
-    def from_json(cls, text):
-        try:
-            return cls.from_dict(json.loads(text))
-        except json.JSONDecodeError as exc:
-            raise DataError(f"is not valid JSON: {exc}", field="transfer function") from None
-
 
 @dataclass(frozen=True, eq=False)
-class ColorMap:
+class ColorMap(_JsonRoundTrip):
     """Piecewise-linear RGB colour of a scalar.
 
     Parameters
@@ -152,6 +159,7 @@ class ColorMap:
         Ascending values; colours in linear RGB 0..1.
     """
 
+    _field = "colour map"
     points: tuple
 
     def __post_init__(self):
@@ -183,16 +191,6 @@ class ColorMap:
         if not isinstance(d, dict) or "points" not in d:
             raise DataError("needs a dict with 'points'", field="colour map")
         return cls(points=tuple((p[0], tuple(p[1])) for p in d["points"]))
-
-    def to_json(self):
-        return json.dumps(self.to_dict())
-
-    @classmethod
-    def from_json(cls, text):
-        try:
-            return cls.from_dict(json.loads(text))
-        except json.JSONDecodeError as exc:
-            raise DataError(f"is not valid JSON: {exc}", field="colour map") from None
 
 
 # Cloud colour (scattering albedo) by altitude in metres: warm grey low
