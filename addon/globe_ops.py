@@ -262,30 +262,15 @@ def haze_material(radius, exaggeration, *, density=None, scale_height=8000.0, co
     out.location = (600, 0)
     coords = nodes.new("ShaderNodeTexCoord")
     coords.location = (-800, 0)
-    length = nodes.new("ShaderNodeVectorMath")
-    length.operation = "LENGTH"
-    links.new(coords.outputs["Object"], length.inputs[0])
-    # -(r - R) / H = (R - r) / H
-    above = nodes.new("ShaderNodeMath")
-    above.operation = "SUBTRACT"
-    above.inputs[0].default_value = radius
-    links.new(length.outputs["Value"], above.inputs[1])
-    scaled = nodes.new("ShaderNodeMath")
-    scaled.operation = "DIVIDE"
-    scaled.inputs[1].default_value = h_scene
-    links.new(above.outputs["Value"], scaled.inputs[0])
-    expo = nodes.new("ShaderNodeMath")
-    expo.operation = "EXPONENT"
-    links.new(scaled.outputs["Value"], expo.inputs[0])
-    dens = nodes.new("ShaderNodeMath")
-    dens.operation = "MULTIPLY"
-    dens.inputs[1].default_value = density
-    links.new(expo.outputs["Value"], dens.inputs[0])
+    n = _Nodes(tree)
+    r = n.vmath("LENGTH", coords.outputs["Object"])
+    # exp(-(r - R) / H) = exp((R - r) / H)
+    dens = n.math("MULTIPLY", n.math("EXPONENT", n.math("DIVIDE", n.math("SUBTRACT", radius, r), h_scene)), density)
     scatter = nodes.new("ShaderNodeVolumeScatter")
     scatter.location = (300, 0)
     scatter.inputs["Color"].default_value = tuple(color) + (1.0,)
     scatter.inputs["Anisotropy"].default_value = 0.0
-    links.new(dens.outputs["Value"], scatter.inputs["Density"])
+    links.new(dens, scatter.inputs["Density"])
     links.new(scatter.outputs["Volume"], out.inputs["Volume"])
     mat.cycles.volume_sampling = "DISTANCE"
     mat["nephele_haze"] = {"radius": radius, "scale_height_scene": h_scene, "density": density}
