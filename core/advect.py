@@ -50,15 +50,23 @@ def _lonlat(xyz):
 
 
 def _normalise(x):
-    return x / np.linalg.norm(x, axis=1, keepdims=True)
+    return x / np.sqrt(_dot(x, x))[:, None]
+
+
+def _dot(a, b):
+    """Row-wise dot products of (n, 3) arrays."""
+    return a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1] + a[:, 2] * b[:, 2]
 
 
 class _GridIndex:
-    """Fractional (level, row, column) indices of points on a GlobeGrid, with pole-mirrored rows.
+    """Fractional (level, row, column) indices of points on a GlobeGrid, and fast gathers.
 
-    Fields are stored with ``pad`` extra rows at each end: the rows nearest the
-    pole, rolled half way round in longitude, so a point between the last row
-    and the pole (or beyond it) interpolates across the pole.
+    Fields are stored padded (:meth:`pad`): ``pad`` extra rows at each end, the
+    rows nearest the pole rolled half way round in longitude, so a point
+    between the last row and the pole (or beyond it) interpolates across the
+    pole; and one column before and two after (wrapped round a periodic grid,
+    repeated otherwise), so every stencil is a fixed set of flat offsets from
+    its first tap.
     """
 
     def __init__(self, grid, pad):
@@ -79,86 +87,124 @@ class _GridIndex:
         self.south_rows, self.north_rows = south, north
         self.lat_axis = np.concatenate([-180.0 - lat[south][::-1], lat, 180.0 - lat[north]])
         self.njp = nj + 2 * p
+        self.nip = ni + 3
+        self._lon_step = _uniform_step(self.lon_axis)
+        self._lat_step = _uniform_step(self.lat_axis)
+        self._offsets = {}
 
-    def pad_rows(self, f):
-        """``f`` (nk, nj, ni, ...) with mirrored rows added at both poles."""
-        if not self.pad:
-            return np.ascontiguousarray(f)
-        half = self.shape[2] // 2
-        s = np.roll(f[:, self.south_rows[::-1]], half, axis=2)
-        n = np.roll(f[:, self.north_rows], half, axis=2)
-        return np.ascontiguousarray(np.concatenate([s, f, n], axis=1))
+    def padded(self, f, out=None):
+        """``f`` (nk, nj, ni, ...) with mirrored rows added at both poles and wrapped (or repeated) columns.
+
+        Written into ``out`` (a padded array, or a view of one) when given.
+        """
+        nk, nj, ni = self.shape
+        p = self.pad
+        if out is None:
+            out = np.empty((nk, nj + 2 * p, ni + 3) + f.shape[3:], dtype=f.dtype)
+        out[:, p : p + nj, 1 : ni + 1] = f
+        half = ni // 2
+        for r, j in enumerate(self.south_rows[::-1]):
+            out[:, r, 1 : ni + 1] = np.roll(f[:, j], half, axis=1)
+        for r, j in enumerate(self.north_rows):
+            out[:, p + nj + r, 1 : ni + 1] = np.roll(f[:, j], half, axis=1)
+        if self.periodic:
+            out[:, :, 0], out[:, :, ni + 1], out[:, :, ni + 2] = out[:, :, ni], out[:, :, 1], out[:, :, 2]
+        else:
+            out[:, :, 0], out[:, :, ni + 1], out[:, :, ni + 2] = out[:, :, 1], out[:, :, ni], out[:, :, ni]
+        return out
+
+    def interior(self, padded):
+        """The grid's own vertices of a padded field."""
+        p, ni = self.pad, self.shape[2]
+        return padded[:, p : padded.shape[1] - p, 1 : ni + 1]
 
     def fractional(self, xyz, s):
         """Fractional indices ``(fk, fj, fi)`` of unit vectors ``xyz`` at level coordinate ``s``."""
         lon, lat = _lonlat(xyz)
         if self.periodic:
             d = np.mod(lon - self.lon0, 360.0)
-            fi = np.interp(d, self.lon_axis, np.arange(self.lon_axis.size, dtype=np.float64))
         else:
             d = np.mod(lon - self.lon_centre + 180.0, 360.0) - 180.0 + self.lon_centre - self.lon0
-            fi = np.interp(d, self.lon_axis, np.arange(self.lon_axis.size, dtype=np.float64))
-        fj = np.interp(lat, self.lat_axis, np.arange(self.njp, dtype=np.float64))
+        fi = _axis_index(d, self.lon_axis, self._lon_step)
+        fj = _axis_index(lat, self.lat_axis, self._lat_step)
         fk = np.clip(s, 0.0, self.shape[0] - 1)
         return fk, fj, fi
 
-    def _columns(self, fi, taps):
-        """Column indices ``i0 + t`` for ``t`` in ``taps`` (wrapped or clamped) and the fraction."""
-        ni = self.shape[2]
-        i0 = np.floor(fi).astype(np.int64)
-        ti = fi - i0
-        if self.periodic:
-            return [(i0 + t) % ni for t in taps], ti
-        i0c = np.minimum(i0, ni - 2)
-        return [np.clip(i0c + t, 0, ni - 1) for t in taps], fi - i0c
-
-    def _rows(self, fj, lo, hi):
-        njp = self.njp
-        j0 = np.clip(fj.astype(np.int64), lo, njp - 1 - hi)
-        return j0, fj - j0
-
-    def _levels(self, fk):
-        nk = self.shape[0]
-        if nk == 1:
-            return np.zeros(fk.shape, np.int64), np.zeros(fk.shape), 0
-        k0 = np.minimum(fk.astype(np.int64), nk - 2)
-        return k0, fk - k0, 1
-
     def trilinear(self, f, fk, fj, fi):
-        """Trilinear interpolation of padded field ``f`` (nk, njp, ni, c) at fractional indices."""
+        """Trilinear interpolation of padded field ``f`` (nk, njp, nip, c) at fractional indices (float32)."""
         return self._gather(f, fk, fj, fi, cubic=False)
 
     def cubic(self, f, fk, fj, fi):
-        """Catmull-Rom bicubic in (row, column), linear in level; NaN where a tap is NaN."""
+        """Catmull-Rom bicubic in (row, column), linear in level (float32); NaN where a tap is NaN."""
         return self._gather(f, fk, fj, fi, cubic=True)
 
-    def _gather(self, f, fk, fj, fi, cubic, chunk=1 << 16):
+    def _offsets_of(self, cubic, dk):
+        """Flat offsets of a stencil's taps from its first tap (level-major, then row, then column)."""
+        key = (cubic, dk)
+        if key not in self._offsets:
+            nt = 4 if cubic else 2
+            plane = self.njp * self.nip
+            self._offsets[key] = (np.array([0, dk])[:, None, None] * plane + np.arange(nt)[None, :, None] * self.nip
+                                  + np.arange(nt)[None, None, :]).ravel()
+        return self._offsets[key]
+
+    def _gather(self, f, fk, fj, fi, cubic, chunk=2048):
+        nk, njp, nip, c = f.shape
+        flat = f.reshape(-1, c)
         n = fk.size
-        c = f.shape[-1]
-        out = np.empty((n, c))
+        out = np.empty((n, c), dtype=np.result_type(f.dtype, np.float32))
+        ni = self.shape[2]
+        lo = 1 if cubic else 0
+        hi = 2 if cubic else 1
+        # Level taps k0 and k0 + dk with weights (1 - tk, tk).
+        if nk == 1:
+            k0, tk, dk = np.zeros(n, np.intp), np.zeros(n), 0  # both level taps on level 0, the second weighted 0
+        else:
+            k0 = np.minimum(fk.astype(np.intp), nk - 2)
+            tk, dk = fk - k0, 1
+        j0 = np.clip(fj.astype(np.intp), lo, njp - 1 - hi)
+        tj = fj - j0
+        i0 = np.floor(fi).astype(np.intp)
+        if self.periodic:
+            ti = fi - i0
+            i0 %= ni
+        else:
+            i0 = np.minimum(i0, ni - 2)
+            ti = fi - i0
+        base = (k0 * njp + j0 - lo) * nip + i0 + 1 - lo  # first tap: row j0 - lo, padded column i0 + 1 - lo
+        offs = self._offsets_of(cubic, dk)
+        # Tap weights (taps, n), level-major like the offsets: products of the per-axis weights.
+        f32 = np.float32
+        wk = [(1.0 - tk).astype(f32), np.asarray(tk, dtype=f32)]
+        wj = [a.astype(f32) for a in (_catmull_rom(tj) if cubic else (1.0 - tj, tj))]
+        wi = [a.astype(f32) for a in (_catmull_rom(ti) if cubic else (1.0 - ti, ti))]
+        w = np.empty((offs.size, n), dtype=f32)
+        t = 0
+        for a in wk:
+            for b in wj:
+                ab = a * b
+                for c_ in wi:
+                    np.multiply(ab, c_, out=w[t])
+                    t += 1
+        w = w.T
         for a in range(0, n, chunk):
             sl = slice(a, a + chunk)
-            out[sl] = self._gather_chunk(f, fk[sl], fj[sl], fi[sl], cubic)
+            g = flat.take(base[sl, None] + offs, axis=0)
+            out[sl] = np.matmul(w[sl, None, :], g)[:, 0]
         return out
 
-    def _gather_chunk(self, f, fk, fj, fi, cubic):
-        nk, njp, ni, c = f.shape
-        k0, tk, dk = self._levels(fk)
-        taps = (-1, 0, 1, 2) if cubic else (0, 1)
-        j0, tj = self._rows(fj, 1 if cubic else 0, 2 if cubic else 1)
-        cols, ti = self._columns(fi, taps)
-        wj = _catmull_rom(tj) if cubic else (1 - tj, tj)
-        wi = _catmull_rom(ti) if cubic else (1 - ti, ti)
-        idx, wt = [], []
-        for a, wa in ((0, 1 - tk), (dk, tk)):
-            for tj_, wb in zip(taps, wj):
-                row = ((k0 + a) * njp + j0 + tj_) * ni
-                wab = wa * wb
-                for col, wc in zip(cols, wi):
-                    idx.append(row + col)
-                    wt.append(wab * wc)
-        g = np.take(f.reshape(-1, c), np.concatenate(idx), axis=0).reshape(len(idx), fk.size, c)
-        return np.einsum("kn,knc->nc", np.array(wt, dtype=np.float32), g).astype(np.float64)
+
+def _uniform_step(axis):
+    """The spacing of an evenly spaced axis, or None."""
+    d = np.diff(axis)
+    return float(d[0]) if d.size and np.all(np.abs(d - d[0]) <= 1e-9 * abs(d[0])) else None
+
+
+def _axis_index(x, axis, step):
+    """Fractional index of ``x`` on a monotonic ``axis`` (clamped to its ends), as np.interp gives it."""
+    if step is None:
+        return np.interp(x, axis, np.arange(axis.size, dtype=np.float64))
+    return np.clip((x - axis[0]) * (1.0 / step), 0.0, axis.size - 1.0)
 
 
 def _catmull_rom(t):
@@ -221,11 +267,15 @@ class WindField:
     def _geometry(self):
         g = self.grid
         nk, nj, ni = g.shape
-        self._lon = np.broadcast_to(g.lon[None, None, :], g.shape)
-        self._lat = np.broadcast_to(g.lat[None, :, None], g.shape)
+        # East and north unit vectors per column, scaled from m/s to unit-sphere radians per hour.
+        lam, phi = np.deg2rad(g.lon)[None, :], np.deg2rad(g.lat)[:, None]
+        sl, cl, sp, cp = np.sin(lam), np.cos(lam), np.sin(phi), np.cos(phi)
+        scale = HOUR / EARTH_RADIUS
+        self._east = [(a * scale).astype(np.float32) for a in np.broadcast_arrays(-sl, cl, 0.0 * phi)]
+        self._north = [(a * scale).astype(np.float32) for a in np.broadcast_arrays(-sp * cl, -sp * sl, cp + 0.0 * lam)]
         h = g.height
         dhds = np.gradient(h, axis=0) if nk > 1 else np.ones_like(h)
-        self._inv_dhds = 1.0 / dhds
+        self._sdot_scale = (HOUR / dhds).astype(np.float32)
         flat = np.all(h == h[:, :1, :1])
         if flat:
             self._dhdx = self._dhdy = None
@@ -237,16 +287,17 @@ class WindField:
             else:
                 dhdl = np.gradient(h, lam, axis=2)
             cos = np.cos(phi)[None, :, None]
-            self._dhdx = np.where(cos > 1e-9, dhdl / (EARTH_RADIUS * np.maximum(cos, 1e-9)), 0.0)
-            self._dhdy = np.gradient(h, phi, axis=1) / EARTH_RADIUS
-        self.height_field = self.index.pad_rows(h[..., None].astype(np.float64))
+            self._dhdx = np.where(cos > 1e-9, dhdl / (EARTH_RADIUS * np.maximum(cos, 1e-9)), 0.0).astype(np.float32)
+            self._dhdy = (np.gradient(h, phi, axis=1) / EARTH_RADIUS).astype(np.float32)
+        self.height_field = self.index.padded(h[..., None].astype(np.float64))
 
-    def _step(self, t):
-        if t in self._steps:
-            self._steps.move_to_end(t)
-            return self._steps[t]
-        u, v, w = (np.asarray(a, dtype=np.float64) for a in self.dataset.wind(t))
-        for name, a in (("u", u), ("v", v), ("w", w)):
+    def _read_wind(self, t):
+        """``u``, ``v`` (and ``w`` unless levels are kept) of step ``t``, float32, NaN checked."""
+        names = ("u", "v") if self.vertical == "levels" else ("u", "v", "w")
+        uvw = self.dataset.wind(t) if len(names) == 3 else (self.dataset.read("u", t), self.dataset.read("v", t))
+        out = []
+        for name, a in zip(names, uvw):
+            a = np.asarray(a, dtype=np.float32)
             bad = ~np.isfinite(a)
             if bad.any():
                 if self.nan == "error":
@@ -256,15 +307,29 @@ class WindField:
                         path=self.dataset.source,
                         field=name,
                     )
-                a[bad] = 0.0
-        vel = tangent_velocity(self._lon, self._lat, u, v) * (HOUR / EARTH_RADIUS)
+                a = np.where(bad, np.float32(0.0), a)
+            out.append(a)
+        return out
+
+    def _step(self, t):
+        if t in self._steps:
+            self._steps.move_to_end(t)
+            return self._steps[t]
+        uvw = self._read_wind(t)
+        u, v = uvw[0], uvw[1]
+        f = np.empty(self.grid.shape + (4,), dtype=np.float32)
+        for c in range(3):
+            np.multiply(u, self._east[c], out=f[..., c])
+            f[..., c] += v * self._north[c]
         if self.vertical == "levels":
-            sdot = np.zeros_like(w)
+            f[..., 3] = 0.0
         else:
+            w = uvw[2]
             wz = w if self._dhdx is None else w - u * self._dhdx - v * self._dhdy
-            sdot = wz * self._inv_dhds * HOUR
-        f = self.index.pad_rows(np.concatenate([vel, sdot[..., None]], axis=-1).astype(np.float32))
-        self._speed[t] = (float(np.sqrt(np.max(np.sum(vel.astype(np.float64) ** 2, axis=-1)))), float(np.max(np.abs(sdot))))
+            np.multiply(wz, self._sdot_scale, out=f[..., 3])
+        u64, v64 = u.astype(np.float64), v.astype(np.float64)
+        self._speed[t] = (float(np.sqrt(np.max(u64 * u64 + v64 * v64))) * HOUR / EARTH_RADIUS, float(np.max(np.abs(f[..., 3]))))
+        f = self.index.padded(f)
         self._steps[t] = f
         while len(self._steps) > self._cache_steps:
             self._steps.popitem(last=False)
@@ -275,28 +340,38 @@ class WindField:
         if not (np.isfinite(hours) and lo - 1e-9 <= hours <= hi + 1e-9):
             raise DataError(f"time {hours:g} h is outside the data range {lo:g}..{hi:g} h", path=self.dataset.source, field="time")
 
-    def _field_at(self, hours):
+    def _field_at(self, hours, points):
+        """The padded field at ``hours`` as ``[(weight, step field), ...]``.
+
+        Between steps, a set of ``points`` large enough to pay for it gets the
+        two steps blended once (a few recent blends are kept); a small one
+        (fallback traces) gets both steps, interpolated at its points and then
+        blended, instead of a grid-sized blend per time it visits.
+        """
         key = round(float(hours), 9)
         if key in self._blends:
-            return self._blends[key]
+            return [(1.0, self._blends[key])]
         i0, i1, w = self.dataset.locate_time(hours)
         if w <= 0.0 or i0 == i1:
-            f = self._step(i0)
-        elif w >= 1.0:
-            f = self._step(i1)
-        else:
-            f = ((1.0 - w) * self._step(i0) + w * self._step(i1)).astype(np.float32)
+            return [(1.0, self._step(i0))]
+        if w >= 1.0:
+            return [(1.0, self._step(i1))]
+        if points * 16 < np.prod(self.grid.shape):
+            return [(1.0 - w, self._step(i0)), (w, self._step(i1))]
+        f = self._step(i0) * np.float32(1.0 - w)
+        f += self._step(i1) * np.float32(w)
         self._blends[key] = f
         while len(self._blends) > 4:
             self._blends.popitem(last=False)
-        return f
+        return [(1.0, f)]
 
     def velocity(self, hours, xyz, s):
         """``(dxyz/dt, ds/dt)`` per hour at unit vectors ``xyz`` (n, 3) and levels ``s`` (n,)."""
-        f = self._field_at(hours)
-        out = self.index.trilinear(f, *self.index.fractional(xyz, s))
+        fr = self.index.fractional(xyz, s)
+        parts = [(w, self.index.trilinear(f, *fr).astype(np.float64)) for w, f in self._field_at(hours, len(xyz))]
+        out = parts[0][1] if len(parts) == 1 else parts[0][0] * parts[0][1] + parts[1][0] * parts[1][1]
         v = out[:, :3]
-        v -= np.sum(v * xyz, axis=1, keepdims=True) * xyz
+        v -= _dot(v, xyz)[:, None] * xyz
         return v, out[:, 3]
 
     def max_speed(self, t0, t1):
@@ -469,6 +544,7 @@ class _Strategy:
         self.opts = dict(method=method, dt_max=dt_max, cfl=cfl)
         if method not in METHODS:
             raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+        self._columns = grid_vertices(grid, np.arange(grid.shape[1] * grid.shape[2]))  # one level's unit vectors
 
     def _frame(self, n):
         n = int(n)
@@ -478,7 +554,8 @@ class _Strategy:
 
     def _points(self, index):
         index = np.asarray(index, dtype=np.int64).reshape(-1)
-        return grid_vertices(self.grid, index), vertex_levels(self.grid, index)
+        k, col = np.divmod(index, self._columns.shape[0])
+        return self._columns[col], k.astype(np.float64)
 
     def _one_frame(self, n, need):
         """Vertices ``need`` and where they were one frame earlier; shared by the copies of a frame."""
@@ -516,33 +593,31 @@ class _StreamedMap:
     or Catmull-Rom bicubic in latitude/longitude and linear in level).  The map
     is kept as the displacement ``D = S - x`` (smooth where ``S`` is not, e.g.
     in longitude) on a band of vertices around those asked for (one grid-sized
-    array: memory does not grow with the film).  Before each step ``D`` is
-    extended ``band + 2`` cells beyond the band from the nearest stored vertex,
-    so the band's edge always has a stencil; a requested vertex whose stencil
-    still finds no data (a cloud appearing far from any stored one) is traced
-    directly back to the start frame instead.
+    array per copy: memory does not grow with the film).  After each step
+    ``D`` is extended ``band + 2`` cells beyond the band from the nearest stored
+    vertex, so the band's edge always has a stencil; a requested vertex whose
+    stencil still finds no data (a cloud appearing far from any stored one) is
+    traced directly back to its copy's start frame instead.
+
+    ``copies`` maps with their own start frames are kept side by side (channels
+    ``4c .. 4c + 3`` of one array): copies at the same frame share the band, the
+    one-frame trace, one gather of all their channels and the extension.
     """
 
-    def __init__(self, strategy, order, band):
+    def __init__(self, strategy, order, band, copies=1):
         self.st = strategy
         self.order = order
         self.band = band
         self.index = _GridIndex(strategy.grid, pad=2)
-        self.frame = None
-        self.start = None
+        self.map = self.index.padded(np.zeros(strategy.grid.shape + (4 * copies,), dtype=np.float32))
+        self.frames = [None] * copies
+        self.starts = [None] * copies
         self.fallbacks = 0
 
-    def reset(self, n):
-        """Identity at frame ``n``: every vertex starts where it is (zero displacement)."""
-        self.map = self.index.pad_rows(np.zeros(self.st.grid.shape + (4,), dtype=np.float32))
-        self.frame = self.start = n
-
-    def _store(self, index, values):
-        m = np.full(self.st.grid.shape + (4,), np.nan, dtype=np.float32)
-        m.reshape(-1, 4)[index] = values
-        if self.band is not None:
-            m = _extend(m, self.band + 2)
-        self.map = self.index.pad_rows(m)
+    def reset(self, c, n):
+        """Copy ``c`` is the identity at frame ``n``: every vertex starts where it is (zero displacement)."""
+        self.map[..., 4 * c : 4 * c + 4] = 0.0
+        self.frames[c] = self.starts[c] = n
 
     def _band(self, index):
         if self.band is None:
@@ -551,49 +626,104 @@ class _StreamedMap:
         mask.reshape(-1)[index] = True
         return np.flatnonzero(dilate(mask, self.band, periodic_lon=self.st.grid.periodic_lon))
 
-    def advance(self, n, index):
-        """Move the map from frame ``n - 1`` to ``n`` for the vertices around ``index``."""
+    def advance(self, copies, n, index):
+        """Move copies ``copies`` (all at frame ``n - 1``) to frame ``n`` for the vertices around ``index``."""
         st = self.st
         need = self._band(index)
         xyz, s, y, z = st._one_frame(n, need)
         fr = self.index.fractional(y, z)
         d = self.index.cubic(self.map, *fr) if self.order == 3 else self.index.trilinear(self.map, *fr)
-        start = np.concatenate([_normalise(y + d[:, :3]), np.clip(z + d[:, 3], 0.0, st.grid.shape[0] - 1)[:, None]], axis=1)
-        bad = ~np.all(np.isfinite(d), axis=1)
-        if bad.any():
-            asked = np.isin(need, index) & bad
-            self.fallbacks += int(asked.sum())
-            if asked.any():
-                xb, zb = trace(st.wind, xyz[asked], s[asked], st.frame_hours[n], st.frame_hours[self.start], **st.opts)
-                start[asked] = np.concatenate([xb, zb[:, None]], axis=1)
-        self._store(need, start - np.concatenate([xyz, s[:, None]], axis=1))
-        self.frame = n
+        here = np.concatenate([xyz, s[:, None]], axis=1)
+        asked = np.zeros(int(np.prod(st.grid.shape)), dtype=bool)
+        asked[index] = True
+        asked = asked[need]
+        top = st.grid.shape[0] - 1
+        values = np.empty((need.size, 4 * len(copies)), dtype=np.float32)
+        for a, c in enumerate(copies):
+            dc = d[:, 4 * c : 4 * c + 4].astype(np.float64)
+            start = np.concatenate([_normalise(y + dc[:, :3]), np.clip(z + dc[:, 3], 0.0, top)[:, None]], axis=1)
+            redo = asked & ~np.all(np.isfinite(dc), axis=1)
+            if redo.any():
+                self.fallbacks += int(redo.sum())
+                xb, zb = trace(st.wind, xyz[redo], s[redo], st.frame_hours[n], st.frame_hours[self.starts[c]], **st.opts)
+                start[redo] = np.concatenate([xb, zb[:, None]], axis=1)
+            values[:, 4 * a : 4 * a + 4] = start - here
+        self._store(copies, need, values)
+        for c in copies:
+            self.frames[c] = n
 
-    def lookup(self, index):
+    def _store(self, copies, need, values):
+        m = np.full(self.st.grid.shape + (values.shape[1],), np.nan, dtype=np.float32)
+        m.reshape(-1, values.shape[1])[need] = values
+        if self.band is not None:
+            m = _extend(m, self.band + 2)
+        if list(copies) == list(range(copies[0], copies[-1] + 1)):
+            self.index.padded(m, out=self.map[..., 4 * copies[0] : 4 * copies[-1] + 4])
+        else:
+            for a, c in enumerate(copies):
+                self.index.padded(m[..., 4 * a : 4 * a + 4], out=self.map[..., 4 * c : 4 * c + 4])
+
+    def lookup(self, c, index):
+        """Start positions of copy ``c`` at the vertices ``index`` (flat indices)."""
         index = np.asarray(index, dtype=np.int64)
-        p = self.index.pad
-        d = (self.map[:, p : self.map.shape[1] - p] if p else self.map).reshape(-1, 4)[index].astype(np.float64)
+        nk, nj, ni = self.st.grid.shape
+        k, j, i = np.unravel_index(index, (nk, nj, ni))
+        d = self.index.interior(self.map)[k, j, i, 4 * c : 4 * c + 4].astype(np.float64)
         xyz, s = self.st._points(index)
-        return _normalise(xyz + d[:, :3]), np.clip(s + d[:, 3], 0.0, self.st.grid.shape[0] - 1)
+        return _normalise(xyz + d[:, :3]), np.clip(s + d[:, 3], 0.0, nk - 1)
 
-    def at(self, n, index, start):
-        """The map at frame ``n`` (streaming from ``start``) for vertices ``index``."""
-        if self.frame is None or self.start != start or n < self.frame:
-            self.reset(start)
-        while self.frame < n:
-            self.advance(self.frame + 1, index)
-        return self.lookup(index)
+    def at(self, n, index, starts):
+        """The maps at frame ``n`` of the copies started at frames ``starts`` (streaming), for vertices ``index``."""
+        for c, start in enumerate(starts):
+            if self.frames[c] is None or self.starts[c] != start or n < self.frames[c]:
+                self.reset(c, start)
+        while min(self.frames) < n:
+            m = min(self.frames) + 1
+            self.advance([c for c, f in enumerate(self.frames) if f == m - 1], m, index)
+        return [self.lookup(c, index) for c in range(len(starts))]
+
+
+LEVEL_CELLS = 4
+"""How many cells apart adjacent levels count when the band's edge is extended (same-level values first)."""
 
 
 def _extend(m, cells):
-    """Fill NaN vertices of ``m`` (nk, nj, ni, c) within ``cells`` of stored ones with the nearest stored value."""
-    missing = np.isnan(m[..., 0])
+    """Fill NaN vertices of ``m`` (nk, nj, ni, 4 c) within ``cells`` of stored ones with the nearest stored value.
+
+    Distances are Euclidean in (row, column) with adjacent levels
+    :data:`LEVEL_CELLS` apart, so within reach the nearest value comes from the
+    vertex's own level or the level just below or above.  That is one 2-D
+    distance transform of all levels stacked with ``cells + 1`` empty rows
+    between them (faster than a 3-D one), then a choice among the three levels
+    per vertex.  Each group of four channels is one copy's map; vertices stored
+    for every copy are the sources, so one distance transform serves them all.
+    """
+    nk, nj, ni, nc = m.shape
+    missing_c = np.isnan(m[..., ::4])
+    missing = missing_c.any(axis=-1)
     if not missing.any() or missing.all():
         return m
-    # Levels count as far apart so the nearest value comes from the same level when there is one.
-    dist, near = ndimage.distance_transform_edt(missing, sampling=(4.0, 1.0, 1.0), return_indices=True)
-    fill = missing & (dist <= cells)
-    m[fill] = m[tuple(a[fill] for a in near)]
+    reach = int(np.floor(cells))
+    rows = nj + reach + 1  # a level and the gap after it: no other level's vertex is within reach
+    stack = np.ones((nk, rows, ni), dtype=bool)
+    stack[:, :nj] = missing
+    near = ndimage.distance_transform_edt(stack.reshape(nk * rows, ni), return_distances=False, return_indices=True)
+    r_near = near[0].reshape(nk, rows, ni)[:, :nj]
+    c_near = near[1].reshape(nk, rows, ni)[:, :nj]
+    r_self = (np.arange(nk)[:, None] * rows + np.arange(nj))[:, :, None]
+    cost = ((r_near - r_self) ** 2 + (c_near - np.arange(ni)) ** 2).reshape(nk, -1)
+    src = ((r_near // rows * nj + r_near % rows) * ni + c_near).reshape(nk, -1)
+    for lo, hi in ((slice(1, None), slice(None, -1)), (slice(None, -1), slice(1, None))):  # from below, from above
+        via = cost[hi] + LEVEL_CELLS**2
+        better = via < cost[lo]
+        cost[lo] = np.where(better, via, cost[lo])
+        src[lo] = np.where(better, src[hi], src[lo])
+    have = (cost <= cells * cells).reshape(missing.shape)
+    flat = m.reshape(-1, nc)
+    src = src.reshape(-1)
+    for c in range(nc // 4):
+        fill = np.flatnonzero(missing_c[..., c] & have)
+        flat[fill, 4 * c : 4 * c + 4] = flat[src[fill], 4 * c : 4 * c + 4]
     return m
 
 
@@ -637,7 +767,7 @@ class ComposedTrace(_Strategy):
 
     def copies(self, n, index):
         n = self._frame(n)
-        x, z = self.stream.at(n, index, 0)
+        (x, z), = self.stream.at(n, index, [0])
         return [Copy(x, z, 1.0, self.frame_hours[0])]
 
 
@@ -661,7 +791,7 @@ class RestartTrace(_Strategy):
             raise ValueError(f"period must be an even number of frames >= 2, got {period!r}")
         self.period = int(period)
         self.incremental = bool(incremental)
-        self.streams = [_StreamedMap(self, order, band), _StreamedMap(self, order, band)]
+        self.stream = _StreamedMap(self, order, band, copies=2)
 
     def weights(self, n):
         """``(w_A, w_B)`` at frame ``n``."""
@@ -676,15 +806,13 @@ class RestartTrace(_Strategy):
 
     def copies(self, n, index):
         n = self._frame(n)
-        out = []
-        for stream, start, w in zip(self.streams, self.restarts(n), self.weights(n)):
-            if self.incremental:
-                x, z = stream.at(n, index, start)
-            else:
-                xyz, s = self._points(index)
-                x, z = trace(self.wind, xyz, s, self.frame_hours[n], self.frame_hours[start], **self.opts)
-            out.append(Copy(x, z, w, self.frame_hours[start]))
-        return out
+        starts = self.restarts(n)
+        if self.incremental:
+            found = self.stream.at(n, index, starts)
+        else:
+            xyz, s = self._points(index)
+            found = [trace(self.wind, xyz, s, self.frame_hours[n], self.frame_hours[start], **self.opts) for start in starts]
+        return [Copy(x, z, w, self.frame_hours[start]) for (x, z), start, w in zip(found, starts, self.weights(n))]
 
 
 STRATEGIES = {"full": FullTrace, "compose": ComposedTrace, "restart": RestartTrace}
