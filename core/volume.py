@@ -31,6 +31,7 @@ References
 """
 
 import hashlib
+import os
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
@@ -41,11 +42,13 @@ from .errors import DataError
 from .grid import DEFAULT_EXAGGERATION, EARTH_RADIUS, globe_radius, height_from_radius, xyz_to_lonlat
 from .transfer import TransferFunction
 
-DEFAULT_VOXEL_SIZE = 0.003
-"""Scene units (the sea-level globe has radius 1): ~640 m of height at the
-default exaggeration, 19 km across.  On the demo climate the opacity error
-along rays is 0.5 % of full scale rms, 2.3 % at the 99th percentile and 10 %
-at worst, in ~2.4 s of CPU per step (``benchmarks/bench_volume.py``)."""
+DEFAULT_VOXEL_SIZE = 0.0027
+"""Scene units (the sea-level globe has radius 1): ~570 m of height at the
+default exaggeration, 17 km across.  On the demo climate, rays of the Fig. 2
+view have an opacity error of 1.5 % of full scale at the 99th percentile
+(0.6 % rms); rays grazing the cloud layers (the limb) do much worse, up to
+~60 % for a ray running along a layer at the threshold; one step resamples
+in ~1.5 s on two threads (``benchmarks/bench_volume.py``)."""
 
 DEFAULT_EXTINCTION = 300.0
 """Extinction per scene unit at opacity 1: a full cloud 0.0033 units thick
@@ -183,30 +186,50 @@ class CurvilinearField:
     def _locate_inside(self, xyz, table):
         """:meth:`locate` for the points inside only: ``(sel, flat, fk, fj, fi, h)``,
         ``sel`` the indices of the inside points, ``h`` the heights of all."""
-        clamp_below = table.clamp_below
         x, y, z = xyz[:, 0], xyz[:, 1], xyz[:, 2]
         rxy2 = x * x + y * y
-        r = np.sqrt(rxy2 + z * z)
-        h = height_from_radius(r, self.radius, self.exaggeration)
-        lat = np.arctan2(z, np.sqrt(rxy2))
-        lat *= 180.0 / np.pi
+        lon, i, fi = self._lon_index(x, y)
+        return self._locate_columns(lon, i, fi, *self._lat_height(rxy2, z), table)
+
+    def _lon_index(self, x, y):
+        """Longitude relative to ``lon0`` in [0, 360], its cell and fraction."""
         lon = np.arctan2(y, x)
         lon *= 180.0 / np.pi
         lon -= self.lon0
+        # [0, 360) without np.mod, which costs more than the rest of this together.
+        lon += 360.0 * (lon < 0.0)
+        lon += 360.0 * (lon < 0.0)  # lon0 may be up to 360 east of the result
+        lon -= 360.0 * (lon >= 360.0)
+        i = self._index_tables[0](lon)
+        ax = self.lon
+        fi = (lon - ax[i]) / (ax[i + 1] - ax[i])
+        np.clip(fi, 0.0, 1.0, out=fi)
+        return lon, i, fi
+
+    def _lat_height(self, rxy2, z):
+        """Latitude (degrees) and height (metres) from ``x² + y²`` and ``z``."""
+        r = np.sqrt(rxy2 + z * z)
+        lat = np.arctan2(z, np.sqrt(rxy2))
+        lat *= 180.0 / np.pi
+        return lat, height_from_radius(r, self.radius, self.exaggeration)
+
+    def _locate_columns(self, x, i, fi, lat, h, table):
+        """The rest of :meth:`_locate_inside`, from relative longitude ``x`` with
+        its cell ``i`` and fraction ``fi``, latitude and height (flat arrays)."""
+        clamp_below = table.clamp_below
         nk, nj, ni = self.shape
-        x = np.mod(lon, 360.0, out=lon)
-        ti, tj = self._index_tables
-        i = ti(x)
-        j = tj(lat)
+        j = self._index_tables[1](lat)
         cell = j * (ni - 1) + i
         # Cheap rejections first: outside the grid's columns, or outside the
         # height range that the column's candidate cells can reach.
         lon_ax, lat_ax = self.lon, self.lat
-        ok = (x >= lon_ax[0]) & (x <= lon_ax[-1]) & (lat >= lat_ax[0]) & (lat <= lat_ax[-1])
-        ok &= (h >= table.hlo[cell]) & (h <= table.hhi[cell])
+        ok = (h >= table.hlo[cell]) & (h <= table.hhi[cell])
+        if lon_ax[-1] - lon_ax[0] < 360.0:
+            ok &= (x >= lon_ax[0]) & (x <= lon_ax[-1])
+        if lat_ax[0] > -90.0 or lat_ax[-1] < 90.0:
+            ok &= (lat >= lat_ax[0]) & (lat <= lat_ax[-1])
         sel = np.flatnonzero(ok)
-        i, j, x, lat, cell = i[sel], j[sel], x[sel], lat[sel], cell[sel]
-        fi = np.clip((x - lon_ax[i]) / (lon_ax[i + 1] - lon_ax[i]), 0.0, 1.0)
+        i, j, fi, lat, cell = i[sel], j[sel], fi[sel], lat[sel], cell[sel]
         fj = np.clip((lat - lat_ax[j]) / (lat_ax[j + 1] - lat_ax[j]), 0.0, 1.0)
         h_s = h[sel]
         col = j * ni + i
@@ -626,8 +649,8 @@ def resample(
     radius=1.0,
     exaggeration=DEFAULT_EXAGGERATION,
     block=8,
-    chunk_blocks=256,
-    workers=1,
+    chunk_blocks=1024,
+    workers=None,
 ):
     """Resample one time step into a sparse block volume of opacity (and colour).
 
@@ -651,8 +674,9 @@ def resample(
         Voxels per block edge.
     chunk_blocks : int
         Blocks evaluated per batch (bounds the temporary memory).
-    workers : int
-        Threads evaluating batches (numpy releases the GIL in most of it).
+    workers : int, optional
+        Threads evaluating batches (numpy releases the GIL in most of it);
+        default :func:`default_threads`.
 
     Returns
     -------
@@ -696,15 +720,21 @@ def resample(
     boxed = blocks.shape[0]
     blocks = blocks[_near_candidates(field, table, blocks, sub, voxel_size)]
     n = blocks.shape[0]
-    local = np.indices((sub,) * 3).reshape(3, -1).T
     with_color = color_name is not None
 
     def run(start):
         b = blocks[start : start + chunk_blocks].astype(np.int64)
-        idx = (b[:, None, :] * sub + local[None]).reshape(-1, 3)
-        sel, flat, fk, fj, fi, h = field._locate_inside(idx * voxel_size, table)
-        dens = np.zeros(idx.shape[0], dtype=np.float32)
-        col = np.zeros(idx.shape[0], dtype=np.float32) if with_color else None
+        # Voxel centres per axis, broadcast to (block, x, y, z): longitude and
+        # its cell depend on x and y only, so they are found once per column.
+        X, Y, Z = ((b[:, a, None] * sub + np.arange(sub)) * voxel_size for a in range(3))
+        X, Y, Z = X[:, :, None, None], Y[:, None, :, None], Z[:, None, None, :]
+        full = (b.shape[0], sub, sub, sub)
+        lon, i, fi = (np.broadcast_to(a, full).reshape(-1) for a in field._lon_index(X, Y))
+        lat, h = (np.broadcast_to(a, full).reshape(-1) for a in field._lat_height(X * X + Y * Y, Z))
+        sel, flat, fk, fj, fi, h = field._locate_columns(lon, i, fi, lat, h, table)
+        nvox = lat.size
+        dens = np.zeros(nvox, dtype=np.float32)
+        col = np.zeros(nvox, dtype=np.float32) if with_color else None
         if sel.size:
             dens[sel] = np.nan_to_num(tf(field._trilinear("value", flat, fk, fj, fi)), nan=0.0)
             if color_name == ALTITUDE:
@@ -716,6 +746,8 @@ def resample(
         return b[keep], dens[keep], None if col is None else col.reshape(-1, sub, sub, sub)[keep]
 
     starts = list(range(0, n, chunk_blocks))
+    if workers is None:
+        workers = default_threads()
     if workers > 1 and len(starts) > 1:
         from concurrent.futures import ThreadPoolExecutor
 
@@ -749,6 +781,17 @@ def resample(
         "bytes": int(kd.nbytes + (kc.nbytes if kc is not None else 0) + kb.nbytes),
     }
     return SparseVolume(float(voxel_size), block, kb, kd, kc, color_name, stats)
+
+
+def default_threads():
+    """Threads for :func:`resample`: ``OMP_NUM_THREADS`` where set (Dask
+    workers set it to 1, since they run tasks side by side), else the CPUs
+    this process may use, at most 8."""
+    env = os.environ.get("OMP_NUM_THREADS", "")
+    if env.isdigit() and int(env) > 0:
+        return int(env)
+    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    return max(1, min(cpus, 8))
 
 
 def frame_params(obj_params, frame):
@@ -848,6 +891,7 @@ __all__ = [
     "CurvilinearField",
     "SparseVolume",
     "candidate_blocks",
+    "default_threads",
     "frame_params",
     "height_scale",
     "plan_volume",

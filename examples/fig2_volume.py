@@ -92,7 +92,7 @@ def main(argv=None):
     argv = sys.argv[1:] if argv is None else argv
     ap = globe_scene.argument_parser(__doc__.split("\n\n")[0], DEFAULTS)
     ap.add_argument("--threshold", type=float, default=DEFAULTS["threshold"], help="opacity is zero below it")
-    ap.add_argument("--voxel-size", type=float, help="scene units between voxels (default 0.003)")
+    ap.add_argument("--voxel-size", type=float, help="scene units between voxels (default 0.0027)")
     ap.add_argument("--engine", choices=("CYCLES", "BLENDER_EEVEE"), default=DEFAULTS["engine"])
     ap.add_argument("--vdb-dir", help="where the .vdb sequence goes")
     ap.add_argument("--no-haze", action="store_true", help="leave out the blue haze")

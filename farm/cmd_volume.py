@@ -26,7 +26,7 @@ def add_arguments(p):
     p.add_argument("--tf", metavar="JSON", help='custom transfer function [[value, opacity], ...] (overrides the ramp)')
     p.add_argument("--color-var", default="altitude", metavar="NAME",
                    help='second grid: "altitude" (default), a variable such as temperature, or "" for none')
-    p.add_argument("--voxel-size", type=float, metavar="S", help="scene units between voxels (default 0.003)")
+    p.add_argument("--voxel-size", type=float, metavar="S", help="scene units between voxels (default 0.0027)")
     p.add_argument("--exaggeration", type=float, metavar="E", help="vertical exaggeration (default 30)")
     p.add_argument("--radius", type=float, default=1.0, help="sea-level radius in scene units (default 1)")
     p.add_argument("--steps", metavar="A-B", help="time steps to write, e.g. 0-23 (default: all)")

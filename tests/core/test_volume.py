@@ -163,6 +163,26 @@ def test_fine_voxels_over_steep_regional_terrain_miss_nothing():
     assert vol.stats["active_voxels"] > 5000
 
 
+@pytest.mark.parametrize("lon0", [-180.0, 200.0, 350.0])
+def test_longitude_origin_and_threads_do_not_change_the_volume(lon0):
+    # The same globe field on a grid whose longitudes start elsewhere (rolled
+    # columns) gives the same voxels, and threads give the same voxels as one.
+    g = grid(ni=32, nj=16, nk=6)
+    c = smooth_cloud(g)
+    tf = TransferFunction.ramp(0.4, 1.0)
+    ref = resample(g, c, tf, voxel_size=0.03, color_name=ALTITUDE, workers=1)
+    d = np.mod(g.lon - lon0 + 180.0, 360.0) - 180.0
+    shift = int(np.argmin(np.abs(d)))
+    first = lon0 + d[shift]  # the column nearest lon0, written near lon0
+    rolled = GlobeGrid(first + np.arange(g.lon.size) * 360.0 / g.lon.size, g.lat,
+                       np.roll(g.height, -shift, axis=2), np.roll(g.terrain, -shift, axis=1))
+    got = resample(rolled, np.roll(c, -shift, axis=2), tf, voxel_size=0.03, color_name=ALTITUDE, workers=2, chunk_blocks=8)
+    assert got.stats["active_voxels"] == ref.stats["active_voxels"] > 1000
+    np.testing.assert_array_equal(got.blocks, ref.blocks)
+    np.testing.assert_allclose(got.density, ref.density, atol=1e-5)
+    np.testing.assert_allclose(got.color, ref.color, atol=1e-3)
+
+
 def test_threshold_above_maximum_gives_empty_volume():
     g = grid()
     c = smooth_cloud(g)
@@ -263,3 +283,12 @@ def test_planner_feeds_the_cache_the_blender_bake_reads(tmp_path, monkeypatch):
     monkeypatch.setattr(vmod, "resample", lambda *a, **k: pytest.fail("resampled again"))
     again = tasks.run_cached(kind, params, tmp_path)
     np.testing.assert_array_equal(again["density"], direct.density)
+
+
+def test_default_threads_follow_omp_num_threads(monkeypatch):
+    from nephele.core.volume import default_threads
+
+    monkeypatch.setenv("OMP_NUM_THREADS", "3")
+    assert default_threads() == 3
+    monkeypatch.setenv("OMP_NUM_THREADS", "")
+    assert 1 <= default_threads() <= 8
