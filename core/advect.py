@@ -374,6 +374,16 @@ class WindField:
         v -= _dot(v, xyz)[:, None] * xyz
         return v, out[:, 3]
 
+    def vertex_velocity(self, hours, index, xyz):
+        """:meth:`velocity` at the grid vertices ``index`` (flat), unit vectors ``xyz``: read, not interpolated."""
+        k, j, i = np.unravel_index(np.asarray(index), self.grid.shape)
+        rows = (k * self.index.njp + j + self.index.pad) * self.index.nip + i + 1
+        parts = [(w, f.reshape(-1, f.shape[-1]).take(rows, axis=0).astype(np.float64)) for w, f in self._field_at(hours, len(rows))]
+        out = parts[0][1] if len(parts) == 1 else parts[0][0] * parts[0][1] + parts[1][0] * parts[1][1]
+        v = out[:, :3]
+        v -= _dot(v, xyz)[:, None] * xyz
+        return v, out[:, 3]
+
     def max_speed(self, t0, t1):
         """Largest (unit-sphere speed per hour, level rate per hour) over the steps spanning ``t0..t1``."""
         lo, hi = min(t0, t1), max(t0, t1)
@@ -444,7 +454,7 @@ class AnalyticWind:
         return 1.05 * sp, 0.0
 
 
-def trace(wind, xyz, s, t_from, t_to, *, method="rk4", dt_max=1.0, cfl=1.0):
+def trace(wind, xyz, s, t_from, t_to, *, method="rk4", dt_max=1.0, cfl=1.0, vertices=None):
     """Integrate points from time ``t_from`` to ``t_to`` (hours; backwards when ``t_to < t_from``).
 
     Parameters
@@ -459,6 +469,10 @@ def trace(wind, xyz, s, t_from, t_to, *, method="rk4", dt_max=1.0, cfl=1.0):
         Largest step in hours.
     cfl : float
         Largest displacement per step, in grid spacings (horizontal) or levels.
+    vertices : (n,) int array, optional
+        Flat grid indices of the points when they are the grid's vertices (and
+        ``wind`` a :class:`WindField`): the first stage reads the wind at the
+        vertices instead of interpolating it there.
 
     Returns
     -------
@@ -489,17 +503,19 @@ def trace(wind, xyz, s, t_from, t_to, *, method="rk4", dt_max=1.0, cfl=1.0):
     n = int(np.ceil(abs(span) / dt - 1e-9))
     h = span / n
     t = t_from
+    first = wind.vertex_velocity(t, vertices, xyz) if vertices is not None and hasattr(wind, "vertex_velocity") else None
     for _ in range(n):
-        xyz, s = _step(wind, method, t, h, xyz, s, top)
+        xyz, s = _step(wind, method, t, h, xyz, s, top, first)
         t += h
+        first = None
     return xyz, s
 
 
-def _step(wind, method, t, h, x, s, top):
+def _step(wind, method, t, h, x, s, top, first=None):
     def stage(xb, sb, k, dk, a):
         return _normalise(xb + a * k), np.clip(sb + a * dk, 0.0, top)
 
-    k1, d1 = wind.velocity(t, x, s)
+    k1, d1 = wind.velocity(t, x, s) if first is None else first
     if method == "euler":
         return stage(x, s, k1, d1, h)
     if method == "rk2":
@@ -563,7 +579,7 @@ class _Strategy:
         if hit is not None and hit[0] == n and np.array_equal(hit[1], need):
             return hit[2]
         xyz, s = self._points(need)
-        y, z = trace(self.wind, xyz, s, self.frame_hours[n], self.frame_hours[n - 1], **self.opts)
+        y, z = trace(self.wind, xyz, s, self.frame_hours[n], self.frame_hours[n - 1], vertices=need, **self.opts)
         self._phi = (n, need, (xyz, s, y, z))
         return self._phi[2]
 
@@ -581,7 +597,7 @@ class FullTrace(_Strategy):
         n = self._frame(n)
         xyz, s = self._points(index)
         t0 = self.frame_hours[0]
-        x, z = trace(self.wind, xyz, s, self.frame_hours[n], t0, **self.opts)
+        x, z = trace(self.wind, xyz, s, self.frame_hours[n], t0, vertices=index, **self.opts)
         return [Copy(x, z, 1.0, t0)]
 
 
@@ -624,7 +640,7 @@ class _StreamedMap:
             return np.arange(int(np.prod(self.st.grid.shape)))
         mask = np.zeros(self.st.grid.shape, dtype=bool)
         mask.reshape(-1)[index] = True
-        return np.flatnonzero(dilate(mask, self.band, periodic_lon=self.st.grid.periodic_lon))
+        return np.flatnonzero(dilate(mask, self.band, periodic_lon=self.st.grid.periodic_lon, poles=self.index.pad > 0))
 
     def advance(self, copies, n, index):
         """Move copies ``copies`` (all at frame ``n - 1``) to frame ``n`` for the vertices around ``index``."""
@@ -645,7 +661,8 @@ class _StreamedMap:
             redo = asked & ~np.all(np.isfinite(dc), axis=1)
             if redo.any():
                 self.fallbacks += int(redo.sum())
-                xb, zb = trace(st.wind, xyz[redo], s[redo], st.frame_hours[n], st.frame_hours[self.starts[c]], **st.opts)
+                xb, zb = trace(st.wind, xyz[redo], s[redo], st.frame_hours[n], st.frame_hours[self.starts[c]], vertices=need[redo],
+                               **st.opts)
                 start[redo] = np.concatenate([xb, zb[:, None]], axis=1)
             values[:, 4 * a : 4 * a + 4] = start - here
         self._store(copies, need, values)
@@ -727,13 +744,22 @@ def _extend(m, cells):
     return m
 
 
-def dilate(mask, cells, periodic_lon=False):
-    """Grow a boolean (nk, nj, ni) mask by ``cells`` in latitude/longitude and one level."""
+def dilate(mask, cells, periodic_lon=False, poles=False):
+    """Grow a boolean (nk, nj, ni) mask by ``cells`` in latitude/longitude and one level.
+
+    With ``poles`` the first and last rows neighbour themselves half way round
+    in longitude, so the mask grows across the poles (a periodic longitude
+    with an even number of columns).
+    """
     m = mask.copy()
+    half = m.shape[2] // 2
     for _ in range(int(cells)):
         g = m.copy()
         g[:, 1:] |= m[:, :-1]
         g[:, :-1] |= m[:, 1:]
+        if poles:
+            g[:, 0] |= np.roll(m[:, 0], half, axis=1)
+            g[:, -1] |= np.roll(m[:, -1], half, axis=1)
         if periodic_lon:
             g |= np.roll(m, 1, axis=2) | np.roll(m, -1, axis=2)
         else:
@@ -811,7 +837,8 @@ class RestartTrace(_Strategy):
             found = self.stream.at(n, index, starts)
         else:
             xyz, s = self._points(index)
-            found = [trace(self.wind, xyz, s, self.frame_hours[n], self.frame_hours[start], **self.opts) for start in starts]
+            found = [trace(self.wind, xyz, s, self.frame_hours[n], self.frame_hours[start], vertices=index, **self.opts)
+                     for start in starts]
         return [Copy(x, z, w, self.frame_hours[start]) for (x, z), start, w in zip(found, starts, self.weights(n))]
 
 
