@@ -216,6 +216,7 @@ class SyntheticClimate(Dataset):
         self._departures = {}
         self._winds = {}
         self._flat = None
+        self._terrain_flat = None
 
     # ----------------------------------------------------------------- parameters
     @staticmethod
@@ -310,6 +311,7 @@ class SyntheticClimate(Dataset):
 
         The vortices of one group have disjoint caps, so they commute and are applied together."""
         x, y, z = p
+        all_rows = None
         pairs = list(zip(self._storms, self._frames))
         for g, frame in reversed(pairs) if inverse else pairs:
             grow = _smootherstep((t - g["birth"]) / g["life"])
@@ -320,7 +322,9 @@ class SyntheticClimate(Dataset):
             cand = np.nonzero((z > zlo) & (z < zhi))[0]
             if cand.size == 0:
                 continue
-            rows = self._jet_rows(jet[cand])
+            if all_rows is None:
+                all_rows = self._jet_rows(jet)
+            rows = all_rows[cand]
             pz = z[cand]
             c, s = self._frame_rotation(frame, rows, pz)
             x0, y0 = x[cand], y[cand]
@@ -429,8 +433,13 @@ class SyntheticClimate(Dataset):
         """Labels (unit vectors at ``t = 0``) of the grid points at step ``t``: three ``(nk, nj, ni)`` arrays."""
         t = int(t) % self.times.size
         if t not in self._departures:
-            x, (jet, storm) = self._flat_grid()
-            a = self.inverse(x, self.hours[t] * 3600.0, jet, storm)
+            _, (jet, storm) = self._flat_grid()
+            secs = self.hours[t] * 3600.0
+            # inverse() on the grid: the zonal rotation angle depends only on (level, row), so take it once per pair.
+            ang = -self._jet_factor[:, None] * self._lookup(self._theta_table(secs), self._unit[2][:, 0])[None, :]
+            px, py = self._rotate_z(self._unit[0], self._unit[1], ang[:, :, None])
+            z = np.broadcast_to(self._unit[2], self.grid.shape).ravel()
+            a = self._twists([px.ravel(), py.ravel(), z], secs, jet, storm, inverse=True)
             if len(self._departures) >= 2:
                 self._departures.pop(next(iter(self._departures)))
             self._departures[t] = tuple(v.reshape(self.grid.shape) for v in a)
@@ -447,11 +456,29 @@ class SyntheticClimate(Dataset):
         d = [((q1 - q0) * scale).reshape(shape) for q1, q0 in zip(p1, p0)]
         u = d[0] * self._east[0] + d[1] * self._east[1]
         v = d[0] * self._north[0] + d[1] * self._north[1] + d[2] * self._north[2]
-        lon1, lat1 = _lonlat(p1)
-        dterrain = sample_relief(lon1, lat1, self._terrain).reshape(shape) - self.grid.terrain
+        dterrain = self._terrain_at(*_lonlat(p1)).reshape(shape) - self.grid.terrain
         w = self.b[:, None, None] * dterrain / DELTA
         self._winds = {t: (u, v, w)}
         return self._winds[t]
+
+    def _terrain_at(self, lon, lat):
+        """``T`` at longitudes/latitudes (degrees): :func:`~nephele.core.relief.sample_relief` of the grid's
+        terrain, the same arithmetic with flat indices into a copy that repeats the first column after the last."""
+        glon, glat, z = self._terrain
+        nj, ni = z.shape
+        if self._terrain_flat is None:
+            self._terrain_flat = np.concatenate([z, z[:, :1]], axis=1).ravel()
+        x = np.mod(lon - glon[0], 360.0) / (360.0 / ni)
+        i0 = np.floor(x).astype(np.intp)
+        fx = x - i0
+        i0 %= ni
+        y = np.clip((lat - glat[0]) / np.diff(glat)[0], 0.0, nj - 1.0)
+        j0 = np.minimum(np.floor(y).astype(np.intp), nj - 2)
+        fy = y - j0
+        flat, i = self._terrain_flat, j0 * (ni + 1) + i0
+        top = flat[i] * (1.0 - fx) + flat[i + 1] * fx
+        bottom = flat[i + ni + 1] * (1.0 - fx) + flat[i + ni + 2] * fx
+        return top * (1.0 - fy) + bottom * fy
 
     def _read(self, name, t):
         if name in ("u", "v", "w"):
