@@ -113,10 +113,10 @@ class _GridIndex:
             out[:, :, 0], out[:, :, ni + 1], out[:, :, ni + 2] = out[:, :, 1], out[:, :, ni], out[:, :, ni]
         return out
 
-    def interior(self, padded):
-        """The grid's own vertices of a padded field."""
-        p, ni = self.pad, self.shape[2]
-        return padded[:, p : padded.shape[1] - p, 1 : ni + 1]
+    def rows(self, index):
+        """Flat (level, padded row, padded column) positions in a padded field of the grid vertices ``index``."""
+        k, j, i = np.unravel_index(np.asarray(index), self.shape)
+        return (k * self.njp + j + self.pad) * self.nip + i + 1
 
     def fractional(self, xyz, s):
         """Fractional indices ``(fk, fj, fi)`` of unit vectors ``xyz`` at level coordinate ``s``."""
@@ -235,8 +235,8 @@ class WindField:
         riding its terrain-following level (the demo's), whose finite-difference
         reconstruction would otherwise add spurious vertical motion.
     cache_steps : int
-        Hourly steps kept converted (float32, ``nk × (nj+4) × ni × 4`` values
-        each: 16 MB on the 320×160×19 demo), least recently used dropped.  A
+        Hourly steps kept converted (float32, ``nk × (nj+4) × (ni+3) × 4``
+        values each: 16 MB on the 320×160×19 demo), least recently used dropped.  A
         restart strategy with period ``P`` frames reads back up to ``P`` frames
         of steps for its fallback traces: see :func:`steps_to_keep`.
     """
@@ -368,21 +368,13 @@ class WindField:
     def velocity(self, hours, xyz, s):
         """``(dxyz/dt, ds/dt)`` per hour at unit vectors ``xyz`` (n, 3) and levels ``s`` (n,)."""
         fr = self.index.fractional(xyz, s)
-        parts = [(w, self.index.trilinear(f, *fr).astype(np.float64)) for w, f in self._field_at(hours, len(xyz))]
-        out = parts[0][1] if len(parts) == 1 else parts[0][0] * parts[0][1] + parts[1][0] * parts[1][1]
-        v = out[:, :3]
-        v -= _dot(v, xyz)[:, None] * xyz
-        return v, out[:, 3]
+        return _tangent(sum(w * self.index.trilinear(f, *fr).astype(np.float64) for w, f in self._field_at(hours, len(xyz))), xyz)
 
     def vertex_velocity(self, hours, index, xyz):
         """:meth:`velocity` at the grid vertices ``index`` (flat), unit vectors ``xyz``: read, not interpolated."""
-        k, j, i = np.unravel_index(np.asarray(index), self.grid.shape)
-        rows = (k * self.index.njp + j + self.index.pad) * self.index.nip + i + 1
-        parts = [(w, f.reshape(-1, f.shape[-1]).take(rows, axis=0).astype(np.float64)) for w, f in self._field_at(hours, len(rows))]
-        out = parts[0][1] if len(parts) == 1 else parts[0][0] * parts[0][1] + parts[1][0] * parts[1][1]
-        v = out[:, :3]
-        v -= _dot(v, xyz)[:, None] * xyz
-        return v, out[:, 3]
+        rows = self.index.rows(index)
+        parts = self._field_at(hours, len(rows))
+        return _tangent(sum(w * f.reshape(-1, f.shape[-1]).take(rows, axis=0).astype(np.float64) for w, f in parts), xyz)
 
     def max_speed(self, t0, t1):
         """Largest (unit-sphere speed per hour, level rate per hour) over the steps spanning ``t0..t1``."""
@@ -402,6 +394,13 @@ class WindField:
         return self.index.trilinear(self.height_field, *self.index.fractional(xyz, s))[:, 0]
 
 
+def _tangent(out, xyz):
+    """Split (n, 4) interpolated winds into the velocity tangent to the sphere at ``xyz`` and the level rate."""
+    v = out[:, :3]
+    v -= _dot(v, xyz)[:, None] * xyz
+    return v, out[:, 3]
+
+
 def steps_to_keep(grid, period_hours, budget_mb=512):
     """Wind steps a :class:`WindField` should keep for a restart period of ``period_hours``.
 
@@ -410,7 +409,7 @@ def steps_to_keep(grid, period_hours, budget_mb=512):
     the period, not on the film's length.
     """
     nk, nj, ni = grid.shape
-    step_mb = nk * (nj + 4) * ni * 4 * 4 / 2**20
+    step_mb = nk * (nj + 4) * (ni + 3) * 4 * 4 / 2**20
     return int(max(6, min(np.ceil(period_hours) + 2, budget_mb // step_mb)))
 
 
@@ -629,6 +628,7 @@ class _StreamedMap:
         self.frames = [None] * copies
         self.starts = [None] * copies
         self.fallbacks = 0
+        self._scratch = {}
 
     def reset(self, c, n):
         """Copy ``c`` is the identity at frame ``n``: every vertex starts where it is (zero displacement)."""
@@ -670,8 +670,12 @@ class _StreamedMap:
             self.frames[c] = n
 
     def _store(self, copies, need, values):
-        m = np.full(self.st.grid.shape + (values.shape[1],), np.nan, dtype=np.float32)
-        m.reshape(-1, values.shape[1])[need] = values
+        nc = values.shape[1]
+        if nc not in self._scratch:  # reused: a fresh grid-sized array each frame costs its page faults again
+            self._scratch[nc] = np.empty(self.st.grid.shape + (nc,), dtype=np.float32)
+        m = self._scratch[nc]
+        m.fill(np.nan)
+        m.reshape(-1, nc)[need] = values
         if self.band is not None:
             m = _extend(m, self.band + 2)
         if list(copies) == list(range(copies[0], copies[-1] + 1)):
@@ -680,14 +684,13 @@ class _StreamedMap:
             for a, c in enumerate(copies):
                 self.index.padded(m[..., 4 * a : 4 * a + 4], out=self.map[..., 4 * c : 4 * c + 4])
 
-    def lookup(self, c, index):
-        """Start positions of copy ``c`` at the vertices ``index`` (flat indices)."""
-        index = np.asarray(index, dtype=np.int64)
-        nk, nj, ni = self.st.grid.shape
-        k, j, i = np.unravel_index(index, (nk, nj, ni))
-        d = self.index.interior(self.map)[k, j, i, 4 * c : 4 * c + 4].astype(np.float64)
+    def lookup(self, index):
+        """Start positions ``[(xyz, s), ...]`` of every copy at the vertices ``index`` (flat indices)."""
+        index = np.asarray(index, dtype=np.int64).reshape(-1)
+        d = self.map.reshape(-1, self.map.shape[-1]).take(self.index.rows(index), axis=0).astype(np.float64)
         xyz, s = self.st._points(index)
-        return _normalise(xyz + d[:, :3]), np.clip(s + d[:, 3], 0.0, nk - 1)
+        top = self.st.grid.shape[0] - 1
+        return [(_normalise(xyz + d[:, 4 * c : 4 * c + 3]), np.clip(s + d[:, 4 * c + 3], 0.0, top)) for c in range(len(self.frames))]
 
     def at(self, n, index, starts):
         """The maps at frame ``n`` of the copies started at frames ``starts`` (streaming), for vertices ``index``."""
@@ -697,7 +700,7 @@ class _StreamedMap:
         while min(self.frames) < n:
             m = min(self.frames) + 1
             self.advance([c for c, f in enumerate(self.frames) if f == m - 1], m, index)
-        return [self.lookup(c, index) for c in range(len(starts))]
+        return self.lookup(index)
 
 
 LEVEL_CELLS = 4
@@ -717,7 +720,9 @@ def _extend(m, cells):
     """
     nk, nj, ni, nc = m.shape
     missing_c = np.isnan(m[..., ::4])
-    missing = missing_c.any(axis=-1)
+    missing = missing_c[..., 0].copy()
+    for c in range(1, nc // 4):
+        missing |= missing_c[..., c]
     if not missing.any() or missing.all():
         return m
     reach = int(np.floor(cells))
@@ -727,14 +732,16 @@ def _extend(m, cells):
     near = ndimage.distance_transform_edt(stack.reshape(nk * rows, ni), return_distances=False, return_indices=True)
     r_near = near[0].reshape(nk, rows, ni)[:, :nj]
     c_near = near[1].reshape(nk, rows, ni)[:, :nj]
-    r_self = (np.arange(nk)[:, None] * rows + np.arange(nj))[:, :, None]
-    cost = ((r_near - r_self) ** 2 + (c_near - np.arange(ni)) ** 2).reshape(nk, -1)
+    r_self = (np.arange(nk, dtype=np.int32)[:, None] * rows + np.arange(nj, dtype=np.int32))[:, :, None]
+    dr = r_near - r_self
+    dc = c_near - np.arange(ni, dtype=np.int32)
+    cost = (dr * dr + dc * dc).reshape(nk, -1)
     src = ((r_near // rows * nj + r_near % rows) * ni + c_near).reshape(nk, -1)
     for lo, hi in ((slice(1, None), slice(None, -1)), (slice(None, -1), slice(1, None))):  # from below, from above
-        via = cost[hi] + LEVEL_CELLS**2
+        via = cost[hi] + np.int32(LEVEL_CELLS**2)
         better = via < cost[lo]
-        cost[lo] = np.where(better, via, cost[lo])
-        src[lo] = np.where(better, src[hi], src[lo])
+        cost[lo][better] = via[better]
+        src[lo][better] = src[hi][better]
     have = (cost <= cells * cells).reshape(missing.shape)
     flat = m.reshape(-1, nc)
     src = src.reshape(-1)
@@ -929,7 +936,7 @@ ADVECT_DEFAULTS = {"strategy": "restart", "period": 24, "integrator": "rk4", "or
 :func:`trace`'s default 1 at no measured cost on the demo (restart copies over
 24 frames, levels kept: 0.045 vs 0.044 km rms, 3.94 km max either way; see
 benchmarks/bench_advect.py).  Each process keeps at most two winds, each with
-:func:`steps_to_keep` steps (416 MB on the demo for 24 hourly frames).
+:func:`steps_to_keep` steps (about 420 MB on the demo for 24 hourly frames).
 """
 
 START = "nephele_start_{}"
