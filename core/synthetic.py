@@ -294,9 +294,11 @@ class SyntheticClimate(Dataset):
         x = (np.clip(z, -1.0, 1.0) + 1.0) * (0.5 * (m - 1))
         i = np.minimum(x.astype(np.intp), m - 2)
         f = x - i
+        g = 1.0 - f
         i += rows * m
-        c = cos_t[i] * (1.0 - f) + cos_t[i + 1] * f
-        s = sin_t[i] * (1.0 - f) + sin_t[i + 1] * f
+        j = i + 1
+        c = cos_t[i] * g + cos_t[j] * f
+        s = sin_t[i] * g + sin_t[j] * f
         n = np.hypot(c, s)
         return c / n, s / n
 
@@ -322,8 +324,8 @@ class SyntheticClimate(Dataset):
             cand = np.nonzero((z > zlo) & (z < zhi))[0]
             if cand.size == 0:
                 continue
-            if all_rows is None:
-                all_rows = self._jet_rows(jet)
+            if all_rows is None:  # the grid's own level factors: rows looked up once (see _flat_grid)
+                all_rows = self._flat[2] if self._flat is not None and jet is self._flat[1][0] else self._jet_rows(jet)
             rows = all_rows[cand]
             pz = z[cand]
             c, s = self._frame_rotation(frame, rows, pz)
@@ -422,18 +424,19 @@ class SyntheticClimate(Dataset):
 
     # ------------------------------------------------------------------ per step
     def _flat_grid(self):
-        """Grid points as flat unit-vector components and their level factors (computed once)."""
+        """Grid points as flat unit-vector components, their level factors and jet rows (computed once)."""
         if self._flat is None:
             nk, nj, ni = self.grid.shape
             x = tuple(np.broadcast_to(u, (nk, nj, ni)).ravel() for u in self._unit)
-            self._flat = x, self.level_factors(np.repeat(np.arange(nk), nj * ni))
+            factors = self.level_factors(np.repeat(np.arange(nk), nj * ni))
+            self._flat = x, factors, self._jet_rows(factors[0])
         return self._flat
 
     def departure(self, t):
         """Labels (unit vectors at ``t = 0``) of the grid points at step ``t``: three ``(nk, nj, ni)`` arrays."""
         t = int(t) % self.times.size
         if t not in self._departures:
-            _, (jet, storm) = self._flat_grid()
+            _, (jet, storm), _ = self._flat_grid()
             secs = self.hours[t] * 3600.0
             # inverse() on the grid: the zonal rotation angle depends only on (level, row), so take it once per pair.
             ang = -self._jet_factor[:, None] * self._lookup(self._theta_table(secs), self._unit[2][:, 0])[None, :]
@@ -450,7 +453,7 @@ class SyntheticClimate(Dataset):
             return self._winds[t]
         shape = self.grid.shape
         a = tuple(v.ravel() for v in self.departure(t))
-        p0, (jet, storm) = self._flat_grid()
+        p0, (jet, storm), _ = self._flat_grid()
         p1 = self.forward(a, self.hours[t] * 3600.0 + DELTA, jet, storm)
         scale = EARTH_RADIUS / DELTA
         d = [((q1 - q0) * scale).reshape(shape) for q1, q0 in zip(p1, p0)]
