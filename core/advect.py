@@ -573,14 +573,10 @@ class _Strategy:
         return self._columns[col], k.astype(np.float64)
 
     def _one_frame(self, n, need):
-        """Vertices ``need`` and where they were one frame earlier; shared by the copies of a frame."""
-        hit = getattr(self, "_phi", None)
-        if hit is not None and hit[0] == n and np.array_equal(hit[1], need):
-            return hit[2]
+        """Vertices ``need`` and where they were one frame earlier."""
         xyz, s = self._points(need)
         y, z = trace(self.wind, xyz, s, self.frame_hours[n], self.frame_hours[n - 1], vertices=need, **self.opts)
-        self._phi = (n, need, (xyz, s, y, z))
-        return self._phi[2]
+        return xyz, s, y, z
 
 
 class FullTrace(_Strategy):
@@ -649,22 +645,21 @@ class _StreamedMap:
         xyz, s, y, z = st._one_frame(n, need)
         fr = self.index.fractional(y, z)
         d = self.index.cubic(self.map, *fr) if self.order == 3 else self.index.trilinear(self.map, *fr)
-        here = np.concatenate([xyz, s[:, None]], axis=1)
         asked = np.zeros(int(np.prod(st.grid.shape)), dtype=bool)
         asked[index] = True
         asked = asked[need]
         top = st.grid.shape[0] - 1
         values = np.empty((need.size, 4 * len(copies)), dtype=np.float32)
         for a, c in enumerate(copies):
-            dc = d[:, 4 * c : 4 * c + 4].astype(np.float64)
-            start = np.concatenate([_normalise(y + dc[:, :3]), np.clip(z + dc[:, 3], 0.0, top)[:, None]], axis=1)
+            dc = d[:, 4 * c : 4 * c + 4]
+            sx, sz = _normalise(y + dc[:, :3]), np.clip(z + dc[:, 3], 0.0, top)
             redo = asked & ~np.all(np.isfinite(dc), axis=1)
             if redo.any():
                 self.fallbacks += int(redo.sum())
-                xb, zb = trace(st.wind, xyz[redo], s[redo], st.frame_hours[n], st.frame_hours[self.starts[c]], vertices=need[redo],
-                               **st.opts)
-                start[redo] = np.concatenate([xb, zb[:, None]], axis=1)
-            values[:, 4 * a : 4 * a + 4] = start - here
+                sx[redo], sz[redo] = trace(st.wind, xyz[redo], s[redo], st.frame_hours[n], st.frame_hours[self.starts[c]],
+                                           vertices=need[redo], **st.opts)
+            values[:, 4 * a : 4 * a + 3] = sx - xyz
+            values[:, 4 * a + 3] = sz - s
         self._store(copies, need, values)
         for c in copies:
             self.frames[c] = n
