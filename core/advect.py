@@ -728,12 +728,12 @@ def _extend(m, cells):
     r_near = near[0].reshape(nk, rows, ni)[:, :nj]
     c_near = near[1].reshape(nk, rows, ni)[:, :nj]
     r_self = (np.arange(nk, dtype=np.int32)[:, None] * rows + np.arange(nj, dtype=np.int32))[:, :, None]
-    dr = r_near - r_self
+    dr = (r_near - r_self).astype(np.int64)  # squares of far rows of other levels overflow int32 on big grids
     dc = c_near - np.arange(ni, dtype=np.int32)
     cost = (dr * dr + dc * dc).reshape(nk, -1)
     src = ((r_near // rows * nj + r_near % rows) * ni + c_near).reshape(nk, -1)
     for lo, hi in ((slice(1, None), slice(None, -1)), (slice(None, -1), slice(1, None))):  # from below, from above
-        via = cost[hi] + np.int32(LEVEL_CELLS**2)
+        via = cost[hi] + LEVEL_CELLS**2
         better = via < cost[lo]
         cost[lo][better] = via[better]
         src[lo][better] = src[hi][better]
