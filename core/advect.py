@@ -178,19 +178,22 @@ class _GridIndex:
         wk = [(1.0 - tk).astype(f32), np.asarray(tk, dtype=f32)]
         wj = [a.astype(f32) for a in (_catmull_rom(tj) if cubic else (1.0 - tj, tj))]
         wi = [a.astype(f32) for a in (_catmull_rom(ti) if cubic else (1.0 - ti, ti))]
-        w = np.empty((offs.size, n), dtype=f32)
-        t = 0
-        for a in wk:
-            for b in wj:
-                ab = a * b
-                for c_ in wi:
-                    np.multiply(ab, c_, out=w[t])
-                    t += 1
-        w = w.T
-        for a in range(0, n, chunk):
-            sl = slice(a, a + chunk)
-            g = flat.take(base[sl, None] + offs, axis=0)
-            out[sl] = np.matmul(w[sl, None, :], g)[:, 0]
+        block = 16 * chunk  # weights made a block at a time: one (taps, n) array would be tens of MB, page-faulted anew each call
+        w = np.empty((offs.size, min(block, n)), dtype=f32)
+        for b0 in range(0, n, block):
+            nb = min(block, n - b0)
+            t = 0
+            for a in wk:
+                for b in wj:
+                    ab = a[b0 : b0 + nb] * b[b0 : b0 + nb]
+                    for c_ in wi:
+                        np.multiply(ab, c_[b0 : b0 + nb], out=w[t, :nb])
+                        t += 1
+            wt = w[:, :nb].T
+            for a in range(0, nb, chunk):
+                sl = slice(b0 + a, b0 + min(a + chunk, nb))
+                g = flat.take(base[sl, None] + offs, axis=0)
+                out[sl] = np.matmul(wt[a : a + chunk, None, :], g)[:, 0]
         return out
 
 
