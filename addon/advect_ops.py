@@ -184,7 +184,7 @@ def update_advected(obj, params, scene, frame_number):
     obj["nephele_hours"] = tp["hours"]
 
 
-def add_advected_texture(obj, *, strategy="restart", period=24, integrator="rk4", vertical="w", fractal=Fractal(),
+def add_advected_texture(obj, *, strategy="restart", period=24, integrator="rk4", vertical="auto", fractal=Fractal(),
                          lo=0.08, hi=0.28, scene=None):
     """Give the contour object ``obj`` the advected cloud texture; returns ``obj``.
 
@@ -198,9 +198,10 @@ def add_advected_texture(obj, *, strategy="restart", period=24, integrator="rk4"
         ``period`` frames; compose: one copy composed frame by frame; full:
         the paper's trace back to the first frame, cost growing with the frame).
     integrator : {"rk4", "rk2", "euler"}
-    vertical : {"w", "levels"}
-        Vertical motion from ``w``, or points keep their level (see
-        :class:`nephele.core.advect.WindField`; exact for the demo climate).
+    vertical : {"auto", "w", "levels"}
+        Vertical motion from ``w``, or points keep their level (exact for the
+        demo climate), or whichever the dataset's ``levels_follow_air`` says
+        (see :class:`nephele.core.advect.WindField`).
     fractal : Fractal
     lo, hi : float
         Texture values mapped to fully transparent and fully opaque.
@@ -211,8 +212,8 @@ def add_advected_texture(obj, *, strategy="restart", period=24, integrator="rk4"
         raise ValueError(f"{obj.name} is not a Nephele contour surface (kind {params.get('kind')!r})")
     if strategy not in advect.STRATEGIES:
         raise ValueError(f"strategy must be one of {sorted(advect.STRATEGIES)}, got {strategy!r}")
-    if vertical not in ("w", "levels"):
-        raise ValueError(f"vertical must be 'w' or 'levels', got {vertical!r}")
+    if vertical not in ("auto", "w", "levels"):
+        raise ValueError(f"vertical must be 'auto', 'w' or 'levels', got {vertical!r}")
     params.update({"kind": KIND, "strategy": strategy, "period": int(period), "integrator": integrator,
                    "vertical": vertical})
     frame.set_params(obj, params)
@@ -241,7 +242,8 @@ class NEPHELE_OT_add_advected_texture(bpy.types.Operator):
     period: bpy.props.IntProperty(name="Restart period (frames)", default=24, min=2, step=2)
     integrator: bpy.props.EnumProperty(name="Integrator", default="rk4", items=[
         ("rk4", "RK4", ""), ("rk2", "RK2", ""), ("euler", "Euler", "")])
-    vertical: bpy.props.EnumProperty(name="Vertical motion", default="w", items=[
+    vertical: bpy.props.EnumProperty(name="Vertical motion", default="auto", items=[
+        ("auto", "Auto", "Keep levels where the dataset's levels follow the air (the demo), else from w"),
         ("w", "From w", "Level rate from the vertical wind and the slope of the levels"),
         ("levels", "Keep levels", "Points stay on their terrain-following level")])
     lo: bpy.props.FloatProperty(name="Clear below", default=0.08, min=0.0, max=1.0)

@@ -38,6 +38,7 @@ from scipy import ndimage
 from .errors import DataError
 from .flows import tangent_velocity
 from .grid import EARTH_RADIUS, xyz_to_lonlat
+from .threads import default_threads
 
 HOUR = 3600.0
 METHODS = ("euler", "rk2", "rk4")
@@ -232,24 +233,36 @@ class WindField:
         Needs ``u`` and ``v`` (m/s); ``w`` (m/s) is optional.
     nan : {"error", "zero"}
         Missing winds raise :class:`DataError` naming the step, or count as calm.
-    vertical : {"w", "levels"}
+    vertical : {"auto", "w", "levels"}
         ``"w"``: the level rate above; ``"levels"``: points keep their level
         (``ds/dt = 0``), right when the data's ``w`` is just the lift of air
         riding its terrain-following level (the demo's), whose finite-difference
-        reconstruction would otherwise add spurious vertical motion.
+        reconstruction would otherwise add spurious vertical motion;
+        ``"auto"``: ``"levels"`` for a dataset whose ``levels_follow_air``
+        says so, else ``"w"``.
     cache_steps : int
         Hourly steps kept converted (float32, ``nk × (nj+4) × (ni+3) × 4``
         values each: 16 MB on the 320×160×19 demo), least recently used dropped.  A
         restart strategy with period ``P`` frames reads back up to ``P`` frames
         of steps for its fallback traces: see :func:`steps_to_keep`.
+    read_ahead : bool, optional
+        After converting step ``t``, read and convert ``t + 1`` in a background
+        thread (a film needs one new step per frame; reading it overlaps the
+        tracing).  Default: when :func:`~nephele.core.threads.default_threads`
+        allows more than one thread.
     """
 
-    def __init__(self, dataset, nan="error", cache_steps=6, vertical="w"):
+    def __init__(self, dataset, nan="error", cache_steps=6, vertical="auto", read_ahead=None):
         if nan not in ("error", "zero"):
             raise ValueError(f"nan must be 'error' or 'zero', got {nan!r}")
-        if vertical not in ("w", "levels"):
-            raise ValueError(f"vertical must be 'w' or 'levels', got {vertical!r}")
+        if vertical not in ("auto", "w", "levels"):
+            raise ValueError(f"vertical must be 'auto', 'w' or 'levels', got {vertical!r}")
+        if vertical == "auto":
+            vertical = "levels" if getattr(dataset, "levels_follow_air", False) else "w"
         self.vertical = vertical
+        self._read_ahead = default_threads() > 1 if read_ahead is None else bool(read_ahead)
+        self._pending = {}
+        self._executor = None
         for name in ("u", "v"):
             if name not in dataset:
                 raise DataError("is needed to advect textures but the dataset has no such field", path=dataset.source, field=name)
@@ -318,6 +331,27 @@ class WindField:
         if t in self._steps:
             self._steps.move_to_end(t)
             return self._steps[t]
+        pending = self._pending.pop(t, None)
+        f, self._speed[t] = pending.result() if pending is not None else self._convert(t)
+        self._steps[t] = f
+        while len(self._steps) > self._cache_steps:
+            self._steps.popitem(last=False)
+        if self._read_ahead:
+            self._prefetch(t + 1)
+        return f
+
+    def _prefetch(self, t):
+        if t >= self.hours.size or t in self._steps or self._pending:
+            return
+        if self._executor is None:
+            from concurrent.futures import ThreadPoolExecutor
+
+            self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="nephele-wind")
+        self._pending[t] = self._executor.submit(self._convert, t)
+
+    def _convert(self, t):
+        """Step ``t`` read, checked and converted: ``(padded field, (speed, level rate))``.
+        Touches no state of its own, so it may run in the read-ahead thread."""
         uvw = self._read_wind(t)
         u, v = uvw[0], uvw[1]
         f = np.empty(self.grid.shape + (4,), dtype=np.float32)
@@ -331,12 +365,8 @@ class WindField:
             wz = w if self._dhdx is None else w - u * self._dhdx - v * self._dhdy
             np.multiply(wz, self._sdot_scale, out=f[..., 3])
         u64, v64 = u.astype(np.float64), v.astype(np.float64)
-        self._speed[t] = (float(np.sqrt(np.max(u64 * u64 + v64 * v64))) * HOUR / EARTH_RADIUS, float(np.max(np.abs(f[..., 3]))))
-        f = self.index.padded(f)
-        self._steps[t] = f
-        while len(self._steps) > self._cache_steps:
-            self._steps.popitem(last=False)
-        return f
+        speed = (float(np.sqrt(np.max(u64 * u64 + v64 * v64))) * HOUR / EARTH_RADIUS, float(np.max(np.abs(f[..., 3]))))
+        return self.index.padded(f), speed
 
     def check_time(self, hours):
         lo, hi = self.time_range
@@ -777,6 +807,22 @@ def dilate(mask, cells, periodic_lon=False, poles=False):
     return g
 
 
+DEFAULT_BAND = 5
+"""Cells kept around the requested vertices by the streamed maps.  Beyond the
+band a map holds only nearest-value extensions, which a vertex whose foot
+point's stencil reaches them inherits: on the demo, restart copies at frames
+100-123 are 72 km off at worst with a band of 4 cells, 10.4 km with 5, 6 or 8
+(a direct trace of the same vertices: 17 km; benchmarks/bench_advect.py);
+frames 1-24 need only 4."""
+
+
+def _band_cells(band):
+    """The streamed map's band: :data:`DEFAULT_BAND` for None, None (whole grid) for ``"all"``."""
+    if band is None:
+        return DEFAULT_BAND
+    return None if band == "all" else band
+
+
 class ComposedTrace(_Strategy):
     """Strategy (b): compose one-frame backward maps, interpolated on the grid.
 
@@ -784,17 +830,18 @@ class ComposedTrace(_Strategy):
     for, plus one interpolation; the interpolation error accumulates over the
     film (``order=1``, trilinear, smears the map; ``order=3``, Catmull-Rom
     bicubic, keeps it sharp).  ``band`` cells around the requested vertices
-    are kept (None: the whole grid).  Frames should be requested in increasing
-    order; an earlier frame restarts from frame 0.
+    are kept (default :data:`DEFAULT_BAND`; ``"all"``: the whole grid).
+    Frames should be requested in increasing order; an earlier frame restarts
+    from frame 0.
     """
 
     name = "compose"
 
-    def __init__(self, wind, frame_hours, grid, *, order=3, band=4, **opts):
+    def __init__(self, wind, frame_hours, grid, *, order=3, band=None, **opts):
         super().__init__(wind, frame_hours, grid, **opts)
         if order not in (1, 3):
             raise ValueError(f"order must be 1 or 3, got {order!r}")
-        self.stream = _StreamedMap(self, order, band)
+        self.stream = _StreamedMap(self, order, _band_cells(band))
 
     def copies(self, n, index):
         n = self._frame(n)
@@ -816,13 +863,13 @@ class RestartTrace(_Strategy):
 
     name = "restart"
 
-    def __init__(self, wind, frame_hours, grid, *, period=24, incremental=True, order=3, band=4, **opts):
+    def __init__(self, wind, frame_hours, grid, *, period=24, incremental=True, order=3, band=None, **opts):
         super().__init__(wind, frame_hours, grid, **opts)
         if int(period) != period or int(period) < 2 or int(period) % 2:
             raise ValueError(f"period must be an even number of frames >= 2, got {period!r}")
         self.period = int(period)
         self.incremental = bool(incremental)
-        self.stream = _StreamedMap(self, order, band, copies=2)
+        self.stream = _StreamedMap(self, order, _band_cells(band), copies=2)
 
     def weights(self, n):
         """``(w_A, w_B)`` at frame ``n``."""
@@ -926,8 +973,8 @@ def great_circle_km(a, b):
 
 
 # ---------------------------------------------------------------- per-frame task
-ADVECT_DEFAULTS = {"strategy": "restart", "period": 24, "integrator": "rk4", "order": 3, "band": 4, "nan": "error",
-                   "vertical": "w", "cfl": 2.0}
+ADVECT_DEFAULTS = {"strategy": "restart", "period": 24, "integrator": "rk4", "order": 3, "band": DEFAULT_BAND, "nan": "error",
+                   "vertical": "auto", "cfl": 2.0}
 """Texture-advection settings an advected contour object stores (besides its contour's).
 
 ``cfl`` 2 (RK4 steps up to two grid spacings) halves the tracing of

@@ -22,6 +22,7 @@ name            units   meaning
 """
 
 import abc
+import threading
 from collections import OrderedDict
 from dataclasses import dataclass
 
@@ -56,7 +57,16 @@ class Dataset(abc.ABC):
         The file path, or ``"demo"``; used in every error message.
     cache_steps : int
         How many (field, step) arrays to keep in memory.
+
+    Attributes
+    ----------
+    levels_follow_air : bool
+        True where the levels are material surfaces (air stays on its level,
+        ``w`` is only the lift of riding it), as in the synthetic demo; the
+        texture advection then keeps points on their levels by default.
     """
+
+    levels_follow_air = False
 
     def __init__(self, grid, times, variables, source, cache_steps=8):
         self.grid = grid
@@ -69,6 +79,8 @@ class Dataset(abc.ABC):
         self.variables = {v.name: v for v in variables}
         self._cache = OrderedDict()
         self._cache_steps = cache_steps
+        # Reads may come from a read-ahead thread (the advection's next wind step).
+        self._lock = threading.RLock()
 
     def __repr__(self):
         nk, nj, ni = self.grid.shape
@@ -101,17 +113,18 @@ class Dataset(abc.ABC):
         """One time step of one field as float32 ``(nk, nj, ni)``; NaN where missing."""
         t = self._check(name, t)
         key = (name, t)
-        if key in self._cache:
-            self._cache.move_to_end(key)
-            return self._cache[key]
-        a = np.asarray(self._read(name, t), dtype=np.float32)
-        if a.shape != self.grid.shape:
-            raise DataError(f"step {t} has shape {a.shape}, grid is {self.grid.shape}", path=self.source, field=name)
-        a.setflags(write=False)
-        self._cache[key] = a
-        while len(self._cache) > self._cache_steps:
-            self._cache.popitem(last=False)
-        return a
+        with self._lock:
+            if key in self._cache:
+                self._cache.move_to_end(key)
+                return self._cache[key]
+            a = np.asarray(self._read(name, t), dtype=np.float32)
+            if a.shape != self.grid.shape:
+                raise DataError(f"step {t} has shape {a.shape}, grid is {self.grid.shape}", path=self.source, field=name)
+            a.setflags(write=False)
+            self._cache[key] = a
+            while len(self._cache) > self._cache_steps:
+                self._cache.popitem(last=False)
+            return a
 
     def locate_time(self, hours):
         """Steps around ``hours`` (since the first step) and the weight of the later one."""

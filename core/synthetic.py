@@ -79,6 +79,8 @@ References
    J. Comput. Phys. 102 (1992) — closed-form flows on the sphere.
 """
 
+import functools
+
 import numpy as np
 
 from .dataset import Dataset, Variable
@@ -105,6 +107,17 @@ SIZES = {
 CLOUD_GAIN, CLOUD_BIAS = 1.3, 0.3
 """Contrast and offset of the initial cloud pattern: tuned so that about a fifth of the
 volume (half of the low levels) is above 15 % in many separate bodies, as in Fig. 1."""
+
+
+def _locked(method):
+    """Run under the dataset's lock: the caches it fills may be shared with a read-ahead thread."""
+
+    @functools.wraps(method)
+    def run(self, *args, **kwargs):
+        with self._lock:
+            return method(self, *args, **kwargs)
+
+    return run
 
 
 def _smootherstep(x):
@@ -138,6 +151,9 @@ _JETS = (
 class SyntheticClimate(Dataset):
     """The synthetic demo climate (see the module docstring for the model).
 
+    Air rides its terrain-following level (``w`` is the lift of doing so), so
+    ``levels_follow_air`` is True.
+
     Parameters
     ----------
     ni, nj, nk : int
@@ -159,6 +175,8 @@ class SyntheticClimate(Dataset):
     cache_steps : int
         (field, step) arrays kept in memory.
     """
+
+    levels_follow_air = True
 
     def __init__(self, ni=320, nj=160, nk=19, days=10, seed=0, start="1987-01-01", n_storms=None, relief=None, cache_steps=8, source="demo"):
         for name, val, low in (("ni", ni, 3), ("nj", nj, 2), ("nk", nk, 2)):
@@ -423,6 +441,7 @@ class SyntheticClimate(Dataset):
         return surface - 0.0065 * np.minimum(height, tropopause)
 
     # ------------------------------------------------------------------ per step
+    @_locked
     def _flat_grid(self):
         """Grid points as flat unit-vector components, their level factors and jet rows (computed once)."""
         if self._flat is None:
@@ -432,6 +451,7 @@ class SyntheticClimate(Dataset):
             self._flat = x, factors, self._jet_rows(factors[0])
         return self._flat
 
+    @_locked
     def departure(self, t):
         """Labels (unit vectors at ``t = 0``) of the grid points at step ``t``: three ``(nk, nj, ni)`` arrays."""
         t = int(t) % self.times.size
@@ -448,6 +468,7 @@ class SyntheticClimate(Dataset):
             self._departures[t] = tuple(v.reshape(self.grid.shape) for v in a)
         return self._departures[t]
 
+    @_locked
     def _wind(self, t):
         if t in self._winds:
             return self._winds[t]
@@ -464,6 +485,7 @@ class SyntheticClimate(Dataset):
         self._winds = {t: (u, v, w)}
         return self._winds[t]
 
+    @_locked
     def _terrain_at(self, lon, lat):
         """``T`` at longitudes/latitudes (degrees): :func:`~nephele.core.relief.sample_relief` of the grid's
         terrain, the same arithmetic with flat indices into a copy that repeats the first column after the last."""

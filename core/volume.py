@@ -31,7 +31,6 @@ References
 """
 
 import hashlib
-import os
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
@@ -40,6 +39,7 @@ import numpy as np
 
 from .errors import DataError
 from .grid import DEFAULT_EXAGGERATION, EARTH_RADIUS, globe_radius, height_from_radius, xyz_to_lonlat
+from .threads import default_threads
 from .transfer import TransferFunction
 
 DEFAULT_VOXEL_SIZE = 0.0027
@@ -676,7 +676,7 @@ def resample(
         Blocks evaluated per batch (bounds the temporary memory).
     workers : int, optional
         Threads evaluating batches (numpy releases the GIL in most of it);
-        default :func:`default_threads`.
+        default :func:`nephele.core.threads.default_threads`.
 
     Returns
     -------
@@ -783,17 +783,6 @@ def resample(
     return SparseVolume(float(voxel_size), block, kb, kd, kc, color_name, stats)
 
 
-def default_threads():
-    """Threads for :func:`resample`: ``OMP_NUM_THREADS`` where set (Dask
-    workers set it to 1, since they run tasks side by side), else the CPUs
-    this process may use, at most 8."""
-    env = os.environ.get("OMP_NUM_THREADS", "")
-    if env.isdigit() and int(env) > 0:
-        return int(env)
-    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-    return max(1, min(cpus, 8))
-
-
 def frame_params(obj_params, frame):
     """The inputs of the volume an object with ``obj_params`` shows at ``frame``.
 
@@ -891,7 +880,6 @@ __all__ = [
     "CurvilinearField",
     "SparseVolume",
     "candidate_blocks",
-    "default_threads",
     "frame_params",
     "height_scale",
     "plan_volume",

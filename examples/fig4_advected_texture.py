@@ -34,7 +34,7 @@ DEFAULTS = {
     "method": "cubes",
     "strategy": "restart",
     "period": 24,
-    "vertical": "levels",  # the demo's w is the lift of air riding its level: keep levels (exact there)
+    "vertical": "auto",  # the demo's levels follow the air (w is the lift of riding them): kept, exact there
     "haze": True,
     "camera_lon": -40.0,
     "camera_lat": 30.0,
@@ -76,8 +76,9 @@ def main(argv=None):
     ap.add_argument("--level", type=float, default=DEFAULTS["level"])
     ap.add_argument("--strategy", choices=("restart", "compose", "full"), default=DEFAULTS["strategy"])
     ap.add_argument("--period", type=int, default=DEFAULTS["period"], help="restart period in frames (even)")
-    ap.add_argument("--vertical", choices=("w", "levels"), default=DEFAULTS["vertical"],
-                    help="vertical motion from w, or keep levels (default; exact for the demo)")
+    ap.add_argument("--vertical", choices=("auto", "w", "levels"), default=DEFAULTS["vertical"],
+                    help="vertical motion from w, or keep levels (exact for the demo); default auto: "
+                         "levels where the dataset's levels follow the air")
     ap.add_argument("--hours-per-frame", type=float, default=DEFAULTS["hours_per_frame"], help="model hours per frame")
     ap.add_argument("--camera", type=float, nargs=3, metavar=("LON", "LAT", "DIST"),
                     default=(DEFAULTS["camera_lon"], DEFAULTS["camera_lat"], DEFAULTS["camera_distance"]))

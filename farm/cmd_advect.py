@@ -22,8 +22,9 @@ def add_arguments(p):
                    help="restart: 2 cross-faded copies; compose: one copy composed frame by frame; full: the paper's")
     p.add_argument("--period", type=int, default=24, help="restart period in frames (even, default 24)")
     p.add_argument("--integrator", choices=("rk4", "rk2", "euler"), default="rk4")
-    p.add_argument("--vertical", choices=("w", "levels"), default="w",
-                   help="vertical motion from w, or points keep their level (exact for the demo)")
+    p.add_argument("--vertical", choices=("auto", "w", "levels"), default="auto",
+                   help="vertical motion from w, or points keep their level (exact for the demo); "
+                        "auto (default): keep levels where the dataset says its levels follow the air")
     p.add_argument("--hours-per-frame", type=float, default=1.0)
     p.add_argument("--frame-start", type=int, default=1, help="frame showing model time 0 (default 1)")
     p.add_argument("--exaggeration", type=float, help="vertical exaggeration (default 30, as the add-on)")

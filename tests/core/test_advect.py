@@ -218,7 +218,7 @@ def test_composed_bilinear_smears_more_than_cubic():
     xyz = advect.grid_vertices(grid, idx)
     errs = {}
     for order in (1, 3):
-        comp = advect.ComposedTrace(wind, fh, grid, order=order, band=None)
+        comp = advect.ComposedTrace(wind, fh, grid, order=order, band="all")
         for n in range(25):
             c = comp.copies(n, idx)[0]
         errs[order] = advect.great_circle_km(c.xyz, xyz).max()  # back home at T
@@ -287,3 +287,49 @@ def test_vertical_levels_mode_keeps_levels():
     np.testing.assert_allclose(s0, 1.5)
     with pytest.raises(ValueError):
         advect.WindField(wind_dataset(g), vertical="up")
+
+
+def test_vertical_auto_follows_the_dataset():
+    from nephele.core.synthetic import demo_dataset
+
+    g = flat_grid(nk=4)
+    assert advect.WindField(wind_dataset(g, u=5.0, w=0.3)).vertical == "w"
+    assert advect.WindField(demo_dataset("small")).vertical == "levels"  # the demo's air rides its levels
+    assert advect.WindField(demo_dataset("small"), vertical="w").vertical == "w"
+
+
+def test_read_ahead_gives_the_same_traces_and_reads_the_next_step():
+    from nephele.core.synthetic import demo_dataset
+
+    def run(read_ahead):
+        ds = demo_dataset("small")
+        wind = advect.WindField(ds, vertical="w", read_ahead=read_ahead, cache_steps=12)
+        st = advect.RestartTrace(wind, ds.hours, ds.grid, period=4, cfl=2.0)
+        out = []
+        for n in range(1, 7):
+            idx = advect.active_vertices(ds.read("cloud", n), 0.15, True)
+            out.append([c.xyz.copy() for c in st.copies(n, idx)])
+            if read_ahead:
+                # The step after the newest one used is read in the background.
+                assert set(wind._pending) | set(wind._steps) >= {n + 1}
+        return out
+
+    with_thread, without = run(True), run(False)
+    for a, b in zip(with_thread, without):
+        for x, y in zip(a, b):
+            np.testing.assert_array_equal(x, y)
+
+
+def test_dataset_reads_from_two_threads_match_serial_reads():
+    from concurrent.futures import ThreadPoolExecutor
+
+    from nephele.core.synthetic import demo_dataset
+
+    keys = [(name, t) for t in range(6) for name in ("u", "w", "cloud")]
+    serial = [demo_dataset("small", seed=3).read(*k).copy() for k in keys]
+    ds = demo_dataset("small", seed=3)
+    ds._cache_steps = 2  # evictions while the other thread reads
+    with ThreadPoolExecutor(2) as ex:
+        threaded = list(ex.map(lambda k: ds.read(*k).copy(), keys))
+    for a, b in zip(serial, threaded):
+        np.testing.assert_array_equal(a, b)

@@ -286,7 +286,7 @@ def test_planner_feeds_the_cache_the_blender_bake_reads(tmp_path, monkeypatch):
 
 
 def test_default_threads_follow_omp_num_threads(monkeypatch):
-    from nephele.core.volume import default_threads
+    from nephele.core.threads import default_threads
 
     monkeypatch.setenv("OMP_NUM_THREADS", "3")
     assert default_threads() == 3
