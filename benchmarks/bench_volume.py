@@ -154,6 +154,17 @@ def main(argv=None):
         post_rows.append([f"{vs:g}", "opacity in the grid (ours)", pre[3], *pre[9:]])
         post_rows.append([f"{vs:g}", "scalar in the grid, TF per sample", svol.stats["active_voxels"], *errors(e2)])
         print(post_rows[-1], flush=True)
+        if vs == DEFAULT_VOXEL_SIZE:
+            # Both grids in one material, combined per sample: the opacity capped
+            # near the scalar's (kills the threshold bias, cuts thin layers).
+            pv = np.concatenate([default_vol.sample(c) for c in np.array_split(pts.reshape(-1, 3), 40)]).reshape(seg.shape[0], -1)
+            both = svol.stats["active_voxels"] + default_vol.stats["active_voxels"]
+            for name, mix in (("both, min(opacity, TF(scalar) + 0.01)", np.minimum(pv, dens + 0.01)),
+                              ("both, opacity where scalar > threshold", pv * (sv > TF.values[0])),
+                              ("both, sqrt(opacity × TF(scalar))", np.sqrt(pv * dens))):
+                e3 = opacity((seg * 0.5 * (mix[:, :-1] + mix[:, 1:])).sum(axis=1), DEFAULT_EXTINCTION) - a_ref
+                post_rows.append([f"{vs:g}", name, both, *errors(e3)])
+                print(post_rows[-1], flush=True)
 
     # Memory follows the cloudy volume: vary the threshold at the default voxel size.
     mem_rows = []
@@ -220,9 +231,13 @@ and reference:
 
 {md_table(["voxel", "route", "active voxels", *(f"{f} {m}" for f, _ in families for m in ("max", "p99.9", "p99", "rms"))], post_rows)}
 
-Post-classification is worse here: trilinear interpolation of the scalar flattens the peaks of
-thin layers before the steep transfer function (0.3 → 0.7) is applied, and it needs about twice
-the active voxels (the scalar must be stored below the threshold too).  The grids keep the opacity.
+Post-classification has no threshold bias, so its worst rays are far better, but it is worse at
+the percentiles: trilinear interpolation of the scalar flattens the peaks of thin layers before the
+steep transfer function (0.3 → 0.7) is applied (interpolating the opacity flattens them too, but its
+threshold bias partly makes up for it), and it needs about twice the active voxels (the scalar must
+be stored below the threshold too).  Combining both grids per sample (the last rows, as a material
+could) trades the worst rays against the 99th percentile; none brings both to 2%.  The grids keep
+the opacity, which meets the goal at the 99th percentile for the rays of the Fig. 2 view only.
 
 Memory against cloudy volume at the default voxel size ({DEFAULT_VOXEL_SIZE:g}): the threshold sets how much
 of the atmosphere is cloud; bytes per active voxel stay about constant, so memory is proportional to the
