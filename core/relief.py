@@ -147,7 +147,6 @@ def sample_relief(lon, lat, relief=None):
     i0 = np.floor(x).astype(np.intp)
     fx = x - i0
     i0 %= ni
-    i1 = (i0 + 1) % ni
     dlat = np.diff(glat)
     if np.allclose(dlat, dlat[0], rtol=1e-6):  # evenly spaced: no search needed
         y = np.clip((lat - glat[0]) / dlat[0], 0.0, nj - 1.0)
@@ -155,8 +154,11 @@ def sample_relief(lon, lat, relief=None):
         y = np.interp(lat, glat, np.arange(nj, dtype=np.float64))
     j0 = np.minimum(np.floor(y).astype(np.intp), nj - 2)
     fy = y - j0
-    top = z[j0, i0] * (1.0 - fx) + z[j0, i1] * fx
-    bottom = z[j0 + 1, i0] * (1.0 - fx) + z[j0 + 1, i1] * fx
+    # Flat indices into a copy whose last column repeats the first: one gather per corner.
+    flat = np.concatenate([z, z[:, :1]], axis=1).ravel()
+    i = j0 * (ni + 1) + i0
+    top = flat[i] * (1.0 - fx) + flat[i + 1] * fx
+    bottom = flat[i + ni + 1] * (1.0 - fx) + flat[i + ni + 2] * fx
     return top * (1.0 - fy) + bottom * fy
 
 

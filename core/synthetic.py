@@ -234,7 +234,6 @@ class SyntheticClimate(Dataset):
         self._departures = {}
         self._winds = {}
         self._flat = None
-        self._terrain_flat = None
 
     # ----------------------------------------------------------------- parameters
     @staticmethod
@@ -480,30 +479,10 @@ class SyntheticClimate(Dataset):
         d = [((q1 - q0) * scale).reshape(shape) for q1, q0 in zip(p1, p0)]
         u = d[0] * self._east[0] + d[1] * self._east[1]
         v = d[0] * self._north[0] + d[1] * self._north[1] + d[2] * self._north[2]
-        dterrain = self._terrain_at(*_lonlat(p1)).reshape(shape) - self.grid.terrain
+        dterrain = sample_relief(*_lonlat(p1), self._terrain).reshape(shape) - self.grid.terrain
         w = self.b[:, None, None] * dterrain / DELTA
         self._winds = {t: (u, v, w)}
         return self._winds[t]
-
-    @_locked
-    def _terrain_at(self, lon, lat):
-        """``T`` at longitudes/latitudes (degrees): :func:`~nephele.core.relief.sample_relief` of the grid's
-        terrain, the same arithmetic with flat indices into a copy that repeats the first column after the last."""
-        glon, glat, z = self._terrain
-        nj, ni = z.shape
-        if self._terrain_flat is None:
-            self._terrain_flat = np.concatenate([z, z[:, :1]], axis=1).ravel()
-        x = np.mod(lon - glon[0], 360.0) / (360.0 / ni)
-        i0 = np.floor(x).astype(np.intp)
-        fx = x - i0
-        i0 %= ni
-        y = np.clip((lat - glat[0]) / np.diff(glat)[0], 0.0, nj - 1.0)
-        j0 = np.minimum(np.floor(y).astype(np.intp), nj - 2)
-        fy = y - j0
-        flat, i = self._terrain_flat, j0 * (ni + 1) + i0
-        top = flat[i] * (1.0 - fx) + flat[i + 1] * fx
-        bottom = flat[i + ni + 1] * (1.0 - fx) + flat[i + ni + 2] * fx
-        return top * (1.0 - fy) + bottom * fy
 
     def _read(self, name, t):
         if name in ("u", "v", "w"):
