@@ -57,6 +57,13 @@ DEFAULT_EXTINCTION = 300.0
 ALTITUDE = "altitude"
 """Colour-variable name meaning "the height above sea level in metres"."""
 
+EXACT = "exact"
+"""Volume mode: the renderer shades the curvilinear field itself
+(:mod:`nephele.core.volume_atlas`); opacity exact along every ray."""
+
+VOXELS = "voxels"
+"""Volume mode: opacity resampled into cubic voxels (:func:`resample`)."""
+
 
 @dataclass(frozen=True, eq=False)
 class CurvilinearField:
@@ -517,7 +524,7 @@ def _keys_to_blocks(k):
     return (np.stack([(k >> 42) & m, (k >> 21) & m, k & m], axis=-1) - _KEY_OFFSET).astype(np.int32)
 
 
-def candidate_blocks(field, name, tf, voxel_size, block=8):
+def candidate_blocks(field, name, tf, voxel_size, block=8, *, pad=0.0, below=None):
     """Blocks that may hold a non-zero opacity, and the candidate cells.
 
     Returns ``(blocks (n, 3) int32, cells (nk-1, nj-1, ni-1) bool)``.
@@ -525,7 +532,9 @@ def candidate_blocks(field, name, tf, voxel_size, block=8):
     A cell can be non-zero only when its corner values' range meets the
     transfer function's open non-zero range (trilinear values stay within the
     corners' range); its Cartesian bounding box, padded by how far the
-    curved faces bulge past the corners, bounds its voxels.
+    curved faces bulge past the corners, bounds its voxels.  ``pad`` (scene
+    units) widens every box; ``below`` (scene units, default 1.75 voxels)
+    how far boxes of the lowest cells reach into the ground.
     """
     support = tf.support()
     v = field.values[name]
@@ -558,10 +567,11 @@ def candidate_blocks(field, name, tf, voxel_size, block=8):
     # Faces between corners are arcs: pad by the sagitta of the widest arc.
     dang = np.deg2rad(max(np.diff(field.lon).max(), np.diff(field.lat).max()))
     rmax = field.radius_range()[1]
-    pad = rmax * (1 - np.cos(dang / 2)) + 1e-9
+    pad = rmax * (1 - np.cos(dang / 2)) + 1e-9 + pad
     # Cells on the lowest level also reach one voxel diagonal into the ground
     # (the resampler extends the field there, see CurvilinearField.locate).
-    pad = pad + np.where(kk == 0, 1.75 * voxel_size, 0.0)[:, None]
+    below = 1.75 * voxel_size if below is None else below
+    pad = pad + np.where(kk == 0, below, 0.0)[:, None]
     first = np.ceil((bmin - pad) / voxel_size).astype(np.int64)
     last = np.floor((bmax + pad) / voxel_size).astype(np.int64)
     b0 = np.floor_divide(first, block)
@@ -788,8 +798,10 @@ def frame_params(obj_params, frame):
 
     ``obj_params`` keys: ``source``, ``var``, ``tf`` (a
     :meth:`TransferFunction.to_dict`), optionally ``color_var`` (a field
-    name, ``"altitude"`` or ``""`` for none), ``voxel_size``,
-    ``exaggeration``, ``radius``, ``frame_start``, ``hours_per_frame``.
+    name, ``"altitude"`` or ``""`` for none), ``mode`` (:data:`VOXELS`, the
+    default, with ``voxel_size``; or :data:`EXACT`, with ``support_size`` and
+    ``below``, see :mod:`nephele.core.volume_atlas`), ``exaggeration``,
+    ``radius``, ``frame_start``, ``hours_per_frame``.
     The model time is interpolated linearly between steps and clamped to the
     data; it is rounded to 1e-6 h so equal frames share a cache entry.
     """
@@ -803,18 +815,29 @@ def frame_params(obj_params, frame):
     ds = open_source(source)
     hours = frame_hours(frame, obj_params.get("frame_start", 1), obj_params.get("hours_per_frame", 1.0),
                         last_hour=float(ds.hours[-1]))
-    return {
+    out = {
         "source": source,
         "stamp": source_stamp(source),
         "var": str(obj_params["var"]),
         "hours": round(hours, 6),
         "tf": TransferFunction.from_dict(obj_params["tf"]).to_dict(),
         "color_var": str(obj_params.get("color_var", ALTITUDE) or ""),
-        "voxel_size": float(obj_params.get("voxel_size", DEFAULT_VOXEL_SIZE)),
         "exaggeration": float(obj_params.get("exaggeration", DEFAULT_EXAGGERATION)),
         "radius": float(obj_params.get("radius", 1.0)),
         "code": code_stamp(),
     }
+    mode = str(obj_params.get("mode", VOXELS))
+    if mode == EXACT:
+        from .volume_atlas import DEFAULT_BELOW, DEFAULT_SUPPORT_SIZE
+
+        out["mode"] = EXACT
+        out["support_size"] = float(obj_params.get("support_size", DEFAULT_SUPPORT_SIZE))
+        out["below"] = float(obj_params.get("below", DEFAULT_BELOW))
+    elif mode == VOXELS:
+        out["voxel_size"] = float(obj_params.get("voxel_size", DEFAULT_VOXEL_SIZE))
+    else:
+        raise DataError(f'must be "{EXACT}" or "{VOXELS}", got {mode!r}', field="mode")
+    return out
 
 
 @lru_cache(maxsize=1)
@@ -822,7 +845,7 @@ def code_stamp():
     """Short hash of the resampling code, part of every cache key: a changed
     algorithm never serves volumes cached (or .vdb files baked) by the old one."""
     h = hashlib.sha256()
-    for name in ("volume.py", "transfer.py", "grid.py"):
+    for name in ("volume.py", "volume_atlas.py", "transfer.py", "grid.py"):
         h.update((Path(__file__).resolve().parent / name).read_bytes())
     return h.hexdigest()[:16]
 
@@ -837,15 +860,23 @@ def _volume_task(params):
     values = ds.read_at(params["var"], params["hours"])
     color_var = params.get("color_var") or None
     color_values = None if color_var in (None, ALTITUDE) else ds.read_at(color_var, params["hours"])
+    finite = values[np.isfinite(values)]
+    value_max = np.float64(finite.max() if finite.size else np.nan)
+    if params.get("mode") == EXACT:
+        from .volume_atlas import exact_volume
+
+        ev = exact_volume(
+            ds.grid, values, TransferFunction.from_dict(params["tf"]), support_size=params["support_size"],
+            color_values=color_values, color_name=color_var, radius=params["radius"],
+            exaggeration=params["exaggeration"], below=params["below"],
+        )
+        return dict(ev.arrays(), value_max=value_max)
     vol = resample(
         ds.grid, values, TransferFunction.from_dict(params["tf"]), voxel_size=params["voxel_size"],
         color_values=color_values, color_name=color_var, radius=params["radius"],
         exaggeration=params["exaggeration"],
     )
-    out = vol.arrays()
-    finite = values[np.isfinite(values)]
-    out["value_max"] = np.float64(finite.max() if finite.size else np.nan)
-    return out
+    return dict(vol.arrays(), value_max=value_max)
 
 
 def plan_volume(obj_params, frame):
@@ -877,6 +908,8 @@ __all__ = [
     "ALTITUDE",
     "DEFAULT_EXTINCTION",
     "DEFAULT_VOXEL_SIZE",
+    "EXACT",
+    "VOXELS",
     "CurvilinearField",
     "SparseVolume",
     "candidate_blocks",

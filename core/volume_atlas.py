@@ -1,0 +1,464 @@
+"""Exact volume shading: the curvilinear field handed to the renderer as texture atlases.
+
+:func:`~nephele.core.volume.resample` bakes opacity into cubic voxels.  With
+the 30× vertical exaggeration a voxel is far taller, in metres, than the
+levels near the ground are apart, and rays grazing a layer whose cloudiness
+hovers at the transfer function's threshold come out tens of percent wrong
+(``docs/benchmarks.md``).  Here the renderer evaluates the curvilinear field
+itself at every volume sample, exactly as
+:class:`~nephele.core.volume.CurvilinearField` defines it:
+
+1. longitude, latitude and height from the sample's position (``atan2``);
+2. the fractional column index from piecewise-linear maps of the closed
+   longitude and latitude axes (one clamped linear ramp per run of equal
+   spacing, so a regular grid with pole rows takes three, a Gaussian grid
+   one per row — exact either way);
+3. the fractional level: the column's level heights are bilinear lookups in
+   a *heights atlas* (four levels per RGBA texel), and the index is
+   ``Σₖ clamp((h − zₖ) / (zₖ₊₁ − zₖ), 0, 1)`` — what the reference finds by
+   binary search;
+4. value and colour variable: bilinear lookups in the two level tiles of the
+   *values atlas* around that index, mixed linearly (trilinear in the cell);
+5. opacity: the transfer function as a sum of clamped ramps (exact), zero
+   where a corner is missing, outside the grid, or outside a sparse *support*
+   volume (a VDB of the blocks that may hold cloud) that keeps the renderer
+   out of empty space.
+
+Atlas layout: a tile per level (values) or per four levels (heights),
+stacked along the image's rows; a tile's rows are the closed latitude axis
+(pole rows included, see :class:`~nephele.core.volume.CurvilinearField`)
+with one padding row above and below copying the edge rows, so bilinear
+lookups never bleed into the next tile; its columns are the longitudes, the
+seam closed by the texture's periodic (REPEAT) extension.  Values channels:
+R the value (0 where missing), G the colour variable (0 where missing), B 1
+where the value is present, else 0.
+
+:meth:`AtlasLayout.shade` evaluates the same program in float32 on NumPy,
+texel for texel as Cycles' linear image interpolation does; the benchmark
+measures its error against the float64 reference, and a Cycles render test
+checks the node graph against it.
+
+References
+----------
+.. [1] N. Max and R. Crawfis, "Advances in Scientific Visualization", Fig. 2.
+.. [2] P. Williams and N. Max, "A Volume Density Optical Model", 1992.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import DataError
+from .grid import DEFAULT_EXAGGERATION, EARTH_RADIUS
+from .transfer import TransferFunction
+from .volume import ALTITUDE, CurvilinearField, _block_keys, candidate_blocks, height_scale
+
+PAD = 1
+"""Padding rows above and below each tile."""
+
+MAX_RUNS = 512
+"""Most ramps an axis map may take (a node each in the shader)."""
+
+VALID = 0.9999
+"""A bilinear validity above this means all four texels hold a value."""
+
+
+def axis_runs(knots):
+    """Piecewise-linear map from coordinate to fractional index as runs of equal spacing.
+
+    Returns a list of ``(x0, x1, i0, i1)``: between ``x0`` and ``x1`` the
+    index goes linearly from ``i0`` to ``i1``.  The map is
+    ``Σ clamp((x − x0) / (x1 − x0), 0, 1) · (i1 − i0)``, exact for every knot
+    spacing.
+    """
+    x = np.asarray(knots, dtype=np.float64)
+    d = np.diff(x)
+    if x.ndim != 1 or d.size < 1 or not np.all(d > 0):
+        raise DataError("needs strictly ascending coordinates", field="axis")
+    runs = []
+    start = 0
+    for i in range(1, d.size + 1):
+        if i == d.size or abs(d[i] - d[start]) > 1e-9 * abs(d).max():
+            runs.append((float(x[start]), float(x[i]), float(start), float(i)))
+            start = i
+    if len(runs) > MAX_RUNS:
+        raise DataError(f"has {len(runs)} runs of distinct spacing, more than {MAX_RUNS} shader ramps",
+                        field="axis")
+    return runs
+
+
+def map_runs(x, runs):
+    """:func:`axis_runs`' map in float32, as the shader's Map Range nodes compute it."""
+    x = np.asarray(x, dtype=np.float32)
+    out = np.zeros(x.shape, np.float32)
+    for x0, x1, i0, i1 in runs:
+        out += map_range(x, x0, x1, 0.0, i1 - i0)
+    return out
+
+
+def map_range(x, a, b, c, d):
+    """Cycles' clamped linear Map Range in float32."""
+    a, b, c, d = (np.float32(v) for v in (a, b, c, d))
+    f = (np.asarray(x, np.float32) - a) / (b - a)
+    r = c + f * (d - c)
+    return np.clip(r, min(c, d), max(c, d)).astype(np.float32)
+
+
+def tf_ramps(tf):
+    """The transfer function as ``(offset, [(kind, a, b, rise), ...])``: opacity =
+    offset + Σ rise · ramp, ``ramp`` a clamped linear ramp from ``a`` to ``b``
+    (``kind`` "ramp") or a step at ``a`` (``kind`` "step", for two points at one value)."""
+    v, o = tf.values, tf.opacities
+    parts = []
+    for i in range(v.size - 1):
+        rise = float(o[i + 1] - o[i])
+        if rise == 0.0:
+            continue
+        parts.append(("step", float(v[i]), float(v[i]), rise) if v[i + 1] == v[i]
+                     else ("ramp", float(v[i]), float(v[i + 1]), rise))
+    return float(o[0]), parts
+
+
+def tf_eval32(tf, s):
+    """The shader's transfer function in float32 (NaN gives 0)."""
+    s = np.nan_to_num(np.asarray(s, np.float32), nan=-np.inf)
+    offset, parts = tf_ramps(tf)
+    out = np.full(s.shape, offset, np.float32)
+    for kind, a, b, rise in parts:
+        if kind == "step":
+            out += np.float32(rise) * (s > np.float32(a))
+        else:
+            out += map_range(s, a, b, 0.0, rise)
+    return out
+
+
+@dataclass(eq=False)
+class AtlasLayout:
+    """Time-independent half of the exact shading: axes, tiles and the heights atlas.
+
+    Build with :func:`atlas_layout`.
+
+    Attributes
+    ----------
+    lon0 : float
+        Longitude (degrees) of the first column.
+    periodic : bool
+        Longitudes close the circle (texture extension REPEAT, else EXTEND).
+    lon_runs, lat_runs : list
+        :func:`axis_runs` of the closed longitude axis (relative to ``lon0``)
+        and latitude axis.
+    lon_range, lat_range : (float, float)
+        Covered range (relative longitude, latitude); outside is empty.
+    width, rows, nk : int
+        Texels per row, rows per tile without padding, levels.
+    heights : (ceil(nk/4) * (rows + 2), width, 4) float32
+        The heights atlas, metres.
+    radius, exaggeration : float
+    """
+
+    lon0: float
+    periodic: bool
+    lon_runs: list
+    lat_runs: list
+    lon_range: tuple
+    lat_range: tuple
+    width: int
+    rows: int
+    nk: int
+    heights: np.ndarray
+    radius: float
+    exaggeration: float
+
+    @property
+    def tile(self):
+        """Rows per tile, padding included."""
+        return self.rows + 2 * PAD
+
+    @property
+    def value_rows(self):
+        """Rows of a values atlas."""
+        return self.nk * self.tile
+
+    def to_dict(self):
+        """JSON-ready description (no images) for the material builder."""
+        return {
+            "lon0": self.lon0, "periodic": self.periodic, "lon_runs": self.lon_runs, "lat_runs": self.lat_runs,
+            "lon_range": list(self.lon_range), "lat_range": list(self.lat_range), "width": self.width,
+            "rows": self.rows, "nk": self.nk, "radius": self.radius, "exaggeration": self.exaggeration,
+        }
+
+    def values_atlas(self, field):
+        """The values atlas of a :class:`CurvilinearField` built by :func:`atlas_layout`'s
+        recipe: ``(nk * tile, width, 4)`` float32 (see the module docstring)."""
+        v = field.values["value"]
+        c = field.values.get("color")
+        if v.shape[0] != self.nk or v.shape[1] != self.rows:
+            raise DataError(f"shape {v.shape} does not match the atlas ({self.nk} levels, {self.rows} rows)",
+                            field="value")
+        if self.periodic:
+            v = v[:, :, :-1]
+            c = None if c is None else c[:, :, :-1]
+        img = np.zeros((self.nk, self.tile, self.width, 4), np.float32)
+        inner = img[:, PAD : PAD + self.rows]
+        ok = np.isfinite(v)
+        inner[..., 0] = np.where(ok, v, 0.0)
+        if c is not None:
+            inner[..., 1] = np.nan_to_num(c, nan=0.0)
+        inner[..., 2] = ok
+        _pad_rows(img)
+        return img.reshape(-1, self.width, 4)
+
+    def shade(self, values, xyz, *, below=0.0, color_altitude=False):
+        """The shader program in float32: ``(value, colour, ok)`` at points ``xyz``.
+
+        ``value`` is the field (trilinear in the curvilinear cell), ``colour``
+        the colour variable (or the height in metres with ``color_altitude``),
+        ``ok`` False where the shader's density is zero whatever the transfer
+        function: outside the grid, a missing corner, above the top level or
+        more than ``below`` metres under the lowest level (the lowest level's
+        values are used in between, as :func:`~nephele.core.volume.resample`
+        does; the ground hides them).
+        """
+        p = np.asarray(xyz, dtype=np.float32).reshape(-1, 3)
+        x, y, z = p[:, 0], p[:, 1], p[:, 2]
+        f32 = np.float32
+        deg = f32(180.0 / np.pi)
+        lon = np.arctan2(y, x) * deg - f32(self.lon0)
+        rxy = np.sqrt(x * x + y * y)
+        lat = np.arctan2(z, rxy) * deg
+        r = np.sqrt(x * x + y * y + z * z)
+        ok = np.ones(p.shape[0], bool)
+        if self.periodic:
+            lon = lon - f32(360.0) * np.floor(lon / f32(360.0))
+        else:
+            ok &= (lon >= self.lon_range[0]) & (lon <= self.lon_range[1])
+        ok &= (lat >= self.lat_range[0]) & (lat <= self.lat_range[1])
+        col = map_runs(lon, self.lon_runs)
+        row = map_runs(lat, self.lat_runs)
+        a, b = self.height_coefficients()
+        h = r * f32(a) + f32(b)
+        u = col * f32(1.0 / self.width) + f32(0.5 / self.width)
+        hrows = self.heights.shape[0]
+        z_levels = []
+        for m in range((self.nk + 3) // 4):
+            v = row * f32(1.0 / hrows) + f32((m * self.tile + PAD + 0.5) / hrows)
+            texel = bilinear(self.heights, u, v, self.periodic)
+            z_levels.extend(texel[:, c] for c in range(4))
+        z_levels = z_levels[: self.nk]
+        index = np.zeros(h.shape, np.float32)
+        for k in range(self.nk - 1):
+            index += map_range(h, z_levels[k], z_levels[k + 1], 0.0, 1.0)
+        ok &= (h > z_levels[0] - f32(below)) & (h < z_levels[-1])
+        k0 = np.minimum(np.floor(index), f32(self.nk - 2))
+        f = index - k0
+        vrows = self.value_rows
+        t = row * f32(1.0 / vrows) + f32((PAD + 0.5) / vrows)
+        va = k0 * f32(self.tile / vrows) + t
+        vb = va + f32(self.tile / vrows)
+        A = bilinear(values, u, va, self.periodic)
+        B = bilinear(values, u, vb, self.periodic)
+        value = A[:, 0] + f * (B[:, 0] - A[:, 0])
+        color = h if color_altitude else A[:, 1] + f * (B[:, 1] - A[:, 1])
+        ok &= np.minimum(A[:, 2], B[:, 2]) > f32(VALID)
+        return value, color, ok
+
+    def height_coefficients(self):
+        """``(a, b)`` with height = ``a · r + b`` metres for a distance ``r`` from the centre."""
+        return EARTH_RADIUS / (self.radius * self.exaggeration), -EARTH_RADIUS / self.exaggeration
+
+
+def _pad_rows(img):
+    """Copy each tile's edge rows into its padding rows (img: (tiles, tile, width, 4))."""
+    for p in range(PAD):
+        img[:, p] = img[:, PAD]
+        img[:, -1 - p] = img[:, -1 - PAD]
+
+
+def bilinear(img, u, v, periodic):
+    """Cycles' linear image lookup (texel centres at (i + ½) / size) in float32:
+    columns wrap when ``periodic`` (REPEAT) else clamp (EXTEND); rows clamp."""
+    H, W = img.shape[:2]
+    x = np.asarray(u, np.float32) * np.float32(W) - np.float32(0.5)
+    y = np.asarray(v, np.float32) * np.float32(H) - np.float32(0.5)
+    ix, iy = np.floor(x), np.floor(y)
+    fx, fy = (x - ix)[:, None], (y - iy)[:, None]
+    ix, iy = ix.astype(np.int64), iy.astype(np.int64)
+    if periodic:
+        x0, x1 = np.mod(ix, W), np.mod(ix + 1, W)
+    else:
+        x0, x1 = np.clip(ix, 0, W - 1), np.clip(ix + 1, 0, W - 1)
+    y0, y1 = np.clip(iy, 0, H - 1), np.clip(iy + 1, 0, H - 1)
+    one = np.float32(1.0)
+    return ((one - fy) * ((one - fx) * img[y0, x0] + fx * img[y0, x1])
+            + fy * ((one - fx) * img[y1, x0] + fx * img[y1, x1])).astype(np.float32)
+
+
+def atlas_layout(grid, radius=1.0, exaggeration=DEFAULT_EXAGGERATION):
+    """The :class:`AtlasLayout` of a :class:`~nephele.core.grid.GlobeGrid`."""
+    field = CurvilinearField.from_grid(grid, {}, radius, exaggeration)
+    return _layout(field)
+
+
+def _layout(field):
+    periodic = bool(field.lon[-1] == 360.0)
+    nk, rows, ncols = field.shape
+    width = ncols - 1 if periodic else ncols
+    ntiles = (nk + 3) // 4
+    hgt = np.zeros((ntiles * 4, rows, width), np.float32)
+    hgt[:nk] = field.height[:, :, :width]
+    # Levels past the top (4 per texel) repeat the top: never read.
+    hgt[nk:] = field.height[-1, :, :width]
+    img = np.zeros((ntiles, rows + 2 * PAD, width, 4), np.float32)
+    img[:, PAD : PAD + rows] = hgt.reshape(ntiles, 4, rows, width).transpose(0, 2, 3, 1)
+    _pad_rows(img)
+    return AtlasLayout(
+        lon0=float(field.lon0), periodic=periodic, lon_runs=axis_runs(field.lon), lat_runs=axis_runs(field.lat),
+        lon_range=(float(field.lon[0]), float(field.lon[-1])), lat_range=(float(field.lat[0]), float(field.lat[-1])),
+        width=int(width), rows=int(rows), nk=int(nk), heights=img.reshape(-1, width, 4),
+        radius=float(field.radius), exaggeration=float(field.exaggeration),
+    )
+
+
+DEFAULT_SUPPORT_SIZE = 0.01
+"""Scene units between the support grid's voxels (~64 km across, ~2 km of
+height): it bounds where the renderer looks, not what it sees."""
+
+DEFAULT_BELOW = 1000.0
+"""Metres under the lowest level that still take its values: the ground hides
+them, and a relief finer than the model's never shows a gap under the cloud."""
+
+
+@dataclass(eq=False)
+class ExactVolume:
+    """One frame of exact shading: the values atlas and the support voxels.
+
+    Attributes
+    ----------
+    layout : AtlasLayout
+    values : (nk * tile, width, 4) float32
+    support : (n, 3) int32
+        Voxel indices (voxel at ``support_size * index``) of the support
+        grid: the shader's density is zero wherever the trilinear mix of
+        these voxels (1 each, 0 elsewhere) is zero.
+    support_size : float
+    below : float
+        Metres under the lowest level that take its values.
+    color_name : str or None
+    """
+
+    layout: AtlasLayout
+    values: np.ndarray
+    support: np.ndarray
+    support_size: float
+    below: float
+    color_name: str = None
+
+    @property
+    def empty(self):
+        return self.support.shape[0] == 0
+
+    def shade(self, xyz):
+        """:meth:`AtlasLayout.shade` masked by the support: ``(value, colour, ok)``."""
+        value, color, ok = self.layout.shade(self.values, xyz, below=self.below,
+                                             color_altitude=self.color_name == ALTITUDE)
+        return value, color, ok & self.in_support(xyz)
+
+    def sample(self, xyz):
+        """The value the shader sees (NaN where its density is forced to zero)."""
+        value, _, ok = self.shade(xyz)
+        return np.where(ok, value, np.nan)
+
+    def in_support(self, xyz):
+        """Points where the support grid's trilinear mix is positive (the shader's test)."""
+        xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
+        out = np.zeros(xyz.shape[0], bool)
+        if self.empty:
+            return out
+        u = xyz / self.support_size
+        base = np.floor(u).astype(np.int64)
+        f = u - base
+        keys = np.sort(_block_keys(self.support))
+        for dx in (0, 1):
+            for dy in (0, 1):
+                for dz in (0, 1):
+                    w = ((f[:, 0] if dx else 1 - f[:, 0]) * (f[:, 1] if dy else 1 - f[:, 1])
+                         * (f[:, 2] if dz else 1 - f[:, 2]))
+                    k = _block_keys(base + (dx, dy, dz))
+                    pos = np.clip(np.searchsorted(keys, k), 0, keys.size - 1)
+                    out |= (keys[pos] == k) & (w > 0)
+        return out
+
+    def arrays(self):
+        """Plain arrays for ``np.savez`` / the cache (no pickle); the layout is rebuilt from the grid."""
+        return {"values": self.values, "support": self.support, "support_size": np.float64(self.support_size),
+                "below": np.float64(self.below)}
+
+
+def support_voxels(field, tf, size, below=DEFAULT_BELOW):
+    """Voxels of a grid of spacing ``size`` whose trilinear footprint covers every
+    point that may have a non-zero opacity.
+
+    Every candidate cell's box (:func:`~nephele.core.volume.candidate_blocks`,
+    reaching ``below`` metres into the ground at the lowest level) widened by
+    one voxel, so a voxel centre lies less than a voxel from each of its points.
+    """
+    hs = height_scale(field.exaggeration, field.radius)
+    vox, _ = candidate_blocks(field, "value", tf, size, 1, pad=size, below=below * hs)
+    return vox
+
+
+def exact_volume(grid, values, tf, *, support_size=DEFAULT_SUPPORT_SIZE, color_values=None, color_name=None,
+                 radius=1.0, exaggeration=DEFAULT_EXAGGERATION, below=DEFAULT_BELOW, layout=None):
+    """One time step for exact shading: the values atlas and the support voxels.
+
+    Parameters
+    ----------
+    grid, values, tf, color_values, color_name, radius, exaggeration
+        As for :func:`~nephele.core.volume.resample`.
+    support_size : float
+        Scene units between support voxels.
+    below : float
+        Metres under the lowest level that take its values.
+    layout : AtlasLayout, optional
+        An :func:`atlas_layout` of the same grid, to reuse.
+
+    Returns
+    -------
+    ExactVolume
+
+    References
+    ----------
+    .. [1] N. Max and R. Crawfis, "Advances in Scientific Visualization", Fig. 2.
+    """
+    if not isinstance(tf, TransferFunction):
+        raise DataError(f"needs a TransferFunction, got {type(tf).__name__}", field="transfer function")
+    if not (np.isfinite(support_size) and support_size > 0):
+        raise DataError(f"must be a positive number of scene units, got {support_size}", field="support_size")
+    if not (np.isfinite(below) and below >= 0):
+        raise DataError(f"must be >= 0 metres, got {below}", field="below")
+    arrays = {"value": values}
+    if color_name is not None and color_name != ALTITUDE:
+        if color_values is None:
+            raise DataError("color_values are needed for a colour variable other than altitude", field=color_name)
+        arrays["color"] = color_values
+    field = CurvilinearField.from_grid(grid, arrays, radius, exaggeration)
+    layout = layout or _layout(field)
+    if (layout.nk, layout.rows) != field.shape[:2]:
+        raise DataError("layout belongs to another grid", field="layout")
+    support = support_voxels(field, tf, float(support_size), float(below))
+    return ExactVolume(layout, layout.values_atlas(field), support, float(support_size), float(below), color_name)
+
+
+__all__ = [
+    "DEFAULT_BELOW",
+    "DEFAULT_SUPPORT_SIZE",
+    "AtlasLayout",
+    "ExactVolume",
+    "atlas_layout",
+    "axis_runs",
+    "bilinear",
+    "exact_volume",
+    "support_voxels",
+    "tf_eval32",
+    "tf_ramps",
+]
