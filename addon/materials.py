@@ -55,12 +55,17 @@ def attribute_ramp_nodes(tree, attribute, vmin, vmax, ramp, location=(-900, 0)):
     """Add ``Attribute -> Map Range -> Color Ramp`` to a node tree; returns the ramp node.
 
     Its ``Color`` output is the colour, its ``Alpha`` output the ramp's alpha.
+    ``attribute`` may also be an output socket carrying the scalar.
     """
     x, y = location
-    attr = tree.nodes.new("ShaderNodeAttribute")
-    attr.name = attr.label = "Nephele attribute"
-    attr.attribute_name = attribute
-    attr.location = (x, y)
+    if hasattr(attribute, "is_output"):
+        source = attribute
+    else:
+        attr = tree.nodes.new("ShaderNodeAttribute")
+        attr.name = attr.label = "Nephele attribute"
+        attr.attribute_name = attribute
+        attr.location = (x, y)
+        source = attr.outputs["Fac"]
     rng = tree.nodes.new("ShaderNodeMapRange")
     rng.name = rng.label = "Nephele range"
     rng.clamp = True
@@ -71,7 +76,7 @@ def attribute_ramp_nodes(tree, attribute, vmin, vmax, ramp, location=(-900, 0)):
     ramp_node.name = ramp_node.label = "Nephele ramp"
     set_ramp(ramp_node.color_ramp, ramp)
     ramp_node.location = (x + 400, y)
-    tree.links.new(attr.outputs["Fac"], rng.inputs["Value"])
+    tree.links.new(source, rng.inputs["Value"])
     tree.links.new(rng.outputs["Result"], ramp_node.inputs["Fac"])
     return ramp_node
 

@@ -118,6 +118,10 @@ def file_key(path):
 def bake_frame(obj_params, frame, number, directory, prefix="clouds", *, cache=None, reuse=True):
     """Write sequence file ``number`` (1-based) holding the volume at ``frame``.
 
+    In the exact mode (``obj_params["mode"] == "exact"``) the ``.vdb`` holds
+    the support grid and an ``.exr`` of the same name the values atlas
+    (:mod:`.volume_exact`).
+
     ``obj_params`` as for :func:`nephele.core.volume.frame_params`.  The file
     records the cache key of its exact inputs; with ``reuse`` an existing
     file with that key is kept (one metadata read).  ``cache``: a
@@ -133,12 +137,18 @@ def bake_frame(obj_params, frame, number, directory, prefix="clouds", *, cache=N
 
     from ..core.cache import Cache, cache_key
     from ..core.tasks import run
-    from ..core.volume import SparseVolume, frame_params
+    from ..core.volume import EXACT, SparseVolume, frame_params
 
     t0 = time.perf_counter()
     params = frame_params(obj_params, frame)
     key = cache_key("volume", params)
     path = frame_path(directory, prefix, number)
+    exact = params.get("mode") == EXACT
+    if exact:
+        from .volume_exact import exr_key
+
+        exr = path.with_suffix(".exr")
+        reuse = reuse and exr_key(exr) == key
     if reuse and path.is_file() and file_key(path) == key:
         meta = openvdb().readMetadata(str(path))
         return {"frame": frame, "path": str(path), "hours": params["hours"], "blocks": int(meta["nephele_blocks"]),
@@ -150,6 +160,8 @@ def bake_frame(obj_params, frame, number, directory, prefix="clouds", *, cache=N
     cached = arrays is not None
     if arrays is None:
         arrays = run("volume", params)
+    if exact:
+        return _write_exact(arrays, params, key, path, exr, cached, t0, frame)
     vol = SparseVolume.from_arrays(arrays, color_name=params["color_var"] or None)
     info = {
         "frame": frame, "path": str(path), "hours": params["hours"], "blocks": int(vol.blocks.shape[0]),
@@ -162,6 +174,22 @@ def bake_frame(obj_params, frame, number, directory, prefix="clouds", *, cache=N
         "nephele_value_max": info["value_max"]})
     info["seconds"] = time.perf_counter() - t0
     return info
+
+
+def _write_exact(arrays, params, key, path, exr, cached, t0, frame):
+    """:func:`bake_frame`'s files for the exact mode: the values atlas and the support grid."""
+    import time
+
+    from .volume_exact import write_exr, write_support
+
+    n = int(arrays["support"].shape[0])
+    meta = {"nephele_key": key, "nephele_hours": params["hours"], "nephele_var": params["var"],
+            "nephele_blocks": n, "nephele_active_voxels": n, "nephele_value_max": float(arrays["value_max"])}
+    write_exr(exr, arrays["values"], meta)
+    write_support(path, arrays["support"], float(arrays["support_size"]), meta)
+    return {"frame": frame, "path": str(path), "hours": params["hours"], "blocks": n, "active_voxels": n,
+            "value_max": float(arrays["value_max"]), "reused": False, "cached": cached,
+            "seconds": time.perf_counter() - t0}
 
 
 def bake_sequence(obj_params, frames, directory, prefix="clouds", *, cache=None, progress=None, reuse=True):

@@ -24,7 +24,8 @@ import bpy
 from ..core.cache import default_cache_dir
 from ..core.errors import DataError
 from ..core.transfer import ALTITUDE_COLORS, TEMPERATURE_COLORS, ColorMap, TransferFunction
-from ..core.volume import ALTITUDE, DEFAULT_EXTINCTION, DEFAULT_VOXEL_SIZE
+from ..core.volume import ALTITUDE, DEFAULT_EXTINCTION, DEFAULT_VOXEL_SIZE, EXACT, VOXELS
+from ..core.volume_atlas import DEFAULT_BELOW, DEFAULT_SUPPORT_SIZE, atlas_layout
 from . import data_ops, frame, materials
 from .panel import SubPanel
 from .vdb import bake_frame, bake_sequence, frame_path
@@ -40,7 +41,7 @@ def default_color_map(color_var):
     return COLOR_MAPS.get(color_var, ColorMap(points=((0.0, (0.6, 0.6, 0.65)), (1.0, (1.0, 1.0, 1.0)))))
 
 
-def volume_material(name, extinction, color_var, cmap, anisotropy=0.3):
+def volume_material(name, extinction, color_var, cmap, anisotropy=0.3, exact=None):
     """Principled Volume: density grid × ``extinction``, colour through ``cmap``.
 
     Parameters
@@ -51,6 +52,12 @@ def volume_material(name, extinction, color_var, cmap, anisotropy=0.3):
     color_var : str
         The colour grid's name (``""``: a constant colour, ``cmap``'s first).
     cmap : ColorMap
+    exact : dict, optional
+        The exact mode (:mod:`.volume_exact`): ``layout``
+        (:meth:`~nephele.core.volume_atlas.AtlasLayout.to_dict`), ``tf``
+        (TransferFunction), ``below`` (metres), ``values`` and ``heights``
+        (bpy images).  The density is then the transfer function of the
+        field evaluated per sample, times ``extinction``.
     """
     mat = bpy.data.materials.get(name) or bpy.data.materials.new(name)
     tree = mat.node_tree
@@ -68,9 +75,32 @@ def volume_material(name, extinction, color_var, cmap, anisotropy=0.3):
     pv.inputs["Density Attribute"].default_value = "density"
     pv.inputs["Color Attribute"].default_value = ""
     pv.inputs["Anisotropy"].default_value = float(anisotropy)
+    color_source = color_var
+    if exact is not None:
+        from .volume_exact import field_nodes, tf_nodes
+
+        value, color, ok = field_nodes(tree, exact["layout"], exact["values"], exact["heights"],
+                                       below=exact["below"], color_altitude=color_var == ALTITUDE)
+        opacity = tf_nodes(tree, value, exact["tf"])
+        # Density socket = opacity × inside × extinction (a linked socket replaces the Density value).
+        dens = tree.nodes.new("ShaderNodeMath")
+        dens.name = dens.label = "Nephele density"
+        dens.operation = "MULTIPLY"
+        dens.location = (-100, 300)
+        tree.links.new(opacity, dens.inputs[0])
+        tree.links.new(ok, dens.inputs[1])
+        scale = tree.nodes.new("ShaderNodeMath")
+        scale.name = scale.label = "Nephele extinction"
+        scale.operation = "MULTIPLY"
+        scale.location = (50, 300)
+        tree.links.new(dens.outputs[0], scale.inputs[0])
+        scale.inputs[1].default_value = float(extinction)
+        tree.links.new(scale.outputs[0], pv.inputs["Density"])
+        pv.inputs["Density Attribute"].default_value = ""
+        color_source = color if color_var else None
     if color_var:
         lo, hi = cmap.range
-        ramp = materials.attribute_ramp_nodes(tree, color_var, lo, hi, [(p, c) for p, c in cmap.normalized()],
+        ramp = materials.attribute_ramp_nodes(tree, color_source, lo, hi, [(p, c) for p, c in cmap.normalized()],
                                               location=(-500, 0))
         tree.links.new(ramp.outputs["Color"], pv.inputs["Color"])
     else:
@@ -90,12 +120,60 @@ def refresh_material(obj):
     if p is None:
         return None
     cmap = ColorMap.from_dict(p["cmap"])
-    mat = volume_material(f"{obj.name} material", p["extinction"], p.get("color_var", ""), cmap)
+    exact = None
+    if p.get("mode") == EXACT:
+        exact = {"layout": p["layout"], "tf": TransferFunction.from_dict(p["tf"]), "below": p["below"],
+                 "values": _atlas_image(obj.name, p), "heights": _heights_image(obj.name, p)}
+    mat = volume_material(f"{obj.name} material", p["extinction"], p.get("color_var", ""), cmap, exact=exact)
+    if exact is not None:
+        _sequence_users(mat, p)
     if not obj.data.materials:
         obj.data.materials.append(mat)
     else:
         obj.data.materials[0] = mat
     return mat
+
+
+def _blend_path(path):
+    return bpy.path.relpath(str(path)) if bpy.data.filepath else str(path)
+
+
+def _image(name, path):
+    img = bpy.data.images.get(name)
+    if img is None:
+        # A lazily baked sequence's files do not exist yet: no load().
+        img = bpy.data.images.new(name, 1, 1, alpha=True, float_buffer=True)
+    img.source = "FILE"
+    img.filepath = _blend_path(path)
+    # Raw data in every channel: no colour management, no alpha association.
+    img.colorspace_settings.name = "Non-Color"
+    img.alpha_mode = "CHANNEL_PACKED"
+    return img
+
+
+def _heights_image(name, p):
+    img = _image(f"{name} heights", Path(p["directory"]) / f"{PREFIX}_heights.exr")
+    img.reload()
+    return img
+
+
+def _atlas_image(name, p):
+    """The values atlas sequence; the Image Texture nodes' image users map frames to files."""
+    img = _image(f"{name} values", frame_path(p["directory"], PREFIX, 1).with_suffix(".exr"))
+    img.source = "SEQUENCE"
+    img.reload()
+    return img
+
+
+def _sequence_users(mat, p):
+    """Point the values atlas nodes at frame ``f0`` → file 1, as the volume sequence does."""
+    f0, f1 = p["frames"]
+    for node in mat.node_tree.nodes:
+        if node.type == "TEX_IMAGE" and node.image is not None and node.image.source == "SEQUENCE":
+            iu = node.image_user
+            iu.frame_start, iu.frame_duration, iu.frame_offset = int(f0), int(f1) - int(f0) + 1, 0
+            iu.use_auto_refresh = True
+            iu.use_cyclic = False
 
 
 def volume_dir(name, directory=None):
@@ -109,7 +187,8 @@ def volume_dir(name, directory=None):
 def add_volume_clouds(var="cloud", tf=None, *, source=None, color_var=ALTITUDE, cmap=None,
                       voxel_size=DEFAULT_VOXEL_SIZE, extinction=DEFAULT_EXTINCTION, frames=None,
                       directory=None, exaggeration=None, radius=None, scene=None, collection=None,
-                      name=OBJECT_NAME, progress=None, bake="all", cache=None):
+                      name=OBJECT_NAME, progress=None, bake="all", cache=None, mode=EXACT,
+                      support_size=DEFAULT_SUPPORT_SIZE, below=DEFAULT_BELOW):
     """Bake a VDB sequence and add (or update) a volume object showing it.
 
     Parameters
@@ -140,6 +219,12 @@ def add_volume_clouds(var="cloud", tf=None, *, source=None, color_var=ALTITUDE, 
     cache : str or Cache, optional
         Resampled volumes to use instead of resampling (default: the
         scene's cache, :func:`~nephele.core.cache.default_cache_dir`).
+    mode : {"exact", "voxels"}
+        ``"exact"`` (default): the material evaluates the curvilinear field
+        at every sample from atlas images (:mod:`.volume_exact`), the
+        ``.vdb`` files hold only the support grid (voxel ``support_size``;
+        ``below`` metres under the lowest level take its values).
+        ``"voxels"``: the opacity resampled into voxels of ``voxel_size``.
 
     Returns
     -------
@@ -181,18 +266,30 @@ def add_volume_clouds(var="cloud", tf=None, *, source=None, color_var=ALTITUDE, 
         "frame_start": cfg["frame_start"],
         "hours_per_frame": cfg["hours_per_frame"],
         "frames": [f0, f1],
+        "mode": mode,
+        "baked_tf": tf.to_dict(),
     }
+    if mode == EXACT:
+        params.update(support_size=float(support_size), below=float(below))
+    elif mode != VOXELS:
+        raise DataError(f'must be "{EXACT}" or "{VOXELS}", got {mode!r}', field="mode")
     if bake not in ("all", "lazy"):
         raise DataError(f'must be "all" or "lazy", got {bake!r}', field="bake")
     out_dir = volume_dir(name, directory)
     cache = default_cache_dir(bpy.data.filepath or None) if cache is None else cache
+    if mode == EXACT:
+        from .volume_exact import write_exr
+
+        layout = atlas_layout(ds.grid, params["radius"], params["exaggeration"])
+        write_exr(out_dir / f"{PREFIX}_heights.exr", layout.heights)
+        params["layout"] = layout.to_dict()
     if bake == "all":
         infos = bake_sequence(params, range(f0, f1 + 1), out_dir, PREFIX, cache=cache, progress=progress)
     else:
         infos = []
         out_dir.mkdir(parents=True, exist_ok=True)
     # Drop files of an older, longer bake so the directory holds one sequence.
-    for stale in out_dir.glob(f"{PREFIX}_*.vdb"):
+    for stale in (*out_dir.glob(f"{PREFIX}_*.vdb"), *out_dir.glob(f"{PREFIX}_[0-9]*.exr")):
         num = stale.stem.rsplit("_", 1)[-1]
         if num.isdigit() and int(num) > f1 - f0 + 1:
             stale.unlink()
@@ -297,29 +394,73 @@ def _on_material_change(self, context):
         refresh_material(obj)
 
 
+def _within(tf, baked):
+    """The transfer function ``tf`` is non-zero only where the baked one's support is."""
+    new, old = tf.support(), TransferFunction.from_dict(baked).support()
+    return new is None or (old is not None and new[0] >= old[0] and new[1] <= old[1])
+
+
 def stale(context):
-    """True when the panel's transfer function or grids differ from the baked ones."""
+    """True when the panel's transfer function or grids differ from the baked ones.
+
+    In the exact mode the material applies the transfer function itself: a
+    change that keeps its non-zero range within the baked support is live
+    (see :func:`_on_tf_change`); only a wider range needs a new bake.
+    """
     s = _settings(context.scene)
     objs = _active_volumes(context)
     if s is None or not objs:
         return False
     p = _obj_params(objs[0])
     try:
-        tf = panel_tf(s).to_dict()
+        tf = panel_tf(s)
     except (ValueError, TypeError, DataError):
         return True
-    return (tf != p["tf"] or s.var != p["var"] or abs(s.voxel_size - p["voxel_size"]) > 1e-12
-            or s.color_var != p.get("color_var", ""))
+    mode = p.get("mode", VOXELS)
+    if s.mode != mode or s.var != p["var"] or s.color_var != p.get("color_var", ""):
+        return True
+    if mode == EXACT:
+        return not _within(tf, p["baked_tf"]) or abs(s.support_size - p["support_size"]) > 1e-12
+    return tf.to_dict() != p["tf"] or abs(s.voxel_size - p["voxel_size"]) > 1e-12
+
+
+def _on_tf_change(self, context):
+    # Exact mode: the transfer function lives in the material; apply it at
+    # once where the baked support still covers it.
+    try:
+        tf = panel_tf(self)
+    except (ValueError, TypeError, DataError):
+        return
+    for obj in _active_volumes(context):
+        p = _obj_params(obj)
+        if p.get("mode") == EXACT and p["tf"] != tf.to_dict() and _within(tf, p["baked_tf"]):
+            p["tf"] = tf.to_dict()
+            frame.set_params(obj, p)
+            refresh_material(obj)
 
 
 class NephelePropsVolume(bpy.types.PropertyGroup):
     var: bpy.props.StringProperty(name="Variable", default="cloud", description="Field behind the opacity")
-    threshold: bpy.props.FloatProperty(name="Threshold", default=0.3, description="Opacity is zero up to this value")
-    full: bpy.props.FloatProperty(name="Full at", default=1.0, description="Value where the opacity reaches its maximum")
-    opacity: bpy.props.FloatProperty(name="Opacity", default=1.0, min=0.0, description="Opacity at the full value")
+    mode: bpy.props.EnumProperty(
+        name="Mode", default=EXACT,
+        items=[(EXACT, "Exact", "The material evaluates the curvilinear field at every sample from atlas images: "
+                "opacity exact along every ray"),
+               (VOXELS, "Voxels", "Opacity resampled into a VDB of cubic voxels (grazing rays can be far off; "
+                "use it for EEVEE, which renders the exact mode striped)")],
+    )
+    threshold: bpy.props.FloatProperty(name="Threshold", default=0.3, update=_on_tf_change,
+                                       description="Opacity is zero up to this value")
+    full: bpy.props.FloatProperty(name="Full at", default=1.0, update=_on_tf_change,
+                                  description="Value where the opacity reaches its maximum")
+    opacity: bpy.props.FloatProperty(name="Opacity", default=1.0, min=0.0, update=_on_tf_change,
+                                     description="Opacity at the full value")
     tf_points: bpy.props.StringProperty(
-        name="TF points", default="",
+        name="TF points", default="", update=_on_tf_change,
         description='Custom transfer function as JSON [[value, opacity], ...] (overrides threshold/full/opacity)',
+    )
+    support_size: bpy.props.FloatProperty(
+        name="Support voxel", default=DEFAULT_SUPPORT_SIZE, min=1e-3, precision=4,
+        description="Exact mode: scene units between the voxels of the grid that bounds where the renderer looks",
     )
     color_var: bpy.props.StringProperty(name="Colour by", default=ALTITUDE,
                                         description='"altitude", a field such as "temperature", or empty')
@@ -360,7 +501,7 @@ class NEPHELE_OT_add_volume_clouds(bpy.types.Operator):
             obj, infos = add_volume_clouds(
                 s.var, tf, color_var=s.color_var, cmap=panel_cmap(s), voxel_size=s.voxel_size,
                 extinction=s.extinction, directory=s.directory or None, scene=context.scene, frames=frames,
-                progress=progress,
+                progress=progress, mode=s.mode, support_size=s.support_size,
             )
         except (DataError, ValueError, OSError, ImportError) as exc:
             self.report({"ERROR"}, str(exc))
@@ -373,7 +514,8 @@ class NEPHELE_OT_add_volume_clouds(bpy.types.Operator):
             self.report({"WARNING"}, msg)
         else:
             voxels = sum(i["active_voxels"] for i in infos)
-            self.report({"INFO"}, f"{len(infos)} VDB frames in {p['directory']}, {voxels} active voxels")
+            what = "support voxels" if p.get("mode") == EXACT else "active voxels"
+            self.report({"INFO"}, f"{len(infos)} VDB frames in {p['directory']}, {voxels} {what}")
         context.view_layer.objects.active = obj
         return {"FINISHED"}
 
@@ -390,6 +532,7 @@ class NEPHELE_PT_volume(SubPanel, bpy.types.Panel):
             return
         col = layout.column()
         col.prop(s, "var")
+        col.prop(s, "mode")
         col.prop(s, "threshold")
         col.prop(s, "full")
         col.prop(s, "opacity")
@@ -400,7 +543,7 @@ class NEPHELE_PT_volume(SubPanel, bpy.types.Panel):
             row = col.row(align=True)
             row.prop(s, "color_min")
             row.prop(s, "color_max")
-        col.prop(s, "voxel_size")
+        col.prop(s, "support_size" if s.mode == EXACT else "voxel_size")
         col.prop(s, "extinction")
         col.prop(s, "directory")
         col.prop(s, "current_only")

@@ -175,6 +175,11 @@ class AtlasLayout:
         return self.rows + 2 * PAD
 
     @property
+    def closed_lat(self):
+        """The latitudes reach both poles: no latitude is outside."""
+        return self.lat_range[0] <= -90.0 and self.lat_range[1] >= 90.0
+
+    @property
     def value_rows(self):
         """Rows of a values atlas."""
         return self.nk * self.tile
@@ -214,7 +219,8 @@ class AtlasLayout:
         ``value`` is the field (trilinear in the curvilinear cell), ``colour``
         the colour variable (or the height in metres with ``color_altitude``),
         ``ok`` False where the shader's density is zero whatever the transfer
-        function: outside the grid, a missing corner, above the top level or
+        function: outside the grid (strictly inside its longitude and latitude
+        range for a regional grid), a missing corner, above the top level or
         more than ``below`` metres under the lowest level (the lowest level's
         values are used in between, as :func:`~nephele.core.volume.resample`
         does; the ground hides them).
@@ -231,8 +237,9 @@ class AtlasLayout:
         if self.periodic:
             lon = lon - f32(360.0) * np.floor(lon / f32(360.0))
         else:
-            ok &= (lon >= self.lon_range[0]) & (lon <= self.lon_range[1])
-        ok &= (lat >= self.lat_range[0]) & (lat <= self.lat_range[1])
+            ok &= (lon > f32(self.lon_range[0])) & (lon < f32(self.lon_range[1]))
+        if not self.closed_lat:
+            ok &= (lat > f32(self.lat_range[0])) & (lat < f32(self.lat_range[1]))
         col = map_runs(lon, self.lon_runs)
         row = map_runs(lat, self.lat_runs)
         a, b = self.height_coefficients()
