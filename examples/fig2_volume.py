@@ -30,7 +30,8 @@ DEFAULTS = {
     "threshold": 0.3,
     "full": 0.7,
     "extinction": None,  # None: nephele.core.volume.DEFAULT_EXTINCTION
-    "voxel_size": None,  # None: nephele.core.volume.DEFAULT_VOXEL_SIZE
+    "mode": None,  # None: "exact" for Cycles, "voxels" for EEVEE (which renders the exact shader striped)
+    "voxel_size": None,  # None: nephele.core.volume.DEFAULT_VOXEL_SIZE (voxel mode)
     "color_var": "altitude",
     "hours_per_frame": 1.0,
     "exaggeration": None,  # None: nephele.core.grid.DEFAULT_EXAGGERATION
@@ -51,7 +52,9 @@ def build(**options):
     """Build the Fig. 2 scene into the current scene; returns a dict of the main objects.
 
     Options (see :data:`DEFAULTS`): ``source``, ``threshold``, ``full``,
-    ``extinction``, ``voxel_size``, ``color_var``, ``hours_per_frame``,
+    ``extinction``, ``mode`` (``"exact"``: the material evaluates the
+    curvilinear field per sample; ``"voxels"``: a resampled VDB),
+    ``voxel_size``, ``color_var``, ``hours_per_frame``,
     ``exaggeration``, ``haze``, ``camera_lon``, ``camera_lat``,
     ``camera_distance``, ``engine`` (CYCLES or BLENDER_EEVEE), ``frames``
     (first, last), ``size`` (w, h), ``samples``, ``vdb_dir``, ``bake``
@@ -74,6 +77,7 @@ def build(**options):
         voxel_size=DEFAULT_VOXEL_SIZE if o["voxel_size"] is None else float(o["voxel_size"]),
         extinction=DEFAULT_EXTINCTION if o["extinction"] is None else float(o["extinction"]),
         directory=vdb_dir, bake=o["bake"],
+        mode=o["mode"] or ("voxels" if o["engine"] == "BLENDER_EEVEE" else "exact"),
     )
     camera = globe_ops.add_camera(scene, lon=o["camera_lon"], lat=o["camera_lat"], distance=o["camera_distance"])
 
@@ -92,7 +96,9 @@ def main(argv=None):
     argv = sys.argv[1:] if argv is None else argv
     ap = globe_scene.argument_parser(__doc__.split("\n\n")[0], DEFAULTS)
     ap.add_argument("--threshold", type=float, default=DEFAULTS["threshold"], help="opacity is zero below it")
-    ap.add_argument("--voxel-size", type=float, help="scene units between voxels (default 0.0027)")
+    ap.add_argument("--mode", choices=("exact", "voxels"),
+                    help="exact: the shader evaluates the curvilinear field (default with Cycles); voxels: a VDB")
+    ap.add_argument("--voxel-size", type=float, help="voxel mode: scene units between voxels (default 0.0027)")
     ap.add_argument("--engine", choices=("CYCLES", "BLENDER_EEVEE"), default=DEFAULTS["engine"])
     ap.add_argument("--vdb-dir", help="where the .vdb sequence goes")
     ap.add_argument("--no-haze", action="store_true", help="leave out the blue haze")
@@ -103,7 +109,7 @@ def main(argv=None):
     if args.save:
         # Save first, so the sequence lands beside the .blend and is linked relatively.
         globe_scene.save(args.save)
-    build(source=args.source, threshold=args.threshold, voxel_size=args.voxel_size, frames=args.frames,
+    build(source=args.source, threshold=args.threshold, mode=args.mode, voxel_size=args.voxel_size, frames=args.frames,
           size=args.size, samples=args.samples, haze=not args.no_haze, engine=args.engine, vdb_dir=vdb_dir)
     if args.save:
         globe_scene.save(args.save)

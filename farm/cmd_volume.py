@@ -3,6 +3,10 @@
 The files (``DIR/clouds_0001.vdb`` …, step 0 in file 1) load natively in
 Blender as a volume sequence, so a farm needs neither the add-on nor this
 command at render time; ``DIR/sequence.json`` records how they were made.
+In the exact mode (the default) each ``.vdb`` holds the support grid, an
+``.exr`` of the same name the values atlas, and ``clouds_heights.exr`` the
+level heights; ``sequence.json`` then carries the atlas ``layout`` the
+material needs (:mod:`nephele.addon.volume_exact`).
 """
 
 import json
@@ -26,7 +30,12 @@ def add_arguments(p):
     p.add_argument("--tf", metavar="JSON", help='custom transfer function [[value, opacity], ...] (overrides the ramp)')
     p.add_argument("--color-var", default="altitude", metavar="NAME",
                    help='second grid: "altitude" (default), a variable such as temperature, or "" for none')
-    p.add_argument("--voxel-size", type=float, metavar="S", help="scene units between voxels (default 0.0027)")
+    p.add_argument("--mode", choices=("exact", "voxels"), default="exact",
+                   help="exact (default): atlas images for a shader that evaluates the curvilinear field, plus a "
+                        "support VDB; voxels: the opacity resampled into a VDB")
+    p.add_argument("--voxel-size", type=float, metavar="S", help="voxel mode: scene units between voxels (default 0.0027)")
+    p.add_argument("--support-size", type=float, metavar="S",
+                   help="exact mode: scene units between support voxels (default 0.01)")
     p.add_argument("--exaggeration", type=float, metavar="E", help="vertical exaggeration (default 30)")
     p.add_argument("--radius", type=float, default=1.0, help="sea-level radius in scene units (default 1)")
     p.add_argument("--steps", metavar="A-B", help="time steps to write, e.g. 0-23 (default: all)")
@@ -88,11 +97,23 @@ def run(args):
     params = {
         "source": args.source, "var": args.var, "tf": tf.to_dict(), "color_var": color_var, "voxel_size": voxel,
         "exaggeration": exaggeration, "radius": args.radius,
-        "frame_start": 1 - first, "hours_per_frame": step_hours,
+        "frame_start": 1 - first, "hours_per_frame": step_hours, "mode": args.mode,
     }
     from ..addon.vdb import bake_sequence
 
     out = Path(args.out)
+    if args.mode == "exact":
+        from ..addon.volume_exact import write_exr
+        from ..core.volume_atlas import DEFAULT_SUPPORT_SIZE, atlas_layout
+
+        support = DEFAULT_SUPPORT_SIZE if args.support_size is None else args.support_size
+        if not (np.isfinite(support) and support > 0):
+            raise UsageError(f"--support-size must be > 0, got {support}")
+        del params["voxel_size"]
+        params["support_size"] = support
+        layout = atlas_layout(ds.grid, args.radius, exaggeration)
+        write_exr(out / f"{args.prefix}_heights.exr", layout.heights)
+        params["layout"] = layout.to_dict()
 
     def progress(i, n, info):
         if not args.quiet:
@@ -101,7 +122,8 @@ def run(args):
 
     infos = bake_sequence(params, range(1, last - first + 2), out, args.prefix, progress=progress)
     meta = dict(params, steps=[first, last], files=[Path(i["path"]).name for i in infos],
-                value_max=max(i["value_max"] for i in infos), grids=["density"] + ([color_var] if color_var else []))
+                value_max=max(i["value_max"] for i in infos),
+                grids=["support"] if args.mode == "exact" else ["density"] + ([color_var] if color_var else []))
     fd, tmp = tempfile.mkstemp(dir=out, prefix=".sequence.", suffix=".json")
     with os.fdopen(fd, "w") as f:
         json.dump(meta, f, indent=1)

@@ -13,7 +13,8 @@ from nephele.farm.cli import main  # noqa: E402
 
 def test_writes_sequence_and_metadata(tmp_path, capsys):
     out = tmp_path / "seq"
-    rc = main(["volume", "demo:small", "--steps", "2-3", "--voxel-size", "0.02", "--out", str(out), "--quiet"])
+    rc = main(["volume", "demo:small", "--steps", "2-3", "--mode", "voxels", "--voxel-size", "0.02", "--out", str(out),
+               "--quiet"])
     assert rc == 0
     assert sorted(p.name for p in out.glob("*.vdb")) == ["clouds_0001.vdb", "clouds_0002.vdb"]
     meta = json.loads((out / "sequence.json").read_text())
@@ -25,11 +26,37 @@ def test_writes_sequence_and_metadata(tmp_path, capsys):
     assert "2 VDB files" in capsys.readouterr().out
 
 
+def test_exact_mode_writes_atlases_the_core_reproduces(tmp_path, capsys):
+    from nephele.addon.volume_exact import read_exr
+    from nephele.core.readers import open_dataset
+    from nephele.core.transfer import TransferFunction
+    from nephele.core.volume_atlas import atlas_layout, exact_volume
+
+    out = tmp_path / "seq"
+    rc = main(["volume", "demo:small", "--steps", "1-1", "--support-size", "0.03", "--out", str(out), "--quiet"])
+    assert rc == 0
+    assert sorted(p.name for p in out.iterdir() if not p.name.startswith(".")) == [
+        "clouds_0001.exr", "clouds_0001.vdb", "clouds_heights.exr", "sequence.json"]
+    meta = json.loads((out / "sequence.json").read_text())
+    assert meta["mode"] == "exact" and meta["grids"] == ["support"] and meta["support_size"] == 0.03
+    ds = open_dataset("demo:small")
+    ev = exact_volume(ds.grid, ds.read("cloud", 1), TransferFunction.ramp(0.3, 1.0), support_size=0.03,
+                      color_name="altitude")
+    values, info = read_exr(out / "clouds_0001.exr")
+    np.testing.assert_array_equal(values, ev.values)  # 32-bit floats: lossless
+    heights, _ = read_exr(out / "clouds_heights.exr")
+    np.testing.assert_array_equal(heights, atlas_layout(ds.grid).heights)
+    assert meta["layout"] == json.loads(json.dumps(ev.layout.to_dict()))
+    support, lo, vs = read_grid(out / "clouds_0001.vdb", "support")
+    assert vs == pytest.approx(0.03) and np.count_nonzero(support) == ev.support.shape[0]
+    assert set(np.unique(support)) <= {0.0, 1.0}
+
+
 def test_empty_volume_warns(tmp_path, capsys):
     rc = main(["volume", "demo:small", "--steps", "0-0", "--threshold", "5", "--full", "6", "--voxel-size", "0.02",
                "--out", str(tmp_path), "--quiet"])
     assert rc == 0
-    assert read_grid(tmp_path / "clouds_0001.vdb")[0] is None
+    assert read_grid(tmp_path / "clouds_0001.vdb", "support")[0] is None
     assert "every volume is empty" in capsys.readouterr().err
 
 
