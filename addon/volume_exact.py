@@ -217,9 +217,9 @@ def field_nodes(tree, layout, values_image, heights_image, *, below, color_altit
     a = 6_371_000.0 / (L["radius"] * L["exaggeration"])
     h = g.math("MULTIPLY_ADD", length.outputs["Value"], a, -6_371_000.0 / L["exaggeration"], label="height")
     inside = []
-    if L["periodic"]:
-        lon = g.math("FLOORED_MODULO", lon, 360.0)
-    else:
+    # Relative longitude in [0, 360) for every grid: a regional grid may straddle ±180°.
+    lon = g.math("FLOORED_MODULO", lon, 360.0)
+    if not L["periodic"]:
         inside += [g.math("GREATER_THAN", lon, L["lon_range"][0]), g.math("LESS_THAN", lon, L["lon_range"][1])]
     if not (L["lat_range"][0] <= -90.0 and L["lat_range"][1] >= 90.0):
         inside += [g.math("GREATER_THAN", lat, L["lat_range"][0]), g.math("LESS_THAN", lat, L["lat_range"][1])]
@@ -261,7 +261,9 @@ def tf_nodes(tree, value, tf, location=(-600, 300)):
     """The transfer function of ``value`` as clamped ramps and steps: the opacity socket."""
     g = _Nodes(tree, *location)
     offset, parts = tf_ramps(tf)
-    terms = [g.math("MULTIPLY", g.math("GREATER_THAN", value, a), rise, label="transfer function") if kind == "step"
+    # A step takes its upper value at the step (value >= a), as np.interp does.
+    terms = [g.math("MULTIPLY", g.math("SUBTRACT", 1.0, g.math("LESS_THAN", value, a)), rise, label="transfer function")
+             if kind == "step"
              else g.map_range(value, a, b, 0.0, rise, label="transfer function") for kind, a, b, rise in parts]
     if not terms:
         return g.math("ADD", offset, 0.0, label="transfer function")
