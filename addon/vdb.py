@@ -74,10 +74,17 @@ def write_volume(path, volume, *, metadata=None):
         bg = float(volume.color[volume.density > 0].mean()) if volume.density.size and (volume.density > 0).any() else 0.0
         grids.append(_grid(vdb, volume.color_name, volume.blocks, volume.color, volume.block, volume.voxel_size, bg))
     meta = {str(k): str(v) for k, v in (metadata or {}).items()}
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=".vdb")
+    return atomic_write(path, lambda tmp: vdb.write(tmp, grids=grids, metadata=meta))
+
+
+def atomic_write(path, write):
+    """Call ``write(tmp)`` on a temporary file beside ``path``, then rename it to ``path``."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=path.suffix)
     os.close(fd)
     try:
-        vdb.write(tmp, grids=grids, metadata=meta)
+        write(tmp)
         # mkstemp makes the file private; a render farm's other users must read it.
         umask = os.umask(0)
         os.umask(umask)

@@ -20,13 +20,12 @@ References
 """
 
 import math
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
 from ..core.volume_atlas import PAD, VALID, tf_ramps
+from .vdb import atomic_write
 
 SUPPORT = "support"
 """Name of the support grid."""
@@ -42,24 +41,6 @@ def oiio():
         bpy.utils.expose_bundled_modules()
         import OpenImageIO as mod
     return mod
-
-
-def _atomic(path, write):
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=path.suffix)
-    os.close(fd)
-    try:
-        write(tmp)
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path
 
 
 def write_exr(path, img, metadata=None):
@@ -81,7 +62,7 @@ def write_exr(path, img, metadata=None):
         if not ok:
             raise OSError(f"{path}: cannot write EXR: {out.geterror()}")
 
-    return _atomic(path, write)
+    return atomic_write(path, write)
 
 
 def read_exr(path):
@@ -127,7 +108,7 @@ def write_support(path, support, support_size, metadata=None):
     data[inverse.reshape(-1), loc[:, 0], loc[:, 1], loc[:, 2]] = 1.0
     grid = _grid(vdb, SUPPORT, blocks, data, B, support_size)
     meta = {str(k): str(v) for k, v in (metadata or {}).items()}
-    return _atomic(path, lambda tmp: vdb.write(tmp, grids=[grid], metadata=meta))
+    return atomic_write(path, lambda tmp: vdb.write(tmp, grids=[grid], metadata=meta))
 
 
 # ------------------------------------------------------------------ the node graph
