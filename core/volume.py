@@ -648,6 +648,17 @@ def _near_candidates(field, table, blocks, sub, voxel_size):
     return keep
 
 
+def scalar_field(grid, values, color_values=None, color_name=None, radius=1.0, exaggeration=DEFAULT_EXAGGERATION):
+    """The :class:`CurvilinearField` of ``values`` (as ``"value"``) and, for a
+    colour variable other than :data:`ALTITUDE`, ``color_values`` (as ``"color"``)."""
+    arrays = {"value": values}
+    if color_name is not None and color_name != ALTITUDE:
+        if color_values is None:
+            raise DataError("color_values are needed for a colour variable other than altitude", field=color_name)
+        arrays["color"] = color_values
+    return CurvilinearField.from_grid(grid, arrays, radius, exaggeration)
+
+
 def resample(
     grid,
     values,
@@ -704,12 +715,7 @@ def resample(
     if int(block) < 1:
         raise DataError(f"must be >= 1, got {block}", field="block")
     block = int(block)
-    arrays = {"value": values}
-    if color_name is not None and color_name != ALTITUDE:
-        if color_values is None:
-            raise DataError("color_values are needed for a colour variable other than altitude", field=color_name)
-        arrays["color"] = color_values
-    field = CurvilinearField.from_grid(grid, arrays, radius, exaggeration)
+    field = scalar_field(grid, values, color_values, color_name, radius, exaggeration)
     # Blocks further out than the whole globe would overflow the block keys.
     if field.radius_range()[1] / (voxel_size * block) > (_KEY_OFFSET - 2):
         raise DataError(f"voxel size {voxel_size} is too small for a globe of radius {radius}", field="voxel_size")

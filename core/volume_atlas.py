@@ -51,7 +51,7 @@ import numpy as np
 from .errors import DataError
 from .grid import DEFAULT_EXAGGERATION, EARTH_RADIUS
 from .transfer import TransferFunction
-from .volume import ALTITUDE, CurvilinearField, _block_keys, candidate_blocks, height_scale
+from .volume import ALTITUDE, CurvilinearField, SparseVolume, candidate_blocks, height_scale, scalar_field
 
 PAD = 1
 """Padding rows above and below each tile."""
@@ -379,23 +379,9 @@ class ExactVolume:
 
     def in_support(self, xyz):
         """Points where the support grid's trilinear mix is positive (the shader's test)."""
-        xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
-        out = np.zeros(xyz.shape[0], bool)
-        if self.empty:
-            return out
-        u = xyz / self.support_size
-        base = np.floor(u).astype(np.int64)
-        f = u - base
-        keys = np.sort(_block_keys(self.support))
-        for dx in (0, 1):
-            for dy in (0, 1):
-                for dz in (0, 1):
-                    w = ((f[:, 0] if dx else 1 - f[:, 0]) * (f[:, 1] if dy else 1 - f[:, 1])
-                         * (f[:, 2] if dz else 1 - f[:, 2]))
-                    k = _block_keys(base + (dx, dy, dz))
-                    pos = np.clip(np.searchsorted(keys, k), 0, keys.size - 1)
-                    out |= (keys[pos] == k) & (w > 0)
-        return out
+        n = self.support.shape[0]
+        grid = SparseVolume(self.support_size, 1, self.support, np.ones((n, 1, 1, 1), np.float32))
+        return grid.sample(xyz) > 0
 
     def arrays(self):
         """Plain arrays for ``np.savez`` / the cache (no pickle); the layout is rebuilt from the grid."""
@@ -445,12 +431,7 @@ def exact_volume(grid, values, tf, *, support_size=DEFAULT_SUPPORT_SIZE, color_v
         raise DataError(f"must be a positive number of scene units, got {support_size}", field="support_size")
     if not (np.isfinite(below) and below >= 0):
         raise DataError(f"must be >= 0 metres, got {below}", field="below")
-    arrays = {"value": values}
-    if color_name is not None and color_name != ALTITUDE:
-        if color_values is None:
-            raise DataError("color_values are needed for a colour variable other than altitude", field=color_name)
-        arrays["color"] = color_values
-    field = CurvilinearField.from_grid(grid, arrays, radius, exaggeration)
+    field = scalar_field(grid, values, color_values, color_name, radius, exaggeration)
     layout = layout or _layout(field)
     if (layout.nk, layout.rows) != field.shape[:2]:
         raise DataError("layout belongs to another grid", field="layout")

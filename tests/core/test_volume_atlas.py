@@ -49,6 +49,14 @@ def terrain_grid(lon, lat, nk=6, top=16000.0, seed=0):
     return GlobeGrid(np.asarray(lon, float), np.asarray(lat, float), h)
 
 
+def flat_grid(nk=5):
+    """A 10° periodic grid stopping 5° short of the poles, flat levels 0-16 km."""
+    lon = np.arange(36) * 10.0
+    lat = -85.0 + 10.0 * np.arange(18)
+    h = np.linspace(0.0, 16000.0, nk)[:, None, None] + np.zeros((nk, 18, 36))
+    return GlobeGrid(lon, lat, h)
+
+
 def field_values(grid):
     L, P = np.meshgrid(grid.lon, grid.lat)
     return analytic(L[None], P[None], grid.height)
@@ -213,11 +221,7 @@ def test_longitude_seam(lon0):
 
 
 def test_poles_take_the_ring_mean():
-    lon = np.arange(36) * 10.0
-    lat = -85.0 + 10.0 * np.arange(18)
-    nk = 5
-    h = np.linspace(0.0, 16000.0, nk)[:, None, None] + np.zeros((nk, 18, 36))
-    grid = GlobeGrid(lon, lat, h)
+    grid = flat_grid()
     values = field_values(grid)
     field, layout, atlas = setup(grid, values)
     hh = np.linspace(100.0, 15900.0, 40)
@@ -228,7 +232,7 @@ def test_poles_take_the_ring_mean():
         assert ok.all()
         # Independent truth: the row's mean per level, linear in height (flat levels).
         ring = values[:, row, :].astype(np.float64).mean(axis=1)
-        np.testing.assert_allclose(value, np.interp(hh, h[:, 0, 0], ring), atol=TOL)
+        np.testing.assert_allclose(value, np.interp(hh, grid.height[:, 0, 0], ring), atol=TOL)
         np.testing.assert_allclose(value, reference(field, pts), atol=TOL)
 
 
@@ -293,11 +297,7 @@ def test_nan_corner_with_a_tiny_weight_still_hides_the_cell():
 
 
 def test_vertical_range_top_ground_and_below():
-    lon = np.arange(36) * 10.0
-    lat = -85.0 + 10.0 * np.arange(18)
-    nk = 5
-    h = np.linspace(0.0, 16000.0, nk)[:, None, None] + np.zeros((nk, 18, 36))
-    grid = GlobeGrid(lon, lat, h)
+    grid = flat_grid()
     values = field_values(grid)
     field, layout, atlas = setup(grid, values)
     rng = np.random.default_rng(16)
