@@ -1,13 +1,17 @@
 # Two commands do everything on a fresh machine:
 #   make demo   renders the default demo film (embedded data, no downloads)
-#   make test   runs the whole test suite (Python 3.13 + bpy, and the core on Python 3.11 + numpy 1.26)
+#   make test   runs the whole test suite (Python 3.13 + bpy, the core on Python 3.11 + numpy 1.26, and
+#               the extension zip installed into Pythons holding only what Blender 5.2 and 5.0 ship)
 PY313 ?= $(shell command -v python3.13 || pyenv which python3.13 2>/dev/null || echo python3)
 PY311 ?= $(shell command -v python3.11 || pyenv which python3.11 2>/dev/null || echo python3)
 VENV := .venv
 VENV311 := .venv311
+# Blender-only Pythons: nothing but the bpy wheel and its dependencies (see tests/extension).
+BPY52 := build/venv-bpy52
+BPY50 := build/venv-bpy50
 PYTEST_ARGS ?=
 
-.PHONY: demo test test-main test-core311 bench extension clean
+.PHONY: demo test test-main test-core311 test-extension bench extension clean
 
 $(VENV)/.stamp: requirements.txt pyproject.toml
 	$(PY313) -m venv $(VENV)
@@ -23,17 +27,35 @@ $(VENV311)/.stamp: requirements-core311.txt pyproject.toml
 	$(VENV311)/bin/pip install -q --no-deps -e .
 	touch $@
 
+$(BPY52)/.stamp: requirements-blender.txt
+	rm -rf $(BPY52)
+	$(PY313) -m venv $(BPY52)
+	$(BPY52)/bin/pip install -q -r requirements-blender.txt
+	touch $@
+
+$(BPY50)/.stamp: requirements-blender311.txt
+	rm -rf $(BPY50)
+	$(PY311) -m venv $(BPY50)
+	$(BPY50)/bin/pip install -q -r requirements-blender311.txt
+	touch $@
+
 demo: $(VENV)/.stamp
 	$(VENV)/bin/nephele demo --out out/demo
 
-test: test-main test-core311
+test: test-main test-core311 test-extension
 
 test-main: $(VENV)/.stamp
-	$(VENV)/bin/python -m pytest $(PYTEST_ARGS)
+	$(VENV)/bin/python -m pytest --ignore=tests/extension $(PYTEST_ARGS)
 
 # Core only (no bpy, no farm): the numpy 1.26 / Python 3.11 that Blender 4.2-5.0 ship.
 test-core311: $(VENV311)/.stamp
-	$(VENV311)/bin/python -m pytest -m "not bpy" --ignore=tests/farm --ignore=tests/blender $(PYTEST_ARGS)
+	$(VENV311)/bin/python -m pytest -m "not bpy" --ignore=tests/farm --ignore=tests/blender --ignore=tests/extension $(PYTEST_ARGS)
+
+# Build the linux-x64 zips (wheels cached in build/wheels), install each into its Blender-only
+# Python through Blender's extension API and drive the whole sidebar workflow there.
+test-extension: $(VENV)/.stamp $(BPY52)/.stamp $(BPY50)/.stamp
+	NEPHELE_REQUIRE_BLENDER_PYTHONS=1 NEPHELE_BLENDER_PYTHONS=$(CURDIR)/$(BPY52)/bin/python:$(CURDIR)/$(BPY50)/bin/python \
+	  $(VENV)/bin/python -m pytest tests/extension $(PYTEST_ARGS)
 
 bench: $(VENV)/.stamp
 	for b in benchmarks/bench_*.py; do $(VENV)/bin/python $$b || exit 1; done

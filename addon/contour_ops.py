@@ -144,6 +144,10 @@ class NEPHELE_OT_add_contour(bpy.types.Operator):
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
         self.report({"INFO"}, f"{obj.name}: {len(obj.data.polygons)} triangles")
+        for o in list(context.view_layer.objects.selected):  # Blender convention: the new object alone selected and active
+            o.select_set(False)
+        obj.select_set(True)
+        context.view_layer.objects.active = obj
         return {"FINISHED"}
 
 

@@ -525,6 +525,10 @@ class NEPHELE_OT_add_globe(bpy.types.Operator):
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
         self.report({"INFO"}, f"{obj.name}: {len(obj.data.polygons)} triangles")
+        for o in list(context.view_layer.objects.selected):  # Blender convention: the new object alone selected and active
+            o.select_set(False)
+        obj.select_set(True)
+        context.view_layer.objects.active = obj
         return {"FINISHED"}
 
 
@@ -539,7 +543,11 @@ class NEPHELE_OT_add_sky(bpy.types.Operator):
     sun_strength: bpy.props.FloatProperty(name="Sun strength", default=4.0, min=0.0)
 
     def execute(self, context):
-        add_sky_and_haze(context.scene, haze=self.haze, sun_strength=self.sun_strength)
+        sun = add_sky_and_haze(context.scene, haze=self.haze, sun_strength=self.sun_strength)["sun"]
+        for o in list(context.view_layer.objects.selected):  # Blender convention: the new object alone selected and active
+            o.select_set(False)
+        sun.select_set(True)
+        context.view_layer.objects.active = sun
         return {"FINISHED"}
 
 
@@ -555,7 +563,11 @@ class NEPHELE_OT_add_camera(bpy.types.Operator):
     distance: bpy.props.FloatProperty(name="Distance", default=3.6, min=1.1)
 
     def execute(self, context):
-        add_camera(context.scene, lon=self.lon, lat=self.lat, distance=self.distance)
+        cam = add_camera(context.scene, lon=self.lon, lat=self.lat, distance=self.distance)
+        for o in list(context.view_layer.objects.selected):  # Blender convention: the new object alone selected and active
+            o.select_set(False)
+        cam.select_set(True)
+        context.view_layer.objects.active = cam
         return {"FINISHED"}
 
 

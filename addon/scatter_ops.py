@@ -424,6 +424,10 @@ class NEPHELE_OT_add_scattering_cloud(bpy.types.Operator):
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
         self.report({"INFO"}, self._job.status)
+        for o in list(context.view_layer.objects.selected):  # Blender convention: the new object alone selected and active
+            o.select_set(False)
+        self._job.obj.select_set(True)
+        context.view_layer.objects.active = self._job.obj
         return {"FINISHED"}
 
     def invoke(self, context, event):
@@ -475,6 +479,10 @@ class NEPHELE_OT_add_scattering_cloud(bpy.types.Operator):
             self._end(context)
             props.progress = 1.0
             self.report({"INFO"}, self._job.status)
+            for o in list(context.view_layer.objects.selected):  # Blender convention: the new object alone selected and active
+                o.select_set(False)
+            self._job.obj.select_set(True)
+            context.view_layer.objects.active = self._job.obj
             return {"FINISHED"}
         return {"RUNNING_MODAL"}
 

@@ -1,33 +1,110 @@
-"""``nephele build-extension``: the add-on as a Blender extension zip, built and validated
-by Blender's own extension tool.
+"""``nephele build-extension``: the add-on as Blender extension zips, one per
+platform and Blender Python, each with the third-party wheels the add-on
+imports, built and validated by Blender's own extension tool.
 
+Blender 4.2-5.0 ship Python 3.11 + numpy 1.26, Blender 5.1 and later Python
+3.13 + numpy 2.x, so each platform gets two zips whose manifests carry
+``blender_version_min``/``blender_version_max``.  The bundled packages are
+scipy (advection, dome remapping, scattering views, the relief reader) and
+xarray + netCDF4 (NetCDF import) with what they pull in (pandas, cftime,
+dateutil, tzdata, packaging), pinned to the versions the test suite runs
+(``requirements.txt`` for Python 3.13, ``requirements-core311.txt`` for
+3.11).  Blender's own packages (numpy, certifi, requests, ...) are never
+bundled.
+
+Wheels come from ``pip download --only-binary=:all: --platform ...
+--python-version ...`` into a cache folder (``build/wheels`` by default), one
+sub-folder per (Python, platform) stamped with what it holds; a complete
+sub-folder is reused without the network, and ``--offline`` refuses to fetch.
 Only the extension's parts (``__init__.py``, ``blender_manifest.toml``,
-``addon/``, ``core/``, ``README.md``, licence files) are staged in a temporary
-directory, so nothing local (virtual environments, egg-info, outputs) leaks
-in; the manifest's ``[build]`` excludes still apply (caches, tests, farm,
-examples, benchmarks, docs).  The builder is ``blender_ext.py`` from the
-``bpy`` wheel (``.../scripts/addons_core/bl_pkg/cli/``), run with this Python,
-or ``blender --command extension`` when ``--blender`` is given.
+``addon/``, ``core/``, ``README.md``, licence files) are staged, so nothing
+local leaks in; the manifest's ``[build]`` excludes still apply.  The builder
+is ``blender_ext.py`` from the ``bpy`` wheel, or ``blender --command
+extension`` when ``--blender`` is given.
 """
 
 import importlib.util
+import re
 import shutil
 import subprocess
 import sys
 import tempfile
+from dataclasses import dataclass
 from pathlib import Path
 
 from .cli import UsageError
 
-HELP = "build the Blender extension zip (add-on + core) and validate it"
+HELP = "build the Blender extension zips (one per platform and Blender Python), wheels bundled"
 
 ROOT = Path(__file__).resolve().parent.parent
 PARTS = ("__init__.py", "blender_manifest.toml", "addon", "core", "README.md", "LICENSE", "LICENSE.txt", "COPYING")
+
+# Packages the add-on imports that Blender does not ship (pins read from the
+# requirement files the tests run on).
+BUNDLED = ("scipy", "xarray", "netCDF4")
+# Blender's bundled Python already has these: never put them in the zip.
+BLENDER_SHIPS = frozenset({"numpy", "certifi", "requests", "urllib3", "idna", "charset-normalizer",
+                           "zstandard", "cython"})
+
+# Blender platform -> pip platform tags (Blender 4.2+: glibc 2.28, macOS 11.2).
+PLATFORM_TAGS = {
+    "linux-x64": ("manylinux_2_28_x86_64", "manylinux_2_17_x86_64", "manylinux2014_x86_64"),
+    "windows-x64": ("win_amd64",),
+    "macos-arm64": ("macosx_11_0_arm64",),
+    "macos-x64": ("macosx_11_0_x86_64", "macosx_10_9_x86_64"),
+}
+
+
+@dataclass(frozen=True)
+class Target:
+    """One Blender Python: which Blenders run it and which pins its wheels use."""
+
+    python: str  # "3.11"
+    blender_min: str
+    blender_max: str | None  # exclusive
+    numpy: str  # numpy requirement used only to resolve compatible wheels
+    requirements_file: str
+    platforms: tuple
+
+    @property
+    def abi(self):
+        return "cp" + self.python.replace(".", "")
+
+    @property
+    def label(self):
+        if self.blender_max is None:
+            return f"blender{_short(self.blender_min)}-and-later"
+        return f"blender{_short(self.blender_min)}-{_previous(self.blender_max)}"
+
+
+def _short(version):
+    return ".".join(version.split(".")[:2])
+
+
+def _previous(version_max):
+    major, minor = (int(x) for x in version_max.split(".")[:2])
+    return f"{major}.{minor - 1}" if minor else f"{major - 1}.x"
+
+
+TARGETS = {
+    # No Intel-Mac Blender after 4.5 and no bpy 5.1+ for it: macos-x64 only here.
+    "3.11": Target("3.11", "4.2.0", "5.1.0", "numpy==1.26.4", "requirements-core311.txt",
+                   ("linux-x64", "windows-x64", "macos-arm64", "macos-x64")),
+    "3.13": Target("3.13", "5.1.0", None, "numpy==2.2.*", "requirements.txt",
+                   ("linux-x64", "windows-x64", "macos-arm64")),
+}
 
 
 def add_arguments(p):
     p.add_argument("--out", default="dist", help="output directory (default: dist)")
     p.add_argument("--blender", default=None, help="use this Blender executable instead of the bpy wheel's builder")
+    p.add_argument("--platform", action="append", choices=sorted(PLATFORM_TAGS), dest="platforms",
+                   help="build only for this platform (repeatable; default: every platform with wheels)")
+    p.add_argument("--python", action="append", choices=sorted(TARGETS), dest="pythons",
+                   help="build only for this Blender Python: 3.11 = Blender 4.2-5.0, 3.13 = 5.1+ (default: both)")
+    p.add_argument("--wheel-cache", default=str(ROOT / "build" / "wheels"),
+                   help="folder of downloaded wheels, reused offline (default: build/wheels)")
+    p.add_argument("--offline", action="store_true", help="never contact PyPI; use only --wheel-cache")
 
 
 def builder_command(blender=None):
@@ -60,6 +137,81 @@ def stage(dest, root=ROOT):
     return dest
 
 
+def pinned_requirements(target, root=ROOT):
+    """The ``BUNDLED`` pins of ``target``'s requirement file, e.g. ``["scipy==1.18.1", ...]``."""
+    path = root / target.requirements_file
+    if not path.is_file():
+        raise UsageError(f"{path}: missing (the wheel pins for Python {target.python} are read from it)")
+    pins = {}
+    for line in path.read_text().splitlines():
+        m = re.match(r"\s*([A-Za-z0-9_.-]+)\s*==\s*([^\s;#]+)", line)
+        if m and m.group(1).lower() in {b.lower() for b in BUNDLED}:
+            pins[m.group(1).lower()] = f"{m.group(1)}=={m.group(2)}"
+    missing = [b for b in BUNDLED if b.lower() not in pins]
+    if missing:
+        raise UsageError(f"{path}: no exact pin (name==version) for {', '.join(missing)}")
+    return [pins[b.lower()] for b in BUNDLED]
+
+
+def wheel_name(path):
+    """The normalised distribution name of a wheel file (``netcdf4``, ``python-dateutil``)."""
+    return re.sub(r"[-_.]+", "-", Path(path).name.split("-")[0]).lower()
+
+
+def fetch_wheels(target, platform, cache, offline=False, root=ROOT):
+    """The wheels to bundle for ``target`` on ``platform``, downloaded into ``cache`` once.
+
+    A cache sub-folder is complete when its ``request.txt`` equals this
+    request; it is then reused without the network.  A fresh download goes to a
+    temporary sibling that replaces the sub-folder only when pip succeeded.
+    """
+    request = pinned_requirements(target, root) + [target.numpy]
+    stamp_text = "\n".join(request + list(PLATFORM_TAGS[platform])) + "\n"
+    cache = Path(cache)
+    folder = cache / f"{target.abi}-{platform}"
+    stamp = folder / "request.txt"
+    if not (stamp.is_file() and stamp.read_text() == stamp_text):
+        if offline:
+            raise UsageError(f"wheels for Python {target.python} {platform} are not in {cache} "
+                             "(run once without --offline to fetch them)")
+        print(f"fetching wheels for Blender's Python {target.python} on {platform} from PyPI: "
+              f"{' '.join(request[:-1])} and their dependencies", flush=True)
+        cache.mkdir(parents=True, exist_ok=True)
+        part = cache / f".{folder.name}.part"
+        shutil.rmtree(part, ignore_errors=True)
+        cmd = [sys.executable, "-m", "pip", "download", "--quiet", "--only-binary=:all:",
+               "--python-version", target.python, "--implementation", "cp",
+               "--abi", target.abi, "--abi", "abi3", "--abi", "none", "--dest", str(part)]
+        for tag in PLATFORM_TAGS[platform]:
+            cmd += ["--platform", tag]
+        res = subprocess.run(cmd + request, capture_output=True, text=True)
+        if res.returncode != 0:
+            shutil.rmtree(part, ignore_errors=True)
+            last = (res.stderr.strip() or res.stdout.strip()).splitlines()[-1:] or ["no output"]
+            raise UsageError(f"pip could not fetch wheels for Python {target.python} {platform}: {last[0]}")
+        (part / "request.txt").write_text(stamp_text)
+        shutil.rmtree(folder, ignore_errors=True)
+        part.replace(folder)
+    wheels = sorted(p for p in folder.glob("*.whl") if wheel_name(p) not in BLENDER_SHIPS)
+    if not {b.lower() for b in BUNDLED} <= {wheel_name(w) for w in wheels}:
+        raise UsageError(f"{folder}: incomplete wheel set; delete it and build again")
+    return wheels
+
+
+def write_manifest(path, target, platforms, wheels):
+    """Set ``platforms``, ``wheels`` and the Blender version range in a staged manifest."""
+    text = path.read_text()
+    lines = [f'blender_version_min = "{target.blender_min}"']
+    if target.blender_max:
+        lines.append(f'blender_version_max = "{target.blender_max}"')
+    lines.append("platforms = [" + ", ".join(f'"{p}"' for p in platforms) + "]")
+    lines.append("wheels = [\n" + "".join(f'  "./wheels/{w.name}",\n' for w in wheels) + "]")
+    new, n = re.subn(r'(?m)^blender_version_min\s*=.*$', lambda _m: "\n".join(lines), text)
+    if n != 1 or re.search(r"(?m)^(platforms|wheels|blender_version_max)\s*=", text):
+        raise UsageError(f"{path}: expected one blender_version_min and no platforms/wheels/blender_version_max")
+    path.write_text(new)
+
+
 def _check(cmd, what):
     res = subprocess.run(cmd, capture_output=True, text=True)
     if res.returncode != 0:
@@ -67,29 +219,59 @@ def _check(cmd, what):
     return res.stdout
 
 
-def build(out="dist", blender=None):
-    """Build and validate the zip into ``out``; returns its path."""
+def build_target(target, platforms, out, cmd, cache, offline=False, root=ROOT):
+    """Build, validate and copy into ``out`` one zip per platform for one Blender Python."""
+    out = Path(out)
+    with tempfile.TemporaryDirectory(prefix="nephele-ext-") as tmp:
+        src = stage(Path(tmp) / "nephele", root)
+        (src / "wheels").mkdir()
+        names = set()
+        for platform in platforms:
+            for w in fetch_wheels(target, platform, cache, offline, root):
+                if w.name not in names:
+                    shutil.copy2(w, src / "wheels" / w.name)
+                    names.add(w.name)
+        wheels = sorted((src / "wheels").glob("*.whl"))
+        write_manifest(src / "blender_manifest.toml", target, platforms, wheels)
+        build_dir = Path(tmp) / "out"
+        build_dir.mkdir()
+        _check(cmd + ["build", "--split-platforms", "--source-dir", str(src), "--output-dir", str(build_dir)],
+               "extension build")
+        zips = sorted(build_dir.glob("*.zip"))
+        if len(zips) != len(platforms):
+            raise UsageError(f"extension build produced {len(zips)} zip files for {len(platforms)} platforms")
+        built = []
+        for z in zips:
+            _check(cmd + ["validate", str(z)], "extension validate")
+            # nephele-0.1.0-linux_x64.zip -> nephele-0.1.0-blender5.1-and-later-linux_x64.zip
+            stem, plat = z.stem.rsplit("-", 1)
+            target_path = out / f"{stem}-{target.label}-{plat}.zip"
+            # Copy beside the target, then rename: never a half-written zip in --out.
+            part = out / f".{target_path.name}.part"
+            shutil.copy2(z, part)
+            part.replace(target_path)
+            built.append(target_path)
+    return built
+
+
+def build(out="dist", blender=None, platforms=None, pythons=None, wheel_cache=None, offline=False):
+    """Build every requested (Python, platform) zip into ``out``; returns their paths."""
     cmd = builder_command(blender)
     out = Path(out).resolve()
     out.mkdir(parents=True, exist_ok=True)
-    with tempfile.TemporaryDirectory(prefix="nephele-ext-") as tmp:
-        src = stage(Path(tmp) / "nephele")
-        build_dir = Path(tmp) / "out"
-        build_dir.mkdir()
-        _check(cmd + ["build", "--source-dir", str(src), "--output-dir", str(build_dir)], "extension build")
-        zips = sorted(build_dir.glob("*.zip"))
-        if len(zips) != 1:
-            raise UsageError(f"extension build produced {len(zips)} zip files")
-        _check(cmd + ["validate", str(zips[0])], "extension validate")
-        target = out / zips[0].name
-        # Copy beside the target, then rename: never a half-written zip in --out.
-        tmp_target = out / f".{zips[0].name}.tmp"
-        shutil.copy2(zips[0], tmp_target)
-        tmp_target.replace(target)
-    return target
+    cache = Path(wheel_cache) if wheel_cache else ROOT / "build" / "wheels"
+    built = []
+    for py in pythons or sorted(TARGETS):
+        target = TARGETS[py]
+        plats = [p for p in target.platforms if not platforms or p in platforms]
+        if plats:
+            built += build_target(target, plats, out, cmd, cache, offline)
+    if not built:
+        raise UsageError("no zip to build: none of the requested platforms has a build for the requested Python")
+    return built
 
 
 def run(args):
-    path = build(args.out, args.blender)
-    print(f"built and validated {path}")
+    for path in build(args.out, args.blender, args.platforms, args.pythons, args.wheel_cache, args.offline):
+        print(f"built and validated {path} ({path.stat().st_size / 1e6:.1f} MB)")
     return 0
