@@ -25,6 +25,21 @@ COMMANDS = (
 )
 
 
+DESCRIPTION = "Turn climate data and other scientific fields into films with Blender."
+EPILOG = """optional parts (pip extras):
+  pip install 'nephele[data]'   NetCDF files, .ply/.glb export, advection, scattering, dome
+  pip install 'nephele[farm]'   rendering with Blender (bpy 5.2, Python 3.13) on Dask or Slurm
+
+Run 'nephele COMMAND --help' for a command's options."""
+
+# Optional packages -> the extra that installs them (pyproject.toml [project.optional-dependencies]).
+EXTRAS = {
+    "xarray": "data", "netCDF4": "data", "cftime": "data", "pandas": "data", "scipy": "data", "trimesh": "data",
+    "bpy": "farm", "mathutils": "farm", "dask": "farm", "distributed": "farm", "dask_jobqueue": "farm",
+    "imageio_ffmpeg": "farm", "psutil": "farm",
+}
+
+
 class UsageError(ValueError):
     """A bad command-line value, found before any work starts."""
 
@@ -43,7 +58,8 @@ def _load():
 
 
 def build_parser():
-    parser = argparse.ArgumentParser(prog="nephele", description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(prog="nephele", description=DESCRIPTION, epilog=EPILOG,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name, mod in _load().items():
         p = sub.add_parser(name, help=mod.HELP, description=mod.HELP)
@@ -59,6 +75,13 @@ def main(argv=None):
         return int(args._run(args) or 0)
     except (DataError, UsageError, FileNotFoundError) as exc:
         print(f"nephele {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except ModuleNotFoundError as exc:
+        extra = EXTRAS.get((exc.name or "").split(".")[0])
+        if extra is None:
+            raise
+        print(f"nephele {args.command}: error: this needs {exc.name}, which is not installed: "
+              f"pip install 'nephele[{extra}]'", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"nephele {args.command}: interrupted", file=sys.stderr)
