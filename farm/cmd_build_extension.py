@@ -46,12 +46,14 @@ BUNDLED = ("scipy", "xarray", "netCDF4")
 BLENDER_SHIPS = frozenset({"numpy", "certifi", "requests", "urllib3", "idna", "charset-normalizer",
                            "zstandard", "cython"})
 
-# Blender platform -> pip platform tags (Blender 4.2+: glibc 2.28, macOS 11.2).
+# Blender platform -> pip platform tags, tried in order until every pinned package resolves
+# (Blender 4.2+ needs glibc 2.28 and macOS 11.2; some pins have only newer macOS wheels, so the
+# oldest macOS that works is used; pip accepts older tags of the same kind too).
 PLATFORM_TAGS = {
-    "linux-x64": ("manylinux_2_28_x86_64", "manylinux_2_17_x86_64", "manylinux2014_x86_64"),
-    "windows-x64": ("win_amd64",),
-    "macos-arm64": ("macosx_11_0_arm64",),
-    "macos-x64": ("macosx_11_0_x86_64", "macosx_10_9_x86_64"),
+    "linux-x64": (("manylinux_2_28_x86_64", "manylinux_2_17_x86_64", "manylinux2014_x86_64"),),
+    "windows-x64": (("win_amd64",),),
+    "macos-arm64": tuple((f"macosx_{v}_0_arm64",) for v in (11, 12, 14, 15)),
+    "macos-x64": tuple((f"macosx_{v}_0_x86_64",) for v in (11, 12, 14, 15)),
 }
 
 
@@ -162,11 +164,13 @@ def fetch_wheels(target, platform, cache, offline=False, root=ROOT):
     """The wheels to bundle for ``target`` on ``platform``, downloaded into ``cache`` once.
 
     A cache sub-folder is complete when its ``request.txt`` equals this
-    request; it is then reused without the network.  A fresh download goes to a
-    temporary sibling that replaces the sub-folder only when pip succeeded.
+    request; it is then reused without the network (``tags.txt`` says which
+    platform tags resolved).  A fresh download goes to a temporary sibling that
+    replaces the sub-folder only when pip succeeded.
     """
     request = pinned_requirements(target, root) + [target.numpy]
-    stamp_text = "\n".join(request + list(PLATFORM_TAGS[platform])) + "\n"
+    alternatives = PLATFORM_TAGS[platform]
+    stamp_text = "\n".join(request + [" ".join(tags) for tags in alternatives]) + "\n"
     cache = Path(cache)
     folder = cache / f"{target.abi}-{platform}"
     stamp = folder / "request.txt"
@@ -174,21 +178,25 @@ def fetch_wheels(target, platform, cache, offline=False, root=ROOT):
         if offline:
             raise UsageError(f"wheels for Python {target.python} {platform} are not in {cache} "
                              "(run once without --offline to fetch them)")
-        print(f"fetching wheels for Blender's Python {target.python} on {platform} from PyPI: "
-              f"{' '.join(request[:-1])} and their dependencies", flush=True)
         cache.mkdir(parents=True, exist_ok=True)
         part = cache / f".{folder.name}.part"
-        shutil.rmtree(part, ignore_errors=True)
-        cmd = [sys.executable, "-m", "pip", "download", "--quiet", "--only-binary=:all:",
-               "--python-version", target.python, "--implementation", "cp",
-               "--abi", target.abi, "--abi", "abi3", "--abi", "none", "--dest", str(part)]
-        for tag in PLATFORM_TAGS[platform]:
-            cmd += ["--platform", tag]
-        res = subprocess.run(cmd + request, capture_output=True, text=True)
-        if res.returncode != 0:
+        for tags in alternatives:
+            print(f"fetching wheels for Blender's Python {target.python} on {platform} ({tags[0]}) from PyPI: "
+                  f"{' '.join(request[:-1])} and their dependencies", flush=True)
+            shutil.rmtree(part, ignore_errors=True)
+            cmd = [sys.executable, "-m", "pip", "download", "--quiet", "--only-binary=:all:",
+                   "--python-version", target.python, "--implementation", "cp",
+                   "--abi", target.abi, "--abi", "abi3", "--abi", "none", "--dest", str(part)]
+            for tag in tags:
+                cmd += ["--platform", tag]
+            res = subprocess.run(cmd + request, capture_output=True, text=True)
+            if res.returncode == 0:
+                break
+        else:
             shutil.rmtree(part, ignore_errors=True)
             last = (res.stderr.strip() or res.stdout.strip()).splitlines()[-1:] or ["no output"]
             raise UsageError(f"pip could not fetch wheels for Python {target.python} {platform}: {last[0]}")
+        (part / "tags.txt").write_text(" ".join(tags) + "\n")
         (part / "request.txt").write_text(stamp_text)
         shutil.rmtree(folder, ignore_errors=True)
         part.replace(folder)
