@@ -1,0 +1,3 @@
+"""The muscle film (Fig. 7): blobby molecules, the filament lattice and its cross-bridges."""
+
+from .blobby import blobby_field, blobby_surface, level_distance

@@ -1,0 +1,887 @@
+"""Blobby surfaces: the contour of a sum of Gaussian ellipsoids, meshed sparsely.
+
+The field is
+
+    f(x) = sum_i w_i exp(-1/2 |S_i^-1 R_i^T (x - c_i)|^2)
+
+(Blinn's "blobby" model, the paper's molecules).  :func:`blobby_surface`
+meshes ``f = level`` in four steps, all whole-array NumPy:
+
+1. The grid is cut into blocks of :data:`BLOCK`\\ :sup:`3` nodes.  For every
+   (block, Gaussian) pair whose ``cutoff`` ellipsoid reaches the block, the
+   Gaussian's Mahalanobis distance to the block centre bounds it over the
+   block; summed, the bounds say which blocks lie wholly below or wholly above
+   the level.  Only the others are evaluated.
+2. Node values of those blocks: per pair the exponent splits into three 2-D
+   tables (k-j, k-i, j-i), so a node costs two multiplies per Gaussian.
+3. Marching cubes with the project's tables (:mod:`nephele.core._mc_tables`,
+   the classification ``value >= level`` and :data:`~nephele.core.contour.EDGE_MARGIN`
+   of :func:`~nephele.core.contour.isosurface`).  Every node belongs to one
+   block and every block reads it from there, so neighbouring blocks agree on
+   every corner and every grid edge has one vertex: closed blobs are
+   watertight.
+4. Each vertex slides along its grid edge onto the level set of the sum cut at
+   ``cutoff + 1`` sigma (safeguarded Newton steps on the analytic derivative);
+   marching cubes alone leaves about 0.02 sigma at spacing sigma/4.  Normals
+   are the analytic gradient.
+
+With ``box`` the field is periodic (every image counts) and the mesh is the
+part in the box: vertices on the faces ``x = 0`` and ``x = L`` are the same
+points shifted by exactly ``L``, so copies of the mesh shifted by the box
+vectors join without cracks.
+
+References
+----------
+.. [1] J. F. Blinn, "A generalization of algebraic surface drawing",
+   ACM Transactions on Graphics 1(3), 235-256 (1982).
+.. [2] W. E. Lorensen and H. E. Cline, "Marching cubes", SIGGRAPH 1987.
+.. [3] N. Max and R. Crawfis, "Advances in Scientific Visualization" (muscle
+   molecules as contour surfaces of sums of Gaussian ellipsoids).
+"""
+
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+
+import numpy as np
+
+from .. import _mc_tables as tables
+from ..contour import EDGE_MARGIN
+from ..errors import DataError
+from ..mesh import Mesh, vertex_normals
+from ..threads import default_threads
+
+BLOCK = 8
+"""Nodes per block edge: 8 nodes at spacing sigma/4 span 2 sigma."""
+
+NEWTON_TOL = 2e-4
+"""Newton stops when |f - level| / |grad f| < NEWTON_TOL * sigma_min."""
+
+NEWTON_STEPS = 12
+REFINE_EXTRA = 1.0
+"""Vertices are projected onto the sum cut at (cutoff + REFINE_EXTRA) sigma."""
+
+EXACT_RANGE = 12.0
+"""The "exact" field counts every image within this many sigma (the rest is below 1e-31 w)."""
+
+_F32 = np.float32
+
+
+@dataclass
+class _Blobs:
+    """Gaussians (periodic images included) as float64 arrays; ``src`` is the input index."""
+
+    src: np.ndarray  # (m,) int64
+    c: np.ndarray  # (m, 3) centres
+    a: np.ndarray  # (m, 6) inverse covariance xx yy zz xy xz yz
+    lnw: np.ndarray  # (m,) log weight
+    smin: np.ndarray  # (m,) smallest sigma
+    half: np.ndarray  # (m, 3) bounding-box half-widths at Mahalanobis radius 1
+
+    def take(self, idx):
+        return _Blobs(*(x[idx] for x in (self.src, self.c, self.a, self.lnw, self.smin, self.half)))
+
+
+def _check(centers, rotations, sigmas, weights):
+    c = np.asarray(centers, dtype=np.float64)
+    if c.ndim != 2 or c.shape[1] != 3:
+        raise DataError(f"needs shape (n, 3), got {c.shape}", field="centers")
+    n = len(c)
+    r = np.asarray(rotations, dtype=np.float64)
+    if r.shape != (n, 3, 3):
+        raise DataError(f"needs shape ({n}, 3, 3), got {r.shape}", field="rotations")
+    s = np.asarray(sigmas, dtype=np.float64)
+    if s.shape != (n, 3):
+        raise DataError(f"needs shape ({n}, 3), got {s.shape}", field="sigmas")
+    w = np.asarray(weights, dtype=np.float64)
+    if w.shape != (n,):
+        raise DataError(f"needs shape ({n},), got {w.shape}", field="weights")
+    for name, x in (("centers", c), ("rotations", r), ("sigmas", s), ("weights", w)):
+        if not np.all(np.isfinite(x)):
+            raise DataError("has NaN or infinite values", field=name)
+    if n and not np.all(s > 0):
+        raise DataError("must be positive", field="sigmas")
+    if n and not np.all(w >= 0):
+        raise DataError("must be >= 0 (negative blobs are not supported)", field="weights")
+    if n:
+        err = np.abs(np.einsum("nki,nkj->nij", r, r) - np.eye(3)).max(axis=(1, 2))
+        bad = np.flatnonzero(err > 1e-5)
+        if len(bad):
+            raise DataError(f"rotation {bad[0]} is not orthonormal (|R^T R - I| = {err[bad[0]]:.2g})", field="rotations")
+    return c, r, s, w
+
+
+def _blobs(c, r, s, w):
+    keep = np.flatnonzero(w > 0)
+    c, r, s, w = c[keep], r[keep], s[keep], w[keep]
+    # A = R S^-2 R^T (inverse covariance); the covariance's diagonal gives the bounding box.
+    a = np.einsum("nik,nk,njk->nij", r, 1.0 / s**2, r)
+    cov = np.einsum("nik,nk->ni", r**2, s**2)
+    a6 = np.stack([a[:, 0, 0], a[:, 1, 1], a[:, 2, 2], a[:, 0, 1], a[:, 0, 2], a[:, 1, 2]], axis=1)
+    return _Blobs(keep.astype(np.int64), c, a6, np.log(w), s.min(axis=1), np.sqrt(cov))
+
+
+def _images(b, box, radius):
+    """Every periodic image whose ``radius``-sigma box meets [0, L]: centres wrapped into the box first."""
+    box = np.asarray(box, dtype=np.float64)
+    c = b.c - np.floor(b.c / box) * box
+    c = np.where(c >= box, c - box, c)  # floor rounding at the top
+    e = radius * b.half
+    lo = np.ceil((-e - c) / box).astype(np.int64)
+    hi = np.floor((box + e - c) / box).astype(np.int64)
+    cnt = hi - lo + 1
+    tot = cnt.prod(axis=1)
+    idx = np.repeat(np.arange(len(c)), tot)
+    k = np.arange(tot.sum()) - np.repeat(np.cumsum(tot) - tot, tot)
+    shift = np.empty((len(idx), 3), np.int64)
+    shift[:, 0] = lo[idx, 0] + k % cnt[idx, 0]
+    shift[:, 1] = lo[idx, 1] + (k // cnt[idx, 0]) % cnt[idx, 1]
+    shift[:, 2] = lo[idx, 2] + k // (cnt[idx, 0] * cnt[idx, 1])
+    out = b.take(idx)
+    out.c = c[idx] + shift * box
+    return out
+
+
+def _quad(a6, d):
+    """d^T A d for rows of d (..., 3) and A in 6-component form."""
+    x, y, z = d[..., 0], d[..., 1], d[..., 2]
+    return a6[..., 0] * x * x + a6[..., 1] * y * y + a6[..., 2] * z * z + 2 * (
+        a6[..., 3] * x * y + a6[..., 4] * x * z + a6[..., 5] * y * z
+    )
+
+
+def _amul(a6, d):
+    """A d (..., 3)."""
+    x, y, z = d[..., 0], d[..., 1], d[..., 2]
+    return np.stack(
+        [
+            a6[..., 0] * x + a6[..., 3] * y + a6[..., 4] * z,
+            a6[..., 3] * x + a6[..., 1] * y + a6[..., 5] * z,
+            a6[..., 4] * x + a6[..., 5] * y + a6[..., 2] * z,
+        ],
+        axis=-1,
+    )
+
+
+# --- exact field ------------------------------------------------------------
+
+
+def blobby_field(points, centers, rotations, sigmas, weights, *, box=None, gradient=False):
+    """The exact (uncut) sum of Gaussian ellipsoids at ``points``.
+
+    Brute force over every Gaussian (and, with ``box``, every periodic image
+    within :data:`EXACT_RANGE` sigma, beyond which an image adds less than
+    1e-31 of its weight), in float64: the reference the meshes are checked
+    against.  Cost grows as points x Gaussians.
+
+    Parameters
+    ----------
+    points : (p, 3) array
+    centers, rotations, sigmas, weights
+        As for :func:`blobby_surface`.
+    box : (3,) floats, optional
+        Periodic box ``(Lx, Ly, Lz)``.
+    gradient : bool
+        Also return the gradient ``(p, 3)``.
+
+    Returns
+    -------
+    f : (p,) float64, and grad : (p, 3) float64 if ``gradient``.
+
+    References
+    ----------
+    .. [1] J. F. Blinn, "A generalization of algebraic surface drawing", ACM TOG 1(3), 1982.
+    """
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    c, r, s, w = _check(centers, rotations, sigmas, weights)
+    b = _blobs(c, r, s, w)
+    if box is not None:
+        b = _images(b, _check_box(box), EXACT_RANGE)
+    f = np.zeros(len(pts))
+    g = np.zeros((len(pts), 3))
+    step = max(1, 4_000_000 // max(len(b.c), 1))
+    for lo in range(0, len(pts), step):
+        d = pts[lo : lo + step, None, :] - b.c[None]  # (p, m, 3)
+        e = np.exp(b.lnw - 0.5 * _quad(b.a, d))
+        f[lo : lo + step] = e.sum(axis=1)
+        if gradient:
+            g[lo : lo + step] = -np.einsum("pm,pmi->pi", e, _amul(b.a, d))
+    return (f, g) if gradient else f
+
+
+def level_distance(points, centers, rotations, sigmas, weights, level, *, box=None):
+    """First-order distance ``|f - level| / |grad f|`` of ``points`` from the exact level set."""
+    f, g = blobby_field(points, centers, rotations, sigmas, weights, box=box, gradient=True)
+    return np.abs(f - level) / np.linalg.norm(g, axis=1)
+
+
+# --- meshing ----------------------------------------------------------------
+
+
+def _check_box(box):
+    box = np.asarray(box, dtype=np.float64)
+    if box.shape != (3,) or not np.all(np.isfinite(box)) or not np.all(box > 0):
+        raise DataError(f"needs three positive lengths, got {box.tolist()}", field="box")
+    return box
+
+
+def _positive(x, name):
+    x = float(x)
+    if not np.isfinite(x) or x <= 0:
+        raise DataError(f"must be a positive number, got {x}", field=name)
+    return x
+
+
+@dataclass
+class _Grid:
+    """Nodes at n * h; block q owns nodes q * BLOCK ... q * BLOCK + BLOCK - 1 per axis."""
+
+    h: np.ndarray  # (3,) spacing
+    box: np.ndarray | None  # (3,) or None
+    nb: np.ndarray | None  # (3,) blocks per axis (periodic)
+
+    @property
+    def size(self):
+        return BLOCK * self.h
+
+    def coords(self, n):
+        """Positions of integer nodes (m, 3); node N of a periodic axis is exactly L."""
+        x = n * self.h
+        if self.box is not None:
+            x = np.where(n == BLOCK * self.nb, self.box, x)
+        return x
+
+
+def _grid(spacing, box):
+    if box is None:
+        return _Grid(np.full(3, spacing), None, None)
+    nb = np.maximum(1, np.ceil(box / (BLOCK * spacing))).astype(np.int64)
+    return _Grid(box / (BLOCK * nb), box, nb)
+
+
+@dataclass
+class _Blocks:
+    """Active blocks (sorted by key) and the lists of Gaussians reaching each."""
+
+    q: np.ndarray  # (na, 3) block coordinates
+    nbr: np.ndarray  # (na, 8) active index of the block at offset code 4*dz+2*dy+dx; -1 below, -2 above
+    grid_start: np.ndarray  # (na + 1,) into grid_g
+    grid_g: np.ndarray  # Gaussians within cutoff, per block
+    fine_start: np.ndarray  # (na + 1,) into fine_g
+    fine_g: np.ndarray  # Gaussians within cutoff + REFINE_EXTRA, per block
+    node_lo: np.ndarray  # (3,) lowest node of the block index's range
+    node_dims: np.ndarray  # (3,) nodes in that range (edge keys)
+
+
+_PAIR_CHUNK = 4_000_000
+
+
+def _block_pairs(b, grid, cut, cut_fine):
+    """Yield (q (p,3), g (p,), dist (p,)) for blocks whose closed box may meet a Gaussian's
+    ``cut_fine`` ellipsoid; ``dist`` bounds the Mahalanobis distance from below (sphere bound)."""
+    size = grid.size
+    e = cut_fine * b.half
+    lo = np.ceil((b.c - e) / size).astype(np.int64) - 1
+    hi = np.floor((b.c + e) / size).astype(np.int64)
+    if grid.box is not None:
+        lo = np.maximum(lo, 0)
+        hi = np.minimum(hi, grid.nb - 1)
+    cnt = np.maximum(hi - lo + 1, 0)
+    tot = cnt.prod(axis=1)
+    # The A-norm of the half-diagonal of a block, per Gaussian.
+    ra = np.linalg.norm(size / 2) / b.smin
+    ends = np.cumsum(tot)
+    start = 0
+    while start < len(tot):
+        done = ends[start - 1] if start else 0
+        stop = max(int(np.searchsorted(ends, done + _PAIR_CHUNK, side="right")), start + 1)
+        t = tot[start:stop]
+        g = np.repeat(np.arange(start, stop), t)
+        k = np.arange(t.sum()) - np.repeat(np.cumsum(t) - t, t)
+        cg = cnt[g]
+        q = np.empty((len(g), 3), np.int64)
+        q[:, 0] = lo[g, 0] + k % cg[:, 0]
+        q[:, 1] = lo[g, 1] + (k // cg[:, 0]) % cg[:, 1]
+        q[:, 2] = lo[g, 2] + k // (cg[:, 0] * cg[:, 1])
+        d = (q + 0.5) * size - b.c[g]
+        sq = np.sqrt(_quad(b.a[g], d))
+        near = np.maximum(sq - ra[g], 0.0)  # lower bound of the distance over the block
+        far = sq + ra[g]  # upper bound
+        keep = near <= cut_fine
+        yield q[keep], g[keep], near[keep], far[keep]
+        start = stop
+
+
+class _Index:
+    """Block coordinates -> a compact key; dense table where small, sorted keys otherwise."""
+
+    def __init__(self, grid, qlo, qhi):
+        if grid.box is not None:
+            self.lo, self.dims = np.zeros(3, np.int64), grid.nb.copy()
+        else:
+            self.lo, self.dims = qlo - 1, qhi - qlo + 3  # room for the +1 neighbours
+        self.box = grid.box is not None
+
+    def key(self, q):
+        q = q - self.lo
+        if self.box:
+            q = q % self.dims
+        return (q[:, 2] * self.dims[1] + q[:, 1]) * self.dims[0] + q[:, 0]
+
+    @property
+    def total(self):
+        return int(np.prod(self.dims))
+
+
+def _find_blocks(b, grid, level, cut, cut_fine):
+    """Classify blocks by bounds; return the active ones with their Gaussian lists, or None."""
+    parts = list(_block_pairs(b, grid, cut, cut_fine))
+    q = np.concatenate([p[0] for p in parts])
+    if len(q) == 0:
+        return None
+    g = np.concatenate([p[1] for p in parts])
+    near = np.concatenate([p[2] for p in parts])
+    far = np.concatenate([p[3] for p in parts])
+    index = _Index(grid, q.min(axis=0), q.max(axis=0))
+    key = index.key(q)
+    dense = index.total <= 1 << 25
+    if dense:
+        slot, nslot = key, index.total
+    else:
+        ukeys, slot = np.unique(key, return_inverse=True)
+        slot = slot.reshape(-1)
+        nslot = len(ukeys)
+    w = np.exp(b.lnw[g])
+    on_grid = near <= cut
+    upper = np.bincount(slot, np.where(on_grid, w * np.exp(-0.5 * near**2), 0.0), nslot)
+    lower = np.bincount(slot, np.where(on_grid, w * np.exp(-0.5 * far**2), 0.0), nslot)
+    cls = np.full(nslot, -1, np.int64)  # below
+    cls[lower >= level] = -2  # above
+    act = np.flatnonzero((upper >= level) & (lower < level))
+    if len(act) == 0:
+        return None
+    cls[act] = np.arange(len(act))
+
+    ai = cls[slot]
+    sel = np.flatnonzero(ai >= 0)
+    order = sel[np.argsort(ai[sel], kind="stable")]  # by block, then Gaussian
+    ai_sorted = ai[order]
+    fine_start = np.searchsorted(ai_sorted, np.arange(len(act) + 1))
+    fine_g = g[order]
+    grid_sel = on_grid[order]
+    grid_g = fine_g[grid_sel]
+    grid_start = np.searchsorted(ai_sorted[grid_sel], np.arange(len(act) + 1))
+    act_q = q[order[fine_start[:-1]]]
+
+    # Neighbours at offsets (dx, dy, dz) in {0, 1}^3.
+    nbr = np.empty((len(act), 8), np.int64)
+    for code in range(8):
+        off = np.array([code & 1, (code >> 1) & 1, code >> 2])
+        k = index.key(act_q + off)
+        if dense:
+            nbr[:, code] = cls[k]
+        else:
+            pos = np.minimum(np.searchsorted(ukeys, k), len(ukeys) - 1)
+            nbr[:, code] = np.where(ukeys[pos] == k, cls[pos], -1)
+    return _Blocks(act_q, nbr, grid_start, grid_g, fine_start, fine_g, index.lo * BLOCK, index.dims * BLOCK)
+
+
+def _map(fn, items, threads):
+    if threads > 1 and len(items) > 1:
+        with ThreadPoolExecutor(threads) as pool:
+            return list(pool.map(fn, items))
+    return [fn(x) for x in items]
+
+
+def _chunks(n, size):
+    return [(lo, min(lo + size, n)) for lo in range(0, n, size)]
+
+
+def _node_values(b, grid, blocks, threads):
+    """Values of every active block's own BLOCK^3 nodes, float32 (na, B, B, B) in (k, j, i) order."""
+    B = BLOCK
+    na = len(blocks.q)
+    count = np.diff(blocks.grid_start)
+    perm = np.argsort(-count, kind="stable")  # most Gaussians first: rank r's blocks are a prefix
+    values = np.zeros((na, B, B, B), _F32)
+    u = [np.arange(B) * grid.h[a] for a in range(3)]
+    uu = [x * x for x in u]
+    uxy = (u[1][:, None] * u[0][None, :]).astype(_F32)[:, :, None]  # [j, i]
+    uxz = (u[2][:, None] * u[0][None, :]).astype(_F32)[:, :, None]  # [k, i]
+    uyz = (u[2][:, None] * u[1][None, :]).astype(_F32)[:, :, None]  # [k, j]
+
+    def run(span):
+        bl = perm[span[0] : span[1]]
+        cnt = count[bl]
+        acc = np.zeros((B, B, B, len(bl)), _F32)
+        for r in range(int(cnt[0]) if len(cnt) else 0):
+            n = int(np.count_nonzero(cnt > r))
+            g = blocks.grid_g[blocks.grid_start[bl[:n]] + r]
+            x0 = blocks.q[bl[:n]] * grid.size
+            rel = b.c[g] - x0
+            a6 = b.a[g]
+            ar = _amul(a6, rel)
+            const = b.lnw[g] - 0.5 * np.einsum("ni,ni->n", rel, ar)
+            # exponent(k, j, i) = const + u.Ar - 1/2 u^T A u, split into (j,i), (k,i), (k,j) tables.
+            ai = (u[0][:, None] * ar[:, 0] - 0.5 * uu[0][:, None] * a6[:, 0]).astype(_F32)
+            bj = (u[1][:, None] * ar[:, 1] - 0.5 * uu[1][:, None] * a6[:, 1] + const).astype(_F32)
+            ck = (u[2][:, None] * ar[:, 2] - 0.5 * uu[2][:, None] * a6[:, 2]).astype(_F32)
+            a32 = a6.astype(_F32)
+            tji = np.exp(bj[:, None, :] + ai[None, :, :] - uxy * a32[:, 3])
+            tki = np.exp(-uxz * a32[:, 4])
+            tkj = np.exp(ck[:, None, :] - uyz * a32[:, 5])
+            prod = tkj[:, :, None, :] * tki[:, None, :, :]
+            prod *= tji[None]
+            acc[..., :n] += prod
+        values[bl] = np.moveaxis(acc, 3, 0)
+
+    _map(run, _chunks(na, max(1, 4096 * 64 // B**3)), threads)
+    return values
+
+
+@dataclass
+class _EdgeTables:
+    """Marching-cubes tables on a block's (BLOCK + 1)^3 extended nodes.
+
+    Edge slots are numbered ``((axis * E + k) * E + j) * E + i`` with
+    ``E = BLOCK + 1``, (k, j, i) the edge's lower node; a block owns the edges
+    whose lower node it owns (all coordinates below BLOCK).
+    """
+
+    table: np.ndarray  # (256, 5, 3) local cube edges (PAIRS index) per configuration
+    ntri: np.ndarray  # (256,)
+    delta: np.ndarray  # (28,) slot offset of each local cube edge from its cell's (axis 0) slot
+    own: np.ndarray  # (3, E, E, E) the block owns this edge slot
+    face_slots: np.ndarray  # (F,) owned slots on a lower face (other blocks refer to them)
+    face_index: np.ndarray  # (3 E^3,) slot -> index into face_slots, or -1
+
+
+def _edge_tables():
+    B, E = BLOCK, BLOCK + 1
+    table, ntri = tables.cube_table()
+    pairs = np.array(tables.PAIRS)
+    lower = tables.CORNERS[pairs[:, 0]]  # (di, dj, dk)
+    axis = np.argmax(tables.CORNERS[pairs[:, 1]] - lower, axis=1)
+    delta = axis * E**3 + lower[:, 2] * E * E + lower[:, 1] * E + lower[:, 0]
+    ax, k, j, i = np.meshgrid(np.arange(3), np.arange(E), np.arange(E), np.arange(E), indexing="ij")
+    own = (k < B) & (j < B) & (i < B)
+    # An edge other blocks refer to lies on a lower face: a coordinate across it is 0.
+    on_face = own & (((k == 0) & (ax != 2)) | ((j == 0) & (ax != 1)) | ((i == 0) & (ax != 0)))
+    face_slots = np.flatnonzero(on_face.reshape(-1))
+    face_index = np.full(3 * E**3, -1, np.int64)
+    face_index[face_slots] = np.arange(len(face_slots))
+    return _EdgeTables(table, ntri, delta, own, face_slots, face_index)
+
+
+_GHOSTS = []
+for _code in range(1, 8):
+    _o = ((_code >> 2) & 1, (_code >> 1) & 1, _code & 1)  # (dz, dy, dx)
+    _dst = tuple(slice(BLOCK, BLOCK + 1) if d else slice(0, BLOCK) for d in _o)
+    _src = tuple(slice(0, 1) if d else slice(0, BLOCK) for d in _o)
+    _GHOSTS.append((_code, _dst, _src))
+
+
+@dataclass
+class _Chunk:
+    """Marching-cubes output of a run of blocks, vertex ids local to the chunk."""
+
+    blk: np.ndarray  # (v,) active block of each vertex (refinement uses its Gaussians)
+    axis: np.ndarray  # (v,) edge axis 0..2 (x, y, z)
+    node: np.ndarray  # (v, 3) lower node (global integer, x y z)
+    t: np.ndarray  # (v,) initial edge parameter
+    a_above: np.ndarray  # (v,) lower node above the level
+    faces: np.ndarray  # (T, 3) >= 0: local vertex; < 0: -(1 + reference)
+    ref_owner: np.ndarray  # (r,) active block owning the edge, or -1 (duplicate vertex in this chunk)
+    ref_slot: np.ndarray  # (r,) index into the owner's face store, or the local duplicate vertex
+    ref_shift: np.ndarray  # (r, 3) periodic shift in box lengths
+    n_owned: int
+    dup_key: np.ndarray  # (d,) wrapped global edge key of duplicate vertices (local ids n_owned..)
+    dup_shift: np.ndarray  # (d, 3)
+
+
+def _march(values, blocks, grid, level, span, et, store):
+    """Marching cubes over blocks ``span``: owned edges get vertices, edges owned by a
+    neighbour become references to its face store (resolved once every chunk is done)."""
+    B, E = BLOCK, BLOCK + 1
+    bl = np.arange(*span)
+    n = len(bl)
+    lvl = _F32(level)
+    ext = np.empty((n, E, E, E), _F32)
+    ext[:, :B, :B, :B] = values[bl]
+    for code, dst, src in _GHOSTS:
+        nb = blocks.nbr[bl, code]
+        got = values[(np.maximum(nb, 0),) + src]
+        # A node of an inactive block: its sign is its block's class; the value is only a first guess.
+        guess = np.where(nb == -2, _F32(2) * lvl, _F32(0))[:, None, None, None]
+        ext[(slice(None),) + dst] = np.where((nb >= 0)[:, None, None, None], got, guess)
+    above = ext >= lvl
+
+    cut = np.zeros((n, 3, E, E, E), bool)
+    np.not_equal(above[..., :B], above[..., 1:], out=cut[:, 0, :, :, :B])
+    np.not_equal(above[:, :, :B], above[:, :, 1:], out=cut[:, 1, :, :B])
+    np.not_equal(above[:, :B], above[:, 1:], out=cut[:, 2, :B])
+    own = np.flatnonzero(cut & et.own)
+    ghost = np.flatnonzero(cut & ~et.own)
+    lut = np.empty(n * 3 * E**3, np.int64)
+    lut[own] = np.arange(len(own))
+    lut[ghost] = -1 - np.arange(len(ghost))
+    store[bl] = np.where(cut.reshape(n, -1)[:, et.face_slots], lut.reshape(n, -1)[:, et.face_slots], -1)
+
+    # Own vertices: edge ends read from the extended block.
+    vb, rest = np.divmod(own, 3 * E**3)
+    vax, rest = np.divmod(rest, E**3)
+    flat = ext.reshape(-1)
+    va = flat[vb * E**3 + rest]
+    vz = flat[vb * E**3 + rest + np.array([1, E, E * E])[vax]]
+    vk, rest = np.divmod(rest, E * E)
+    vj, vi = np.divmod(rest, E)
+    node = blocks.q[bl[vb]] * B + np.stack([vi, vj, vk], axis=1)
+
+    # Ghost edges: owned by a neighbour (refer to its face store) or, if it is inactive, by nobody.
+    gb, rest = np.divmod(ghost, 3 * E**3)
+    gax, rest = np.divmod(rest, E**3)
+    gk, rest = np.divmod(rest, E * E)
+    gj, gi = np.divmod(rest, E)
+    code = 4 * (gk == B) + 2 * (gj == B) + (gi == B)
+    owner = blocks.nbr[bl[gb], code]
+    ref_slot = et.face_index[((gax * E + gk % B) * E + gj % B) * E + gi % B]
+    shift = np.zeros((len(ghost), 3), np.int64)
+    if grid.box is not None:
+        off = np.stack([gi == B, gj == B, gk == B], axis=1)
+        shift = (blocks.q[bl[gb]] + off >= grid.nb).astype(np.int64)
+    dup = np.flatnonzero(owner < 0)
+    n_owned = len(own)
+    dup_key = np.zeros(0, np.int64)
+    dup_shift = np.zeros((0, 3), np.int64)
+    vblk, vaxis, vnode = bl[vb], vax, node
+    if len(dup):
+        # A vertex of our own, merged with its twins from other blocks by key at the end.
+        dnode = blocks.q[bl[gb[dup]]] * B + np.stack([gi[dup], gj[dup], gk[dup]], axis=1)
+        wrapped = dnode if grid.box is None else dnode % (B * grid.nb)
+        dup_key = _edge_key(wrapped, gax[dup], blocks)
+        dup_shift = shift[dup]
+        dflat = gb[dup] * E**3 + (gk[dup] * E + gj[dup]) * E + gi[dup]
+        va = np.concatenate([va, flat[dflat]])
+        vz = np.concatenate([vz, flat[dflat + np.array([1, E, E * E])[gax[dup]]]])
+        vblk = np.concatenate([vblk, bl[gb[dup]]])
+        vaxis = np.concatenate([vax, gax[dup]])
+        vnode = np.concatenate([node, dnode])
+        ref_slot[dup] = n_owned + np.arange(len(dup))
+
+    bits = above.view(np.uint8)
+    bits = bits[..., :-1] | (bits[..., 1:] << 1)
+    bits = bits[:, :, :-1] | (bits[:, :, 1:] << 2)
+    cfg = (bits[:, :-1] | (bits[:, 1:] << 4)).reshape(-1)
+    cells = np.flatnonzero((cfg != 0) & (cfg != 255))
+    counts = et.ntri[cfg[cells]]
+    cb, rest = np.divmod(cells, B**3)
+    ck, rest = np.divmod(rest, B * B)
+    cj, ci = np.divmod(rest, B)
+    base = np.repeat(cb * 3 * E**3 + (ck * E + cj) * E + ci, counts)
+    cells = np.repeat(cells, counts)
+    slot = np.arange(len(cells)) - np.repeat(np.cumsum(counts) - counts, counts)
+    faces = lut[base[:, None] + et.delta[et.table[cfg[cells], slot]]]
+
+    va64 = va.astype(np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = (level - va64) / (vz.astype(np.float64) - va64)
+    t = np.clip(np.where(np.isfinite(t), t, 0.5), EDGE_MARGIN, 1 - EDGE_MARGIN)
+    return _Chunk(
+        vblk, vaxis, vnode, t, va >= lvl, faces, np.where(owner < 0, -1, owner), ref_slot, shift, n_owned, dup_key, dup_shift
+    )
+
+
+def _edge_key(node, axis, blocks):
+    """One integer per grid edge (axis, node), nodes numbered over the block index's range."""
+    n = node - blocks.node_lo
+    dims = blocks.node_dims
+    return ((axis * dims[2] + n[:, 2]) * dims[1] + n[:, 1]) * dims[0] + n[:, 0]
+
+
+class _Refiner:
+    """Field, gradient and most-contributing Gaussian at points, from a block's Gaussian list.
+
+    Per (block, Gaussian) pair the exponent is a quadratic in the point's offset
+    ``u`` from the block's first node: 10 coefficients, so a batch of blocks
+    with the same number of Gaussians is one batched matrix product.
+    """
+
+    BUDGET = 1 << 19  # (vertex, Gaussian) products per batch
+
+    def __init__(self, b, grid, blocks, threads):
+        self.blocks, self.threads = blocks, threads
+        self.count = np.diff(blocks.fine_start)
+        self.x0 = blocks.q * grid.size
+        g = blocks.fine_g
+        rel = b.c[g] - np.repeat(self.x0, self.count, axis=0)
+        a6 = b.a[g]
+        ar = _amul(a6, rel)
+        coef = np.empty((len(g), 10), _F32)
+        coef[:, 0:3] = -0.5 * a6[:, 0:3]
+        coef[:, 3:6] = -a6[:, 3:6]
+        coef[:, 6:9] = ar
+        coef[:, 9] = b.lnw[g] - 0.5 * np.einsum("ni,ni->n", rel, ar)
+        kern = np.empty((len(g), 9), _F32)
+        kern[:, 0:6] = a6
+        kern[:, 6:9] = ar
+        self.coef, self.kern, self.src = coef, kern, b.src[g]
+
+    def __call__(self, pts, blk):
+        n = len(pts)
+        f = np.empty(n)
+        grad = np.empty((n, 3))
+        arg = np.empty(n, np.int64)
+        if n == 0:
+            return f, grad, arg
+        order = np.argsort(blk, kind="stable")
+        ub, first, nv = np.unique(blk[order], return_index=True, return_counts=True)
+        ng = self.count[ub]
+        batches = []
+        by_g = np.lexsort((nv, ng))
+        cuts = np.flatnonzero(np.diff(ng[by_g])) + 1
+        for grp in np.split(by_g, cuts):
+            # Same Gaussian count; vertex counts ascending: the padding stays small.
+            gcount = int(ng[grp[0]])
+            start = 0
+            while start < len(grp):
+                stop = start + 1
+                while stop < len(grp) and (stop + 1 - start) * nv[grp[stop]] * gcount <= self.BUDGET:
+                    stop += 1
+                batches.append(grp[start:stop])
+                start = stop
+
+        def run(sel):
+            self._batch(pts, order[first[sel, None] + np.minimum(np.arange(nv[sel].max()), nv[sel, None] - 1)],
+                        nv[sel], ub[sel], f, grad, arg)
+
+        _map(run, batches, self.threads)
+        return f, grad, arg
+
+    def _batch(self, pts, vid, nv, ub, f, grad, arg):
+        nbt, vmax = vid.shape
+        gcount = int(self.count[ub[0]])
+        u = pts[vid] - self.x0[ub][:, None, :]  # (nbt, vmax, 3)
+        feat = np.empty((nbt, vmax, 10), _F32)
+        feat[..., 0:3] = u * u
+        feat[..., 3] = u[..., 0] * u[..., 1]
+        feat[..., 4] = u[..., 0] * u[..., 2]
+        feat[..., 5] = u[..., 1] * u[..., 2]
+        feat[..., 6:9] = u
+        feat[..., 9] = 1
+        rows = self.blocks.fine_start[ub][:, None] + np.arange(gcount)  # (nbt, G)
+        e = np.exp(feat @ self.coef[rows].transpose(0, 2, 1))  # (nbt, vmax, G)
+        m = (e @ self.kern[rows]).astype(np.float64)  # sum_g e_g [A_g, A_g r_g]
+        valid = np.arange(vmax) < nv[:, None]
+        ids = vid[valid]
+        u = u[valid]
+        m = m[valid]
+        f[ids] = e.sum(axis=2, dtype=np.float64)[valid]
+        # grad = sum_g e_g A_g (r_g - u)
+        grad[ids, 0] = m[:, 6] - (m[:, 0] * u[:, 0] + m[:, 3] * u[:, 1] + m[:, 4] * u[:, 2])
+        grad[ids, 1] = m[:, 7] - (m[:, 3] * u[:, 0] + m[:, 1] * u[:, 1] + m[:, 5] * u[:, 2])
+        grad[ids, 2] = m[:, 8] - (m[:, 4] * u[:, 0] + m[:, 5] * u[:, 1] + m[:, 2] * u[:, 2])
+        best = np.argmax(e, axis=2)
+        arg[ids] = self.src[np.take_along_axis(rows, best, axis=1)][valid]
+
+
+def _project(refiner, grid, blk, axis, node, t, a_above, level, tol):
+    """Slide vertices along their edges onto f = level: Newton steps, bisection when one leaves the bracket."""
+    base = grid.coords(node)
+    step = grid.h[axis]
+    n = len(t)
+    lo = np.zeros(n)
+    hi = np.ones(n)
+    sign = np.where(a_above, 1.0, -1.0)  # sign of f - level at the lower node
+    grad = np.empty((n, 3))
+    arg = np.empty(n, np.int64)
+    todo = np.arange(n)
+    for it in range(NEWTON_STEPS + 1):
+        if len(todo) == 0:
+            break
+        ax = axis[todo]
+        p = base[todo]
+        r = np.arange(len(todo))
+        p[r, ax] += t[todo] * step[todo]
+        ff, gg, aa = refiner(p, blk[todo])
+        grad[todo], arg[todo] = gg, aa
+        if it == NEWTON_STEPS:
+            break
+        g = ff - level
+        dist = np.abs(g) / np.maximum(np.sqrt(np.einsum("ij,ij->i", gg, gg)), 1e-300)
+        go = dist >= tol
+        todo, g, gg, r, ax = todo[go], g[go], gg[go], r[: np.count_nonzero(go)], ax[go]
+        tt = t[todo]
+        side = g * sign[todo] > 0  # still on the lower node's side
+        lo[todo] = np.where(side, tt, lo[todo])
+        hi[todo] = np.where(side, hi[todo], tt)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            new = tt - g / (gg[r, ax] * step[todo])
+        bad = ~np.isfinite(new) | (new <= lo[todo]) | (new >= hi[todo])
+        new = np.clip(np.where(bad, 0.5 * (lo[todo] + hi[todo]), new), EDGE_MARGIN, 1 - EDGE_MARGIN)
+        moved = new != tt
+        t[todo] = new
+        todo = todo[moved]
+    pos = base
+    pos[np.arange(n), axis] += t * step
+    return pos, grad, arg
+
+
+def _assemble(parts, spans, store):
+    """Global vertex numbering: every chunk's own edges, then one representative per
+    duplicated edge; faces keep references (negative) resolved to (base vertex, shift)."""
+    owned = np.array([p.n_owned for p in parts])
+    offs = np.concatenate([[0], np.cumsum(owned)])
+    n_own = int(offs[-1])
+    chunk_of_block = np.repeat(np.arange(len(spans)), [hi - lo for lo, hi in spans])
+    ndup = np.array([len(p.t) - p.n_owned for p in parts])
+    dup_off = np.concatenate([[0], np.cumsum(ndup)])
+    dup_keys = np.concatenate([p.dup_key for p in parts])
+    ukey, rep, dup_index = np.unique(dup_keys, return_index=True, return_inverse=True)
+    dup_index = dup_index.reshape(-1)
+
+    def field(name):
+        own = np.concatenate([getattr(p, name)[: p.n_owned] for p in parts])
+        dup = np.concatenate([getattr(p, name)[p.n_owned :] for p in parts])
+        return np.concatenate([own, dup[rep]])
+
+    verts = tuple(field(name) for name in ("blk", "axis", "node", "t", "a_above"))
+    rep_shift = np.concatenate([p.dup_shift for p in parts])[rep]
+
+    faces, ref_base, ref_shift = [], [], []
+    nref = 0
+    for ci, p in enumerate(parts):
+        fc = p.faces.copy()
+        neg = fc < 0
+        fc[~neg] += offs[ci]
+        fc[neg] -= nref
+        nref += len(p.ref_owner)
+        faces.append(fc)
+        act = p.ref_owner >= 0
+        base = np.empty(len(act), np.int64)
+        own = p.ref_owner[act]
+        local = store[own, p.ref_slot[act]]
+        base[act] = np.where(local >= 0, local + offs[chunk_of_block[own]], -1)
+        d = ~act
+        base[d] = n_own + dup_index[dup_off[ci] + p.ref_slot[d] - p.n_owned]
+        ref_base.append(base)
+        ref_shift.append(p.ref_shift)
+    ref_base = np.concatenate(ref_base)
+    if np.any(ref_base < 0):
+        raise AssertionError("blobby: a face refers to an edge its owner did not cut")
+    return verts, np.concatenate(faces), ref_base, np.concatenate(ref_shift), rep_shift, n_own
+
+
+def blobby_surface(
+    centers, rotations, sigmas, weights, level, spacing, *, box=None, cutoff=4.0, attributes=None, threads=None
+):
+    """Triangle mesh of the level set of a sum of Gaussian ellipsoids.
+
+    Parameters
+    ----------
+    centers : (n, 3) array
+        Centres ``c_i``.
+    rotations : (n, 3, 3) array
+        Rotations ``R_i`` whose columns are the principal axes.
+    sigmas : (n, 3) array
+        Standard deviations along those axes (positive).
+    weights : (n,) array
+        Weights ``w_i >= 0``; zero-weight Gaussians are ignored.
+    level : float
+        Contour value (positive).  A lone Gaussian's surface is the ellipsoid
+        of Mahalanobis radius ``sqrt(2 ln(w / level))``.
+    spacing : float
+        Grid spacing (sigma_min / 4 gives vertices about every quarter sigma).
+    box : (3,) floats, optional
+        Periodic box ``(Lx, Ly, Lz)``: every image counts and the mesh is the
+        part in ``[0, L)``, with vertices on opposite faces exactly ``L`` apart.
+        The grid spacing is then ``L / N`` with ``N`` the smallest multiple of
+        :data:`BLOCK` giving at most ``spacing``.
+    cutoff : float
+        Each Gaussian is summed on the grid within ``cutoff`` sigma
+        (Mahalanobis distance); vertices are projected onto the sum cut at
+        ``cutoff + 1`` sigma, whose error is below ``exp(-(cutoff+1)^2 / 2)``
+        of a weight per Gaussian left out.
+    attributes : dict of str to (n,) arrays, optional
+        Per-Gaussian values (molecule or part ids, colours) copied to every
+        vertex from its most-contributing Gaussian.
+    threads : int, optional
+        Worker threads (default: :func:`~nephele.core.threads.default_threads`).
+
+    Returns
+    -------
+    Mesh
+        float32 vertices, counter-clockwise triangles seen from outside
+        (normals point where the field falls), unit normals from the analytic
+        gradient, attribute ``"blob"`` (int32, index of the Gaussian that
+        contributes most at the vertex) and the ``attributes`` given.
+        ``Mesh.empty`` when nothing reaches the level.
+
+    References
+    ----------
+    .. [1] J. F. Blinn, "A generalization of algebraic surface drawing", ACM TOG 1(3), 1982.
+    .. [2] W. E. Lorensen and H. E. Cline, "Marching cubes", SIGGRAPH 1987.
+    .. [3] N. Max and R. Crawfis, "Advances in Scientific Visualization".
+    """
+    c, r, s, w = _check(centers, rotations, sigmas, weights)
+    level = _positive(level, "level")
+    spacing = _positive(spacing, "spacing")
+    cutoff = _positive(cutoff, "cutoff")
+    attributes = {str(k): np.asarray(v) for k, v in dict(attributes or {}).items()}
+    for name, a in attributes.items():
+        if a.shape[:1] != (len(c),):
+            raise DataError(f"needs one value per Gaussian ({len(c)}), got shape {a.shape}", field=name)
+    names = ["blob", *attributes]
+    if box is not None:
+        box = _check_box(box)
+    threads = default_threads() if threads is None else max(1, int(threads))
+
+    b = _blobs(c, r, s, w)
+    if len(b.c) == 0:
+        return Mesh.empty(names)
+    fine = cutoff + REFINE_EXTRA
+    if box is not None:
+        b = _images(b, box, fine)
+    grid = _grid(spacing, box)
+    blocks = _find_blocks(b, grid, level, cutoff, fine)
+    if blocks is None:
+        return Mesh.empty(names)
+    values = _node_values(b, grid, blocks, threads)
+
+    et = _edge_tables()
+    store = np.empty((len(blocks.q), len(et.face_slots)), np.int32)
+    spans = _chunks(len(blocks.q), max(1, 2048 * 512 // BLOCK**3))
+    parts = _map(lambda sp: _march(values, blocks, grid, level, sp, et, store), spans, threads)
+    del values
+    verts, faces, ref_base, ref_shift, rep_shift, n_own = _assemble(parts, spans, store)
+
+    smin = float(s[w > 0].min())
+    refiner = _Refiner(b, grid, blocks, threads)
+    pos, grad, arg = _project(refiner, grid, *verts, level, NEWTON_TOL * smin)
+    if grid.box is not None and len(rep_shift):
+        # Representatives of duplicates were placed in their block's frame (a coordinate
+        # across the seam exactly L): move them to the box's own frame (exactly 0).
+        pos[n_own:] -= rep_shift * grid.box
+
+    # Periodic copies of seam vertices, one per (vertex, shift).
+    final = ref_base.copy()
+    moved = np.flatnonzero(np.any(ref_shift != 0, axis=1))
+    if len(moved):
+        key = ref_base[moved] * 27 + (ref_shift[moved] + 1) @ np.array([1, 3, 9])
+        ukey, first, inv = np.unique(key, return_index=True, return_inverse=True)
+        src = ref_base[moved][first]
+        final[moved] = len(pos) + inv.reshape(-1)
+        pos = np.concatenate([pos, pos[src] + ref_shift[moved][first] * grid.box])
+        grad = np.concatenate([grad, grad[src]])
+        arg = np.concatenate([arg, arg[src]])
+    neg = faces < 0
+    faces[neg] = final[-1 - faces[neg]]
+
+    vertices = pos.astype(_F32)
+    norm = np.linalg.norm(grad, axis=1)
+    normals = -grad / np.where(norm > 0, norm, 1.0)[:, None]
+    flat = norm <= 0
+    if flat.any():
+        normals[flat] = vertex_normals(vertices, faces)[flat]
+    attrs = {"blob": arg.astype(np.int32)}
+    attrs.update({k: v[arg] for k, v in attributes.items()})
+    return Mesh(vertices, faces, normals, attrs)
+
