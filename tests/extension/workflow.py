@@ -31,6 +31,7 @@ absent = {m: importlib.util.find_spec(m) is None for m in ("scipy", "xarray", "n
 assert all(absent.values()), f"the Blender-only Python already has {[m for m, a in absent.items() if not a]}"
 
 import bpy  # noqa: E402
+import numpy as np  # noqa: E402  (Blender's own)
 
 bpy.ops.wm.read_factory_settings(use_empty=True)
 times = {}
@@ -119,7 +120,9 @@ scene.render.resolution_percentage = 100
 scene.render.filepath = str(OUT / "frame.png")
 step("render", lambda: bpy.ops.render.render(write_still=True))
 times["install_to_frame"] = time.perf_counter() - t0
-assert (OUT / "frame.png").stat().st_size > 0
+img = bpy.data.images.load(str(OUT / "frame.png"))
+pixels = np.array(img.pixels[:], dtype=np.float32).reshape(48, 64, 4)[..., :3]
+assert pixels.std() > 0.02 and pixels.max() > 0.1, "the rendered frame is blank"
 
 # Disable: nothing of the add-on stays registered (recorded, checked by the test).
 addon_classes = [c for name, mod in list(sys.modules.items()) if name.startswith(MODULE)
