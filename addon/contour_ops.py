@@ -145,7 +145,8 @@ class NEPHELE_OT_add_contour(bpy.types.Operator):
             return {"CANCELLED"}
         self.report({"INFO"}, f"{obj.name}: {len(obj.data.polygons)} triangles")
         for o in list(context.view_layer.objects.selected):  # Blender convention: the new object alone selected and active
-            o.select_set(False)
+            if o is not None:  # None: an object this operator replaced
+                o.select_set(False)
         obj.select_set(True)
         context.view_layer.objects.active = obj
         return {"FINISHED"}

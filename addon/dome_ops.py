@@ -472,7 +472,8 @@ class NEPHELE_OT_add_dome_camera(bpy.types.Operator):
         if msg:
             self.report({"WARNING"}, msg)
         for o in list(context.view_layer.objects.selected):  # Blender convention: the new object alone selected and active
-            o.select_set(False)
+            if o is not None:  # None: an object this operator replaced
+                o.select_set(False)
         rig.select_set(True)
         context.view_layer.objects.active = rig
         return {"FINISHED"}

@@ -526,7 +526,8 @@ class NEPHELE_OT_add_globe(bpy.types.Operator):
             return {"CANCELLED"}
         self.report({"INFO"}, f"{obj.name}: {len(obj.data.polygons)} triangles")
         for o in list(context.view_layer.objects.selected):  # Blender convention: the new object alone selected and active
-            o.select_set(False)
+            if o is not None:  # None: an object this operator replaced
+                o.select_set(False)
         obj.select_set(True)
         context.view_layer.objects.active = obj
         return {"FINISHED"}
@@ -545,7 +546,8 @@ class NEPHELE_OT_add_sky(bpy.types.Operator):
     def execute(self, context):
         sun = add_sky_and_haze(context.scene, haze=self.haze, sun_strength=self.sun_strength)["sun"]
         for o in list(context.view_layer.objects.selected):  # Blender convention: the new object alone selected and active
-            o.select_set(False)
+            if o is not None:  # None: an object this operator replaced
+                o.select_set(False)
         sun.select_set(True)
         context.view_layer.objects.active = sun
         return {"FINISHED"}
@@ -565,7 +567,8 @@ class NEPHELE_OT_add_camera(bpy.types.Operator):
     def execute(self, context):
         cam = add_camera(context.scene, lon=self.lon, lat=self.lat, distance=self.distance)
         for o in list(context.view_layer.objects.selected):  # Blender convention: the new object alone selected and active
-            o.select_set(False)
+            if o is not None:  # None: an object this operator replaced
+                o.select_set(False)
         cam.select_set(True)
         context.view_layer.objects.active = cam
         return {"FINISHED"}

@@ -425,7 +425,8 @@ class NEPHELE_OT_add_scattering_cloud(bpy.types.Operator):
             return {"CANCELLED"}
         self.report({"INFO"}, self._job.status)
         for o in list(context.view_layer.objects.selected):  # Blender convention: the new object alone selected and active
-            o.select_set(False)
+            if o is not None:  # None: an object this operator replaced
+                o.select_set(False)
         self._job.obj.select_set(True)
         context.view_layer.objects.active = self._job.obj
         return {"FINISHED"}
@@ -480,7 +481,8 @@ class NEPHELE_OT_add_scattering_cloud(bpy.types.Operator):
             props.progress = 1.0
             self.report({"INFO"}, self._job.status)
             for o in list(context.view_layer.objects.selected):  # Blender convention: the new object alone selected and active
-                o.select_set(False)
+                if o is not None:  # None: an object this operator replaced
+                    o.select_set(False)
             self._job.obj.select_set(True)
             context.view_layer.objects.active = self._job.obj
             return {"FINISHED"}

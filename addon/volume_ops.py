@@ -517,7 +517,8 @@ class NEPHELE_OT_add_volume_clouds(bpy.types.Operator):
             what = "support voxels" if p.get("mode") == EXACT else "active voxels"
             self.report({"INFO"}, f"{len(infos)} VDB frames in {p['directory']}, {voxels} {what}")
         for o in list(context.view_layer.objects.selected):  # Blender convention: the new object alone selected and active
-            o.select_set(False)
+            if o is not None:  # None: an object this operator replaced
+                o.select_set(False)
         obj.select_set(True)
         context.view_layer.objects.active = obj
         return {"FINISHED"}
