@@ -1,3 +1,4 @@
 """The muscle film (Fig. 7): blobby molecules, the filament lattice and its cross-bridges."""
 
 from .blobby import blobby_field, blobby_surface, level_distance
+from .molecules import Cylinders, Ellipsoids, actin_subunit, cylinder_mesh, myosin_head
