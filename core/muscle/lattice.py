@@ -68,10 +68,10 @@ CELL_LENGTH = 6 * ACTIN_PER_CROSSOVER * ACTIN_RISE
 THIN_RADIUS = 4.5
 """Collision radius of a thin filament (F-actin is about 9-10 nm across)."""
 
-THICK_RADIUS = 8.0
-"""Backbone radius of a thick filament (about 15-16 nm across)."""
+THICK_RADIUS = 7.0
+"""Backbone radius of a thick filament (about 14 nm across)."""
 
-PIVOT_RADIUS = 12.0
+PIVOT_RADIUS = 9.0
 """Radius of the head-S2 junction (where each head's hinge sits) on the thick filament."""
 
 HEAD_SPLAY = np.deg2rad(35.0)

@@ -1,0 +1,634 @@
+"""Brownian dynamics of the cross-bridges: heads hinged to the thick filaments, driven through the cycle.
+
+Units: nanometres, microseconds, piconewtons (so energies are pN nm; kT at
+300 K is 4.142 pN nm and water's viscosity 1 mPa s is 1e-3 pN us / nm^2).
+
+* **Brownian impulses** (overdamped Langevin, Euler-Maruyama): a body of
+  translational drag ``g`` moves ``F / g dt + sqrt(2 kT / g dt) xi`` per step
+  and turns by the rotation vector ``tau / g_r dt + sqrt(2 kT / g_r dt) xi``
+  (Stokes drags ``6 pi eta r`` and ``8 pi eta r^3``; a head is a chain of
+  spheres turning about its hinge, ``sum 6 pi eta r s^2 + 8 pi eta r^3``).
+  Euler-Maruyama on a spring of stiffness ``k`` is stable only for
+  ``k dt / g < 2`` and inflates the sampled variance by ``1 / (1 - k dt / 2g)``;
+  :func:`check_step` refuses ``k dt / g > MAX_RELAXATION``.
+* **Elastic collisions**: free hard spheres move, and pairs that would
+  overlap exchange their pseudo-velocities ``dx / dt`` elastically at contact
+  (Strating 1999), conserving momentum and kinetic energy; heads, which turn
+  about their hinges, reject a move that would make them overlap an actin
+  filament, a thick-filament backbone or another head (hard-core Brownian
+  dynamics), so no two bodies ever overlap.
+* **The cross-bridge cycle** (Lymn-Taylor) is a Markov chain over
+  M.ATP (detached, lever down) -> M.ADP.Pi (hydrolysis and recovery stroke,
+  lever up) -> A.M.ADP.Pi (weak binding) -> A.M.ADP (Pi release, power
+  stroke) -> A.M (ADP release, rigor) -> M.ATP (ATP binding, detachment).
+  Each step advances it with the exact transition matrix ``expm(Q dt)``, so
+  its occupancies converge to ``Q``'s steady state for any step.  Binding
+  needs a free actin site within :attr:`Params.capture` of the head's tip.
+* **Animation forces** (the paper's "fake" forces): the state sets the hinge
+  spring's rest angle (lever up before the stroke, down after), and a bound
+  tip is held to its actin site by a spring; the thin filaments slide under
+  the reaction of those springs (contraction).
+* **Time scale**: the Brownian motion runs at its real speed (one film frame
+  is :attr:`Params.frame_time` = 0.1 us of it) while the chemistry runs
+  :attr:`Params.speedup` = 2e4 times faster than in muscle (a cycle of about
+  40 ms then takes about 20 frames), as the original film accelerated the
+  cycle with animation forces.
+
+References
+----------
+.. [1] N. Max and R. Crawfis, "Advances in Scientific Visualization" (random
+   Brownian impulse forces, elastic bounces, fake animation forces).
+.. [2] N. Max, N. Hayashi and T. Wakabayashi, "Computer simulation and
+   animation of muscle cross-bridge motion", J. Visualization and Computer
+   Animation 1(1), 9-14 (1990).
+.. [3] D. L. Ermak and J. A. McCammon, "Brownian dynamics with hydrodynamic
+   interactions", J. Chem. Phys. 69, 1352 (1978).
+.. [4] P. Strating, "Brownian dynamics simulation of a hard-sphere
+   suspension", Phys. Rev. E 59, 2175 (1999) (elastic collisions of
+   pseudo-velocities).
+.. [5] R. W. Lymn and E. W. Taylor, "Mechanism of adenosine triphosphate
+   hydrolysis by actomyosin", Biochemistry 10, 4617-4624 (1971).
+.. [6] J. Howard, "Mechanics of Motor Proteins and the Cytoskeleton",
+   Sinauer 2001, chapters 2, 13-14 (drag coefficients, myosin II rates).
+"""
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from ..errors import DataError
+from . import lattice as lat
+
+KT_300 = 4.142
+"""Boltzmann's constant times 300 K, pN nm."""
+
+WATER_VISCOSITY = 1e-3
+"""1 mPa s in pN us / nm^2."""
+
+MAX_RELAXATION = 0.2
+"""Largest ``k dt / drag`` accepted (Euler-Maruyama variance error 11 %; unstable beyond 2)."""
+
+# Cycle states.
+M_ATP, M_ADP_PI, AM_ADP_PI, AM_ADP, AM = range(5)
+STATE_NAMES = ("M.ATP", "M.ADP.Pi", "A.M.ADP.Pi", "A.M.ADP", "A.M")
+BOUND = np.array([False, False, True, True, True])
+
+RATES = {
+    (M_ATP, M_ADP_PI): 100.0,  # hydrolysis + recovery stroke
+    (M_ADP_PI, M_ATP): 10.0,  # its reversal (hydrolysis equilibrium constant about 10)
+    (M_ADP_PI, AM_ADP_PI): 200.0,  # weak binding (when a site is in reach)
+    (AM_ADP_PI, M_ADP_PI): 100.0,  # weak detachment
+    (AM_ADP_PI, AM_ADP): 50.0,  # Pi release and power stroke (rate-limiting)
+    (AM_ADP, AM): 500.0,  # ADP release
+    (AM, M_ATP): 1000.0,  # ATP binding and detachment (about 2 mM ATP)
+}
+"""Rate constants in 1/s for fast skeletal myosin II, representative values after Howard (2001)."""
+
+
+# --- drag, steps, rotations ---------------------------------------------------
+
+
+def translational_drag(radius, viscosity=WATER_VISCOSITY):
+    """Stokes drag ``6 pi eta r`` of a sphere, pN us / nm."""
+    return 6 * np.pi * viscosity * np.asarray(radius, np.float64)
+
+
+def rotational_drag(radius, viscosity=WATER_VISCOSITY):
+    """Stokes rotational drag ``8 pi eta r^3`` of a sphere, pN nm us."""
+    return 8 * np.pi * viscosity * np.asarray(radius, np.float64) ** 3
+
+
+def check_step(dt, drag, stiffness=0.0, *, what="dt"):
+    """Refuse a time step that is not positive and finite or too long for the stiffest spring.
+
+    Raises
+    ------
+    DataError
+        If ``dt`` is not a positive finite number or ``stiffness * dt / drag``
+        exceeds :data:`MAX_RELAXATION`.
+    """
+    dt = float(dt)
+    if not (np.isfinite(dt) and dt > 0):
+        raise DataError(f"must be a positive finite time step in microseconds, got {dt}", field=what)
+    ratio = float(np.max(np.asarray(stiffness, np.float64) * dt / np.asarray(drag, np.float64)))
+    if ratio > MAX_RELAXATION:
+        limit = dt * MAX_RELAXATION / ratio
+        raise DataError(f"time step {dt:g} us is too long for the springs: k dt / drag = {ratio:.3g} > "
+                        f"{MAX_RELAXATION} (Euler-Maruyama biased or unstable); use dt <= {limit:.3g} us", field=what)
+    return dt
+
+
+def rotation_matrix(rotvec):
+    """Rodrigues: rotation vectors (n, 3) -> matrices (n, 3, 3)."""
+    w = np.asarray(rotvec, np.float64).reshape(-1, 3)
+    th = np.linalg.norm(w, axis=1)
+    small = th < 1e-8
+    k = w / np.where(small, 1.0, th)[:, None]
+    kx = np.zeros((len(w), 3, 3))
+    kx[:, 0, 1], kx[:, 0, 2], kx[:, 1, 2] = -k[:, 2], k[:, 1], -k[:, 0]
+    kx = kx - kx.transpose(0, 2, 1)
+    s = np.where(small, 1.0, np.sin(th) / np.where(small, 1.0, th))[:, None, None] * th[:, None, None]
+    c = np.where(small, th**2 / 2, 1 - np.cos(th))[:, None, None]
+    r = np.eye(3) + s * kx + c * kx @ kx
+    # Second-order series for tiny angles (k is arbitrary there; use w directly).
+    wx = np.zeros((len(w), 3, 3))
+    wx[:, 0, 1], wx[:, 0, 2], wx[:, 1, 2] = -w[:, 2], w[:, 1], -w[:, 0]
+    wx = wx - wx.transpose(0, 2, 1)
+    return np.where(small[:, None, None], np.eye(3) + wx + wx @ wx / 2, r)
+
+
+def rotation_vector(mats):
+    """Inverse of :func:`rotation_matrix` for angles below pi: (n, 3, 3) -> (n, 3)."""
+    m = np.asarray(mats, np.float64).reshape(-1, 3, 3)
+    cos = np.clip((np.trace(m, axis1=1, axis2=2) - 1) / 2, -1, 1)
+    th = np.arccos(cos)
+    v = np.stack([m[:, 2, 1] - m[:, 1, 2], m[:, 0, 2] - m[:, 2, 0], m[:, 1, 0] - m[:, 0, 1]], axis=1)
+    sin = np.sin(th)
+    scale = np.where(sin > 1e-8, th / (2 * np.where(sin > 1e-8, sin, 1.0)), 0.5)
+    return v * scale[:, None]
+
+
+def _kT(kT):
+    kT = float(kT)
+    if not (np.isfinite(kT) and kT >= 0):
+        raise DataError(f"must be >= 0 pN nm, got {kT}", field="kT")
+    return kT
+
+
+def brownian_step(positions, rotations, dt, drag, rotational, rng, *, force=None, torque=None, kT=KT_300):
+    """One Euler-Maruyama step of free rigid bodies (translation and rotation).
+
+    Parameters
+    ----------
+    positions : (n, 3) array
+    rotations : (n, 3, 3) array
+        Body frames (columns are the body axes in the lab).
+    dt : float
+        Time step, us.
+    drag, rotational : float or (n,) array
+        Translational (pN us / nm) and rotational (pN nm us) drag.
+    rng : numpy.random.Generator
+    force, torque : (n, 3) arrays, optional
+        Deterministic force (pN) and torque (pN nm) in the lab frame.
+    kT : float
+        Thermal energy, pN nm; 0 gives the deterministic (noise-free) step.
+
+    Returns
+    -------
+    positions, rotations : the moved bodies.
+    """
+    x = np.asarray(positions, np.float64).reshape(-1, 3)
+    r = np.asarray(rotations, np.float64).reshape(len(x), 3, 3)
+    dt = check_step(dt, 1.0)
+    kT = _kT(kT)
+    g = np.broadcast_to(np.asarray(drag, np.float64), (len(x),))[:, None]
+    gr = np.broadcast_to(np.asarray(rotational, np.float64), (len(x),))[:, None]
+    dx = np.sqrt(2 * kT * dt / g) * rng.standard_normal(x.shape)
+    dw = np.sqrt(2 * kT * dt / gr) * rng.standard_normal(x.shape)
+    if force is not None:
+        dx += np.asarray(force, np.float64) * dt / g
+    if torque is not None:
+        dw += np.asarray(torque, np.float64) * dt / gr
+    return x + dx, rotation_matrix(dw) @ r
+
+
+# --- free hard spheres with elastic collisions --------------------------------
+
+
+def elastic_collision(v1, v2, m1, m2, normal):
+    """Velocities after an elastic collision along unit ``normal`` (rows): momentum and energy conserved.
+
+    Only the components along the normal change; they are exchanged as in a
+    one-dimensional elastic collision of masses ``m1`` and ``m2``.
+    """
+    v1, v2, n = (np.asarray(a, np.float64) for a in (v1, v2, normal))
+    m1 = np.asarray(m1, np.float64)[..., None]
+    m2 = np.asarray(m2, np.float64)[..., None]
+    u = np.sum((v1 - v2) * n, axis=-1, keepdims=True)
+    j = 2 * u / (m1 + m2)
+    return v1 - j * m2 * n, v2 + j * m1 * n
+
+
+def _contact_time(d0, dv, dist):
+    """Smallest t in [0, 1] with |d0 + t dv| = dist (rows), or 1 where they never touch."""
+    a = np.sum(dv * dv, axis=1)
+    b = 2 * np.sum(d0 * dv, axis=1)
+    c = np.sum(d0 * d0, axis=1) - dist**2
+    disc = np.maximum(b * b - 4 * a * c, 0.0)
+    t = (-b - np.sqrt(disc)) / np.where(a > 0, 2 * a, 1.0)
+    return np.clip(np.where(a > 0, t, 1.0), 0.0, 1.0)
+
+
+def _overlaps(x, radii, box):
+    from scipy.spatial import cKDTree
+
+    if len(x) < 2:
+        return np.zeros((0, 2), np.int64)
+    tree = cKDTree(np.mod(x, box), boxsize=box)
+    pairs = tree.query_pairs(2 * float(radii.max()), output_type="ndarray")
+    if len(pairs) == 0:
+        return pairs.reshape(0, 2)
+    d = x[pairs[:, 1]] - x[pairs[:, 0]]
+    d -= np.round(d / box) * box
+    keep = np.linalg.norm(d, axis=1) < radii[pairs[:, 0]] + radii[pairs[:, 1]]
+    return pairs[keep]
+
+
+def sphere_step(positions, radii, dt, drag, rng, *, box, masses=None, kT=KT_300, force=None, passes=20):
+    """Brownian step of free hard spheres in a periodic box, resolving contacts by elastic collisions.
+
+    Each sphere's Brownian displacement is a pseudo-velocity ``v = dx / dt``;
+    pairs that would overlap collide elastically at their contact time
+    (:func:`elastic_collision`, masses default to the drags) and finish the
+    step with the new velocities.  After ``passes`` rounds, bodies still in an
+    overlap stay where they were (the old positions overlap nothing).
+
+    Returns
+    -------
+    (n, 3) new positions (not wrapped).
+    """
+    x0 = np.asarray(positions, np.float64).reshape(-1, 3)
+    rad = np.broadcast_to(np.asarray(radii, np.float64), (len(x0),))
+    box = np.asarray(box, np.float64)
+    dt = check_step(dt, 1.0)
+    kT = _kT(kT)
+    g = np.broadcast_to(np.asarray(drag, np.float64), (len(x0),))
+    m = g if masses is None else np.broadcast_to(np.asarray(masses, np.float64), (len(x0),))
+    v = np.sqrt(2 * kT / (g * dt))[:, None] * rng.standard_normal(x0.shape)
+    if force is not None:
+        v += np.asarray(force, np.float64) / g[:, None]
+    start, t0 = x0.copy(), np.zeros(len(x0))
+    x = x0 + v * dt
+    for _ in range(passes):
+        pairs = _overlaps(x, rad, box)
+        if len(pairs) == 0:
+            return x
+        # One collision per sphere per pass: the earliest of its pairs.
+        i, j = pairs[:, 0], pairs[:, 1]
+        # Separation extrapolated back to the step's start along each one's current segment.
+        d0 = (start[j] - v[j] * t0[j, None] * dt) - (start[i] - v[i] * t0[i, None] * dt)
+        d0 -= np.round(d0 / box) * box
+        tc = _contact_time(d0, (v[j] - v[i]) * dt, rad[i] + rad[j])
+        order = np.argsort(tc, kind="stable")
+        used = np.zeros(len(x0), bool)
+        for k in order:
+            a, b = i[k], j[k]
+            if used[a] or used[b] or tc[k] < max(t0[a], t0[b]):
+                continue
+            used[a] = used[b] = True
+            t = tc[k]
+            pa = start[a] + v[a] * (t - t0[a]) * dt
+            pb = start[b] + v[b] * (t - t0[b]) * dt
+            n = pb - pa
+            n -= np.round(n / box) * box
+            n /= max(np.linalg.norm(n), 1e-12)
+            va, vb = elastic_collision(v[a], v[b], m[a], m[b], n)
+            v[a], v[b] = va, vb
+            start[a], start[b], t0[a], t0[b] = pa, pb, t, t
+        x = start + v * ((1 - t0) * dt)[:, None]
+    # Still overlapping after all passes: those bodies keep their old positions.
+    while True:
+        pairs = _overlaps(x, rad, box)
+        if len(pairs) == 0:
+            return x
+        stuck = np.unique(pairs)
+        x[stuck] = x0[stuck]
+
+
+# --- the cross-bridge cycle ------------------------------------------------------
+
+
+def cycle_generator(rates=None):
+    """Generator matrix ``Q`` (5, 5) in 1/s of the cycle (rows sum to zero)."""
+    rates = RATES if rates is None else rates
+    q = np.zeros((5, 5))
+    for (a, b), k in rates.items():
+        if not (np.isfinite(k) and k >= 0):
+            raise DataError(f"rate {STATE_NAMES[a]} -> {STATE_NAMES[b]} must be >= 0 1/s, got {k}", field="rates")
+        q[a, b] = k
+    q[np.diag_indices(5)] = -q.sum(axis=1)
+    return q
+
+
+def steady_state(q):
+    """Stationary occupancies ``p`` with ``p Q = 0``, ``sum p = 1``."""
+    q = np.asarray(q, np.float64)
+    a = np.vstack([q.T, np.ones(len(q))])
+    b = np.zeros(len(q) + 1)
+    b[-1] = 1
+    return np.linalg.lstsq(a, b, rcond=None)[0]
+
+
+def transition_matrix(q, dt):
+    """Exact one-step transition probabilities ``expm(Q dt)`` (dt in seconds)."""
+    from scipy.linalg import expm
+
+    p = expm(np.asarray(q, np.float64) * float(dt))
+    p = np.clip(p, 0, None)
+    return p / p.sum(axis=1, keepdims=True)
+
+
+def cycle_step(states, p, rng, p_blocked=None, blocked=None):
+    """Advance every head's state one step with transition matrix ``p``.
+
+    Heads with ``blocked`` True (no actin site in reach) use ``p_blocked`` instead.
+    """
+    s = np.asarray(states)
+    cum = np.cumsum(p, axis=1)
+    cum[:, -1] = 1.0  # no rounding gap above the last state
+    cum = cum[s]
+    if blocked is not None and p_blocked is not None:
+        cb = np.cumsum(p_blocked, axis=1)
+        cb[:, -1] = 1.0
+        cum = np.where(blocked[:, None], cb[s], cum)
+    u = rng.random(len(s))[:, None]
+    return (u >= cum).sum(axis=1)
+
+
+# --- hinged heads in the lattice ---------------------------------------------------
+
+
+HEAD_SPHERES = np.array([3.0, 8.5, 14.0])
+"""Distances of a head's collision spheres from its hinge along the head (S1 is 16.5 nm long)."""
+
+HEAD_SPHERE_RADIUS = 2.5
+MAX_BOUND_PER_FILAMENT = 20
+"""Bound heads per thin filament assumed by the sliding time-step check."""
+TIP_REACH = HEAD_SPHERES[-1]
+
+
+@dataclass(frozen=True)
+class Params:
+    """Simulation settings (nm, us, pN).
+
+    Attributes
+    ----------
+    dt : float
+        Brownian time step, us.
+    frame_time : float
+        Brownian time per film frame, us.
+    speedup : float
+        Factor by which the chemistry runs faster than in muscle.
+    kT, viscosity : float
+    hinge_stiffness : float
+        Angular spring of the hinge, pN nm / rad^2 (20 kT: about 13 degrees rms).
+    bind_stiffness : float
+        Spring holding a bound tip to its site, pN / nm.
+    capture : float
+        A detached, primed head binds a free site within this distance of its tip, nm.
+    pre_stroke, post_stroke : float
+        Hinge rest tilt towards +z (away from the M line) before and after the power stroke, radians.
+    filament_drag : float
+        Drag of a thin filament sliding along its axis, pN us / nm (slender body, 1 um long, in water).
+    load : float
+        Force opposing each thin filament's sliding, pN.
+    rates : dict
+        Cycle rate constants, 1/s (see :data:`RATES`).
+    """
+
+    dt: float = 0.01
+    frame_time: float = 0.1
+    speedup: float = 2e4
+    kT: float = KT_300
+    viscosity: float = WATER_VISCOSITY
+    hinge_stiffness: float = 20 * KT_300
+    bind_stiffness: float = 0.5
+    capture: float = 4.0
+    pre_stroke: float = np.deg2rad(50.0)
+    post_stroke: float = np.deg2rad(-30.0)
+    filament_drag: float = 2 * np.pi * WATER_VISCOSITY * 1000.0 / (np.log(1000.0 / 9.0) - 0.2)
+    load: float = 0.0
+    rates: dict = field(default_factory=lambda: dict(RATES))
+
+    @property
+    def head_drag(self):
+        """Rotational drag of a head about its hinge (its spheres, Stokes), pN nm us."""
+        r = HEAD_SPHERE_RADIUS
+        return float(np.sum(translational_drag(r, self.viscosity) * HEAD_SPHERES**2) + 3 * rotational_drag(r, self.viscosity))
+
+    @property
+    def steps_per_frame(self):
+        return max(1, int(round(self.frame_time / self.dt)))
+
+
+@dataclass
+class Frame:
+    """The state of the cell at one film frame."""
+
+    rotations: np.ndarray  # (n, 3, 3) head frames (column 0: along the head, from hinge to tip)
+    states: np.ndarray  # (n,) cycle state
+    sites: np.ndarray  # (n,) bound actin subunit or -1
+    slide: np.ndarray  # (6,) thin filament displacement, nm
+    time: float  # Brownian time, us
+
+
+def _tilt_frames(heads, tilt):
+    """Head frames: x along the head (its rest direction tilted by ``tilt`` towards +z), z near the fibre axis."""
+    x0 = heads.rest
+    ez = np.array([0.0, 0.0, 1.0])
+    t = np.broadcast_to(np.asarray(tilt, np.float64), (len(x0),))
+    x = np.cos(t)[:, None] * x0 + np.sin(t)[:, None] * ez
+    y = np.cross(ez, x0)
+    y /= np.linalg.norm(y, axis=1)[:, None]
+    z = np.cross(x, y)
+    return np.stack([x, y, z], axis=2)
+
+
+class CrossBridges:
+    """Myosin heads of one unit cell through Brownian motion and the cross-bridge cycle.
+
+    Parameters
+    ----------
+    lattice : Lattice
+    params : Params
+    seed : int
+        Seeds every random number (same seed, same film).
+    """
+
+    def __init__(self, lattice, params=None, seed=0):
+        self.lattice = lattice
+        self.p = params or Params()
+        p = self.p
+        self.kT = _kT(p.kT)
+        self.drag = p.head_drag
+        stiff = p.hinge_stiffness + p.bind_stiffness * TIP_REACH**2
+        check_step(p.dt, self.drag, stiff)
+        check_step(p.dt, p.filament_drag, p.bind_stiffness * MAX_BOUND_PER_FILAMENT, what="dt (filament sliding)")
+        self.rng = np.random.default_rng(seed)
+        self.heads = lat.myosin_heads(lattice)
+        n = len(self.heads)
+        q = cycle_generator(p.rates)
+        chem_dt = p.dt * 1e-6 * p.speedup
+        self.P = transition_matrix(q, chem_dt)
+        qb = q.copy()
+        qb[M_ADP_PI, AM_ADP_PI] = 0
+        qb[np.diag_indices(5)] = 0
+        qb[np.diag_indices(5)] = -qb.sum(axis=1)
+        self.P_blocked = transition_matrix(qb, chem_dt)
+        self.slide = np.zeros(6)
+        self.time = 0.0
+        # Filament axes in the orthorhombic box (both copies of the cell): xy distances need only box rounding.
+        self._axes = [(lattice.to_box(np.column_stack([xy, np.zeros(len(xy))]))[:, :2], rad)
+                      for xy, rad in ((lattice.thin_xy, lat.THIN_RADIUS), (lattice.thick_xy, lat.THICK_RADIUS))]
+        # Start primed and detached (lever up): that pose clears the thin filaments.
+        self.states = np.full(n, M_ADP_PI)
+        self.sites = np.full(n, -1)
+        self.R = self._place(_tilt_frames(self.heads, self._rest_tilt(self.states)))
+
+    # geometry --------------------------------------------------------------------
+
+    def _rest_tilt(self, states):
+        return np.where(np.isin(states, (M_ADP_PI, AM_ADP_PI)), self.p.pre_stroke, self.p.post_stroke)
+
+    def spheres(self, R=None):
+        """(n, 3, 3) collision sphere centres of every head."""
+        R = self.R if R is None else R
+        return self.heads.pivots[:, None, :] + HEAD_SPHERES[None, :, None] * R[:, None, :, 0]
+
+    def site_positions(self, slide=None):
+        """(m, 3) binding sites: one per actin subunit, where a bound tip sphere's centre sits."""
+        sub = lat.actin_subunits(self.lattice, self.slide if slide is None else slide)
+        r = lat.THIN_RADIUS + HEAD_SPHERE_RADIUS + 0.05
+        return sub.origins + r * sub.rotations[:, :, 0], sub.filament
+
+    def overlaps(self, R=None):
+        """Per head: does any of its spheres overlap a thin filament, a thick backbone or another head?"""
+        c = self.spheres(R)
+        n = len(c)
+        flat = c.reshape(-1, 3)
+        lt = self.lattice
+        box = lt.box[:2]
+        xy = lt.wrap(flat)[:, None, :2]
+        bad = np.zeros(len(flat), bool)
+        for axes, rad in self._axes:
+            d = xy - axes[None]
+            d -= np.round(d / box) * box
+            bad |= (np.einsum("nak,nak->na", d, d) < (rad + HEAD_SPHERE_RADIUS - 1e-9) ** 2).any(axis=1)
+        bad = bad.reshape(n, -1).any(axis=1)
+        i, j = self._head_pairs(flat)
+        if len(i):
+            hi, hj = i // 3, j // 3
+            # The two heads of one molecule share a hinge: their first spheres may touch.
+            sib = (self.heads.molecule[hi] == self.heads.molecule[hj]) & (i % 3 == 0) & (j % 3 == 0)
+            hit = (hi != hj) & ~sib
+            bad[hi[hit]] = True
+            bad[hj[hit]] = True
+        return bad
+
+    def _head_pairs(self, flat):
+        from scipy.spatial import cKDTree
+
+        lt = self.lattice
+        both = lt.to_box(flat)
+        tree = cKDTree(both, boxsize=lt.box)
+        pairs = tree.query_pairs(2 * HEAD_SPHERE_RADIUS - 1e-9, output_type="ndarray")
+        m = len(flat)
+        i, j = pairs[:, 0] % m, pairs[:, 1] % m
+        keep = i != j
+        return i[keep], j[keep]
+
+    def _place(self, R):
+        """Start frames free of overlaps: tilt overlapping heads further until they are free."""
+        R = R.copy()
+        bad = self.overlaps(R)
+        for tries in range(1, 60):
+            if not bad.any():
+                return R
+            idx = np.flatnonzero(bad)
+            w = self.rng.normal(0, 0.15 * tries, (len(idx), 3))
+            R[idx] = rotation_matrix(w) @ R[idx]
+            bad_new = self.overlaps(R)
+            bad = bad_new
+        raise DataError("cannot place the myosin heads without overlaps; the lattice is too tight", field="d10")
+
+    # dynamics ---------------------------------------------------------------------
+
+    def _free_site(self, tips, k=6):
+        """Nearest free binding site within ``capture`` of each tip, or -1."""
+        from scipy.spatial import cKDTree
+
+        sites, _ = self.site_positions()
+        m = len(sites)
+        tree = cKDTree(self.lattice.to_box(sites), boxsize=self.lattice.box)
+        d, idx = tree.query(self.lattice.wrap(tips), k=k, distance_upper_bound=self.p.capture)
+        taken = np.zeros(m + 1, bool)
+        taken[self.sites[self.sites >= 0]] = True
+        taken[m] = True  # "no neighbour" comes back as index 2m
+        site = np.where(idx >= 2 * m, m, idx % m)
+        ok = ~taken[site]
+        first = np.where(ok.any(axis=1), ok.argmax(axis=1), -1)
+        return np.where(first >= 0, site[np.arange(len(tips)), np.maximum(first, 0)], -1)
+
+    def _torque_and_pull(self):
+        p = self.p
+        R_eq = _tilt_frames(self.heads, self._rest_tilt(self.states))
+        tau = -p.hinge_stiffness * rotation_vector(self.R @ R_eq.transpose(0, 2, 1))
+        pull = np.zeros(6)
+        bound = self.sites >= 0
+        if bound.any():
+            sites, fil = self.site_positions()
+            tip = self.heads.pivots[bound] + TIP_REACH * self.R[bound, :, 0]
+            d = self.lattice.min_image(sites[self.sites[bound]] - tip)
+            f = p.bind_stiffness * d  # on the tip; the reaction pulls the filament
+            tau[bound] += np.cross(tip - self.heads.pivots[bound], f)
+            np.add.at(pull, fil[self.sites[bound]], -f[:, 2])
+        return tau, pull
+
+    def step(self):
+        """One Brownian step: cycle transitions, hinge and binding torques, collisions, sliding."""
+        p, rng = self.p, self.rng
+        n = len(self.heads)
+        # Chemistry: binding needs a free site in reach of the tip (only primed, detached heads look).
+        nearest = np.full(n, -1)
+        look = np.flatnonzero(self.states == M_ADP_PI)
+        if len(look):
+            nearest[look] = self._free_site(self.heads.pivots[look] + TIP_REACH * self.R[look, :, 0])
+        reach = nearest >= 0
+        new = cycle_step(self.states, self.P, rng, self.P_blocked, ~reach)
+        # expm(Q dt) may chain steps (M.ATP -> M.ADP.Pi -> A.M.ADP.Pi): any head newly bound needs a site.
+        binding = BOUND[new] & ~BOUND[self.states]
+        new[binding & ~reach] = M_ADP_PI
+        idx = np.flatnonzero(binding & reach)
+        # Two heads reaching for one site: the first keeps it, the other stays detached.
+        _, first = np.unique(nearest[idx], return_index=True)
+        lose = np.setdiff1d(idx, idx[first])
+        new[lose] = M_ADP_PI
+        self.sites[idx[first]] = nearest[idx[first]]
+        self.sites[~BOUND[new]] = -1
+        self.states = new
+        # Mechanics.
+        tau, pull = self._torque_and_pull()
+        dw = tau * p.dt / self.drag + np.sqrt(2 * self.kT * p.dt / self.drag) * rng.standard_normal((n, 3))
+        trial = rotation_matrix(dw) @ self.R
+        moved = np.ones(n, bool)
+        while True:  # reject moves into overlaps; the old frames overlap nothing
+            bad = self.overlaps(trial) & moved
+            if not bad.any():
+                break
+            trial[bad] = self.R[bad]
+            moved[bad] = False
+        self.rejected = int(n - moved.sum())
+        self.R = trial
+        noise = np.sqrt(2 * self.kT * p.dt / p.filament_drag) * rng.standard_normal(6)
+        self.slide = self.slide + (pull - p.load) * p.dt / p.filament_drag + noise
+        self.time += p.dt
+
+    def frame(self):
+        return Frame(self.R.copy(), self.states.copy(), self.sites.copy(), self.slide.copy(), self.time)
+
+    def run(self, frames):
+        """Simulate ``frames`` film frames; returns the list of :class:`Frame` (the first is the start)."""
+        frames = int(frames)
+        if frames < 0:
+            raise DataError(f"must be >= 0, got {frames}", field="frames")
+        out = [self.frame()]
+        for _ in range(frames - 1):
+            for _ in range(self.p.steps_per_frame):
+                self.step()
+            out.append(self.frame())
+        return out[:frames] if frames else []
+
+
+def with_params(**kw):
+    """:class:`Params` with some fields changed (for the CLI and the add-on)."""
+    return replace(Params(), **kw)
