@@ -25,9 +25,12 @@ Units: nanometres, microseconds, piconewtons (so energies are pN nm; kT at
   its occupancies converge to ``Q``'s steady state for any step.  Binding
   needs a free actin site within :attr:`Params.capture` of the head's tip.
 * **Animation forces** (the paper's "fake" forces): the state sets the hinge
-  spring's rest angle (lever up before the stroke, down after), and a bound
-  tip is held to its actin site by a spring; the thin filaments slide under
-  the reaction of those springs (contraction).
+  spring's rest pose (detached: lever up after the recovery stroke, down
+  after detachment; weakly bound: the pose it bound in, so binding strains
+  nothing; after Pi release: that pose swung by the power stroke,
+  ``pre_stroke - post_stroke`` = 80 degrees, tip towards the M line at -z),
+  and a bound tip is held to its actin site by a spring; the thin filaments
+  slide under the reaction of those springs (contraction towards -z).
 * **Time scale**: the Brownian motion runs at its real speed (one film frame
   is :attr:`Params.frame_time` = 0.1 us of it) while the chemistry runs
   :attr:`Params.speedup` = 2e4 times faster than in muscle (a cycle of about
@@ -474,6 +477,10 @@ class CrossBridges:
         self.states = np.full(n, M_ADP_PI)
         self.sites = np.full(n, -1)
         self.R = self._place(_tilt_frames(self.heads, self._rest_tilt(self.states)))
+        self.R_bind = self.R.copy()
+        # The power stroke turns the head about ez x rest, swinging its tip towards -z (the M line).
+        axis = np.cross([0.0, 0.0, 1.0], self.heads.rest)
+        self._stroke_axis = axis / np.linalg.norm(axis, axis=1)[:, None]
 
     # geometry --------------------------------------------------------------------
 
@@ -559,9 +566,21 @@ class CrossBridges:
         first = np.where(ok.any(axis=1), ok.argmax(axis=1), -1)
         return np.where(first >= 0, site[np.arange(len(tips)), np.maximum(first, 0)], -1)
 
+    def _rest_frames(self):
+        """Hinge rest frames: detached heads at the global pre/post-stroke tilts; a weakly bound head at the
+        pose it bound in (binding strains nothing); after Pi release that pose swung by the power stroke."""
+        R_eq = _tilt_frames(self.heads, self._rest_tilt(self.states))
+        weak = self.states == AM_ADP_PI
+        R_eq[weak] = self.R_bind[weak]
+        strong = BOUND[self.states] & ~weak
+        if strong.any():
+            stroke = (self.p.pre_stroke - self.p.post_stroke) * self._stroke_axis[strong]
+            R_eq[strong] = rotation_matrix(stroke) @ self.R_bind[strong]
+        return R_eq
+
     def _torque_and_pull(self):
         p = self.p
-        R_eq = _tilt_frames(self.heads, self._rest_tilt(self.states))
+        R_eq = self._rest_frames()
         tau = -p.hinge_stiffness * rotation_vector(self.R @ R_eq.transpose(0, 2, 1))
         pull = np.zeros(6)
         bound = self.sites >= 0
@@ -594,6 +613,7 @@ class CrossBridges:
         lose = np.setdiff1d(idx, idx[first])
         new[lose] = M_ADP_PI
         self.sites[idx[first]] = nearest[idx[first]]
+        self.R_bind[idx[first]] = self.R[idx[first]]
         self.sites[~BOUND[new]] = -1
         self.states = new
         # Mechanics.
