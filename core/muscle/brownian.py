@@ -544,8 +544,7 @@ class CrossBridges:
             idx = np.flatnonzero(bad)
             w = self.rng.normal(0, 0.15 * tries, (len(idx), 3))
             R[idx] = rotation_matrix(w) @ R[idx]
-            bad_new = self.overlaps(R)
-            bad = bad_new
+            bad = self.overlaps(R)
         raise DataError("cannot place the myosin heads without overlaps; the lattice is too tight", field="d10")
 
     # dynamics ---------------------------------------------------------------------
