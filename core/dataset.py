@@ -67,6 +67,8 @@ class Dataset(abc.ABC):
     """
 
     levels_follow_air = False
+    aliases = {}
+    """File names of fields → their standard names (readers fill it)."""
 
     def __init__(self, grid, times, variables, source, cache_steps=8):
         self.grid = grid
@@ -90,7 +92,11 @@ class Dataset(abc.ABC):
         )
 
     def __contains__(self, name):
-        return name in self.variables
+        return name in self.variables or name in self.aliases
+
+    def resolve(self, name):
+        """The dataset's name for ``name``, which may be a standard name or the file's own name."""
+        return name if name in self.variables else self.aliases.get(name, name)
 
     @property
     def hours(self):
@@ -98,6 +104,7 @@ class Dataset(abc.ABC):
         return (self.times - self.times[0]).astype(np.float64) / 3600.0
 
     def _check(self, name, t):
+        name = self.resolve(name)
         if name not in self.variables:
             raise DataError(
                 f"no such variable (available: {', '.join(sorted(self.variables)) or 'none'})",
@@ -107,11 +114,14 @@ class Dataset(abc.ABC):
         nt = self.times.size
         if not (isinstance(t, (int, np.integer)) and -nt <= t < nt):
             raise DataError(f"time index {t!r} is outside 0..{nt - 1}", path=self.source, field=name)
-        return int(t) % nt
+        return name, int(t) % nt
 
     def read(self, name, t):
-        """One time step of one field as float32 ``(nk, nj, ni)``; NaN where missing."""
-        t = self._check(name, t)
+        """One time step of one field as float32 ``(nk, nj, ni)``; NaN where missing.
+
+        ``name`` is a standard name or the file's own name for the field.
+        """
+        name, t = self._check(name, t)
         key = (name, t)
         with self._lock:
             if key in self._cache:

@@ -62,6 +62,30 @@ def xyz_to_lonlat(xyz):
     return lon, lat, r
 
 
+def rotated_pole_matrix(pole_lon, pole_lat, pole_grid_lon=0.0):
+    """Rotation taking Cartesian points of a rotated-pole grid to the true globe.
+
+    CF ``rotated_latitude_longitude``: the grid's north pole lies at true
+    (``pole_lon``, ``pole_lat``) = (``grid_north_pole_longitude``,
+    ``grid_north_pole_latitude``) and the true north pole at grid longitude
+    ``pole_grid_lon`` (``north_pole_grid_longitude``).  Grid (0°, 0°) is true
+    (``pole_lon`` + 180°, 90° − ``pole_lat``).  The same transformation as
+    PROJ's ``ob_tran`` with ``o_lon_p = pole_grid_lon``, ``lon_0 = pole_lon + 180``.
+
+    References
+    ----------
+    .. [1] CF Conventions 1.11, Appendix F (rotated pole).
+    """
+    phi = np.deg2rad(float(pole_lat))
+    lam = np.deg2rad(float(pole_lon) + 180.0)
+    o = np.deg2rad(float(pole_grid_lon))
+    # Grid longitude pole_grid_lon → 180°, so that the true pole's meridian lines up.
+    rz_o = np.array([[np.cos(np.pi - o), -np.sin(np.pi - o), 0.0], [np.sin(np.pi - o), np.cos(np.pi - o), 0.0], [0.0, 0.0, 1.0]])
+    ry = np.array([[np.sin(phi), 0.0, -np.cos(phi)], [0.0, 1.0, 0.0], [np.cos(phi), 0.0, np.sin(phi)]])
+    rz = np.array([[np.cos(lam), -np.sin(lam), 0.0], [np.sin(lam), np.cos(lam), 0.0], [0.0, 0.0, 1.0]])
+    return rz @ ry @ rz_o @ np.diag([-1.0, -1.0, 1.0])
+
+
 @dataclass(frozen=True, eq=False)
 class GlobeGrid:
     """A terrain-following longitude × latitude × level grid.
@@ -77,12 +101,20 @@ class GlobeGrid:
         increasing with level.  The lowest level follows the terrain.
     terrain : (nj, ni) array, optional
         Surface height in metres (defaults to the lowest level).
+    rotation : (3, 3) array, optional
+        For a rotated-pole grid (``lon``/``lat`` are grid coordinates): the
+        rotation taking grid Cartesian points to the true globe
+        (:func:`rotated_pole_matrix`); :meth:`points` applies it.  Winds in
+        such files are relative to the grid, so everything else works in grid
+        coordinates unchanged; code turning scene points back into grid
+        coordinates applies :meth:`to_grid` first.
     """
 
     lon: np.ndarray
     lat: np.ndarray
     height: np.ndarray
     terrain: np.ndarray = None
+    rotation: np.ndarray = None
 
     def __post_init__(self):
         lon = np.asarray(self.lon, dtype=np.float64)
@@ -93,6 +125,8 @@ class GlobeGrid:
         object.__setattr__(self, "height", height)
         terrain = height[0] if self.terrain is None else np.asarray(self.terrain, dtype=np.float64)
         object.__setattr__(self, "terrain", terrain)
+        if self.rotation is not None:
+            object.__setattr__(self, "rotation", np.asarray(self.rotation, dtype=np.float64).reshape(3, 3))
 
     @property
     def shape(self):
@@ -149,4 +183,19 @@ class GlobeGrid:
         out[..., 0] = r * cphi * np.cos(lam)
         out[..., 1] = r * cphi * np.sin(lam)
         out[..., 2] = r * np.sin(phi)
+        if self.rotation is not None:
+            out[...] = out @ self.rotation.T.astype(dtype)
         return out
+
+    def to_grid(self, xyz):
+        """Cartesian points on the true globe in the grid's own (possibly rotated) frame."""
+        xyz = np.asarray(xyz, dtype=np.float64)
+        return xyz if self.rotation is None else xyz @ self.rotation
+
+    def true_lonlat(self):
+        """True longitude and latitude (degrees) of every column, ``(nj, ni)`` each."""
+        xyz = lonlat_to_xyz(self.lon[None, :], self.lat[:, None])
+        if self.rotation is not None:
+            xyz = xyz @ self.rotation.T
+        lon, lat, _ = xyz_to_lonlat(xyz)
+        return lon, lat

@@ -80,6 +80,25 @@ def unit_conversion(std, units):
     return 1.0, 0.0
 
 
+def plausible_units(std, units, sample):
+    """``(units, note)``: the units a field's values really have when the stated ones are implausible.
+
+    A temperature labelled Celsius whose median is above 150 is kelvin (NCL's
+    ``nc4uvt.nc`` labels 200–300 values ``C``); a fraction whose maximum is
+    above 2 is percent.  ``note`` is ``None`` when the stated units stand.
+    """
+    a = np.asarray(sample, dtype=np.float64)
+    a = a[np.isfinite(a)]
+    if a.size == 0:
+        return units, None
+    scale, offset = unit_conversion(std, units)
+    if std == "temperature" and offset != 0.0 and np.median(a) > 150.0:
+        return "K", f"{std}: units {units!r} but values {a.min():.4g}..{a.max():.4g} are kelvin; read as K"
+    if std in ("rh", "cloud") and scale == 1.0 and np.max(a) > 2.0:
+        return "%", f"{std}: units {units or 'none'!r} but values reach {a.max():.4g}; read as percent"
+    return units, None
+
+
 def pressure_scale(units, path, field):
     """Factor from pressure ``units`` to Pa; :class:`DataError` for non-pressure units."""
     u = (units or "").strip().lower()
@@ -154,10 +173,18 @@ class FileDataset(Dataset):
         Kind of levels, for ``nephele info``.
     skipped : dict
         File variables that are not 3-D fields on the grid → reason.
+    notes : list of str
+        What the reader assumed where the file was silent or implausible
+        (a default ``P0``, step indices for a non-CF time axis, a ``degC``
+        field holding kelvin); ``nephele info`` prints them.
+
+    Every field can also be read by the file's own name (``ds.read("T", 0)``
+    is ``ds.read("temperature", 0)``).
     """
 
-    def __init__(self, path, grid, times, fields, order, *, pressure=None, rh_crit=RH_CRIT, vertical="", skipped=None, cache_steps=8):
+    def __init__(self, path, grid, times, fields, order, *, pressure=None, rh_crit=RH_CRIT, vertical="", skipped=None, notes=(), cache_steps=8):
         self.path = str(path)
+        self.notes = list(notes)
         self._fields = dict(fields)
         self._order = tuple(np.asarray(o) for o in order)
         self._pressure = pressure
@@ -185,6 +212,7 @@ class FileDataset(Dataset):
         nk = grid.shape[0]
         self.rh_crit = np.broadcast_to(np.asarray(rh_crit, dtype=np.float64), (nk,)).reshape(nk, 1, 1) if np.ndim(rh_crit) else float(rh_crit)
         super().__init__(grid, times, variables, path, cache_steps)
+        self.aliases = {raw: std for std, raw in self.file_names.items() if raw != std and raw not in self.variables}
 
     @abc.abstractmethod
     def _raw(self, name, t):
@@ -226,11 +254,36 @@ _TIME_UNITS = {
 }  # fmt: skip
 
 
+def step_times(n):
+    """``n`` steps one hour apart from 1970-01-01: the time axis of a file whose times cannot be read."""
+    return np.datetime64("1970-01-01T00:00:00", "s") + np.arange(n) * np.timedelta64(3600, "s")
+
+
+def cf_times_or_steps(values, units, calendar, path, field="time"):
+    """``(times, note)``: CF times, or step indices (one hour apart) with a note when the units are not CF."""
+    values = np.atleast_1d(np.asarray(values, dtype=np.float64))
+    try:
+        return cf_times(values, units, calendar, path, field), None
+    except DataError as exc:
+        if "calendar" in exc.problem or "NaN" in exc.problem:
+            raise
+        return step_times(values.size), f"{field}: {exc.problem}; the {values.size} step(s) are numbered 0..{values.size - 1}, one hour apart"
+
+
+_CALENDARS = ("standard", "gregorian", "proleptic_gregorian", "noleap", "365_day", "all_leap", "366_day", "360_day", "julian", "none")
+
+
 def cf_times(values, units, calendar, path, field="time"):
-    """datetime64[s] from CF ``"<unit> since <date>"`` numbers (standard calendars)."""
+    """datetime64[s] from CF ``"<unit> since <date>"`` numbers.
+
+    Units up to days are the same length in every CF calendar, so a
+    non-standard calendar (``noleap``, ``360_day``…) keeps its exact elapsed
+    times from the reference date; its later calendar labels differ from the
+    Gregorian ones shown (only the spacing of the steps matters for a film).
+    """
     cal = (calendar or "standard").strip().lower()
-    if cal not in ("standard", "gregorian", "proleptic_gregorian"):
-        raise DataError(f"calendar {calendar!r} is not supported (standard/gregorian only)", path=path, field=field)
+    if cal not in _CALENDARS:
+        raise DataError(f"calendar {calendar!r} is not a CF calendar ({', '.join(_CALENDARS)})", path=path, field=field)
     m = re.match(r"\s*(\w+)\s+since\s+(.+?)\s*$", units or "")
     if not m or m.group(1).lower() not in _TIME_UNITS:
         raise DataError(f"time units {units!r} are not '<seconds|minutes|hours|days> since <date>'", path=path, field=field)
@@ -251,4 +304,4 @@ def parse_iso(text, path, field):
     return np.datetime64(f"{y:04d}-{mo:02d}-{d:02d}T{hh:02d}:{mm:02d}:{ss:02d}", "s")
 
 
-__all__ = ["ALIASES", "FileDataset", "cf_times", "standard_name", "tidy_lonlat"]
+__all__ = ["ALIASES", "FileDataset", "cf_times", "cf_times_or_steps", "plausible_units", "standard_name", "step_times", "tidy_lonlat"]

@@ -19,8 +19,26 @@ hybrid height               ``z = a + b orog`` from ``formula_terms``
 height (m, km)              flat levels
 =========================== ======================================================
 
-Times come from CF units (``hours since 2001-01-01``…, standard calendars).
-A file without a time axis has one step at 1970-01-01.
+Parametric coordinates are found by CF ``standard_name``/``formula_terms`` on
+the level coordinate or on an auxiliary coordinate along the level dimension
+(the UM's ``level_height``/``sigma``/``surface_altitude`` on
+``model_level_number``), and by NCAR's convention: units
+``hybrid_sigma_pressure`` or attributes ``A_var``/``B_var``/``P0_var``/``PS_var``
+(CAM's ``hyam``/``hybm``/``P0``/``PS``).  A missing ``P0`` is CAM's
+100000 Pa (or the ``p0=`` argument), reported in :attr:`notes`.
+
+Horizontal grids: 1-D latitude/longitude, or a CF rotated pole
+(``grid_latitude``/``grid_longitude`` with a ``rotated_latitude_longitude``
+grid mapping): the grid keeps its rotated coordinates (winds in such files are
+grid-relative) and carries the rotation to the true globe
+(:func:`~nephele.core.grid.rotated_pole_matrix`).  Other 2-D
+latitude/longitude grids (Lambert conformal, polar stereographic, WRF) are
+refused with a clear :class:`DataError`.
+
+Times come from CF units (``hours since 2001-01-01``…, any CF calendar as
+elapsed time).  Anything else (units ``Month``, no units) becomes step
+indices one hour apart with a note; a scalar ``time`` or no time axis gives
+one step.  ``time_units=`` overrides the file's units.
 
 References
 ----------
@@ -33,13 +51,16 @@ import re
 import numpy as np
 
 from .errors import DataError
-from .gridfile import FileDataset, cf_times, pressure_scale, standard_name, tidy_lonlat
-from .grid import GlobeGrid
+from .gridfile import FileDataset, cf_times_or_steps, plausible_units, pressure_scale, standard_name, step_times, tidy_lonlat
+from .grid import GlobeGrid, rotated_pole_matrix
 from .humidity import G0, RH_CRIT, standard_height
 
 _LON_UNITS = ("degrees_east", "degree_east", "degree_e", "degrees_e", "degreee", "degreese")
 _LAT_UNITS = ("degrees_north", "degree_north", "degree_n", "degrees_n", "degreen", "degreesn")
 _HEIGHT_NAMES = ("zg", "z", "hgt", "geopotential_height", "gh", "geopot", "phi")
+_PARAMETRIC = ("atmosphere_hybrid_sigma_pressure_coordinate", "atmosphere_sigma_coordinate", "atmosphere_hybrid_height_coordinate")
+CAM_P0 = 100000.0
+"""CAM's reference pressure (Pa), used when a file names ``P0`` but does not store it."""
 
 
 def _attr(var, key):
@@ -52,6 +73,10 @@ def _find_axis(ds, path, kind):
         if kind == "lon"
         else (("lat", "latitude", "y", "nav_lat"), _LAT_UNITS, "latitude")
     )
+    # A rotated-pole grid's own axes come first: its true lon/lat (if stored) are 2-D.
+    for name, var in ds.variables.items():
+        if var.ndim == 1 and _attr(var, "standard_name").lower() == f"grid_{std}":
+            return name
     for name, var in ds.variables.items():
         if _attr(var, "standard_name").lower() == std or _attr(var, "units").lower().replace(" ", "") in units:
             return name
@@ -63,7 +88,7 @@ def _find_axis(ds, path, kind):
 
 def _find_time(ds):
     for name, var in ds.variables.items():
-        if var.ndim == 1 and (_attr(var, "standard_name").lower() == "time" or _attr(var, "axis").upper() == "T" or " since " in _attr(var, "units")):
+        if var.ndim <= 1 and (_attr(var, "standard_name").lower() == "time" or _attr(var, "axis").upper() == "T" or " since " in _attr(var, "units")):
             return name
     return "time" if "time" in ds.variables else None
 
@@ -85,12 +110,34 @@ def _values(ds, name, path, field):
     return a
 
 
+def _grid_mapping(ds):
+    """Name of the grid-mapping variable the data variables point to, or None."""
+    for var in ds.data_vars.values():
+        name = _attr(var, "grid_mapping").split(":")[0].strip()
+        if name and name in ds.variables:
+            return name
+    return None
+
+
+def _parametric_coordinate(ds, zdim):
+    """The level coordinate, or an auxiliary coordinate along ``zdim`` carrying the parametric formula."""
+    zvar = ds[zdim]
+    if _attr(zvar, "standard_name").lower() in _PARAMETRIC or _attr(zvar, "formula_terms"):
+        return zvar
+    for var in ds.variables.values():
+        if var.dims == (zdim,) and _attr(var, "standard_name").lower() in _PARAMETRIC and _attr(var, "formula_terms"):
+            return var
+    return zvar
+
+
 class NetCDFDataset(FileDataset):
     """A CF NetCDF file opened lazily; see the module docstring for what is understood."""
 
-    def __init__(self, path, *, rh_crit=RH_CRIT, cache_steps=8):
+    def __init__(self, path, *, rh_crit=RH_CRIT, p0=None, time_units=None, cache_steps=8):
         import xarray as xr
 
+        self._p0, notes = p0, []
+        self._notes = notes
         try:
             ds = xr.open_dataset(path, decode_times=False, mask_and_scale=True)
         except Exception as exc:  # netCDF4/HDF5/scipy raise many types for a bad file
@@ -102,12 +149,20 @@ class NetCDFDataset(FileDataset):
         lon_name, lat_name = _find_axis(ds, path, "lon"), _find_axis(ds, path, "lat")
         lon_dim, lat_dim = ds[lon_name].dims, ds[lat_name].dims
         if len(lon_dim) != 1 or len(lat_dim) != 1:
-            raise DataError("2-D longitude/latitude (a curvilinear input grid) is not supported", path=path, field=lon_name)
+            mapping = _grid_mapping(ds)
+            kind = _attr(ds[mapping], "grid_mapping_name") if mapping else "none stated"
+            raise DataError(
+                f"2-D longitude/latitude (a curvilinear or projected grid, grid mapping {kind}) is not supported; "
+                "only 1-D lon/lat and rotated-pole grids are read",
+                path=path,
+                field=lon_name,
+            )
         lon_dim, lat_dim = lon_dim[0], lat_dim[0]
+        rotation, self.earth_radius = self._mapping(ds, path, lon_name)
         time_name = _find_time(ds)
-        time_dim = ds[time_name].dims[0] if time_name else None
+        time_dim = ds[time_name].dims[0] if time_name and ds[time_name].ndim == 1 else None
         if time_dim is None and "time" in ds.dims:
-            raise DataError("dimension 'time' has no coordinate variable with CF units ('hours since ...')", path=path, field="time")
+            time_name, time_dim = None, "time"  # a time dimension without a coordinate: numbered steps
 
         # 3-D fields: dims = {lat, lon, one level dim} plus time if the file has one.
         candidates, skipped = {}, {}
@@ -133,15 +188,21 @@ class NetCDFDataset(FileDataset):
         self._time_dim = time_dim
 
         lon, lat, lon_index, lat_index = tidy_lonlat(ds[lon_name].values, ds[lat_name].values, path, lon_name, lat_name)
-        if time_dim:
+        if time_name is None and time_dim:
+            times = step_times(ds.sizes[time_dim])
+            notes.append(f"time: dimension 'time' has no coordinate variable; the {times.size} step(s) are numbered 0..{times.size - 1}, one hour apart")
+        elif time_name:
             tv = ds[time_name]
-            times = cf_times(tv.values, _attr(tv, "units"), tv.attrs.get("calendar"), path, time_name)
+            times, note = cf_times_or_steps(tv.values, time_units or _attr(tv, "units"), tv.attrs.get("calendar"), path, time_name)
+            if note:
+                notes.append(note)
         else:
             times = np.array(["1970-01-01T00:00:00"], dtype="datetime64[s]")
+            notes.append("time: the file has no time axis; one step")
         self._nt = times.size
 
         heights, level_index, pressure, vertical = self._vertical(ds, path, zdim, names, lat_index, lon_index, lat.size, lon.size)
-        grid = GlobeGrid(lon, lat, heights).validate(path)
+        grid = GlobeGrid(lon, lat, heights, rotation=rotation).validate(path)
 
         fields, taken = {}, {}
         for name in names:
@@ -149,7 +210,12 @@ class NetCDFDataset(FileDataset):
             if std in fields:
                 skipped[name] = f"another variable ({taken[std]!r}) already gives {std!r}"
                 continue
-            fields[std], taken[std] = (name, _attr(ds[name], "units"), _attr(ds[name], "long_name")), name
+            units = _attr(ds[name], "units")
+            if std in ("temperature", "rh", "cloud"):
+                units, note = plausible_units(std, units, self._raw(name, 0))
+                if note:
+                    notes.append(note)
+            fields[std], taken[std] = (name, units, _attr(ds[name], "long_name")), name
         super().__init__(
             path,
             grid,
@@ -160,14 +226,33 @@ class NetCDFDataset(FileDataset):
             rh_crit=rh_crit,
             vertical=vertical,
             skipped=skipped,
+            notes=notes,
             cache_steps=cache_steps,
         )
+
+    # ------------------------------------------------------------------ horizontal
+    @staticmethod
+    def _mapping(ds, path, lon_name):
+        """``(rotation or None, planet radius in m or None)`` from the grid mapping."""
+        name = _grid_mapping(ds)
+        gm = ds[name].attrs if name else {}
+        radius = gm.get("earth_radius", gm.get("semi_major_axis"))
+        radius = float(radius) if radius is not None else None
+        if _attr(ds[lon_name], "standard_name").lower() != "grid_longitude":
+            return None, radius
+        if str(gm.get("grid_mapping_name", "")) != "rotated_latitude_longitude":
+            raise DataError("has standard_name grid_longitude but no rotated_latitude_longitude grid mapping", path=path, field=lon_name)
+        try:
+            pole = [float(gm[k]) for k in ("grid_north_pole_longitude", "grid_north_pole_latitude")]
+        except KeyError as exc:
+            raise DataError(f"grid mapping lacks {exc.args[0]}", path=path, field=name) from None
+        return rotated_pole_matrix(*pole, float(gm.get("north_pole_grid_longitude", 0.0))), radius
 
     # ------------------------------------------------------------------ vertical
     def _vertical(self, ds, path, zdim, names, lat_index, lon_index, nj, ni):
         if zdim not in ds.variables:
             raise DataError("level dimension has no coordinate variable", path=path, field=zdim)
-        zvar = ds[zdim]
+        zvar = _parametric_coordinate(ds, zdim)
         z = np.asarray(zvar.values, dtype=np.float64)
         if z.ndim != 1 or z.size < 2:
             raise DataError(f"needs at least 2 levels, got {z.size}", path=path, field=zdim)
@@ -184,6 +269,8 @@ class NetCDFDataset(FileDataset):
             a = np.asarray(a.transpose(*self._dims[1:]).values, dtype=np.float64)
             return a[take]
 
+        if not std and (units == "hybrid_sigma_pressure" or "A_var" in zvar.attrs):
+            return self._ncar_hybrid(ds, zvar, path, zdim, surface)
         if std in ("atmosphere_hybrid_sigma_pressure_coordinate", "atmosphere_sigma_coordinate"):
             terms = _formula_terms(zvar, path, zdim)
             ps_name = terms.get("ps")
@@ -198,19 +285,12 @@ class NetCDFDataset(FileDataset):
                 b = _values(ds, terms.get("b", ""), path, zdim)
                 if "ap" in terms:
                     a_pa = _values(ds, terms["ap"], path, zdim) * pressure_scale(_attr(ds[terms["ap"]], "units") or "Pa", path, terms["ap"])
-                elif "a" in terms and "p0" in terms:
-                    p0 = float(_values(ds, terms["p0"], path, zdim)) * pressure_scale(_attr(ds[terms["p0"]], "units") or "Pa", path, terms["p0"])
+                elif "a" in terms:
+                    p0 = self._reference_pressure(ds, terms.get("p0"), path, zdim)
                     a_pa = _values(ds, terms["a"], path, zdim) * p0
                 else:
                     raise DataError(f"formula_terms {terms} need 'ap' or 'a' and 'p0'", path=path, field=zdim)
-            ref = a_pa + b * 101325.0
-            level_index = self._level_order(-ref, path, zdim)
-            a_pa, b = a_pa[level_index, None, None], b[level_index, None, None]
-
-            def pressure(t):
-                return (a_pa + b * surface(ps_name, t) * ps_scale).astype(np.float32)
-
-            return standard_height(pressure(0)), level_index, pressure, "hybrid sigma-pressure (terrain following)"
+            return self._hybrid_pressure(a_pa, b, ps_name, ps_scale, surface, path, zdim)
         if std == "atmosphere_hybrid_height_coordinate":
             terms = _formula_terms(zvar, path, zdim)
             a = _values(ds, terms.get("a", zdim), path, zdim)
@@ -252,6 +332,38 @@ class NetCDFDataset(FileDataset):
             path=path,
             field=zdim,
         )
+
+    def _reference_pressure(self, ds, name, path, field):
+        """``P0`` in Pa: the ``p0=`` argument, the file's variable, else CAM's 100000 Pa with a note."""
+        if self._p0 is not None:
+            return float(self._p0)
+        if name and name in ds.variables:
+            return float(_values(ds, name, path, field)) * pressure_scale(_attr(ds[name], "units") or "Pa", path, name)
+        self._notes.append(f"{field}: reference pressure {name or 'P0'!r} is not in the file; used CAM's P0 = {CAM_P0:g} Pa")
+        return CAM_P0
+
+    def _ncar_hybrid(self, ds, zvar, path, zdim, surface):
+        """NCAR/CAM hybrid sigma-pressure levels named by ``A_var``/``B_var``/``P0_var``/``PS_var`` (or CAM's names)."""
+        a_name = str(zvar.attrs.get("A_var", "hyam" if zdim != "ilev" else "hyai"))
+        b_name = str(zvar.attrs.get("B_var", "hybm" if zdim != "ilev" else "hybi"))
+        ps_name = str(zvar.attrs.get("PS_var", "PS"))
+        if ps_name not in ds.variables:
+            raise DataError(f"hybrid levels need surface pressure {ps_name!r}, which is not in the file", path=path, field=zdim)
+        p0 = self._reference_pressure(ds, str(zvar.attrs.get("P0_var", "P0")), path, zdim)
+        a_pa = _values(ds, a_name, path, zdim) * p0
+        b = _values(ds, b_name, path, zdim)
+        ps_scale = pressure_scale(_attr(ds[ps_name], "units") or "Pa", path, ps_name)
+        return self._hybrid_pressure(a_pa, b, ps_name, ps_scale, surface, path, zdim)
+
+    def _hybrid_pressure(self, a_pa, b, ps_name, ps_scale, surface, path, zdim):
+        ref = a_pa + b * 101325.0
+        level_index = self._level_order(-ref, path, zdim)
+        a_pa, b = a_pa[level_index, None, None], b[level_index, None, None]
+
+        def pressure(t):
+            return (a_pa + b * surface(ps_name, t) * ps_scale).astype(np.float32)
+
+        return standard_height(pressure(0)), level_index, pressure, "hybrid sigma-pressure (terrain following)"
 
     @staticmethod
     def _level_order(upward, path, field):

@@ -329,18 +329,159 @@ def test_pressure_levels_use_geopotential_height_and_sigma_levels(tmp_path):
 
 
 def test_time_problems(tmp_path):
+    """Non-CF times become numbered steps with a note; other calendars keep their elapsed times."""
     path, _ = _basic(tmp_path)
     with xr.open_dataset(path, decode_times=False) as f:
         f = f.load()
+    nt = f.sizes["time"]
+    steps = np.datetime64("1970-01-01T00:00", "s") + np.arange(nt) * np.timedelta64(3600, "s")
     g = f.drop_vars("time")
     g.to_netcdf(tmp_path / "notime.nc")
-    with pytest.raises(DataError, match=r"notime.nc: field 'time': dimension 'time' has no coordinate"):
-        open_dataset(tmp_path / "notime.nc")
+    ds = open_dataset(tmp_path / "notime.nc")
+    np.testing.assert_array_equal(ds.times, steps)
+    assert any("dimension 'time' has no coordinate" in n for n in ds.notes)
     f["time"].attrs["units"] = "months since 1987-01-01"
     f.to_netcdf(tmp_path / "months.nc")
-    with pytest.raises(DataError, match=r"months.nc: field 'time': time units 'months since 1987-01-01'"):
-        open_dataset(tmp_path / "months.nc")
+    ds = open_dataset(tmp_path / "months.nc")
+    np.testing.assert_array_equal(ds.times, steps)
+    assert any("time units 'months since 1987-01-01'" in n for n in ds.notes)
+    # The caller can say what the file does not.
+    ds = open_dataset(tmp_path / "months.nc", time_units="days since 2000-03-01")
+    np.testing.assert_array_equal(ds.times, np.datetime64("2000-03-01", "s") + (f["time"].values * 86400).astype("timedelta64[s]"))
     f["time"].attrs.update(units="hours since 1987-01-01", calendar="360_day")
     f.to_netcdf(tmp_path / "cal.nc")
-    with pytest.raises(DataError, match=r"cal.nc: field 'time': calendar '360_day' is not supported"):
-        open_dataset(tmp_path / "cal.nc")
+    ds = open_dataset(tmp_path / "cal.nc")
+    np.testing.assert_array_equal(ds.hours, f["time"].values - f["time"].values[0])
+    f["time"].attrs.update(calendar="martian")
+    f.to_netcdf(tmp_path / "mars.nc")
+    with pytest.raises(DataError, match=r"mars.nc: field 'time': calendar 'martian' is not a CF calendar"):
+        open_dataset(tmp_path / "mars.nc")
+
+
+# ----------------------------------------------------- real model output from other packages
+# Small real files under tests/data (provenance in tests/data/README.md).
+DATA = __import__("pathlib").Path(__file__).resolve().parent.parent / "data"
+
+
+def _nc(path):
+    netCDF4 = pytest.importorskip("netCDF4")
+    f = netCDF4.Dataset(path)
+    f.set_auto_mask(False)
+    return f
+
+
+def _proj_rotated_to_true(path, mapping, rlon, rlat):
+    """True lon/lat of a rotated grid by PROJ, in a fresh Python: pyproj imported after netCDF4 has
+    opened a file crashes the interpreter (their bundled libraries clash), so it runs apart."""
+    import json
+    import subprocess
+    import sys
+
+    import importlib.util
+
+    if importlib.util.find_spec("pyproj") is None:
+        pytest.skip("pyproj is not installed")
+    code = (
+        "import json, sys, numpy as np, pyproj, netCDF4\n"
+        "a = json.load(sys.stdin)\n"
+        "with netCDF4.Dataset(a['path']) as f:\n"
+        "    cf = {k: f[a['mapping']].getncattr(k) for k in f[a['mapping']].ncattrs()}\n"
+        "crs = pyproj.CRS.from_cf({k: (v.item() if hasattr(v, 'item') else v) for k, v in cf.items()})\n"
+        "lon, lat = pyproj.Transformer.from_crs(crs, 'EPSG:4326', always_xy=True).transform(*np.meshgrid(a['rlon'], a['rlat']))\n"
+        "json.dump([lon.tolist(), lat.tolist()], sys.stdout)\n"
+    )
+    args = json.dumps({"path": str(path), "mapping": mapping, "rlon": list(map(float, rlon)), "rlat": list(map(float, rlat))})
+    out = subprocess.run([sys.executable, "-c", code], input=args, capture_output=True, text=True, check=True).stdout
+    lon, lat = json.loads(out)
+    return np.array(lon), np.array(lat)
+
+
+def _contour(ds, name, level):
+    from nephele.core.contour import isosurface
+
+    return isosurface(ds.grid.points(), ds.read(name, 0), level, periodic_lon=ds.grid.periodic_lon)
+
+
+def test_cam_history_file_ncar_hybrid_levels():
+    """CAM: lev in units hybrid_sigma_pressure with A_var/B_var/P0_var/PS_var, P0 not stored."""
+    path = DATA / "cam_vinth2p.nc"
+    ds = open_dataset(path)
+    assert ds.grid.shape == (18, 64, 128) and ds.times.size == 2
+    assert ds.times[0] == np.datetime64("0049-09-01", "s") + np.timedelta64(107, "D")
+    assert ds.notes == ["lev: reference pressure 'P0' is not in the file; used CAM's P0 = 100000 Pa"]
+    with _nc(path) as f:
+        hyam, hybm, ps, t_file, lat = (f[n][:].astype(np.float64) for n in ("hyam", "hybm", "PS", "T", "lat"))
+    # File lev runs top -> bottom (index 0 = 3.6 hPa); ours bottom -> top; lat is already ascending.
+    assert np.all(np.diff(lat) > 0)
+    k, j, i, t = 4, 20, 77, 1
+    kf = 17 - k
+    p_hand = hyam[kf] * 100000.0 + hybm[kf] * ps[t, j, i]
+    np.testing.assert_allclose(ds.read("pressure", t)[k, j, i], p_hand, rtol=1e-6)
+    np.testing.assert_allclose(ds.grid.height[k, j, i], standard_height(hyam[kf] * 1e5 + hybm[kf] * ps[0, j, i]), rtol=1e-5)
+    assert ds.read("temperature", t)[k, j, i] == np.float32(t_file[t, kf, j, i])
+    # The file's own name works too.
+    assert "T" in ds and ds.read("T", t) is ds.read("temperature", t)
+    # The caller's P0 replaces the default.
+    ds2 = open_dataset(path, p0=90000.0)
+    np.testing.assert_allclose(ds2.read("pressure", t)[k, j, i], hyam[kf] * 90000.0 + hybm[kf] * ps[t, j, i], rtol=1e-6)
+    assert ds2.notes == []
+    mesh = _contour(ds, "temperature", 250.0)
+    assert len(mesh.faces) > 1000
+    from nephele.core.grid import xyz_to_lonlat
+
+    r = np.linalg.norm(mesh.vertices, axis=1)
+    radii = ds.grid.radii()
+    assert radii.min() - 1e-6 < r.min() and r.max() < radii.max() + 1e-6  # between the lowest and top levels
+
+
+def test_ncl_file_month_time_and_kelvin_labelled_celsius():
+    """NCL's nc4uvt.nc (T only): time units 'Month', T labelled 'C' but 190..311: kelvin, said in a note."""
+    path = DATA / "ncl_nc4uvt_T.nc"
+    ds = open_dataset(path)
+    assert ds.times.size == 1 and ds.grid.shape == (14, 64, 128)
+    assert any(n.startswith("time: time units 'Month'") for n in ds.notes)
+    assert any("units 'C' but values" in n and "read as K" in n for n in ds.notes)
+    with _nc(path) as f:
+        t_file, lev, lon = f["T"][0].astype(np.float64), f["lev"][:].astype(np.float64), f["lon"][:].astype(np.float64)
+    lon_order = np.argsort(np.mod(lon, 360.0))  # the file runs -180..177.2, ours 0..357.2
+    np.testing.assert_array_equal(ds.grid.lon, np.mod(lon, 360.0)[lon_order])
+    kf = int(np.argmax(lev))  # 1000 hPa is our level 0
+    order = np.argsort(-lev)
+    assert order[0] == kf
+    got = ds.read("temperature", 0)
+    np.testing.assert_array_equal(got, t_file[order][:, :, lon_order].astype(np.float32))  # not 463..584 K
+    assert 180 < np.nanmin(got) and np.nanmax(got) < 320
+    np.testing.assert_allclose(ds.read("pressure", 0)[:, 0, 0], lev[order] * 100.0)
+    assert len(_contour(ds, "T", 260.0).faces) > 1000
+
+
+def test_um_rotated_pole_hybrid_height():
+    """UM: rotated pole, scalar time, hybrid height on the auxiliary level_height/sigma/surface_altitude."""
+    path = DATA / "um_hybrid_height.nc"
+    ds = open_dataset(path)
+    assert ds.grid.shape == (15, 100, 100) and ds.times.size == 1
+    with _nc(path) as f:
+        a, b, orog = (f[n][:].astype(np.float64) for n in ("level_height", "sigma", "surface_altitude"))
+        theta = f["air_potential_temperature"][:]
+        rlon, rlat = f["grid_longitude"][:].astype(np.float64), f["grid_latitude"][:].astype(np.float64)
+        hours = float(f["time"][...])
+    assert ds.times[0] == np.datetime64("1970-01-01", "s") + np.timedelta64(int(round(hours * 3600)), "s")
+    assert ds.vertical.startswith("hybrid height")
+    assert ds.earth_radius == 6371229.0
+    k, j, i = 6, 31, 58
+    np.testing.assert_allclose(ds.grid.height[k, j, i], a[k] + b[k] * orog[j, i], rtol=1e-6)
+    assert ds.read("air_potential_temperature", 0)[k, j, i] == theta[k, j, i]
+    np.testing.assert_array_equal(ds.grid.lon, rlon)
+    from nephele.core.grid import xyz_to_lonlat
+
+    mesh = _contour(ds, "air_potential_temperature", 288.0)
+    assert len(mesh.faces) > 100
+    lon_m, lat_m, _ = xyz_to_lonlat(mesh.vertices)
+    assert 52.3 < lat_m.min() and lat_m.max() < 52.5 and -3.3 < lon_m.min() and lon_m.max() < -3.0
+    # True position of the grid on the globe, against PROJ's rotated pole (near 52.4 N, 3.1 W: Wales).
+    lon_true, lat_true = _proj_rotated_to_true(path, "rotated_latitude_longitude", rlon, rlat)
+    got_lon, got_lat = ds.grid.true_lonlat()
+    np.testing.assert_allclose(got_lat, lat_true, atol=1e-9)
+    np.testing.assert_allclose(got_lon, lon_true, atol=1e-9)
+    lon_p, lat_p, _ = xyz_to_lonlat(ds.grid.points(dtype=np.float64)[k, j, i])
+    np.testing.assert_allclose([lon_p, lat_p], [lon_true[j, i], lat_true[j, i]], atol=1e-9)
