@@ -15,6 +15,7 @@ from nephele.core.muscle.molecules import (
     S1_LENGTH,
     S1_WIDTH,
     Cylinders,
+    Ellipsoids,
     actin_subunit,
     atom_gaussians,
     cylinder_mesh,
@@ -170,3 +171,30 @@ def test_level_is_shared():
     # Actin and head share one contour value, so a bound head blends into actin's surface.
     assert LEVEL == 1.0
     assert np.all(actin_subunit().weights > LEVEL) and np.all(myosin_head().weights > LEVEL)
+
+
+def components(mesh):
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    f = mesh.faces.astype(np.int64)
+    e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]]])
+    n = len(mesh.vertices)
+    return connected_components(coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n)), directed=False)[1]
+
+
+def test_head_bound_to_actin_is_one_summed_surface():
+    """A head whose tip touches actin: one closed surface of the summed field, not two meshes cutting."""
+    actin = actin_subunit()
+    tip = actin.surface(0.2).vertices.astype(np.float64)
+    contact = tip[np.argmax(tip[:, 0])]  # actin's outermost point along +x
+    flip = np.diag([-1.0, 1.0, -1.0])  # head pointing along -x, its tip at the origin
+    for gap, joined in ((0.0, True), (3.0, False)):
+        head = myosin_head().moved(flip, contact + [S1_LENGTH + gap, 0, 0])
+        both = Ellipsoids.concat([actin, head])
+        mesh = both.surface(0.2)
+        assert closed(mesh)
+        label = components(mesh)
+        on_actin = set(label[np.isin(mesh.attributes["blob"], np.arange(len(actin)))])
+        on_head = set(label[mesh.attributes["blob"] >= len(actin)])
+        assert bool(on_actin & on_head) == joined
