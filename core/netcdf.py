@@ -133,18 +133,21 @@ def _parametric_coordinate(ds, zdim):
 class NetCDFDataset(FileDataset):
     """A CF NetCDF file opened lazily; see the module docstring for what is understood."""
 
-    def __init__(self, path, *, rh_crit=RH_CRIT, p0=None, time_units=None, cache_steps=8):
+    def __init__(self, path, *, rh_crit=RH_CRIT, p0=None, time_units=None, cache_steps=8, opened=None):
         import xarray as xr
 
         self._p0, notes = p0, []
         self._notes = notes
-        try:
-            ds = xr.open_dataset(path, decode_times=False, mask_and_scale=True)
-        except Exception as exc:  # netCDF4/HDF5/scipy raise many types for a bad file
-            first = (str(exc).strip().splitlines() or [""])[0]
-            if "did not find a match" in first:
-                first = "the contents are not NetCDF 3 or NetCDF 4/HDF5"
-            raise DataError(f"cannot open as NetCDF ({type(exc).__name__}: {first})", path=path) from exc
+        if opened is not None:  # another reader's CF view of its file (GRIB through cfgrib)
+            ds = opened
+        else:
+            try:
+                ds = xr.open_dataset(path, decode_times=False, mask_and_scale=True)
+            except Exception as exc:  # netCDF4/HDF5/scipy raise many types for a bad file
+                first = (str(exc).strip().splitlines() or [""])[0]
+                if "did not find a match" in first:
+                    first = "the contents are not NetCDF 3 or NetCDF 4/HDF5"
+                raise DataError(f"cannot open as NetCDF ({type(exc).__name__}: {first})", path=path) from exc
         self._ds = ds
         lon_name, lat_name = _find_axis(ds, path, "lon"), _find_axis(ds, path, "lat")
         lon_dim, lat_dim = ds[lon_name].dims, ds[lat_name].dims

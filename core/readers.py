@@ -14,6 +14,8 @@ from pathlib import Path
 from .errors import DataError
 from .synthetic import SIZES, demo_dataset
 
+GRIB_SUFFIXES = (".grib", ".grib1", ".grib2", ".grb", ".grb1", ".grb2")
+
 
 def open_dataset(source, **kw):
     """Open ``source`` as a :class:`~nephele.core.dataset.Dataset`.
@@ -23,9 +25,14 @@ def open_dataset(source, **kw):
     source : str or os.PathLike
         ``"demo"`` (the synthetic 320×160×19 climate, 240 hourly steps),
         ``"demo:small"`` (64×32×8, 48 steps, for tests), a CF NetCDF file
-        (``.nc``, ``.nc4``, ``.cdf``) or a GrADS descriptor (``.ctl``).
+        (``.nc``, ``.nc4``, ``.cdf``), a GRIB file (``.grib``, ``.grib2``,
+        ``.grb``, ``.grb2``; needs cfgrib + ecCodes) or a GrADS descriptor
+        (``.ctl``).
     **kw
-        Passed to the reader (for the demo: ``seed``).
+        Passed to the reader: for the demo ``seed``; for NetCDF and GRIB the
+        overrides of what a file gets wrong or leaves out, ``p0=`` (Pa,
+        reference pressure of hybrid levels) and ``time_units=`` (CF units
+        such as ``"days since 1988-01-01"``); for GRIB also ``level_type=``.
 
     Raises
     ------
@@ -46,6 +53,12 @@ def open_dataset(source, **kw):
         from .netcdf import open_netcdf
 
         return open_netcdf(path, **kw)
+    if suffix in GRIB_SUFFIXES:
+        if not path.is_file():
+            raise DataError("file not found", path=path)
+        from .grib import open_grib
+
+        return open_grib(path, **kw)
     if suffix == ".ctl":
         if not path.is_file():
             raise DataError("file not found", path=path)
@@ -54,7 +67,7 @@ def open_dataset(source, **kw):
         return open_grads(path, **kw)
     if not path.exists():
         raise DataError("file not found", path=path)
-    raise DataError(f"unknown format {suffix or '(no extension)'!r}: expected demo, .nc or .ctl", path=path)
+    raise DataError(f"unknown format {suffix or '(no extension)'!r}: expected demo, .nc, .grib2 or .ctl", path=path)
 
 
 __all__ = ["open_dataset"]

@@ -1,0 +1,65 @@
+"""GRIB through cfgrib + ecCodes: a real regional GRIB2 file refused clearly, a real field written
+to GRIB2 by ecCodes read back exactly."""
+
+import numpy as np
+import pytest
+
+from nephele.core.errors import DataError
+from nephele.core.readers import open_dataset
+
+DATA = __import__("pathlib").Path(__file__).resolve().parent.parent / "data"
+
+
+def test_polar_stereographic_grib2_is_refused_in_one_line():
+    eccodes = pytest.importorskip("eccodes")
+    pytest.importorskip("cfgrib")
+    path = DATA / "polar_stereo.grib2"
+    with open(path, "rb") as f:  # independent: what ecCodes itself says the grid is
+        h = eccodes.codes_grib_new_from_file(f)
+        grid, edition = eccodes.codes_get(h, "gridType"), eccodes.codes_get(h, "edition")
+        eccodes.codes_release(h)
+    assert (grid, edition) == ("polar_stereographic", 2)
+    with pytest.raises(DataError, match=r"polar_stereo.grib2: field 't': grid type 'polar_stereographic' .* not supported") as err:
+        open_dataset(path)
+    assert "\n" not in str(err.value)
+
+
+def _write_grib(path, t_levels, levels_hpa, lon, lat_north_to_south):
+    eccodes = pytest.importorskip("eccodes")
+    with open(path, "wb") as out:
+        for k, p in enumerate(levels_hpa):
+            h = eccodes.codes_grib_new_from_samples("regular_ll_pl_grib2")
+            for key, val in (
+                ("Ni", lon.size), ("Nj", lat_north_to_south.size),
+                ("latitudeOfFirstGridPointInDegrees", float(lat_north_to_south[0])),
+                ("latitudeOfLastGridPointInDegrees", float(lat_north_to_south[-1])),
+                ("longitudeOfFirstGridPointInDegrees", float(lon[0])),
+                ("longitudeOfLastGridPointInDegrees", float(lon[-1])),
+                ("iDirectionIncrementInDegrees", float(lon[1] - lon[0])),
+                ("jDirectionIncrementInDegrees", float(lat_north_to_south[0] - lat_north_to_south[1])),
+                ("level", int(p)), ("dataDate", 19870102), ("dataTime", 0),
+                ("packingType", "grid_ieee"), ("precision", 1),
+            ):  # fmt: skip
+                eccodes.codes_set(h, key, val)
+            eccodes.codes_set_values(h, np.asarray(t_levels[k], dtype=np.float64).ravel())
+            eccodes.codes_write(h, out)
+            eccodes.codes_release(h)
+
+
+def test_regular_grib2_of_real_grads_temperatures(shared_data, tmp_path):
+    """The GrADS sample's T (5 x 4 degrees, 7 pressure levels) written to GRIB2 (IEEE float32) by ecCodes."""
+    pytest.importorskip("cfgrib")
+    raw = np.fromfile(shared_data / "climate" / "model.dat", dtype="<f4").reshape(5, 36, 46, 72)
+    t = raw[1, 22:29]  # second day, T on 1000..100 hPa, rows from 90 S
+    levels = np.array([1000, 850, 700, 500, 300, 200, 100])
+    keep = slice(1, None)  # 1000 hPa has UNDEF below ground: GRIB without a bitmap cannot carry it
+    lon, lat = np.arange(72) * 5.0, -90.0 + np.arange(46) * 4.0
+    path = tmp_path / "grads_T.grib2"
+    _write_grib(path, t[keep][:, ::-1], levels[keep], lon, lat[::-1])
+    ds = open_dataset(path)
+    assert ds.grid.shape == (6, 46, 72) and ds.grid.periodic_lon
+    np.testing.assert_array_equal(ds.grid.lat, lat)
+    np.testing.assert_array_equal(ds.read("temperature", 0), t[keep])
+    np.testing.assert_allclose(ds.read("pressure", 0)[:, 0, 0], levels[keep] * 100.0)
+    assert ds.times[0] == np.datetime64("1987-01-02T00:00", "s")
+    assert ds.read("t", 0) is ds.read("temperature", 0)
