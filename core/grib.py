@@ -16,6 +16,8 @@ References
 .. [2] N. Max and R. Crawfis, "Advances in Scientific Visualization".
 """
 
+import logging
+
 from .errors import DataError
 from .netcdf import NetCDFDataset
 
@@ -27,11 +29,20 @@ def _cubes(path):
         import cfgrib
     except ImportError as exc:  # cfgrib also fails to import when the ecCodes library is missing
         raise DataError(f"reading GRIB needs cfgrib and ecCodes ('pip install cfgrib eccodes'): {exc}", path=path) from None
+    # cfgrib logs a traceback per corrupted message and skips it; the user gets one line instead.
+    log = logging.getLogger("cfgrib")
+    level = log.level
+    log.setLevel(logging.CRITICAL)
     try:
-        return cfgrib.open_datasets(str(path), backend_kwargs={"indexpath": ""}, decode_times=False)
+        cubes = cfgrib.open_datasets(str(path), backend_kwargs={"indexpath": ""}, decode_times=False)
     except Exception as exc:  # ecCodes raises its own types for bad messages
         first = (str(exc).strip().splitlines() or [""])[0]
         raise DataError(f"cannot open as GRIB ({type(exc).__name__}: {first})", path=path) from exc
+    finally:
+        log.setLevel(level)
+    if not cubes:
+        raise DataError("cannot open as GRIB (no readable GRIB message: corrupted or not GRIB)", path=path)
+    return cubes
 
 
 def _level_type(cube):

@@ -63,3 +63,12 @@ def test_regular_grib2_of_real_grads_temperatures(shared_data, tmp_path):
     np.testing.assert_allclose(ds.read("pressure", 0)[:, 0, 0], levels[keep] * 100.0)
     assert ds.times[0] == np.datetime64("1987-01-02T00:00", "s")
     assert ds.read("t", 0) is ds.read("temperature", 0)
+
+
+def test_corrupted_grib_is_one_line(tmp_path):
+    pytest.importorskip("cfgrib")
+    path = tmp_path / "cut.grib2"
+    path.write_bytes((DATA / "polar_stereo.grib2").read_bytes()[:20000])  # a real message cut short
+    with pytest.raises(DataError, match=r"cut.grib2: cannot open as GRIB") as err:
+        open_dataset(path)
+    assert "\n" not in str(err.value)
