@@ -119,8 +119,8 @@ def add_muscle_film(*, seed=0, frames=240, spacing=0.5, frame_time=0.1, tiles=(3
     obj = new_object(OBJECT_NAME, Mesh.empty(["molecule"]), collection=scene.collection)
     obj.scale = (SCALE, SCALE, SCALE)
     frame.set_params(obj, {"kind": "muscle", "film": p, "frame_start": int(frame_start)})
-    mat = materials.attribute_material("Muscle molecules", "molecule", 0.0, 4.0, COLOURS, roughness=0.45,
-                                       emission=0.08)
+    mat = materials.attribute_material("Muscle molecules", "molecule", 0.0, 4.0, COLOURS, roughness=0.4,
+                                       emission=0.05)
     materials.assign(obj, mat)
     update_muscle(obj, frame.params(obj), scene, scene.frame_current)
     cell = film.simulate(p)[0]
@@ -154,13 +154,18 @@ def add_camera(scene, obj, cell, tiles):
     if bg is not None:
         bg.inputs["Color"].default_value = (0.01, 0.012, 0.03, 1.0)
         bg.inputs["Strength"].default_value = 1.0
-    light = bpy.data.objects.get("Muscle light")
-    if light is None:
-        ld = bpy.data.lights.new("Muscle light", "SUN")
-        ld.energy = 3.0
-        light = bpy.data.objects.new("Muscle light", ld)
-        scene.collection.objects.link(light)
-    light.rotation_euler = (math.radians(50), math.radians(20), math.radians(30))
+    # Inside a crystal a distant sun is shadowed by the copies: a headlight on the camera lights what it sees,
+    # and a faint emission keeps the far, unlit molecules readable.
+    old = bpy.data.objects.get("Muscle light")
+    if old is not None:
+        bpy.data.objects.remove(old, do_unlink=True)
+    ld = bpy.data.lights.new("Muscle light", "POINT")
+    ld.energy = 3.0
+    ld.shadow_soft_size = 0.02
+    light = bpy.data.objects.new("Muscle light", ld)
+    light.parent = cam
+    light.location = (0.03, 0.03, 0.0)
+    scene.collection.objects.link(light)
     return cam
 
 
