@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import DataError
-from .grid import GlobeGrid
+from .grid import EARTH_RADIUS, GlobeGrid
 
 
 @dataclass(frozen=True)
@@ -69,6 +69,8 @@ class Dataset(abc.ABC):
     levels_follow_air = False
     aliases = {}
     """File names of fields → their standard names (readers fill it)."""
+    earth_radius = EARTH_RADIUS
+    """Planet radius in metres for geometry and winds → angular speed (readers take it from the file)."""
 
     def __init__(self, grid, times, variables, source, cache_steps=8):
         self.grid = grid

@@ -52,7 +52,7 @@ import numpy as np
 
 from .errors import DataError
 from .gridfile import FileDataset, cf_times_or_steps, plausible_units, pressure_scale, standard_name, step_times, tidy_lonlat
-from .grid import GlobeGrid, rotated_pole_matrix
+from .grid import EARTH_RADIUS, GlobeGrid, rotated_pole_matrix
 from .humidity import G0, RH_CRIT, standard_height
 
 _LON_UNITS = ("degrees_east", "degree_east", "degree_e", "degrees_e", "degreee", "degreese")
@@ -61,6 +61,8 @@ _HEIGHT_NAMES = ("zg", "z", "hgt", "geopotential_height", "gh", "geopot", "phi")
 _PARAMETRIC = ("atmosphere_hybrid_sigma_pressure_coordinate", "atmosphere_sigma_coordinate", "atmosphere_hybrid_height_coordinate")
 CAM_P0 = 100000.0
 """CAM's reference pressure (Pa), used when a file names ``P0`` but does not store it."""
+CAM_RADIUS = 6371220.0
+"""CAM's planet radius (m, ``rearth`` in CAM's shr_const_mod), used for files with NCAR hybrid levels."""
 
 
 def _attr(var, key):
@@ -133,7 +135,24 @@ def _parametric_coordinate(ds, zdim):
 class NetCDFDataset(FileDataset):
     """A CF NetCDF file opened lazily; see the module docstring for what is understood."""
 
-    def __init__(self, path, *, rh_crit=RH_CRIT, p0=None, time_units=None, cache_steps=8, opened=None):
+    def __init__(self, path, *, rh_crit=RH_CRIT, p0=None, time_units=None, radius=None, variables=None, cache_steps=8, opened=None):
+        """Open ``path``; the keywords override what a file gets wrong or leaves out.
+
+        Parameters
+        ----------
+        p0 : float, optional
+            Reference pressure (Pa) of hybrid levels, replacing the file's or
+            the default.
+        time_units : str, optional
+            CF time units (``"days since 1988-01-01"``) replacing the file's.
+        radius : float, optional
+            Planet radius (m), replacing the file's grid mapping or model convention.
+        variables : dict, optional
+            Standard name → file variable (``{"temperature": "T2"}``) where
+            the file's names or ``standard_name`` are not recognised.
+        opened : xarray.Dataset, optional
+            Another reader's CF view of the file (GRIB through cfgrib).
+        """
         import xarray as xr
 
         self._p0, notes = p0, []
@@ -206,10 +225,21 @@ class NetCDFDataset(FileDataset):
 
         heights, level_index, pressure, vertical = self._vertical(ds, path, zdim, names, lat_index, lon_index, lat.size, lon.size)
         grid = GlobeGrid(lon, lat, heights, rotation=rotation).validate(path)
+        if radius is not None:
+            self.earth_radius = float(radius)
+        elif self.earth_radius is None and "NCAR" in vertical:
+            self.earth_radius = CAM_RADIUS
+            notes.append(f"radius: NCAR hybrid levels, so CAM's planet radius {CAM_RADIUS:g} m")
+        elif self.earth_radius is None:
+            self.earth_radius = EARTH_RADIUS
 
+        chosen = {raw: std for std, raw in (variables or {}).items()}
+        for raw in chosen:
+            if raw not in names:
+                raise DataError(f"is not a 3-D field on the grid (fields: {', '.join(names)})", path=path, field=raw)
         fields, taken = {}, {}
-        for name in names:
-            std = standard_name(name, ds[name].attrs)
+        for name in sorted(names, key=lambda n: n not in chosen):
+            std = chosen.get(name) or standard_name(name, ds[name].attrs)
             if std in fields:
                 skipped[name] = f"another variable ({taken[std]!r}) already gives {std!r}"
                 continue
@@ -356,7 +386,8 @@ class NetCDFDataset(FileDataset):
         a_pa = _values(ds, a_name, path, zdim) * p0
         b = _values(ds, b_name, path, zdim)
         ps_scale = pressure_scale(_attr(ds[ps_name], "units") or "Pa", path, ps_name)
-        return self._hybrid_pressure(a_pa, b, ps_name, ps_scale, surface, path, zdim)
+        heights, level_index, pressure, _ = self._hybrid_pressure(a_pa, b, ps_name, ps_scale, surface, path, zdim)
+        return heights, level_index, pressure, "hybrid sigma-pressure (terrain following, NCAR A_var/B_var)"
 
     def _hybrid_pressure(self, a_pa, b, ps_name, ps_scale, surface, path, zdim):
         ref = a_pa + b * 101325.0

@@ -408,7 +408,11 @@ def test_cam_history_file_ncar_hybrid_levels():
     ds = open_dataset(path)
     assert ds.grid.shape == (18, 64, 128) and ds.times.size == 2
     assert ds.times[0] == np.datetime64("0049-09-01", "s") + np.timedelta64(107, "D")
-    assert ds.notes == ["lev: reference pressure 'P0' is not in the file; used CAM's P0 = 100000 Pa"]
+    assert ds.notes == [
+        "lev: reference pressure 'P0' is not in the file; used CAM's P0 = 100000 Pa",
+        "radius: NCAR hybrid levels, so CAM's planet radius 6.37122e+06 m",
+    ]
+    assert ds.earth_radius == 6371220.0
     with _nc(path) as f:
         hyam, hybm, ps, t_file, lat = (f[n][:].astype(np.float64) for n in ("hyam", "hybm", "PS", "T", "lat"))
     # File lev runs top -> bottom (index 0 = 3.6 hPa); ours bottom -> top; lat is already ascending.
@@ -424,7 +428,12 @@ def test_cam_history_file_ncar_hybrid_levels():
     # The caller's P0 replaces the default.
     ds2 = open_dataset(path, p0=90000.0)
     np.testing.assert_allclose(ds2.read("pressure", t)[k, j, i], hyam[kf] * 90000.0 + hybm[kf] * ps[t, j, i], rtol=1e-6)
-    assert ds2.notes == []
+    assert not any("P0" in n for n in ds2.notes)
+    # Overrides of what the file says or leaves out: the radius, which variable is which.
+    ds3 = open_dataset(path, radius=6.4e6, variables={"theta_like": "T"})
+    assert ds3.earth_radius == 6.4e6 and "temperature" not in ds3 and ds3.read("T", t) is ds3.read("theta_like", t)
+    with pytest.raises(DataError, match=r"cam_vinth2p.nc: field 'TS': is not a 3-D field"):
+        open_dataset(path, variables={"temperature": "TS"})
     mesh = _contour(ds, "temperature", 250.0)
     assert len(mesh.faces) > 1000
     from nephele.core.grid import xyz_to_lonlat
