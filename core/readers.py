@@ -26,8 +26,8 @@ def open_dataset(source, **kw):
         ``"demo"`` (the synthetic 320×160×19 climate, 240 hourly steps),
         ``"demo:small"`` (64×32×8, 48 steps, for tests), a CF NetCDF file
         (``.nc``, ``.nc4``, ``.cdf``), a GRIB file (``.grib``, ``.grib2``,
-        ``.grb``, ``.grb2``; needs cfgrib + ecCodes) or a GrADS descriptor
-        (``.ctl``).
+        ``.grb``, ``.grb2``; needs cfgrib + ecCodes), a Zarr store
+        (``.zarr`` directory; needs zarr) or a GrADS descriptor (``.ctl``).
     **kw
         Passed to the reader: for the demo ``seed``; for NetCDF and GRIB the
         overrides of what a file gets wrong or leaves out, ``p0=`` (Pa,
@@ -53,6 +53,12 @@ def open_dataset(source, **kw):
         from .netcdf import open_netcdf
 
         return open_netcdf(path, **kw)
+    if suffix == ".zarr":
+        if not path.exists():
+            raise DataError("file not found", path=path)
+        from .zarrstore import open_zarr_store
+
+        return open_zarr_store(path, **kw)
     if suffix in GRIB_SUFFIXES:
         if not path.is_file():
             raise DataError("file not found", path=path)
@@ -67,7 +73,7 @@ def open_dataset(source, **kw):
         return open_grads(path, **kw)
     if not path.exists():
         raise DataError("file not found", path=path)
-    raise DataError(f"unknown format {suffix or '(no extension)'!r}: expected demo, .nc, .grib2 or .ctl", path=path)
+    raise DataError(f"unknown format {suffix or '(no extension)'!r}: expected demo, .nc, .grib2, .zarr or .ctl", path=path)
 
 
 __all__ = ["open_dataset"]

@@ -494,3 +494,21 @@ def test_um_rotated_pole_hybrid_height():
     np.testing.assert_allclose(got_lon, lon_true, atol=1e-9)
     lon_p, lat_p, _ = xyz_to_lonlat(ds.grid.points(dtype=np.float64)[k, j, i])
     np.testing.assert_allclose([lon_p, lat_p], [lon_true[j, i], lat_true[j, i]], atol=1e-9)
+
+
+def test_zarr_store_written_from_the_cam_file(tmp_path):
+    """The CAM file copied to a Zarr store by xarray reads exactly as the NetCDF file does."""
+    pytest.importorskip("zarr")
+    src = DATA / "cam_vinth2p.nc"
+    store = tmp_path / "cam.zarr"
+    with xr.open_dataset(src, decode_times=False) as f:
+        f.chunk({"time": 1}).to_zarr(store)
+    ds, ref = open_dataset(store), open_dataset(src)
+    assert ds.grid.shape == ref.grid.shape and ds.notes == ref.notes
+    np.testing.assert_array_equal(ds.times, ref.times)
+    np.testing.assert_array_equal(ds.grid.height, ref.grid.height)
+    for name in ("T", "pressure"):
+        np.testing.assert_array_equal(ds.read(name, 1), ref.read(name, 1))
+    (tmp_path / "empty.zarr").mkdir()
+    with pytest.raises(DataError, match=r"empty.zarr: cannot open as a Zarr store"):
+        open_dataset(tmp_path / "empty.zarr")
