@@ -162,6 +162,29 @@ def test_hybrid_height_and_plain_height(tmp_path):
 
 
 # ---------------------------------------------------------------------------- bad input
+def test_cf_hybrid_without_p0_and_percent_labelled_fraction(tmp_path):
+    """formula_terms naming a P0 the file lacks: CAM's 100000 Pa with a note; RH labelled '1' holding percent."""
+    lat, lon = np.array([-30.0, 0.0, 30.0]), np.arange(0.0, 360.0, 60.0)
+    hyam, hybm = np.array([0.0, 0.05, 0.2, 0.1]), np.array([0.99, 0.8, 0.3, 0.0])
+    coords = {
+        "lev": ("lev", np.arange(4.0), {"standard_name": "atmosphere_hybrid_sigma_pressure_coordinate", "formula_terms": "a: hyam b: hybm p0: P0 ps: PS"}),
+        "lat": ("lat", lat, {"units": "degrees_north"}),
+        "lon": ("lon", lon, {"units": "degrees_east"}),
+    }
+    data = {
+        "hyam": ("lev", hyam),
+        "hybm": ("lev", hybm),
+        "PS": (("lat", "lon"), np.full((3, 6), 98000.0), {"units": "Pa"}),
+        "rh": (("lev", "lat", "lon"), np.full((4, 3, 6), 95.0, dtype=np.float32), {"units": "1"}),
+    }
+    ds = open_dataset(_write(tmp_path / "nop0.nc", data, coords))
+    np.testing.assert_allclose(ds.read("pressure", 0)[:, 2, 3], hyam * 100000.0 + hybm * 98000.0, rtol=1e-6)
+    assert "lev: reference pressure 'P0' is not in the file; used CAM's P0 = 100000 Pa" in ds.notes
+    assert "rh: units '1' but values reach 95; read as percent" in ds.notes
+    np.testing.assert_allclose(ds.read("rh", 0), 0.95, rtol=1e-6)
+    assert ds.times.size == 1 and "time: the file has no time axis; one step" in ds.notes
+
+
 def test_missing_file_and_unknown_format(tmp_path):
     with pytest.raises(DataError, match="missing.nc: file not found"):
         open_dataset(tmp_path / "missing.nc")
