@@ -61,6 +61,14 @@ _HEIGHT_NAMES = ("zg", "z", "hgt", "geopotential_height", "gh", "geopot", "phi")
 _PARAMETRIC = ("atmosphere_hybrid_sigma_pressure_coordinate", "atmosphere_sigma_coordinate", "atmosphere_hybrid_height_coordinate")
 CAM_P0 = 100000.0
 """CAM's reference pressure (Pa), used when a file names ``P0`` but does not store it."""
+VERTICAL_KINDS = {
+    "pressure_hpa": ("air_pressure", "hpa"),
+    "pressure_pa": ("air_pressure", "pa"),
+    "height_m": ("height", "m"),
+    "height_km": ("height", "km"),
+    "ncar_hybrid": ("", "hybrid_sigma_pressure"),
+}
+"""What ``vertical=`` may say the level coordinate is (standard name and units it stands for)."""
 CAM_RADIUS = 6371220.0
 """CAM's planet radius (m, ``rearth`` in CAM's shr_const_mod), used for files with NCAR hybrid levels."""
 
@@ -135,11 +143,15 @@ def _parametric_coordinate(ds, zdim):
 class NetCDFDataset(FileDataset):
     """A CF NetCDF file opened lazily; see the module docstring for what is understood."""
 
-    def __init__(self, path, *, rh_crit=RH_CRIT, p0=None, time_units=None, radius=None, variables=None, cache_steps=8, opened=None):
+    def __init__(self, path, *, rh_crit=RH_CRIT, vertical=None, p0=None, time_units=None, radius=None, variables=None, cache_steps=8, opened=None):
         """Open ``path``; the keywords override what a file gets wrong or leaves out.
 
         Parameters
         ----------
+        vertical : str, optional
+            What the level coordinate is when the file does not say
+            (:data:`VERTICAL_KINDS`: ``"pressure_hpa"``, ``"pressure_pa"``,
+            ``"height_m"``, ``"height_km"``, ``"ncar_hybrid"``).
         p0 : float, optional
             Reference pressure (Pa) of hybrid levels, replacing the file's or
             the default.
@@ -155,7 +167,7 @@ class NetCDFDataset(FileDataset):
         """
         import xarray as xr
 
-        self._p0, notes = p0, []
+        self._p0, self._vertical_kind, notes = p0, vertical, []
         self._notes = notes
         if opened is not None:  # another reader's CF view of its file (GRIB through cfgrib)
             ds = opened
@@ -293,6 +305,10 @@ class NetCDFDataset(FileDataset):
             raise DataError("has NaN level coordinates", path=path, field=zdim)
         std = _attr(zvar, "standard_name").lower()
         units = _attr(zvar, "units").lower()
+        if self._vertical_kind is not None:
+            if self._vertical_kind not in VERTICAL_KINDS:
+                raise DataError(f"vertical={self._vertical_kind!r} is not one of {', '.join(VERTICAL_KINDS)}", path=path, field=zdim)
+            std, units = VERTICAL_KINDS[self._vertical_kind]
         take = np.ix_(lat_index, lon_index)
 
         def surface(name, t):
@@ -361,7 +377,7 @@ class NetCDFDataset(FileDataset):
             return np.broadcast_to(heights[:, None, None], (heights.size, nj, ni)), level_index, None, "height levels (flat)"
         raise DataError(
             f"cannot tell what the vertical coordinate is (standard_name {std or 'none'!r}, units {units or 'none'!r}); "
-            "expected pressure, hybrid sigma-pressure, hybrid height or height",
+            "expected pressure, hybrid sigma-pressure, hybrid height or height (say which with vertical=...)",
             path=path,
             field=zdim,
         )

@@ -487,6 +487,21 @@ def test_ncl_file_month_time_and_kelvin_labelled_celsius():
     assert len(_contour(ds, "T", 260.0).faces) > 1000
 
 
+def test_vertical_override_on_unlabelled_levels(tmp_path):
+    """The NCL file with its level units removed: refused in one line, read as before with vertical=."""
+    with xr.open_dataset(DATA / "ncl_nc4uvt_T.nc", decode_times=False) as f:
+        f = f.load()
+    f["lev"].attrs.pop("units")
+    f.to_netcdf(tmp_path / "nounits.nc")
+    with pytest.raises(DataError, match=r"nounits.nc: field 'lev': cannot tell what the vertical coordinate is .*vertical="):
+        open_dataset(tmp_path / "nounits.nc")
+    ds, ref = open_dataset(tmp_path / "nounits.nc", vertical="pressure_hpa"), open_dataset(DATA / "ncl_nc4uvt_T.nc")
+    np.testing.assert_array_equal(ds.grid.height, ref.grid.height)
+    np.testing.assert_array_equal(ds.read("pressure", 0), ref.read("pressure", 0))
+    with pytest.raises(DataError, match=r"field 'lev': vertical='sigma' is not one of"):
+        open_dataset(tmp_path / "nounits.nc", vertical="sigma")
+
+
 def test_um_rotated_pole_hybrid_height():
     """UM: rotated pole, scalar time, hybrid height on the auxiliary level_height/sigma/surface_altitude."""
     path = DATA / "um_hybrid_height.nc"
