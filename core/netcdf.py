@@ -97,9 +97,11 @@ def _find_axis(ds, path, kind):
 
 
 def _find_time(ds):
-    for name, var in ds.variables.items():
-        if var.ndim <= 1 and (_attr(var, "standard_name").lower() == "time" or _attr(var, "axis").upper() == "T" or " since " in _attr(var, "units")):
-            return name
+    """The time coordinate: a 1-D one first (cfgrib's ``valid_time`` along ``step``), else a scalar one."""
+    for ndim in (1, 0):
+        for name, var in ds.variables.items():
+            if var.ndim == ndim and (_attr(var, "standard_name").lower() == "time" or _attr(var, "axis").upper() == "T" or " since " in _attr(var, "units")):
+                return name
     return "time" if "time" in ds.variables else None
 
 

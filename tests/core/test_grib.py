@@ -24,9 +24,9 @@ def test_polar_stereographic_grib2_is_refused_in_one_line():
     assert "\n" not in str(err.value)
 
 
-def _write_grib(path, t_levels, levels_hpa, lon, lat_north_to_south):
+def _write_grib(path, t_levels, levels_hpa, lon, lat_north_to_south, step=0, mode="wb"):
     eccodes = pytest.importorskip("eccodes")
-    with open(path, "wb") as out:
+    with open(path, mode) as out:
         for k, p in enumerate(levels_hpa):
             h = eccodes.codes_grib_new_from_samples("regular_ll_pl_grib2")
             for key, val in (
@@ -38,7 +38,7 @@ def _write_grib(path, t_levels, levels_hpa, lon, lat_north_to_south):
                 ("iDirectionIncrementInDegrees", float(lon[1] - lon[0])),
                 ("jDirectionIncrementInDegrees", float(lat_north_to_south[0] - lat_north_to_south[1])),
                 ("level", int(p)), ("dataDate", 19870102), ("dataTime", 0),
-                ("packingType", "grid_ieee"), ("precision", 1),
+                ("stepRange", str(step)), ("packingType", "grid_ieee"), ("precision", 1),
             ):  # fmt: skip
                 eccodes.codes_set(h, key, val)
             eccodes.codes_set_values(h, np.asarray(t_levels[k], dtype=np.float64).ravel())
@@ -63,6 +63,13 @@ def test_regular_grib2_of_real_grads_temperatures(shared_data, tmp_path):
     np.testing.assert_allclose(ds.read("pressure", 0)[:, 0, 0], levels[keep] * 100.0)
     assert ds.times[0] == np.datetime64("1987-01-02T00:00", "s")
     assert ds.read("t", 0) is ds.read("temperature", 0)
+    # A forecast: the same day's T and the next day's as steps 0 h and 24 h of one run.
+    fc = tmp_path / "forecast.grib2"
+    _write_grib(fc, t[keep][:, ::-1], levels[keep], lon, lat[::-1], step=0)
+    _write_grib(fc, raw[2, 22:29][keep][:, ::-1], levels[keep], lon, lat[::-1], step=24, mode="ab")
+    ds = open_dataset(fc)
+    np.testing.assert_array_equal(ds.times, np.array(["1987-01-02T00", "1987-01-03T00"], dtype="datetime64[s]"))
+    np.testing.assert_array_equal(ds.read("temperature", 1), raw[2, 22:29][keep])
 
 
 def test_corrupted_grib_is_one_line(tmp_path):
