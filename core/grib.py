@@ -17,6 +17,7 @@ References
 """
 
 import logging
+import warnings
 
 from .errors import DataError
 from .netcdf import NetCDFDataset
@@ -34,7 +35,9 @@ def _cubes(path):
     level = log.level
     log.setLevel(logging.CRITICAL)
     try:
-        cubes = cfgrib.open_datasets(str(path), backend_kwargs={"indexpath": ""}, decode_times=False)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", FutureWarning)  # xarray's merge defaults inside cfgrib, not the user's concern
+            cubes = cfgrib.open_datasets(str(path), backend_kwargs={"indexpath": ""}, decode_times=False)
     except Exception as exc:  # ecCodes raises its own types for bad messages
         first = (str(exc).strip().splitlines() or [""])[0]
         raise DataError(f"cannot open as GRIB ({type(exc).__name__}: {first})", path=path) from exc
