@@ -499,7 +499,10 @@ class CrossBridges:
         return sub.origins + r * sub.rotations[:, :, 0], sub.filament
 
     def overlaps(self, R=None):
-        """Per head: does any of its spheres overlap a thin filament, a thick backbone or another head?"""
+        """Per head: does any of its spheres overlap a thin filament, a thick backbone or another head?
+
+        The tip sphere of a bound head is exempt from the thin filaments (its spring holds it at its site).
+        """
         c = self.spheres(R)
         n = len(c)
         flat = c.reshape(-1, 3)
@@ -507,10 +510,13 @@ class CrossBridges:
         box = lt.box[:2]
         xy = lt.wrap(flat)[:, None, :2]
         bad = np.zeros(len(flat), bool)
-        for axes, rad in self._axes:
+        for k, (axes, rad) in enumerate(self._axes):
             d = xy - axes[None]
             d -= np.round(d / box) * box
-            bad |= (np.einsum("nak,nak->na", d, d) < (rad + HEAD_SPHERE_RADIUS - 1e-9) ** 2).any(axis=1)
+            hit = (np.einsum("nak,nak->na", d, d) < (rad + HEAD_SPHERE_RADIUS - 1e-9) ** 2).any(axis=1)
+            if k == 0:  # a bound head's tip rests on its actin: it may press into the thin filament
+                hit.reshape(n, -1)[:, -1] &= self.sites < 0
+            bad |= hit
         bad = bad.reshape(n, -1).any(axis=1)
         i, j = self._head_pairs(flat)
         if len(i):
@@ -577,6 +583,38 @@ class CrossBridges:
             R_eq[strong] = rotation_matrix(stroke) @ self.R_bind[strong]
         return R_eq
 
+    def _tip_in_actin(self, idx):
+        """(len(idx),) whether each head's tip sphere overlaps a thin filament, and the outward directions."""
+        box = self.lattice.box[:2]
+        thin = self._axes[0][0]
+        tip = self.lattice.wrap(self.heads.pivots[idx] + TIP_REACH * self.R[idx, :, 0])[:, :2]
+        d = tip[:, None] - thin[None]
+        d -= np.round(d / box) * box
+        r2 = np.einsum("nak,nak->na", d, d)
+        k = np.argmin(r2, axis=1)
+        inside = r2[np.arange(len(idx)), k] < (lat.THIN_RADIUS + HEAD_SPHERE_RADIUS) ** 2
+        return inside, np.column_stack([d[np.arange(len(idx)), k], np.zeros(len(idx))])
+
+    def _push_out(self, idx, step=0.05, tries=30):
+        """Turn released heads whose tips pressed into the actin out of it about their hinges (the bounce).
+
+        Returns the heads that could not be freed without an overlap; they are put back as they were.
+        """
+        R0 = self.R[idx].copy()
+        todo = idx
+        for _ in range(tries):
+            inside, out = self._tip_in_actin(todo)
+            todo, out = todo[inside], out[inside]
+            if not len(todo):
+                break
+            u = self.R[todo, :, 0]
+            w = np.cross(u, out)
+            w *= step / np.maximum(np.linalg.norm(w, axis=1), 1e-12)[:, None]
+            self.R[todo] = rotation_matrix(w) @ self.R[todo]
+        stuck = idx[self.overlaps()[idx]]
+        self.R[stuck] = R0[np.isin(idx, stuck)]
+        return stuck
+
     def _torque_and_pull(self):
         p = self.p
         R_eq = self._rest_frames()
@@ -613,8 +651,16 @@ class CrossBridges:
         new[lose] = M_ADP_PI
         self.sites[idx[first]] = nearest[idx[first]]
         self.R_bind[idx[first]] = self.R[idx[first]]
+        released = np.flatnonzero((self.sites >= 0) & ~BOUND[new])
+        old_sites, old_states = self.sites[released], self.states[released]
         self.sites[~BOUND[new]] = -1
         self.states = new
+        if len(released):
+            stuck = self._push_out(released)
+            # A tip that cannot get out of the actin without hitting something stays bound this step.
+            keep = np.isin(released, stuck)
+            self.sites[released[keep]] = old_sites[keep]
+            self.states[released[keep]] = old_states[keep]
         # Mechanics.
         tau, pull = self._torque_and_pull()
         dw = tau * p.dt / self.drag + np.sqrt(2 * self.kT * p.dt / self.drag) * rng.standard_normal((n, 3))

@@ -257,3 +257,28 @@ def test_frames_are_recorded():
     assert len(frames) == 3 and frames[0].time == 0
     assert frames[2].time == pytest.approx(0.04)
     assert sim.run(0) == []
+
+
+def _one_bound_head(state):
+    """Zero temperature, no cycle transitions: one head bound to the site nearest its tip, in ``state``."""
+    sim = br.CrossBridges(lat.unit_cell(), br.Params(kT=0.0, rates={}), seed=0)
+    pos, fil = sim.site_positions()
+    tips = sim.heads.pivots + br.TIP_REACH * sim.R[:, :, 0]
+    d = np.linalg.norm(sim.lattice.min_image(tips[:, None] - pos[None]), axis=2)
+    i = int(np.argmin(d.min(axis=1)))
+    site = int(np.argmin(d[i]))
+    sim.states[:] = br.M_ADP_PI
+    sim.states[i], sim.sites[i], sim.R_bind[i] = state, site, sim.R[i]
+    for _ in range(300):
+        sim.step()
+    return sim.slide, fil[site]
+
+
+def test_power_stroke_slides_the_filament_towards_the_m_line():
+    weak, f = _one_bound_head(br.AM_ADP_PI)
+    strong, f2 = _one_bound_head(br.AM_ADP)
+    assert f == f2
+    # Only the bound head's filament moves, and the stroke moves it further towards -z than weak binding does.
+    others = np.arange(6) != f
+    np.testing.assert_array_equal(strong[others], 0.0)
+    assert strong[f] - weak[f] < -1.0
