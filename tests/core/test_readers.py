@@ -550,3 +550,24 @@ def test_zarr_store_written_from_the_cam_file(tmp_path):
     (tmp_path / "empty.zarr").mkdir()
     with pytest.raises(DataError, match=r"empty.zarr: cannot open as a Zarr store"):
         open_dataset(tmp_path / "empty.zarr")
+
+
+def test_packed_and_filled_copy_of_the_cam_file(tmp_path):
+    """The CAM T packed to int16 (scale_factor/add_offset) with _FillValue holes: unpacked within half a step, holes NaN."""
+    src = DATA / "cam_vinth2p.nc"
+    with xr.open_dataset(src, decode_times=False) as f:
+        f = f.load()
+    t = f["T"].values.copy()
+    t[0, 17, 10:12, 20:25] = np.nan  # a hole in the bottom level
+    f["T"].values[:] = t
+    scale, offset = 0.01, 250.0
+    f["T"].encoding = {"dtype": "int16", "scale_factor": scale, "add_offset": offset, "_FillValue": np.int16(-32768)}
+    f.to_netcdf(tmp_path / "packed.nc")
+    with _nc(tmp_path / "packed.nc") as g:
+        assert g["T"].dtype == np.int16 and g["T"].scale_factor == scale
+    ds = open_dataset(tmp_path / "packed.nc")
+    got = ds.read("T", 0)
+    want = t[0, ::-1]  # ours bottom -> top
+    assert np.isnan(got[0, 10:12, 20:25]).all() and np.isnan(got).sum() == 10
+    ok = np.isfinite(want)
+    assert np.max(np.abs(got[ok] - want[ok])) <= 0.5 * scale + 1e-4
