@@ -7,8 +7,10 @@ holds 3 thick and 6 thin filaments: the sqrt(3) x sqrt(3) supercell, spanned by
 
     B1 = a (3/2, sqrt(3)/2),   B2 = a (0, sqrt(3)),
 
-which is also the cell of the frog "superlattice", where one thick filament of
-the three is turned 60 degrees about its axis relative to the other two.  The
+the smallest cell that can hold a "superlattice" like the frog's (Luther and
+Squire 1980), in which neighbouring thick filaments differ in rotation; by
+default one thick filament of the three is turned 60 degrees about its axis
+relative to the other two (``thick_turn``).  The
 cell is stored in the orthorhombic fundamental domain
 ``[0, 3a/2) x [0, sqrt(3) a) x [0, L)``: leaving it through ``x = 3a/2``
 re-enters at ``x = 0`` shifted by ``-sqrt(3) a / 2`` in y.  Two copies of the
@@ -78,7 +80,7 @@ HEAD_SPLAY = np.deg2rad(35.0)
 """Azimuthal splay of the two heads of one myosin molecule from their pair's direction."""
 
 SUPERLATTICE_TURNS = (0.0, np.pi / 3, np.pi / 3)
-"""Thick-filament azimuths in the cell: one filament turned 60 degrees from the other two."""
+"""Thick-filament azimuths in the cell: one filament turned 60 degrees from the other two (a choice, see above)."""
 
 
 @dataclass(frozen=True)
