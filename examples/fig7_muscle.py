@@ -67,6 +67,10 @@ def build(**options):
         bpy.data.objects.remove(cam, do_unlink=True)
         cam = dome_ops.add_dome_camera(o["dome"], stereo=bool(o["stereo"]), separation=float(o["separation"]),
                                        location=tuple(eye), width=w, height=h, scene=scene)
+        light = bpy.data.objects.get("Muscle light")  # the headlight rides with the audience
+        if light is not None:
+            light.parent = cam
+            light.location = (0.03, 0.03, 0.0)
     return {"film": obj, "camera": cam}
 
 
