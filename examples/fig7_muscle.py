@@ -35,7 +35,7 @@ DEFAULTS = {
     "tiles": (3, 3, 1),
     "dome": None,  # or "omnimax" / "domemaster"
     "stereo": False,
-    "separation": 0.03,  # scene units (1 = 100 nm): a 3 nm eye base, hyperstereo for molecules
+    "separation": 0.006,  # scene units (1 = 100 nm): a 0.6 nm eye base, about 1/30 of the nearest molecules
     "size": (320, 240),
     "samples": 8,
 }

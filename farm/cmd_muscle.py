@@ -30,7 +30,8 @@ def add_arguments(p):
     p.add_argument("--samples", type=int, default=8, help="Cycles samples (default 8)")
     p.add_argument("--dome", choices=("none", "omnimax", "domemaster"), default="none", help="dome frame (default none)")
     p.add_argument("--stereo", action="store_true", help="left and right eyes (with --dome)")
-    p.add_argument("--separation", type=float, default=0.03, help="eye separation in scene units (1 = 100 nm)")
+    p.add_argument("--separation", type=float, default=0.006,
+                   help="eye separation in scene units (1 = 100 nm; default 0.006)")
     p.add_argument("--export", choices=("ply", "glb", "obj"), help="write meshes (nm) instead of rendering")
     p.add_argument("--info", action="store_true", help="print the cross-bridge states per frame; render nothing")
     add_cluster_arguments(p)

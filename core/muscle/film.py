@@ -87,7 +87,7 @@ def _actin_model():
     a = actin_subunit()
     c = (a.centers * a.weights[:, None]).sum(0) / a.weights.sum()
     phi = np.arctan2(c[1], c[0])
-    return a.moved(lat._rot_z(-phi), np.zeros(3))
+    return a.moved(lat.rot_z(-phi), np.zeros(3))
 
 
 @dataclass

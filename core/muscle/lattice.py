@@ -219,7 +219,8 @@ def unit_cell(d10=D10, length=CELL_LENGTH, thick_turn=SUPERLATTICE_TURNS, thin_t
     return Lattice(a, float(length), thick, thick_turn, np.zeros(3), thin, thin_turn, thin_z0)
 
 
-def _rot_z(phi):
+def rot_z(phi):
+    """Rotations (..., 3, 3) by ``phi`` radians about z."""
     c, s = np.cos(phi), np.sin(phi)
     r = np.zeros(np.shape(phi) + (3, 3))
     r[..., 0, 0], r[..., 0, 1], r[..., 1, 0], r[..., 1, 1], r[..., 2, 2] = c, -s, s, c, 1.0
@@ -258,7 +259,7 @@ def actin_subunits(lattice, slide=None):
     phi = lattice.thin_turn[f] + jj * ACTIN_TWIST
     z = np.mod(lattice.thin_z0[f] + jj * ACTIN_RISE + slide[f], lattice.length)
     origins = np.column_stack([lattice.thin_xy[f], z])
-    return Subunits(_rot_z(phi), origins, f, jj)
+    return Subunits(rot_z(phi), origins, f, jj)
 
 
 @dataclass
