@@ -1,0 +1,6 @@
+"""Flow volumes (Fig. 5): smoke released through a generator polygon, as tetrahedra."""
+
+from .climate import ClimateVelocity
+from .volume import FlowVolume, flow_volume
+
+__all__ = ["ClimateVelocity", "FlowVolume", "flow_volume"]
