@@ -15,7 +15,7 @@ References
 
 import numpy as np
 
-from ..advect import WindField
+from ..advect import WindField, steps_to_keep
 from ..errors import DataError
 from ..grid import DEFAULT_EXAGGERATION, EARTH_RADIUS, globe_radius, height_from_radius
 
@@ -31,10 +31,13 @@ class ClimateVelocity:
         The globe's scene radius and vertical exaggeration.
     nan : {"error", "zero"}
         Missing winds raise :class:`DataError` or count as calm air.
+    keep_hours : float
+        Hours of converted wind steps kept (every RK4 sweep visits the whole
+        release window, so fewer than it would re-read every step each sweep).
     """
 
-    def __init__(self, dataset, radius=1.0, exaggeration=DEFAULT_EXAGGERATION, nan="error"):
-        self.wind = WindField(dataset, nan=nan, read_ahead=False)
+    def __init__(self, dataset, radius=1.0, exaggeration=DEFAULT_EXAGGERATION, nan="error", keep_hours=48):
+        self.wind = WindField(dataset, nan=nan, read_ahead=False, cache_steps=steps_to_keep(dataset.grid, keep_hours))
         self.radius, self.exaggeration = float(radius), float(exaggeration)
         h = np.asarray(dataset.grid.height, dtype=np.float64).reshape(self.wind.nk, -1).mean(axis=1)
         self.level_height = h
@@ -61,12 +64,18 @@ class ClimateVelocity:
             raise DataError("a flow-volume point is at the globe's centre", path=self.wind.dataset.source, field="position")
         unit = p / r[:, None]
         s = self.level(p)
-        out = np.empty_like(p)
-        # The wind field takes one time per call: group the points by time (one per layer and stage).
-        times, inverse = np.unique(t, return_inverse=True)
-        for i, hour in enumerate(times):
+        out = np.zeros_like(p)
+        # Every point has its own time: read the winds at the hourly steps bracketing each
+        # point (one call per step, no blended grid per distinct time) and blend linearly.
+        hours = np.asarray(self.wind.hours, dtype=np.float64)
+        for hour in (t.min(), t.max()):
             self.wind.check_time(hour)
-            sel = inverse.reshape(-1) == i
-            v, sdot = self.wind.velocity(float(hour), unit[sel], s[sel])
-            out[sel] = v * r[sel, None] + (sdot * np.interp(s[sel], np.arange(len(self._dr_ds)), self._dr_ds))[:, None] * unit[sel]
+        i0 = np.clip(np.searchsorted(hours, t, side="right") - 1, 0, max(len(hours) - 2, 0))
+        w1 = np.clip((t - hours[i0]) / (hours[np.minimum(i0 + 1, len(hours) - 1)] - hours[i0] if len(hours) > 1 else 1.0), 0.0, 1.0)
+        for i in np.unique(i0):
+            sel = i0 == i
+            for step, w in ((i, 1.0 - w1[sel]), (min(i + 1, len(hours) - 1), w1[sel])):
+                v, sdot = self.wind.velocity(float(hours[step]), unit[sel], s[sel])
+                rate = sdot * np.interp(s[sel], np.arange(len(self._dr_ds)), self._dr_ds)
+                out[sel] += w[:, None] * (v * r[sel, None] + rate[:, None] * unit[sel])
         return out
