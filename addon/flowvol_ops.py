@@ -1,0 +1,196 @@
+"""Blender side of flow volumes (Fig. 5): smoke from a generator the user drags.
+
+"Add flow volume" adds a circle object (the generator: move and scale it with
+Blender's own tools; its orientation is set to face the flow) and the smoke:
+the closed surface of :func:`..core.flowvol.flow_volume` with a constant
+colour emission-absorption volume material (colour C, density τ: the
+order-independent model of the paper, no sorting).  While "Live" is on, a
+depsgraph handler rebuilds the smoke, debounced, when the generator moves.
+"""
+
+import bpy
+import numpy as np
+from mathutils import Vector
+
+from ..core.flowvol import ClimateVelocity, flow_volume
+from ..core.mesh import Mesh
+from .data_ops import dataset
+from .materials import enable_nodes
+from .mesh import fill_mesh, new_object
+from .panel import SubPanel
+
+GENERATOR = "Flow volume generator"
+SMOKE = "Flow volume smoke"
+_DEBOUNCE_S = 0.25
+_state = {"matrix": None, "pending": False}
+
+
+def generator_circle(sides):
+    """A unit regular polygon in z = 0 (vertices and edges) for the generator object."""
+    a = 2 * np.pi * np.arange(sides) / sides
+    v = np.stack([np.cos(a), np.sin(a), np.zeros(sides)], axis=1)
+    me = bpy.data.meshes.new(GENERATOR)
+    me.vertices.add(sides)
+    me.vertices.foreach_set("co", v.astype(np.float32).ravel())
+    me.edges.add(sides)
+    me.edges.foreach_set("vertices", np.stack([np.arange(sides), (np.arange(sides) + 1) % sides], 1).astype(np.int32).ravel())
+    me.update()
+    return me
+
+
+def smoke_material(color, density, name=SMOKE):
+    """Emission C·τ plus absorption τ: a ray through length L gets C (1 - exp(-τ L)) over black."""
+    mat = bpy.data.materials.get(name) or bpy.data.materials.new(name)
+    enable_nodes(mat)
+    nt = mat.node_tree
+    nt.nodes.clear()
+    out = nt.nodes.new("ShaderNodeOutputMaterial")
+    absorb = nt.nodes.new("ShaderNodeVolumeAbsorption")
+    emit = nt.nodes.new("ShaderNodeEmission")
+    add = nt.nodes.new("ShaderNodeAddShader")
+    absorb.inputs["Color"].default_value = (0.0, 0.0, 0.0, 1.0)  # grey absorption of every channel
+    absorb.inputs["Density"].default_value = density
+    emit.inputs["Color"].default_value = (*color, 1.0)
+    emit.inputs["Strength"].default_value = density
+    nt.links.new(absorb.outputs[0], add.inputs[0])
+    nt.links.new(emit.outputs[0], add.inputs[1])
+    nt.links.new(add.outputs[0], out.inputs["Volume"])
+    return mat
+
+
+def _velocity(props):
+    return ClimateVelocity(dataset(), exaggeration=props.exaggeration)
+
+
+def build(context, props, velocity=None):
+    """Compute the flow volume from the generator object's place and size; (re)fill the smoke mesh."""
+    gen = bpy.data.objects.get(GENERATOR)
+    velocity = velocity or _velocity(props)
+    center = np.array(gen.matrix_world.translation)
+    radius = float(max(gen.matrix_world.to_scale()))
+    fv = flow_volume(velocity, center, radius, props.hours, sides=props.sides, rings=1, t0=props.start_hour,
+                     tol=props.tolerance, steps=props.steps)
+    # Keep the generator perpendicular to the local flow (its z axis along the normal).
+    gen.rotation_mode = "QUATERNION"
+    gen.rotation_quaternion = Vector(fv.normal).to_track_quat("Z", "Y")
+    surface = Mesh(fv.surface.vertices, fv.surface.faces, fv.surface.normals)
+    smoke = bpy.data.objects.get(SMOKE)
+    if smoke is None:
+        smoke = new_object(SMOKE, surface, smooth=False)
+        smoke.data.materials.append(smoke_material(tuple(props.color), props.density))
+    else:
+        fill_mesh(smoke.data, surface, smooth=False)
+    _state["matrix"] = [tuple(r) for r in gen.matrix_world]
+    props.status = f"{len(fv.tets)} tets, volume {fv.volume:.3g}" + ("" if fv.complete else " (front size limit reached)")
+    return fv
+
+
+def _rebuild_later():
+    _state["pending"] = False
+    props = bpy.context.scene.nephele_flowvol
+    if bpy.data.objects.get(GENERATOR) is not None:
+        try:
+            build(bpy.context, props)
+        except ValueError as exc:  # DataError: show it, keep the last smoke
+            props.status = str(exc)
+    return None
+
+
+def _on_depsgraph(scene, depsgraph=None):
+    gen = bpy.data.objects.get(GENERATOR)
+    if gen is None or not scene.nephele_flowvol.live or _state["pending"]:
+        return
+    m = [tuple(r) for r in gen.matrix_world]
+    # Only a moved or scaled generator triggers a rebuild (our own rotation change is not a move).
+    if _state["matrix"] is None or np.allclose(np.array(m)[:3, 3], np.array(_state["matrix"])[:3, 3]) and \
+            np.isclose(max(gen.matrix_world.to_scale()), max(np.linalg.norm(np.array(_state["matrix"])[:3, :3], axis=0))):
+        return
+    _state["pending"] = True
+    bpy.app.timers.register(_rebuild_later, first_interval=_DEBOUNCE_S)
+
+
+def install_handler():
+    if _on_depsgraph not in bpy.app.handlers.depsgraph_update_post:
+        bpy.app.handlers.depsgraph_update_post.append(_on_depsgraph)
+
+
+class NEPHELE_OT_add_flow_volume(bpy.types.Operator):
+    """Add a smoke generator in the winds and the air that flowed through it"""
+
+    bl_idname = "nephele.add_flow_volume"
+    bl_label = "Add flow volume"
+    bl_options = {"REGISTER", "UNDO"}
+
+    def execute(self, context):
+        props = context.scene.nephele_flowvol
+        try:
+            vel = _velocity(props)
+            gen = bpy.data.objects.get(GENERATOR)
+            if gen is None:
+                gen = bpy.data.objects.new(GENERATOR, generator_circle(props.sides))
+                context.scene.collection.objects.link(gen)
+            gen.location = vel.point(props.lon, props.lat, props.height)
+            gen.scale = (props.radius,) * 3
+            context.view_layer.update()
+            build(context, props, vel)
+        except ValueError as exc:
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        install_handler()
+        self.report({"INFO"}, props.status)
+        return {"FINISHED"}
+
+
+class NEPHELE_OT_update_flow_volume(bpy.types.Operator):
+    """Rebuild the smoke from the generator's current place and size"""
+
+    bl_idname = "nephele.update_flow_volume"
+    bl_label = "Update flow volume"
+
+    def execute(self, context):
+        if bpy.data.objects.get(GENERATOR) is None:
+            self.report({"ERROR"}, "no flow-volume generator: add one first")
+            return {"CANCELLED"}
+        try:
+            build(context, context.scene.nephele_flowvol)
+        except ValueError as exc:
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        return {"FINISHED"}
+
+
+class NepheleFlowVolumeProps(bpy.types.PropertyGroup):
+    lon: bpy.props.FloatProperty(name="Longitude", default=-40.0, min=-180.0, max=360.0)
+    lat: bpy.props.FloatProperty(name="Latitude", default=35.0, min=-90.0, max=90.0)
+    height: bpy.props.FloatProperty(name="Height (m)", default=2000.0, min=0.0)
+    radius: bpy.props.FloatProperty(name="Radius", default=0.03, min=1e-4, description="Generator radius in scene units (globe radius 1)")
+    hours: bpy.props.FloatProperty(name="Release hours", default=24.0, min=0.0)
+    start_hour: bpy.props.FloatProperty(name="Start hour", default=0.0, min=0.0)
+    sides: bpy.props.IntProperty(name="Sides", default=32, min=3, max=256)
+    steps: bpy.props.IntProperty(name="RK4 steps", default=8, min=1, max=256)
+    tolerance: bpy.props.FloatProperty(name="Tolerance", default=0.02, min=1e-5, description="Largest gap between front points")
+    exaggeration: bpy.props.FloatProperty(name="Exaggeration", default=30.0, min=1.0)
+    color: bpy.props.FloatVectorProperty(name="Smoke colour", subtype="COLOR", size=3, default=(0.9, 0.9, 1.0), min=0.0, max=1.0)
+    density: bpy.props.FloatProperty(name="Density τ", default=30.0, min=0.0)
+    live: bpy.props.BoolProperty(name="Live", default=True, description="Rebuild when the generator moves")
+    status: bpy.props.StringProperty(name="Status", default="")
+
+
+class NEPHELE_PT_flowvol(SubPanel, bpy.types.Panel):
+    bl_label = "Flow volume (Fig. 5)"
+    bl_idname = "NEPHELE_PT_flowvol"
+    bl_options = {"DEFAULT_CLOSED"}
+
+    def draw(self, context):
+        p = context.scene.nephele_flowvol
+        col = self.layout.column()
+        for name in ("lon", "lat", "height", "radius", "hours", "start_hour", "sides", "steps", "tolerance", "exaggeration", "color", "density", "live"):
+            col.prop(p, name)
+        col.operator(NEPHELE_OT_add_flow_volume.bl_idname)
+        col.operator(NEPHELE_OT_update_flow_volume.bl_idname)
+        if p.status:
+            col.label(text=p.status)
+
+
+CLASSES = (NepheleFlowVolumeProps, NEPHELE_OT_add_flow_volume, NEPHELE_OT_update_flow_volume, NEPHELE_PT_flowvol)
+SCENE_PROPERTIES = {"nephele_flowvol": NepheleFlowVolumeProps}
