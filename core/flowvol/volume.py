@@ -9,6 +9,7 @@ References
 """
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -16,6 +17,7 @@ from ..errors import DataError
 from ..mesh import Mesh, vertex_normals
 from .climate import ClimateVelocity
 from .front import Front, perpendicular_frame
+from .unstructured import UnstructuredVelocity
 from .tets import boundary_faces, orient, signed_volumes, split_prisms
 
 
@@ -59,6 +61,8 @@ class FlowVolume:
 def _as_velocity(velocity):
     if callable(velocity):
         return velocity
+    if isinstance(velocity, (str, Path)) and str(velocity).endswith(".vtu"):
+        return UnstructuredVelocity(velocity)
     if hasattr(velocity, "grid") and hasattr(velocity, "hours"):
         return ClimateVelocity(velocity)
     raise DataError(f"velocity must be a callable velocity(points, t) or a climate dataset, got {type(velocity).__name__}", field="velocity")
@@ -73,7 +77,8 @@ def flow_volume(velocity, center, radius, duration, *, normal=None, sides=32, ri
         ``velocity(points (n, 3), t (n,)) -> (n, 3)``, or a climate dataset with
         ``u``/``v`` winds (scene units on a unit globe, hours; see
         :class:`~nephele.core.flowvol.climate.ClimateVelocity` for the
-        exaggeration), or a :class:`ClimateVelocity` / unstructured-grid field.
+        exaggeration), a :class:`ClimateVelocity`, or the path of a ``.vtu``
+        unstructured grid with point vectors ``uvw`` (:class:`UnstructuredVelocity`).
     center : (3,) array
     radius : float
         Circumradius of the regular ``sides``-gon generator.
