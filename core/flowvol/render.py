@@ -39,6 +39,10 @@ def ray_lengths(vertices, tets, origins, directions, chunk=256):
     p = v[tets[:, _FACES]]  # (m, 4, 3 corners, 3)
     n = np.cross(p[:, :, 1] - p[:, :, 0], p[:, :, 2] - p[:, :, 0])  # outward normals
     c = np.einsum("mfk,mfk->mf", n, p[:, :, 0])
+    # Tie-break for a ray lying in a face plane: the two tets sharing the face have opposite
+    # normals; only the one whose normal's first non-zero component is negative keeps the ray.
+    first = np.take_along_axis(n, np.argmax(n != 0, axis=2)[..., None], axis=2)[..., 0]
+    keeps_tie = first < 0
     speed = np.linalg.norm(d, axis=1)
     for s in range(0, len(o), chunk):
         oo, dd = o[s:s + chunk], d[s:s + chunk]
@@ -48,7 +52,7 @@ def ray_lengths(vertices, tets, origins, directions, chunk=256):
             t = num / den
         t_in = np.max(np.where(den < 0, t, -np.inf), axis=2)
         t_out = np.min(np.where(den > 0, t, np.inf), axis=2)
-        parallel_out = np.any((den == 0) & (num < 0), axis=2)
+        parallel_out = np.any((den == 0) & ((num < 0) | ((num == 0) & ~keeps_tie[None])), axis=2)
         t_in = np.maximum(t_in, 0.0)
         length = np.where(parallel_out, 0.0, np.clip(t_out - t_in, 0.0, None))
         out[s:s + chunk] = np.sum(np.where(np.isfinite(length), length, 0.0), axis=1) * speed[s:s + chunk]
