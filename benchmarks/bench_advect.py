@@ -66,7 +66,7 @@ def part1(quick):
             nl = isinstance(flow, flows.DeformationalFlow)
             runs = (("euler", 1.0), ("rk2", 1.0), ("rk4", 1.0), ("rk4", 0.25)) if analytic and nl and not quick else (("rk4", 1.0),)
             for method, dt in runs:
-                st = advect.FullTrace(wind(), fh, grid, method=method, dt_max=dt)
+                st = advect.FullTrace(wind, fh, grid, method=method, dt_max=dt)
                 t0 = time.perf_counter()
                 c_half = st.copies(half, pts)[0]
                 sec = time.perf_counter() - t0
