@@ -66,7 +66,7 @@ def part1(quick):
             nl = isinstance(flow, flows.DeformationalFlow)
             runs = (("euler", 1.0), ("rk2", 1.0), ("rk4", 1.0), ("rk4", 0.25)) if analytic and nl and not quick else (("rk4", 1.0),)
             for method, dt in runs:
-                st = advect.FullTrace(wind(), fh, grid, method=method, dt_max=dt)
+                st = advect.FullTrace(wind, fh, grid, method=method, dt_max=dt)
                 t0 = time.perf_counter()
                 c_half = st.copies(half, pts)[0]
                 sec = time.perf_counter() - t0
@@ -78,7 +78,7 @@ def part1(quick):
             for order in ((1, 3) if analytic and nl and not quick else (3,)):
                 if (quick and analytic) or not nl:
                     continue
-                st = advect.ComposedTrace(wind(), fh, grid, order=order, band="all")
+                st = advect.ComposedTrace(wind, fh, grid, order=order, band="all")
                 t0 = time.perf_counter()
                 for n in range(nframes + 1):
                     c = st.copies(n, pts)[0]
@@ -88,7 +88,7 @@ def part1(quick):
                 label = "(b) compose, " + ("trilinear" if order == 1 else "Catmull-Rom bicubic")
                 rows.append([cname, wname, label, "1 frame", grid.shape[0] * len(lvl0), *e_half, *err_km(c.xyz, truth_end), sec])
             # (c) restart every 24 frames, two copies: error of the longest-running copy (23 frames).
-            st = advect.RestartTrace(wind(), fh, grid, period=24)
+            st = advect.RestartTrace(wind, fh, grid, period=24)
             first = half - 24
             t0 = time.perf_counter()
             for n in range(first, half + 12):

@@ -37,8 +37,12 @@ def canonical(params):
 
 
 def cache_key(kind, params):
-    """Hex sha256 of the kind, the parameters and :data:`CACHE_VERSION`."""
-    text = canonical({"kind": kind, "params": params, "version": CACHE_VERSION})
+    """Hex sha256 of the kind, the parameters, :data:`CACHE_VERSION` and the hash of
+    the code the task depends on (:func:`.tasks.code_stamp`), so changed code never
+    serves results made by the old code."""
+    from .tasks import code_stamp
+
+    text = canonical({"kind": kind, "params": params, "version": CACHE_VERSION, "code": code_stamp(kind)})
     return hashlib.sha256(text.encode()).hexdigest()
 
 

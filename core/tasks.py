@@ -15,8 +15,10 @@ workers before rendering.
 """
 
 import importlib
+import sys
 
 from .cache import Cache
+from .codehash import code_stamp as _file_stamp
 
 TASKS = {}
 PLANNERS = {}
@@ -33,6 +35,18 @@ def task(kind):
         return fn
 
     return deco
+
+
+def code_stamp(kind):
+    """Hash of the code task ``kind`` depends on (its module and every core module it
+    imports, transitively; :mod:`.codehash`), part of its cache key; ``""`` for a kind
+    no module registers (e.g. a test's own cache entries)."""
+    if kind not in TASKS:
+        load_all()
+    fn = TASKS.get(kind)
+    mod = sys.modules.get(getattr(fn, "__module__", None) or "")
+    path = getattr(mod, "__file__", None)
+    return _file_stamp(path) if path else ""
 
 
 def planner(kind):

@@ -1,0 +1,70 @@
+"""Hash of the whole code a module depends on, for cache keys that cannot go stale.
+
+A task's result depends on its own module and on every module of the core package
+it imports, transitively.  :func:`code_stamp` follows the relative imports of a
+source file through the files of its package (on disk, so a copy of the package
+hashes its own files) and hashes every file reached, once per process.
+"""
+
+import ast
+import hashlib
+from functools import lru_cache
+from pathlib import Path
+
+
+def _module_file(base, parts):
+    """The ``.py`` file (or package ``__init__.py``) of dotted ``parts`` under ``base``, or None."""
+    p = base.joinpath(*parts) if parts else base
+    if p.with_suffix(".py").is_file() and parts:
+        return p.with_suffix(".py")
+    if (p / "__init__.py").is_file():
+        return p / "__init__.py"
+    return None
+
+
+def _imports(path, root):
+    """Files under ``root`` that the relative imports of ``path`` name."""
+    out = []
+    tree = ast.parse(path.read_bytes(), filename=str(path))
+    for node in ast.walk(tree):
+        if not isinstance(node, ast.ImportFrom) or not node.level:
+            continue
+        base = path.parent
+        for _ in range(node.level - 1):
+            base = base.parent
+        parts = node.module.split(".") if node.module else []
+        f = _module_file(base, parts)
+        if f is not None:
+            out.append(f)
+        for alias in node.names:  # ``from . import x`` may name a submodule
+            g = _module_file(base, parts + [alias.name])
+            if g is not None:
+                out.append(g)
+    return [f.resolve() for f in out if f.resolve().is_relative_to(root)]
+
+
+def dependencies(path, root=None):
+    """Sorted source files ``path`` depends on under ``root`` (default: its package's top directory)."""
+    path = Path(path).resolve()
+    root = Path(root).resolve() if root is not None else Path(__file__).resolve().parent
+    seen, todo = set(), [path]
+    while todo:
+        f = todo.pop()
+        if f in seen:
+            continue
+        seen.add(f)
+        todo.extend(_imports(f, root))
+    return sorted(seen)
+
+
+@lru_cache(maxsize=None)
+def code_stamp(path, root=None):
+    """Short sha256 of every file :func:`dependencies` lists (relative names and bytes)."""
+    path = Path(path).resolve()
+    root = Path(root).resolve() if root is not None else Path(__file__).resolve().parent
+    if not path.is_relative_to(root):  # a task registered outside the package: its own folder
+        root = path.parent
+    h = hashlib.sha256()
+    for f in dependencies(path, root):
+        h.update(str(f.relative_to(root)).encode() + b"\0" + f.read_bytes() + b"\0")
+    return h.hexdigest()[:16]

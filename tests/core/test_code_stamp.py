@@ -1,0 +1,66 @@
+"""Cache keys cannot go stale: editing any core module a task depends on changes its key."""
+
+import shutil
+from pathlib import Path
+
+import pytest
+
+import nephele.core as core
+from nephele.core import cache, codehash, tasks
+
+CORE = Path(core.__file__).resolve().parent
+
+# Task kind -> (its module, the dependencies edited in a copy of the package).
+KINDS = {
+    "contour": ("contour_task.py", ["grid.py", "readers.py", "synthetic.py", "contour.py", "mesh.py"]),
+    "volume": ("volume.py", ["grid.py", "readers.py", "volume_atlas.py", "transfer.py"]),
+    "advect_contour": ("advect.py", ["grid.py", "readers.py", "flows.py", "contour.py"]),
+    "scatter": ("scatter.py", ["phase.py", "cloud_density.py", "noise.py"]),
+}
+
+
+@pytest.fixture(scope="module")
+def copy_root(tmp_path_factory):
+    root = tmp_path_factory.mktemp("pkg") / "core"
+    shutil.copytree(CORE, root, ignore=shutil.ignore_patterns("__pycache__"))
+    return root
+
+
+@pytest.mark.parametrize("kind", sorted(KINDS))
+def test_registered_task_module_matches(kind):
+    tasks.load_all()
+    assert Path(tasks.TASKS[kind].__code__.co_filename).name == KINDS[kind][0]
+    assert len(tasks.code_stamp(kind)) == 16
+
+
+@pytest.mark.parametrize("kind", sorted(KINDS))
+def test_editing_a_dependency_changes_the_stamp(kind, copy_root):
+    module, deps = KINDS[kind]
+    before = codehash.code_stamp.__wrapped__(copy_root / module, copy_root)
+    for dep in deps:
+        f = copy_root / dep
+        original = f.read_bytes()
+        try:
+            f.write_bytes(original + b"\n# edited\n")
+            after = codehash.code_stamp.__wrapped__(copy_root / module, copy_root)
+        finally:
+            f.write_bytes(original)
+        assert after != before, f"{kind}: editing {dep} left the stamp unchanged"
+    assert codehash.code_stamp.__wrapped__(copy_root / module, copy_root) == before
+
+
+def test_unrelated_module_does_not_change_scatter_stamp(copy_root):
+    before = codehash.code_stamp.__wrapped__(copy_root / "scatter.py", copy_root)
+    f = copy_root / "advect.py"
+    original = f.read_bytes()
+    try:
+        f.write_bytes(original + b"\n# edited\n")
+        assert codehash.code_stamp.__wrapped__(copy_root / "scatter.py", copy_root) == before
+    finally:
+        f.write_bytes(original)
+
+
+def test_cache_key_includes_the_code_stamp(monkeypatch):
+    key = cache.cache_key("contour", {"a": 1})
+    monkeypatch.setattr(tasks, "code_stamp", lambda kind: "different")
+    assert cache.cache_key("contour", {"a": 1}) != key
