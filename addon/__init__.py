@@ -18,20 +18,16 @@ MODULES = (
     "advect_ops",
     "scatter_ops",
     "dome_ops",
+    "muscle_ops",
+    "flowvol_ops",
 )
 
 
 def _modules():
-    mods = []
-    for name in MODULES:
-        try:
-            mods.append(importlib.import_module(f".{name}", __name__))
-        except ModuleNotFoundError as exc:
-            # A feature module not written yet is simply absent; any other
-            # missing import is a real error.
-            if exc.name != f"{__name__}.{name}":
-                raise
-    return mods
+    # The one list of features on the Blender side: a missing or broken module is an
+    # error here, never a silently absent feature.  Importing a module also registers
+    # its frame updater (``frame.register_updater``).
+    return [importlib.import_module(f".{name}", __name__) for name in MODULES]
 
 
 def register():
@@ -44,6 +40,8 @@ def register():
             bpy.utils.register_class(cls)
         for attr, group in getattr(mod, "SCENE_PROPERTIES", {}).items():
             setattr(bpy.types.Scene, attr, bpy.props.PointerProperty(type=group))
+        if hasattr(mod, "install"):
+            mod.install()
     frame.install()
 
 
@@ -54,6 +52,8 @@ def unregister():
 
     frame.uninstall()
     for mod in reversed(_modules()):
+        if hasattr(mod, "uninstall"):
+            mod.uninstall()
         for attr in getattr(mod, "SCENE_PROPERTIES", {}):
             if hasattr(bpy.types.Scene, attr):
                 delattr(bpy.types.Scene, attr)

@@ -218,14 +218,18 @@ def _warn_before_render(scene, depsgraph=None):
         print(f"Nephele warning: {msg}")
 
 
-def install_warning():
-    """Add the render_pre warning once (idempotent); done on import, so ``frame.install()`` brings it."""
+def install():
+    """Add the render_pre warning once (idempotent); called by the add-on's ``register()``."""
     handlers = bpy.app.handlers.render_pre
     if not any(getattr(h, "__name__", "") == _warn_before_render.__name__ for h in handlers):
         handlers.append(_warn_before_render)
 
 
-install_warning()
+def uninstall():
+    """Remove the render_pre warning; called by the add-on's ``unregister()``."""
+    handlers = bpy.app.handlers.render_pre
+    for h in [h for h in handlers if getattr(h, "__name__", "") == _warn_before_render.__name__]:
+        handlers.remove(h)
 
 
 # --- images (OpenImageIO bundled with Blender) ---------------------------------------------------

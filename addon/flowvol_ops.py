@@ -114,6 +114,16 @@ def install_handler():
         bpy.app.handlers.depsgraph_update_post.append(_on_depsgraph)
 
 
+def uninstall():
+    """Remove the live-rebuild handler and a pending rebuild; called by the add-on's ``unregister()``."""
+    handlers = bpy.app.handlers.depsgraph_update_post
+    for h in [h for h in handlers if getattr(h, "__name__", "") == _on_depsgraph.__name__]:
+        handlers.remove(h)
+    if bpy.app.timers.is_registered(_rebuild_later):
+        bpy.app.timers.unregister(_rebuild_later)
+    _state["pending"] = False
+
+
 class NEPHELE_OT_add_flow_volume(bpy.types.Operator):
     """Add a smoke generator in the winds and the air that flowed through it"""
 
@@ -137,6 +147,11 @@ class NEPHELE_OT_add_flow_volume(bpy.types.Operator):
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
         install_handler()
+        # The generator is what the artist moves next: leave it selected and active.
+        for o in list(context.view_layer.objects.selected):
+            o.select_set(False)
+        gen.select_set(True)
+        context.view_layer.objects.active = gen
         self.report({"INFO"}, props.status)
         return {"FINISHED"}
 

@@ -38,15 +38,10 @@ def set_params(obj, value):
 
 
 def _load_updaters():
-    # Importing the feature modules registers their updaters; absent ones are skipped.
-    import importlib
+    # Importing the feature modules (the one list, addon.MODULES) registers their updaters.
+    from . import _modules
 
-    for name in ("contour_ops", "volume_ops", "advect_ops", "scatter_ops", "dome_ops"):
-        try:
-            importlib.import_module(f"{__package__}.{name}")
-        except ModuleNotFoundError as exc:
-            if exc.name != f"{__package__}.{name}":
-                raise
+    _modules()
 
 
 def update_scene(scene, frame=None):

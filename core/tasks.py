@@ -23,8 +23,8 @@ from .codehash import code_stamp as _file_stamp
 TASKS = {}
 PLANNERS = {}
 
-# Core modules that register tasks when imported (absent ones are skipped).
-TASK_MODULES = ("contour_task", "volume", "advect", "scatter")
+# The one list of core modules that register tasks when imported (a missing one is an error).
+TASK_MODULES = ("contour_task", "volume", "advect", "scatter", "muscle.film")
 
 
 def task(kind):
@@ -62,11 +62,7 @@ def planner(kind):
 def load_all():
     """Import the core modules that register tasks."""
     for name in TASK_MODULES:
-        try:
-            importlib.import_module(f"{__package__}.{name}")
-        except ModuleNotFoundError as exc:
-            if exc.name != f"{__package__}.{name}":
-                raise
+        importlib.import_module(f"{__package__}.{name}")
 
 
 def _lookup(kind):

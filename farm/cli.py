@@ -21,6 +21,7 @@ COMMANDS = (
     "advect",
     "scatter",
     "dome",
+    "muscle",
     "build_extension",
 )
 
@@ -45,16 +46,8 @@ class UsageError(ValueError):
 
 
 def _load():
-    cmds = {}
-    for name in COMMANDS:
-        try:
-            mod = importlib.import_module(f".cmd_{name}", __package__)
-        except ModuleNotFoundError as exc:
-            if exc.name != f"{__package__}.cmd_{name}":
-                raise
-            continue
-        cmds[name.replace("_", "-")] = mod
-    return cmds
+    # The one list of commands: a missing or broken command module is an error, never skipped.
+    return {name.replace("_", "-"): importlib.import_module(f".cmd_{name}", __package__) for name in COMMANDS}
 
 
 def build_parser():

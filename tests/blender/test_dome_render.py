@@ -171,9 +171,13 @@ def test_engine_warning_and_handler(empty_scene, capsys, tmp_path):
     scene.render.engine = "BLENDER_EEVEE"
     msg = dome_ops.engine_warning(scene)
     assert "perspective" in msg and "DomeCamera" in msg
+    # register() (the conftest's) installs the warning; unregister() removes it
     assert any(h.__name__ == "_warn_before_render" for h in bpy.app.handlers.render_pre)
     dome_ops._warn_before_render(scene)
     assert "Nephele warning" in capsys.readouterr().out
+    dome_ops.uninstall()
+    assert not any(h.__name__ == "_warn_before_render" for h in bpy.app.handlers.render_pre)
+    dome_ops.install()
 
 
 def test_operator_configures_the_camera(empty_scene):

@@ -14,18 +14,11 @@ _DS = SyntheticClimate(ni=64, nj=32, nk=4, days=1, seed=0)
 
 @pytest.fixture
 def flowvol_scene(empty_scene, monkeypatch):
-    # The module is not yet in the add-on's MODULES: register its classes here.
-    for cls in fo.CLASSES:
-        if not hasattr(bpy.types, cls.__name__):
-            bpy.utils.register_class(cls)
-    bpy.types.Scene.nephele_flowvol = bpy.props.PointerProperty(type=fo.NepheleFlowVolumeProps)
+    # The add-on (registered by the conftest's empty_scene) brings the classes and scene properties.
     monkeypatch.setattr(fo, "_velocity", lambda props: ClimateVelocity(_DS, exaggeration=props.exaggeration))
     p = empty_scene.nephele_flowvol
     p.hours, p.sides, p.steps, p.tolerance, p.live = 6.0, 12, 4, 0.03, False
     yield empty_scene
-    del bpy.types.Scene.nephele_flowvol
-    for cls in reversed(fo.CLASSES):
-        bpy.utils.unregister_class(cls)
 
 
 def test_operator_builds_the_core_surface_and_rebuilds_on_move(flowvol_scene):

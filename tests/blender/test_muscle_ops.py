@@ -16,12 +16,9 @@ EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 
 
 @pytest.fixture
-def ops():
-    for cls in muscle_ops.CLASSES:
-        bpy.utils.register_class(cls)
+def ops(empty_scene):
+    # The add-on (registered by the conftest's empty_scene) brings the operator.
     yield
-    for cls in reversed(muscle_ops.CLASSES):
-        bpy.utils.unregister_class(cls)
 
 
 def test_operator_adds_film_that_follows_the_frame(ops, tmp_path):

@@ -44,7 +44,7 @@ def test_info_json_real_grads(tmp_path, shared_data):
     "make, expect",
     [
         (lambda d: d / "missing.nc", "missing.nc: file not found"),
-        (lambda d: (d / "x.grib").write_bytes(b"GRIB") and d / "x.grib", "x.grib: unknown format"),
+        (lambda d: (d / "x.grib").write_bytes(b"GRIB") and d / "x.grib", "x.grib: cannot open as GRIB"),
         (lambda d: (d / "bad.nc").write_bytes(b"\x01\x02junk") and d / "bad.nc", "bad.nc: cannot open as NetCDF"),
         (lambda d: (d / "bad.ctl").write_text("DSET ^nothing.dat\n") and d / "bad.ctl", "bad.ctl: field 'xdef': descriptor has no XDEF"),
     ],

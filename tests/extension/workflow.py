@@ -23,7 +23,8 @@ NETCDF = Path(sys.argv[3]) if len(sys.argv) > 3 else None
 MODULE = "bl_ext.user_default.nephele"
 # Every operator of the add-on is driven below; a new one must be added here.
 DRIVEN = {"import_dataset", "add_contour", "update_frame", "add_advected_texture", "add_globe", "add_sky",
-          "add_camera", "add_volume_clouds", "add_scattering_cloud", "add_dome_camera", "render_dome_cube"}
+          "add_camera", "add_volume_clouds", "add_scattering_cloud", "add_dome_camera", "render_dome_cube",
+          "add_flow_volume", "update_flow_volume", "add_muscle_film"}
 
 resources = Path(os.environ["BLENDER_USER_RESOURCES"])
 # The environment must really lack what the extension bundles, or the test proves nothing.
@@ -84,6 +85,11 @@ active("")
 assert ops.add_advected_texture.poll(), "Add advected cloud texture is greyed out after Add contour"
 step("add_advected_texture", lambda: ops.add_advected_texture(strategy="restart", period=8))
 step("update_frame", lambda: ops.update_frame())
+fv = scene.nephele_flowvol
+fv.hours, fv.sides, fv.steps = 6.0, 8, 4
+step("add_flow_volume", lambda: ops.add_flow_volume())
+active("")
+step("update_flow_volume", lambda: ops.update_flow_volume())
 step("add_globe", lambda: ops.add_globe())
 active("Globe")
 step("add_sky", lambda: ops.add_sky())
@@ -123,6 +129,10 @@ times["install_to_frame"] = time.perf_counter() - t0
 img = bpy.data.images.load(str(OUT / "frame.png"))
 pixels = np.array(img.pixels[:], dtype=np.float32).reshape(48, 64, 4)[..., :3]
 assert pixels.std() > 0.02 and pixels.max() > 0.1, "the rendered frame is blank"
+
+# The muscle film (its own world and lattice), small: one box, a coarse grid.
+step("add_muscle_film", lambda: ops.add_muscle_film(frames=2, spacing=1.5, tiles=(1, 1, 1), camera=False))
+active("")
 
 # Disable: nothing of the add-on stays registered (recorded, checked by the test).
 addon_classes = [c for name, mod in list(sys.modules.items()) if name.startswith(MODULE)
