@@ -20,10 +20,10 @@ import math
 
 import bpy
 
-from ..core import advect
-from ..core.fractal import Fractal, terms
-from ..core.mesh import Mesh
-from ..core.tasks import run_cached
+from ..core.flow import advect
+from ..core.texture.fractal import Fractal, terms
+from ..core.surface.mesh import Mesh
+from ..core.pipeline.tasks import run_cached
 from . import frame, materials
 from .contour_ops import cache_dir
 from .mesh import fill_mesh

@@ -10,10 +10,10 @@ nothing but :func:`nephele.addon.frame.install` (no add-on, no window).
 
 import bpy
 
-from ..core import contour_task
-from ..core.cache import default_cache_dir
-from ..core.mesh import Mesh
-from ..core.tasks import run_cached
+from ..core.surface import contour_task
+from ..core.pipeline.cache import default_cache_dir
+from ..core.surface.mesh import Mesh
+from ..core.pipeline.tasks import run_cached
 from . import data_ops, frame, materials
 from .mesh import fill_mesh
 from .panel import SubPanel

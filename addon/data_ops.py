@@ -12,7 +12,7 @@ import json
 
 import bpy
 
-from ..core.grid import DEFAULT_EXAGGERATION
+from ..core.climate.grid import DEFAULT_EXAGGERATION
 from .panel import SubPanel
 
 MIRROR_KEY = "nephele_settings"
@@ -59,7 +59,7 @@ def set_settings(scene=None, **values):
 
 def dataset(source=None, scene=None):
     """The dataset ``source`` (default: the scene's), opened once per process."""
-    from ..core.contour_task import open_source
+    from ..core.surface.contour_task import open_source
 
     if source is None:
         source = settings(scene)["source"]

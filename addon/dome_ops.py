@@ -38,7 +38,7 @@ import bpy
 from bpy.app.handlers import persistent
 from mathutils import Matrix, Vector
 
-from ..core import dome as core_dome
+from ..core.camera import dome as core_dome
 from ..core.errors import DataError
 from . import frame
 from .panel import SubPanel
@@ -359,7 +359,7 @@ def render_dome_eevee(filepath, *, scene=None, face_size=None, supersample=None,
     camera = dome_from_params(p)
     n = int(face_size or p.get("face_size") or default_face_size(camera))
     ss = int(supersample or p.get("supersample") or 2)
-    from ..core.cache import Cache, default_cache_dir
+    from ..core.pipeline.cache import Cache, default_cache_dir
 
     table = core_dome.stored_remap_table(camera, "cube", n, ss, Cache(default_cache_dir(bpy.data.filepath or None)))
     filepath = Path(filepath)

@@ -13,7 +13,7 @@ import numpy as np
 from mathutils import Vector
 
 from ..core.flowvol import ClimateVelocity, flow_volume
-from ..core.mesh import Mesh
+from ..core.surface.mesh import Mesh
 from .data_ops import dataset
 from .materials import enable_nodes
 from .mesh import fill_mesh, new_object

@@ -19,8 +19,8 @@ import numpy as np
 
 import bpy
 
-from ..core import relief as core_relief
-from ..core.grid import EARTH_RADIUS, globe_radius, lonlat_to_xyz
+from ..core.climate import relief as core_relief
+from ..core.climate.grid import EARTH_RADIUS, globe_radius, lonlat_to_xyz
 from . import data_ops, materials
 from .mesh import fill_mesh
 from .panel import SubPanel

@@ -24,10 +24,10 @@ import math
 import bpy
 import numpy as np
 
-from ..core.cache import default_cache_dir
-from ..core.mesh import Mesh
+from ..core.pipeline.cache import default_cache_dir
+from ..core.surface.mesh import Mesh
 from ..core.muscle import film
-from ..core.tasks import plan, run_cached
+from ..core.pipeline.tasks import plan, run_cached
 from . import frame, materials
 from .mesh import fill_mesh, new_object
 from .panel import SubPanel

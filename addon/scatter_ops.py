@@ -22,8 +22,8 @@ from pathlib import Path
 import bpy
 import numpy as np
 
-from ..core import cloud_density as cd
-from ..core import scatter
+from ..core.volume import cloud_density as cd
+from ..core.light import scatter
 from .panel import SubPanel
 
 
@@ -280,7 +280,7 @@ def _fcurves(obj):
 def output_directory(text):
     """Absolute output directory; a blend-relative ``//`` path in an unsaved file goes
     to the Nephele cache directory instead of the file system root."""
-    from ..core.cache import default_cache_dir
+    from ..core.pipeline.cache import default_cache_dir
 
     if text.startswith("//") and not bpy.data.filepath:
         return Path(default_cache_dir()) / "scatter" / text[2:].strip("/\\")
@@ -356,7 +356,7 @@ class ScatterJob:
                 except StopIteration as stop:
                     self.solution = stop.value
                     scatter.save_solution(self.solution, self.directory / "solution.npz")
-                    from ..core.cache import Cache, default_cache_dir
+                    from ..core.pipeline.cache import Cache, default_cache_dir
 
                     Cache(default_cache_dir(bpy.data.filepath or None)).store(
                         "scatter", self.task, scatter.solution_arrays(self.solution))

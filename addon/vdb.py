@@ -142,9 +142,9 @@ def bake_frame(obj_params, frame, number, directory, prefix="clouds", *, cache=N
     """
     import time
 
-    from ..core.cache import Cache, cache_key
-    from ..core.tasks import run
-    from ..core.volume import EXACT, SparseVolume, frame_params
+    from ..core.pipeline.cache import Cache, cache_key
+    from ..core.pipeline.tasks import run
+    from ..core.volume.sparse import EXACT, SparseVolume, frame_params
 
     t0 = time.perf_counter()
     params = frame_params(obj_params, frame)

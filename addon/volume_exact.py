@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.volume_atlas import PAD, VALID, tf_ramps
+from ..core.volume.volume_atlas import PAD, VALID, tf_ramps
 from .vdb import atomic_write
 
 SUPPORT = "support"

@@ -21,11 +21,11 @@ from pathlib import Path
 
 import bpy
 
-from ..core.cache import default_cache_dir
+from ..core.pipeline.cache import default_cache_dir
 from ..core.errors import DataError
-from ..core.transfer import ALTITUDE_COLORS, TEMPERATURE_COLORS, ColorMap, TransferFunction
-from ..core.volume import ALTITUDE, DEFAULT_EXTINCTION, DEFAULT_VOXEL_SIZE, EXACT, VOXELS
-from ..core.volume_atlas import DEFAULT_BELOW, DEFAULT_SUPPORT_SIZE, atlas_layout
+from ..core.volume.transfer import ALTITUDE_COLORS, TEMPERATURE_COLORS, ColorMap, TransferFunction
+from ..core.volume.sparse import ALTITUDE, DEFAULT_EXTINCTION, DEFAULT_VOXEL_SIZE, EXACT, VOXELS
+from ..core.volume.volume_atlas import DEFAULT_BELOW, DEFAULT_SUPPORT_SIZE, atlas_layout
 from . import data_ops, frame, materials
 from .panel import SubPanel
 from .vdb import bake_frame, bake_sequence, frame_path

@@ -24,7 +24,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from report import md_table, write_section  # noqa: E402
 
-from nephele.core import advect, flows  # noqa: E402
+from nephele.core.flow import advect, flows  # noqa: E402
 
 TILT = np.pi / 2 - 0.05
 LATE = 100
@@ -107,11 +107,11 @@ def part1(quick):
 
 def demo_dataset():
     try:
-        from nephele.core.readers import open_dataset
+        from nephele.core.climate.readers import open_dataset
 
         return open_dataset("demo")
     except ImportError:
-        from nephele.core.synthetic import demo_dataset as make
+        from nephele.core.climate.synthetic import demo_dataset as make
 
         return make()
 

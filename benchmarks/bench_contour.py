@@ -19,20 +19,20 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from report import md_table, write_section  # noqa: E402
 
-from nephele.core.contour import isosurface  # noqa: E402
-from nephele.core.grid import lonlat_to_xyz  # noqa: E402
-from nephele.core.mesh import triangle_areas  # noqa: E402
+from nephele.core.surface.contour import isosurface  # noqa: E402
+from nephele.core.climate.grid import lonlat_to_xyz  # noqa: E402
+from nephele.core.surface.mesh import triangle_areas  # noqa: E402
 
 
 def demo_field(t, var="cloud"):
     """The demo climate's field at step ``t`` (320×160×19), or an analytic cloud-like field."""
     try:
-        from nephele.core.readers import open_dataset
+        from nephele.core.climate.readers import open_dataset
 
         ds = open_dataset("demo")
         return ds.grid.points(), np.array(ds.read(var, t)), ds.grid.periodic_lon, f"demo `{var}` at step {t}"
     except ImportError:
-        from nephele.core.grid import GlobeGrid
+        from nephele.core.climate.grid import GlobeGrid
 
         lon = np.arange(320) * 360.0 / 320
         lat = np.linspace(-89.4375, 89.4375, 160)

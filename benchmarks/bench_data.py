@@ -20,9 +20,9 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from report import md_table, write_section  # noqa: E402
 
-from nephele.core.grid import EARTH_RADIUS, lonlat_to_xyz, xyz_to_lonlat  # noqa: E402
-from nephele.core.readers import open_dataset  # noqa: E402
-from nephele.core.synthetic import demo_dataset  # noqa: E402
+from nephele.core.climate.grid import EARTH_RADIUS, lonlat_to_xyz, xyz_to_lonlat  # noqa: E402
+from nephele.core.climate.readers import open_dataset  # noqa: E402
+from nephele.core.climate.synthetic import demo_dataset  # noqa: E402
 
 SHARED = ROOT.parent / "shared" / "data"
 

@@ -25,7 +25,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from report import md_table, write_section  # noqa: E402
 
-from nephele.core import dome  # noqa: E402
+from nephele.core.camera import dome  # noqa: E402
 
 
 def field(d):

@@ -23,7 +23,7 @@ from report import md_table, write_section  # noqa: E402
 
 def gyroid_mesh(target):
     """A contour mesh of a gyroid with about ``target`` triangles (a realistic, branching surface)."""
-    from nephele.core.contour import isosurface, regular_points
+    from nephele.core.surface.contour import isosurface, regular_points
 
     n = max(int(round((target / 3.6) ** (1 / 3) * 1.45)), 8)
     for _ in range(6):

@@ -1,6 +1,6 @@
 """Multiple-scattering cloud (Fig. 6): our 96-bin solve + orbit views against Cycles.
 
-Scene (facts.md test cloud): the default :func:`nephele.core.cloud_density.cloud_density`
+Scene (facts.md test cloud): the default :func:`nephele.core.volume.cloud_density.cloud_density`
 on 24x24x18 in a 1x1x0.75 box, extinction 40 x density, albedo 0.99, HG g = 0.8,
 one sun (irradiance 1, angle 0), black sky, 128x96 view.  Same run, 2 threads:
 
@@ -40,7 +40,8 @@ VIEW_ANGLE = 0.6
 
 
 def scene():
-    from nephele.core import cloud_density, scatter
+    from nephele.core.volume import cloud_density
+    from nephele.core.light import scatter
 
     sigma = EXT * cloud_density.cloud_density(cloud_density.CloudParams(shape=(18, 24, 24), size=SIZE))
     cam = scatter.orbit_camera(VIEW_ANGLE, SIZE, width=128, height=96)
@@ -109,7 +110,7 @@ def reference(sigma, cam, spp):
 
 
 def ours(sigma, cam, n_views=120, repeat_views=5):
-    from nephele.core import scatter
+    from nephele.core.light import scatter
 
     t = time.perf_counter()
     sol = scatter.solve(sigma, SIZE, albedo=ALBEDO, g=G, sun_dir=SUN, tol=1e-3)
@@ -130,7 +131,8 @@ def ours(sigma, cam, n_views=120, repeat_views=5):
 
 def scaling(shapes=((18, 24, 24), (36, 48, 48), (72, 96, 96))):
     """Seconds per shooting pass (after the first) and passes to converge, per grid size."""
-    from nephele.core import cloud_density, scatter
+    from nephele.core.volume import cloud_density
+    from nephele.core.light import scatter
 
     rows = []
     for shape in shapes:

@@ -1,10 +1,10 @@
 """Volume clouds: exact shading and voxels against memory, build time and opacity error.
 
-Two routes: the exact mode (:mod:`nephele.core.volume_atlas`: the shader
+Two routes: the exact mode (:mod:`nephele.core.volume.volume_atlas`: the shader
 evaluates the curvilinear field from texture atlases, a coarse support grid
-bounds where it looks) and voxels (:func:`nephele.core.volume.resample`).
+bounds where it looks) and voxels (:func:`nephele.core.volume.sparse.resample`).
 The error is measured along rays against the exact curvilinear reference
-(:func:`nephele.core.exact_ray.reference_optical_depth`: the field trilinear
+(:func:`nephele.core.volume.exact_ray.reference_optical_depth`: the field trilinear
 in each curvilinear cell, integrated through the piecewise-linear transfer
 function in closed form, Williams & Max 1992), for rays from the Fig. 2
 camera and random rays through the atmosphere shell.  Opacity
@@ -25,14 +25,14 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from report import md_table, write_section  # noqa: E402
 
 
-from nephele.core.exact_ray import (  # noqa: E402
+from nephele.core.volume.exact_ray import (  # noqa: E402
     opacity, ray_samples, reference_optical_depth, segment_optical_depth, sphere_span, volume_optical_depth,
 )
-from nephele.core.grid import height_from_radius, lonlat_to_xyz  # noqa: E402
-from nephele.core.readers import open_dataset  # noqa: E402
-from nephele.core.transfer import TransferFunction  # noqa: E402
-from nephele.core.volume import DEFAULT_EXTINCTION, DEFAULT_VOXEL_SIZE, CurvilinearField, resample  # noqa: E402
-from nephele.core.volume_atlas import DEFAULT_SUPPORT_SIZE, atlas_layout, exact_volume  # noqa: E402
+from nephele.core.climate.grid import height_from_radius, lonlat_to_xyz  # noqa: E402
+from nephele.core.climate.readers import open_dataset  # noqa: E402
+from nephele.core.volume.transfer import TransferFunction  # noqa: E402
+from nephele.core.volume.sparse import DEFAULT_EXTINCTION, DEFAULT_VOXEL_SIZE, CurvilinearField, resample  # noqa: E402
+from nephele.core.volume.volume_atlas import DEFAULT_SUPPORT_SIZE, atlas_layout, exact_volume  # noqa: E402
 
 TF = TransferFunction.ramp(0.3, 0.7)  # the Fig. 2 example's transfer function
 
@@ -286,7 +286,7 @@ times are upper bounds.
 
 ### Exact shading (the default mode)
 
-"Add volume clouds" renders in the exact mode by default (`core/volume_atlas.py`): the material
+"Add volume clouds" renders in the exact mode by default (`core/volume/volume_atlas.py`): the material
 evaluates the curvilinear field itself at every volume sample, from a values atlas (a tile per level)
 and a heights atlas (four levels per texel), with the transfer function as clamped ramps; a coarse
 support grid (a VDB of voxels `support_size` apart whose trilinear footprint covers every cell that may

@@ -16,8 +16,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.colors import LinearSegmentedColormap  # noqa: E402
 
-from nephele.core.readers import open_dataset  # noqa: E402
-from nephele.core.relief import load_relief  # noqa: E402
+from nephele.core.climate.readers import open_dataset  # noqa: E402
+from nephele.core.climate.relief import load_relief  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 EARTH = LinearSegmentedColormap.from_list("earth", ["#1d3f6e", "#3c6e9c", "#6f9d6a", "#a99a6b", "#e8e2d0"])

@@ -84,7 +84,7 @@ def build(**options):
     scene's frame range) and ``hours_per_frame`` (climate hours per frame).
     """
     from nephele.addon import dome_ops
-    from nephele.core.grid import lonlat_to_xyz
+    from nephele.core.climate.grid import lonlat_to_xyz
 
     unknown = set(options) - set(DEFAULTS)
     if unknown:
@@ -190,7 +190,7 @@ def main(argv=None):
         if args.save and preset == "omnimax":
             bpy.ops.wm.save_as_mainfile(filepath=str(Path(args.save).resolve()))
         print(preset, *written[preset])
-    from nephele.core import dome
+    from nephele.core.camera import dome
 
     cams = [dome.dome_camera(p, width=sizes[p][0], height=sizes[p][1]) for p in ("omnimax", "domemaster")]
     pic = side_by_side(written["omnimax"][0], written["domemaster"][0], Path(args.picture or out / "dome.png"),

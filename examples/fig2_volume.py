@@ -29,12 +29,12 @@ DEFAULTS = {
     "source": "demo",
     "threshold": 0.3,
     "full": 0.7,
-    "extinction": None,  # None: nephele.core.volume.DEFAULT_EXTINCTION
+    "extinction": None,  # None: nephele.core.volume.sparse.DEFAULT_EXTINCTION
     "mode": None,  # None: "exact" for Cycles, "voxels" for EEVEE (which renders the exact shader striped)
-    "voxel_size": None,  # None: nephele.core.volume.DEFAULT_VOXEL_SIZE (voxel mode)
+    "voxel_size": None,  # None: nephele.core.volume.sparse.DEFAULT_VOXEL_SIZE (voxel mode)
     "color_var": "altitude",
     "hours_per_frame": 1.0,
-    "exaggeration": None,  # None: nephele.core.grid.DEFAULT_EXAGGERATION
+    "exaggeration": None,  # None: nephele.core.climate.grid.DEFAULT_EXAGGERATION
     "haze": True,
     "camera_lon": -115.0,
     "camera_lat": 28.0,
@@ -62,8 +62,8 @@ def build(**options):
     that ``nephele precompute`` fills in parallel).
     """
     from nephele.addon import frame, globe_ops, globe_scene, volume_ops
-    from nephele.core.transfer import TransferFunction
-    from nephele.core.volume import DEFAULT_EXTINCTION, DEFAULT_VOXEL_SIZE
+    from nephele.core.volume.transfer import TransferFunction
+    from nephele.core.volume.sparse import DEFAULT_EXTINCTION, DEFAULT_VOXEL_SIZE
 
     o = globe_scene.merge_options(DEFAULTS, options)
     scene = bpy.context.scene

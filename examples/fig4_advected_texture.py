@@ -30,7 +30,7 @@ DEFAULTS = {
     "source": "demo",
     "level": 0.15,
     "hours_per_frame": 1.0,
-    "exaggeration": None,  # None: nephele.core.grid.DEFAULT_EXAGGERATION
+    "exaggeration": None,  # None: nephele.core.climate.grid.DEFAULT_EXAGGERATION
     "method": "cubes",
     "strategy": "restart",
     "period": 24,

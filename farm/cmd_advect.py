@@ -48,10 +48,10 @@ def _frames(text):
 
 
 def run(args):
-    from ..core import advect
-    from ..core.cache import Cache, default_cache_dir
-    from ..core.grid import DEFAULT_EXAGGERATION
-    from ..core.tasks import run_cached
+    from ..core.flow import advect
+    from ..core.pipeline.cache import Cache, default_cache_dir
+    from ..core.climate.grid import DEFAULT_EXAGGERATION
+    from ..core.pipeline.tasks import run_cached
 
     first, last = _frames(args.frames)
     if args.strategy == "restart" and (args.period < 2 or args.period % 2):

@@ -24,10 +24,10 @@ def add_arguments(p):
 def run(args):
     import numpy as np
 
-    from ..core.contour import isosurface
-    from ..core.grid import DEFAULT_EXAGGERATION
-    from ..core.mesh import EXPORT_FORMATS
-    from ..core.readers import open_dataset
+    from ..core.surface.contour import isosurface
+    from ..core.climate.grid import DEFAULT_EXAGGERATION
+    from ..core.surface.mesh import EXPORT_FORMATS
+    from ..core.climate.readers import open_dataset
 
     out = Path(args.out)
     if out.suffix.lower() not in EXPORT_FORMATS:

@@ -86,7 +86,7 @@ def format_text(info):
 
 
 def run(args):
-    from ..core.readers import open_dataset
+    from ..core.climate.readers import open_dataset
 
     info = describe(open_dataset(args.source))
     print(json.dumps(info, indent=1) if args.json else format_text(info))

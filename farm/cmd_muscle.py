@@ -38,7 +38,7 @@ def add_arguments(p):
 
 
 def _check(args):
-    from ..farm.frames import parse_frames
+    from .frames import parse_frames
 
     try:
         frames = parse_frames(args.frames)
@@ -90,7 +90,7 @@ def run(args):
 def _core_only(args, frames, film):
     import numpy as np
 
-    from ..core.mesh import Mesh
+    from ..core.surface.mesh import Mesh
     from ..core.muscle import brownian as br
     from ..core.muscle import film as core_film
 

@@ -71,8 +71,8 @@ def tone_map(img, white):
 
 
 def run(args):
-    from ..core import cloud_density as cd
-    from ..core import scatter
+    from ..core.volume import cloud_density as cd
+    from ..core.light import scatter
 
     nx, ny, nz = _ints(args.grid, 3, "--grid")
     box = _floats(args.box, 3, "--box")

@@ -59,11 +59,11 @@ def _steps(text, nt):
 def run(args):
     import numpy as np
 
-    from ..core.contour_task import open_source
+    from ..core.surface.contour_task import open_source
     from ..core.errors import DataError
-    from ..core.grid import DEFAULT_EXAGGERATION
-    from ..core.transfer import TransferFunction
-    from ..core.volume import DEFAULT_VOXEL_SIZE
+    from ..core.climate.grid import DEFAULT_EXAGGERATION
+    from ..core.volume.transfer import TransferFunction
+    from ..core.volume.sparse import DEFAULT_VOXEL_SIZE
 
     voxel = DEFAULT_VOXEL_SIZE if args.voxel_size is None else args.voxel_size
     exaggeration = DEFAULT_EXAGGERATION if args.exaggeration is None else args.exaggeration
@@ -104,7 +104,7 @@ def run(args):
     out = Path(args.out)
     if args.mode == "exact":
         from ..addon.volume_exact import write_exr
-        from ..core.volume_atlas import DEFAULT_SUPPORT_SIZE, atlas_layout
+        from ..core.volume.volume_atlas import DEFAULT_SUPPORT_SIZE, atlas_layout
 
         support = DEFAULT_SUPPORT_SIZE if args.support_size is None else args.support_size
         if not (np.isfinite(support) and support > 0):

@@ -429,7 +429,7 @@ def _after_lost_task(out, frame, fmt, views, exc, since_ns):
 
 def _spec(scene_path, kind, settings, cache_dir, **extra):
     """The JSON-able scene description a :class:`~nephele.farm.worker.BlenderScene` plugin carries."""
-    from ..core.cache import default_cache_dir
+    from ..core.pipeline.cache import default_cache_dir
 
     if kind == "blend" or cache_dir is None:
         cache_dir = default_cache_dir(scene_path)
@@ -463,8 +463,8 @@ def _precompute(client, objects, frames, cache_dir):
 
     Returns ``frame -> future`` (what that frame's render waits on) and ``key -> future`` of all tasks.
     """
-    from ..core import tasks
-    from ..core.cache import cache_key
+    from ..core.pipeline import tasks
+    from ..core.pipeline.cache import cache_key
     from .worker import precompute
 
     by_key, per_frame = {}, {}

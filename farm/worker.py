@@ -504,8 +504,8 @@ def probe(name):
 
 def precompute(kind, params, cache_dir):
     """Dask task: make sure the cache holds task ``kind`` for ``params``; returns (key, computed?, seconds)."""
-    from ..core import tasks
-    from ..core.cache import Cache, cache_key
+    from ..core.pipeline import tasks
+    from ..core.pipeline.cache import Cache, cache_key
 
     cache = Cache(cache_dir)
     t0 = time.perf_counter()

@@ -15,9 +15,9 @@ References
 
 import numpy as np
 
-from ..advect import WindField, steps_to_keep
+from ..flow.advect import WindField, steps_to_keep
 from ..errors import DataError
-from ..grid import DEFAULT_EXAGGERATION, EARTH_RADIUS, globe_radius, height_from_radius
+from ..climate.grid import DEFAULT_EXAGGERATION, EARTH_RADIUS, globe_radius, height_from_radius
 
 
 class ClimateVelocity:

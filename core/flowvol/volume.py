@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import DataError
-from ..mesh import Mesh, vertex_normals
+from ..surface.mesh import Mesh, vertex_normals
 from .climate import ClimateVelocity
 from .front import Front, perpendicular_frame
 from .unstructured import UnstructuredVelocity

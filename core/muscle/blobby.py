@@ -44,10 +44,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .. import _mc_tables as tables
-from ..contour import EDGE_MARGIN
+from ..surface import _mc_tables as tables
+from ..surface.contour import EDGE_MARGIN
 from ..errors import DataError
-from ..mesh import Mesh, vertex_normals
+from ..surface.mesh import Mesh, vertex_normals
 from ..threads import default_threads
 
 BLOCK = 8

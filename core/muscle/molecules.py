@@ -46,7 +46,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import DataError
-from ..mesh import Mesh
+from ..surface.mesh import Mesh
 from .blobby import blobby_field, blobby_surface
 
 LEVEL = 1.0

@@ -7,8 +7,8 @@ import pytest
 
 bpy = pytest.importorskip("bpy")
 
-from nephele.core import advect  # noqa: E402
-from nephele.core.fractal import Fractal, texture_xyz  # noqa: E402
+from nephele.core.flow import advect  # noqa: E402
+from nephele.core.texture.fractal import Fractal, texture_xyz  # noqa: E402
 
 SIZE = 48
 

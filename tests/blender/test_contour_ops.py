@@ -12,9 +12,9 @@ import pytest
 
 from nephele.addon import contour_ops, data_ops, frame, globe_ops
 from nephele.addon.mesh import mesh_arrays, point_attribute
-from nephele.core import contour_task
-from nephele.core.dataset import ArrayDataset, hourly
-from nephele.core.grid import GlobeGrid, xyz_to_lonlat
+from nephele.core.surface import contour_task
+from nephele.core.climate.dataset import ArrayDataset, hourly
+from nephele.core.climate.grid import GlobeGrid, xyz_to_lonlat
 
 SPEED = 5.0  # degrees of longitude per hour
 
@@ -197,7 +197,7 @@ def test_real_files_through_the_operators(empty_scene, shared_data, tmp_path, mo
     assert len(f) > 100 and np.isfinite(v).all()
     r = np.linalg.norm(v, axis=1)
     ds = data_ops.dataset(scene=scene)
-    from nephele.core.grid import globe_radius
+    from nephele.core.climate.grid import globe_radius
 
     # Inside the grid's shell (pressure levels can lie below sea level: 1000 hPa over a low),
     # less the sagitta of a straight grid edge between points on a sphere.

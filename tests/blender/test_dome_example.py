@@ -21,7 +21,7 @@ def _example():
 
 def test_example_renders_globe_where_expected(tmp_path):
     from nephele.addon.dome_ops import read_image
-    from nephele.core import dome
+    from nephele.core.camera import dome
 
     ex = _example()
     paths = ex.render(tmp_path, "omnimax", size=(128, 94), samples=4, stereo=True, elevation=25.0, distance=1.7)

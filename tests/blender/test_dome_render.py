@@ -8,7 +8,7 @@ import pytest
 bpy = pytest.importorskip("bpy")
 
 from nephele.addon import dome_ops  # noqa: E402
-from nephele.core import dome  # noqa: E402
+from nephele.core.camera import dome  # noqa: E402
 
 COLOURS = {"red": (1, 0, 0), "green": (0, 1, 0), "blue": (0, 0, 1), "yellow": (1, 1, 0), "magenta": (1, 0, 1), "cyan": (0, 1, 1)}
 # (elevation, azimuth right of the front) in degrees: ahead, sideways, high, behind the zenith, low

@@ -7,7 +7,7 @@ bpy = pytest.importorskip("bpy")
 
 from nephele.addon import flowvol_ops as fo  # noqa: E402
 from nephele.core.flowvol import ClimateVelocity, flow_volume  # noqa: E402
-from nephele.core.synthetic import SyntheticClimate  # noqa: E402
+from nephele.core.climate.synthetic import SyntheticClimate  # noqa: E402
 
 _DS = SyntheticClimate(ni=64, nj=32, nk=4, days=1, seed=0)
 

@@ -7,7 +7,7 @@ import pytest
 
 from nephele.addon import data_ops, globe_ops
 from nephele.addon.mesh import mesh_arrays, point_attribute
-from nephele.core.grid import DEFAULT_EXAGGERATION, globe_radius, xyz_to_lonlat
+from nephele.core.climate.grid import DEFAULT_EXAGGERATION, globe_radius, xyz_to_lonlat
 
 
 def test_sphere_is_closed_and_outward():
@@ -114,7 +114,7 @@ def test_render_sea_land_space_and_haze(empty_scene, tmp_path):
         from bpy_extras.object_utils import world_to_camera_view
         from mathutils import Vector
 
-        from nephele.core.grid import lonlat_to_xyz
+        from nephele.core.climate.grid import lonlat_to_xyz
 
         p = world_to_camera_view(scene, scene.camera, Vector(lonlat_to_xyz(lon, lat, 1.0).tolist()))
         x, y = int(p.x * w), int(p.y * h)

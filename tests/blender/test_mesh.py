@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from nephele.addon import mesh as bmesh_io
-from nephele.core.contour import isosurface, regular_points
+from nephele.core.surface.contour import isosurface, regular_points
 
 
 def sphere_mesh(n=24):

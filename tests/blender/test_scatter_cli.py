@@ -4,7 +4,7 @@ import json
 
 import numpy as np
 
-from nephele.core import scatter
+from nephele.core.light import scatter
 from nephele.farm import cli
 
 

@@ -6,7 +6,7 @@ import pytest
 bpy = pytest.importorskip("bpy")
 
 from nephele.addon import scatter_ops as so  # noqa: E402
-from nephele.core import scatter  # noqa: E402
+from nephele.core.light import scatter  # noqa: E402
 
 
 def _setup(scene, tmp_path, frames=2):
@@ -49,7 +49,7 @@ def test_operator_writes_volume_sequence(empty_scene, tmp_path, monkeypatch):
     np.testing.assert_allclose(arr.transpose(2, 1, 0), scatter.view_source(sol, cam), rtol=1e-5, atol=1e-9)
     # the farm's plan for the object is the solve the operator ran, already in the cache
     from nephele.addon import frame
-    from nephele.core import cache, tasks
+    from nephele.core.pipeline import cache, tasks
 
     kind, params = tasks.plan(frame.params(obj), 2)[0]
     cached = cache.Cache(tmp_path / "cache").load(kind, params)

@@ -28,9 +28,9 @@ def test_writes_sequence_and_metadata(tmp_path, capsys):
 
 def test_exact_mode_writes_atlases_the_core_reproduces(tmp_path, capsys):
     from nephele.addon.volume_exact import read_exr
-    from nephele.core.readers import open_dataset
-    from nephele.core.transfer import TransferFunction
-    from nephele.core.volume_atlas import atlas_layout, exact_volume
+    from nephele.core.climate.readers import open_dataset
+    from nephele.core.volume.transfer import TransferFunction
+    from nephele.core.volume.volume_atlas import atlas_layout, exact_volume
 
     out = tmp_path / "seq"
     rc = main(["volume", "demo:small", "--steps", "1-1", "--support-size", "0.03", "--out", str(out), "--quiet"])

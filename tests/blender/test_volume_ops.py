@@ -7,12 +7,12 @@ bpy = pytest.importorskip("bpy")
 
 from nephele.addon import data_ops, frame, volume_ops  # noqa: E402
 from nephele.addon.vdb import read_grid  # noqa: E402
-from nephele.core.contour_task import register_source  # noqa: E402
-from nephele.core.dataset import ArrayDataset, hourly  # noqa: E402
-from nephele.core.exact_ray import opacity, reference_optical_depth  # noqa: E402
-from nephele.core.grid import GlobeGrid  # noqa: E402
-from nephele.core.transfer import TransferFunction  # noqa: E402
-from nephele.core.volume import CurvilinearField  # noqa: E402
+from nephele.core.surface.contour_task import register_source  # noqa: E402
+from nephele.core.climate.dataset import ArrayDataset, hourly  # noqa: E402
+from nephele.core.volume.exact_ray import opacity, reference_optical_depth  # noqa: E402
+from nephele.core.climate.grid import GlobeGrid  # noqa: E402
+from nephele.core.volume.transfer import TransferFunction  # noqa: E402
+from nephele.core.volume.sparse import CurvilinearField  # noqa: E402
 
 NI, NJ, NK, NT = 48, 24, 8, 3
 SOURCE = "test:volume-blob"
@@ -235,8 +235,8 @@ def test_lazy_volume_is_written_per_frame_from_the_precomputed_cache(scene, tmp_
     # `nephele precompute`; here in-process through the same worker function)
     # into the scene's cache, then each shown frame only converts the cached
     # arrays into its .vdb file: nothing is resampled in Blender.
-    from nephele.core import tasks
-    from nephele.core import volume as vmod
+    from nephele.core.pipeline import tasks
+    from nephele.core.volume import sparse as vmod
     from nephele.farm.worker import precompute
 
     cache = tmp_path / "cache"

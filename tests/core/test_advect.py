@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
-from nephele.core import advect, flows
-from nephele.core.dataset import ArrayDataset, hourly
+from nephele.core.flow import advect, flows
+from nephele.core.climate.dataset import ArrayDataset, hourly
 from nephele.core.errors import DataError
-from nephele.core.grid import GlobeGrid, lonlat_to_xyz, xyz_to_lonlat
+from nephele.core.climate.grid import GlobeGrid, lonlat_to_xyz, xyz_to_lonlat
 
 TILT = np.pi / 2 - 0.05
 
@@ -91,7 +91,7 @@ def test_deformational_flow_returns_home_and_orders():
 
 
 def test_zero_wind_keeps_points_and_texture_fixed():
-    from nephele.core.fractal import texture
+    from nephele.core.texture.fractal import texture
 
     g = flat_grid()
     wind = advect.WindField(wind_dataset(g, nt=6))
@@ -290,7 +290,7 @@ def test_vertical_levels_mode_keeps_levels():
 
 
 def test_vertical_auto_follows_the_dataset():
-    from nephele.core.synthetic import demo_dataset
+    from nephele.core.climate.synthetic import demo_dataset
 
     g = flat_grid(nk=4)
     assert advect.WindField(wind_dataset(g, u=5.0, w=0.3)).vertical == "w"
@@ -299,7 +299,7 @@ def test_vertical_auto_follows_the_dataset():
 
 
 def test_read_ahead_gives_the_same_traces_and_reads_the_next_step():
-    from nephele.core.synthetic import demo_dataset
+    from nephele.core.climate.synthetic import demo_dataset
 
     def run(read_ahead):
         ds = demo_dataset("small")
@@ -323,7 +323,7 @@ def test_read_ahead_gives_the_same_traces_and_reads_the_next_step():
 def test_dataset_reads_from_two_threads_match_serial_reads():
     from concurrent.futures import ThreadPoolExecutor
 
-    from nephele.core.synthetic import demo_dataset
+    from nephele.core.climate.synthetic import demo_dataset
 
     keys = [(name, t) for t in range(6) for name in ("u", "w", "cloud")]
     serial = [demo_dataset("small", seed=3).read(*k).copy() for k in keys]

@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from nephele.core import advect, flows
-from nephele.core.grid import GlobeGrid, lonlat_to_xyz
-from nephele.core.synthetic import demo_dataset
+from nephele.core.flow import advect, flows
+from nephele.core.climate.grid import GlobeGrid, lonlat_to_xyz
+from nephele.core.climate.synthetic import demo_dataset
 
 
 def sphere_grid(ni=16, nj=8, nk=3, periodic=True):

@@ -3,11 +3,12 @@
 import numpy as np
 import pytest
 
-from nephele.core import advect, tasks
-from nephele.core.cache import Cache
-from nephele.core.contour_task import open_source
-from nephele.core.grid import xyz_to_lonlat
-from nephele.core.mesh import Mesh
+from nephele.core.flow import advect
+from nephele.core.pipeline import tasks
+from nephele.core.pipeline.cache import Cache
+from nephele.core.surface.contour_task import open_source
+from nephele.core.climate.grid import xyz_to_lonlat
+from nephele.core.surface.mesh import Mesh
 
 OBJ = {"kind": "advected_contour", "source": "demo:small", "var": "cloud", "level": 0.15, "hours_per_frame": 1.0,
        "frame_start": 1, "strategy": "restart", "period": 8}

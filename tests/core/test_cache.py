@@ -1,7 +1,7 @@
 import numpy as np
 
-from nephele.core import tasks
-from nephele.core.cache import Cache, cache_key, default_cache_dir
+from nephele.core.pipeline import tasks
+from nephele.core.pipeline.cache import Cache, cache_key, default_cache_dir
 
 
 def test_key_is_canonical_and_sensitive():

@@ -6,17 +6,19 @@ from pathlib import Path
 import pytest
 
 import nephele.core as core
-from nephele.core import cache, codehash, tasks
+from nephele.core.pipeline import cache, codehash, tasks
 
 CORE = Path(core.__file__).resolve().parent
 
 # Task kind -> (its module, the dependencies edited in a copy of the package).
 KINDS = {
-    "contour": ("contour_task.py", ["grid.py", "readers.py", "synthetic.py", "contour.py", "mesh.py"]),
-    "volume": ("volume.py", ["grid.py", "readers.py", "volume_atlas.py", "transfer.py"]),
-    "advect_contour": ("advect.py", ["grid.py", "readers.py", "flows.py", "contour.py"]),
-    "scatter": ("scatter.py", ["phase.py", "cloud_density.py", "noise.py"]),
+    "contour": ("contour_task.py", ["climate/grid.py", "climate/readers.py", "climate/synthetic.py", "surface/contour.py", "surface/mesh.py"]),
+    "volume": ("sparse.py", ["climate/grid.py", "climate/readers.py", "volume/volume_atlas.py", "volume/transfer.py"]),
+    "advect_contour": ("advect.py", ["climate/grid.py", "climate/readers.py", "flow/flows.py", "surface/contour.py"]),
+    "scatter": ("scatter.py", ["light/phase.py", "volume/cloud_density.py", "texture/noise.py"]),
 }
+# Task kind -> the subpackage holding its module.
+HOME = {"contour": "surface", "volume": "volume", "advect_contour": "flow", "scatter": "light"}
 
 
 @pytest.fixture(scope="module")
@@ -36,26 +38,26 @@ def test_registered_task_module_matches(kind):
 @pytest.mark.parametrize("kind", sorted(KINDS))
 def test_editing_a_dependency_changes_the_stamp(kind, copy_root):
     module, deps = KINDS[kind]
-    before = codehash.code_stamp.__wrapped__(copy_root / module, copy_root)
+    before = codehash.code_stamp.__wrapped__(copy_root / HOME[kind] / module, copy_root)
     for dep in deps:
         f = copy_root / dep
         original = f.read_bytes()
         try:
             f.write_bytes(original + b"\n# edited\n")
-            after = codehash.code_stamp.__wrapped__(copy_root / module, copy_root)
+            after = codehash.code_stamp.__wrapped__(copy_root / HOME[kind] / module, copy_root)
         finally:
             f.write_bytes(original)
         assert after != before, f"{kind}: editing {dep} left the stamp unchanged"
-    assert codehash.code_stamp.__wrapped__(copy_root / module, copy_root) == before
+    assert codehash.code_stamp.__wrapped__(copy_root / HOME[kind] / module, copy_root) == before
 
 
 def test_unrelated_module_does_not_change_scatter_stamp(copy_root):
-    before = codehash.code_stamp.__wrapped__(copy_root / "scatter.py", copy_root)
-    f = copy_root / "advect.py"
+    before = codehash.code_stamp.__wrapped__(copy_root / "light" / "scatter.py", copy_root)
+    f = copy_root / "flow" / "advect.py"
     original = f.read_bytes()
     try:
         f.write_bytes(original + b"\n# edited\n")
-        assert codehash.code_stamp.__wrapped__(copy_root / "scatter.py", copy_root) == before
+        assert codehash.code_stamp.__wrapped__(copy_root / "light" / "scatter.py", copy_root) == before
     finally:
         f.write_bytes(original)
 

@@ -4,12 +4,12 @@ analytic surfaces, agreement with VTK and scikit-image."""
 import numpy as np
 import pytest
 
-from nephele.core import _mc_tables as tables
-from nephele.core import contour
-from nephele.core.contour import EDGE_MARGIN, isosurface, regular_points
+from nephele.core.surface import _mc_tables as tables
+from nephele.core.surface import contour
+from nephele.core.surface.contour import EDGE_MARGIN, isosurface, regular_points
 from nephele.core.errors import DataError
-from nephele.core.grid import GlobeGrid, lonlat_to_xyz
-from nephele.core.mesh import triangle_areas
+from nephele.core.climate.grid import GlobeGrid, lonlat_to_xyz
+from nephele.core.surface.mesh import triangle_areas
 
 METHODS = ["cubes", "tetra5"]
 CENTRE = np.array([0.1, 0.05, 0.2])  # off the grid's centre: the sphere cuts every kind of edge
@@ -494,7 +494,7 @@ def test_agrees_with_skimage_on_a_regular_grid():
 @pytest.mark.parametrize("method", METHODS)
 def test_real_grads_sample_with_poles_and_missing_values(shared_data, method):
     # The GrADS sample: pressure levels (NaN under the ground), rows at ±90°, periodic longitudes.
-    from nephele.core.readers import open_dataset
+    from nephele.core.climate.readers import open_dataset
 
     ds = open_dataset(shared_data / "climate" / "model.ctl")
     grid = ds.grid

@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from nephele.core.contour import isosurface, regular_points
+from nephele.core.surface.contour import isosurface, regular_points
 from nephele.core.errors import DataError
-from nephele.core.mesh import Mesh, triangle_areas, vertex_normals
+from nephele.core.surface.mesh import Mesh, triangle_areas, vertex_normals
 
 
 def tetrahedron():

@@ -3,11 +3,12 @@
 import numpy as np
 import pytest
 
-from nephele.core import contour_task, tasks
-from nephele.core.cache import Cache
-from nephele.core.dataset import ArrayDataset, hourly
+from nephele.core.surface import contour_task
+from nephele.core.pipeline import tasks
+from nephele.core.pipeline.cache import Cache
+from nephele.core.climate.dataset import ArrayDataset, hourly
 from nephele.core.errors import DataError
-from nephele.core.grid import GlobeGrid, globe_radius
+from nephele.core.climate.grid import GlobeGrid, globe_radius
 
 H_SCALE = (10000.0, 20000.0, 40000.0)  # cloud = height / H_SCALE[t]
 

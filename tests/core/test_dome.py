@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from nephele.core import dome
+from nephele.core.camera import dome
 from nephele.core.errors import DataError
 
 CAMERAS = [
@@ -288,7 +288,7 @@ def test_supersampling_antialiases_a_fine_checker():
 
 
 def test_remap_table_is_cached_and_stores_as_plain_arrays(tmp_path):
-    from nephele.core.cache import Cache
+    from nephele.core.pipeline.cache import Cache
 
     cam = dome.dome_camera("omnimax", width=64, height=47)
     t1 = dome.remap_table(cam, "cube", (6, 32, 32))
@@ -301,7 +301,7 @@ def test_remap_table_is_cached_and_stores_as_plain_arrays(tmp_path):
 
 
 def test_stored_remap_table_builds_once(tmp_path):
-    from nephele.core.cache import Cache
+    from nephele.core.pipeline.cache import Cache
 
     cam = dome.dome_camera("domemaster", width=40)
     cache = Cache(tmp_path)

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from nephele.core.errors import DataError
-from nephele.core.readers import open_dataset
+from nephele.core.climate.readers import open_dataset
 
 DATA = __import__("pathlib").Path(__file__).resolve().parent.parent / "data"
 

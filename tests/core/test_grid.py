@@ -1,9 +1,9 @@
 import numpy as np
 import pytest
 
-from nephele.core.dataset import ArrayDataset, hourly
+from nephele.core.climate.dataset import ArrayDataset, hourly
 from nephele.core.errors import DataError
-from nephele.core.grid import EARTH_RADIUS, GlobeGrid, globe_radius, lonlat_to_xyz, xyz_to_lonlat
+from nephele.core.climate.grid import EARTH_RADIUS, GlobeGrid, globe_radius, lonlat_to_xyz, xyz_to_lonlat
 
 
 def small_grid(ni=8, nj=5, nk=3):

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from nephele.core.humidity import (
+from nephele.core.climate.humidity import (
     EPSILON,
     mixing_ratio,
     relative_humidity,

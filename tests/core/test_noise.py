@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from nephele.core.noise import improved_noise, turbulence
+from nephele.core.texture.noise import improved_noise, turbulence
 
 
 def test_reference_value():

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from nephele.core import phase
+from nephele.core.light import phase
 
 
 def test_bins_cover_the_sphere():

@@ -6,8 +6,8 @@ import pytest
 xr = pytest.importorskip("xarray")
 
 from nephele.core.errors import DataError  # noqa: E402
-from nephele.core.humidity import standard_height  # noqa: E402
-from nephele.core.readers import open_dataset  # noqa: E402
+from nephele.core.climate.humidity import standard_height  # noqa: E402
+from nephele.core.climate.readers import open_dataset  # noqa: E402
 
 UNDEF = -2.56e33
 
@@ -420,7 +420,7 @@ def _proj_rotated_to_true(path, mapping, rlon, rlat):
 
 
 def _contour(ds, name, level):
-    from nephele.core.contour import isosurface
+    from nephele.core.surface.contour import isosurface
 
     return isosurface(ds.grid.points(), ds.read(name, 0), level, periodic_lon=ds.grid.periodic_lon)
 
@@ -459,7 +459,7 @@ def test_cam_history_file_ncar_hybrid_levels():
         open_dataset(path, variables={"temperature": "TS"})
     mesh = _contour(ds, "temperature", 250.0)
     assert len(mesh.faces) > 1000
-    from nephele.core.grid import xyz_to_lonlat
+    from nephele.core.climate.grid import xyz_to_lonlat
 
     r = np.linalg.norm(mesh.vertices, axis=1)
     radii = ds.grid.radii()
@@ -519,7 +519,7 @@ def test_um_rotated_pole_hybrid_height():
     np.testing.assert_allclose(ds.grid.height[k, j, i], a[k] + b[k] * orog[j, i], rtol=1e-6)
     assert ds.read("air_potential_temperature", 0)[k, j, i] == theta[k, j, i]
     np.testing.assert_array_equal(ds.grid.lon, rlon)
-    from nephele.core.grid import xyz_to_lonlat
+    from nephele.core.climate.grid import xyz_to_lonlat
 
     mesh = _contour(ds, "air_potential_temperature", 288.0)
     assert len(mesh.faces) > 100

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from nephele.core import scatter
+from nephele.core.light import scatter
 from nephele.core.errors import DataError
 
 # Homogeneous slab, normal incidence, no refractive boundary: total R and T
@@ -168,8 +168,8 @@ def test_save_load_roundtrip(tmp_path):
 
 
 def test_scatter_task_matches_solve_and_is_planned(tmp_path):
-    from nephele.core import cloud_density as cd
-    from nephele.core import tasks
+    from nephele.core.volume import cloud_density as cd
+    from nephele.core.pipeline import tasks
 
     cloud = cd.CloudParams(shape=(6, 8, 8), size=(1.0, 1.0, 0.75), seed=3)
     params = scatter.task_params(cloud, 30.0, albedo=0.9, g=0.8, sun_dir=[0.3, 0.1, 1.0], tol=1e-2)

@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 
 from nephele.core.errors import DataError
-from nephele.core.grid import EARTH_RADIUS, lonlat_to_xyz, xyz_to_lonlat
-from nephele.core.readers import open_dataset
-from nephele.core.synthetic import SyntheticClimate, demo_dataset
+from nephele.core.climate.grid import EARTH_RADIUS, lonlat_to_xyz, xyz_to_lonlat
+from nephele.core.climate.readers import open_dataset
+from nephele.core.climate.synthetic import SyntheticClimate, demo_dataset
 
 
 @pytest.fixture(scope="module")

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from nephele.core.errors import DataError
-from nephele.core.transfer import ALTITUDE_COLORS, ColorMap, TransferFunction
+from nephele.core.volume.transfer import ALTITUDE_COLORS, ColorMap, TransferFunction
 
 
 def test_piecewise_linear_values_clamped_and_nan():

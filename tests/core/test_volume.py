@@ -4,10 +4,10 @@ import numpy as np
 import pytest
 
 from nephele.core.errors import DataError
-from nephele.core.exact_ray import opacity, reference_optical_depth, volume_optical_depth
-from nephele.core.grid import GlobeGrid, globe_radius, lonlat_to_xyz
-from nephele.core.transfer import TransferFunction
-from nephele.core.volume import ALTITUDE, CurvilinearField, SparseVolume, resample
+from nephele.core.volume.exact_ray import opacity, reference_optical_depth, volume_optical_depth
+from nephele.core.climate.grid import GlobeGrid, globe_radius, lonlat_to_xyz
+from nephele.core.volume.transfer import TransferFunction
+from nephele.core.volume.sparse import ALTITUDE, CurvilinearField, SparseVolume, resample
 
 
 def grid(ni=40, nj=20, nk=8, top=16000.0, terrain=True):
@@ -263,9 +263,9 @@ def test_arrays_roundtrip_and_bad_input():
 
 
 def test_planner_feeds_the_cache_the_blender_bake_reads(tmp_path, monkeypatch):
-    from nephele.core import tasks
-    from nephele.core import volume as vmod
-    from nephele.core.contour_task import open_source
+    from nephele.core.pipeline import tasks
+    from nephele.core.volume import sparse as vmod
+    from nephele.core.surface.contour_task import open_source
 
     obj = {"kind": "volume", "source": "demo:small", "var": "cloud", "tf": TransferFunction.ramp(0.3, 1.0).to_dict(),
            "color_var": "altitude", "voxel_size": 0.02, "frame_start": 1, "hours_per_frame": 1.5, "frames": [1, 3]}

@@ -1,4 +1,4 @@
-"""Exact volume shading (core/volume_atlas.py) against the curvilinear reference.
+"""Exact volume shading (core/volume/volume_atlas.py) against the curvilinear reference.
 
 Truth: :class:`CurvilinearField` located with ``clamp_below`` and interpolated in
 float64 (trilinear in the curvilinear cell), ``np.interp``, analytic fields and
@@ -9,14 +9,14 @@ agree to ~1e-5 and the tolerance is 1e-4 (fields of order 1).
 import numpy as np
 import pytest
 
-from nephele.core import tasks
-from nephele.core.contour_task import register_source
-from nephele.core.dataset import ArrayDataset, hourly
+from nephele.core.pipeline import tasks
+from nephele.core.surface.contour_task import register_source
+from nephele.core.climate.dataset import ArrayDataset, hourly
 from nephele.core.errors import DataError
-from nephele.core.grid import GlobeGrid, globe_radius, lonlat_to_xyz
-from nephele.core.transfer import TransferFunction
-from nephele.core.volume import EXACT, CurvilinearField, frame_params
-from nephele.core.volume_atlas import (
+from nephele.core.climate.grid import GlobeGrid, globe_radius, lonlat_to_xyz
+from nephele.core.volume.transfer import TransferFunction
+from nephele.core.volume.sparse import EXACT, CurvilinearField, frame_params
+from nephele.core.volume.volume_atlas import (
     DEFAULT_BELOW,
     atlas_layout,
     axis_runs,
@@ -184,7 +184,7 @@ def test_gaussian_latitudes_match_reference():
 
 
 def test_demo_small_terrain_following_matches_reference():
-    from nephele.core.readers import open_dataset
+    from nephele.core.climate.readers import open_dataset
 
     ds = open_dataset("demo:small")
     grid = ds.grid
@@ -361,7 +361,7 @@ def test_support_covers_every_cloudy_point(size):
 
 
 def test_support_of_the_demo_covers_every_cloudy_point():
-    from nephele.core.readers import open_dataset
+    from nephele.core.climate.readers import open_dataset
 
     ds = open_dataset("demo:small")
     values = ds.read("cloud", 10)

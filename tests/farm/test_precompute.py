@@ -6,8 +6,8 @@ import pytest
 
 pytest.importorskip("bpy")
 
-from nephele.core import tasks  # noqa: E402
-from nephele.core.cache import Cache  # noqa: E402
+from nephele.core.pipeline import tasks  # noqa: E402
+from nephele.core.pipeline.cache import Cache  # noqa: E402
 from nephele.farm import cli  # noqa: E402
 from nephele.farm.render import precompute_scene, render_sequence  # noqa: E402
 

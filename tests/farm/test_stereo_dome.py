@@ -16,7 +16,7 @@ import pytest
 
 bpy = pytest.importorskip("bpy")
 
-from nephele.core import dome  # noqa: E402
+from nephele.core.camera import dome  # noqa: E402
 from nephele.farm import cli  # noqa: E402
 from nephele.farm.frames import check_image, frame_name, sha256_file  # noqa: E402
 from nephele.farm.render import render_sequence  # noqa: E402

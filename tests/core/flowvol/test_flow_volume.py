@@ -5,7 +5,7 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from nephele.core.errors import DataError
-from nephele.core.flows import FlowDataset, SolidBodyRotation, sample_grid
+from nephele.core.flow.flows import FlowDataset, SolidBodyRotation, sample_grid
 from nephele.core.flowvol import ClimateVelocity, flow_volume
 from nephele.core.flowvol.tets import face_use_counts, signed_volumes
 
@@ -194,7 +194,7 @@ def test_climate_winds_solid_body_rotation_across_seam_and_pole(rotation_globe, 
     assert fv.volume == pytest.approx(polygon_area(0.02, 12) * angle * d, rel=2e-2)
     check_mesh(fv)
     # Air released at t0 has turned by the rotation angle about the axis.
-    from nephele.core.flows import rotate
+    from nephele.core.flow.flows import rotate
 
     first = np.isclose(fv.release, 0.0)
     assert np.max(np.linalg.norm(fv.vertices[first] - rotate(fv.generator, axis, angle), axis=1)) < 2e-3

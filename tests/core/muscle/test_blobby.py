@@ -9,7 +9,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from nephele.core.errors import DataError
-from nephele.core.mesh import Mesh, triangle_areas
+from nephele.core.surface.mesh import Mesh, triangle_areas
 from nephele.core.muscle import blobby_field, blobby_surface
 
 

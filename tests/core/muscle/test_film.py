@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from nephele.core import tasks
+from nephele.core.pipeline import tasks
 from nephele.core.errors import DataError
 from nephele.core.muscle import brownian as br
 from nephele.core.muscle import film

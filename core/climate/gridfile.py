@@ -26,7 +26,7 @@ import re
 import numpy as np
 
 from .dataset import Dataset, Variable
-from .errors import DataError
+from ..errors import DataError
 from .humidity import RH_CRIT, relative_humidity, sundqvist_cloud
 
 # Lower-case file names (CF, ECMWF/ERA, ECHAM, NCEP, GrADS) → standard name.

@@ -19,10 +19,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .cache import source_stamp
-from .errors import DataError
-from .grid import DEFAULT_EXAGGERATION
-from .tasks import planner, task
+from ..pipeline.cache import source_stamp
+from ..errors import DataError
+from ..climate.grid import DEFAULT_EXAGGERATION
+from ..pipeline.tasks import planner, task
 
 ALTITUDE = "altitude"
 """Name of the per-vertex height attribute (metres above sea level) every contour mesh carries."""
@@ -51,7 +51,7 @@ def open_source(source):
     source = str(source)
     if source in _MEMORY:
         return _MEMORY[source]
-    from .readers import open_dataset
+    from ..climate.readers import open_dataset
 
     stamp = source_stamp(source)
     hit = _OPEN.get(source)

@@ -37,9 +37,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import DataError
-from .grid import DEFAULT_EXAGGERATION, EARTH_RADIUS, globe_radius, height_from_radius, xyz_to_lonlat
-from .threads import default_threads
+from ..errors import DataError
+from ..climate.grid import DEFAULT_EXAGGERATION, EARTH_RADIUS, globe_radius, height_from_radius, xyz_to_lonlat
+from ..threads import default_threads
 from .transfer import TransferFunction
 
 DEFAULT_VOXEL_SIZE = 0.0027
@@ -811,8 +811,8 @@ def frame_params(obj_params, frame):
     The model time is interpolated linearly between steps and clamped to the
     data; it is rounded to 1e-6 h so equal frames share a cache entry.
     """
-    from .cache import source_stamp
-    from .contour_task import frame_hours, open_source
+    from ..pipeline.cache import source_stamp
+    from ..surface.contour_task import frame_hours, open_source
 
     missing = [k for k in ("source", "var", "tf") if k not in obj_params]
     if missing:
@@ -850,17 +850,16 @@ def frame_params(obj_params, frame):
 def code_stamp():
     """Short hash of the resampling code, part of every cache key: a changed
     algorithm never serves volumes cached (or .vdb files baked) by the old one."""
-    h = hashlib.sha256()
-    for name in ("volume.py", "volume_atlas.py", "transfer.py", "grid.py"):
-        h.update((Path(__file__).resolve().parent / name).read_bytes())
-    return h.hexdigest()[:16]
+    from ..pipeline.codehash import code_stamp as stamp
+
+    return stamp(__file__)
 
 
 def _volume_task(params):
     """Task ``"volume"``: :func:`resample` of one model time (params from
     :func:`frame_params`).  Arrays of :meth:`SparseVolume.arrays` plus
     ``value_max``, the largest finite value of the field at that time."""
-    from .contour_task import open_source
+    from ..surface.contour_task import open_source
 
     ds = open_source(params["source"])
     values = ds.read_at(params["var"], params["hours"])
@@ -896,7 +895,7 @@ def plan_volume(obj_params, frame):
 
 
 def _register_task():
-    from .tasks import planner, task
+    from ..pipeline.tasks import planner, task
 
     task("volume")(_volume_task)
     planner("volume")(plan_volume)

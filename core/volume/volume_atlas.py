@@ -48,10 +48,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import DataError
-from .grid import DEFAULT_EXAGGERATION, EARTH_RADIUS
+from ..errors import DataError
+from ..climate.grid import DEFAULT_EXAGGERATION, EARTH_RADIUS
 from .transfer import TransferFunction
-from .volume import ALTITUDE, CurvilinearField, SparseVolume, candidate_blocks, height_scale, scalar_field
+from .sparse import ALTITUDE, CurvilinearField, SparseVolume, candidate_blocks, height_scale, scalar_field
 
 PAD = 1
 """Padding rows above and below each tile."""

@@ -31,9 +31,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .dataset import Dataset, Variable, hourly
-from .errors import DataError
-from .grid import EARTH_RADIUS, GlobeGrid
+from ..climate.dataset import Dataset, Variable, hourly
+from ..errors import DataError
+from ..climate.grid import EARTH_RADIUS, GlobeGrid
 
 DAY_HOURS = 24.0
 

@@ -35,10 +35,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
-from .errors import DataError
+from ..errors import DataError
 from .flows import tangent_velocity
-from .grid import EARTH_RADIUS, xyz_to_lonlat
-from .threads import default_threads
+from ..climate.grid import EARTH_RADIUS, xyz_to_lonlat
+from ..threads import default_threads
 
 HOUR = 3600.0
 METHODS = ("euler", "rk2", "rk4")
@@ -1003,7 +1003,7 @@ def advect_task_params(obj_params, frame):
     plus the strategy settings (:data:`ADVECT_DEFAULTS`) and the frame index ``n``
     counted from the texture's start (the first frame, model time 0).
     """
-    from .contour_task import task_params
+    from ..surface.contour_task import task_params
 
     tp = task_params(obj_params, frame)
     hpf = float(obj_params.get("hours_per_frame", 1.0))
@@ -1047,7 +1047,7 @@ def _strategy(params, ds):
 
 
 def _register_task():
-    from .tasks import planner, task
+    from ..pipeline.tasks import planner, task
 
     @planner("advected_contour")
     def plan_advected(obj_params, frame):
@@ -1069,8 +1069,8 @@ def _register_task():
             the colour variable, and per copy ``a``/``b``: :data:`START`,
             :data:`START_ALT` and :data:`WEIGHT`.
         """
-        from .contour import isosurface
-        from .contour_task import ALTITUDE, open_source
+        from ..surface.contour import isosurface
+        from ..surface.contour_task import ALTITUDE, open_source
 
         ds = open_source(params["source"])
         var, level = params["var"], float(params["level"])

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .noise import turbulence
+from ..texture.noise import turbulence
 
 
 @dataclass(frozen=True)

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import DataError
+from ..errors import DataError
 
 EARTH_RADIUS = 6_371_000.0
 """Mean Earth radius in metres."""

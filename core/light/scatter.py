@@ -66,8 +66,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import phase
-from .errors import DataError
-from .tasks import planner, task
+from ..errors import DataError
+from ..pipeline.tasks import planner, task
 
 NB = phase.NBINS
 
@@ -542,7 +542,7 @@ def view_source(sol, camera_position, chunk=1 << 15):
     -------
     ndarray float32 (nz, ny, nx): emission coefficient for an emission-absorption render.
     """
-    from .cloud_density import voxel_centres
+    from ..volume.cloud_density import voxel_centres
 
     shape = sol.sigma.shape
     cam = np.asarray(camera_position, dtype=np.float64)
@@ -705,7 +705,7 @@ def task_params(cloud, extinction=40.0, **solve):
 def solve_task(params):
     """The ``"scatter"`` task: build the cloud of :func:`task_params` and solve it;
     returns :func:`solution_arrays` (:func:`solution_from_arrays` reads them back)."""
-    from . import cloud_density as cd
+    from ..volume import cloud_density as cd
 
     c = dict(params["cloud"])
     c["ellipsoids"] = tuple(cd.Ellipsoid(tuple(e["center"]), tuple(e["radii"]), float(e["weight"]))

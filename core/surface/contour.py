@@ -39,7 +39,7 @@ from functools import lru_cache
 import numpy as np
 
 from . import _mc_tables as tables
-from .errors import DataError
+from ..errors import DataError
 from .mesh import Mesh, vertex_normals
 
 METHODS = ("cubes", "tetra5")

@@ -6,7 +6,7 @@ demo needs no download.  :func:`load_etopo` reads the full ETOPO ``.cdf``
 files (20' and 60') for users who want more detail, and :func:`write_relief`
 rebuilds the shipped file from ``etopo60.cdf``::
 
-    python -m nephele.core.relief ../shared/data/terrain/etopo60.cdf core/resources/relief_1deg.npz
+    python -m nephele.core.climate.relief ../shared/data/terrain/etopo60.cdf core/resources/relief_1deg.npz
 
 References
 ----------
@@ -23,9 +23,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import DataError
+from ..errors import DataError
 
-RELIEF_FILE = Path(__file__).resolve().parent / "resources" / "relief_1deg.npz"
+RELIEF_FILE = Path(__file__).resolve().parent.parent / "resources" / "relief_1deg.npz"
 """The shipped 1° relief: arrays ``lon`` (360,), ``lat`` (180,), ``elevation`` int16 (180, 360)."""
 
 
@@ -164,5 +164,5 @@ def sample_relief(lon, lat, relief=None):
 
 if __name__ == "__main__":
     if len(sys.argv) not in (2, 3):
-        sys.exit("usage: python -m nephele.core.relief ETOPO60.cdf [OUT.npz]")
+        sys.exit("usage: python -m nephele.core.climate.relief ETOPO60.cdf [OUT.npz]")
     print(write_relief(*sys.argv[1:]))

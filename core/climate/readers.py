@@ -11,7 +11,7 @@ References
 
 from pathlib import Path
 
-from .errors import DataError
+from ..errors import DataError
 from .synthetic import SIZES, demo_dataset
 
 GRIB_SUFFIXES = (".grib", ".grib1", ".grib2", ".grb", ".grb1", ".grb2")

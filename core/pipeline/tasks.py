@@ -23,8 +23,8 @@ from .codehash import code_stamp as _file_stamp
 TASKS = {}
 PLANNERS = {}
 
-# The one list of core modules that register tasks when imported (a missing one is an error).
-TASK_MODULES = ("contour_task", "volume", "advect", "scatter", "muscle.film")
+# The one list of core modules (under nephele.core) that register tasks when imported (a missing one is an error).
+TASK_MODULES = ("surface.contour_task", "volume.sparse", "flow.advect", "light.scatter", "muscle.film")
 
 
 def task(kind):
@@ -62,7 +62,7 @@ def planner(kind):
 def load_all():
     """Import the core modules that register tasks."""
     for name in TASK_MODULES:
-        importlib.import_module(f"{__package__}.{name}")
+        importlib.import_module(f"..{name}", __package__)
 
 
 def _lookup(kind):

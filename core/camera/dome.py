@@ -58,7 +58,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import DataError
+from ..errors import DataError
 
 PRESETS = ("domemaster", "omnimax")
 LENSES = ("equidistant", "equisolid")

@@ -11,7 +11,7 @@ References
 .. [2] N. Max and R. Crawfis, "Advances in Scientific Visualization".
 """
 
-from .errors import DataError
+from ..errors import DataError
 from .netcdf import NetCDFDataset
 
 

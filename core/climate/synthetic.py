@@ -84,7 +84,7 @@ import functools
 import numpy as np
 
 from .dataset import Dataset, Variable
-from .errors import DataError
+from ..errors import DataError
 from .grid import EARTH_RADIUS, GlobeGrid
 from .relief import load_relief, sample_relief
 

@@ -27,7 +27,7 @@ References
 
 import numpy as np
 
-from .errors import DataError
+from ..errors import DataError
 from .transfer import TransferFunction
 
 

@@ -50,7 +50,7 @@ import re
 
 import numpy as np
 
-from .errors import DataError
+from ..errors import DataError
 from .gridfile import FileDataset, cf_times_or_steps, plausible_units, pressure_scale, standard_name, step_times, tidy_lonlat
 from .grid import EARTH_RADIUS, GlobeGrid, rotated_pole_matrix
 from .humidity import G0, RH_CRIT, standard_height

@@ -19,7 +19,7 @@ References
 import logging
 import warnings
 
-from .errors import DataError
+from ..errors import DataError
 from .netcdf import NetCDFDataset
 
 _REGULAR = ("regular_ll", "regular_gg")

@@ -11,6 +11,8 @@ import hashlib
 from functools import lru_cache
 from pathlib import Path
 
+_CORE = Path(__file__).resolve().parent.parent  # nephele/core
+
 
 def _module_file(base, parts):
     """The ``.py`` file (or package ``__init__.py``) of dotted ``parts`` under ``base``, or None."""
@@ -46,7 +48,7 @@ def _imports(path, root):
 def dependencies(path, root=None):
     """Sorted source files ``path`` depends on under ``root`` (default: its package's top directory)."""
     path = Path(path).resolve()
-    root = Path(root).resolve() if root is not None else Path(__file__).resolve().parent
+    root = Path(root).resolve() if root is not None else _CORE
     seen, todo = set(), [path]
     while todo:
         f = todo.pop()
@@ -61,7 +63,7 @@ def dependencies(path, root=None):
 def code_stamp(path, root=None):
     """Short sha256 of every file :func:`dependencies` lists (relative names and bytes)."""
     path = Path(path).resolve()
-    root = Path(root).resolve() if root is not None else Path(__file__).resolve().parent
+    root = Path(root).resolve() if root is not None else _CORE
     if not path.is_relative_to(root):  # a task registered outside the package: its own folder
         root = path.parent
     h = hashlib.sha256()

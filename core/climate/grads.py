@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import DataError
+from ..errors import DataError
 from .gridfile import FileDataset, standard_name, tidy_lonlat
 from .grid import GlobeGrid
 from .humidity import RH_CRIT, standard_height

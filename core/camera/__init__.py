@@ -1,0 +1,21 @@
+"""Cameras: the dome (fisheye, cube-map) projections."""
+
+from .dome import (  # noqa: F401
+    CUBE_AXES,
+    CUBE_FACES,
+    DomeCamera,
+    LENSES,
+    OMNIMAX_FILM_MM,
+    PRESETS,
+    PRESET_DEFAULTS,
+    RemapTable,
+    SOURCES,
+    cube_to_direction,
+    direction_to_cube,
+    direction_to_equirect,
+    dome_camera,
+    remap,
+    remap_table,
+    stereo_eyes,
+    stored_remap_table,
+)

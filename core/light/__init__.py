@@ -1,0 +1,35 @@
+"""Light: multiple scattering in clouds and the phase functions."""
+
+from .phase import (  # noqa: F401
+    FACES,
+    NBINS,
+    N_PER_FACE,
+    bin_of,
+    bin_phase_toward,
+    bins,
+    direct_fractions,
+    hg,
+    mean_directions,
+    phase_matrix,
+    sub_phase_matrix,
+    sub_sub_phase_matrix,
+)
+from .scatter import (  # noqa: F401
+    Camera,
+    NB,
+    Progress,
+    Solution,
+    load_solution,
+    orbit_camera,
+    plan_solve,
+    render,
+    save_solution,
+    slab_reflectance,
+    solution_arrays,
+    solution_from_arrays,
+    solve,
+    solve_steps,
+    solve_task,
+    task_params,
+    view_source,
+)

@@ -1,0 +1,49 @@
+"""Volumes: sparse resampling of curvilinear fields, the exact-shading atlas, exact ray integration, transfer functions and cloud densities."""
+
+from .cloud_density import (  # noqa: F401
+    CloudParams,
+    Ellipsoid,
+    cloud_density,
+    voxel_centres,
+)
+from .exact_ray import (  # noqa: F401
+    opacity,
+    ray_samples,
+    reference_optical_depth,
+    segment_optical_depth,
+    sphere_span,
+    volume_optical_depth,
+)
+from .sparse import (  # noqa: F401
+    ALTITUDE,
+    CurvilinearField,
+    DEFAULT_EXTINCTION,
+    DEFAULT_VOXEL_SIZE,
+    EXACT,
+    SparseVolume,
+    VOXELS,
+    candidate_blocks,
+    frame_params,
+    height_scale,
+    plan_volume,
+    resample,
+)
+from .transfer import (  # noqa: F401
+    ALTITUDE_COLORS,
+    ColorMap,
+    TEMPERATURE_COLORS,
+    TransferFunction,
+)
+from .volume_atlas import (  # noqa: F401
+    AtlasLayout,
+    DEFAULT_BELOW,
+    DEFAULT_SUPPORT_SIZE,
+    ExactVolume,
+    atlas_layout,
+    axis_runs,
+    bilinear,
+    exact_volume,
+    support_voxels,
+    tf_eval32,
+    tf_ramps,
+)
