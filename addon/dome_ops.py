@@ -28,7 +28,6 @@ References
 """
 
 import math
-import os
 import tempfile
 from pathlib import Path
 
@@ -40,6 +39,7 @@ from mathutils import Matrix, Vector
 
 from ..core.camera import dome as core_dome
 from ..core.errors import DataError
+from ..fileio import read_image, write_image
 from . import frame
 from .panel import SubPanel
 
@@ -230,48 +230,6 @@ def uninstall():
     handlers = bpy.app.handlers.render_pre
     for h in [h for h in handlers if getattr(h, "__name__", "") == _warn_before_render.__name__]:
         handlers.remove(h)
-
-
-# --- images (OpenImageIO bundled with Blender) ---------------------------------------------------
-
-
-def _oiio():
-    try:
-        import OpenImageIO as oiio
-    except ImportError:
-        bpy.utils.expose_bundled_modules()
-        import OpenImageIO as oiio
-    return oiio
-
-
-def read_image(path):
-    """(H, W, C) float32 pixel values of an image file, top row first, as stored (no colour conversion)."""
-    oiio = _oiio()
-    buf = oiio.ImageBuf(str(path))
-    if buf.has_error:
-        raise DataError(f"cannot read image: {buf.geterror()}", path=path)
-    return np.asarray(buf.get_pixels(oiio.FLOAT), dtype=np.float32)
-
-
-def write_image(path, pixels):
-    """Write (H, W, C) values in [0, 1] as an 8-bit PNG (or by extension), atomically."""
-    oiio = _oiio()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    px = np.ascontiguousarray(np.clip(pixels, 0.0, 1.0), dtype=np.float32)
-    spec = oiio.ImageSpec(px.shape[1], px.shape[0], px.shape[2] if px.ndim == 3 else 1, oiio.UINT8)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=path.suffix)
-    os.close(fd)
-    out = oiio.ImageOutput.create(tmp)
-    if out is None or not out.open(tmp, spec) or not out.write_image(px):
-        os.unlink(tmp)
-        raise DataError(f"cannot write image: {oiio.geterror()}", path=path)
-    out.close()
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes it private; a frame is an ordinary file
-    os.replace(tmp, path)
-    return path
 
 
 # --- the EEVEE route: six cube faces, remapped ---------------------------------------------------

@@ -15,8 +15,6 @@ tracing (the benchmark's reference).
 """
 
 import math
-import os
-import tempfile
 from pathlib import Path
 
 import bpy
@@ -24,42 +22,8 @@ import numpy as np
 
 from ..core.volume import cloud_density as cd
 from ..core.light import scatter
+from ..fileio import dense_grids, write_vdb
 from .panel import SubPanel
-
-
-def _openvdb():
-    try:
-        import openvdb
-    except ImportError:
-        bpy.utils.expose_bundled_modules()
-        import openvdb
-    return openvdb
-
-
-def write_vdb(path, grids, size):
-    """Write float grids ``{name: (nz, ny, nx) array}`` to ``path`` atomically.
-
-    Voxel ``(k, j, i)`` is centred at ``((i+.5)dx, (j+.5)dy, (k+.5)dz)`` in object space.
-    """
-    vdb = _openvdb()
-    shape = next(iter(grids.values())).shape
-    h = np.asarray(size, float) / np.asarray(shape[::-1])
-    xf = vdb.createLinearTransform([[h[0], 0, 0, 0], [0, h[1], 0, 0], [0, 0, h[2], 0],
-                                    [0.5 * h[0], 0.5 * h[1], 0.5 * h[2], 1]])
-    out = []
-    for name, a in grids.items():
-        g = vdb.FloatGrid()
-        g.copyFromArray(np.ascontiguousarray(np.asarray(a, np.float32).transpose(2, 1, 0)))
-        g.name = name
-        g.transform = xf
-        out.append(g)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".vdb")
-    os.close(fd)
-    vdb.write(tmp, grids=out)
-    os.replace(tmp, path)
-    return path
 
 
 def _look_at(obj, target):
@@ -205,7 +169,7 @@ def render_array(scene, path):
 
 def add_pathtraced_cloud(sigma, size, *, albedo, g, vdb_path, name="Path-traced cloud"):
     """The same medium for Cycles' volume path tracing (the reference)."""
-    write_vdb(vdb_path, {"density": sigma}, size)
+    write_vdb(vdb_path, dense_grids({"density": sigma}, size))
     obj = _volume_object(name, vdb_path)
     obj.data.materials.append(scattering_material(albedo, g))
     return obj
@@ -378,7 +342,7 @@ class ScatterJob:
         local = Vector(cam) - Vector(self.origin)
         src = scatter.view_source(self.solution, tuple(local))
         write_vdb(self.directory / f"scatter_{self.view_index + 1:04d}.vdb",
-                  {"density": self.solution.sigma, "emission": src}, self.size)
+                  dense_grids({"density": self.solution.sigma, "emission": src}, self.size))
 
     def _finish(self):
         from . import frame

@@ -16,44 +16,19 @@ References
    topology", ACM Trans. Graph. 32(3), 2013.
 """
 
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
+
+from ..fileio import block_grid, vdb_metadata, write_vdb
 
 DENSITY = "density"
 """Name of the opacity grid (Principled Volume's default density attribute)."""
 
 
-def openvdb():
-    """The ``openvdb`` module (bundled with Blender)."""
-    try:
-        import openvdb as vdb
-    except ImportError:
-        import bpy
-
-        bpy.utils.expose_bundled_modules()
-        import openvdb as vdb
-    return vdb
-
-
 def frame_path(directory, prefix, number, digits=4):
     """Path of sequence file ``number`` (1-based)."""
     return Path(directory) / f"{prefix}_{int(number):0{digits}d}.vdb"
-
-
-def _grid(vdb, name, blocks, data, block, voxel_size, background=0.0):
-    grid = vdb.FloatGrid(float(background))
-    for b, a in zip(blocks, data):
-        # Voxels equal to the background become inactive, so the tree stays sparse.
-        grid.copyFromArray(np.ascontiguousarray(a, dtype=np.float32), ijk=tuple(int(c) * block for c in b))
-    grid.transform = vdb.createLinearTransform(voxelSize=float(voxel_size))
-    grid.name = name
-    grid.gridClass = vdb.GridClass.FOG_VOLUME
-    # 16-bit floats on disk: opacity to ~1e-3, altitude to ~8 m; half the size.
-    grid.saveFloatAsHalf = True
-    return grid
 
 
 def write_volume(path, volume, *, metadata=None):
@@ -66,58 +41,17 @@ def write_volume(path, volume, *, metadata=None):
 
     Returns the path.
     """
-    vdb = openvdb()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    grids = [_grid(vdb, DENSITY, volume.blocks, volume.density, volume.block, volume.voxel_size)]
+    grids = [block_grid(DENSITY, volume.blocks, volume.density, volume.block, volume.voxel_size)]
     if volume.color is not None and volume.color_name:
         bg = float(volume.color[volume.density > 0].mean()) if volume.density.size and (volume.density > 0).any() else 0.0
-        grids.append(_grid(vdb, volume.color_name, volume.blocks, volume.color, volume.block, volume.voxel_size, bg))
-    meta = {str(k): str(v) for k, v in (metadata or {}).items()}
-    return atomic_write(path, lambda tmp: vdb.write(tmp, grids=grids, metadata=meta))
-
-
-def atomic_write(path, write):
-    """Call ``write(tmp)`` on a temporary file beside ``path``, then rename it to ``path``."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=path.suffix)
-    os.close(fd)
-    try:
-        write(tmp)
-        # mkstemp makes the file private; a render farm's other users must read it.
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path
-
-
-def read_grid(path, name=DENSITY):
-    """Read grid ``name`` of a ``.vdb`` file: ``(dense array [x, y, z], index origin, voxel size)``.
-
-    For tests and checks; ``(None, None, voxel size)`` for an empty grid.
-    """
-    vdb = openvdb()
-    grid = vdb.read(str(path), name)
-    vs = grid.transform.voxelSize()[0]
-    if grid.activeVoxelCount() == 0:
-        return None, None, vs
-    lo, hi = grid.evalActiveVoxelBoundingBox()
-    shape = tuple(h - l + 1 for l, h in zip(lo, hi))
-    a = np.zeros(shape, dtype=np.float32)
-    grid.copyToArray(a, ijk=lo)
-    return a, np.array(lo), vs
+        grids.append(block_grid(volume.color_name, volume.blocks, volume.color, volume.block, volume.voxel_size, bg))
+    return write_vdb(path, grids, metadata or {})
 
 
 def file_key(path):
     """The ``nephele_key`` metadata of a ``.vdb`` file (None if absent or unreadable)."""
     try:
-        return openvdb().readMetadata(str(path)).get("nephele_key")
+        return vdb_metadata(path).get("nephele_key")
     except (OSError, RuntimeError, ValueError, KeyError):
         return None
 
@@ -157,7 +91,7 @@ def bake_frame(obj_params, frame, number, directory, prefix="clouds", *, cache=N
         exr = path.with_suffix(".exr")
         reuse = reuse and exr_key(exr) == key
     if reuse and path.is_file() and file_key(path) == key:
-        meta = openvdb().readMetadata(str(path))
+        meta = vdb_metadata(path)
         return {"frame": frame, "path": str(path), "hours": params["hours"], "blocks": int(meta["nephele_blocks"]),
                 "active_voxels": int(meta["nephele_active_voxels"]), "value_max": float(meta["nephele_value_max"]),
                 "seconds": time.perf_counter() - t0, "reused": True, "cached": False}
@@ -221,4 +155,4 @@ def bake_sequence(obj_params, frames, directory, prefix="clouds", *, cache=None,
     return out
 
 
-__all__ = ["DENSITY", "bake_frame", "bake_sequence", "file_key", "frame_path", "openvdb", "read_grid", "write_volume"]
+__all__ = ["DENSITY", "bake_frame", "bake_sequence", "file_key", "frame_path", "write_volume"]

@@ -25,44 +25,16 @@ from pathlib import Path
 import numpy as np
 
 from ..core.volume.volume_atlas import PAD, VALID, tf_ramps
-from .vdb import atomic_write
+from ..fileio import block_grid, oiio, write_image, write_vdb
 
 SUPPORT = "support"
 """Name of the support grid."""
 
 
-def oiio():
-    """The ``OpenImageIO`` module (bundled with Blender)."""
-    try:
-        import OpenImageIO as mod
-    except ImportError:
-        import bpy
-
-        bpy.utils.expose_bundled_modules()
-        import OpenImageIO as mod
-    return mod
-
-
 def write_exr(path, img, metadata=None):
     """Write an ``(h, w, 4)`` float32 atlas as a 32-bit float EXR (row 0 at the bottom, as Blender reads it)."""
-    io = oiio()
-    img = np.ascontiguousarray(np.asarray(img, np.float32)[::-1])
-    h, w, c = img.shape
-
-    def write(tmp):
-        spec = io.ImageSpec(w, h, c, "float")
-        spec.attribute("compression", "zip")
-        for k, v in (metadata or {}).items():
-            spec.attribute(str(k), str(v))
-        out = io.ImageOutput.create(tmp)
-        if out is None or not out.open(tmp, spec):
-            raise OSError(f"{path}: cannot write EXR: {io.geterror()}")
-        ok = out.write_image(img)
-        out.close()
-        if not ok:
-            raise OSError(f"{path}: cannot write EXR: {out.geterror()}")
-
-    return atomic_write(path, write)
+    return write_image(path, np.asarray(img, np.float32)[::-1], pixel_type="float", metadata=metadata,
+                       compression="zip")
 
 
 def read_exr(path):
@@ -97,18 +69,13 @@ def exr_key(path):
 
 def write_support(path, support, support_size, metadata=None):
     """The ``support`` grid (1 in every voxel of ``support`` (n, 3)) as a ``.vdb``, atomically."""
-    from .vdb import _grid, openvdb
-
-    vdb = openvdb()
     B = 8
     vox = np.asarray(support, np.int64).reshape(-1, 3)
     blocks, inverse = np.unique(np.floor_divide(vox, B), axis=0, return_inverse=True)
     data = np.zeros((blocks.shape[0], B, B, B), np.float32)
     loc = vox - blocks[inverse.reshape(-1)] * B
     data[inverse.reshape(-1), loc[:, 0], loc[:, 1], loc[:, 2]] = 1.0
-    grid = _grid(vdb, SUPPORT, blocks, data, B, support_size)
-    meta = {str(k): str(v) for k, v in (metadata or {}).items()}
-    return atomic_write(path, lambda tmp: vdb.write(tmp, grids=[grid], metadata=meta))
+    return write_vdb(path, [block_grid(SUPPORT, blocks, data, B, support_size)], metadata or {})
 
 
 # ------------------------------------------------------------------ the node graph

@@ -37,7 +37,7 @@ from .cli import UsageError
 HELP = "build the Blender extension zips (one per platform and Blender Python), wheels bundled"
 
 ROOT = Path(__file__).resolve().parent.parent
-PARTS = ("__init__.py", "blender_manifest.toml", "addon", "core", "README.md", "LICENSE", "LICENSE.txt", "COPYING")
+PARTS = ("__init__.py", "fileio.py", "blender_manifest.toml", "addon", "core", "README.md", "LICENSE", "LICENSE.txt", "COPYING")
 
 # Packages the add-on imports that Blender does not ship (pins read from the
 # requirement files the tests run on).

@@ -13,10 +13,8 @@ runs and written with the timings to ``demo.json``.
 """
 
 import json
-import os
 import subprocess
 import sys
-import tempfile
 import threading
 import time
 from pathlib import Path
@@ -100,10 +98,10 @@ class PeakMemory:
 
 
 def _write_json(path, data):
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
-    with os.fdopen(fd, "w") as f:
+    from ..core.files import atomic_write
+
+    with atomic_write(path) as tmp, open(tmp, "w") as f:
         json.dump(data, f, indent=2)
-    os.replace(tmp, path)
 
 
 def build_blend(out, options):

@@ -57,7 +57,7 @@ def _frames(text):
 
 def load_source(source, kind, frame=None):
     """(6, n, n, C) cube faces or (H, W, C) equirect pixels from files."""
-    from ..addon.dome_ops import read_image
+    from ..fileio import read_image
     from ..core.camera import dome
     from ..core.errors import DataError
 
@@ -84,7 +84,7 @@ def _path(p):
 
 
 def run(args):
-    from ..addon.dome_ops import write_image
+    from ..fileio import write_image
     from ..core.camera import dome
 
     kind = args.kind or ("cube" if "{face}" in args.source or Path(args.source).is_dir() else "equirect")

@@ -101,7 +101,7 @@ def run(args):
     scatter.save_solution(sol, out / "solution.npz")
     say(f"solve {nx}x{ny}x{nz}: {t_solve:.1f} s, {sol.report}")
     if args.vdb:
-        from ..addon.scatter_ops import write_vdb  # needs bpy's bundled openvdb
+        from ..fileio import dense_grids, write_vdb  # needs bpy's bundled openvdb
     import imageio.v3 as iio
 
     white = None
@@ -118,7 +118,7 @@ def run(args):
         np.save(out / f"view_{i + 1:04d}.npy", img)
         iio.imwrite(out / f"view_{i + 1:04d}.png", tone_map(img, white))
         if args.vdb:
-            write_vdb(out / f"scatter_{i + 1:04d}.vdb", {"density": sigma, "emission": src}, box)
+            write_vdb(out / f"scatter_{i + 1:04d}.vdb", dense_grids({"density": sigma, "emission": src}, box))
         say(f"view {i + 1}/{args.views}: {times[-1]:.2f} s")
     (out / "scatter.json").write_text(json.dumps({
         "grid": [nx, ny, nz], "box": box, "extinction": args.extinction, "albedo": args.albedo, "g": args.g,

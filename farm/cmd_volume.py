@@ -12,9 +12,9 @@ material needs (:mod:`nephele.addon.volume_exact`).
 import json
 import os
 import sys
-import tempfile
 from pathlib import Path
 
+from ..core.files import atomic_write
 from .cli import UsageError
 
 HELP = "resample a variable into a sparse VDB volume sequence (one .vdb per time step) for Blender"
@@ -124,13 +124,8 @@ def run(args):
     meta = dict(params, steps=[first, last], files=[Path(i["path"]).name for i in infos],
                 value_max=max(i["value_max"] for i in infos),
                 grids=["support"] if args.mode == "exact" else ["density"] + ([color_var] if color_var else []))
-    fd, tmp = tempfile.mkstemp(dir=out, prefix=".sequence.", suffix=".json")
-    with os.fdopen(fd, "w") as f:
+    with atomic_write(out / "sequence.json") as tmp, open(tmp, "w") as f:
         json.dump(meta, f, indent=1)
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(tmp, 0o666 & ~umask)
-    os.replace(tmp, out / "sequence.json")
     voxels = sum(i["active_voxels"] for i in infos)
     print(f"{out}: {len(infos)} VDB files ({args.prefix}_0001.vdb ...), {voxels} active voxels")
     if voxels == 0:

@@ -17,10 +17,10 @@ so a crash leaves the previous complete manifest.
 
 import json
 import os
-import uuid
 import time
 from pathlib import Path
 
+from ..core.files import atomic_write
 from .frames import InvalidFrame, check_image, frame_name, sha256_file
 
 VERSION = 1
@@ -65,17 +65,8 @@ class Manifest:
         now = time.monotonic()
         if min_interval and now - self._saved < min_interval:
             return
-        tmp = self.out_dir / f".manifest.{uuid.uuid4().hex[:12]}.json"
-        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)  # umask applies, as for frames
-        try:
-            with os.fdopen(fd, "w") as f:
-                json.dump(self.to_dict(), f, indent=1)
-                f.flush()
-                os.fsync(f.fileno())
-            os.replace(tmp, self.path)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
+        with atomic_write(self.path) as tmp, open(tmp, "w") as f:
+            json.dump(self.to_dict(), f, indent=1)
         self._saved = now
 
 

@@ -13,14 +13,14 @@ what a PNG render of the same scene would show).
 """
 
 import math
-import os
 import subprocess
-import uuid
 from pathlib import Path
 
 import numpy as np
 
 from ..core.errors import DataError
+from ..core.files import atomic_write
+from ..fileio import oiio, write_image
 
 LINEAR = "Linear Rec.709"
 
@@ -30,18 +30,6 @@ _DIGITS = {
     "4": "101101111001001", "5": "111100111001111", "6": "111100111101111", "7": "111001001001001",
     "8": "111101111101111", "9": "111101111001111",
 }
-
-
-def oiio():
-    """The OpenImageIO module (from the bpy wheel when not installed on its own)."""
-    try:
-        import OpenImageIO
-    except ImportError:
-        import bpy
-
-        bpy.utils.expose_bundled_modules()
-        import OpenImageIO
-    return OpenImageIO
 
 
 def read_rgba(path, view="Standard"):
@@ -71,33 +59,6 @@ def read_rgba(path, view="Standard"):
         alpha = px[..., 3:4] if px.shape[2] >= 4 else np.ones(px.shape[:2] + (1,), np.float32)
         px = px[..., :3] if px.shape[2] >= 3 else np.repeat(px[..., :1], 3, axis=2)
     return np.clip(np.concatenate([px, alpha], axis=2), 0.0, 1.0).astype(np.float32)
-
-
-def write_image(path, pixels):
-    """Write ``(h, w, c)`` values in 0..1 as 8-bit PNG (or float EXR), atomically."""
-    io = oiio()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    px = np.ascontiguousarray(pixels, dtype=np.float32)
-    h, w, c = px.shape
-    exr = path.suffix.lower() == ".exr"
-    spec = io.ImageSpec(w, h, c, io.HALF if exr else io.UINT8)
-    buf = io.ImageBuf(spec)
-    buf.set_pixels(io.ROI(0, w, 0, h, 0, 1, 0, c), px)
-    tmp = _tmp_name(path)
-    try:
-        if not buf.write(tmp):
-            raise DataError(f"cannot write image: {buf.geterror()}", path=path)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
-
-
-def _tmp_name(path):
-    # Not mkstemp: the writer creates the file with the usual permissions (umask), not 0600.
-    return str(path.parent / f".{path.stem}.{uuid.uuid4().hex[:12]}.tmp{path.suffix}")
 
 
 def _over(rgba, background):
@@ -227,26 +188,24 @@ def movie(paths, out_mp4, fps=24, crf=18, view="Standard", background=(0.0, 0.0,
     out_mp4.parent.mkdir(parents=True, exist_ok=True)
     first = read_rgba(paths[0], view)
     h, w = first.shape[:2]
-    tmp = _tmp_name(out_mp4)
-    cmd = [ffmpeg_exe(), "-y", "-loglevel", "error", "-f", "rawvideo", "-pix_fmt", "rgb24", "-s", f"{w}x{h}",
-           "-r", str(fps), "-i", "-", "-vf", "pad=ceil(iw/2)*2:ceil(ih/2)*2", "-c:v", "libx264",
-           "-preset", "medium", "-crf", str(crf), "-pix_fmt", "yuv420p", "-movflags", "+faststart", tmp]
-    proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stderr=subprocess.PIPE)
-    try:
-        for i, p in enumerate(paths):
-            rgba = first if i == 0 else read_rgba(p, view)
-            if rgba.shape[:2] != (h, w):
-                raise DataError(f"frame size {rgba.shape[1]}x{rgba.shape[0]} differs from the first {w}x{h}", path=p)
-            rgb = np.round(_over(rgba, background) * 255.0).astype(np.uint8)
-            proc.stdin.write(rgb.tobytes())
-        proc.stdin.close()
-        err = proc.stderr.read().decode(errors="replace")
-        if proc.wait() != 0:
-            raise DataError(f"ffmpeg failed: {err.strip()}", path=out_mp4)
-        os.replace(tmp, out_mp4)
-    except BaseException:
-        proc.kill()
-        proc.wait()
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    with atomic_write(out_mp4) as tmp:
+        cmd = [ffmpeg_exe(), "-y", "-loglevel", "error", "-f", "rawvideo", "-pix_fmt", "rgb24", "-s", f"{w}x{h}",
+               "-r", str(fps), "-i", "-", "-vf", "pad=ceil(iw/2)*2:ceil(ih/2)*2", "-c:v", "libx264",
+               "-preset", "medium", "-crf", str(crf), "-pix_fmt", "yuv420p", "-movflags", "+faststart", str(tmp)]
+        proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stderr=subprocess.PIPE)
+        try:
+            for i, p in enumerate(paths):
+                rgba = first if i == 0 else read_rgba(p, view)
+                if rgba.shape[:2] != (h, w):
+                    raise DataError(f"frame size {rgba.shape[1]}x{rgba.shape[0]} differs from the first {w}x{h}", path=p)
+                rgb = np.round(_over(rgba, background) * 255.0).astype(np.uint8)
+                proc.stdin.write(rgb.tobytes())
+            proc.stdin.close()
+            err = proc.stderr.read().decode(errors="replace")
+            if proc.wait() != 0:
+                raise DataError(f"ffmpeg failed: {err.strip()}", path=out_mp4)
+        except BaseException:
+            proc.kill()
+            proc.wait()
+            raise
     return out_mp4

@@ -219,13 +219,9 @@ def expected_size(scene):
 
 def decode(path, size=None):
     """Decode every pixel of ``path`` with OpenImageIO; raises :class:`InvalidFrame` unless whole."""
-    try:
-        import OpenImageIO as oiio
-    except ImportError:
-        import bpy
+    from ..fileio import oiio as _oiio
 
-        bpy.utils.expose_bundled_modules()
-        import OpenImageIO as oiio
+    oiio = _oiio()
     inp = oiio.ImageInput.open(str(path))
     if inp is None:
         raise InvalidFrame(f"OpenImageIO cannot open it: {oiio.geterror()}")

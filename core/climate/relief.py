@@ -16,14 +16,13 @@ References
    as distributed with Ferret (``ferret-datasets``).
 """
 
-import os
 import sys
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import DataError
+from ..files import atomic_write
 
 RELIEF_FILE = Path(__file__).resolve().parent.parent / "resources" / "relief_1deg.npz"
 """The shipped 1° relief: arrays ``lon`` (360,), ``lat`` (180,), ``elevation`` int16 (180, 360)."""
@@ -115,12 +114,8 @@ def write_relief(etopo_path, out_path=RELIEF_FILE):
     if np.isnan(z).any():
         raise DataError("has missing values; cannot make a complete relief", path=etopo_path, field="elevation")
     out_path = Path(out_path)
-    out_path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=out_path.parent, suffix=".npz")
-    with os.fdopen(fd, "wb") as f:
+    with atomic_write(out_path) as tmp, open(tmp, "wb") as f:
         np.savez_compressed(f, lon=lon.astype(np.float32), lat=lat.astype(np.float32), elevation=np.rint(z).astype(np.int16))
-    os.chmod(tmp, 0o644)
-    os.replace(tmp, out_path)
     return out_path
 
 

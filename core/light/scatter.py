@@ -60,13 +60,13 @@ K. D. Lathrop, "Ray effects in discrete ordinates equations", Nucl. Sci. Eng. 32
 
 import json
 import os
-import tempfile
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from . import phase
 from ..errors import DataError
+from ..files import atomic_write
 from ..pipeline.tasks import planner, task
 
 NB = phase.NBINS
@@ -665,13 +665,8 @@ def solution_from_arrays(arrays):
 def save_solution(sol, path):
     """Write a :class:`Solution` to ``path`` (.npz: plain arrays + JSON metadata, no pickle), atomically."""
     path = os.fspath(path)
-    d = os.path.dirname(os.path.abspath(path))
-    os.makedirs(d, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=d, suffix=".npz")
-    os.close(fd)
-    with open(tmp, "wb") as f:
+    with atomic_write(path) as tmp, open(tmp, "wb") as f:
         np.savez(f, **solution_arrays(sol))
-    os.replace(tmp, path)
     return path
 
 

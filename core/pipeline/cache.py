@@ -11,11 +11,12 @@ arrays (read with ``allow_pickle=False``) or any file a writer produces under
 import hashlib
 import json
 import os
-import tempfile
 import zipfile
 from pathlib import Path
 
 import numpy as np
+
+from ..files import atomic_write
 
 CACHE_VERSION = 1
 """Bump when the meaning of cached arrays changes; old entries are then ignored."""
@@ -100,27 +101,7 @@ class Cache:
     def store(self, kind, params, arrays):
         """Write ``arrays`` (a dict of ndarrays) atomically; returns the entry's path."""
         path = self.file(kind, params)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".tmp-", suffix=".npz")
-        try:
-            with os.fdopen(fd, "wb") as f:
-                np.savez(f, __params__=np.array(canonical(params)), **{k: np.asarray(v) for k, v in arrays.items()})
-            os.replace(tmp, path)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
-        return path
-
-    def write_atomic(self, path, writer):
-        """Call ``writer(tmp_path)`` then move the result to ``path``; for non-npz entries (VDB, images)."""
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".tmp-", suffix=path.suffix)
-        os.close(fd)
-        try:
-            writer(tmp)
-            os.replace(tmp, path)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
+        # No fsync: a torn entry fails to load and is recomputed.
+        with atomic_write(path, fsync=False) as tmp, open(tmp, "wb") as f:
+            np.savez(f, __params__=np.array(canonical(params)), **{k: np.asarray(v) for k, v in arrays.items()})
         return path

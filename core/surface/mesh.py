@@ -5,14 +5,13 @@ and per-vertex attributes.  It converts to :mod:`trimesh` (imported lazily)
 for export, and caches itself as a plain ``.npz`` (no pickle).
 """
 
-import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import DataError
+from ..files import atomic_write
 
 EXPORT_FORMATS = (".ply", ".glb", ".obj")
 _ATTR_PREFIX = "attr__"
@@ -98,14 +97,16 @@ class Mesh:
         data = tm.export(file_type=ext[1:])
         if isinstance(data, str):
             data = data.encode()
-        _write_atomic(path, lambda f: f.write(data))
+        with atomic_write(path) as tmp:
+            tmp.write_bytes(data)
         return path
 
     def save_npz(self, path):
         """Cache as a plain ``.npz`` (atomic; loads with ``allow_pickle=False``)."""
         arrays = {"vertices": self.vertices, "faces": self.faces, "normals": self.normals}
         arrays.update({_ATTR_PREFIX + k: np.asarray(v) for k, v in self.attributes.items()})
-        _write_atomic(Path(path), lambda f: np.savez(f, **arrays))
+        with atomic_write(path) as tmp, open(tmp, "wb") as f:
+            np.savez(f, **arrays)
         return Path(path)
 
     def to_arrays(self):
@@ -164,18 +165,3 @@ def vertex_normals(vertices, faces):
     length = np.sqrt(np.einsum("ij,ij->i", out, out))
     np.divide(out, length[:, None], out=out, where=length[:, None] > 0)
     return out
-
-
-def _write_atomic(path, write):
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            write(f)
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise

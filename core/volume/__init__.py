@@ -3,7 +3,6 @@
 from .cloud_density import (  # noqa: F401
     CloudParams,
     Ellipsoid,
-    cloud_density,
     voxel_centres,
 )
 from .exact_ray import (  # noqa: F401

@@ -5,7 +5,7 @@ import pytest
 
 pytest.importorskip("bpy")
 
-from nephele.addon.dome_ops import read_image, write_image  # noqa: E402
+from nephele.fileio import read_image, write_image  # noqa: E402
 from nephele.core.camera import dome  # noqa: E402
 from nephele.farm.cli import main  # noqa: E402
 

@@ -20,7 +20,7 @@ def _example():
 
 
 def test_example_renders_globe_where_expected(tmp_path):
-    from nephele.addon.dome_ops import read_image
+    from nephele.fileio import read_image
     from nephele.core.camera import dome
 
     ex = _example()

@@ -5,6 +5,7 @@ import pytest
 
 bpy = pytest.importorskip("bpy")
 
+from nephele import fileio  # noqa: E402
 from nephele.addon import scatter_ops as so  # noqa: E402
 from nephele.core.light import scatter  # noqa: E402
 
@@ -40,7 +41,7 @@ def test_operator_writes_volume_sequence(empty_scene, tmp_path, monkeypatch):
     assert "converged" in scene.nephele_scatter.status
     sol = scatter.load_solution(tmp_path / "scatter" / "solution.npz")
     # the emission grid of frame 2 is the core's source toward frame 2's camera
-    vdb = so._openvdb()
+    vdb = fileio.openvdb()
     grid = vdb.read(str(files[1]), "emission")
     arr = np.zeros(sol.sigma.shape[::-1], np.float32)
     grid.copyToArray(arr)
@@ -87,7 +88,7 @@ def test_cycles_renders_the_emission_volume_like_the_core(empty_scene, tmp_path)
     ours = scatter.render(sigma, src, (1, 1, 0.75), cam, step=0.2)
     so.add_camera(cam)
     so.black_world()
-    so.write_vdb(tmp_path / "ea.vdb", {"density": sigma, "emission": src}, (1, 1, 0.75))
+    fileio.write_vdb(tmp_path / "ea.vdb", fileio.dense_grids({"density": sigma, "emission": src}, (1, 1, 0.75)))
     obj = so._volume_object("ea", tmp_path / "ea.vdb")
     obj.data.materials.append(so.emission_material())
     so.cycles_settings(empty_scene, 64)

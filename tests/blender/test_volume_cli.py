@@ -7,7 +7,7 @@ import pytest
 
 pytest.importorskip("bpy")
 
-from nephele.addon.vdb import read_grid  # noqa: E402
+from nephele.fileio import read_grid  # noqa: E402
 from nephele.farm.cli import main  # noqa: E402
 
 

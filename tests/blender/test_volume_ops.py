@@ -6,7 +6,7 @@ import pytest
 bpy = pytest.importorskip("bpy")
 
 from nephele.addon import data_ops, frame, volume_ops  # noqa: E402
-from nephele.addon.vdb import read_grid  # noqa: E402
+from nephele.fileio import read_grid  # noqa: E402
 from nephele.core.surface.contour_task import register_source  # noqa: E402
 from nephele.core.climate.dataset import ArrayDataset, hourly  # noqa: E402
 from nephele.core.volume.exact_ray import opacity, reference_optical_depth  # noqa: E402

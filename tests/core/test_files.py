@@ -1,0 +1,91 @@
+"""core/files.py: one atomic_write: all or nothing, an ordinary file's mode, no temporary left behind."""
+
+import os
+import stat
+import subprocess
+import sys
+
+import pytest
+
+from nephele.core.files import atomic_write
+
+
+def _mode(path):
+    return stat.S_IMODE(os.stat(path).st_mode)
+
+
+def test_writes_and_replaces(tmp_path):
+    p = tmp_path / "sub" / "a.txt"
+    with atomic_write(p) as tmp:
+        assert tmp.parent == p.parent and tmp.suffix == ".txt" and tmp.is_file()
+        tmp.write_text("one")
+    assert p.read_text() == "one"
+    with atomic_write(p, fsync=False) as tmp:
+        tmp.write_text("two")
+    assert p.read_text() == "two"
+    assert sorted(x.name for x in p.parent.iterdir()) == ["a.txt"]
+
+
+def test_an_error_while_writing_leaves_the_old_file(tmp_path):
+    p = tmp_path / "a.json"
+    p.write_text("old")
+    with pytest.raises(RuntimeError, match="disk on fire"):
+        with atomic_write(p) as tmp, open(tmp, "w") as f:
+            f.write("half of the new")
+            raise RuntimeError("disk on fire")
+    assert p.read_text() == "old"
+    assert [x.name for x in tmp_path.iterdir()] == ["a.json"]
+
+
+def test_a_killed_writer_leaves_the_old_file(tmp_path):
+    # A process killed in the middle of the write (no exception handler runs).
+    p = tmp_path / "a.bin"
+    p.write_bytes(b"old")
+    code = (
+        "import os, sys\n"
+        "from nephele.core.files import atomic_write\n"
+        f"with atomic_write({str(p)!r}) as tmp:\n"
+        "    open(tmp, 'wb').write(b'new, half written')\n"
+        "    os._exit(9)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], env=dict(os.environ), capture_output=True)
+    assert out.returncode == 9, out.stderr
+    assert p.read_bytes() == b"old"
+    assert not (tmp_path / "a.bin.tmp").exists()
+
+
+@pytest.mark.parametrize("umask", [0o022, 0o077, 0o002])
+def test_the_mode_is_the_umasks(tmp_path, umask):
+    old = os.umask(umask)
+    try:
+        p = tmp_path / f"f{umask:o}.npz"
+        with atomic_write(p) as tmp:
+            tmp.write_bytes(b"x")
+        ref = tmp_path / f"ref{umask:o}"
+        ref.write_bytes(b"x")  # what an ordinary open() makes under this umask
+    finally:
+        os.umask(old)
+    assert _mode(p) == _mode(ref) == 0o666 & ~umask
+
+
+def test_a_writer_that_recreates_the_file_keeps_the_mode(tmp_path):
+    old = os.umask(0o022)
+    try:
+        p = tmp_path / "a.txt"
+        with atomic_write(p) as tmp:
+            tmp.unlink()
+            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT, 0o600)
+            os.write(fd, b"private")
+            os.close(fd)
+    finally:
+        os.umask(old)
+    assert p.read_bytes() == b"private" and _mode(p) == 0o644
+
+
+def test_a_writer_that_removes_its_file_is_an_error(tmp_path):
+    p = tmp_path / "a.txt"
+    p.write_text("old")
+    with pytest.raises(FileNotFoundError, match="a.txt"):
+        with atomic_write(p) as tmp:
+            tmp.unlink()
+    assert p.read_text() == "old"
