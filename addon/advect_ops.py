@@ -20,7 +20,7 @@ import math
 
 import bpy
 
-from ..core.flow import advect
+from ..core.flow import advect, advect_task
 from ..core.texture.fractal import Fractal, terms
 from ..core.surface.mesh import Mesh
 from ..core.pipeline.tasks import run_cached
@@ -174,7 +174,7 @@ def cloud_material(name="Nephele Advected Clouds", fractal=Fractal(), lo=0.08, h
 @frame.register_updater(KIND)
 def update_advected(obj, params, scene, frame_number):
     """Refill ``obj`` with the contour and texture start coordinates of ``frame_number``."""
-    tp = advect.advect_task_params(params, frame_number)
+    tp = advect_task.advect_task_params(params, frame_number)
     shown = json.dumps(tp, sort_keys=True)
     if obj.get("nephele_shown") == shown and len(obj.data.vertices):
         return

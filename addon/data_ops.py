@@ -59,7 +59,7 @@ def set_settings(scene=None, **values):
 
 def dataset(source=None, scene=None):
     """The dataset ``source`` (default: the scene's), opened once per process."""
-    from ..core.surface.contour_task import open_source
+    from ..core.pipeline.sources import open_source
 
     if source is None:
         source = settings(scene)["source"]

@@ -21,7 +21,7 @@ import bpy
 import numpy as np
 
 from ..core.volume import cloud_density as cd
-from ..core.light import scatter
+from ..core.light import scatter, scatter_task
 from ..fileio import dense_grids, write_vdb
 from .panel import SubPanel
 
@@ -270,7 +270,7 @@ class ScatterJob:
         self.directory = output_directory(props.directory)
         self.frames = list(range(self.scene.frame_start, self.scene.frame_end + 1))
         # the same solve as the farm's "scatter" task (nephele precompute), cached under its key
-        self.task = scatter.task_params(
+        self.task = scatter_task.task_params(
             self.params, props.extinction, albedo=props.albedo, g=props.anisotropy, sun_dir=list(self.sun),
             sun_irradiance=props.sun_irradiance, sky_radiance=props.sky_radiance,
             tol=props.tolerance, max_passes=props.max_passes)

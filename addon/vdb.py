@@ -63,7 +63,7 @@ def bake_frame(obj_params, frame, number, directory, prefix="clouds", *, cache=N
     the support grid and an ``.exr`` of the same name the values atlas
     (:mod:`.volume_exact`).
 
-    ``obj_params`` as for :func:`nephele.core.volume.frame_params`.  The file
+    ``obj_params`` as for :func:`nephele.core.volume.volume_task.frame_params`.  The file
     records the cache key of its exact inputs; with ``reuse`` an existing
     file with that key is kept (one metadata read).  ``cache``: a
     :class:`~nephele.core.cache.Cache` or directory holding resampled volumes,
@@ -78,7 +78,8 @@ def bake_frame(obj_params, frame, number, directory, prefix="clouds", *, cache=N
 
     from ..core.pipeline.cache import Cache, cache_key
     from ..core.pipeline.tasks import run
-    from ..core.volume.sparse import EXACT, SparseVolume, frame_params
+    from ..core.volume.sparse import EXACT, SparseVolume
+    from ..core.volume.volume_task import frame_params
 
     t0 = time.perf_counter()
     params = frame_params(obj_params, frame)

@@ -48,7 +48,7 @@ def _frames(text):
 
 
 def run(args):
-    from ..core.flow import advect
+    from ..core.flow import advect_task
     from ..core.pipeline.cache import Cache, default_cache_dir
     from ..core.climate.grid import DEFAULT_EXAGGERATION
     from ..core.pipeline.tasks import run_cached
@@ -70,7 +70,7 @@ def run(args):
     total = 0.0
     for f in range(first, last + 1):
         t0 = time.perf_counter()
-        tp = advect.advect_task_params(obj_params, f)
+        tp = advect_task.advect_task_params(obj_params, f)
         out = run_cached("advect_contour", tp, cache)
         dt = time.perf_counter() - t0
         total += dt

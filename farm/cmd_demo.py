@@ -123,7 +123,7 @@ def build_blend(out, options):
 
 
 def run(args):
-    from ..core.surface.contour_task import open_source
+    from ..core.pipeline.sources import open_source
     from .frames import parse_frames
     from .post import contact_sheet
     from .render import render_sequence

@@ -59,7 +59,7 @@ def _steps(text, nt):
 def run(args):
     import numpy as np
 
-    from ..core.surface.contour_task import open_source
+    from ..core.pipeline.sources import open_source
     from ..core.errors import DataError
     from ..core.climate.grid import DEFAULT_EXAGGERATION
     from ..core.volume.transfer import TransferFunction

@@ -1,16 +1,18 @@
 """Flow: analytic and gridded winds, trajectories and the advection strategies."""
 
 from .advect import (  # noqa: F401
-    ADVECT_DEFAULTS,
     AnalyticWind,
+    COPIES,
     ComposedTrace,
     Copy,
     FullTrace,
     RestartTrace,
+    START,
+    START_ALT,
     STRATEGIES,
+    WEIGHT,
     WindField,
     active_vertices,
-    advect_task_params,
     dilate,
     great_circle_km,
     grid_vertices,
@@ -18,6 +20,10 @@ from .advect import (  # noqa: F401
     steps_to_keep,
     trace,
     vertex_levels,
+)
+from .advect_task import (  # noqa: F401
+    ADVECT_DEFAULTS,
+    advect_task_params,
 )
 from .flows import (  # noqa: F401
     DeformationalFlow,

@@ -21,7 +21,6 @@ from .scatter import (  # noqa: F401
     Solution,
     load_solution,
     orbit_camera,
-    plan_solve,
     render,
     save_solution,
     slab_reflectance,
@@ -29,7 +28,10 @@ from .scatter import (  # noqa: F401
     solution_from_arrays,
     solve,
     solve_steps,
+    view_source,
+)
+from .scatter_task import (  # noqa: F401
+    plan_solve,
     solve_task,
     task_params,
-    view_source,
 )

@@ -11,6 +11,11 @@ from .cache import (  # noqa: F401
 from .codehash import (  # noqa: F401
     dependencies,
 )
+from .sources import (  # noqa: F401
+    frame_hours,
+    open_source,
+    register_source,
+)
 from .tasks import (  # noqa: F401
     PLANNERS,
     TASKS,

@@ -24,7 +24,7 @@ TASKS = {}
 PLANNERS = {}
 
 # The one list of core modules (under nephele.core) that register tasks when imported (a missing one is an error).
-TASK_MODULES = ("surface.contour_task", "volume.sparse", "flow.advect", "light.scatter", "muscle.film")
+TASK_MODULES = ("surface.contour_task", "volume.volume_task", "flow.advect_task", "light.scatter_task", "muscle.film")
 
 
 def task(kind):

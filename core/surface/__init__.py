@@ -10,10 +10,7 @@ from .contour import (  # noqa: F401
 from .contour_task import (  # noqa: F401
     ALTITUDE,
     contour_mesh,
-    frame_hours,
-    open_source,
     plan_contour,
-    register_source,
     task_params,
 )
 from .mesh import (  # noqa: F401

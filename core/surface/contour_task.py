@@ -12,14 +12,13 @@ References
    (Fig. 1: contour surfaces of 15% cloudiness).
 """
 
-import hashlib
-from collections import OrderedDict
 from functools import lru_cache
-from pathlib import Path
 
 import numpy as np
 
 from ..pipeline.cache import source_stamp
+from ..pipeline.codehash import code_stamp as file_stamp
+from ..pipeline.sources import frame_hours, open_source
 from ..errors import DataError
 from ..climate.grid import DEFAULT_EXAGGERATION
 from ..pipeline.tasks import planner, task
@@ -27,65 +26,10 @@ from ..pipeline.tasks import planner, task
 ALTITUDE = "altitude"
 """Name of the per-vertex height attribute (metres above sea level) every contour mesh carries."""
 
-_OPEN = OrderedDict()
-_OPEN_MAX = 3
-_MEMORY = {}
-
-
-def register_source(name, dataset):
-    """Make an in-memory :class:`~nephele.core.dataset.Dataset` available as source ``name``.
-
-    For data built in a session (and tests); such a source exists only in
-    this process, so the farm cannot precompute it.
-    """
-    _MEMORY[str(name)] = dataset
-    return str(name)
-
-
-def open_source(source):
-    """Open the dataset ``source`` ("demo", "demo:small", a .nc or .ctl path), once per process.
-
-    Datasets read lazily and keep only a few steps, so holding the last few
-    open is cheap; a file changed on disk is opened again.
-    """
-    source = str(source)
-    if source in _MEMORY:
-        return _MEMORY[source]
-    from ..climate.readers import open_dataset
-
-    stamp = source_stamp(source)
-    hit = _OPEN.get(source)
-    if hit is not None and hit[0] == stamp:
-        _OPEN.move_to_end(source)
-        return hit[1]
-    ds = open_dataset(source)
-    _OPEN[source] = (stamp, ds)
-    while len(_OPEN) > _OPEN_MAX:
-        _OPEN.popitem(last=False)
-    return ds
-
-
 @lru_cache(maxsize=1)
 def code_stamp():
-    """Short hash of the contouring code, part of every cache key: a changed
-    algorithm never serves meshes cached by the old one."""
-    here = Path(__file__).resolve().parent
-    h = hashlib.sha256()
-    for name in ("contour.py", "_mc_tables.py", "mesh.py", "contour_task.py"):
-        p = here / name
-        h.update(p.read_bytes() if p.is_file() else name.encode())
-    return h.hexdigest()[:16]
-
-
-def frame_hours(frame, frame_start=1, hours_per_frame=1.0, last_hour=None):
-    """Model time (hours since the first step) shown at ``frame``, clamped to ``[0, last_hour]``."""
-    if not hours_per_frame > 0:
-        raise ValueError(f"hours_per_frame must be > 0, got {hours_per_frame}")
-    hours = (float(frame) - float(frame_start)) * float(hours_per_frame)
-    hours = max(hours, 0.0)
-    if last_hour is not None:
-        hours = min(hours, float(last_hour))
-    return hours
+    """Short hash of the code this task depends on (:mod:`..pipeline.codehash`), kept in its parameters."""
+    return file_stamp(__file__)
 
 
 def task_params(obj_params, frame):

@@ -22,9 +22,7 @@ from .sparse import (  # noqa: F401
     SparseVolume,
     VOXELS,
     candidate_blocks,
-    frame_params,
     height_scale,
-    plan_volume,
     resample,
 )
 from .transfer import (  # noqa: F401
@@ -45,4 +43,8 @@ from .volume_atlas import (  # noqa: F401
     support_voxels,
     tf_eval32,
     tf_ramps,
+)
+from .volume_task import (  # noqa: F401
+    frame_params,
+    plan_volume,
 )

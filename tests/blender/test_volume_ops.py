@@ -7,7 +7,7 @@ bpy = pytest.importorskip("bpy")
 
 from nephele.addon import data_ops, frame, volume_ops  # noqa: E402
 from nephele.fileio import read_grid  # noqa: E402
-from nephele.core.surface.contour_task import register_source  # noqa: E402
+from nephele.core.pipeline.sources import register_source  # noqa: E402
 from nephele.core.climate.dataset import ArrayDataset, hourly  # noqa: E402
 from nephele.core.volume.exact_ray import opacity, reference_optical_depth  # noqa: E402
 from nephele.core.climate.grid import GlobeGrid  # noqa: E402

@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
-from nephele.core.flow import advect
+from nephele.core.flow import advect, advect_task
 from nephele.core.pipeline import tasks
 from nephele.core.pipeline.cache import Cache
-from nephele.core.surface.contour_task import open_source
+from nephele.core.pipeline.sources import open_source
 from nephele.core.climate.grid import xyz_to_lonlat
 from nephele.core.surface.mesh import Mesh
 
@@ -19,7 +19,7 @@ def _unit(a):
 
 
 def test_first_frame_starts_where_the_vertices_are():
-    tp = advect.advect_task_params(OBJ, 1)
+    tp = advect_task.advect_task_params(OBJ, 1)
     assert tp["frame"] == 0 and tp["hours"] == 0.0
     m = Mesh.from_arrays(tasks.run("advect_contour", tp))
     assert len(m.vertices) > 100
@@ -33,7 +33,7 @@ def test_first_frame_starts_where_the_vertices_are():
 
 def test_same_mesh_as_the_contour_and_start_matches_a_direct_trace():
     frame = 7  # model time 6 h; copy A restarted at 0, copy B at 4 (period 8)
-    tp = advect.advect_task_params(OBJ, frame)
+    tp = advect_task.advect_task_params(OBJ, frame)
     m = Mesh.from_arrays(tasks.run("advect_contour", tp))
     ref = Mesh.from_arrays(tasks.run("contour", {k: tp[k] for k in
                                                  ("source", "stamp", "var", "level", "hours", "exaggeration", "radius",
@@ -71,7 +71,7 @@ def test_planner_and_bad_strategy():
     from nephele.core.errors import DataError
 
     with pytest.raises(DataError, match="unknown strategy"):
-        advect.advect_task_params(dict(OBJ, strategy="magic"), 3)
+        advect_task.advect_task_params(dict(OBJ, strategy="magic"), 3)
 
 
 def test_cli_precomputes_into_the_cache(tmp_path, capsys):
@@ -82,7 +82,7 @@ def test_cli_precomputes_into_the_cache(tmp_path, capsys):
     assert "3 frames" in capsys.readouterr().out
     cache = Cache(tmp_path)
     for f in (1, 2, 3):
-        hit = cache.load("advect_contour", advect.advect_task_params(OBJ, f))
+        hit = cache.load("advect_contour", advect_task.advect_task_params(OBJ, f))
         assert hit is not None and len(hit["vertices"]) > 100
     assert main(["advect", "demo:small", "--frames", "3-1", "--cache", str(tmp_path)]) == 2
     assert main(["advect", "demo:small", "--frames", "1-2", "--period", "7", "--cache", str(tmp_path)]) == 2

@@ -13,9 +13,9 @@ CORE = Path(core.__file__).resolve().parent
 # Task kind -> (its module, the dependencies edited in a copy of the package).
 KINDS = {
     "contour": ("contour_task.py", ["climate/grid.py", "climate/readers.py", "climate/synthetic.py", "surface/contour.py", "surface/mesh.py"]),
-    "volume": ("sparse.py", ["climate/grid.py", "climate/readers.py", "volume/volume_atlas.py", "volume/transfer.py"]),
-    "advect_contour": ("advect.py", ["climate/grid.py", "climate/readers.py", "flow/flows.py", "surface/contour.py"]),
-    "scatter": ("scatter.py", ["light/phase.py", "volume/cloud_density.py", "texture/noise.py"]),
+    "volume": ("volume_task.py", ["climate/grid.py", "climate/readers.py", "volume/sparse.py", "volume/volume_atlas.py", "volume/transfer.py"]),
+    "advect_contour": ("advect_task.py", ["climate/grid.py", "climate/readers.py", "flow/advect.py", "flow/flows.py", "surface/contour.py"]),
+    "scatter": ("scatter_task.py", ["light/scatter.py", "light/phase.py", "volume/cloud_density.py", "texture/noise.py"]),
 }
 # Task kind -> the subpackage holding its module.
 HOME = {"contour": "surface", "volume": "volume", "advect_contour": "flow", "scatter": "light"}
@@ -52,12 +52,12 @@ def test_editing_a_dependency_changes_the_stamp(kind, copy_root):
 
 
 def test_unrelated_module_does_not_change_scatter_stamp(copy_root):
-    before = codehash.code_stamp.__wrapped__(copy_root / "light" / "scatter.py", copy_root)
+    before = codehash.code_stamp.__wrapped__(copy_root / "light" / "scatter_task.py", copy_root)
     f = copy_root / "flow" / "advect.py"
     original = f.read_bytes()
     try:
         f.write_bytes(original + b"\n# edited\n")
-        assert codehash.code_stamp.__wrapped__(copy_root / "light" / "scatter.py", copy_root) == before
+        assert codehash.code_stamp.__wrapped__(copy_root / "light" / "scatter_task.py", copy_root) == before
     finally:
         f.write_bytes(original)
 

@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from nephele.core.pipeline import sources
 from nephele.core.surface import contour_task
 from nephele.core.pipeline import tasks
 from nephele.core.pipeline.cache import Cache
@@ -28,7 +29,7 @@ def layered_dataset(ni=36, nj=18, nk=8):
 
 @pytest.fixture()
 def source():
-    return contour_task.register_source("memory:layered", layered_dataset())
+    return sources.register_source("memory:layered", layered_dataset())
 
 
 def obj_params(source, **kw):

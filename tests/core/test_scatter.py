@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from nephele.core.light import scatter
+from nephele.core.light import scatter, scatter_task
 from nephele.core.errors import DataError
 
 # Homogeneous slab, normal incidence, no refractive boundary: total R and T
@@ -172,7 +172,7 @@ def test_scatter_task_matches_solve_and_is_planned(tmp_path):
     from nephele.core.pipeline import tasks
 
     cloud = cd.CloudParams(shape=(6, 8, 8), size=(1.0, 1.0, 0.75), seed=3)
-    params = scatter.task_params(cloud, 30.0, albedo=0.9, g=0.8, sun_dir=[0.3, 0.1, 1.0], tol=1e-2)
+    params = scatter_task.task_params(cloud, 30.0, albedo=0.9, g=0.8, sun_dir=[0.3, 0.1, 1.0], tol=1e-2)
     arrays = tasks.run_cached("scatter", params, tmp_path)
     again = tasks.run_cached("scatter", params, tmp_path)  # from the cache
     sol = scatter.solve(30.0 * cd.cloud_density(cloud), cloud.size, albedo=0.9, g=0.8, sun_dir=(0.3, 0.1, 1.0),
@@ -184,4 +184,4 @@ def test_scatter_task_matches_solve_and_is_planned(tmp_path):
     assert tasks.plan({"kind": "scatter", "solve_task": params}, 7) == [("scatter", params)]
     assert tasks.plan({"kind": "scatter"}, 7) == []
     with pytest.raises(DataError):
-        scatter.task_params(cloud, 30.0, colour="red")
+        scatter_task.task_params(cloud, 30.0, colour="red")

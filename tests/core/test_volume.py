@@ -264,8 +264,8 @@ def test_arrays_roundtrip_and_bad_input():
 
 def test_planner_feeds_the_cache_the_blender_bake_reads(tmp_path, monkeypatch):
     from nephele.core.pipeline import tasks
-    from nephele.core.volume import sparse as vmod
-    from nephele.core.surface.contour_task import open_source
+    from nephele.core.volume import volume_task as vmod
+    from nephele.core.pipeline.sources import open_source
 
     obj = {"kind": "volume", "source": "demo:small", "var": "cloud", "tf": TransferFunction.ramp(0.3, 1.0).to_dict(),
            "color_var": "altitude", "voxel_size": 0.02, "frame_start": 1, "hours_per_frame": 1.5, "frames": [1, 3]}

@@ -10,12 +10,13 @@ import numpy as np
 import pytest
 
 from nephele.core.pipeline import tasks
-from nephele.core.surface.contour_task import register_source
+from nephele.core.pipeline.sources import register_source
 from nephele.core.climate.dataset import ArrayDataset, hourly
 from nephele.core.errors import DataError
 from nephele.core.climate.grid import GlobeGrid, globe_radius, lonlat_to_xyz
 from nephele.core.volume.transfer import TransferFunction
-from nephele.core.volume.sparse import EXACT, CurvilinearField, frame_params
+from nephele.core.volume.sparse import EXACT, CurvilinearField
+from nephele.core.volume.volume_task import frame_params
 from nephele.core.volume.volume_atlas import (
     DEFAULT_BELOW,
     atlas_layout,

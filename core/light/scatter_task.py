@@ -1,0 +1,43 @@
+"""The scattering task: one cloud solved once, for the farm and Blender's cache alike."""
+
+import json
+from dataclasses import asdict
+
+from ..errors import DataError
+from ..pipeline.tasks import planner, task
+from ..volume import cloud_density as cd
+from .scatter import solution_arrays, solve
+
+_SOLVE_KEYS = ("albedo", "g", "sun_dir", "sun_irradiance", "sky_radiance", "tol", "max_passes")
+
+
+def task_params(cloud, extinction=40.0, **solve):
+    """JSON parameters of the ``"scatter"`` task: a cloud (:class:`.cloud_density.CloudParams`),
+    its extinction per unit density and :func:`solve` keywords (``_SOLVE_KEYS``)."""
+    bad = sorted(set(solve) - set(_SOLVE_KEYS))
+    if bad:
+        raise DataError(f"unknown scattering parameters {bad}", field="scatter")
+    return json.loads(json.dumps({"cloud": asdict(cloud), "extinction": float(extinction), "solve": solve},
+                                 default=float))
+
+
+@task("scatter")
+def solve_task(params):
+    """The ``"scatter"`` task: build the cloud of :func:`task_params` and solve it;
+    returns :func:`solution_arrays` (:func:`solution_from_arrays` reads them back)."""
+    c = dict(params["cloud"])
+    c["ellipsoids"] = tuple(cd.Ellipsoid(tuple(e["center"]), tuple(e["radii"]), float(e["weight"]))
+                            for e in c.get("ellipsoids", ()))
+    for k in ("shape", "size"):
+        c[k] = tuple(c[k])
+    sigma = float(params["extinction"]) * cd.cloud_density(cd.CloudParams(**c))
+    return solution_arrays(solve(sigma, c["size"], **params["solve"]))
+
+
+@planner("scatter")
+def plan_solve(obj_params, frame):
+    """A scattering cloud object needs its one solve (the same task for every frame)."""
+    return [("scatter", obj_params["solve_task"])] if "solve_task" in obj_params else []
+
+
+__all__ = ["plan_solve", "solve_task", "task_params"]
