@@ -27,31 +27,11 @@ from ..core.pipeline.tasks import run_cached
 from . import frame, materials
 from .contour_ops import cache_dir
 from .mesh import fill_mesh
+from .nodes import Nodes
 from .panel import SubPanel
 
 GROUP_NAME = "Nephele Poor-Man's Fractal"
 KIND = "advected_contour"
-
-
-def _socket(tree, value):
-    """A node output for ``value``: a socket is returned as is, a number becomes a Value node."""
-    if isinstance(value, bpy.types.NodeSocket):
-        return value
-    node = tree.nodes.new("ShaderNodeValue")
-    node.outputs[0].default_value = float(value)
-    return node.outputs[0]
-
-
-def _math(tree, op, *args, loc=(0, 0)):
-    node = tree.nodes.new("ShaderNodeMath")
-    node.operation = op
-    node.location = loc
-    for i, a in enumerate(args):
-        if isinstance(a, bpy.types.NodeSocket):
-            tree.links.new(a, node.inputs[i])
-        else:
-            node.inputs[i].default_value = float(a)
-    return node.outputs[0]
 
 
 def fractal_node_group(fractal=Fractal()):
@@ -78,25 +58,26 @@ def fractal_node_group(fractal=Fractal()):
     ng.links.new(gin.outputs["Vector"], sep.inputs[0])
     x, y, z = sep.outputs
     alt = gin.outputs["Altitude"]
-    lon = _math(ng, "ARCTAN2", y, x, loc=(-1000, 200))
-    hyp = _math(ng, "SQRT", _math(ng, "MULTIPLY_ADD", y, y, _math(ng, "MULTIPLY", x, x)), loc=(-1000, 0))
-    lat = _math(ng, "ARCTAN2", z, hyp, loc=(-800, 0))
+    n = Nodes(ng, -1000, 400)
+    lon = n.math("ARCTAN2", y, x, loc=(-1000, 200))
+    hyp = n.math("SQRT", n.math("MULTIPLY_ADD", y, y, n.math("MULTIPLY", x, x)), loc=(-1000, 0))
+    lat = n.math("ARCTAN2", z, hyp, loc=(-800, 0))
     sx = sy = sz = 0.0
     half_pi = 0.5 * math.pi
     for i, (omega, big, c, a, b, d) in enumerate(terms(fractal)):
-        px = _math(ng, "SINE", _math(ng, "MULTIPLY", lat, 0.5 * omega))  # perturbs X and Z
-        py = _math(ng, "SINE", _math(ng, "MULTIPLY", lon, 0.5 * omega))  # perturbs Y
+        px = n.math("SINE", n.math("MULTIPLY", lat, 0.5 * omega))  # perturbs X and Z
+        py = n.math("SINE", n.math("MULTIPLY", lon, 0.5 * omega))  # perturbs Y
         for axis, coord, freq, phase, pert in (("x", lon, omega, a, px), ("y", lat, omega, b, py), ("z", alt, big, d, px)):
-            arg = _math(ng, "MULTIPLY_ADD", pert, half_pi, _math(ng, "MULTIPLY_ADD", coord, freq, phase))
-            wave = _math(ng, "SINE", arg, loc=(200 * i - 600, {"x": 400, "y": 0, "z": -400}[axis]))
+            arg = n.math("MULTIPLY_ADD", pert, half_pi, n.math("MULTIPLY_ADD", coord, freq, phase))
+            wave = n.math("SINE", arg, loc=(200 * i - 600, {"x": 400, "y": 0, "z": -400}[axis]))
             if axis == "x":
-                sx = _math(ng, "MULTIPLY_ADD", wave, c, sx)
+                sx = n.math("MULTIPLY_ADD", wave, c, sx)
             elif axis == "y":
-                sy = _math(ng, "MULTIPLY_ADD", wave, c, sy)
+                sy = n.math("MULTIPLY_ADD", wave, c, sy)
             else:
-                sz = _math(ng, "MULTIPLY_ADD", wave, c, sz)
-    prod = _math(ng, "MULTIPLY", _math(ng, "ADD", sx, 1.0), _math(ng, "ADD", sy, 1.0))
-    tex = _math(ng, "MULTIPLY", _math(ng, "MULTIPLY", prod, _math(ng, "ADD", sz, 1.0)), 0.125, loc=(1200, 0))
+                sz = n.math("MULTIPLY_ADD", wave, c, sz)
+    prod = n.math("MULTIPLY", n.math("ADD", sx, 1.0), n.math("ADD", sy, 1.0))
+    tex = n.math("MULTIPLY", n.math("MULTIPLY", prod, n.math("ADD", sz, 1.0)), 0.125, loc=(1200, 0))
     ng.links.new(tex, gout.inputs["Texture"])
     return ng
 

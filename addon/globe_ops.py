@@ -22,7 +22,9 @@ import bpy
 from ..core.climate import relief as core_relief
 from ..core.climate.grid import EARTH_RADIUS, globe_radius, lonlat_to_xyz
 from . import data_ops, materials
+from .camera import camera_object, look_at
 from .mesh import fill_mesh
+from .nodes import Nodes
 from .panel import SubPanel
 
 GLOBE_NAME = "Nephele Globe"
@@ -262,7 +264,7 @@ def haze_material(radius, exaggeration, *, density=None, scale_height=8000.0, co
     out.location = (600, 0)
     coords = nodes.new("ShaderNodeTexCoord")
     coords.location = (-800, 0)
-    n = _Nodes(tree)
+    n = Nodes(tree)
     r = n.vmath("LENGTH", coords.outputs["Object"])
     # exp(-(r - R) / H) = exp((R - r) / H)
     dens = n.math("MULTIPLY", n.math("EXPONENT", n.math("DIVIDE", n.math("SUBTRACT", radius, r), h_scene)), density)
@@ -275,39 +277,6 @@ def haze_material(radius, exaggeration, *, density=None, scale_height=8000.0, co
     mat.cycles.volume_sampling = "DISTANCE"
     mat["nephele_haze"] = {"radius": radius, "scale_height_scene": h_scene, "density": density}
     return mat
-
-
-class _Nodes:
-    """Terse shader-math wiring: ``n.math("MULTIPLY", a, b)`` with sockets or numbers."""
-
-    def __init__(self, tree):
-        self.tree = tree
-
-    def _in(self, socket, value):
-        if isinstance(value, (int, float)):
-            socket.default_value = value
-        else:
-            self.tree.links.new(value, socket)
-
-    def math(self, op, a, b=0.0, c=None):
-        node = self.tree.nodes.new("ShaderNodeMath")
-        node.operation = op
-        self._in(node.inputs[0], a)
-        self._in(node.inputs[1], b)
-        if c is not None:
-            self._in(node.inputs[2], c)
-        return node.outputs[0]
-
-    def vmath(self, op, a, b=None):
-        node = self.tree.nodes.new("ShaderNodeVectorMath")
-        node.operation = op
-        self.tree.links.new(a, node.inputs[0])
-        if b is not None:
-            if isinstance(b, (tuple, list)):
-                node.inputs[1].default_value = b
-            else:
-                self.tree.links.new(b, node.inputs[1])
-        return node.outputs["Value" if op in ("DOT_PRODUCT", "LENGTH") else "Vector"]
 
 
 def shell_haze_material(radius, exaggeration, sun_direction, *, density=None, scale_height=8000.0,
@@ -334,7 +303,7 @@ def shell_haze_material(radius, exaggeration, sun_direction, *, density=None, sc
     mat = bpy.data.materials.get(name) or bpy.data.materials.new(name)
     tree = materials.enable_nodes(mat)
     tree.nodes.clear()
-    n = _Nodes(tree)
+    n = Nodes(tree)
     geo = tree.nodes.new("ShaderNodeNewGeometry")
     path = tree.nodes.new("ShaderNodeLightPath")
     P, D = geo.outputs["Position"], n.vmath("SCALE", geo.outputs["Incoming"])
@@ -485,27 +454,11 @@ def _z_to(d):
     return (math.cos(ang / 2), *(axis * math.sin(ang / 2)))
 
 
-def look_at(obj, target=(0.0, 0.0, 0.0)):
-    """Point a camera (its -Z) at ``target``, keeping +Z world up."""
-    from mathutils import Vector
-
-    direction = Vector(target) - obj.location
-    obj.rotation_mode = "QUATERNION"
-    obj.rotation_quaternion = direction.to_track_quat("-Z", "Y")
-
-
 def add_camera(scene=None, *, lon=-30.0, lat=25.0, distance=3.6, lens=50.0, name="Nephele Camera"):
     """A camera at ``distance`` from the centre above ``lon``, ``lat``, looking at the globe."""
-    scene = scene or bpy.context.scene
-    cam_data = bpy.data.cameras.get(name) or bpy.data.cameras.new(name)
-    cam_data.lens = lens
-    cam_data.clip_start = 0.01
-    cam_data.clip_end = 100.0
-    cam = bpy.data.objects.get(name) or bpy.data.objects.new(name, cam_data)
-    _link(cam, scene, None)
+    cam = camera_object(scene or bpy.context.scene, name, lens=lens, clip_end=100.0)
     cam.location = tuple(lonlat_to_xyz(lon, lat, distance))
     look_at(cam)
-    scene.camera = cam
     return cam
 
 

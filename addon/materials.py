@@ -13,9 +13,11 @@ References
 
 import bpy
 
+from ..core.volume.transfer import ALTITUDE_COLORS
+
 RAMPS = {
-    # Cloud tops: warm grey low down, white in the middle, pale blue high up.
-    "altitude": [(0.0, (0.80, 0.72, 0.62)), (0.45, (0.97, 0.97, 0.97)), (1.0, (0.62, 0.78, 1.0))],
+    # Cloud tops: the volumes' altitude colours (warm grey low down, white, pale blue high up) over 0-12 km.
+    "altitude": [(h / ALTITUDE_COLORS.points[-1][0], c) for h, c in ALTITUDE_COLORS.points],
     # Cold to warm.
     "temperature": [(0.0, (0.23, 0.30, 0.75)), (0.5, (0.87, 0.87, 0.87)), (1.0, (0.71, 0.02, 0.15))],
     # Perceptually ordered, dark to bright (viridis samples).

@@ -23,28 +23,16 @@ import numpy as np
 from ..core.volume import cloud_density as cd
 from ..core.light import scatter, scatter_task
 from ..fileio import dense_grids, write_vdb
+from .camera import camera_object, look_at
 from .panel import SubPanel
-
-
-def _look_at(obj, target):
-    from mathutils import Vector
-
-    d = Vector(target) - obj.location
-    obj.rotation_euler = d.to_track_quat("-Z", "Y").to_euler()
 
 
 def add_camera(cam, name="Scatter camera"):
     """A Blender camera matching :class:`..core.scatter.Camera` ``cam``."""
-    data = bpy.data.cameras.new(name)
-    data.sensor_fit = "HORIZONTAL"
-    data.angle = cam.fov
-    data.clip_start = 0.01
-    obj = bpy.data.objects.new(name, data)
-    bpy.context.scene.collection.objects.link(obj)
-    obj.location = cam.position
-    _look_at(obj, cam.target)
     scene = bpy.context.scene
-    scene.camera = obj
+    obj = camera_object(scene, name, angle=cam.fov)
+    obj.location = cam.position
+    look_at(obj, cam.target)
     scene.render.resolution_x, scene.render.resolution_y = cam.width, cam.height
     scene.render.resolution_percentage = 100
     return obj
@@ -210,7 +198,7 @@ def add_orbit_camera(center, radius, height, frames, fov=math.radians(40.0), nam
     scene.collection.objects.link(cam)
     cam.parent = pivot
     cam.location = (radius, 0.0, height)
-    _look_at(cam, (0.0, 0.0, 0.0))
+    look_at(cam, (0.0, 0.0, 0.0))
     first, last = frames[0], frames[-1]
     n = max(len(frames), 1)
     pivot.rotation_euler = (0.0, 0.0, 0.0)

@@ -26,6 +26,7 @@ import numpy as np
 
 from ..core.volume.volume_atlas import PAD, VALID, tf_ramps
 from ..fileio import block_grid, oiio, write_image, write_vdb
+from .nodes import Nodes
 
 SUPPORT = "support"
 """Name of the support grid."""
@@ -81,45 +82,8 @@ def write_support(path, support, support_size, metadata=None):
 # ------------------------------------------------------------------ the node graph
 
 
-class _Nodes:
-    """Math nodes with float or socket inputs, laid out in columns."""
-
-    def __init__(self, tree, x=-3000, y=0):
-        self.tree, self.x, self.y, self.n = tree, x, y, 0
-
-    def _place(self, node, label=None):
-        node.location = (self.x + 160 * (self.n // 12), self.y - 120 * (self.n % 12))
-        self.n += 1
-        if label:
-            node.label = label
-        return node
-
-    def _set(self, sock, value):
-        if hasattr(value, "is_output"):
-            self.tree.links.new(value, sock)
-        else:
-            sock.default_value = float(value)
-
-    def math(self, op, a, b=0.0, c=0.0, label=None):
-        node = self._place(self.tree.nodes.new("ShaderNodeMath"), label)
-        node.operation = op
-        for sock, v in zip(node.inputs, (a, b, c)):
-            self._set(sock, v)
-        return node.outputs[0]
-
-    def map_range(self, x, a, b, c=0.0, d=1.0, label=None):
-        """Clamped linear ``(x − a) / (b − a)`` onto ``c..d``."""
-        node = self._place(self.tree.nodes.new("ShaderNodeMapRange"), label)
-        node.data_type, node.interpolation_type, node.clamp = "FLOAT", "LINEAR", True
-        for name, v in (("Value", x), ("From Min", a), ("From Max", b), ("To Min", c), ("To Max", d)):
-            self._set(node.inputs[name], v)
-        return node.outputs["Result"]
-
-    def add_all(self, terms, label=None):
-        total = terms[0]
-        for t in terms[1:]:
-            total = self.math("ADD", total, t, label=label)
-        return total
+class _Nodes(Nodes):
+    """:class:`.nodes.Nodes` plus the atlas program's piecewise maps and image lookups."""
 
     def piecewise(self, x, runs, label):
         """Σ of clamped ramps (:func:`nephele.core.volume_atlas.axis_runs`)."""

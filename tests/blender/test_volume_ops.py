@@ -165,7 +165,7 @@ def _lit_scene(scene):
     sun.rotation_euler = (0.0, 0.0, 0.0)
     sun.location = (0.0, 0.0, 5.0)
     # Light from the camera side so every cloudy pixel is lit.
-    from nephele.addon.globe_ops import look_at
+    from nephele.addon.camera import look_at
 
     sun.location = tuple(np.array(cam.location) * 2)
     look_at(sun)
