@@ -49,7 +49,7 @@ test-main: $(VENV)/.stamp
 
 # Core only (no bpy, no farm): the numpy 1.26 / Python 3.11 that Blender 4.2-5.0 ship.
 test-core311: $(VENV311)/.stamp
-	$(VENV311)/bin/python -m pytest -m "not bpy" --ignore=tests/farm --ignore=tests/blender --ignore=tests/extension $(PYTEST_ARGS)
+	$(VENV311)/bin/python -m pytest -m "not bpy" --ignore=tests/farm --ignore=tests/addon --ignore=tests/extension $(PYTEST_ARGS)
 
 # Build the linux-x64 zips (wheels cached in build/wheels), install each into its Blender-only
 # Python through Blender's extension API and drive the whole sidebar workflow there.

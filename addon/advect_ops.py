@@ -93,6 +93,7 @@ def texture_nodes(tree, fractal=Fractal(), location=(-600, 0)):
     """Nodes giving ``Σ w_k T(start_k)`` over the copies ``a``, ``b`` from the mesh attributes; returns the socket."""
     group = fractal_node_group(fractal)
     x0, y0 = location
+    n = Nodes(tree)
     total = None
     for i, name in enumerate(advect.COPIES):
         y = y0 - 300 * i
@@ -104,8 +105,8 @@ def texture_nodes(tree, fractal=Fractal(), location=(-600, 0)):
         g.location = (x0 - 200, y)
         tree.links.new(vec.outputs["Vector"], g.inputs["Vector"])
         tree.links.new(alt.outputs["Fac"], g.inputs["Altitude"])
-        part = _math(tree, "MULTIPLY", g.outputs["Texture"], w.outputs["Fac"], loc=(x0, y))
-        total = part if total is None else _math(tree, "ADD", total, part, loc=(x0 + 150, y0))
+        part = n.math("MULTIPLY", g.outputs["Texture"], w.outputs["Fac"], loc=(x0, y))
+        total = part if total is None else n.math("ADD", total, part, loc=(x0 + 150, y0))
     return total
 
 
@@ -123,6 +124,7 @@ def cloud_material(name="Nephele Advected Clouds", fractal=Fractal(), lo=0.08, h
     out = tree.nodes.new("ShaderNodeOutputMaterial")
     out.location = (900, 0)
     tex = texture_nodes(tree, fractal, location=(-300, 0))
+    n = Nodes(tree)
     rng = tree.nodes.new("ShaderNodeMapRange")
     rng.name = rng.label = "Nephele opacity"
     rng.clamp = True
@@ -132,8 +134,8 @@ def cloud_material(name="Nephele Advected Clouds", fractal=Fractal(), lo=0.08, h
     tree.links.new(tex, rng.inputs["Value"])
     geo = tree.nodes.new("ShaderNodeNewGeometry")
     geo.location = (0, 300)
-    front = _math(tree, "SUBTRACT", 1.0, geo.outputs["Backfacing"], loc=(200, 300))
-    alpha = _math(tree, "MULTIPLY", rng.outputs["Result"], front, loc=(400, 200))
+    front = n.math("SUBTRACT", 1.0, geo.outputs["Backfacing"], loc=(200, 300))
+    alpha = n.math("MULTIPLY", rng.outputs["Result"], front, loc=(400, 200))
     clear = tree.nodes.new("ShaderNodeBsdfTransparent")
     clear.location = (400, -100)
     white = tree.nodes.new("ShaderNodeBsdfDiffuse")

@@ -17,8 +17,8 @@ def shared_data():
 
 
 def pytest_collection_modifyitems(items):
-    # Everything under tests/blender and tests/farm needs bpy.
+    # Everything under tests/addon and tests/farm needs bpy.
     for item in items:
         parts = Path(str(item.fspath)).parts
-        if "blender" in parts or "farm" in parts:
+        if "addon" in parts or "farm" in parts:
             item.add_marker(pytest.mark.bpy)

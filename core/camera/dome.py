@@ -565,7 +565,7 @@ def stereo_eyes(separation, centre=(0.0, 0.0, 0.0)):
     vertical disparity at the sides (Cycles, a marker 90 deg right and 10 deg
     up at 10x the eye separation: 5.3 deg of elevation difference between the
     eyes, against the true 1.0 deg that this fixed baseline gives; see
-    ``tests/blender/test_dome_render.py``).
+    ``tests/addon/test_dome_render.py``).
 
     Limits: disparity shrinks to zero toward +-90 deg azimuth (objects there
     lie along the baseline) and is reversed for viewers who turn round to look

@@ -383,7 +383,7 @@ def test_time_problems(tmp_path):
 
 # ----------------------------------------------------- real model output from other packages
 # Small real files under tests/data (provenance in tests/data/README.md).
-DATA = __import__("pathlib").Path(__file__).resolve().parent.parent / "data"
+DATA = __import__("pathlib").Path(__file__).resolve().parents[2] / "data"
 
 
 def _nc(path):

@@ -7,7 +7,7 @@ import pytest
 from nephele.core.errors import DataError
 from nephele.core.climate.readers import open_dataset
 
-DATA = __import__("pathlib").Path(__file__).resolve().parent.parent / "data"
+DATA = __import__("pathlib").Path(__file__).resolve().parents[2] / "data"
 
 
 def test_polar_stereographic_grib2_is_refused_in_one_line():

@@ -12,7 +12,7 @@ import pytest
 
 from nephele.addon import contour_ops, data_ops, frame, globe_ops
 from nephele.addon.mesh import mesh_arrays, point_attribute
-from nephele.core.surface import contour_task
+from nephele.core.pipeline import sources
 from nephele.core.climate.dataset import ArrayDataset, hourly
 from nephele.core.climate.grid import GlobeGrid, xyz_to_lonlat
 
@@ -36,7 +36,7 @@ def moving_blob():
 @pytest.fixture()
 def blob_source(empty_scene, tmp_path, monkeypatch):
     monkeypatch.setenv("NEPHELE_CACHE", str(tmp_path / "cache"))
-    name = contour_task.register_source("memory:moving-blob", moving_blob())
+    name = sources.register_source("memory:moving-blob", moving_blob())
     data_ops.set_settings(empty_scene, source=name, hours_per_frame=1.0, frame_start=1)
     return name
 
