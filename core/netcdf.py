@@ -51,7 +51,7 @@ import re
 import numpy as np
 
 from .errors import DataError
-from .gridfile import FileDataset, cf_times_or_steps, plausible_units, pressure_scale, standard_name, step_times, tidy_lonlat
+from .gridfile import FileDataset, cf_times, cf_times_or_steps, plausible_units, pressure_scale, standard_name, step_times, tidy_lonlat
 from .grid import EARTH_RADIUS, GlobeGrid, rotated_pole_matrix
 from .humidity import G0, RH_CRIT, standard_height
 
@@ -202,7 +202,11 @@ class NetCDFDataset(FileDataset):
 
         # 3-D fields: dims = {lat, lon, one level dim} plus time if the file has one.
         candidates, skipped = {}, {}
+        # Cell bounds and grid mappings describe coordinates; they are not fields to list as skipped.
+        described = {_attr(v, "bounds") for v in ds.variables.values()} | {_attr(v, "grid_mapping").split(":")[0].strip() for v in ds.data_vars.values()}
         for name, var in ds.data_vars.items():
+            if name in described:
+                continue
             dims = [d for d in var.dims if d != time_dim]
             if lat_dim in dims and lon_dim in dims and len(dims) == 3:
                 candidates[name] = [d for d in dims if d not in (lat_dim, lon_dim)][0]
@@ -229,7 +233,10 @@ class NetCDFDataset(FileDataset):
             notes.append(f"time: dimension 'time' has no coordinate variable; the {times.size} step(s) are numbered 0..{times.size - 1}, one hour apart")
         elif time_name:
             tv = ds[time_name]
-            times, note = cf_times_or_steps(tv.values, time_units or _attr(tv, "units"), tv.attrs.get("calendar"), path, time_name)
+            if time_units:  # the user's own units must be right: no falling back to step numbers
+                times, note = cf_times(tv.values, time_units, tv.attrs.get("calendar"), path, time_name), None
+            else:
+                times, note = cf_times_or_steps(tv.values, _attr(tv, "units"), tv.attrs.get("calendar"), path, time_name)
             if note:
                 notes.append(note)
         else:
