@@ -142,7 +142,6 @@ KillWait=3
 MinJobAge=120
 MessageTimeout=10
 SlurmdTimeout=60
-EnforcePartLimits=ALL
 NodeName={host} NodeAddr=127.0.0.1 CPUs={self.cpus} RealMemory={self.memory_mb} State=UNKNOWN
 PartitionName={PARTITION} Nodes={host} Default=YES MaxTime=INFINITE State=UP
 """)
@@ -226,3 +225,19 @@ def local_slurm(root):
         yield cluster.start()
     finally:
         cluster.stop()
+
+
+def render_args(slurm, *extra):
+    """Options of ``nephele render/precompute`` for this cluster: loopback, 1 CPU and 1.5 GB per job, 10 minutes."""
+    return ["--cluster", "slurm", "--queue", slurm.partition, "--interface", "lo", "--job-cpus", "1",
+            "--job-mem", "1500MB", "--walltime", "00:10:00", "--start-timeout", "60", *extra]
+
+
+def only_frames(out, frames):
+    """OUT holds exactly these whole PNG frames (no temp, partial or duplicate files), the logs and the manifest."""
+    from nephele.farm.frames import check_image, frame_name
+
+    names = sorted(p.name for p in Path(out).iterdir())
+    assert names == sorted([frame_name(f, "PNG") for f in frames] + ["logs", "manifest.json"])
+    for f in frames:
+        check_image(Path(out) / frame_name(f, "PNG"))
