@@ -92,6 +92,9 @@ def run(args):
     if color_var and color_var != "altitude" and color_var not in ds:
         raise DataError(f"no such colour variable (available: altitude, {', '.join(sorted(ds.variables))})",
                         path=args.source, field=color_var)
+    if args.mode == "exact" and ds.grid.rotation is not None:
+        raise DataError("the exact mode's atlas shader works in longitude/latitude and cannot place a rotated-pole "
+                        "grid yet; use --mode voxels", path=ds.source, field="grid")
     first, last = _steps(args.steps, ds.times.size)
     # Frame k (1-based) shows step first + k - 1: frames advance one step each.
     step_hours = float(np.median(np.diff(ds.hours))) if ds.hours.size > 1 else 1.0

@@ -65,6 +65,7 @@ def test_info_overrides_reach_the_reader(capsys):
         (["volume", CAM, "--var", "Q", "--out", "vol"], ["cam_vinth2p.nc", "'Q'", "no such variable"]),
         (["volume", CAM, "--var", "T", "--steps", "3-4", "--out", "vol"], ["--steps 3-4", "0-1"]),
         (["volume", NCL, "--var", "T", "--p0", "-3", "--out", "vol"], ["--p0"]),
+        (["volume", UM, "--var", "air_potential_temperature", "--out", "vol"], ["um_hybrid_height.nc", "rotated-pole", "--mode voxels"]),
         (["advect", CAM, "--var", "T", "--level", "250", "--frames", "1-1", "--cache", "c"], ["cam_vinth2p.nc", "'u'"]),
         (["info", UM, "--earth-radius", "6371.229"], ["--earth-radius", "metres"]),
     ],
