@@ -51,7 +51,7 @@ import re
 import numpy as np
 
 from .errors import DataError
-from .gridfile import FileDataset, cf_times, cf_times_or_steps, plausible_units, pressure_scale, standard_name, step_times, tidy_lonlat
+from .gridfile import FileDataset, cf_times, cf_times_or_steps, parse_iso, plausible_units, pressure_scale, standard_name, step_times, tidy_lonlat
 from .grid import EARTH_RADIUS, GlobeGrid, rotated_pole_matrix
 from .humidity import G0, RH_CRIT, standard_height
 
@@ -129,6 +129,65 @@ def _grid_mapping(ds):
         if name and name in ds.variables:
             return name
     return None
+
+
+_MONTHS_SINCE = re.compile(r"\s*(months?|years?|common_years?)\s+since\s+(.+?)\s*$", re.IGNORECASE)
+
+
+def _month_times(values, units, calendar, path, field):
+    """``(times, note)`` for ``months since``/``years since`` units, or None for other units.
+
+    A month is a calendar month of the file's calendar (30 days in
+    ``360_day``, as cftime and CF define it there; the months of the
+    ``noleap``, ``standard``… calendars otherwise, which is what monthly model
+    output means by them) and a year twelve of them; a fraction is that part
+    of the month it falls in.  Times are the elapsed time in that calendar
+    from the reference date, as for other non-standard calendars.
+    """
+    m = _MONTHS_SINCE.match(units or "")
+    if not m:
+        return None
+    try:
+        import cftime
+    except ImportError:
+        raise DataError(f"time units {units!r} need the cftime package ('pip install cftime')", path=path, field=field) from None
+    cal = (calendar or "standard").strip().lower()
+    if cal == "none":
+        raise DataError(f"time units {units!r} with calendar 'none' have no months", path=path, field=field)
+    ref = parse_iso(m.group(2), path, field)
+    values = np.atleast_1d(np.asarray(values, dtype=np.float64))
+    if not np.all(np.isfinite(values)):
+        raise DataError("has NaN times", path=path, field=field)
+    months = values * (1.0 if m.group(1).lower().startswith("month") else 12.0)
+    text = str(ref)  # YYYY-MM-DDThh:mm:ss (year may be negative)
+    date, _, clock = text.rpartition("T") if "T" in text else (text, "", "00:00:00")
+    y, mo, d = (int(v) for v in re.match(r"(-?\d+)-(\d+)-(\d+)", date).groups())
+    hh, mi, ss = (int(v) for v in clock.split(":"))
+    try:
+        start = cftime.datetime(y, mo, d, hh, mi, ss, calendar=cal)
+
+        def shifted(n):
+            k = mo - 1 + int(n)
+            for day in range(d, 27, -1):  # the 31st of a shorter month is its last day
+                try:
+                    return cftime.datetime(y + k // 12, k % 12 + 1, day, hh, mi, ss, calendar=cal)
+                except ValueError:
+                    continue
+            return cftime.datetime(y + k // 12, k % 12 + 1, d, hh, mi, ss, calendar=cal)
+
+        secs = []
+        for x in months:
+            n = np.floor(x)
+            a = shifted(n)
+            span = (shifted(n + 1) - a).total_seconds() if x != n else 0.0
+            secs.append((a - start).total_seconds() + (x - n) * span)
+    except ValueError as exc:
+        raise DataError(f"time units {units!r} in calendar {cal!r}: {exc}", path=path, field=field) from None
+    times = ref + np.rint(secs).astype(np.int64).astype("timedelta64[s]")
+    note = None
+    if cal != "360_day":
+        note = f"{field}: units {units!r} read as calendar months of the {cal!r} calendar (CF's month is 1/12 of 365.24 days; monthly model output means calendar months)"
+    return times, note
 
 
 def _parametric_coordinate(ds, zdim):
@@ -233,7 +292,10 @@ class NetCDFDataset(FileDataset):
             notes.append(f"time: dimension 'time' has no coordinate variable; the {times.size} step(s) are numbered 0..{times.size - 1}, one hour apart")
         elif time_name:
             tv = ds[time_name]
-            if time_units:  # the user's own units must be right: no falling back to step numbers
+            monthly = _month_times(tv.values, time_units or _attr(tv, "units"), tv.attrs.get("calendar"), path, time_name)
+            if monthly is not None:
+                times, note = monthly
+            elif time_units:  # the user's own units must be right: no falling back to step numbers
                 times, note = cf_times(tv.values, time_units, tv.attrs.get("calendar"), path, time_name), None
             else:
                 times, note = cf_times_or_steps(tv.values, _attr(tv, "units"), tv.attrs.get("calendar"), path, time_name)
