@@ -20,13 +20,9 @@ import math
 
 import bpy
 
-from ..core import advect
+from ..core import advect, contour_task
 from ..core.fractal import Fractal, terms
-from ..core.mesh import Mesh
-from ..core.tasks import run_cached
-from . import frame, materials
-from .contour_ops import cache_dir
-from .mesh import fill_mesh
+from . import contour_ops, frame, materials
 from .panel import SubPanel
 
 GROUP_NAME = "Nephele Poor-Man's Fractal"
@@ -171,17 +167,56 @@ def cloud_material(name="Nephele Advected Clouds", fractal=Fractal(), lo=0.08, h
     return mat
 
 
-@frame.register_updater(KIND)
-def update_advected(obj, params, scene, frame_number):
-    """Refill ``obj`` with the contour and texture start coordinates of ``frame_number``."""
-    tp = advect.advect_task_params(params, frame_number)
-    shown = json.dumps(tp, sort_keys=True)
-    if obj.get("nephele_shown") == shown and len(obj.data.vertices):
-        return
-    arrays = run_cached("advect_contour", tp, cache_dir())
-    fill_mesh(obj.data, Mesh.from_arrays(arrays))
-    obj["nephele_shown"] = shown
-    obj["nephele_hours"] = tp["hours"]
+def _plan(obj, params, scene, frame_number):
+    return contour_ops.plan(obj, params, scene, frame_number, kind=KIND, task_params=advect.advect_task_params)
+
+
+def _stream(tp):
+    """The streamed strategy the task will use for ``tp`` (None for the full trace, which keeps no state)."""
+    if tp["strategy"] == "full":
+        return None
+    st = advect._strategy(tp, contour_task.open_source(tp["source"]))
+    return getattr(st, "stream", None)
+
+
+def _compute(args, job=None):
+    """Worker side of an advected contour; a job's cancel stops the texture catch-up between frames.
+
+    The streamed maps advance one frame at a time; a cancel is checked before
+    each frame, so what was streamed so far is kept and the next request
+    (e.g. the frame the user moved on to) continues from there.
+    """
+    stream = _stream(args["tp"]) if job is not None else None
+    if stream is None:
+        return contour_ops.compute(args, job)
+    advance = type(stream).advance
+
+    def checked(copies, n, index):
+        job.check()
+        return advance(stream, copies, n, index)
+
+    stream.advance = checked
+    try:
+        return contour_ops.compute(args, job)
+    finally:
+        del stream.advance
+
+
+def _progress(args):
+    """``"texture frame 17 of 240"`` while the streamed maps catch up."""
+    tp = args["tp"]
+    for st in list(advect._STRATEGIES.values()):
+        stream = getattr(st, "stream", None)
+        if stream is not None and st.frame_hours.size and abs(st.frame_hours[1] - st.frame_hours[0]
+                                                              - tp["hours_per_frame"]) < 1e-9:
+            done = [f for f in stream.frames if f is not None]
+            if done:
+                return f"texture frame {min(done)} of {tp['frame']}"
+    return ""
+
+
+update_advected = frame.register_job(KIND, _plan, _compute, contour_ops.apply, _progress)
+"""Synchronous updater: the contour and texture start coordinates of a frame."""
 
 
 def add_advected_texture(obj, *, strategy="restart", period=24, integrator="rk4", vertical="auto", fractal=Fractal(),

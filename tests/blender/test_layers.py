@@ -1,0 +1,107 @@
+"""Editable layers (issue 20): parameters edited after adding, names, empty results, stale layers."""
+
+import numpy as np
+import pytest
+
+bpy = pytest.importorskip("bpy")
+
+from nephele.addon import contour_ops, data_ops, frame, layers  # noqa: E402
+
+
+@pytest.fixture
+def scene(empty_scene, tmp_path, monkeypatch):
+    monkeypatch.setattr(contour_ops, "cache_dir", lambda: tmp_path / "cache")
+    data_ops.set_settings(empty_scene, source="demo:small", hours_per_frame=1.0)
+    empty_scene.frame_set(13)
+    return empty_scene
+
+
+def _verts(obj):
+    v = np.empty(3 * len(obj.data.vertices), np.float32)
+    obj.data.attributes["position"].data.foreach_get("vector", v)
+    return v.reshape(-1, 3)
+
+
+def test_a_second_contour_at_015_keeps_its_level_in_the_name(scene):
+    a = contour_ops.add_contour("cloud", 0.15, scene=scene)
+    b = contour_ops.add_contour("cloud", 0.15, scene=scene)
+    assert a.name == "Contour cloud [0.15]"
+    assert b.name.startswith("Contour cloud [0.15]") and b.name != a.name
+    assert "0.001" not in b.name.replace("[0.15].001", "")
+
+
+def test_level_change_on_an_existing_contour_changes_its_mesh(scene):
+    obj = contour_ops.add_contour("cloud", 0.15, scene=scene)
+    before = _verts(obj)
+    obj.nephele_layer.level = 0.5
+    after = _verts(obj)
+    assert frame.params(obj)["level"] == 0.5
+    assert obj.name == "Contour cloud [0.5]"
+    assert len(after) > 0 and len(after) != len(before)
+    # The new mesh is the level-0.5 surface: the same as a fresh contour at 0.5.
+    fresh = contour_ops.add_contour("cloud", 0.5, scene=scene)
+    np.testing.assert_array_equal(after, _verts(fresh))
+    # A renamed layer keeps the user's name.
+    obj.name = "My clouds"
+    obj.nephele_layer.level = 0.15
+    assert obj.name == "My clouds"
+    np.testing.assert_array_equal(_verts(obj), before)
+
+
+def test_variable_colour_and_ramp_edits(scene):
+    obj = contour_ops.add_contour("cloud", 0.15, scene=scene)
+    lay = obj.nephele_layer
+    assert lay.var == "cloud" and lay.color_var == "altitude" and lay.ramp == "altitude"
+    lay.color_var = "temperature"
+    mat = obj.data.materials[0]
+    assert mat.node_tree.nodes["Nephele attribute"].attribute_name == "temperature"
+    assert "temperature" in obj.data.attributes  # recomputed with the new colour field
+    assert tuple(lay.color_range) == pytest.approx((220.0, 300.0))
+    lay.color_range = (230.0, 290.0)
+    rng = mat.node_tree.nodes["Nephele range"]
+    assert rng.inputs["From Min"].default_value == pytest.approx(230.0)
+    lay.ramp = "viridis"
+    stops = mat.node_tree.nodes["Nephele ramp"].color_ramp.elements
+    assert len(stops) == 5 and frame.params(obj)["ramp"] == "viridis"
+
+
+def test_data_range_and_histogram_hint(scene):
+    obj = contour_ops.add_contour("cloud", 0.15, scene=scene)
+    st = contour_ops.stats_of(obj)
+    assert st["min"] == pytest.approx(0.0, abs=1e-6) and 0.5 < st["max"] <= 1.0 + 1e-6
+    assert sum(st["hist"]) == int(np.prod(data_ops.dataset(scene=scene).grid.shape))
+    text, icon = layers.range_line(st, 0.15)
+    assert icon == "INFO" and len(layers.histogram_hint(st)) == contour_ops.HIST_BINS
+    assert layers.range_line(st, 7.0)[1] == "ERROR"
+
+
+def test_empty_result_is_a_warning_naming_the_range(scene, capfd):
+    # Headless, Blender prints an operator's reports as "<Type>: <message>".
+    assert bpy.ops.nephele.add_contour(var="cloud", level=5.0) == {"FINISHED"}
+    out = capfd.readouterr().out
+    assert "Warning: Contour cloud [5]: no surface at cloud = 5 at 12 h; the data range is 0 to 1" in out
+    assert "Info:" not in out
+    assert bpy.ops.nephele.add_contour(var="cloud", level=0.15) == {"FINISHED"}
+    assert "Info: Contour cloud [0.15]: " in capfd.readouterr().out
+
+
+def test_stale_layers_after_a_dataset_change_and_update(scene):
+    obj = contour_ops.add_contour("cloud", 0.15, scene=scene)
+    assert layers.stale_keys(obj, scene) == []
+    data_ops.set_settings(scene, hours_per_frame=2.0)
+    assert layers.stale_keys(obj, scene) == ["hours_per_frame"]
+    assert bpy.ops.nephele.sync_layers() == {"FINISHED"}
+    assert layers.stale_keys(obj, scene) == []
+    assert obj["nephele_hours"] == pytest.approx(24.0)  # frame 13 at 2 h per frame
+
+
+def test_layer_list_select_and_delete(scene):
+    a = contour_ops.add_contour("cloud", 0.15, scene=scene)
+    b = contour_ops.add_contour("cloud", 0.5, scene=scene)
+    assert layers.scene_layers(scene) == [a, b]
+    scene.nephele_layers.index = list(scene.objects).index(a)
+    assert bpy.context.view_layer.objects.active == a and a.select_get() and not b.select_get()
+    assert scene.nephele_layers.index == list(scene.objects).index(a)
+    mesh_name = b.data.name
+    assert bpy.ops.nephele.delete_layer(name=b.name) == {"FINISHED"}
+    assert layers.scene_layers(scene) == [a] and mesh_name not in bpy.data.meshes
