@@ -262,9 +262,17 @@ class NEPHELE_PT_contour(SubPanel, bpy.types.Panel):
         col.operator(NEPHELE_OT_update_contours.bl_idname, icon="FILE_REFRESH")
         obj = context.active_object
         p = frame.params(obj) if obj is not None else {}
-        if p.get("kind") == "contour":
-            box = self.layout.box()
-            box.label(text=f"{p['var']} = {p['level']:g}  ({p['source']})")
+        if p.get("kind") == "contour" and hasattr(obj, "nephele_layer"):
+            box = self.layout.box()  # the layer's own fields (the Layers panel has them all)
+            col = box.column(align=True)
+            col.prop(obj.nephele_layer, "var")
+            col.prop(obj.nephele_layer, "level")
+            st = stats_of(obj)
+            if st is not None and st.get("finite"):
+                col.label(text=f"data {st['min']:.4g} … {st['max']:.4g}")
+            empty = empty_message(obj)
+            if empty:
+                box.label(text=empty, icon="ERROR")
             box.label(text=f"model time {obj.get('nephele_hours', 0.0):.2f} h, {len(obj.data.polygons)} triangles")
 
 

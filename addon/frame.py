@@ -466,9 +466,21 @@ def _on_frame_change(scene, depsgraph=None):
     update_scene(scene)
 
 
+def flush(scene):
+    """Bring the background kinds of ``scene`` to its frame now, waiting for any running job."""
+    for obj in scene.objects:
+        kind = params(obj).get("kind")
+        if kind in JOBS:
+            _drop(_uid(obj))
+            UPDATERS[kind](obj, params(obj), scene, scene.frame_current + scene.frame_subframe)
+
+
 @persistent
-def _on_render_init(*_args):
+def _on_render_init(scene=None, *_args):
+    # A render shows exactly the frame: finish what the interface left in the background.
     _RENDERING[0] += 1
+    if isinstance(scene, bpy.types.Scene):
+        flush(scene)
 
 
 @persistent

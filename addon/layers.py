@@ -442,7 +442,7 @@ def _legend(layout, p):
     row = layout.row(align=True)
     for pos, rgb in ramp:
         cell = row.column(align=True)
-        cell.label(text=f"{lo + pos * (hi - lo):.3g}{unit}")
+        cell.label(text=f"{lo + pos * (hi - lo):.5g}{unit}")
         cell.label(text="■ " + "#%02x%02x%02x" % tuple(int(255 * c ** (1 / 2.2)) for c in rgb))
 
 

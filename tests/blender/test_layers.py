@@ -105,3 +105,50 @@ def test_layer_list_select_and_delete(scene):
     mesh_name = b.data.name
     assert bpy.ops.nephele.delete_layer(name=b.name) == {"FINISHED"}
     assert layers.scene_layers(scene) == [a] and mesh_name not in bpy.data.meshes
+
+
+class _Layout:
+    """Stands in for a panel's layout headless: records every prop/label/operator drawn."""
+
+    def __init__(self, log):
+        self.log = log
+
+    def __getattr__(self, name):
+        def call(*args, **kwargs):
+            self.log.append((name, args, kwargs))
+            if name == "prop":  # the property must exist on the data it is drawn from
+                assert hasattr(args[0], args[1]), args[1]
+            return _Layout(self.log)
+
+        return call
+
+
+def _draw(panel, scene, obj):
+    from types import SimpleNamespace
+
+    log = []
+    fake = SimpleNamespace(layout=_Layout(log), _draw_layer=layers.NEPHELE_PT_layers._draw_layer)
+    panel.draw(fake, SimpleNamespace(scene=scene, active_object=obj, view_layer=bpy.context.view_layer))
+    props = {a[1] for name, a, _ in log if name == "prop"}
+    labels = " | ".join(k.get("text", "") for name, _, k in log if name == "label")
+    return props, labels
+
+
+def test_panels_draw_the_selected_layer(scene):
+    from nephele.addon import advect_ops
+
+    obj = contour_ops.add_contour("cloud", 0.15, scene=scene)
+    props, labels = _draw(layers.NEPHELE_PT_layers, scene, obj)
+    assert {"var", "level", "color_var", "ramp", "color_range"} <= props
+    assert "data 0 … 1" in labels and "stale" not in labels
+    assert "12000 m" in labels  # the legend: the altitude ramp's top value
+    props, labels = _draw(contour_ops.NEPHELE_PT_contour, scene, obj)
+    assert {"var", "level"} <= props and "data 0 … 1" in labels
+    data_ops.set_settings(scene, hours_per_frame=3.0)
+    assert "stale hours_per_frame" in _draw(layers.NEPHELE_PT_layers, scene, obj)[1]
+    advect_ops.add_advected_texture(obj, scene=scene)
+    assert "opacity_range" in _draw(layers.NEPHELE_PT_layers, scene, obj)[0]
+    obj.nephele_layer.opacity_range = (0.1, 0.5)
+    node = obj.data.materials[0].node_tree.nodes["Nephele opacity"]
+    assert node.inputs["From Min"].default_value == pytest.approx(0.1)
+    assert node.inputs["From Max"].default_value == pytest.approx(0.5)
