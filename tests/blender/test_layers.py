@@ -152,3 +152,23 @@ def test_panels_draw_the_selected_layer(scene):
     node = obj.data.materials[0].node_tree.nodes["Nephele opacity"]
     assert node.inputs["From Min"].default_value == pytest.approx(0.1)
     assert node.inputs["From Max"].default_value == pytest.approx(0.5)
+
+
+def test_volume_threshold_edits_live_within_the_baked_support(scene, tmp_path):
+    from nephele.addon import volume_ops
+    from nephele.core.transfer import TransferFunction
+
+    scene.frame_start, scene.frame_end = 13, 13
+    obj, _ = volume_ops.add_volume_clouds("cloud", TransferFunction.ramp(0.3, 1.0), directory=str(tmp_path / "vol"),
+                                          scene=scene, frames=(13, 13), mode=volume_ops.EXACT)
+    lay = obj.nephele_layer
+    assert lay.threshold == pytest.approx(0.3)
+    lay.threshold = 0.5  # inside what was baked: the material applies it at once
+    assert frame.params(obj)["tf"]["points"][0] == pytest.approx([0.5, 0.0])
+    assert "nephele_needs_bake" not in obj and obj.data.materials[0] is not None
+    props, labels = _draw(layers.NEPHELE_PT_layers, scene, obj)
+    assert "threshold" in props and "0.5→0" in labels
+    lay.threshold = 0.1  # below the baked support: needs a new bake, and the panel says so
+    assert frame.params(obj)["tf"]["points"][0] == pytest.approx([0.5, 0.0])
+    assert "re-bake" in obj["nephele_needs_bake"]
+    assert "re-bake" in _draw(layers.NEPHELE_PT_layers, scene, obj)[1]
