@@ -254,7 +254,7 @@ def add_advected_texture(obj, *, strategy="restart", period=24, integrator="rk4"
     frame.set_params(obj, params)
     obj.pop("nephele_shown", None)
     materials.assign(obj, cloud_material(f"{obj.name} advected texture", fractal, lo, hi))
-    update_advected(obj, params, scene, scene.frame_current + scene.frame_subframe)
+    frame.submit(obj, scene)  # at once headless; in the interface the catch-up runs in the background
     return obj
 
 
@@ -262,7 +262,7 @@ def _is_contour(obj):
     return obj is not None and frame.params(obj).get("kind") in ("contour", KIND)
 
 
-class NEPHELE_OT_add_advected_texture(bpy.types.Operator):
+class NEPHELE_OT_add_advected_texture(frame.BackgroundAdd, bpy.types.Operator):
     """Texture the selected contour surface with a cloud texture carried by the wind (front faces only)"""
 
     bl_idname = "nephele.add_advected_texture"
@@ -301,6 +301,13 @@ class NEPHELE_OT_add_advected_texture(bpy.types.Operator):
                                        scene=context.scene)
         except (DataError, OSError, ValueError) as exc:
             self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        return self.wait_for(context, obj)
+
+    def done(self, context, obj):
+        err = frame.last_error(obj)
+        if err:
+            self.report({"ERROR"}, err)
             return {"CANCELLED"}
         self.report({"INFO"}, f"{obj.name}: {len(obj.data.vertices)} textured vertices")
         return {"FINISHED"}

@@ -177,7 +177,7 @@ def add_contour(var="cloud", level=0.15, *, source=None, exaggeration=None, radi
     params["ramp"] = ramp if isinstance(ramp, str) else "custom"
     params["color_range"] = [float(vmin), float(vmax)]
     frame.set_params(obj, params)
-    update_contour(obj, params, scene, scene.frame_current + scene.frame_subframe)
+    frame.submit(obj, scene)  # at once headless; in the interface in the background
     return obj
 
 
@@ -198,7 +198,37 @@ def _color_variables(self, context):
                                   + [(n, n, "") for n in names])
 
 
-class NEPHELE_OT_add_contour(bpy.types.Operator):
+def report_result(op, obj):
+    """Report a layer's new result from operator ``op``: ERROR (object removed), WARNING if empty, else INFO."""
+    err = frame.last_error(obj)
+    if err:
+        op.report({"ERROR"}, err)
+        data = obj.data
+        bpy.data.objects.remove(obj)
+        if data is not None and data.users == 0:
+            bpy.data.meshes.remove(data)
+        return {"CANCELLED"}
+    if "nephele_shown" not in obj:  # cancelled before its first result
+        op.report({"WARNING"}, f"{obj.name}: cancelled before its first result; 'Update to frame' computes it")
+        return {"FINISHED"}
+    empty = empty_message(obj)
+    if empty:
+        op.report({"WARNING"}, empty)
+    else:
+        op.report({"INFO"}, f"{obj.name}: {len(obj.data.polygons)} triangles")
+    return {"FINISHED"}
+
+
+def select_only(context, obj):
+    """Blender's convention: the new object alone selected and active."""
+    for o in list(context.view_layer.objects.selected):
+        if o is not None:  # None: an object this operator replaced
+            o.select_set(False)
+    obj.select_set(True)
+    context.view_layer.objects.active = obj
+
+
+class NEPHELE_OT_add_contour(frame.BackgroundAdd, bpy.types.Operator):
     """Add a contour surface of a field that follows the frame through model time"""
 
     bl_idname = "nephele.add_contour"
@@ -228,17 +258,11 @@ class NEPHELE_OT_add_contour(bpy.types.Operator):
         except (DataError, OSError, ImportError, ValueError) as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
-        empty = empty_message(obj)
-        if empty:
-            self.report({"WARNING"}, empty)
-        else:
-            self.report({"INFO"}, f"{obj.name}: {len(obj.data.polygons)} triangles")
-        for o in list(context.view_layer.objects.selected):  # Blender convention: the new object alone selected and active
-            if o is not None:  # None: an object this operator replaced
-                o.select_set(False)
-        obj.select_set(True)
-        context.view_layer.objects.active = obj
-        return {"FINISHED"}
+        select_only(context, obj)
+        return self.wait_for(context, obj)
+
+    def done(self, context, obj):
+        return report_result(self, obj)
 
 
 class NEPHELE_OT_update_contours(bpy.types.Operator):

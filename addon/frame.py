@@ -160,6 +160,7 @@ _RUNNING = [None]
 _DONE = []
 _WANTED = {}  # uid -> key the object should show
 _THREAD = [None]
+ERRORS = {}  # uid -> the last background error of that object
 STATUS = {"text": "", "errors": []}
 """What the panel shows about background work (``text``; ``errors``: recent messages)."""
 
@@ -269,6 +270,51 @@ def _drop(uid):
         _WANTED.pop(uid, None)
 
 
+def pending(obj):
+    """True while ``obj`` waits for a background result (queued, running or not yet applied)."""
+    return _uid(obj) in _WANTED
+
+
+def last_error(obj):
+    """The message of ``obj``'s last failed background job (None if none)."""
+    return ERRORS.get(_uid(obj))
+
+
+class BackgroundAdd:
+    """Mixin for an operator that adds or changes a layer: waits for its background result modally.
+
+    ``execute`` calls :meth:`wait_for` with the object; in the interface the
+    operator then runs modally (the interface stays live, Esc cancels) and
+    calls ``self.done(context, obj)`` when the result is applied; headless
+    ``done`` runs at once.  ``done`` reports and returns the operator's result.
+    """
+
+    def wait_for(self, context, obj):
+        if bpy.app.background or context.window is None:  # no event loop to come back to: wait here
+            wait()
+        if not pending(obj):
+            return self.done(context, obj)
+        self._obj_name = obj.name
+        self._obj_uid = _uid(obj)
+        self._timer = context.window_manager.event_timer_add(POLL_S * 2, window=context.window)
+        context.window_manager.modal_handler_add(self)
+        return {"RUNNING_MODAL"}
+
+    def modal(self, context, event):
+        obj = _object(self._obj_uid)
+        if event.type == "ESC" and event.value == "PRESS":
+            context.window_manager.event_timer_remove(self._timer)
+            cancel_all()
+            self.report({"WARNING"}, f"{self._obj_name}: cancelled; it shows its last result")
+            return {"FINISHED"}
+        if event.type == "TIMER" and (obj is None or not pending(obj)):
+            context.window_manager.event_timer_remove(self._timer)
+            if obj is None:
+                return {"CANCELLED"}
+            return self.done(context, obj)
+        return {"PASS_THROUGH"}
+
+
 def busy():
     """True while background work is queued, running or waiting to be applied."""
     with _LOCK:
@@ -316,8 +362,11 @@ def apply_finished():
     changed = 0
     for job in done:
         if job.cancelled or job.error is not None:
+            if _WANTED.get(job.uid) == job.key:  # nothing newer is coming for this object
+                _WANTED.pop(job.uid)
             if job.error is not None:
                 msg = f"{job.label}: {job.error}"
+                ERRORS[job.uid] = msg
                 STATUS["errors"] = (STATUS["errors"] + [msg])[-5:]
                 print(f"Nephele: {msg}")
             continue
@@ -328,6 +377,7 @@ def apply_finished():
         JOBS[job.kind].apply(obj, job.args, job.result)
         obj["nephele_shown"] = job.key
         _WANTED.pop(job.uid, None)
+        ERRORS.pop(job.uid, None)
         changed += 1
     if changed:
         _redraw()

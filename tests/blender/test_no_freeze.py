@@ -143,3 +143,25 @@ def test_disable_removes_handlers_and_timer(advected):
         assert not hasattr(bpy.types.Object, "nephele_layer")
     finally:
         nephele.register()
+
+
+def test_adding_a_layer_does_not_block_the_interface(empty_scene, tmp_path, monkeypatch, capfd):
+    monkeypatch.setattr(contour_ops, "cache_dir", lambda: tmp_path / "cache")
+    scene = empty_scene
+    data_ops.set_settings(scene, source="demo:small", hours_per_frame=1.0)
+    scene.frame_set(13)
+    frame.force_background_jobs(True)
+    try:
+        obj = contour_ops.add_contour("cloud", 0.15, scene=scene)
+        assert frame.pending(obj) and len(obj.data.vertices) == 0  # the mesh comes later
+        assert frame.wait(120) and not frame.pending(obj) and len(obj.data.vertices) > 100
+        # The operator (here without a window) reports on the finished result, not the empty placeholder.
+        assert bpy.ops.nephele.add_contour(var="cloud", level=0.3) == {"FINISHED"}
+        assert "Info: Contour cloud [0.3]: " in capfd.readouterr().out
+        assert bpy.ops.nephele.add_contour(var="cloud", level=3.0) == {"FINISHED"}
+        assert "Warning: Contour cloud [3]: no surface at cloud = 3 at 12 h; the data range is 0 to 1" in (
+            capfd.readouterr().out)
+    finally:
+        frame.cancel_all()
+        frame.wait(60)
+        frame.force_background_jobs(False)
