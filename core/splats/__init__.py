@@ -11,6 +11,7 @@ from .render import (
     ray_integral,
     reconstruct,
     render_splats,
+    streak_offsets,
 )
 from .samples import ALTITUDE, Splats, cell_jacobians, principal_axes, splat_samples
 from .streaks import streak_maps, streak_orientation, structure_tensor
@@ -35,6 +36,7 @@ __all__ = [
     "splat_kernel",
     "splat_samples",
     "streak_maps",
+    "streak_offsets",
     "streak_orientation",
     "structure_tensor",
 ]

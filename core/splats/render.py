@@ -79,6 +79,9 @@ class ScreenSplats:
         Streak tile size in pixels along the wind (u) and across it (v): across,
         the cut-off ellipse's major diameter; along, ``wind_speed · loop_hours``
         but at least a quarter of that diameter.
+    tex_offset : (m, 2)
+        Offset in tiles of the splat's streak texture, :func:`streak_offsets` of
+        its sample index, so that overlapping splats do not repeat one pattern.
     """
 
     keep: np.ndarray
@@ -90,6 +93,22 @@ class ScreenSplats:
     wind_dir: np.ndarray
     wind_speed: np.ndarray
     tile: np.ndarray
+    tex_offset: np.ndarray
+
+
+def streak_offsets(index):
+    """Per-splat texture offsets in [0, 1)², a fixed hash of the splat's position in
+    :class:`Splats` (SplitMix64), the same in every frame and for every renderer."""
+    z = np.asarray(index, dtype=np.uint64) * np.uint64(2) + np.uint64(1)
+    out = []
+    for salt in (np.uint64(0x9E3779B97F4A7C15), np.uint64(0xD1B54A32D192ED03)):
+        with np.errstate(over="ignore"):
+            x = z * salt
+            x = (x ^ (x >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+            x = (x ^ (x >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+            x = x ^ (x >> np.uint64(31))
+        out.append((x >> np.uint64(11)).astype(np.float64) / float(1 << 53))
+    return np.stack(out, axis=-1)
 
 
 def _inv2(m):
@@ -190,7 +209,8 @@ def project_splats(splats, kernel, camera, width, height, *, extinction=DEFAULT_
     major = 2.0 * R * np.sqrt(0.5 * (shape[:, 0, 0] + shape[:, 1, 1]) + np.sqrt(0.25 * (shape[:, 0, 0] - shape[:, 1, 1]) ** 2 + shape[:, 0, 1] ** 2))
     tile = np.column_stack([np.maximum(speed * loop_hours, 0.25 * major), major])
     return ScreenSplats(
-        idx[vis], center[vis], key[vis], conic[vis], amplitude[vis], bbox[vis], wdir[vis], speed[vis], tile[vis]
+        idx[vis], center[vis], key[vis], conic[vis], amplitude[vis], bbox[vis], wdir[vis], speed[vis], tile[vis],
+        streak_offsets(idx[vis]),
     )
 
 
@@ -205,16 +225,35 @@ def _fragments(bbox):
     return sid, bbox[sid, 0] + local % bw[sid], bbox[sid, 2] + local // bw[sid]
 
 
-def _lookup(tex, s, t):
-    """Bilinear, periodic lookup of ``tex[j, i]`` at texture coordinates ``(s, t)`` (u, v in tiles)."""
-    size_v, size_u = tex.shape
+def _pyramid(tex, levels=6):
+    """``tex`` blurred for minification: level ``L`` by a periodic Gaussian of σ = 0.5·2^L texels (level 0 as is)."""
+    ky = np.fft.fftfreq(tex.shape[0])[:, None]
+    kx = np.fft.rfftfreq(tex.shape[1])[None, :]
+    spec = np.fft.rfft2(tex)
+    out = [tex]
+    for level in range(1, levels):
+        g = np.exp(-2.0 * np.pi**2 * (0.5 * 2**level) ** 2 * (kx * kx + ky * ky))
+        out.append(np.fft.irfft2(spec * g, s=tex.shape))
+    return np.stack(out)
+
+
+def _lookup(pyr, level, s, t):
+    """Bilinear, periodic lookup in pyramid level ``level`` (per fragment) of ``pyr[L, j, i]``
+    at texture coordinates ``(s, t)`` (u, v in tiles)."""
+    size = pyr.shape[1] * pyr.shape[2]
+    flat = pyr.reshape(pyr.shape[0], -1)
+    size_v, size_u = pyr.shape[1:]
     x = s * size_u - 0.5
     y = t * size_v - 0.5
     x0, y0 = np.floor(x), np.floor(y)
     fx, fy = x - x0, y - y0
     i0, j0 = x0.astype(np.int64) % size_u, y0.astype(np.int64) % size_v
     i1, j1 = (i0 + 1) % size_u, (j0 + 1) % size_v
-    return (1 - fy) * ((1 - fx) * tex[j0, i0] + fx * tex[j0, i1]) + fy * ((1 - fx) * tex[j1, i0] + fx * tex[j1, i1])
+    base = level * size
+    f = flat.reshape(-1)
+    return (1 - fy) * ((1 - fx) * f[base + j0 * size_u + i0] + fx * f[base + j0 * size_u + i1]) + fy * (
+        (1 - fx) * f[base + j1 * size_u + i0] + fx * f[base + j1 * size_u + i1]
+    )
 
 
 def render_splats(
@@ -244,9 +283,11 @@ def render_splats(
     streaks : (n_maps, size, size) array, optional
         A :func:`~.streaks.streak_maps` cycle.  Each splat shows map
         ``floor(phase · n_maps) mod n_maps``, turned so its +u runs along the
-        splat's projected wind, centred on the splat, one tile
-        ``tile = (wind_speed · loop_hours, major diameter)`` pixels (see
-        :class:`ScreenSplats`); the colour is multiplied by
+        splat's projected wind, centred on the splat and shifted by its
+        ``tex_offset``, one tile ``tile = (wind_speed · loop_hours, major
+        diameter)`` pixels (see :class:`ScreenSplats`), blurred for
+        minification (a Gaussian pyramid, σ = 0.5·2^L texels at level
+        ``L = round(log2(texels per pixel))``); the colour is multiplied by
         ``1 − streak_strength (1 − S)``.  Advancing ``phase`` by ``Δh /
         loop_hours`` moves the streaks downwind by the wind's projected
         displacement in ``Δh`` hours (in steps of a ``1/n_maps`` tile).
@@ -285,7 +326,12 @@ def render_splats(
     order = np.argsort(scr.key, kind="stable")  # front first
     counts = (scr.bbox[order, 1] - scr.bbox[order, 0] + 1) * (scr.bbox[order, 3] - scr.bbox[order, 2] + 1)
     ends = np.cumsum(counts)
-    tex = None if streaks is None else streaks[int(np.floor(phase * streaks.shape[0])) % streaks.shape[0]]
+    pyr = level = None
+    if streaks is not None:
+        pyr = _pyramid(streaks[int(np.floor(phase * streaks.shape[0])) % streaks.shape[0]])
+        # Minification: the pyramid level whose blur matches texels per pixel on the tile's shorter side.
+        per_px = max(streaks.shape[1:]) / np.maximum(scr.tile.min(axis=1), 1e-9)
+        level = np.clip(np.round(np.log2(np.maximum(per_px, 1.0))), 0, pyr.shape[0] - 1).astype(np.int64)
     start = 0
     while start < order.size:
         stop = max(start + 1, int(np.searchsorted(ends, (ends[start - 1] if start else 0) + MAX_FRAGMENTS, side="right")))
@@ -301,11 +347,11 @@ def render_splats(
         s, dx, dy, rho2, col, row = s[inside], dx[inside], dy[inside], rho2[inside], col[inside], row[inside]
         tau = scr.amplitude[s] * kernel.footprint_rho2(rho2)
         rgb = splats.color[scr.keep[s]].astype(np.float64)
-        if tex is not None:
-            wd = scr.wind_dir[s]
-            su = (dx * wd[:, 0] + dy * wd[:, 1]) / scr.tile[s, 0] + 0.5
-            sv = (-dx * wd[:, 1] + dy * wd[:, 0]) / scr.tile[s, 1] + 0.5
-            rgb = rgb * (1.0 - streak_strength * (1.0 - _lookup(tex, su, sv)))[:, None]
+        if pyr is not None:
+            wd, off = scr.wind_dir[s], scr.tex_offset[s]
+            su = (dx * wd[:, 0] + dy * wd[:, 1]) / scr.tile[s, 0] + 0.5 + off[:, 0]
+            sv = (-dx * wd[:, 1] + dy * wd[:, 0]) / scr.tile[s, 1] + 0.5 + off[:, 1]
+            rgb = rgb * (1.0 - streak_strength * (1.0 - _lookup(pyr, level[s], su, sv)))[:, None]
         pix = row * w + col
         # Stable sort by pixel keeps each pixel's fragments front to back.
         o = np.argsort(pix, kind="stable")
@@ -427,4 +473,5 @@ __all__ = [
     "ray_integral",
     "reconstruct",
     "render_splats",
+    "streak_offsets",
 ]

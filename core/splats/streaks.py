@@ -21,7 +21,7 @@ import numpy as np
 from ..errors import DataError
 
 
-def streak_maps(n=8, size=128, *, seed=0, count=40, length=0.3, width=0.025):
+def streak_maps(n=8, size=128, *, seed=0, count=24, length=0.6, width=0.03):
     """A cycle of ``n`` tileable streak textures.
 
     Parameters
