@@ -266,6 +266,7 @@ class WindField:
         for name in ("u", "v"):
             if name not in dataset:
                 raise DataError("is needed to advect textures but the dataset has no such field", path=dataset.source, field=name)
+        dataset.grid.require_lonlat("advection", path=dataset.source)
         self.dataset = dataset
         self.grid = grid = dataset.grid
         self.radius = float(getattr(dataset, "earth_radius", None) or EARTH_RADIUS)

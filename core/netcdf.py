@@ -54,6 +54,7 @@ from .errors import DataError
 from .gridfile import FileDataset, cf_times, cf_times_or_steps, parse_iso, plausible_units, pressure_scale, standard_name, step_times, tidy_lonlat
 from .grid import EARTH_RADIUS, GlobeGrid, rotated_pole_matrix
 from .humidity import G0, RH_CRIT, standard_height
+from .projections import inverse
 
 _LON_UNITS = ("degrees_east", "degree_east", "degree_e", "degrees_e", "degreee", "degreese")
 _LAT_UNITS = ("degrees_north", "degree_north", "degree_n", "degrees_n", "degreen", "degreesn")
@@ -190,6 +191,39 @@ def _month_times(values, units, calendar, path, field):
     return times, note
 
 
+_LENGTH = {"m": 1.0, "meter": 1.0, "meters": 1.0, "metre": 1.0, "metres": 1.0, "km": 1000.0, "kilometer": 1000.0, "kilometers": 1000.0}
+
+
+def _projection_axes(ds):
+    """Names of the 1-D projection x and y coordinates (CF ``projection_x_coordinate``…), or None."""
+    found = {}
+    for name, var in ds.variables.items():
+        kind = {"projection_x_coordinate": "x", "projection_y_coordinate": "y"}.get(_attr(var, "standard_name").lower())
+        if kind and var.ndim == 1:
+            found.setdefault(kind, name)
+    return (found["x"], found["y"]) if len(found) == 2 else None
+
+
+def projected_lonlat(mapping, x, y, path=None, field="grid_mapping"):
+    """True longitude and latitude (degrees, ``(ny, nx)``) of 1-D projection coordinates (metres) and a list of notes.
+
+    :func:`nephele.core.projections.inverse` on the grid of ``x`` × ``y``.
+    """
+    X, Y = np.meshgrid(np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64))
+    return inverse(mapping, X, Y, path, field)
+
+
+def _right_handed(lon2d, lat2d):
+    """Whether grid i, grid j and up form a right-handed frame (east-ish, north-ish, up) at the centre."""
+    from .grid import lonlat_to_xyz
+
+    nj, ni = lon2d.shape
+    j, i = nj // 2, ni // 2
+    j0, i0 = min(j, nj - 2), min(i, ni - 2)
+    p = lonlat_to_xyz(lon2d[j0 : j0 + 2, i0 : i0 + 2], lat2d[j0 : j0 + 2, i0 : i0 + 2])
+    return float(np.dot(np.cross(p[0, 1] - p[0, 0], p[1, 0] - p[0, 0]), p[0, 0])) > 0.0
+
+
 def _parametric_coordinate(ds, zdim):
     """The level coordinate, or an auxiliary coordinate along ``zdim`` carrying the parametric formula."""
     zvar = ds[zdim]
@@ -241,19 +275,20 @@ class NetCDFDataset(FileDataset):
                     first = "the contents are not NetCDF 3 or NetCDF 4/HDF5"
                 raise DataError(f"cannot open as NetCDF ({type(exc).__name__}: {first})", path=path) from exc
         self._ds = ds
-        lon_name, lat_name = _find_axis(ds, path, "lon"), _find_axis(ds, path, "lat")
-        lon_dim, lat_dim = ds[lon_name].dims, ds[lat_name].dims
-        if len(lon_dim) != 1 or len(lat_dim) != 1:
-            mapping = _grid_mapping(ds)
-            kind = _attr(ds[mapping], "grid_mapping_name") if mapping else "none stated"
-            raise DataError(
-                f"2-D longitude/latitude (a curvilinear or projected grid, grid mapping {kind}) is not supported; "
-                "only 1-D lon/lat and rotated-pole grids are read",
-                path=path,
-                field=lon_name,
-            )
-        lon_dim, lat_dim = lon_dim[0], lat_dim[0]
-        rotation, self.earth_radius = self._mapping(ds, path, lon_name)
+        projected = _projection_axes(ds)
+        try:
+            lon_name, lat_name = _find_axis(ds, path, "lon"), _find_axis(ds, path, "lat")
+        except DataError:
+            if projected is None or _grid_mapping(ds) is None:
+                raise
+            lon_name, lat_name = projected  # x/y and a grid mapping only: positions from the projection
+        curvilinear = ds[lon_name].ndim != 1 or ds[lat_name].ndim != 1 or (lon_name, lat_name) == projected
+        if curvilinear:
+            lon_dim, lat_dim = self._curvilinear_dims(ds, path, lon_name, lat_name, projected)
+            rotation, self.earth_radius = self._mapping(ds, path, None)
+        else:
+            lon_dim, lat_dim = ds[lon_name].dims[0], ds[lat_name].dims[0]
+            rotation, self.earth_radius = self._mapping(ds, path, lon_name)
         time_name = _find_time(ds)
         time_dim = ds[time_name].dims[0] if time_name and ds[time_name].ndim == 1 else None
         if time_dim is None and "time" in ds.dims:
@@ -286,7 +321,11 @@ class NetCDFDataset(FileDataset):
         self._dims = (zdim, lat_dim, lon_dim)
         self._time_dim = time_dim
 
-        lon, lat, lon_index, lat_index = tidy_lonlat(ds[lon_name].values, ds[lat_name].values, path, lon_name, lat_name)
+        lon2d = lat2d = None
+        if curvilinear:
+            lon, lat, lon_index, lat_index, lon2d, lat2d = self._curvilinear(ds, path, lon_name, lat_name, projected, lon_dim, lat_dim)
+        else:
+            lon, lat, lon_index, lat_index = tidy_lonlat(ds[lon_name].values, ds[lat_name].values, path, lon_name, lat_name)
         if time_name is None and time_dim:
             times = step_times(ds.sizes[time_dim])
             notes.append(f"time: dimension 'time' has no coordinate variable; the {times.size} step(s) are numbered 0..{times.size - 1}, one hour apart")
@@ -307,7 +346,7 @@ class NetCDFDataset(FileDataset):
         self._nt = times.size
 
         heights, level_index, pressure, vertical = self._vertical(ds, path, zdim, names, lat_index, lon_index, lat.size, lon.size)
-        grid = GlobeGrid(lon, lat, heights, rotation=rotation).validate(path)
+        grid = GlobeGrid(lon, lat, heights, rotation=rotation, lon2d=lon2d, lat2d=lat2d).validate(path)
         if radius is not None:
             self.earth_radius = float(radius)
         elif self.earth_radius is None and "NCAR" in vertical:
@@ -354,7 +393,7 @@ class NetCDFDataset(FileDataset):
         gm = ds[name].attrs if name else {}
         radius = gm.get("earth_radius", gm.get("semi_major_axis"))
         radius = float(radius) if radius is not None else None
-        if _attr(ds[lon_name], "standard_name").lower() != "grid_longitude":
+        if lon_name is None or _attr(ds[lon_name], "standard_name").lower() != "grid_longitude":
             return None, radius
         if str(gm.get("grid_mapping_name", "")) != "rotated_latitude_longitude":
             raise DataError("has standard_name grid_longitude but no rotated_latitude_longitude grid mapping", path=path, field=lon_name)
@@ -363,6 +402,52 @@ class NetCDFDataset(FileDataset):
         except KeyError as exc:
             raise DataError(f"grid mapping lacks {exc.args[0]}", path=path, field=name) from None
         return rotated_pole_matrix(*pole, float(gm.get("north_pole_grid_longitude", 0.0))), radius
+
+    # ------------------------------------------------------------------ curvilinear
+    @staticmethod
+    def _curvilinear_dims(ds, path, lon_name, lat_name, projected):
+        """``(x dim, y dim)`` of a grid with 2-D longitude/latitude (the last two dimensions; WRF's
+        ``XLAT(Time, south_north, west_east)`` too) or of projection-only x/y axes."""
+        if (lon_name, lat_name) == projected:
+            return ds[lon_name].dims[0], ds[lat_name].dims[0]
+        lon_dims, lat_dims = ds[lon_name].dims, ds[lat_name].dims
+        if len(lon_dims) < 2 or lon_dims[-2:] != lat_dims[-2:]:
+            raise DataError(f"longitude dimensions {lon_dims} and latitude dimensions {lat_dims} do not match", path=path, field=lon_name)
+        return lon_dims[-1], lon_dims[-2]
+
+    def _curvilinear(self, ds, path, lon_name, lat_name, projected, xdim, ydim):
+        """Axes, index orders and true 2-D positions of a curvilinear grid.
+
+        Positions: the file's 2-D latitude/longitude (first step where they
+        carry a time dimension), else the grid mapping's inverse projection
+        (:func:`projected_lonlat`).  The grid keeps index axes ``0..n-1``; rows
+        are reversed where needed so that (i, j, up) is right-handed like a
+        longitude × latitude grid (contour normals then point the same way).
+        """
+        if (lon_name, lat_name) == projected:
+            mapping = _grid_mapping(ds)
+            scale = [_LENGTH.get(_attr(ds[n], "units").lower(), None) for n in projected]
+            if None in scale:
+                raise DataError(f"projection coordinates need units m or km, got {[_attr(ds[n], 'units') for n in projected]}", path=path, field=lon_name)
+            lon2d, lat2d, notes = projected_lonlat(dict(ds[mapping].attrs), ds[lon_name].values * scale[0], ds[lat_name].values * scale[1], path, mapping)
+            name = _attr(ds[mapping], "grid_mapping_name")
+            self._notes += [f"grid: longitudes/latitudes computed from the {name} grid mapping"] + [f"grid: {n}" for n in notes]
+        else:
+            planes = []
+            for name in (lon_name, lat_name):
+                var = ds[name]
+                extra = {d: 0 for d in var.dims if d not in (ydim, xdim)}  # WRF: XLAT(Time, south_north, west_east)
+                planes.append(np.asarray(var.isel(extra).transpose(ydim, xdim).values, dtype=np.float64))
+            lon2d, lat2d = planes
+        if lon2d.shape[0] < 2 or lon2d.shape[1] < 2:
+            raise DataError(f"a curvilinear grid needs at least 2 x 2 columns, got {lon2d.shape}", path=path, field=lon_name)
+        if not (np.all(np.isfinite(lon2d)) and np.all(np.isfinite(lat2d))):
+            raise DataError("has NaN or infinite 2-D longitudes/latitudes (masked land points?)", path=path, field=lon_name)
+        lon_index, lat_index = np.arange(lon2d.shape[1]), np.arange(lon2d.shape[0])
+        if not _right_handed(lon2d, lat2d):
+            lat_index = lat_index[::-1]
+        lon2d, lat2d = lon2d[lat_index], lat2d[lat_index]
+        return np.arange(lon_index.size, dtype=np.float64), np.arange(lat_index.size, dtype=np.float64), lon_index, lat_index, lon2d, lat2d
 
     # ------------------------------------------------------------------ vertical
     def _vertical(self, ds, path, zdim, names, lat_index, lon_index, nj, ni):

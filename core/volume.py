@@ -90,7 +90,7 @@ class CurvilinearField:
     @classmethod
     def from_grid(cls, grid, values, radius=1.0, exaggeration=DEFAULT_EXAGGERATION):
         """``values``: dict name → ``(nk, nj, ni)`` array (NaN = missing)."""
-        grid.validate()
+        grid.require_lonlat("a volume").validate()
         if not (np.isfinite(radius) and radius > 0 and np.isfinite(exaggeration) and exaggeration > 0):
             raise DataError(f"radius {radius} and exaggeration {exaggeration} must be positive", field="exaggeration")
         lon = grid.lon - grid.lon[0]

@@ -58,10 +58,13 @@ def describe(ds):
         },
         "notes": list(getattr(ds, "notes", ())),
     }
-    if g.rotation is not None:
+    if g.curvilinear:
+        info["grid"] += ", 2-D longitude/latitude (projected or curvilinear horizontal grid)"
+    if g.rotation is not None or g.curvilinear:
         lon, lat = g.true_lonlat()
         west, east = _lon_span(lon)
-        info["rotated_pole"] = True
+        info["rotated_pole"] = g.rotation is not None
+        info["curvilinear"] = g.curvilinear
         info["true_lon"] = [west, east]
         info["true_lat"] = [float(lat.min()), float(lat.max())]
     return info
@@ -93,9 +96,13 @@ def format_text(info):
         + ("periodic" if info["periodic_lon"] else "not periodic"),
         f"  lat        {info['lat'][0]:g} .. {info['lat'][1]:g} degrees north",
     ]
-    if info.get("rotated_pole"):
+    if info.get("curvilinear"):
+        lines[-2] = f"  grid x     columns 0 .. {s['lon'] - 1}"
+        lines[-1] = f"  grid y     rows 0 .. {s['lat'] - 1}"
+    elif info.get("rotated_pole"):
         lines[-2] = lines[-2].replace("  lon        ", "  grid lon   ").replace(" degrees east", " degrees (rotated pole)")
         lines[-1] = lines[-1].replace("  lat        ", "  grid lat   ").replace(" degrees north", " degrees (rotated pole)")
+    if "true_lon" in info:
         lines += [
             f"  true lon   {info['true_lon'][0]:.4f} .. {info['true_lon'][1]:.4f} degrees east",
             f"  true lat   {info['true_lat'][0]:.4f} .. {info['true_lat'][1]:.4f} degrees north",
