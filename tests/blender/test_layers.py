@@ -102,6 +102,16 @@ def test_layer_list_select_and_delete(scene):
     scene.nephele_layers.index = list(scene.objects).index(a)
     assert bpy.context.view_layer.objects.active == a and a.select_get() and not b.select_get()
     assert scene.nephele_layers.index == list(scene.objects).index(a)
+    bpy.ops.mesh.primitive_cube_add()  # not a layer: the list leaves it out
+    ul = layers.NEPHELE_UL_layers
+    from types import SimpleNamespace
+
+    flags, order = ul.filter_items(SimpleNamespace(bitflag_filter_item=1 << 30), bpy.context, scene, "objects")
+    assert [o.name for o, f in zip(scene.objects, flags) if f] == [a.name, b.name] and order == []
+    log = []
+    ul.draw_item(ul, bpy.context, _Layout(log), scene, a, 0, None, "index", 0)
+    assert {"name", "hide_viewport", "hide_render"} <= {x[1] for n, x, _ in log if n == "prop"}
+    assert ("nephele.delete_layer",) in [x for n, x, _ in log if n == "operator"]
     mesh_name = b.data.name
     assert bpy.ops.nephele.delete_layer(name=b.name) == {"FINISHED"}
     assert layers.scene_layers(scene) == [a] and mesh_name not in bpy.data.meshes
@@ -172,3 +182,20 @@ def test_volume_threshold_edits_live_within_the_baked_support(scene, tmp_path):
     assert frame.params(obj)["tf"]["points"][0] == pytest.approx([0.5, 0.0])
     assert "re-bake" in obj["nephele_needs_bake"]
     assert "re-bake" in _draw(layers.NEPHELE_PT_layers, scene, obj)[1]
+
+
+def test_empty_variable_is_a_warning(scene, capfd):
+    from nephele.core.contour_task import open_source, register_source
+    from nephele.core.dataset import ArrayDataset
+
+    ds = open_source("demo:small")
+    fields = {"cloud": np.full((2,) + ds.grid.shape, np.nan, np.float32),
+              "temperature": np.full((2,) + ds.grid.shape, 250.0, np.float32)}
+    src = register_source("test_layers:empty", ArrayDataset(ds.grid, ds.times[:2], fields))
+    data_ops.set_settings(scene, source=src)
+    scene.frame_set(1)
+    assert bpy.ops.nephele.add_contour(var="cloud", level=0.15) == {"FINISHED"}
+    assert "Warning: Contour cloud [0.15]: cloud has no finite values at 0 h: the surface is empty" in (
+        capfd.readouterr().out)
+    obj = contour_ops.add_contour("temperature", 260.0, scene=scene)  # constant field, level above it
+    assert contour_ops.empty_message(obj).endswith("the data range is 250 to 250")
