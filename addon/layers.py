@@ -91,6 +91,22 @@ def histogram_hint(stats):
     return "".join(BARS[min(len(BARS) - 1, int(round((h / top) ** 0.5 * (len(BARS) - 1))))] for h in hist)
 
 
+def share_above(stats, level):
+    """About what share of the field's finite values lies above ``level`` (from the histogram, linear within a bin)."""
+    hist = stats.get("hist") or []
+    total = sum(hist)
+    lo, hi = stats["min"], stats["max"]
+    if not total or not hi > lo:
+        return float(level < lo)
+    x = (float(level) - lo) / (hi - lo) * len(hist)
+    if x <= 0:
+        return 1.0
+    if x >= len(hist):
+        return 0.0
+    i = int(x)
+    return (sum(hist[i + 1:]) + hist[i] * (i + 1 - x)) / total
+
+
 def range_line(stats, level=None):
     """``"data 0 … 0.98  ▁▂█▅▃▁▁▁"`` for the panel; says when ``level`` lies outside."""
     if stats is None:
@@ -100,6 +116,8 @@ def range_line(stats, level=None):
     text = f"data {stats['min']:.4g} … {stats['max']:.4g}  {histogram_hint(stats)}"
     if level is not None and not stats["min"] <= level <= stats["max"]:
         return text + "  (level outside)", "ERROR"
+    if level is not None:
+        text += f"  ~{100 * share_above(stats, level):.0f}% above"
     return text, "INFO"
 
 

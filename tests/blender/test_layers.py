@@ -73,6 +73,12 @@ def test_data_range_and_histogram_hint(scene):
     text, icon = layers.range_line(st, 0.15)
     assert icon == "INFO" and len(layers.histogram_hint(st)) == contour_ops.HIST_BINS
     assert layers.range_line(st, 7.0)[1] == "ERROR"
+    # The share of cells above the level, from the histogram: close to the exact share.
+    values = data_ops.dataset(scene=scene).read_at("cloud", obj["nephele_hours"])
+    for level in (0.15, 0.5):
+        exact = float(np.mean(values > level))
+        assert abs(layers.share_above(st, level) - exact) < 0.05
+    assert f"~{100 * layers.share_above(st, 0.15):.0f}% above" in text
 
 
 def test_empty_result_is_a_warning_naming_the_range(scene, capfd):
