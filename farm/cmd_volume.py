@@ -96,6 +96,9 @@ def run(args):
         raise DataError("the exact mode's atlas shader works in longitude/latitude and cannot place a rotated-pole "
                         "grid yet; use --mode voxels", path=ds.source, field="grid")
     first, last = _steps(args.steps, ds.times.size)
+    if not np.isfinite(ds.read(args.var, first)).any():  # cheap: the bake reads this step from the cache
+        raise DataError(f"every value at time step {first} is missing (NaN): nothing to show", path=ds.source,
+                        field=ds.resolve(args.var))
     # Frame k (1-based) shows step first + k - 1: frames advance one step each.
     step_hours = float(np.median(np.diff(ds.hours))) if ds.hours.size > 1 else 1.0
     params = {

@@ -93,3 +93,17 @@ def test_contour_on_the_rotated_grid_lands_over_wales(tmp_path, capsys):
     assert tlon.min() - 1e-4 < lon.min() and lon.max() < tlon.max() + 1e-4
     assert tlat.min() - 1e-4 < lat.min() and lat.max() < tlat.max() + 1e-4
     assert -3.2 < lon.mean() < -3.04 and 52.37 < lat.mean() < 52.46
+
+
+@pytest.mark.parametrize("command", [["contour", "--level", "250", "-o", "x.ply"], ["volume", "--out", "vol"]])
+def test_all_nan_field_is_one_line_and_exit_2(tmp_path, monkeypatch, capsys, command):
+    import xarray as xr
+
+    with xr.open_dataset(NCL, decode_times=False) as f:
+        f = f.load()
+    f["T"][:] = np.nan
+    f.to_netcdf(tmp_path / "allnan.nc")
+    monkeypatch.chdir(tmp_path)
+    rc, _, err = run(capsys, command[0], tmp_path / "allnan.nc", "--var", "T", *command[1:])
+    one_line_error(rc, err, "allnan.nc", "'temperature'", "every value at time step 0 is missing")
+    assert sorted(p.name for p in tmp_path.rglob("*")) == ["allnan.nc"]
