@@ -9,6 +9,7 @@ nothing but :func:`nephele.addon.frame.install` (no add-on, no window).
 """
 
 import json
+import threading
 from collections import OrderedDict
 
 import bpy
@@ -27,6 +28,7 @@ COLOR_RANGES = {"altitude": (0.0, 12000.0), "temperature": (220.0, 300.0), "clou
 
 HIST_BINS = 8
 _STATS = OrderedDict()
+_STATS_LOCK = threading.Lock()  # filled by the frame worker, read by the main thread
 
 
 def cache_dir():
@@ -51,7 +53,8 @@ def field_stats(source, var, hours):
     """
     ds = contour_task.open_source(source)
     key = (contour_task.source_stamp(source), str(var), round(float(hours), 6))
-    hit = _STATS.get(key)
+    with _STATS_LOCK:
+        hit = _STATS.get(key)
     if hit is not None:
         return hit
     if var not in ds:
@@ -64,9 +67,10 @@ def field_stats(source, var, hours):
         out = {"min": lo, "max": hi, "hist": [int(h) for h in hist], "finite": v.size / float(np.prod(ds.grid.shape))}
     else:
         out = {"min": float("nan"), "max": float("nan"), "hist": [0] * HIST_BINS, "finite": 0.0}
-    _STATS[key] = out
-    while len(_STATS) > 16:
-        _STATS.popitem(last=False)
+    with _STATS_LOCK:
+        _STATS[key] = out
+        while len(_STATS) > 16:
+            _STATS.popitem(last=False)
     return out
 
 

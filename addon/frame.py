@@ -240,10 +240,9 @@ def submit(obj, scene, frame_number=None, *, force=False):
         return None
     key, args, cached = planned
     _WANTED[uid] = key
-    if cached:
+    if cached:  # a load: no streamed state involved, so no waiting for the worker either
         _drop(uid)
-        with _COMPUTE:
-            result = jk.compute(args, None)
+        result = jk.compute(args, None)
         jk.apply(obj, args, result)
         obj["nephele_shown"] = key
         return None
@@ -517,7 +516,14 @@ def _on_frame_change(scene, depsgraph=None):
 
 
 def flush(scene):
-    """Bring the background kinds of ``scene`` to its frame now, waiting for any running job."""
+    """Bring the background kinds of ``scene`` to its frame now.
+
+    A running job is asked to stop at its next step (what it streamed is kept
+    for later), so the render waits for at most one step of it.
+    """
+    with _LOCK:
+        if _RUNNING[0] is not None:
+            _RUNNING[0].cancelled = True
     for obj in scene.objects:
         kind = params(obj).get("kind")
         if kind in JOBS:
