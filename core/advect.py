@@ -250,9 +250,13 @@ class WindField:
         thread (a film needs one new step per frame; reading it overlaps the
         tracing).  Default: when :func:`~nephele.core.threads.default_threads`
         allows more than one thread.
+    radius : float, optional
+        Planet radius (m) turning winds into angular speed; default the
+        dataset's ``earth_radius`` (from the file), else
+        :data:`~nephele.core.grid.EARTH_RADIUS`.
     """
 
-    def __init__(self, dataset, nan="error", cache_steps=6, vertical="auto", read_ahead=None):
+    def __init__(self, dataset, nan="error", cache_steps=6, vertical="auto", read_ahead=None, radius=None):
         if nan not in ("error", "zero"):
             raise ValueError(f"nan must be 'error' or 'zero', got {nan!r}")
         if vertical not in ("auto", "w", "levels"):
@@ -269,7 +273,7 @@ class WindField:
         dataset.grid.require_lonlat("advection", path=dataset.source)
         self.dataset = dataset
         self.grid = grid = dataset.grid
-        self.radius = float(getattr(dataset, "earth_radius", None) or EARTH_RADIUS)
+        self.radius = float(radius or getattr(dataset, "earth_radius", None) or EARTH_RADIUS)
         self.nan = nan
         self.index = _GridIndex(grid, pad=2)
         self.nk = grid.shape[0]

@@ -153,3 +153,17 @@ def test_advected_contour_on_the_um_grid_lands_over_wales_and_moves_with_grid_wi
     assert inside.sum() > 100
     np.testing.assert_allclose(shift_km, 3.6, atol=0.02)
     np.testing.assert_allclose(glat_s[inside], glat_v[inside], atol=1e-5)
+
+
+def test_windfield_radius_argument_overrides_the_dataset():
+    from nephele.core.advect import WindField
+
+    _, ds = _rotated_rotation_dataset(CAM_RADIUS)
+    assert WindField(ds, read_ahead=False).radius == CAM_RADIUS
+    w = WindField(ds, read_ahead=False, radius=6371000.0)
+    assert w.radius == 6371000.0
+    # Angular speed scales as 1/radius: the same wind, the smaller radius, the faster turn.
+    p = np.array([[1.0, 0.0, 0.0]])
+    fast = w.velocity(0.0, p, np.zeros(1))[0]
+    slow = WindField(ds, read_ahead=False).velocity(0.0, p, np.zeros(1))[0]
+    np.testing.assert_allclose(np.linalg.norm(fast) / np.linalg.norm(slow), CAM_RADIUS / 6371000.0, rtol=1e-6)
