@@ -11,6 +11,7 @@ from .render import (
     ray_integral,
     reconstruct,
     render_splats,
+    sphere_depth,
     streak_offsets,
 )
 from .samples import ALTITUDE, Splats, cell_jacobians, principal_axes, splat_samples
@@ -34,6 +35,7 @@ __all__ = [
     "reconstruct",
     "render_splats",
     "splat_kernel",
+    "sphere_depth",
     "splat_samples",
     "streak_maps",
     "streak_offsets",

@@ -214,15 +214,31 @@ def project_splats(splats, kernel, camera, width, height, *, extinction=DEFAULT_
     )
 
 
-def _fragments(bbox):
-    """``(splat, col, row)`` of every pixel in each inclusive bbox."""
-    bw = bbox[:, 1] - bbox[:, 0] + 1
-    bh = bbox[:, 3] - bbox[:, 2] + 1
-    counts = bw * bh
-    sid = np.repeat(np.arange(bbox.shape[0]), counts)
-    start = np.concatenate([[0], np.cumsum(counts)[:-1]])
-    local = np.arange(sid.size) - start[sid]
-    return sid, bbox[sid, 0] + local % bw[sid], bbox[sid, 2] + local // bw[sid]
+def _repeat_ranges(start, count):
+    """``(owner, value)`` for every integer ``start[i] .. start[i] + count[i] - 1``."""
+    owner = np.repeat(np.arange(count.size), count)
+    first = np.concatenate([[0], np.cumsum(count)[:-1]])
+    return owner, start[owner] + (np.arange(owner.size) - first[owner])
+
+
+def _fragments(scr, batch, radius, width):
+    """``(splat, col, row)`` of the pixels whose centres lie inside each splat's cut-off
+    ellipse ``δᵀQ'δ ≤ R²``: row by row, the exact span of columns (no bounding-box waste)."""
+    bbox = scr.bbox[batch]
+    owner, row = _repeat_ranges(bbox[:, 2], bbox[:, 3] - bbox[:, 2] + 1)
+    s = batch[owner]
+    q = scr.conic[s]
+    cx = scr.center[s, 0]
+    dy = row + 0.5 - scr.center[s, 1]
+    disc = (q[:, 0, 1] * dy) ** 2 - q[:, 0, 0] * (q[:, 1, 1] * dy * dy - radius * radius)
+    root = np.sqrt(np.maximum(disc, 0.0))
+    mid = cx - q[:, 0, 1] * dy / q[:, 0, 0]
+    half = root / q[:, 0, 0]
+    c0 = np.maximum(np.ceil(mid - half - 0.5), 0).astype(np.int64)
+    c1 = np.minimum(np.floor(mid + half - 0.5), width - 1).astype(np.int64)
+    count = np.where(disc > 0, np.maximum(c1 - c0 + 1, 0), 0)
+    pair, col = _repeat_ranges(c0, count)
+    return s[pair], col, row[pair]
 
 
 def _pyramid(tex, levels=6):
@@ -269,6 +285,7 @@ def render_splats(
     prefilter=DEFAULT_PREFILTER,
     loop_hours=DEFAULT_LOOP_HOURS,
     streak_strength=DEFAULT_STREAK_STRENGTH,
+    depth=None,
 ):
     """Render splats: EWA footprints, sorted by distance, composited with *over*.
 
@@ -301,6 +318,11 @@ def render_splats(
         Hours of wind per streak cycle.
     streak_strength : float
         0 (no streaks) .. 1.
+    depth : (height, width) array, optional
+        Opaque surface behind the splats (the globe: :func:`sphere_depth`):
+        a splat is hidden at pixels whose depth is less than its centre's, in
+        the measure of :attr:`ScreenSplats.key` (distance from the eye;
+        orthographic: depth along the view).
 
     Returns
     -------
@@ -321,6 +343,11 @@ def render_splats(
             raise DataError(f"phase {phase!r} must be finite and streak_strength {streak_strength!r} in [0, 1]", field="streaks")
     scr = project_splats(splats, kernel, camera, width, height, extinction=extinction, prefilter=prefilter, loop_hours=loop_hours)
     w, h = int(width), int(height)
+    if depth is not None:
+        depth = np.asarray(depth, dtype=np.float64)
+        if depth.shape != (h, w) or np.isnan(depth).any():
+            raise DataError(f"needs a NaN-free (height, width) = {(h, w)} array, got shape {depth.shape}", field="depth")
+        depth = depth.ravel()
     color = np.zeros((h * w, 3))
     trans = np.ones(h * w)
     order = np.argsort(scr.key, kind="stable")  # front first
@@ -337,13 +364,14 @@ def render_splats(
         stop = max(start + 1, int(np.searchsorted(ends, (ends[start - 1] if start else 0) + MAX_FRAGMENTS, side="right")))
         batch = order[start:stop]
         start = stop
-        sid, col, row = _fragments(scr.bbox[batch])
-        s = batch[sid]
+        s, col, row = _fragments(scr, batch, kernel.radius, w)
         dx = col + 0.5 - scr.center[s, 0]
         dy = row + 0.5 - scr.center[s, 1]
         q = scr.conic[s]
         rho2 = q[:, 0, 0] * dx * dx + 2.0 * q[:, 0, 1] * dx * dy + q[:, 1, 1] * dy * dy
         inside = rho2 < kernel.radius**2
+        if depth is not None:
+            inside &= scr.key[s] <= depth[row * w + col]
         s, dx, dy, rho2, col, row = s[inside], dx[inside], dy[inside], rho2[inside], col[inside], row[inside]
         tau = scr.amplitude[s] * kernel.footprint_rho2(rho2)
         rgb = splats.color[scr.keep[s]].astype(np.float64)
@@ -369,6 +397,34 @@ def render_splats(
     out[..., :3] = color.reshape(h, w, 3)
     out[..., 3] = (1.0 - trans).reshape(h, w)
     return out
+
+
+def sphere_depth(camera, width, height, radius=1.0, center=(0.0, 0.0, 0.0)):
+    """Per-pixel depth of an opaque sphere (the globe) for :func:`render_splats`' ``depth``.
+
+    Distance from the eye to the first hit along each pixel-centre ray
+    (orthographic: depth along the view); ``inf`` where the ray misses.
+    """
+    if not isinstance(camera, Camera):
+        raise DataError(f"needs a Camera, got {type(camera).__name__}", field="camera")
+    w, h = int(width), int(height)
+    f = camera.pixels_per_unit(w)
+    cols, rows = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
+    px, py = ((cols - 0.5 * w) / f).ravel(), (-(rows - 0.5 * h) / f).ravel()
+    c = camera.to_camera(np.asarray(center, dtype=np.float64))[0]
+    if camera.orthographic:
+        origin = np.column_stack([px, py, np.zeros_like(px)])
+        dirs = np.tile([0.0, 0.0, -1.0], (px.size, 1))
+    else:
+        origin = np.zeros((px.size, 3))
+        dirs = np.column_stack([px, py, -np.ones_like(px)])
+        dirs /= np.linalg.norm(dirs, axis=1)[:, None]
+    rel = c - origin
+    tc = np.einsum("ij,ij->i", rel, dirs)
+    disc = tc * tc - (np.einsum("ij,ij->i", rel, rel) - radius * radius)
+    with np.errstate(invalid="ignore"):
+        t = tc - np.sqrt(disc)
+    return np.where((disc >= 0) & (t > 0), t, np.inf).reshape(h, w)
 
 
 def reconstruct(splats, kernel, xyz, values=None, chunk=2_000_000):
@@ -473,5 +529,6 @@ __all__ = [
     "ray_integral",
     "reconstruct",
     "render_splats",
+    "sphere_depth",
     "streak_offsets",
 ]

@@ -160,3 +160,22 @@ def test_bad_input_raises_data_error():
     for call in calls:
         with pytest.raises(DataError):
             call()
+
+
+def test_globe_depth_hides_the_far_side():
+    from nephele.core.splats import sphere_depth
+
+    for cam in (
+        Camera.look_at((0, 0, 5), (0, 0, 0), up=(0, 1, 0), orthographic=True, ortho_scale=3.0),
+        Camera.look_at((0, 0, 5), (0, 0, 0), up=(0, 1, 0), fov=40),
+    ):
+        d = sphere_depth(cam, 32, 32)
+        assert d[16, 16] == pytest.approx(4.0, abs=0.01) and np.isinf(d[0, 0])
+        axes = principal_axes(np.broadcast_to(np.eye(3) * 0.05, (2, 3, 3)), K.radius)
+        near = Splats(np.array([[0, 0, 1.05]]), axes[:1], np.ones((1, 3)), np.ones(1), np.zeros((1, 3)), K.radius)
+        far = Splats(np.array([[0, 0, -1.05]]), axes[:1], np.ones((1, 3)), np.ones(1), np.zeros((1, 3)), K.radius)
+        assert render_splats(near, K, cam, 32, 32, depth=d)[..., 3].max() > 0.2
+        assert render_splats(far, K, cam, 32, 32, depth=d)[..., 3].max() == 0
+        assert render_splats(far, K, cam, 32, 32)[..., 3].max() > 0.2
+    with pytest.raises(DataError):
+        render_splats(near, K, cam, 32, 32, depth=np.zeros((3, 3)))
