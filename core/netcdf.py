@@ -27,13 +27,21 @@ the level coordinate or on an auxiliary coordinate along the level dimension
 (CAM's ``hyam``/``hybm``/``P0``/``PS``).  A missing ``P0`` is CAM's
 100000 Pa (or the ``p0=`` argument), reported in :attr:`notes`.
 
-Horizontal grids: 1-D latitude/longitude, or a CF rotated pole
+Horizontal grids: 1-D latitude/longitude; a CF rotated pole
 (``grid_latitude``/``grid_longitude`` with a ``rotated_latitude_longitude``
 grid mapping): the grid keeps its rotated coordinates (winds in such files are
 grid-relative) and carries the rotation to the true globe
-(:func:`~nephele.core.grid.rotated_pole_matrix`).  Other 2-D
-latitude/longitude grids (Lambert conformal, polar stereographic, WRF) are
-refused with a clear :class:`DataError`.
+(:func:`~nephele.core.grid.rotated_pole_matrix`); and curvilinear grids with
+2-D latitude/longitude (CF ``lat(y, x)``/``lon(y, x)``, WRF's ``XLAT``/``XLONG``,
+or only projection ``x``/``y`` with a Lambert conformal, polar stereographic,
+stereographic or Mercator grid mapping, placed by
+:func:`~nephele.core.projections.inverse`): :attr:`GlobeGrid.lon2d`.
+
+WRF history files: eta levels at the heights ``(PH + PHB) / g`` of the first
+step (destaggered), pressure ``P + PB``, ``temperature`` from ``T`` (the
+perturbation potential temperature, kept as ``theta_perturbation``) by
+Poisson's equation, ``cloud`` from ``CLDFRA``, WRF's radius 6370 km.
+Staggered winds (``U``, ``V``, ``W``) are not read yet.
 
 Times come from CF units (``hours since 2001-01-01``…, any CF calendar as
 elapsed time).  Anything else (units ``Month``, no units) becomes step
@@ -51,6 +59,7 @@ import re
 import numpy as np
 
 from .errors import DataError
+from .dataset import Variable
 from .gridfile import FileDataset, cf_times, cf_times_or_steps, parse_iso, plausible_units, pressure_scale, standard_name, step_times, tidy_lonlat
 from .grid import EARTH_RADIUS, GlobeGrid, rotated_pole_matrix
 from .humidity import G0, RH_CRIT, standard_height
@@ -224,6 +233,19 @@ def _right_handed(lon2d, lat2d):
     return float(np.dot(np.cross(p[0, 1] - p[0, 0], p[1, 0] - p[0, 0]), p[0, 0])) > 0.0
 
 
+WRF_T0 = 300.0
+"""WRF's base potential temperature (K): its ``T`` is ``theta - 300 K``."""
+WRF_RCP = 2.0 / 7.0
+"""WRF's ``R_d / c_p`` (``c_p = 7 R_d / 2``)."""
+WRF_RADIUS = 6370000.0
+"""WRF's planet radius (m, ``EARTH_RADIUS_M`` in WRF's module_model_constants)."""
+
+
+def _is_wrf(ds, zdim):
+    """A WRF history file: mass levels ``bottom_top`` with the geopotential ``PH``/``PHB`` on ``bottom_top_stag``."""
+    return zdim == "bottom_top" and all(n in ds.variables and "bottom_top_stag" in ds[n].dims for n in ("PH", "PHB"))
+
+
 def _parametric_coordinate(ds, zdim):
     """The level coordinate, or an auxiliary coordinate along ``zdim`` carrying the parametric formula."""
     zvar = ds[zdim]
@@ -291,8 +313,9 @@ class NetCDFDataset(FileDataset):
             rotation, self.earth_radius = self._mapping(ds, path, lon_name)
         time_name = _find_time(ds)
         time_dim = ds[time_name].dims[0] if time_name and ds[time_name].ndim == 1 else None
-        if time_dim is None and "time" in ds.dims:
-            time_name, time_dim = None, "time"  # a time dimension without a coordinate: numbered steps
+        for dim in ("time", "Time"):  # a time dimension without a coordinate (WRF's 'Time'): numbered steps
+            if time_dim is None and dim in ds.dims:
+                time_name, time_dim = None, dim
 
         # 3-D fields: dims = {lat, lon, one level dim} plus time if the file has one.
         candidates, skipped = {}, {}
@@ -328,7 +351,7 @@ class NetCDFDataset(FileDataset):
             lon, lat, lon_index, lat_index = tidy_lonlat(ds[lon_name].values, ds[lat_name].values, path, lon_name, lat_name)
         if time_name is None and time_dim:
             times = step_times(ds.sizes[time_dim])
-            notes.append(f"time: dimension 'time' has no coordinate variable; the {times.size} step(s) are numbered 0..{times.size - 1}, one hour apart")
+            notes.append(f"time: dimension {time_dim!r} has no coordinate variable; the {times.size} step(s) are numbered 0..{times.size - 1}, one hour apart")
         elif time_name:
             tv = ds[time_name]
             monthly = _month_times(tv.values, time_units or _attr(tv, "units"), tv.attrs.get("calendar"), path, time_name)
@@ -345,17 +368,28 @@ class NetCDFDataset(FileDataset):
             notes.append("time: the file has no time axis; one step")
         self._nt = times.size
 
-        heights, level_index, pressure, vertical = self._vertical(ds, path, zdim, names, lat_index, lon_index, lat.size, lon.size)
+        self._wrf = _is_wrf(ds, zdim) and self._vertical_kind is None
+        if self._wrf:
+            heights, level_index, pressure, vertical = self._wrf_levels(ds, path, zdim, lat_index, lon_index)
+        else:
+            heights, level_index, pressure, vertical = self._vertical(ds, path, zdim, names, lat_index, lon_index, lat.size, lon.size)
         grid = GlobeGrid(lon, lat, heights, rotation=rotation, lon2d=lon2d, lat2d=lat2d).validate(path)
         if radius is not None:
             self.earth_radius = float(radius)
         elif self.earth_radius is None and "NCAR" in vertical:
             self.earth_radius = CAM_RADIUS
             notes.append(f"radius: NCAR hybrid levels, so CAM's planet radius {CAM_RADIUS:g} m")
+        elif self.earth_radius is None and self._wrf:
+            self.earth_radius = WRF_RADIUS
+            notes.append(f"radius: WRF file, so WRF's planet radius {WRF_RADIUS:g} m")
         elif self.earth_radius is None:
             self.earth_radius = EARTH_RADIUS
 
         chosen = {raw: std for std, raw in (variables or {}).items()}
+        if self._wrf:  # WRF's T is the perturbation potential temperature (theta - 300 K), not air temperature
+            for raw, std in (("T", "theta_perturbation"), ("CLDFRA", "cloud")):
+                if raw in names and raw not in chosen and std not in chosen.values():
+                    chosen[raw] = std
         for raw in chosen:
             if raw not in names:
                 raise DataError(f"is not a 3-D field on the grid (fields: {', '.join(names)})", path=path, field=raw)
@@ -384,6 +418,44 @@ class NetCDFDataset(FileDataset):
             notes=notes,
             cache_steps=cache_steps,
         )
+        if self._wrf and "T" in names and pressure is not None and "temperature" not in self.variables:
+            self.variables["temperature"] = Variable("temperature", "K", "from WRF T + 300 K and P + PB (Poisson's equation)")
+            self.derived["temperature"] = "WRF T (perturbation potential temperature) + 300 K, P + PB"
+            self.aliases.pop("temperature", None)
+
+    def _read(self, name, t):
+        if name == "temperature" and self._wrf and "temperature" not in self._fields:
+            theta = np.asarray(self._read("theta_perturbation", t), dtype=np.float64) + WRF_T0
+            return (theta * (np.asarray(self._pressure(t), dtype=np.float64) / 1.0e5) ** WRF_RCP).astype(np.float32)
+        return super()._read(name, t)
+
+    # ------------------------------------------------------------------ WRF
+    def _wrf_levels(self, ds, path, zdim, lat_index, lon_index):
+        """WRF eta levels: heights of the mass levels from the first step's geopotential ``(PH + PHB) / g`` on
+        the staggered levels (mean of the two around each mass level); pressure ``P + PB``."""
+        take = np.ix_(lat_index, lon_index)
+        ydim, xdim = self._dims[1:]
+
+        def plane(name, t):
+            a = ds[name]
+            if self._time_dim in a.dims:
+                a = a.isel({self._time_dim: t})
+            stag = [d for d in a.dims if d not in (ydim, xdim)]
+            return np.asarray(a.transpose(*stag, ydim, xdim).values, dtype=np.float64)[(slice(None),) + take]
+
+        z_stag = (plane("PH", 0) + plane("PHB", 0)) / G0
+        if z_stag.shape[0] != ds.sizes[zdim] + 1:
+            raise DataError(f"PH has {z_stag.shape[0]} staggered levels for {ds.sizes[zdim]} mass levels (expected one more)", path=path, field="PH")
+        heights = 0.5 * (z_stag[:-1] + z_stag[1:])
+        level_index = self._level_order(heights.reshape(heights.shape[0], -1).mean(axis=1), path, zdim)
+        heights = heights[level_index]
+        pressure = None
+        if "P" in ds.variables and "PB" in ds.variables:
+
+            def pressure(t):
+                return (plane("P", t) + plane("PB", t))[level_index].astype(np.float32)
+
+        return heights, level_index, pressure, "WRF eta levels (terrain following, heights from PH + PHB)"
 
     # ------------------------------------------------------------------ horizontal
     @staticmethod
