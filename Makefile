@@ -11,7 +11,7 @@ BPY52 := build/venv-bpy52
 BPY50 := build/venv-bpy50
 PYTEST_ARGS ?=
 
-.PHONY: demo test test-main test-core311 test-extension bench extension clean
+.PHONY: demo test test-main test-core311 test-extension test-slurm bench extension clean
 
 $(VENV)/.stamp: requirements.txt pyproject.toml
 	$(PY313) -m venv $(VENV)
@@ -42,10 +42,10 @@ $(BPY50)/.stamp: requirements-blender311.txt
 demo: $(VENV)/.stamp
 	$(VENV)/bin/nephele demo --out out/demo
 
-test: test-main test-core311 test-extension
+test: test-main test-core311 test-extension test-slurm
 
 test-main: $(VENV)/.stamp
-	$(VENV)/bin/python -m pytest --ignore=tests/extension $(PYTEST_ARGS)
+	$(VENV)/bin/python -m pytest --ignore=tests/extension --ignore=tests/farm/slurm $(PYTEST_ARGS)
 
 # Core only (no bpy, no farm): the numpy 1.26 / Python 3.11 that Blender 4.2-5.0 ship.
 test-core311: $(VENV311)/.stamp
@@ -56,6 +56,11 @@ test-core311: $(VENV311)/.stamp
 test-extension: $(VENV)/.stamp $(BPY52)/.stamp $(BPY50)/.stamp
 	NEPHELE_REQUIRE_BLENDER_PYTHONS=1 NEPHELE_BLENDER_PYTHONS=$(CURDIR)/$(BPY52)/bin/python:$(CURDIR)/$(BPY50)/bin/python \
 	  $(VENV)/bin/python -m pytest tests/extension $(PYTEST_ARGS)
+
+# The farm on a real single-node Slurm cluster (slurmctld + slurmd + munged started by the tests;
+# slurm-wlm and munge are installed with apt-get when missing, which needs root).
+test-slurm: $(VENV)/.stamp
+	$(VENV)/bin/python -m pytest tests/farm/slurm $(PYTEST_ARGS)
 
 bench: $(VENV)/.stamp
 	for b in benchmarks/bench_*.py; do $(VENV)/bin/python $$b || exit 1; done

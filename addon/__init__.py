@@ -12,6 +12,7 @@ import importlib
 MODULES = (
     "panel",
     "data_ops",
+    "layers",
     "contour_ops",
     "globe_ops",
     "volume_ops",

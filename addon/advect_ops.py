@@ -21,12 +21,9 @@ import math
 import bpy
 
 from ..core.flow import advect, advect_task
+from ..core.pipeline import sources
 from ..core.texture.fractal import Fractal, terms
-from ..core.surface.mesh import Mesh
-from ..core.pipeline.tasks import run_cached
-from . import frame, materials
-from .contour_ops import cache_dir
-from .mesh import fill_mesh
+from . import contour_ops, frame, materials
 from .nodes import Nodes
 from .panel import SubPanel
 
@@ -154,17 +151,56 @@ def cloud_material(name="Nephele Advected Clouds", fractal=Fractal(), lo=0.08, h
     return mat
 
 
-@frame.register_updater(KIND)
-def update_advected(obj, params, scene, frame_number):
-    """Refill ``obj`` with the contour and texture start coordinates of ``frame_number``."""
-    tp = advect_task.advect_task_params(params, frame_number)
-    shown = json.dumps(tp, sort_keys=True)
-    if obj.get("nephele_shown") == shown and len(obj.data.vertices):
-        return
-    arrays = run_cached("advect_contour", tp, cache_dir())
-    fill_mesh(obj.data, Mesh.from_arrays(arrays))
-    obj["nephele_shown"] = shown
-    obj["nephele_hours"] = tp["hours"]
+def _plan(obj, params, scene, frame_number):
+    return contour_ops.plan(obj, params, scene, frame_number, kind=KIND, task_params=advect_task.advect_task_params)
+
+
+def _stream(tp):
+    """The streamed strategy the task will use for ``tp`` (None for the full trace, which keeps no state)."""
+    if tp["strategy"] == "full":
+        return None
+    st = advect_task._strategy(tp, sources.open_source(tp["source"]))
+    return getattr(st, "stream", None)
+
+
+def _compute(args, job=None):
+    """Worker side of an advected contour; a job's cancel stops the texture catch-up between frames.
+
+    The streamed maps advance one frame at a time; a cancel is checked before
+    each frame, so what was streamed so far is kept and the next request
+    (e.g. the frame the user moved on to) continues from there.
+    """
+    stream = _stream(args["tp"]) if job is not None else None
+    if stream is None:
+        return contour_ops.compute(args, job)
+    advance = type(stream).advance
+
+    def checked(copies, n, index):
+        job.check()
+        return advance(stream, copies, n, index)
+
+    stream.advance = checked
+    try:
+        return contour_ops.compute(args, job)
+    finally:
+        del stream.advance
+
+
+def _progress(args):
+    """``"texture frame 17 of 240"`` while the streamed maps catch up."""
+    tp = args["tp"]
+    for st in list(advect_task._STRATEGIES.values()):
+        stream = getattr(st, "stream", None)
+        if stream is not None and st.frame_hours.size and abs(st.frame_hours[1] - st.frame_hours[0]
+                                                              - tp["hours_per_frame"]) < 1e-9:
+            done = [f for f in stream.frames if f is not None]
+            if done:
+                return f"texture frame {min(done)} of {tp['frame']}"
+    return ""
+
+
+update_advected = frame.register_job(KIND, _plan, _compute, contour_ops.apply, _progress)
+"""Synchronous updater: the contour and texture start coordinates of a frame."""
 
 
 def add_advected_texture(obj, *, strategy="restart", period=24, integrator="rk4", vertical="auto", fractal=Fractal(),
@@ -202,7 +238,7 @@ def add_advected_texture(obj, *, strategy="restart", period=24, integrator="rk4"
     frame.set_params(obj, params)
     obj.pop("nephele_shown", None)
     materials.assign(obj, cloud_material(f"{obj.name} advected texture", fractal, lo, hi))
-    update_advected(obj, params, scene, scene.frame_current + scene.frame_subframe)
+    frame.submit(obj, scene)  # at once headless; in the interface the catch-up runs in the background
     return obj
 
 
@@ -210,7 +246,7 @@ def _is_contour(obj):
     return obj is not None and frame.params(obj).get("kind") in ("contour", KIND)
 
 
-class NEPHELE_OT_add_advected_texture(bpy.types.Operator):
+class NEPHELE_OT_add_advected_texture(frame.BackgroundAdd, bpy.types.Operator):
     """Texture the selected contour surface with a cloud texture carried by the wind (front faces only)"""
 
     bl_idname = "nephele.add_advected_texture"
@@ -249,6 +285,13 @@ class NEPHELE_OT_add_advected_texture(bpy.types.Operator):
                                        scene=context.scene)
         except (DataError, OSError, ValueError) as exc:
             self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        return self.wait_for(context, obj)
+
+    def done(self, context, obj):
+        err = frame.last_error(obj)
+        if err:
+            self.report({"ERROR"}, err)
             return {"CANCELLED"}
         self.report({"INFO"}, f"{obj.name}: {len(obj.data.vertices)} textured vertices")
         return {"FINISHED"}

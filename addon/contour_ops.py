@@ -8,12 +8,18 @@ scene it is given, so it works in a headless render of a saved .blend with
 nothing but :func:`nephele.addon.frame.install` (no add-on, no window).
 """
 
-import bpy
+import json
+import threading
+from collections import OrderedDict
 
-from ..core.surface import contour_task
-from ..core.pipeline.cache import default_cache_dir
-from ..core.surface.mesh import Mesh
+import bpy
+import numpy as np
+
+from ..core.pipeline import sources
+from ..core.pipeline.cache import Cache, default_cache_dir, source_stamp
 from ..core.pipeline.tasks import run_cached
+from ..core.surface import contour_task
+from ..core.surface.mesh import Mesh
 from . import data_ops, frame, materials
 from .mesh import fill_mesh
 from .panel import SubPanel
@@ -21,23 +27,105 @@ from .panel import SubPanel
 COLOR_RANGES = {"altitude": (0.0, 12000.0), "temperature": (220.0, 300.0), "cloud": (0.0, 1.0)}
 """Default colour-ramp ranges per attribute (others: the level's field range is unknown, 0..1)."""
 
+HIST_BINS = 8
+_STATS = OrderedDict()
+_STATS_LOCK = threading.Lock()  # filled by the frame worker, read by the main thread
+
 
 def cache_dir():
     """Where contour meshes are cached: beside the saved .blend, else the user cache."""
     return default_cache_dir(bpy.data.filepath or None)
 
 
-@frame.register_updater("contour")
-def update_contour(obj, params, scene, frame_number):
-    """Refill ``obj``'s mesh with the contour for ``frame_number`` (skipped if already shown)."""
-    tp = contour_task.task_params(params, frame_number)
-    shown = (tp["hours"], tp["level"], tp["var"], tp["exaggeration"], tp["radius"], tp["stamp"])
-    if obj.get("nephele_shown") == repr(shown) and len(obj.data.vertices):
-        return
-    arrays = run_cached("contour", tp, cache_dir())
-    fill_mesh(obj.data, Mesh.from_arrays(arrays))
-    obj["nephele_shown"] = repr(shown)
-    obj["nephele_hours"] = tp["hours"]
+def layer_name(var, level, prefix="Contour"):
+    """``"Contour cloud [0.15]"``: the bracket keeps Blender from reading ``.15`` as a duplicate counter.
+
+    (Blender renames a second ``"Contour cloud 0.15"`` to ``"Contour cloud 0.001"``.)
+    """
+    return f"{prefix} {var} [{float(level):g}]"
+
+
+def field_stats(source, var, hours):
+    """Range and histogram of field ``var`` at model time ``hours``: ``{"min", "max", "hist", "finite"}``.
+
+    ``hist`` counts the finite values in :data:`HIST_BINS` equal bins over
+    ``[min, max]``; ``finite`` is their share of the grid.  Kept for the last
+    few fields asked (the panel shows it next to the level).
+    """
+    ds = sources.open_source(source)
+    key = (source_stamp(source), str(var), round(float(hours), 6))
+    with _STATS_LOCK:
+        hit = _STATS.get(key)
+    if hit is not None:
+        return hit
+    if var not in ds:
+        raise KeyError(var)
+    v = np.asarray(ds.read_at(var, hours), dtype=np.float64).reshape(-1)
+    v = v[np.isfinite(v)]
+    if v.size:
+        lo, hi = float(v.min()), float(v.max())
+        hist = np.histogram(v, bins=HIST_BINS, range=(lo, hi if hi > lo else lo + 1.0))[0]
+        out = {"min": lo, "max": hi, "hist": [int(h) for h in hist], "finite": v.size / float(np.prod(ds.grid.shape))}
+    else:
+        out = {"min": float("nan"), "max": float("nan"), "hist": [0] * HIST_BINS, "finite": 0.0}
+    with _STATS_LOCK:
+        _STATS[key] = out
+        while len(_STATS) > 16:
+            _STATS.popitem(last=False)
+    return out
+
+
+def stats_of(obj):
+    """The data range stored on ``obj`` by its last update (None if unknown)."""
+    raw = obj.get("nephele_range")
+    return json.loads(raw) if raw else None
+
+
+def empty_message(obj):
+    """One line for an empty contour, naming the data's range; None when the surface is not empty."""
+    if len(obj.data.polygons):
+        return None
+    p = frame.params(obj)
+    st = stats_of(obj)
+    hours = obj.get("nephele_hours", 0.0)
+    if st is None or st["finite"] == 0.0:
+        return f"{obj.name}: {p.get('var')} has no finite values at {hours:g} h: the surface is empty"
+    return (f"{obj.name}: no surface at {p.get('var')} = {p.get('level'):g} at {hours:g} h; "
+            f"the data range is {st['min']:.4g} to {st['max']:.4g}")
+
+
+def plan(obj, params, scene, frame_number, kind="contour", task_params=None):
+    """Plan of a contour layer for :func:`nephele.addon.frame.register_job` (None when shown)."""
+    tp = (task_params or contour_task.task_params)(params, frame_number)
+    key = json.dumps(tp, sort_keys=True)
+    if obj.get("nephele_shown") == key and len(obj.data.vertices):
+        return None
+    cache = cache_dir()
+    args = {"kind": "contour" if kind == "contour" else "advect_contour", "tp": tp, "cache": str(cache)}
+    return key, args, Cache(cache).file(args["kind"], tp).is_file()
+
+
+def compute(args, job=None):
+    """Worker side: the mesh arrays (cache or computed) and the field's range; no ``bpy``."""
+    tp = args["tp"]
+    arrays = run_cached(args["kind"], tp, args["cache"])
+    try:
+        stats = field_stats(tp["source"], tp["var"], tp["hours"])
+    except KeyError:
+        stats = None
+    return {"arrays": arrays, "stats": stats}
+
+
+def apply(obj, args, result):
+    """Main-thread side: refill the mesh, remember the model time and the data range."""
+    fill_mesh(obj.data, Mesh.from_arrays(result["arrays"]))
+    obj["nephele_hours"] = args["tp"]["hours"]
+    if result["stats"] is not None:
+        obj["nephele_range"] = json.dumps(result["stats"])
+
+
+update_contour = frame.register_job("contour", plan, compute, apply)
+"""Synchronous updater ``(obj, params, scene, frame)`` (headless, renders, and the add dialog)."""
 
 
 def add_contour(var="cloud", level=0.15, *, source=None, exaggeration=None, radius=None, color_var="altitude",
@@ -81,7 +169,7 @@ def add_contour(var="cloud", level=0.15, *, source=None, exaggeration=None, radi
         "hours_per_frame": float(cfg["hours_per_frame"]),
         "frame_start": int(cfg["frame_start"]),
     }
-    name = name or f"Contour {var} {level:g}"
+    name = name or layer_name(var, level)
     me = bpy.data.meshes.new(name)
     obj = bpy.data.objects.new(name, me)
     (collection or scene.collection).objects.link(obj)
@@ -91,8 +179,10 @@ def add_contour(var="cloud", level=0.15, *, source=None, exaggeration=None, radi
             "altitude" if params["color_var"] == "altitude" else "viridis")
     mat = materials.attribute_material(f"{name} colour", params["color_var"], vmin, vmax, ramp)
     materials.assign(obj, mat)
+    params["ramp"] = ramp if isinstance(ramp, str) else "custom"
+    params["color_range"] = [float(vmin), float(vmax)]
     frame.set_params(obj, params)
-    update_contour(obj, params, scene, scene.frame_current + scene.frame_subframe)
+    frame.submit(obj, scene)  # at once headless; in the interface in the background
     return obj
 
 
@@ -113,7 +203,37 @@ def _color_variables(self, context):
                                   + [(n, n, "") for n in names])
 
 
-class NEPHELE_OT_add_contour(bpy.types.Operator):
+def report_result(op, obj):
+    """Report a layer's new result from operator ``op``: ERROR (object removed), WARNING if empty, else INFO."""
+    err = frame.last_error(obj)
+    if err:
+        op.report({"ERROR"}, err)
+        data = obj.data
+        bpy.data.objects.remove(obj)
+        if data is not None and data.users == 0:
+            bpy.data.meshes.remove(data)
+        return {"CANCELLED"}
+    if "nephele_shown" not in obj:  # cancelled before its first result
+        op.report({"WARNING"}, f"{obj.name}: cancelled before its first result; 'Update to frame' computes it")
+        return {"FINISHED"}
+    empty = empty_message(obj)
+    if empty:
+        op.report({"WARNING"}, empty)
+    else:
+        op.report({"INFO"}, f"{obj.name}: {len(obj.data.polygons)} triangles")
+    return {"FINISHED"}
+
+
+def select_only(context, obj):
+    """Blender's convention: the new object alone selected and active."""
+    for o in list(context.view_layer.objects.selected):
+        if o is not None:  # None: an object this operator replaced
+            o.select_set(False)
+    obj.select_set(True)
+    context.view_layer.objects.active = obj
+
+
+class NEPHELE_OT_add_contour(frame.BackgroundAdd, bpy.types.Operator):
     """Add a contour surface of a field that follows the frame through model time"""
 
     bl_idname = "nephele.add_contour"
@@ -143,13 +263,11 @@ class NEPHELE_OT_add_contour(bpy.types.Operator):
         except (DataError, OSError, ImportError, ValueError) as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
-        self.report({"INFO"}, f"{obj.name}: {len(obj.data.polygons)} triangles")
-        for o in list(context.view_layer.objects.selected):  # Blender convention: the new object alone selected and active
-            if o is not None:  # None: an object this operator replaced
-                o.select_set(False)
-        obj.select_set(True)
-        context.view_layer.objects.active = obj
-        return {"FINISHED"}
+        select_only(context, obj)
+        return self.wait_for(context, obj)
+
+    def done(self, context, obj):
+        return report_result(self, obj)
 
 
 class NEPHELE_OT_update_contours(bpy.types.Operator):
@@ -173,9 +291,17 @@ class NEPHELE_PT_contour(SubPanel, bpy.types.Panel):
         col.operator(NEPHELE_OT_update_contours.bl_idname, icon="FILE_REFRESH")
         obj = context.active_object
         p = frame.params(obj) if obj is not None else {}
-        if p.get("kind") == "contour":
-            box = self.layout.box()
-            box.label(text=f"{p['var']} = {p['level']:g}  ({p['source']})")
+        if p.get("kind") == "contour" and hasattr(obj, "nephele_layer"):
+            box = self.layout.box()  # the layer's own fields (the Layers panel has them all)
+            col = box.column(align=True)
+            col.prop(obj.nephele_layer, "var")
+            col.prop(obj.nephele_layer, "level")
+            st = stats_of(obj)
+            if st is not None and st.get("finite"):
+                col.label(text=f"data {st['min']:.4g} … {st['max']:.4g}")
+            empty = empty_message(obj)
+            if empty:
+                box.label(text=empty, icon="ERROR")
             box.label(text=f"model time {obj.get('nephele_hours', 0.0):.2f} h, {len(obj.data.polygons)} triangles")
 
 

@@ -9,10 +9,16 @@ volumes and textures line up.
 """
 
 import json
+import os
+import shutil
+from pathlib import Path
 
 import bpy
+from bpy.app.handlers import persistent
 
 from ..core.climate.grid import DEFAULT_EXAGGERATION
+from ..core.errors import DataError
+from ..core.pipeline.cache import default_cache_dir, format_bytes, session_cache_dir, tree_size
 from .panel import SubPanel
 
 MIRROR_KEY = "nephele_settings"
@@ -25,6 +31,32 @@ DEFAULTS = {
     "radius": 1.0,
 }
 """Defaults of the scene settings (radius 1, the grid module's exaggeration)."""
+
+BOUNDS = {
+    "hours_per_frame": (1e-3, 8760.0),
+    "frame_start": (-1048574, 1048574),
+    "exaggeration": (0.0, 500.0),
+    "radius": (1e-3, 1e3),
+}
+"""Allowed ``(lowest, highest)`` of each numeric setting.  Exaggeration 500
+already lifts a 20 km atmosphere 1.6 globe radii; beyond it every layer's
+memory grows without showing more (the issue's 1e6 took 24 GB and was killed).
+Frames: Blender's own limits."""
+
+
+def check_setting(key, value):
+    """``value`` as the setting's type, or :class:`DataError` naming the setting and its bounds."""
+    if key == "source":
+        return str(value)
+    kind = int if key == "frame_start" else float
+    try:
+        v = kind(value)
+    except (TypeError, ValueError):
+        raise DataError(f"must be a number, got {value!r}", field=key) from None
+    lo, hi = BOUNDS[key]
+    if not lo <= v <= hi:  # also refuses NaN
+        raise DataError(f"must be between {lo:g} and {hi:g}, got {v:g}", field=key)
+    return v
 
 
 def settings(scene=None):
@@ -47,12 +79,8 @@ def set_settings(scene=None, **values):
     if unknown:
         raise KeyError(f"unknown Nephele settings {sorted(unknown)} (known: {sorted(DEFAULTS)})")
     cfg = settings(scene)
-    cfg.update(values)
-    cfg["source"] = str(cfg["source"])
-    cfg["hours_per_frame"] = float(cfg["hours_per_frame"])
-    cfg["frame_start"] = int(cfg["frame_start"])
-    cfg["exaggeration"] = float(cfg["exaggeration"])
-    cfg["radius"] = float(cfg["radius"])
+    # Checked before anything is stored: a bad value never reaches the layers.
+    cfg.update({k: check_setting(k, v) for k, v in values.items()})
     scene[MIRROR_KEY] = json.dumps(cfg, sort_keys=True)
     return cfg
 
@@ -74,6 +102,11 @@ def _mirrored(key):
         return settings(self.id_data)[key]
 
     def set(self, value):
+        # A custom setter bypasses the property's min/max: clamp here, as
+        # Blender does for hard limits (set_settings refuses instead).
+        if key in BOUNDS:
+            lo, hi = BOUNDS[key]
+            value = min(max(value, lo), hi) if value == value else settings(self.id_data)[key]
         set_settings(self.id_data, **{key: value})
 
     return {"get": get, "set": set}
@@ -85,19 +118,19 @@ class NephelePropsData(bpy.types.PropertyGroup):
         description='"demo", "demo:small", or the path of a NetCDF (.nc) or GrADS (.ctl) file',
     )
     hours_per_frame: bpy.props.FloatProperty(
-        name="Hours per frame", min=1e-3, **_mirrored("hours_per_frame"),
+        name="Hours per frame", min=1e-3, max=8760.0, **_mirrored("hours_per_frame"),
         description="Model hours advanced by one frame",
     )
     frame_start: bpy.props.IntProperty(
-        name="First frame", **_mirrored("frame_start"),
+        name="First frame", min=-1048574, max=1048574, **_mirrored("frame_start"),
         description="The frame showing the first time step",
     )
     exaggeration: bpy.props.FloatProperty(
-        name="Vertical exaggeration", min=0.0, **_mirrored("exaggeration"),
+        name="Vertical exaggeration", min=0.0, max=500.0, **_mirrored("exaggeration"),
         description="Heights are drawn this many times taller (globe and every layer)",
     )
     radius: bpy.props.FloatProperty(
-        name="Globe radius", min=1e-3, **_mirrored("radius"),
+        name="Globe radius", min=1e-3, max=1e3, **_mirrored("radius"),
         description="Radius of sea level in scene units",
     )
 
@@ -106,6 +139,184 @@ def frame_range_for(ds, cfg):
     """The frames ``(first, last)`` that cover the dataset's time axis."""
     last = cfg["frame_start"] + int(round(float(ds.hours[-1]) / cfg["hours_per_frame"]))
     return cfg["frame_start"], max(last, cfg["frame_start"])
+
+
+# ------------------------------------------------------------ files of the scene
+
+
+def cache_dir():
+    """Where this file's Nephele files go: ``<blend dir>/<stem>_nephele_cache``
+    beside a saved .blend, else a folder of this session alone
+    (:func:`~nephele.core.cache.session_cache_dir`) that saving moves beside the .blend."""
+    if bpy.data.filepath:
+        return default_cache_dir(bpy.data.filepath)
+    return session_cache_dir()
+
+
+def owned_dir(*parts):
+    """A folder Nephele chooses for a layer's files: ``cache_dir() / parts``."""
+    return cache_dir().joinpath(*(bpy.path.clean_name(str(p)) for p in parts))
+
+
+def stored_dir(path):
+    """How a layer records its folder: relative to a saved .blend (``//…``), else absolute."""
+    path = str(path)
+    if bpy.data.filepath:
+        try:
+            return bpy.path.relpath(path)
+        except ValueError:  # another drive
+            return path
+    return path
+
+
+def layer_dir(params):
+    """The absolute folder a layer's ``params["directory"]`` names."""
+    return Path(bpy.path.abspath(params["directory"]))
+
+
+def _owned_layers():
+    from . import frame
+
+    for obj in bpy.data.objects:
+        p = frame.params(obj)
+        if p.get("owned") and p.get("directory"):
+            yield obj, p
+
+
+def _inside(path, root):
+    try:
+        Path(path).resolve().relative_to(Path(root).resolve())
+        return True
+    except ValueError:
+        return False
+
+
+def _repoint(old, new):
+    """Volumes and images whose files lie under ``old`` now read them under ``new`` (absolute paths;
+    a save with relative paths on stores them relative)."""
+    old_s = str(Path(old).resolve())
+    for block in (*bpy.data.volumes, *bpy.data.images):
+        fp = getattr(block, "filepath", "")
+        if not fp:
+            continue
+        ab = str(Path(bpy.path.abspath(fp)).resolve())
+        if ab == old_s or ab.startswith(old_s + os.sep):
+            block.filepath = str(Path(new) / os.path.relpath(ab, old_s))
+
+
+def adopt_files(blend_path):
+    """Move (or, from another saved file, copy) every folder Nephele chose for a layer
+    to ``<blend dir>/<stem>_nephele_cache``, so the file being saved as ``blend_path``
+    points only into its own folder.
+
+    From this session's folder the files are moved (a rename on one disk);
+    from another .blend's folder they are copied, since that file still uses
+    them.  Returns the list of ``(old, new)`` folders.
+    """
+    from . import frame
+
+    new_root = default_cache_dir(blend_path)
+    old_root = cache_dir()
+    session = session_cache_dir()
+    moved = []
+    for obj, p in list(_owned_layers()):
+        old = layer_dir(p)
+        if _inside(old, new_root):
+            continue
+        rel = Path(os.path.relpath(old.resolve(), old_root.resolve())) if _inside(old, old_root) else Path(old.name)
+        new = new_root / rel
+        if old.is_dir():
+            new.parent.mkdir(parents=True, exist_ok=True)
+            if new.exists():
+                shutil.rmtree(new)
+            if _inside(old, session):
+                shutil.move(str(old), str(new))
+            else:
+                shutil.copytree(old, new)
+        _repoint(old, new)
+        # Stored relative to the file being written (bpy.data.filepath is still the old one).
+        p["directory"] = "//" + os.path.relpath(new, Path(blend_path).parent)
+        frame.set_params(obj, p)
+        moved.append((old, new))
+    return moved
+
+
+@persistent
+def _on_save_pre(filepath, *args):
+    if filepath:
+        adopt_files(filepath)
+
+
+def in_use():
+    """Folders and files the scene's layers still read (kept by :func:`clear_cache`)."""
+    keep = {layer_dir(p).resolve() for _obj, p in _owned_layers()}
+    for block in (*bpy.data.volumes, *bpy.data.images):
+        fp = getattr(block, "filepath", "")
+        if fp:
+            keep.add(Path(bpy.path.abspath(fp)).resolve().parent)
+    return keep
+
+
+def clear_cache(root=None):
+    """Delete everything in this file's cache folder that no layer reads.
+
+    Returns ``(bytes freed, files removed, bytes kept)``.  Only this file's
+    folder (:func:`cache_dir`) is touched, never another file's or session's.
+    """
+    root = Path(root) if root is not None else cache_dir()
+    if not root.is_dir():
+        return 0, 0, 0
+    keep = in_use()
+    freed = removed = 0
+
+    def used(path):
+        r = path.resolve()
+        return any(r == k or _inside(k, r) or _inside(r, k) for k in keep)
+
+    def sweep(folder):
+        nonlocal freed, removed
+        for entry in folder.iterdir():
+            if not used(entry):
+                size, count = tree_size(entry) if entry.is_dir() else (entry.lstat().st_size, 1)
+                shutil.rmtree(entry) if entry.is_dir() and not entry.is_symlink() else entry.unlink()
+                freed, removed = freed + size, removed + count
+            elif entry.is_dir() and entry.resolve() not in keep:
+                sweep(entry)  # a parent of something in use: look inside
+
+    sweep(root)
+    return freed, removed, tree_size(root)[0]
+
+
+class NEPHELE_OT_clear_cache(bpy.types.Operator):
+    """Delete this file's cached Nephele results that no layer uses (they are recomputed when needed)"""
+
+    bl_idname = "nephele.clear_cache"
+    bl_label = "Clear cache"
+    bl_options = {"REGISTER"}
+
+    def execute(self, context):
+        root = cache_dir()
+        try:
+            freed, removed, kept = clear_cache(root)
+        except OSError as exc:
+            self.report({"ERROR"}, f"{root}: {exc}")
+            return {"CANCELLED"}
+        self.report({"INFO"}, f"Freed {format_bytes(freed)} ({removed} files) in {root}; "
+                              f"{format_bytes(kept)} kept in use by the scene's layers")
+        return {"FINISHED"}
+
+
+def install():
+    """Add the save handler once (idempotent); called by the add-on's ``register()``."""
+    handlers = bpy.app.handlers.save_pre
+    if not any(getattr(h, "__name__", "") == _on_save_pre.__name__ for h in handlers):
+        handlers.append(_on_save_pre)
+
+
+def uninstall():
+    handlers = bpy.app.handlers.save_pre
+    for h in [h for h in handlers if getattr(h, "__name__", "") == _on_save_pre.__name__]:
+        handlers.remove(h)
 
 
 class NEPHELE_OT_import_dataset(bpy.types.Operator):
@@ -126,7 +337,7 @@ class NEPHELE_OT_import_dataset(bpy.types.Operator):
     )
     filepath: bpy.props.StringProperty(name="File", subtype="FILE_PATH")
     filter_glob: bpy.props.StringProperty(default="*.nc;*.nc4;*.cdf;*.ctl", options={"HIDDEN"})
-    hours_per_frame: bpy.props.FloatProperty(name="Hours per frame", default=1.0, min=1e-3)
+    hours_per_frame: bpy.props.FloatProperty(name="Hours per frame", default=1.0, min=1e-3, max=8760.0)
     set_frame_range: bpy.props.BoolProperty(name="Set frame range", default=True)
 
     def invoke(self, context, event):
@@ -136,15 +347,17 @@ class NEPHELE_OT_import_dataset(bpy.types.Operator):
         return self.execute(context)
 
     def execute(self, context):
-        from ..core.errors import DataError
-
         source = {"DEMO": "demo", "DEMO_SMALL": "demo:small"}.get(self.kind, bpy.path.abspath(self.filepath))
         try:
             ds = dataset(source)
         except (DataError, OSError, ImportError) as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
-        cfg = set_settings(context.scene, source=source, hours_per_frame=self.hours_per_frame)
+        try:
+            cfg = set_settings(context.scene, source=source, hours_per_frame=self.hours_per_frame)
+        except DataError as exc:
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
         if self.set_frame_range:
             context.scene.frame_start, context.scene.frame_end = frame_range_for(ds, cfg)
         nk, nj, ni = ds.grid.shape
@@ -170,7 +383,11 @@ class NEPHELE_PT_data(SubPanel, bpy.types.Panel):
         col.prop(group, "frame_start")
         col.prop(group, "exaggeration")
         col.prop(group, "radius")
+        row = layout.row()
+        row.operator(NEPHELE_OT_clear_cache.bl_idname, icon="TRASH")
+        where = "beside the .blend" if bpy.data.filepath else "this session's folder (moved beside the .blend on save)"
+        layout.label(text=f"Files: {where}", icon="FILE_FOLDER")
 
 
-CLASSES = (NephelePropsData, NEPHELE_OT_import_dataset, NEPHELE_PT_data)
+CLASSES = (NephelePropsData, NEPHELE_OT_import_dataset, NEPHELE_OT_clear_cache, NEPHELE_PT_data)
 SCENE_PROPERTIES = {"nephele_data": NephelePropsData}

@@ -121,7 +121,7 @@ def add_dome_camera(
     lens_shift=None,
     stereo=False,
     separation=0.065,
-    location=(0.0, 0.0, 0.0),
+    location=None,
     yaw=0.0,
     scene=None,
 ):
@@ -137,8 +137,11 @@ def add_dome_camera(
         multi-view ``_L`` / ``_R`` frames.
     separation : float
         Eye separation in scene units.
-    location : (3,) floats
-        The audience's eye point (the dome's centre).
+    location : (3,) floats, optional
+        The audience's eye point (the dome's centre).  Default: outside the
+        scene's globe, the rig turned to look at it along the lens axis
+        (:func:`audience_placement`; ``yaw`` then unused), or the origin when
+        there is no globe.
     yaw : float
         Degrees the rig is turned about the vertical (0: the front is +y).
     scene : bpy.types.Scene, optional
@@ -155,12 +158,16 @@ def add_dome_camera(
     scene = scene or bpy.context.scene
     camera = core_dome.dome_camera(preset, width=width, height=height, fov=fov, tilt=tilt, lens=lens, lens_shift=lens_shift)
     eyes = core_dome.stereo_eyes(separation) if stereo else {"": np.zeros(3)}
+    rotation = (0.0, 0.0, -math.radians(yaw))
+    if location is None:
+        placed = audience_placement(camera, scene)
+        location, rotation = placed if placed is not None else ((0.0, 0.0, 0.0), rotation)
     for name in (CAMERA_NAME, CAMERA_NAME + "_L", CAMERA_NAME + "_R", RIG_NAME):
         _remove(name)
     rig = bpy.data.objects.new(RIG_NAME, None)
     rig.empty_display_type = "ARROWS"
     rig.location = location
-    rig.rotation_euler = (0.0, 0.0, -math.radians(yaw))
+    rig.rotation_euler = rotation
     scene.collection.objects.link(rig)
     frame.set_params(rig, camera_params(camera, stereo=stereo, separation=separation))
     cams = []
@@ -186,6 +193,47 @@ def add_dome_camera(
         r.views["left"].camera_suffix, r.views["right"].camera_suffix = "_L", "_R"
         r.image_settings.views_format = "INDIVIDUAL"
     return rig
+
+
+AUDIENCE_DISTANCE = 2.5
+"""The audience sits this many globe radii (with haze) from the centre: the globe
+spans about 47 deg of the dome, centred on the lens axis."""
+
+
+def scene_globe(scene):
+    """``(centre, radius)`` of the scene's Nephele globe (radius with its haze glow), or None."""
+    from . import globe_ops
+
+    for ob in scene.objects:
+        if "nephele_globe" in ob:
+            return Vector(ob.matrix_world.translation), globe_ops.frame_radius(scene) * max(ob.matrix_world.to_scale())
+    return None
+
+
+def audience_placement(camera, scene, *, distance=AUDIENCE_DISTANCE):
+    """``(location, rotation_euler)`` of a rig that sees the scene's globe centred on its
+    lens axis from ``distance`` globe radii, or None when the scene has no globe.
+
+    The audience looks from where the scene's camera does (the artist's chosen
+    view), else from the sun's side (the lit face), else from below; the rig is
+    turned so its lens axis points at the globe's centre.
+    """
+    found = scene_globe(scene)
+    if found is None:
+        return None
+    centre, radius = found
+    axis = Vector(tuple(camera.basis[2])).normalized()
+    cam = scene.camera
+    sun = next((ob for ob in scene.objects if ob.type == "LIGHT" and ob.data.type == "SUN"), None)
+    if cam is not None and frame.params(cam.parent or cam).get("kind") != "dome" \
+            and (cam.matrix_world.translation - centre).length > radius:
+        side = (cam.matrix_world.translation - centre).normalized()
+    elif sun is not None:
+        side = (sun.matrix_world.to_3x3() @ Vector((0.0, 0.0, 1.0))).normalized()
+    else:
+        side = -axis
+    turn = axis.rotation_difference(-side)
+    return tuple(centre + distance * radius * side), tuple(turn.to_euler())
 
 
 def dome_rig(scene=None):
@@ -417,10 +465,15 @@ class NEPHELE_OT_add_dome_camera(bpy.types.Operator):
     def execute(self, context):
         # Values not given (a script calling the operator) come from the preset.
         given = {k: getattr(self, k) for k in ("tilt", "fov", "width", "height") if self.properties.is_property_set(k)}
+        # The audience's eye: the 3D cursor, unless it lies inside the globe (its
+        # centre, where the cursor starts): then outside, looking at it.
+        cursor = context.scene.cursor.location
+        found = scene_globe(context.scene)
+        inside = found is not None and (cursor - found[0]).length <= found[1]
         try:
             rig = add_dome_camera(
                 self.preset, lens=self.lens, stereo=self.stereo, separation=self.separation,
-                location=tuple(context.scene.cursor.location), scene=context.scene, **given,
+                location=None if inside else tuple(cursor), scene=context.scene, **given,
             )
         except DataError as exc:
             self.report({"ERROR"}, str(exc))

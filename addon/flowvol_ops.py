@@ -6,19 +6,27 @@ the closed surface of :func:`..core.flowvol.flow_volume` with a constant
 colour emission-absorption volume material (colour C, density τ: the
 order-independent model of the paper, no sorting).  While "Live" is on, a
 depsgraph handler rebuilds the smoke, debounced, when the generator moves.
+With "Flow with the frames" the release window moves with the frame (a job of
+:mod:`.frame`: in the background in the interface, at once in renders), so the
+smoke flows on in a film while the generator keeps releasing.
 """
+
+import json
+import threading
 
 import bpy
 import numpy as np
 from mathutils import Vector
 
 from ..core.flowvol import ClimateVelocity, flow_volume
+from ..core.pipeline import sources
 from ..core.surface.mesh import Mesh
-from .data_ops import dataset
+from . import data_ops, frame
 from .materials import enable_nodes
 from .mesh import fill_mesh, new_object
 from .panel import SubPanel
 
+KIND = "flowvol"
 GENERATOR = "Flow volume generator"
 SMOKE = "Flow volume smoke"
 _DEBOUNCE_S = 0.25
@@ -58,31 +66,96 @@ def smoke_material(color, density, name=SMOKE):
     return mat
 
 
-def _velocity(props):
-    return ClimateVelocity(dataset(), exaggeration=props.exaggeration)
+_VELOCITIES = {}  # (source, exaggeration) -> ClimateVelocity: keeps its converted wind steps between rebuilds
+_VELOCITIES_LOCK = threading.Lock()
 
 
-def build(context, props, velocity=None):
-    """Compute the flow volume from the generator object's place and size; (re)fill the smoke mesh."""
+def _velocity(source, exaggeration):
+    key = (str(source), float(exaggeration))
+    with _VELOCITIES_LOCK:
+        if key not in _VELOCITIES:
+            _VELOCITIES.clear()
+            _VELOCITIES[key] = ClimateVelocity(sources.open_source(source), exaggeration=exaggeration)
+        return _VELOCITIES[key]
+
+
+def release_window(params, frame_number):
+    """``(t0, duration)`` in model hours: the air released during the window the smoke shows.
+
+    Without ``follow``: ``[start_hour, start_hour + hours]``.  With it, the window
+    keeps its length and ends ``frame_hours(frame)`` later, so at the first frame
+    the smoke is the whole release and later frames show it flowing on while
+    the generator keeps releasing (the end is clamped to the data's last hour).
+    """
+    t0, hours = float(params["start_hour"]), float(params["hours"])
+    if params.get("follow"):
+        ds = sources.open_source(params["source"])
+        shift = sources.frame_hours(frame_number, params.get("frame_start", 1), params.get("hours_per_frame", 1.0))
+        t_end = min(t0 + hours + shift, float(ds.hours[-1]))
+        t0 = max(t_end - hours, 0.0)
+        hours = t_end - t0
+    return t0, hours
+
+
+def plan(obj, params, scene, frame_number):
+    """The smoke's inputs at ``frame_number`` from the generator's place and size (None when shown)."""
     gen = bpy.data.objects.get(GENERATOR)
-    velocity = velocity or _velocity(props)
-    center = np.array(gen.matrix_world.translation)
-    radius = float(max(gen.matrix_world.to_scale()))
-    fv = flow_volume(velocity, center, radius, props.hours, sides=props.sides, rings=1, t0=props.start_hour,
-                     tol=props.tolerance, steps=props.steps)
-    # Keep the generator perpendicular to the local flow (its z axis along the normal).
-    gen.rotation_mode = "QUATERNION"
-    gen.rotation_quaternion = Vector(fv.normal).to_track_quat("Z", "Y")
-    surface = Mesh(fv.surface.vertices, fv.surface.faces, fv.surface.normals)
+    if gen is None:
+        return None
+    t0, duration = release_window(params, frame_number)
+    args = {**params, "center": [float(c) for c in gen.matrix_world.translation],
+            "radius": float(max(gen.matrix_world.to_scale())), "t0": round(t0, 6), "duration": round(duration, 6)}
+    key = json.dumps(args, sort_keys=True)
+    if obj.get("nephele_shown") == key:
+        return None
+    return key, args, False
+
+
+def compute(args, job=None):
+    """Worker side (NumPy only): the flow volume of the planned window."""
+    vel = _velocity(args["source"], args["exaggeration"])
+    return flow_volume(vel, np.array(args["center"]), args["radius"], args["duration"], sides=args["sides"], rings=1,
+                       t0=args["t0"], tol=args["tolerance"], steps=args["steps"])
+
+
+def apply(obj, args, fv):
+    """Main-thread side: refill the smoke, turn the generator to the flow, say what was built."""
+    fill_mesh(obj.data, Mesh(fv.surface.vertices, fv.surface.faces, fv.surface.normals), smooth=False)
+    gen = bpy.data.objects.get(GENERATOR)
+    if gen is not None:  # keep the generator perpendicular to the local flow (its z axis along the normal)
+        gen.rotation_mode = "QUATERNION"
+        gen.rotation_quaternion = Vector(fv.normal).to_track_quat("Z", "Y")
+        _state["matrix"] = [tuple(r) for r in gen.matrix_world]
+    obj["nephele_status"] = (f"{len(fv.tets)} tets, volume {fv.volume:.3g}, released {args['t0']:g}-"
+                             f"{args['t0'] + args['duration']:g} h" + ("" if fv.complete else " (front size limit reached)"))
+
+
+update_smoke = frame.register_job(KIND, plan, compute, apply)
+
+
+def layer_params(props, scene):
+    """The smoke layer's parameters (stored on the object; the generator's place is read per frame)."""
+    cfg = data_ops.settings(scene)
+    return {"kind": KIND, "source": str(cfg["source"]), "exaggeration": float(props.exaggeration),
+            "hours": float(props.hours), "start_hour": float(props.start_hour), "sides": int(props.sides),
+            "steps": int(props.steps), "tolerance": float(props.tolerance), "follow": bool(props.follow_frame),
+            "hours_per_frame": float(cfg["hours_per_frame"]), "frame_start": int(cfg["frame_start"])}
+
+
+def build(context, props):
+    """(Re)build the smoke for the scene's frame from the generator's place and size; returns the smoke object."""
+    scene = context.scene
     smoke = bpy.data.objects.get(SMOKE)
     if smoke is None:
-        smoke = new_object(SMOKE, surface, smooth=False)
+        smoke = new_object(SMOKE, Mesh(np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros((0, 3))), smooth=False)
         smoke.data.materials.append(smoke_material(tuple(props.color), props.density))
-    else:
-        fill_mesh(smoke.data, surface, smooth=False)
-    _state["matrix"] = [tuple(r) for r in gen.matrix_world]
-    props.status = f"{len(fv.tets)} tets, volume {fv.volume:.3g}" + ("" if fv.complete else " (front size limit reached)")
-    return fv
+    frame.set_params(smoke, layer_params(props, scene))
+    frame.submit(smoke, scene, force=True)  # at once headless; in the interface in the background
+    err = frame.last_error(smoke)
+    if err:
+        raise ValueError(err)
+    props.status = smoke.get("nephele_status", "computing...")
+    return smoke
 
 
 def _rebuild_later():
@@ -134,7 +207,7 @@ class NEPHELE_OT_add_flow_volume(bpy.types.Operator):
     def execute(self, context):
         props = context.scene.nephele_flowvol
         try:
-            vel = _velocity(props)
+            vel = _velocity(data_ops.settings(context.scene)["source"], props.exaggeration)
             gen = bpy.data.objects.get(GENERATOR)
             if gen is None:
                 gen = bpy.data.objects.new(GENERATOR, generator_circle(props.sides))
@@ -142,7 +215,7 @@ class NEPHELE_OT_add_flow_volume(bpy.types.Operator):
             gen.location = vel.point(props.lon, props.lat, props.height)
             gen.scale = (props.radius,) * 3
             context.view_layer.update()
-            build(context, props, vel)
+            build(context, props)
         except ValueError as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
@@ -186,8 +259,12 @@ class NepheleFlowVolumeProps(bpy.types.PropertyGroup):
     tolerance: bpy.props.FloatProperty(name="Tolerance", default=0.02, min=1e-5, description="Largest gap between front points")
     exaggeration: bpy.props.FloatProperty(name="Exaggeration", default=30.0, min=1.0)
     color: bpy.props.FloatVectorProperty(name="Smoke colour", subtype="COLOR", size=3, default=(0.9, 0.9, 1.0), min=0.0, max=1.0)
-    density: bpy.props.FloatProperty(name="Density τ", default=30.0, min=0.0)
+    # Optical depth ~1 across the default generator's diameter: translucent smoke.
+    density: bpy.props.FloatProperty(name="Density τ", default=20.0, min=0.0)
     live: bpy.props.BoolProperty(name="Live", default=True, description="Rebuild when the generator moves")
+    follow_frame: bpy.props.BoolProperty(
+        name="Flow with the frames", default=True,
+        description="The release window moves on with the frame (by the dataset's hours per frame): the smoke flows in a film")
     status: bpy.props.StringProperty(name="Status", default="")
 
 
@@ -199,7 +276,7 @@ class NEPHELE_PT_flowvol(SubPanel, bpy.types.Panel):
     def draw(self, context):
         p = context.scene.nephele_flowvol
         col = self.layout.column()
-        for name in ("lon", "lat", "height", "radius", "hours", "start_hour", "sides", "steps", "tolerance", "exaggeration", "color", "density", "live"):
+        for name in ("lon", "lat", "height", "radius", "hours", "start_hour", "sides", "steps", "tolerance", "exaggeration", "color", "density", "live", "follow_frame"):
             col.prop(p, name)
         col.operator(NEPHELE_OT_add_flow_volume.bl_idname)
         col.operator(NEPHELE_OT_update_flow_volume.bl_idname)

@@ -454,9 +454,42 @@ def _z_to(d):
     return (math.cos(ang / 2), *(axis * math.sin(ang / 2)))
 
 
-def add_camera(scene=None, *, lon=-30.0, lat=25.0, distance=3.6, lens=50.0, name="Nephele Camera"):
-    """A camera at ``distance`` from the centre above ``lon``, ``lat``, looking at the globe."""
-    cam = camera_object(scene or bpy.context.scene, name, lens=lens, clip_end=100.0)
+FRAME_HEIGHT = 25000.0
+"""Metres above sea level the default camera keeps in view all round the globe:
+the highest relief and three scale heights of the haze, whose glow marks the limb."""
+
+
+def frame_radius(scene=None):
+    """Scene units from the centre that the whole globe, with its haze glow, fills."""
+    cfg = data_ops.settings(scene or bpy.context.scene)
+    return float(globe_radius(FRAME_HEIGHT, cfg["radius"], cfg["exaggeration"]))
+
+
+def framing_distance(scene, lens, sensor=36.0, margin=1.08, radius=None):
+    """Distance from the centre at which a ``lens`` mm camera (sensor fit AUTO on a
+    ``sensor`` mm sensor) sees the sphere of ``radius`` (default :func:`frame_radius`)
+    whole in the scene's frame, with ``margin`` room around it.
+
+    The narrower side of the frame limits: half-angle ``atan(sensor/2 * short/long / lens)``;
+    a sphere of radius ``r`` seen from ``d`` spans ``asin(r / d)``.
+    """
+    r = frame_radius(scene) if radius is None else float(radius)
+    w = scene.render.resolution_x * scene.render.pixel_aspect_x
+    h = scene.render.resolution_y * scene.render.pixel_aspect_y
+    half = math.atan(0.5 * sensor * min(w, h) / max(w, h) / lens)
+    return margin * r / math.sin(half)
+
+
+def add_camera(scene=None, *, lon=-30.0, lat=25.0, distance=None, lens=50.0, name="Nephele Camera"):
+    """A camera at ``distance`` from the centre above ``lon``, ``lat``, looking at the globe.
+
+    ``distance`` None: :func:`framing_distance`, so the whole globe is in view
+    whatever the frame's aspect (3.6 at 50 mm cropped it top and bottom).
+    """
+    scene = scene or bpy.context.scene
+    if distance is None:
+        distance = framing_distance(scene, lens)
+    cam = camera_object(scene, name, lens=lens, clip_end=max(100.0, 4.0 * distance))
     cam.location = tuple(lonlat_to_xyz(lon, lat, distance))
     look_at(cam)
     return cam
@@ -515,10 +548,17 @@ class NEPHELE_OT_add_camera(bpy.types.Operator):
 
     lon: bpy.props.FloatProperty(name="Longitude", default=-30.0, min=-180.0, max=180.0)
     lat: bpy.props.FloatProperty(name="Latitude", default=25.0, min=-89.0, max=89.0)
-    distance: bpy.props.FloatProperty(name="Distance", default=3.6, min=1.1)
+    distance: bpy.props.FloatProperty(name="Distance", default=0.0, min=0.0, max=1e4,
+                                      description="From the globe's centre (0: just far enough to see it whole)")
+    lens: bpy.props.FloatProperty(name="Focal length", default=50.0, min=1.0, max=5000.0, unit="CAMERA")
 
     def execute(self, context):
-        cam = add_camera(context.scene, lon=self.lon, lat=self.lat, distance=self.distance)
+        inside = frame_radius(context.scene)
+        if 0.0 < self.distance <= inside:
+            self.report({"ERROR"}, f"Distance {self.distance:g} is inside the globe and its haze "
+                                   f"(radius {inside:.3g}): give more, or 0 to frame the globe")
+            return {"CANCELLED"}
+        cam = add_camera(context.scene, lon=self.lon, lat=self.lat, distance=self.distance or None, lens=self.lens)
         for o in list(context.view_layer.objects.selected):  # Blender convention: the new object alone selected and active
             if o is not None:  # None: an object this operator replaced
                 o.select_set(False)

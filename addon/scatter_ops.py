@@ -62,7 +62,7 @@ def black_world():
     return world
 
 
-def _volume_object(name, filepath, sequence=None):
+def _volume_object(name, filepath, sequence=None, scene=None):
     vol = bpy.data.volumes.new(name)
     vol.filepath = str(filepath)
     if sequence is not None:
@@ -72,7 +72,7 @@ def _volume_object(name, filepath, sequence=None):
         vol.frame_duration = count
         vol.sequence_mode = "CLIP"
     obj = bpy.data.objects.new(name, vol)
-    bpy.context.scene.collection.objects.link(obj)
+    (scene or bpy.context.scene).collection.objects.link(obj)
     return obj
 
 
@@ -183,10 +183,10 @@ def cloud_params(props):
                           octaves=props.octaves, seed=props.seed)
 
 
-def add_orbit_camera(center, radius, height, frames, fov=math.radians(40.0), name="Scatter orbit"):
+def add_orbit_camera(center, radius, height, frames, fov=math.radians(40.0), name="Scatter orbit", scene=None):
     """A camera looping once around ``center`` over ``frames`` (the paper's animation):
     parented to an empty whose z rotation is keyed linearly from 0 to 360 degrees."""
-    scene = bpy.context.scene
+    scene = scene or bpy.context.scene
     pivot = bpy.data.objects.new(name + " pivot", None)
     scene.collection.objects.link(pivot)
     pivot.location = center
@@ -229,14 +229,59 @@ def _fcurves(obj):
     return out
 
 
-def output_directory(text):
-    """Absolute output directory; a blend-relative ``//`` path in an unsaved file goes
-    to the Nephele cache directory instead of the file system root."""
-    from ..core.pipeline.cache import default_cache_dir
+DEFAULT_DIRECTORY = "//nephele_scatter"
 
+
+def output_directory(text):
+    """Absolute output directory.  The default (``//nephele_scatter``) is a folder
+    Nephele owns: beside the saved .blend, or this session's own folder in an
+    unsaved file (:func:`.data_ops.owned_dir`, moved beside the .blend on save);
+    another blend-relative path in an unsaved file goes there too instead of
+    the file system root."""
+    from . import data_ops
+
+    if text == DEFAULT_DIRECTORY:
+        return data_ops.owned_dir("scatter")
     if text.startswith("//") and not bpy.data.filepath:
-        return Path(default_cache_dir()) / "scatter" / text[2:].strip("/\\")
+        return data_ops.owned_dir("scatter", text[2:].strip("/\\"))
     return Path(bpy.path.abspath(text)).resolve()
+
+
+SCENE_NAME = "Nephele scattering"
+BYTES_PER_CELL = 8000.0
+"""Peak memory of the scattering solve per grid cell (tracemalloc: 7.6 kB at
+24x24x18 with its fixed costs, 16.6 kB at 16x16x12; the solution alone holds
+1.93 kB per cell)."""
+
+
+def own_scene(context):
+    """The scene the cloud goes to: the current one, or, when that holds a globe
+    (the cloud's metre-sized box at the origin would sit inside the Earth), a
+    scene of its own with the same frame range and a black world."""
+    scene = context.scene
+    if not any("nephele_globe" in ob for ob in scene.objects):
+        return scene
+    new = bpy.data.scenes.get(SCENE_NAME)
+    if new is None:
+        new = bpy.data.scenes.new(SCENE_NAME)
+        world = bpy.data.worlds.new("Scatter world")
+        world.use_nodes = True
+        bg = world.node_tree.nodes.get("Background")
+        if bg is not None:
+            bg.inputs["Color"].default_value = (0, 0, 0, 1)
+        new.world = world
+    new.frame_start, new.frame_end = scene.frame_start, scene.frame_end
+    new.frame_current = scene.frame_current
+    new.render.engine = "CYCLES"
+    r0, r = scene.render, new.render
+    r.resolution_x, r.resolution_y, r.resolution_percentage = r0.resolution_x, r0.resolution_y, r0.resolution_percentage
+    # The panel's settings follow the artist into the new scene.
+    for prop in type(scene.nephele_scatter).bl_rna.properties:
+        if prop.identifier not in ("rna_type", "directory") and not prop.is_readonly:
+            setattr(new.nephele_scatter, prop.identifier, getattr(scene.nephele_scatter, prop.identifier))
+    if scene.nephele_scatter.directory != DEFAULT_DIRECTORY:
+        new.nephele_scatter.directory = bpy.path.abspath(scene.nephele_scatter.directory)
+    return new
 
 
 class ScatterJob:
@@ -248,9 +293,15 @@ class ScatterJob:
     """
 
     def __init__(self, context, props):
-        self.scene = context.scene
-        self.props = props
+        from ..core.pipeline.cache import check_memory
+
         self.params = cloud_params(props)
+        check_memory(BYTES_PER_CELL * math.prod(self.params.shape),
+                     f"the scattering solve on a {'x'.join(str(n) for n in props.resolution)} grid "
+                     "(lower the grid)", field="resolution")
+        self.scene = own_scene(context)
+        props = self.scene.nephele_scatter
+        self.props = props
         self.sigma = props.extinction * cd.cloud_density(self.params)
         self.size = tuple(props.size)
         self.origin = (-0.5 * self.size[0], -0.5 * self.size[1], 0.0)
@@ -270,7 +321,8 @@ class ScatterJob:
         if self.scene.camera is None and props.orbit_camera:
             c = (0.0, 0.0, 0.5 * self.size[2])
             r = 1.7 * max(self.size)
-            add_orbit_camera(c, r * math.cos(math.radians(15)), r * math.sin(math.radians(15)), self.frames)
+            add_orbit_camera(c, r * math.cos(math.radians(15)), r * math.sin(math.radians(15)), self.frames,
+                             scene=self.scene)
         if self.scene.camera is None:
             raise RuntimeError("the scene has no camera: add one or enable 'Orbit camera'")
 
@@ -337,10 +389,14 @@ class ScatterJob:
 
         scene = self.scene
         scene.frame_set(self.frames[0])
-        obj = _volume_object(OBJECT_NAME, self.directory / "scatter_0001.vdb", (self.frames[0], len(self.frames)))
+        obj = _volume_object(OBJECT_NAME, self.directory / "scatter_0001.vdb", (self.frames[0], len(self.frames)),
+                             scene=scene)
         obj.location = self.origin
         obj.data.materials.append(emission_material())
-        frame.set_params(obj, {"kind": KIND, "directory": str(self.directory), "frames": self.frames,
+        from .data_ops import stored_dir
+
+        frame.set_params(obj, {"kind": KIND, "directory": stored_dir(self.directory),
+                               "owned": self.props.directory == DEFAULT_DIRECTORY, "frames": self.frames,
                                "report": self.solution.report, "sun_dir": list(self.sun),
                                "solve_task": self.task})
         self.obj = obj
@@ -366,6 +422,19 @@ class NEPHELE_OT_add_scattering_cloud(bpy.types.Operator):
         props = context.scene.nephele_scatter
         _props_to_scene_check(props)
         self._job = ScatterJob(context, props)
+        if self._job.scene is not context.scene:
+            self.report({"INFO"}, f"The scene holds a globe: the cloud goes to its own scene '{self._job.scene.name}'")
+            if context.window is not None:
+                context.window.scene = self._job.scene
+
+    def _select(self):
+        # Blender convention: the new object alone selected and active (in the cloud's scene).
+        layer = self._job.scene.view_layers[0]
+        for o in list(layer.objects.selected):
+            if o is not None:  # None: an object this operator replaced
+                o.select_set(False, view_layer=layer)
+        self._job.obj.select_set(True, view_layer=layer)
+        layer.objects.active = self._job.obj
 
     def execute(self, context):
         try:
@@ -376,11 +445,7 @@ class NEPHELE_OT_add_scattering_cloud(bpy.types.Operator):
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
         self.report({"INFO"}, self._job.status)
-        for o in list(context.view_layer.objects.selected):  # Blender convention: the new object alone selected and active
-            if o is not None:  # None: an object this operator replaced
-                o.select_set(False)
-        self._job.obj.select_set(True)
-        context.view_layer.objects.active = self._job.obj
+        self._select()
         return {"FINISHED"}
 
     def invoke(self, context, event):
@@ -405,7 +470,7 @@ class NEPHELE_OT_add_scattering_cloud(bpy.types.Operator):
             context.workspace.status_text_set(None)
 
     def modal(self, context, event):
-        props = context.scene.nephele_scatter
+        props = self._job.props
         if event.type == "ESC":
             self._end(context)
             props.status = "Cancelled"
@@ -432,11 +497,7 @@ class NEPHELE_OT_add_scattering_cloud(bpy.types.Operator):
             self._end(context)
             props.progress = 1.0
             self.report({"INFO"}, self._job.status)
-            for o in list(context.view_layer.objects.selected):  # Blender convention: the new object alone selected and active
-                if o is not None:  # None: an object this operator replaced
-                    o.select_set(False)
-            self._job.obj.select_set(True)
-            context.view_layer.objects.active = self._job.obj
+            self._select()
             return {"FINISHED"}
         return {"RUNNING_MODAL"}
 
@@ -461,7 +522,7 @@ class NepheleScatterProps(bpy.types.PropertyGroup):
     max_passes: bpy.props.IntProperty(name="Max passes", default=100, min=1)
     orbit_camera: bpy.props.BoolProperty(name="Orbit camera", default=True,
                                          description="Add a camera looping around the cloud if the scene has none")
-    directory: bpy.props.StringProperty(name="Output", default="//nephele_scatter", subtype="DIR_PATH")
+    directory: bpy.props.StringProperty(name="Output", default=DEFAULT_DIRECTORY, subtype="DIR_PATH")
     progress: bpy.props.FloatProperty(name="Progress", default=0.0, min=0.0, max=1.0, subtype="FACTOR")
     status: bpy.props.StringProperty(name="Status", default="")
 

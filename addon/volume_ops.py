@@ -17,14 +17,18 @@ References
 """
 
 import json
+import math
 from pathlib import Path
+
+import numpy as np
 
 import bpy
 
-from ..core.pipeline.cache import default_cache_dir
 from ..core.errors import DataError
-from ..core.volume.transfer import ALTITUDE_COLORS, TEMPERATURE_COLORS, ColorMap, TransferFunction
+from ..core.climate.grid import EARTH_RADIUS
+from ..core.pipeline.cache import check_memory, default_cache_dir, format_bytes
 from ..core.volume.sparse import ALTITUDE, DEFAULT_EXTINCTION, DEFAULT_VOXEL_SIZE, EXACT, VOXELS
+from ..core.volume.transfer import ALTITUDE_COLORS, TEMPERATURE_COLORS, ColorMap, TransferFunction
 from ..core.volume.volume_atlas import DEFAULT_BELOW, DEFAULT_SUPPORT_SIZE, atlas_layout
 from . import data_ops, frame, materials
 from .panel import SubPanel
@@ -152,14 +156,14 @@ def _image(name, path):
 
 
 def _heights_image(name, p):
-    img = _image(f"{name} heights", Path(p["directory"]) / f"{PREFIX}_heights.exr")
+    img = _image(f"{name} heights", data_ops.layer_dir(p) / f"{PREFIX}_heights.exr")
     img.reload()
     return img
 
 
 def _atlas_image(name, p):
     """The values atlas sequence; the Image Texture nodes' image users map frames to files."""
-    img = _image(f"{name} values", frame_path(p["directory"], PREFIX, 1).with_suffix(".exr"))
+    img = _image(f"{name} values", frame_path(data_ops.layer_dir(p), PREFIX, 1).with_suffix(".exr"))
     img.source = "SEQUENCE"
     img.reload()
     return img
@@ -178,10 +182,104 @@ def _sequence_users(mat, p):
 
 def volume_dir(name, directory=None):
     """Where a volume's sequence goes: ``directory``, else beside the .blend
-    (``<blend>_nephele_cache/volumes/<name>``), else the user cache."""
+    (``<blend>_nephele_cache/volumes/<name>``), else this session's own folder
+    (:func:`.data_ops.cache_dir`; saving the file moves it beside the .blend)."""
     if directory:
         return Path(bpy.path.abspath(directory))
-    return default_cache_dir(bpy.data.filepath or None) / "volumes" / bpy.path.clean_name(name)
+    return data_ops.owned_dir("volumes", name)
+
+
+BYTES_PER_VOXEL = {EXACT: 60.0, VOXELS: 20.0}
+"""Peak bytes per support voxel (exact) or per voxel of the cloudy blocks (voxels)
+while one frame is resampled: measured with tracemalloc on demo:small (exact,
+support 0.01: 1.04 M voxels, 61 MB; exaggeration 150: 3.0 M, 164 MB; voxels
+0.0027: 14.4 M block voxels, 284 MB)."""
+DISK_PER_VOXEL = {EXACT: 0.85, VOXELS: 4.0}
+"""Bytes on disk per voxel (exact: 856 kB for 1.04 M support voxels; voxels:
+two half-float grids)."""
+SECONDS_PER_VOXEL = {EXACT: 1.7e-6, VOXELS: 0.85e-6}
+"""Resampling time per voxel on this project's 2-core test machine (1.7 s and
+12 s for the cases above); a bake then measures its own rate."""
+
+
+def bake_estimate(ds, var, tf, *, hours=0.0, mode=EXACT, size=None, exaggeration=30.0, radius=1.0, below=0.0):
+    """Memory, disk and time of one frame's resample, before any of it is allocated.
+
+    The voxels lie in the shell between the lowest and highest grid heights
+    (exaggerated); the share of it that can hold cloud is taken as three
+    times the share of grid cells whose corners reach the transfer
+    function's non-zero range (plus 5 %), which covers the padding the
+    resampler adds around them (demo:small: 25 % of cells, 80 % of the shell
+    holds support voxels).
+
+    Returns a dict: ``voxels``, ``memory`` (peak bytes), ``disk`` (bytes per
+    frame), ``seconds`` (per frame), ``shell_voxels``.
+    """
+    size = float(size if size is not None else (DEFAULT_SUPPORT_SIZE if mode == EXACT else DEFAULT_VOXEL_SIZE))
+    support = tf.support()
+    hs = radius * exaggeration / EARTH_RADIUS
+    heights = np.asarray(ds.grid.height, dtype=np.float64)
+    r_out = radius + max(float(np.nanmax(heights)), 0.0) * hs
+    r_in = max(radius + min(float(np.nanmin(heights)) - below, 0.0) * hs, 0.0)
+    shell = 4.0 / 3.0 * math.pi * (r_out ** 3 - r_in ** 3) / size ** 3
+    if support is None:
+        share = 0.0
+    else:
+        v = np.asarray(ds.read_at(var, hours))
+        hit = (v >= support[0]) & (v <= support[1])
+        # A cell can hold cloud when any of its 8 corners can (longitude periodic).
+        cell = hit[:-1] | hit[1:]
+        cell = cell[:, :-1] | cell[:, 1:]
+        cell = cell | np.roll(cell, -1, axis=2)
+        share = min(1.0, 3.0 * float(np.mean(cell)) + 0.05)
+    voxels = shell * share
+    atlas = float(np.asarray(ds.grid.height).size) * 4.0 * 4
+    return {"voxels": voxels, "shell_voxels": shell, "memory": voxels * BYTES_PER_VOXEL[mode] + atlas,
+            "disk": voxels * DISK_PER_VOXEL[mode] + atlas / 8.0, "seconds": voxels * SECONDS_PER_VOXEL[mode]}
+
+
+def check_bake(ds, var, tf, *, hours, mode, size, exaggeration, radius, below=0.0, available=None):
+    """:func:`bake_estimate`, refused with a :class:`DataError` naming what to change when
+    one frame would need more memory than the machine has."""
+    est = bake_estimate(ds, var, tf, hours=hours, mode=mode, size=size, exaggeration=exaggeration,
+                        radius=radius, below=below)
+    knob = "support voxel" if mode == EXACT else "voxel size"
+    check_memory(est["memory"], f"resampling one frame of '{var}' at vertical exaggeration {exaggeration:g} "
+                                f"and {knob} {size:g} (lower the exaggeration or raise the {knob})",
+                 available=available)
+    return est
+
+
+def volume_look(scene):
+    """Render settings volume clouds need to look like Fig. 2 (bright, lit by each other):
+    at least 4 Cycles volume bounces (Blender's default 0 leaves only single
+    scattering: flat dark-grey slabs), and the total bounces to allow them.
+    Returns ``[(setting, old, new)]`` for what was raised."""
+    c = scene.cycles
+    changed = []
+    for attr, need in (("volume_bounces", 4), ("max_bounces", 8), ("transparent_max_bounces", 8)):
+        old = getattr(c, attr)
+        if old < need:
+            setattr(c, attr, need)
+            changed.append((attr, old, need))
+    return changed
+
+
+def look_warnings(scene, obj=None):
+    """Why the volume will not look right in ``scene`` (a list of short lines)."""
+    out = []
+    eng = scene.render.engine
+    if eng == "CYCLES" and scene.cycles.volume_bounces < 1:
+        out.append("Cycles volume bounces 0: clouds render as flat dark slabs")
+    p = _obj_params(obj) if obj is not None else None
+    if eng != "CYCLES" and p is not None and p.get("mode") == EXACT:
+        out.append("Exact mode renders striped outside Cycles: use Cycles or the Voxels mode")
+    for o in scene.objects:
+        q = frame.params(o)
+        if q.get("kind") in ("contour", "advected_contour") and not o.hide_render and not o.hide_get():
+            out.append(f"Contour '{o.name}' (level {q.get('level', float('nan')):g} of '{q.get('var', '?')}') "
+                       "is opaque and hides the clouds inside it: hide it to see them")
+    return out
 
 
 def add_volume_clouds(var="cloud", tf=None, *, source=None, color_var=ALTITUDE, cmap=None,
@@ -261,8 +359,8 @@ def add_volume_clouds(var="cloud", tf=None, *, source=None, color_var=ALTITUDE, 
         "color_var": color_var or "",
         "voxel_size": float(voxel_size),
         "extinction": float(extinction),
-        "exaggeration": cfg["exaggeration"] if exaggeration is None else float(exaggeration),
-        "radius": cfg["radius"] if radius is None else float(radius),
+        "exaggeration": cfg["exaggeration"] if exaggeration is None else data_ops.check_setting("exaggeration", exaggeration),
+        "radius": cfg["radius"] if radius is None else data_ops.check_setting("radius", radius),
         "frame_start": cfg["frame_start"],
         "hours_per_frame": cfg["hours_per_frame"],
         "frames": [f0, f1],
@@ -275,7 +373,16 @@ def add_volume_clouds(var="cloud", tf=None, *, source=None, color_var=ALTITUDE, 
         raise DataError(f'must be "{EXACT}" or "{VOXELS}", got {mode!r}', field="mode")
     if bake not in ("all", "lazy"):
         raise DataError(f'must be "all" or "lazy", got {bake!r}', field="bake")
+    # Memory checked on the first frame before anything is allocated or written.
+    from ..core.pipeline.sources import frame_hours
+
+    hours0 = frame_hours(f0, params["frame_start"], params["hours_per_frame"], last_hour=float(ds.hours[-1]))
+    est = check_bake(ds, var, tf, hours=hours0, mode=mode,
+                     size=support_size if mode == EXACT else voxel_size,
+                     exaggeration=params["exaggeration"], radius=params["radius"],
+                     below=below if mode == EXACT else 0.0)
     out_dir = volume_dir(name, directory)
+    # Content-addressed entries (the farm's precompute): safe to share, named by their keys.
     cache = default_cache_dir(bpy.data.filepath or None) if cache is None else cache
     if mode == EXACT:
         from .volume_exact import write_exr
@@ -312,10 +419,14 @@ def add_volume_clouds(var="cloud", tf=None, *, source=None, color_var=ALTITUDE, 
     obj.location = (0.0, 0.0, 0.0)
     obj.rotation_euler = (0.0, 0.0, 0.0)
     obj.scale = (1.0, 1.0, 1.0)
-    params["directory"] = str(out_dir)
+    params["directory"] = data_ops.stored_dir(out_dir)
+    params["owned"] = not directory  # a folder Nephele chose: saving moves it beside the .blend
+    params["estimate"] = {k: float(v) for k, v in est.items()}
     params["value_max"] = max((i["value_max"] for i in infos), default=float("nan"))
     params["empty"] = bool(infos) and all(i["active_voxels"] == 0 for i in infos)
     params["lazy"] = bake == "lazy"
+    if params["empty"]:
+        params["value_range"] = list(data_range(ds, var, params, f0, f1))
     frame.set_params(obj, params)
     refresh_material(obj)
     return obj, infos
@@ -329,8 +440,22 @@ def _write_frame(obj, params, scene, frame_number):
         return
     f0, f1 = params["frames"]
     f = min(max(int(round(frame_number)), int(f0)), int(f1))
-    bake_frame(params, f, f - int(f0) + 1, params["directory"], PREFIX,
+    bake_frame(params, f, f - int(f0) + 1, data_ops.layer_dir(params), PREFIX,
                cache=default_cache_dir(bpy.data.filepath or None))
+
+
+def data_range(ds, var, params, f0, f1, samples=24):
+    """``(lowest, highest)`` finite value of ``var`` over frames ``f0..f1`` (up to ``samples`` of them)."""
+    from ..core.pipeline.sources import frame_hours
+
+    lo, hi = math.inf, -math.inf
+    for f in sorted({int(round(x)) for x in np.linspace(f0, f1, min(samples, f1 - f0 + 1))}):
+        h = frame_hours(f, params["frame_start"], params["hours_per_frame"], last_hour=float(ds.hours[-1]))
+        v = np.asarray(ds.read_at(var, h))
+        v = v[np.isfinite(v)]
+        if v.size:
+            lo, hi = min(lo, float(v.min())), max(hi, float(v.max()))
+    return (lo, hi) if lo <= hi else (math.nan, math.nan)
 
 
 def eevee_volume_settings(scene, tile_size="2", samples=64):
@@ -350,9 +475,11 @@ def empty_message(params):
     tf = TransferFunction.from_dict(params["tf"])
     support = tf.support()
     lo = support[0] if support else float("nan")
+    vmin, vmax = params.get("value_range", (float("nan"), params["value_max"]))
     return (f"Volume is empty: the opacity is zero for every value of '{params['var']}' "
-            f"(threshold {lo:g}, largest value {params['value_max']:g} over frames "
-            f"{params['frames'][0]}-{params['frames'][1]}); lower the threshold and re-bake")
+            f"(threshold {lo:g}; the data range {vmin:g} to {vmax:g} over frames "
+            f"{params['frames'][0]}-{params['frames'][1]}, largest value {params['value_max']:g}); "
+            "lower the threshold and re-bake")
 
 
 # ---------------------------------------------------------------- the panel
@@ -362,10 +489,23 @@ def _settings(scene):
     return getattr(scene, "nephele_volume", None)
 
 
+TF_POINTS_HELP = "a JSON list of [value, opacity] pairs with ascending values, e.g. [[0.3, 0], [1, 1]]"
+
+
 def panel_tf(s):
-    """The transfer function the panel describes (custom JSON points win)."""
-    if s.tf_points.strip():
-        return TransferFunction(points=tuple(tuple(p) for p in json.loads(s.tf_points)))
+    """The transfer function the panel describes (custom JSON points win).
+
+    Raises :class:`DataError` naming the field and the expected form when the
+    custom points are not such a list (never the JSON parser's own words).
+    """
+    text = s.tf_points.strip()
+    if text:
+        try:
+            pts = json.loads(text)
+            return TransferFunction(points=tuple((float(v), float(o)) for v, o in pts))
+        except (ValueError, TypeError) as exc:
+            why = "is not valid JSON" if isinstance(exc, json.JSONDecodeError) else "is not such a list"
+            raise DataError(f"{text[:40]!r} {why}: give {TF_POINTS_HELP}", field="TF points") from None
     return TransferFunction.ramp(s.threshold, s.full, s.opacity)
 
 
@@ -452,14 +592,14 @@ class NephelePropsVolume(bpy.types.PropertyGroup):
                                        description="Opacity is zero up to this value")
     full: bpy.props.FloatProperty(name="Full at", default=1.0, update=_on_tf_change,
                                   description="Value where the opacity reaches its maximum")
-    opacity: bpy.props.FloatProperty(name="Opacity", default=1.0, min=0.0, update=_on_tf_change,
+    opacity: bpy.props.FloatProperty(name="Opacity", default=1.0, min=0.0, max=1.0, update=_on_tf_change,
                                      description="Opacity at the full value")
     tf_points: bpy.props.StringProperty(
         name="TF points", default="", update=_on_tf_change,
         description='Custom transfer function as JSON [[value, opacity], ...] (overrides threshold/full/opacity)',
     )
     support_size: bpy.props.FloatProperty(
-        name="Support voxel", default=DEFAULT_SUPPORT_SIZE, min=1e-3, precision=4,
+        name="Support voxel", default=DEFAULT_SUPPORT_SIZE, min=1e-3, max=1.0, precision=4,
         description="Exact mode: scene units between the voxels of the grid that bounds where the renderer looks",
     )
     color_var: bpy.props.StringProperty(name="Colour by", default=ALTITUDE,
@@ -467,17 +607,68 @@ class NephelePropsVolume(bpy.types.PropertyGroup):
     use_color_range: bpy.props.BoolProperty(name="Own colour range", default=False, update=_on_material_change)
     color_min: bpy.props.FloatProperty(name="Colour min", default=0.0, update=_on_material_change)
     color_max: bpy.props.FloatProperty(name="Colour max", default=12000.0, update=_on_material_change)
-    voxel_size: bpy.props.FloatProperty(name="Voxel size", default=DEFAULT_VOXEL_SIZE, min=1e-4, precision=4,
+    voxel_size: bpy.props.FloatProperty(name="Voxel size", default=DEFAULT_VOXEL_SIZE, min=1e-4, max=1.0, precision=4,
                                         description="Scene units between voxels (globe radius 1)")
-    extinction: bpy.props.FloatProperty(name="Extinction", default=DEFAULT_EXTINCTION, min=0.0,
+    extinction: bpy.props.FloatProperty(name="Extinction", default=DEFAULT_EXTINCTION, min=0.0, max=1e6,
                                         update=_on_material_change,
                                         description="Extinction per scene unit at opacity 1")
     directory: bpy.props.StringProperty(name="Directory", default="", subtype="DIR_PATH",
                                         description="Where the .vdb sequence goes (empty: beside the .blend)")
     current_only: bpy.props.BoolProperty(
-        name="Current frame only", default=False,
-        description="Bake only the current frame (a quick look) instead of the scene's frame range",
+        name="Current frame only", default=True,
+        description="Bake only the current frame (a quick look); off: the number of frames below",
     )
+    frame_count: bpy.props.IntProperty(
+        name="Frames", default=24, min=1, max=100000,
+        description="Frames to bake from the current frame on (clipped to the data's time span)",
+    )
+
+
+def bake_frames(context, s):
+    """The frames the panel bakes: the current one, or ``frame_count`` from it on
+    (clipped to the data's time span)."""
+    cur = context.scene.frame_current
+    if s.current_only:
+        return cur, cur
+    try:
+        ds = data_ops.dataset(scene=context.scene)
+        last = data_ops.frame_range_for(ds, data_ops.settings(context.scene))[1]
+    except (DataError, OSError, ImportError):
+        last = cur + s.frame_count - 1
+    return cur, max(cur, min(cur + s.frame_count - 1, last))
+
+
+def panel_estimate(context, s):
+    """``(frames, estimate dict)`` of what the panel's bake would take, or raises DataError."""
+    cfg = data_ops.settings(context.scene)
+    ds = data_ops.dataset(scene=context.scene)
+    if s.var not in ds.variables:
+        raise DataError(f"no such variable (available: {', '.join(sorted(ds.variables))})", field=s.var)
+    f0, f1 = bake_frames(context, s)
+    from ..core.pipeline.sources import frame_hours
+
+    hours = frame_hours(f0, cfg["frame_start"], cfg["hours_per_frame"], last_hour=float(ds.hours[-1]))
+    tf = panel_tf(s)
+    size = s.support_size if s.mode == EXACT else s.voxel_size
+    # The panel redraws often: one field read per distinct question.
+    key = (cfg["source"], s.var, json.dumps(tf.to_dict()), hours, s.mode, size, cfg["exaggeration"], cfg["radius"])
+    est = _ESTIMATES.get(key)
+    if est is None:
+        est = bake_estimate(ds, s.var, tf, hours=hours, mode=s.mode, size=size,
+                            exaggeration=cfg["exaggeration"], radius=cfg["radius"])
+        if len(_ESTIMATES) > 32:
+            _ESTIMATES.clear()
+        _ESTIMATES[key] = est
+    return (f0, f1), est
+
+
+_ESTIMATES = {}
+
+
+def estimate_text(frames, est):
+    n = frames[1] - frames[0] + 1
+    return (f"{n} frame{'s' if n > 1 else ''} ({frames[0]}-{frames[1]}): about {format_bytes(n * est['disk'])} "
+            f"on disk, {n * est['seconds']:.0f} s, {format_bytes(est['memory'])} of memory")
 
 
 class NEPHELE_OT_add_volume_clouds(bpy.types.Operator):
@@ -487,10 +678,25 @@ class NEPHELE_OT_add_volume_clouds(bpy.types.Operator):
     bl_label = "Add volume clouds"
     bl_options = {"REGISTER", "UNDO"}
 
+    def invoke(self, context, event):
+        # Several frames: say what they will cost before starting.
+        s = _settings(context.scene)
+        if s.current_only:
+            return self.execute(context)
+        return context.window_manager.invoke_confirm(self, event, title="Bake volume clouds",
+                                                     message=self._estimate(context), confirm_text="Bake")
+
+    def _estimate(self, context):
+        try:
+            frames, est = panel_estimate(context, _settings(context.scene))
+        except (DataError, OSError, ImportError) as exc:
+            return str(exc)
+        return estimate_text(frames, est)
+
     def execute(self, context):
         s = _settings(context.scene)
         wm = context.window_manager
-        frames = (context.scene.frame_current,) * 2 if s.current_only else None
+        frames = bake_frames(context, s)
 
         def progress(i, n, info):
             wm.progress_update(int(100 * i / max(n, 1)))
@@ -515,7 +721,12 @@ class NEPHELE_OT_add_volume_clouds(bpy.types.Operator):
         else:
             voxels = sum(i["active_voxels"] for i in infos)
             what = "support voxels" if p.get("mode") == EXACT else "active voxels"
-            self.report({"INFO"}, f"{len(infos)} VDB frames in {p['directory']}, {voxels} {what}")
+            self.report({"INFO"}, f"{len(infos)} VDB frames in {data_ops.layer_dir(p)}, {voxels} {what}")
+        # What the clouds' look needs from the scene (Fig. 2's settings), said aloud.
+        for attr, old, new in volume_look(context.scene):
+            self.report({"INFO"}, f"Cycles {attr.replace('_', ' ')} raised from {old} to {new} for lit clouds")
+        for line in look_warnings(context.scene, obj):
+            self.report({"WARNING"}, line)
         for o in list(context.view_layer.objects.selected):  # Blender convention: the new object alone selected and active
             if o is not None:  # None: an object this operator replaced
                 o.select_set(False)
@@ -551,7 +762,16 @@ class NEPHELE_PT_volume(SubPanel, bpy.types.Panel):
         col.prop(s, "extinction")
         col.prop(s, "directory")
         col.prop(s, "current_only")
+        if not s.current_only:
+            col.prop(s, "frame_count")
+        try:
+            frames, est = panel_estimate(context, s)
+            layout.label(text=estimate_text(frames, est), icon="INFO")
+        except (DataError, OSError, ImportError) as exc:
+            layout.label(text=str(exc), icon="ERROR")
         objs = _active_volumes(context)
+        for line in look_warnings(context.scene, objs[0]) if objs else ():
+            layout.label(text=line, icon="ERROR")
         if objs:
             msg = empty_message(frame.params(objs[0]))
             if msg:

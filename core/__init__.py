@@ -3,7 +3,7 @@
 The code is grouped by domain (see ``docs/architecture.md``): :mod:`.climate`,
 :mod:`.surface`, :mod:`.volume`, :mod:`.flow`, :mod:`.light`, :mod:`.camera`,
 :mod:`.texture`, the task side :mod:`.pipeline`, and one package per figure
-(:mod:`.flowvol`, :mod:`.muscle`).  The main entry points and the modules by
+(:mod:`.splats`, :mod:`.flowvol`, :mod:`.muscle`).  The main entry points and the modules by
 their former flat names (``nephele.core.grid``…) are attributes of this package,
 imported on first use so that ``import nephele.core.errors`` stays cheap.
 """
@@ -37,6 +37,11 @@ _ENTRY_POINTS = {
     "solve": "light.scatter",
     "dome_camera": "camera.dome", "remap": "camera.dome",
     "Cache": "pipeline.cache", "run_cached": "pipeline.tasks", "plan": "pipeline.tasks",
+    # One package per figure.
+    "splat_kernel": "splats", "footprint_table": "splats", "streak_maps": "splats", "Splats": "splats",
+    "splat_samples": "splats", "render_splats": "splats", "Camera": "splats",
+    "flow_volume": "flowvol", "FlowVolume": "flowvol",
+    "blobby_surface": "muscle.blobby",
 }
 
 __all__ = sorted(_ENTRY_POINTS)

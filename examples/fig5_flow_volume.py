@@ -29,6 +29,8 @@ DEFAULTS = {
     "radius": 0.05,
     "hours": 24.0,
     "sides": 32,
+    # Optical depth about 1 across the generator's diameter: translucent smoke, as in the paper.
+    "density": 10.0,
     "camera_lon": -40.0,
     "camera_lat": 38.0,
     "camera_distance": 2.2,
@@ -39,14 +41,10 @@ DEFAULTS = {
 
 
 def _register():
-    from nephele.addon import flowvol_ops
+    import nephele
 
-    # flowvol_ops is not in the add-on's MODULES yet: register it here when needed.
     if not hasattr(bpy.types.Scene, "nephele_flowvol"):
-        for cls in flowvol_ops.CLASSES:
-            if cls is not flowvol_ops.NEPHELE_PT_flowvol or hasattr(bpy.types, "NEPHELE_PT_main"):
-                bpy.utils.register_class(cls)
-        bpy.types.Scene.nephele_flowvol = bpy.props.PointerProperty(type=flowvol_ops.NepheleFlowVolumeProps)
+        nephele.register()
 
 
 def build(**options):
@@ -59,6 +57,7 @@ def build(**options):
     _register()
     p = scene.nephele_flowvol
     p.lon, p.lat, p.height, p.radius, p.hours, p.sides = o["lon"], o["lat"], o["height"], o["radius"], o["hours"], o["sides"]
+    p.density = o["density"]
     p.live = False
     if o["exaggeration"] is not None:
         p.exaggeration = o["exaggeration"]
@@ -75,9 +74,11 @@ def main(argv=None):
     ap = globe_scene.argument_parser(__doc__.split("\n\n")[0], DEFAULTS)
     ap.add_argument("--hours", type=float, default=DEFAULTS["hours"], help="release window in hours")
     ap.add_argument("--radius", type=float, default=DEFAULTS["radius"], help="generator radius (globe radius 1)")
+    ap.add_argument("--density", type=float, default=DEFAULTS["density"], help="smoke density (per globe radius)")
     args = ap.parse_args(argv)
     bpy.ops.wm.read_factory_settings(use_empty=True)
-    build(source=args.source, frames=args.frames, size=args.size, samples=args.samples, hours=args.hours, radius=args.radius)
+    build(source=args.source, frames=args.frames, size=args.size, samples=args.samples, hours=args.hours, radius=args.radius,
+          density=args.density)
     print(bpy.context.scene.nephele_flowvol.status)
     if args.save:
         globe_scene.save(args.save)

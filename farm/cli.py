@@ -23,6 +23,7 @@ COMMANDS = (
     "dome",
     "muscle",
     "build_extension",
+    "cluster_check",
 )
 
 

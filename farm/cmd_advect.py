@@ -9,6 +9,7 @@ each frame under the same key the Blender object of kind
 import time
 
 from .cli import UsageError
+from .reader_options import add_reader_options, open_with_overrides
 
 HELP = "precompute the contour and texture start coordinates of an advected cloud texture for a frame range"
 
@@ -34,6 +35,7 @@ def add_arguments(p):
     where = p.add_mutually_exclusive_group()
     where.add_argument("--cache", metavar="DIR", help="cache directory (default: $NEPHELE_CACHE or ~/.cache/nephele)")
     where.add_argument("--blend", metavar="FILE", help="use the cache beside this .blend (as Blender does)")
+    add_reader_options(p)
 
 
 def _frames(text):
@@ -58,8 +60,9 @@ def run(args):
         raise UsageError(f"--period must be an even number >= 2, got {args.period}")
     if not args.hours_per_frame > 0:
         raise UsageError(f"--hours-per-frame must be > 0, got {args.hours_per_frame}")
+    _, source = open_with_overrides(args)  # bad data fails here, before any frame
     obj_params = {
-        "kind": "advected_contour", "source": args.source, "var": args.var, "level": args.level,
+        "kind": "advected_contour", "source": source, "var": args.var, "level": args.level,
         "exaggeration": DEFAULT_EXAGGERATION if args.exaggeration is None else args.exaggeration,
         "radius": args.radius, "color_var": args.color_var, "method": args.method,
         "hours_per_frame": args.hours_per_frame, "frame_start": args.frame_start,

@@ -3,6 +3,7 @@
 from pathlib import Path
 
 from .cli import UsageError
+from .reader_options import add_reader_options, reader_kwargs
 
 HELP = "export the contour surface of a variable at one time step as .ply, .glb or .obj"
 
@@ -19,15 +20,17 @@ def add_arguments(p):
     p.add_argument("--color-var", metavar="NAME",
                    help="also sample this variable on the surface (vertex attribute; altitude is always written)")
     p.add_argument("-o", "--out", required=True, metavar="OUT", help="output mesh: .ply, .glb or .obj")
+    add_reader_options(p)
 
 
 def run(args):
     import numpy as np
 
-    from ..core.surface.contour import isosurface
     from ..core.climate.grid import DEFAULT_EXAGGERATION
-    from ..core.surface.mesh import EXPORT_FORMATS
     from ..core.climate.readers import open_dataset
+    from ..core.errors import DataError
+    from ..core.surface.contour import isosurface
+    from ..core.surface.mesh import EXPORT_FORMATS
 
     out = Path(args.out)
     if out.suffix.lower() not in EXPORT_FORMATS:
@@ -40,8 +43,16 @@ def run(args):
     if not args.radius > 0:
         raise UsageError(f"--radius must be > 0, got {args.radius}")
 
-    ds = open_dataset(args.source)
+    ds = open_dataset(args.source, **reader_kwargs(args))
     values = ds.read(args.var, args.time)
+    name = ds.resolve(args.var)
+    finite = values[np.isfinite(values)]
+    if finite.size == 0:
+        raise DataError(f"every value at time step {args.time} is missing (NaN): nothing to contour", path=ds.source, field=name)
+    lo, hi = float(finite.min()), float(finite.max())
+    if not lo <= args.level <= hi:
+        raise DataError(f"level {args.level:g} is outside the data range {lo:g}..{hi:g} at time step {args.time}: "
+                        "the contour would be empty", path=ds.source, field=name)
     attributes = {"altitude": ds.grid.height.astype(np.float32)}
     if args.color_var:
         attributes[args.color_var] = ds.read(args.color_var, args.time)
@@ -49,6 +60,9 @@ def run(args):
     periodic = ds.grid.periodic_lon
     mesh = isosurface(points, values, args.level, periodic_lon=periodic, close_poles=periodic,
                       method=args.method, attributes=attributes)
+    if len(mesh.faces) == 0:
+        raise DataError(f"the contour at level {args.level:g} is empty at time step {args.time} (values {lo:g}..{hi:g}; "
+                        "the level is only met next to missing values)", path=ds.source, field=name)
     mesh.save(out)
     when = np.datetime_as_string(ds.times[args.time], unit="h") if ds.times.size else "?"
     print(f"{out}: {len(mesh.vertices)} vertices, {len(mesh.faces)} triangles "

@@ -2,12 +2,15 @@
 
 import json
 
+from .reader_options import add_reader_options, reader_kwargs
+
 HELP = "describe a dataset: grid type, shape, longitudes/latitudes, levels, variables, times"
 
 
 def add_arguments(p):
     p.add_argument("source", metavar="FILE", help='dataset: "demo", "demo:small", a NetCDF .nc or a GrADS .ctl file')
     p.add_argument("--json", action="store_true", help="print one JSON object instead of text")
+    add_reader_options(p)
 
 
 def describe(ds):
@@ -33,6 +36,7 @@ def describe(ds):
         "lon_step": float(np.median(np.diff(g.lon))),
         "periodic_lon": g.periodic_lon,
         "lat": [float(g.lat[0]), float(g.lat[-1])],
+        "earth_radius_m": float(getattr(ds, "earth_radius", 0.0) or 0.0),
         "levels": levels,
         "variables": [
             {
@@ -52,8 +56,32 @@ def describe(ds):
             "step_hours": float(np.median(step)) if step.size else None,
             "regular": bool(step.size == 0 or np.allclose(step, step[0])),
         },
+        "notes": list(getattr(ds, "notes", ())),
     }
+    if g.curvilinear:
+        info["grid"] += ", 2-D longitude/latitude (projected or curvilinear horizontal grid)"
+    if g.rotation is not None or g.curvilinear:
+        lon, lat = g.true_lonlat()
+        west, east = _lon_span(lon)
+        info["rotated_pole"] = g.rotation is not None
+        info["curvilinear"] = g.curvilinear
+        info["true_lon"] = [west, east]
+        info["true_lat"] = [float(lat.min()), float(lat.max())]
     return info
+
+
+def _lon_span(lon):
+    """West and east edge (degrees, -180..360) of the shortest arc holding all longitudes ``lon``."""
+    import numpy as np
+
+    x = np.sort(np.mod(np.asarray(lon, dtype=np.float64).ravel(), 360.0))
+    gaps = np.diff(np.append(x, x[0] + 360.0))
+    k = int(np.argmax(gaps))  # the largest empty arc lies east of x[k]
+    west = float(x[(k + 1) % x.size])
+    east = west + 360.0 - float(gaps[k])
+    if west >= 180.0:
+        west, east = west - 360.0, east - 360.0
+    return west, east
 
 
 def format_text(info):
@@ -67,6 +95,20 @@ def format_text(info):
         f"  lon        {info['lon'][0]:g} .. {info['lon'][1]:g} degrees east, step {info['lon_step']:g}, "
         + ("periodic" if info["periodic_lon"] else "not periodic"),
         f"  lat        {info['lat'][0]:g} .. {info['lat'][1]:g} degrees north",
+    ]
+    if info.get("curvilinear"):
+        lines[-2] = f"  grid x     columns 0 .. {s['lon'] - 1}"
+        lines[-1] = f"  grid y     rows 0 .. {s['lat'] - 1}"
+    elif info.get("rotated_pole"):
+        lines[-2] = lines[-2].replace("  lon        ", "  grid lon   ").replace(" degrees east", " degrees (rotated pole)")
+        lines[-1] = lines[-1].replace("  lat        ", "  grid lat   ").replace(" degrees north", " degrees (rotated pole)")
+    if "true_lon" in info:
+        lines += [
+            f"  true lon   {info['true_lon'][0]:.4f} .. {info['true_lon'][1]:.4f} degrees east",
+            f"  true lat   {info['true_lat'][0]:.4f} .. {info['true_lat'][1]:.4f} degrees north",
+        ]
+    lines += [
+        f"  radius     {info['earth_radius_m']:.0f} m (planet)",
         "  levels     " + ", ".join(
             f"{lv['min_m']:.0f}" if lv["min_m"] == lv["max_m"] else f"{lv['min_m']:.0f}-{lv['max_m']:.0f}"
             for lv in info["levels"]
@@ -82,12 +124,13 @@ def format_text(info):
         lines.append(f"    ({name}: not read, {why})")
     step = "" if t["step_hours"] is None else f", step {t['step_hours']:g} h" + ("" if t["regular"] else " (irregular)")
     lines.append(f"  times      {t['count']}: {t['first']} .. {t['last']}{step}")
+    lines += [f"  note       {n}" for n in info["notes"]]
     return "\n".join(lines)
 
 
 def run(args):
     from ..core.climate.readers import open_dataset
 
-    info = describe(open_dataset(args.source))
+    info = describe(open_dataset(args.source, **reader_kwargs(args)))
     print(json.dumps(info, indent=1) if args.json else format_text(info))
     return 0

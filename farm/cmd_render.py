@@ -16,16 +16,32 @@ def add_cluster_arguments(p):
     g.add_argument("--tls-ca-file", metavar="PEM", help="CA certificate for a TLS scheduler")
     g.add_argument("--tls-cert", metavar="PEM", help="client certificate for a TLS scheduler")
     g.add_argument("--tls-key", metavar="PEM", help="client key for a TLS scheduler")
+    g.add_argument("--cluster", choices=("local", "slurm", "pbs"), default=None,
+                   help="local Dask workers (default), or Slurm/PBS jobs through dask-jobqueue")
     q = g.add_mutually_exclusive_group()
-    q.add_argument("--slurm", action="store_true", help="submit Slurm jobs through dask-jobqueue")
-    q.add_argument("--pbs", action="store_true", help="submit PBS jobs through dask-jobqueue")
-    g.add_argument("--queue", help="Slurm partition / PBS queue")
-    g.add_argument("--account", help="Slurm account / PBS project")
-    g.add_argument("--walltime", default="01:00:00", help="job wall time (default 01:00:00)")
-    g.add_argument("--job-cpus", type=int, default=1, help="CPUs per job = render threads of its one bpy")
-    g.add_argument("--job-mem", default="4GB", help="memory per job, requested per node (default 4GB)")
-    g.add_argument("--jobs", type=int, default=1, help="number of jobs (workers) to submit")
-    g.add_argument("--interface", help="network interface of the scheduler that jobs connect to (e.g. ib0)")
+    q.add_argument("--slurm", action="store_true", help="same as --cluster slurm")
+    q.add_argument("--pbs", action="store_true", help="same as --cluster pbs")
+    j = p.add_argument_group("Slurm / PBS jobs (one job = one worker = one bpy)")
+    j.add_argument("--queue", help="Slurm partition / PBS queue")
+    j.add_argument("--account", help="Slurm account / PBS project")
+    j.add_argument("--walltime", default="01:00:00",
+                   help="job wall time [D-]HH:MM:SS (default 01:00:00); a worker retires 20%% (at most 5 min) "
+                        "before it and a new job takes over")
+    j.add_argument("--job-cpus", type=int, default=1, help="CPUs per job = render threads of its one bpy")
+    j.add_argument("--job-mem", default="4GB", help="memory per job, requested per node (default 4GB)")
+    j.add_argument("--jobs", type=int, default=1, help="number of jobs (workers) kept running (default 1)")
+    j.add_argument("--adapt", metavar="MIN:MAX",
+                   help="adaptive scaling: between MIN and MAX jobs by the frames still queued (instead of --jobs)")
+    j.add_argument("--python", metavar="PATH",
+                   help="the Python the jobs run, e.g. /shared/venv/bin/python: it must import nephele and bpy "
+                        "on the compute nodes (default: this Python, at the same path)")
+    j.add_argument("--job-prologue", action="append", metavar="SHELL",
+                   help="shell line run in each job before its worker, e.g. 'module load gcc' (repeatable)")
+    j.add_argument("--interface", help="network interface of the scheduler that jobs connect to (e.g. ib0)")
+    j.add_argument("--contact-address", metavar="HOST",
+                   help="this machine's address as the compute nodes reach it, when it differs from --interface's")
+    j.add_argument("--start-timeout", type=float, default=1800.0,
+                   help="seconds to wait for the first job's worker (default 1800; 0: no limit)")
     g.add_argument("--dry-run", action="store_true",
                    help="check the inputs and print the plan (and the job script with --slurm/--pbs); render nothing")
 
@@ -35,23 +51,43 @@ def cluster_kwargs(args):
     from .cluster import security
 
     sec = security(args.tls_ca_file, args.tls_cert, args.tls_key)
+    system = "slurm" if args.slurm else "pbs" if args.pbs else args.cluster or "local"
+    if args.cluster and (args.slurm or args.pbs) and args.cluster != system:
+        raise UsageError(f"--cluster {args.cluster} contradicts --{system}")
     jobqueue = None
-    if args.slurm or args.pbs:
+    if system != "local":
         if args.scheduler:
-            raise UsageError("--scheduler cannot be combined with --slurm/--pbs")
+            raise UsageError("--scheduler cannot be combined with --cluster slurm/pbs")
         if args.jobs < 1:
             raise UsageError(f"--jobs must be >= 1, got {args.jobs}")
-        jobqueue = dict(system="slurm" if args.slurm else "pbs", queue=args.queue, account=args.account,
+        if args.start_timeout < 0:
+            raise UsageError(f"--start-timeout must be >= 0 seconds, got {args.start_timeout}")
+        jobqueue = dict(system=system, queue=args.queue, account=args.account,
                         walltime=args.walltime, job_cpus=args.job_cpus, job_mem=args.job_mem,
-                        interface=args.interface)
+                        interface=args.interface, python=args.python, prologue=args.job_prologue or (),
+                        contact_host=args.contact_address, adapt=parse_adapt(args.adapt),
+                        start_timeout=args.start_timeout or None)
     return dict(workers=args.workers, scheduler=args.scheduler, security=sec, jobqueue=jobqueue, jobs=args.jobs)
+
+
+def parse_adapt(text):
+    """``"MIN:MAX"`` into ``(min, max)``, or None."""
+    if text is None:
+        return None
+    try:
+        low, high = (int(v) for v in text.split(":"))
+    except ValueError:
+        raise UsageError(f"--adapt must be MIN:MAX, e.g. 0:8, got {text!r}") from None
+    if not 0 <= low <= high or high < 1:
+        raise UsageError(f"--adapt must have 0 <= MIN <= MAX and MAX >= 1, got {text!r}")
+    return low, high
 
 
 def print_job_script(jobqueue, security=None):
     """Print the job script dask-jobqueue would submit (starts only a scheduler, no job)."""
     from .cluster import jobqueue_cluster
 
-    params = dict(jobqueue)
+    params = {k: v for k, v in jobqueue.items() if k not in ("adapt", "start_timeout")}
     cluster = jobqueue_cluster(params.pop("system"), security=security, **params)
     try:
         print(cluster.job_script())

@@ -16,6 +16,7 @@ from pathlib import Path
 
 from ..core.files import atomic_write
 from .cli import UsageError
+from .reader_options import add_reader_options, open_with_overrides
 
 HELP = "resample a variable into a sparse VDB volume sequence (one .vdb per time step) for Blender"
 
@@ -41,6 +42,7 @@ def add_arguments(p):
     p.add_argument("--steps", metavar="A-B", help="time steps to write, e.g. 0-23 (default: all)")
     p.add_argument("--prefix", default="clouds", help="file name prefix (default clouds)")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
+    add_reader_options(p)
 
 
 def _steps(text, nt):
@@ -59,7 +61,6 @@ def _steps(text, nt):
 def run(args):
     import numpy as np
 
-    from ..core.pipeline.sources import open_source
     from ..core.errors import DataError
     from ..core.climate.grid import DEFAULT_EXAGGERATION
     from ..core.volume.transfer import TransferFunction
@@ -83,19 +84,25 @@ def run(args):
     except (DataError, json.JSONDecodeError, TypeError) as exc:
         raise UsageError(f"bad transfer function: {exc}") from None
 
-    ds = open_source(args.source)
-    if args.var not in ds.variables:
+    ds, source = open_with_overrides(args)
+    if args.var not in ds:
         raise DataError(f"no such variable (available: {', '.join(sorted(ds.variables))})", path=args.source,
                         field=args.var)
     color_var = args.color_var or ""
-    if color_var and color_var != "altitude" and color_var not in ds.variables:
+    if color_var and color_var != "altitude" and color_var not in ds:
         raise DataError(f"no such colour variable (available: altitude, {', '.join(sorted(ds.variables))})",
                         path=args.source, field=color_var)
+    if args.mode == "exact" and ds.grid.rotation is not None:
+        raise DataError("the exact mode's atlas shader works in longitude/latitude and cannot place a rotated-pole "
+                        "grid yet; use --mode voxels", path=ds.source, field="grid")
     first, last = _steps(args.steps, ds.times.size)
+    if not np.isfinite(ds.read(args.var, first)).any():  # cheap: the bake reads this step from the cache
+        raise DataError(f"every value at time step {first} is missing (NaN): nothing to show", path=ds.source,
+                        field=ds.resolve(args.var))
     # Frame k (1-based) shows step first + k - 1: frames advance one step each.
     step_hours = float(np.median(np.diff(ds.hours))) if ds.hours.size > 1 else 1.0
     params = {
-        "source": args.source, "var": args.var, "tf": tf.to_dict(), "color_var": color_var, "voxel_size": voxel,
+        "source": source, "var": args.var, "tf": tf.to_dict(), "color_var": color_var, "voxel_size": voxel,
         "exaggeration": exaggeration, "radius": args.radius,
         "frame_start": 1 - first, "hours_per_frame": step_hours, "mode": args.mode,
     }

@@ -337,6 +337,8 @@ def _render(manifest, result, todo, reclassify, scene_path, kind, settings, out,
 
     (out / "logs").mkdir(exist_ok=True)
     (out / TMP_DIR).mkdir(exist_ok=True)
+    if jobqueue and not jobqueue.get("log_dir"):
+        jobqueue = {**jobqueue, "log_dir": str(out / "logs" / "jobs")}  # each job's own stdout/stderr
     spec = _spec(scene_path, kind, settings, cache_dir, out_dir=str(out), timeout=timeout)
     token = spec["token"]
     since_ns = time.time_ns() - 2_000_000_000  # frames this run moves into place are newer (2 s clock slack)
@@ -509,6 +511,8 @@ def precompute_scene(scene, frames, *, workers=None, scheduler=None, security=No
     frame_list = parse_frames(frames)
     _check_options(None, None, None, None, None, "PNG", 0, None, 1, workers, scene_options)
     spec = _spec(scene_path, kind, {"scene_options": scene_options}, cache_dir, out_dir=None, timeout=None)
+    if jobqueue and not jobqueue.get("log_dir"):
+        jobqueue = {**jobqueue, "log_dir": str(Path(spec["cache_dir"]) / "logs" / "jobs")}
     with open_client(workers=workers, scheduler=scheduler, security=security, jobqueue=jobqueue, jobs=jobs) as client:
         name, info = _start(client, spec)
         _, by_key = _precompute(client, info["objects"], frame_list, spec["cache_dir"])

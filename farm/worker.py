@@ -106,6 +106,11 @@ def render_threads():
     return None
 
 
+def batch_job():
+    """The Slurm or PBS job id this worker runs in, or None."""
+    return os.environ.get("SLURM_JOB_ID") or os.environ.get("PBS_JOBID") or None
+
+
 def _import_script(path):
     name = "nephele_scene_" + hashlib.sha1(str(path).encode()).hexdigest()[:12]
     spec = importlib.util.spec_from_file_location(name, path)
@@ -403,7 +408,8 @@ def render_one(scene, spec, frame, address):
     names = [frame_name(frame, fmt, v) for v in views]
     t0 = time.perf_counter()
     with open(log, "a") as f:
-        f.write(f"=== frame {frame} on {address} (pid {os.getpid()}) {datetime.datetime.now().isoformat()} ===\n")
+        job = f", job {batch_job()}" if batch_job() else ""
+        f.write(f"=== frame {frame} on {address} (pid {os.getpid()}{job}) {datetime.datetime.now().isoformat()} ===\n")
     try:
         with _logged(log), _watchdog(spec.get("timeout"), log), _swallowed_errors() as caught:
             scene.frame_set(frame)
@@ -435,6 +441,9 @@ def render_one(scene, spec, frame, address):
     files = [{"file": n, "size": st.st_size, "mtime_ns": st.st_mtime_ns, "sha256": d}
              for n, st, d in zip(names, stats, records)]
     common = {"seconds": round(seconds, 4), "worker": address, "log": str(log.relative_to(out))}
+    job = batch_job()
+    if job:
+        common["job"] = job
     if views == [""]:
         return {"status": "ok", **files[0], **common}
     return {"status": "ok", "views": dict(zip(views, files)), **common}

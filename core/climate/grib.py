@@ -6,9 +6,10 @@ xarray dataset; :func:`open_grib` takes the one with the most 3-D fields (or
 the ``level_type=`` asked for) and hands it to
 :class:`~nephele.core.netcdf.NetCDFDataset`, so pressure levels, units and
 names are understood the same way.  Regular latitude/longitude and Gaussian
-grids are read; projected (Lambert conformal, polar stereographic) and
-reduced (thinned) grids are refused with one clear line, as are files when
-cfgrib or ecCodes is missing.
+grids are read, and projected grids (Lambert conformal, polar stereographic)
+as curvilinear grids on the 2-D latitude/longitude ecCodes computes; reduced
+(thinned) grids are refused with one clear line, as are files when cfgrib or
+ecCodes is missing.
 
 References
 ----------
@@ -81,12 +82,14 @@ def open_grib(path, *, level_type=None, **kw):
         n3, cube = found[level_type]
     else:
         level_type, (n3, cube) = max(found.items(), key=lambda kv: kv[1][0], default=(None, (0, None)))
+    # Projected grids (polar stereographic, Lambert conformal) come with cfgrib's 2-D latitude/longitude: curvilinear.
+    two_d = cube is not None and all(n in cube.coords and cube[n].ndim == 2 for n in ("latitude", "longitude"))
     for name, var in (cube.data_vars.items() if cube is not None else ()):
         grid = str(var.attrs.get("GRIB_gridType", "unknown"))
-        if grid not in _REGULAR:
+        if grid not in _REGULAR and not two_d:
             raise DataError(
                 f"grid type {grid!r} ({var.attrs.get('GRIB_gridDefinitionDescription', '')}) is not supported; "
-                "only regular latitude/longitude and Gaussian GRIB grids are read",
+                "regular latitude/longitude, Gaussian and projected grids with 2-D latitude/longitude are read",
                 path=path,
                 field=name,
             )

@@ -108,6 +108,15 @@ class GlobeGrid:
         such files are relative to the grid, so everything else works in grid
         coordinates unchanged; code turning scene points back into grid
         coordinates applies :meth:`to_grid` first.
+    lon2d, lat2d : (nj, ni) arrays, optional
+        For a curvilinear horizontal grid (2-D latitude/longitude: WRF,
+        Lambert conformal, polar stereographic regional models): the true
+        longitude and latitude of every column.  ``lon``/``lat`` are then the
+        grid's own ascending axis coordinates (projection x/y or indices), not
+        degrees; :meth:`points` places the columns at ``lon2d``/``lat2d``.
+        Contours work on such grids (they need only :meth:`points`); code that
+        must turn scene points back into grid indices calls
+        :meth:`require_lonlat` first.
     """
 
     lon: np.ndarray
@@ -115,6 +124,8 @@ class GlobeGrid:
     height: np.ndarray
     terrain: np.ndarray = None
     rotation: np.ndarray = None
+    lon2d: np.ndarray = None
+    lat2d: np.ndarray = None
 
     def __post_init__(self):
         lon = np.asarray(self.lon, dtype=np.float64)
@@ -127,6 +138,28 @@ class GlobeGrid:
         object.__setattr__(self, "terrain", terrain)
         if self.rotation is not None:
             object.__setattr__(self, "rotation", np.asarray(self.rotation, dtype=np.float64).reshape(3, 3))
+        if (self.lon2d is None) != (self.lat2d is None):
+            raise DataError("a curvilinear grid needs both lon2d and lat2d", field="lon2d" if self.lon2d is None else "lat2d")
+        if self.lon2d is not None:
+            if self.rotation is not None:
+                raise DataError("a grid is either rotated-pole or curvilinear (2-D lon/lat), not both", field="lon2d")
+            object.__setattr__(self, "lon2d", np.asarray(self.lon2d, dtype=np.float64))
+            object.__setattr__(self, "lat2d", np.asarray(self.lat2d, dtype=np.float64))
+
+    @property
+    def curvilinear(self):
+        """True for a grid with 2-D longitude/latitude (:attr:`lon2d`, :attr:`lat2d`)."""
+        return self.lon2d is not None
+
+    def require_lonlat(self, what, path=None):
+        """Raise :class:`DataError` for a curvilinear grid: ``what`` needs 1-D longitude/latitude axes."""
+        if self.curvilinear:
+            raise DataError(
+                f"{what} on a curvilinear grid (2-D longitude/latitude) is not supported yet; contours are",
+                path=path,
+                field="grid",
+            )
+        return self
 
     @property
     def shape(self):
@@ -137,7 +170,7 @@ class GlobeGrid:
     def periodic_lon(self):
         """True when the longitudes close the circle (the last column's
         neighbour is the first one, 360° on)."""
-        if self.lon.size < 3:
+        if self.lon.size < 3 or self.curvilinear:
             return False
         step = np.median(np.diff(self.lon))
         gap = self.lon[0] + 360.0 - self.lon[-1]
@@ -153,9 +186,17 @@ class GlobeGrid:
                 raise DataError("has NaN or infinite coordinates", path=path, field=name)
             if not np.all(np.diff(c) > 0):
                 raise DataError("is not strictly ascending", path=path, field=name)
-        if lon[-1] - lon[0] >= 360.0:
+        if self.curvilinear:
+            for name, c in (("lon2d", self.lon2d), ("lat2d", self.lat2d)):
+                if c.shape != (lat.size, lon.size):
+                    raise DataError(f"shape {c.shape} does not match (lat={lat.size}, lon={lon.size})", path=path, field=name)
+                if not np.all(np.isfinite(c)):
+                    raise DataError("has NaN or infinite coordinates", path=path, field=name)
+            if np.any(np.abs(self.lat2d) > 90.0):
+                raise DataError("lies outside [-90, 90] degrees", path=path, field="lat2d")
+        elif lon[-1] - lon[0] >= 360.0:
             raise DataError("spans 360 degrees or more (duplicate seam column?)", path=path, field="lon")
-        if lat[0] < -90.0 or lat[-1] > 90.0:
+        elif lat[0] < -90.0 or lat[-1] > 90.0:
             raise DataError("lies outside [-90, 90] degrees", path=path, field="lat")
         if height.ndim != 3 or height.shape[1:] != (lat.size, lon.size) or height.shape[0] < 2:
             raise DataError(
@@ -176,8 +217,11 @@ class GlobeGrid:
     def points(self, radius=1.0, exaggeration=DEFAULT_EXAGGERATION, dtype=np.float32):
         """Cartesian vertex positions, ``(nk, nj, ni, 3)``, in scene units."""
         r = self.radii(radius, exaggeration)
-        lam = np.deg2rad(self.lon)[None, None, :]
-        phi = np.deg2rad(self.lat)[None, :, None]
+        if self.curvilinear:
+            lam, phi = np.deg2rad(self.lon2d)[None], np.deg2rad(self.lat2d)[None]
+        else:
+            lam = np.deg2rad(self.lon)[None, None, :]
+            phi = np.deg2rad(self.lat)[None, :, None]
         out = np.empty(self.shape + (3,), dtype=dtype)
         cphi = np.cos(phi)
         out[..., 0] = r * cphi * np.cos(lam)
@@ -189,11 +233,14 @@ class GlobeGrid:
 
     def to_grid(self, xyz):
         """Cartesian points on the true globe in the grid's own (possibly rotated) frame."""
+        self.require_lonlat("turning points into grid coordinates")
         xyz = np.asarray(xyz, dtype=np.float64)
         return xyz if self.rotation is None else xyz @ self.rotation
 
     def true_lonlat(self):
         """True longitude and latitude (degrees) of every column, ``(nj, ni)`` each."""
+        if self.curvilinear:
+            return self.lon2d.copy(), self.lat2d.copy()
         xyz = lonlat_to_xyz(self.lon[None, :], self.lat[:, None])
         if self.rotation is not None:
             xyz = xyz @ self.rotation.T

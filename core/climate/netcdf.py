@@ -27,13 +27,21 @@ the level coordinate or on an auxiliary coordinate along the level dimension
 (CAM's ``hyam``/``hybm``/``P0``/``PS``).  A missing ``P0`` is CAM's
 100000 Pa (or the ``p0=`` argument), reported in :attr:`notes`.
 
-Horizontal grids: 1-D latitude/longitude, or a CF rotated pole
+Horizontal grids: 1-D latitude/longitude; a CF rotated pole
 (``grid_latitude``/``grid_longitude`` with a ``rotated_latitude_longitude``
 grid mapping): the grid keeps its rotated coordinates (winds in such files are
 grid-relative) and carries the rotation to the true globe
-(:func:`~nephele.core.grid.rotated_pole_matrix`).  Other 2-D
-latitude/longitude grids (Lambert conformal, polar stereographic, WRF) are
-refused with a clear :class:`DataError`.
+(:func:`~nephele.core.grid.rotated_pole_matrix`); and curvilinear grids with
+2-D latitude/longitude (CF ``lat(y, x)``/``lon(y, x)``, WRF's ``XLAT``/``XLONG``,
+or only projection ``x``/``y`` with a Lambert conformal, polar stereographic,
+stereographic or Mercator grid mapping, placed by
+:func:`~nephele.core.projections.inverse`): :attr:`GlobeGrid.lon2d`.
+
+WRF history files: eta levels at the heights ``(PH + PHB) / g`` of the first
+step (destaggered), pressure ``P + PB``, ``temperature`` from ``T`` (the
+perturbation potential temperature, kept as ``theta_perturbation``) by
+Poisson's equation, ``cloud`` from ``CLDFRA``, WRF's radius 6370 km.
+Staggered winds (``U``, ``V``, ``W``) are not read yet.
 
 Times come from CF units (``hours since 2001-01-01``…, any CF calendar as
 elapsed time).  Anything else (units ``Month``, no units) becomes step
@@ -51,9 +59,11 @@ import re
 import numpy as np
 
 from ..errors import DataError
-from .gridfile import FileDataset, cf_times_or_steps, plausible_units, pressure_scale, standard_name, step_times, tidy_lonlat
+from .dataset import Variable
+from .gridfile import FileDataset, cf_times, cf_times_or_steps, parse_iso, plausible_units, pressure_scale, standard_name, step_times, tidy_lonlat
 from .grid import EARTH_RADIUS, GlobeGrid, rotated_pole_matrix
 from .humidity import G0, RH_CRIT, standard_height
+from .projections import inverse
 
 _LON_UNITS = ("degrees_east", "degree_east", "degree_e", "degrees_e", "degreee", "degreese")
 _LAT_UNITS = ("degrees_north", "degree_north", "degree_n", "degrees_n", "degreen", "degreesn")
@@ -131,6 +141,111 @@ def _grid_mapping(ds):
     return None
 
 
+_MONTHS_SINCE = re.compile(r"\s*(months?|years?|common_years?)\s+since\s+(.+?)\s*$", re.IGNORECASE)
+
+
+def _month_times(values, units, calendar, path, field):
+    """``(times, note)`` for ``months since``/``years since`` units, or None for other units.
+
+    A month is a calendar month of the file's calendar (30 days in
+    ``360_day``, as cftime and CF define it there; the months of the
+    ``noleap``, ``standard``… calendars otherwise, which is what monthly model
+    output means by them) and a year twelve of them; a fraction is that part
+    of the month it falls in.  Times are the elapsed time in that calendar
+    from the reference date, as for other non-standard calendars.
+    """
+    m = _MONTHS_SINCE.match(units or "")
+    if not m:
+        return None
+    try:
+        import cftime
+    except ImportError:
+        raise DataError(f"time units {units!r} need the cftime package ('pip install cftime')", path=path, field=field) from None
+    cal = (calendar or "standard").strip().lower()
+    if cal == "none":
+        raise DataError(f"time units {units!r} with calendar 'none' have no months", path=path, field=field)
+    ref = parse_iso(m.group(2), path, field)
+    values = np.atleast_1d(np.asarray(values, dtype=np.float64))
+    if not np.all(np.isfinite(values)):
+        raise DataError("has NaN times", path=path, field=field)
+    months = values * (1.0 if m.group(1).lower().startswith("month") else 12.0)
+    text = str(ref)  # YYYY-MM-DDThh:mm:ss (year may be negative)
+    date, _, clock = text.rpartition("T") if "T" in text else (text, "", "00:00:00")
+    y, mo, d = (int(v) for v in re.match(r"(-?\d+)-(\d+)-(\d+)", date).groups())
+    hh, mi, ss = (int(v) for v in clock.split(":"))
+    try:
+        start = cftime.datetime(y, mo, d, hh, mi, ss, calendar=cal)
+
+        def shifted(n):
+            k = mo - 1 + int(n)
+            for day in range(d, 27, -1):  # the 31st of a shorter month is its last day
+                try:
+                    return cftime.datetime(y + k // 12, k % 12 + 1, day, hh, mi, ss, calendar=cal)
+                except ValueError:
+                    continue
+            return cftime.datetime(y + k // 12, k % 12 + 1, d, hh, mi, ss, calendar=cal)
+
+        secs = []
+        for x in months:
+            n = np.floor(x)
+            a = shifted(n)
+            span = (shifted(n + 1) - a).total_seconds() if x != n else 0.0
+            secs.append((a - start).total_seconds() + (x - n) * span)
+    except ValueError as exc:
+        raise DataError(f"time units {units!r} in calendar {cal!r}: {exc}", path=path, field=field) from None
+    times = ref + np.rint(secs).astype(np.int64).astype("timedelta64[s]")
+    note = None
+    if cal != "360_day":
+        note = f"{field}: units {units!r} read as calendar months of the {cal!r} calendar (CF's month is 1/12 of 365.24 days; monthly model output means calendar months)"
+    return times, note
+
+
+_LENGTH = {"m": 1.0, "meter": 1.0, "meters": 1.0, "metre": 1.0, "metres": 1.0, "km": 1000.0, "kilometer": 1000.0, "kilometers": 1000.0}
+
+
+def _projection_axes(ds):
+    """Names of the 1-D projection x and y coordinates (CF ``projection_x_coordinate``…), or None."""
+    found = {}
+    for name, var in ds.variables.items():
+        kind = {"projection_x_coordinate": "x", "projection_y_coordinate": "y"}.get(_attr(var, "standard_name").lower())
+        if kind and var.ndim == 1:
+            found.setdefault(kind, name)
+    return (found["x"], found["y"]) if len(found) == 2 else None
+
+
+def projected_lonlat(mapping, x, y, path=None, field="grid_mapping"):
+    """True longitude and latitude (degrees, ``(ny, nx)``) of 1-D projection coordinates (metres) and a list of notes.
+
+    :func:`nephele.core.projections.inverse` on the grid of ``x`` × ``y``.
+    """
+    X, Y = np.meshgrid(np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64))
+    return inverse(mapping, X, Y, path, field)
+
+
+def _right_handed(lon2d, lat2d):
+    """Whether grid i, grid j and up form a right-handed frame (east-ish, north-ish, up) at the centre."""
+    from .grid import lonlat_to_xyz
+
+    nj, ni = lon2d.shape
+    j, i = nj // 2, ni // 2
+    j0, i0 = min(j, nj - 2), min(i, ni - 2)
+    p = lonlat_to_xyz(lon2d[j0 : j0 + 2, i0 : i0 + 2], lat2d[j0 : j0 + 2, i0 : i0 + 2])
+    return float(np.dot(np.cross(p[0, 1] - p[0, 0], p[1, 0] - p[0, 0]), p[0, 0])) > 0.0
+
+
+WRF_T0 = 300.0
+"""WRF's base potential temperature (K): its ``T`` is ``theta - 300 K``."""
+WRF_RCP = 2.0 / 7.0
+"""WRF's ``R_d / c_p`` (``c_p = 7 R_d / 2``)."""
+WRF_RADIUS = 6370000.0
+"""WRF's planet radius (m, ``EARTH_RADIUS_M`` in WRF's module_model_constants)."""
+
+
+def _is_wrf(ds, zdim):
+    """A WRF history file: mass levels ``bottom_top`` with the geopotential ``PH``/``PHB`` on ``bottom_top_stag``."""
+    return zdim == "bottom_top" and all(n in ds.variables and "bottom_top_stag" in ds[n].dims for n in ("PH", "PHB"))
+
+
 def _parametric_coordinate(ds, zdim):
     """The level coordinate, or an auxiliary coordinate along ``zdim`` carrying the parametric formula."""
     zvar = ds[zdim]
@@ -182,27 +297,33 @@ class NetCDFDataset(FileDataset):
                     first = "the contents are not NetCDF 3 or NetCDF 4/HDF5"
                 raise DataError(f"cannot open as NetCDF ({type(exc).__name__}: {first})", path=path) from exc
         self._ds = ds
-        lon_name, lat_name = _find_axis(ds, path, "lon"), _find_axis(ds, path, "lat")
-        lon_dim, lat_dim = ds[lon_name].dims, ds[lat_name].dims
-        if len(lon_dim) != 1 or len(lat_dim) != 1:
-            mapping = _grid_mapping(ds)
-            kind = _attr(ds[mapping], "grid_mapping_name") if mapping else "none stated"
-            raise DataError(
-                f"2-D longitude/latitude (a curvilinear or projected grid, grid mapping {kind}) is not supported; "
-                "only 1-D lon/lat and rotated-pole grids are read",
-                path=path,
-                field=lon_name,
-            )
-        lon_dim, lat_dim = lon_dim[0], lat_dim[0]
-        rotation, self.earth_radius = self._mapping(ds, path, lon_name)
+        projected = _projection_axes(ds)
+        try:
+            lon_name, lat_name = _find_axis(ds, path, "lon"), _find_axis(ds, path, "lat")
+        except DataError:
+            if projected is None or _grid_mapping(ds) is None:
+                raise
+            lon_name, lat_name = projected  # x/y and a grid mapping only: positions from the projection
+        curvilinear = ds[lon_name].ndim != 1 or ds[lat_name].ndim != 1 or (lon_name, lat_name) == projected
+        if curvilinear:
+            lon_dim, lat_dim = self._curvilinear_dims(ds, path, lon_name, lat_name, projected)
+            rotation, self.earth_radius = self._mapping(ds, path, None)
+        else:
+            lon_dim, lat_dim = ds[lon_name].dims[0], ds[lat_name].dims[0]
+            rotation, self.earth_radius = self._mapping(ds, path, lon_name)
         time_name = _find_time(ds)
         time_dim = ds[time_name].dims[0] if time_name and ds[time_name].ndim == 1 else None
-        if time_dim is None and "time" in ds.dims:
-            time_name, time_dim = None, "time"  # a time dimension without a coordinate: numbered steps
+        for dim in ("time", "Time"):  # a time dimension without a coordinate (WRF's 'Time'): numbered steps
+            if time_dim is None and dim in ds.dims:
+                time_name, time_dim = None, dim
 
         # 3-D fields: dims = {lat, lon, one level dim} plus time if the file has one.
         candidates, skipped = {}, {}
+        # Cell bounds and grid mappings describe coordinates; they are not fields to list as skipped.
+        described = {_attr(v, "bounds") for v in ds.variables.values()} | {_attr(v, "grid_mapping").split(":")[0].strip() for v in ds.data_vars.values()}
         for name, var in ds.data_vars.items():
+            if name in described:
+                continue
             dims = [d for d in var.dims if d != time_dim]
             if lat_dim in dims and lon_dim in dims and len(dims) == 3:
                 candidates[name] = [d for d in dims if d not in (lat_dim, lon_dim)][0]
@@ -223,13 +344,23 @@ class NetCDFDataset(FileDataset):
         self._dims = (zdim, lat_dim, lon_dim)
         self._time_dim = time_dim
 
-        lon, lat, lon_index, lat_index = tidy_lonlat(ds[lon_name].values, ds[lat_name].values, path, lon_name, lat_name)
+        lon2d = lat2d = None
+        if curvilinear:
+            lon, lat, lon_index, lat_index, lon2d, lat2d = self._curvilinear(ds, path, lon_name, lat_name, projected, lon_dim, lat_dim)
+        else:
+            lon, lat, lon_index, lat_index = tidy_lonlat(ds[lon_name].values, ds[lat_name].values, path, lon_name, lat_name)
         if time_name is None and time_dim:
             times = step_times(ds.sizes[time_dim])
-            notes.append(f"time: dimension 'time' has no coordinate variable; the {times.size} step(s) are numbered 0..{times.size - 1}, one hour apart")
+            notes.append(f"time: dimension {time_dim!r} has no coordinate variable; the {times.size} step(s) are numbered 0..{times.size - 1}, one hour apart")
         elif time_name:
             tv = ds[time_name]
-            times, note = cf_times_or_steps(tv.values, time_units or _attr(tv, "units"), tv.attrs.get("calendar"), path, time_name)
+            monthly = _month_times(tv.values, time_units or _attr(tv, "units"), tv.attrs.get("calendar"), path, time_name)
+            if monthly is not None:
+                times, note = monthly
+            elif time_units:  # the user's own units must be right: no falling back to step numbers
+                times, note = cf_times(tv.values, time_units, tv.attrs.get("calendar"), path, time_name), None
+            else:
+                times, note = cf_times_or_steps(tv.values, _attr(tv, "units"), tv.attrs.get("calendar"), path, time_name)
             if note:
                 notes.append(note)
         else:
@@ -237,17 +368,28 @@ class NetCDFDataset(FileDataset):
             notes.append("time: the file has no time axis; one step")
         self._nt = times.size
 
-        heights, level_index, pressure, vertical = self._vertical(ds, path, zdim, names, lat_index, lon_index, lat.size, lon.size)
-        grid = GlobeGrid(lon, lat, heights, rotation=rotation).validate(path)
+        self._wrf = _is_wrf(ds, zdim) and self._vertical_kind is None
+        if self._wrf:
+            heights, level_index, pressure, vertical = self._wrf_levels(ds, path, zdim, lat_index, lon_index)
+        else:
+            heights, level_index, pressure, vertical = self._vertical(ds, path, zdim, names, lat_index, lon_index, lat.size, lon.size)
+        grid = GlobeGrid(lon, lat, heights, rotation=rotation, lon2d=lon2d, lat2d=lat2d).validate(path)
         if radius is not None:
             self.earth_radius = float(radius)
         elif self.earth_radius is None and "NCAR" in vertical:
             self.earth_radius = CAM_RADIUS
             notes.append(f"radius: NCAR hybrid levels, so CAM's planet radius {CAM_RADIUS:g} m")
+        elif self.earth_radius is None and self._wrf:
+            self.earth_radius = WRF_RADIUS
+            notes.append(f"radius: WRF file, so WRF's planet radius {WRF_RADIUS:g} m")
         elif self.earth_radius is None:
             self.earth_radius = EARTH_RADIUS
 
         chosen = {raw: std for std, raw in (variables or {}).items()}
+        if self._wrf:  # WRF's T is the perturbation potential temperature (theta - 300 K), not air temperature
+            for raw, std in (("T", "theta_perturbation"), ("CLDFRA", "cloud")):
+                if raw in names and raw not in chosen and std not in chosen.values():
+                    chosen[raw] = std
         for raw in chosen:
             if raw not in names:
                 raise DataError(f"is not a 3-D field on the grid (fields: {', '.join(names)})", path=path, field=raw)
@@ -276,6 +418,44 @@ class NetCDFDataset(FileDataset):
             notes=notes,
             cache_steps=cache_steps,
         )
+        if self._wrf and "T" in names and pressure is not None and "temperature" not in self.variables:
+            self.variables["temperature"] = Variable("temperature", "K", "from WRF T + 300 K and P + PB (Poisson's equation)")
+            self.derived["temperature"] = "WRF T (perturbation potential temperature) + 300 K, P + PB"
+            self.aliases.pop("temperature", None)
+
+    def _read(self, name, t):
+        if name == "temperature" and self._wrf and "temperature" not in self._fields:
+            theta = np.asarray(self._read("theta_perturbation", t), dtype=np.float64) + WRF_T0
+            return (theta * (np.asarray(self._pressure(t), dtype=np.float64) / 1.0e5) ** WRF_RCP).astype(np.float32)
+        return super()._read(name, t)
+
+    # ------------------------------------------------------------------ WRF
+    def _wrf_levels(self, ds, path, zdim, lat_index, lon_index):
+        """WRF eta levels: heights of the mass levels from the first step's geopotential ``(PH + PHB) / g`` on
+        the staggered levels (mean of the two around each mass level); pressure ``P + PB``."""
+        take = np.ix_(lat_index, lon_index)
+        ydim, xdim = self._dims[1:]
+
+        def plane(name, t):
+            a = ds[name]
+            if self._time_dim in a.dims:
+                a = a.isel({self._time_dim: t})
+            stag = [d for d in a.dims if d not in (ydim, xdim)]
+            return np.asarray(a.transpose(*stag, ydim, xdim).values, dtype=np.float64)[(slice(None),) + take]
+
+        z_stag = (plane("PH", 0) + plane("PHB", 0)) / G0
+        if z_stag.shape[0] != ds.sizes[zdim] + 1:
+            raise DataError(f"PH has {z_stag.shape[0]} staggered levels for {ds.sizes[zdim]} mass levels (expected one more)", path=path, field="PH")
+        heights = 0.5 * (z_stag[:-1] + z_stag[1:])
+        level_index = self._level_order(heights.reshape(heights.shape[0], -1).mean(axis=1), path, zdim)
+        heights = heights[level_index]
+        pressure = None
+        if "P" in ds.variables and "PB" in ds.variables:
+
+            def pressure(t):
+                return (plane("P", t) + plane("PB", t))[level_index].astype(np.float32)
+
+        return heights, level_index, pressure, "WRF eta levels (terrain following, heights from PH + PHB)"
 
     # ------------------------------------------------------------------ horizontal
     @staticmethod
@@ -285,7 +465,7 @@ class NetCDFDataset(FileDataset):
         gm = ds[name].attrs if name else {}
         radius = gm.get("earth_radius", gm.get("semi_major_axis"))
         radius = float(radius) if radius is not None else None
-        if _attr(ds[lon_name], "standard_name").lower() != "grid_longitude":
+        if lon_name is None or _attr(ds[lon_name], "standard_name").lower() != "grid_longitude":
             return None, radius
         if str(gm.get("grid_mapping_name", "")) != "rotated_latitude_longitude":
             raise DataError("has standard_name grid_longitude but no rotated_latitude_longitude grid mapping", path=path, field=lon_name)
@@ -294,6 +474,52 @@ class NetCDFDataset(FileDataset):
         except KeyError as exc:
             raise DataError(f"grid mapping lacks {exc.args[0]}", path=path, field=name) from None
         return rotated_pole_matrix(*pole, float(gm.get("north_pole_grid_longitude", 0.0))), radius
+
+    # ------------------------------------------------------------------ curvilinear
+    @staticmethod
+    def _curvilinear_dims(ds, path, lon_name, lat_name, projected):
+        """``(x dim, y dim)`` of a grid with 2-D longitude/latitude (the last two dimensions; WRF's
+        ``XLAT(Time, south_north, west_east)`` too) or of projection-only x/y axes."""
+        if (lon_name, lat_name) == projected:
+            return ds[lon_name].dims[0], ds[lat_name].dims[0]
+        lon_dims, lat_dims = ds[lon_name].dims, ds[lat_name].dims
+        if len(lon_dims) < 2 or lon_dims[-2:] != lat_dims[-2:]:
+            raise DataError(f"longitude dimensions {lon_dims} and latitude dimensions {lat_dims} do not match", path=path, field=lon_name)
+        return lon_dims[-1], lon_dims[-2]
+
+    def _curvilinear(self, ds, path, lon_name, lat_name, projected, xdim, ydim):
+        """Axes, index orders and true 2-D positions of a curvilinear grid.
+
+        Positions: the file's 2-D latitude/longitude (first step where they
+        carry a time dimension), else the grid mapping's inverse projection
+        (:func:`projected_lonlat`).  The grid keeps index axes ``0..n-1``; rows
+        are reversed where needed so that (i, j, up) is right-handed like a
+        longitude × latitude grid (contour normals then point the same way).
+        """
+        if (lon_name, lat_name) == projected:
+            mapping = _grid_mapping(ds)
+            scale = [_LENGTH.get(_attr(ds[n], "units").lower(), None) for n in projected]
+            if None in scale:
+                raise DataError(f"projection coordinates need units m or km, got {[_attr(ds[n], 'units') for n in projected]}", path=path, field=lon_name)
+            lon2d, lat2d, notes = projected_lonlat(dict(ds[mapping].attrs), ds[lon_name].values * scale[0], ds[lat_name].values * scale[1], path, mapping)
+            name = _attr(ds[mapping], "grid_mapping_name")
+            self._notes += [f"grid: longitudes/latitudes computed from the {name} grid mapping"] + [f"grid: {n}" for n in notes]
+        else:
+            planes = []
+            for name in (lon_name, lat_name):
+                var = ds[name]
+                extra = {d: 0 for d in var.dims if d not in (ydim, xdim)}  # WRF: XLAT(Time, south_north, west_east)
+                planes.append(np.asarray(var.isel(extra).transpose(ydim, xdim).values, dtype=np.float64))
+            lon2d, lat2d = planes
+        if lon2d.shape[0] < 2 or lon2d.shape[1] < 2:
+            raise DataError(f"a curvilinear grid needs at least 2 x 2 columns, got {lon2d.shape}", path=path, field=lon_name)
+        if not (np.all(np.isfinite(lon2d)) and np.all(np.isfinite(lat2d))):
+            raise DataError("has NaN or infinite 2-D longitudes/latitudes (masked land points?)", path=path, field=lon_name)
+        lon_index, lat_index = np.arange(lon2d.shape[1]), np.arange(lon2d.shape[0])
+        if not _right_handed(lon2d, lat2d):
+            lat_index = lat_index[::-1]
+        lon2d, lat2d = lon2d[lat_index], lat2d[lat_index]
+        return np.arange(lon_index.size, dtype=np.float64), np.arange(lat_index.size, dtype=np.float64), lon_index, lat_index, lon2d, lat2d
 
     # ------------------------------------------------------------------ vertical
     def _vertical(self, ds, path, zdim, names, lat_index, lon_index, nj, ni):

@@ -250,9 +250,13 @@ class WindField:
         thread (a film needs one new step per frame; reading it overlaps the
         tracing).  Default: when :func:`~nephele.core.threads.default_threads`
         allows more than one thread.
+    radius : float, optional
+        Planet radius (m) turning winds into angular speed; default the
+        dataset's ``earth_radius`` (from the file), else
+        :data:`~nephele.core.grid.EARTH_RADIUS`.
     """
 
-    def __init__(self, dataset, nan="error", cache_steps=6, vertical="auto", read_ahead=None):
+    def __init__(self, dataset, nan="error", cache_steps=6, vertical="auto", read_ahead=None, radius=None):
         if nan not in ("error", "zero"):
             raise ValueError(f"nan must be 'error' or 'zero', got {nan!r}")
         if vertical not in ("auto", "w", "levels"):
@@ -266,8 +270,10 @@ class WindField:
         for name in ("u", "v"):
             if name not in dataset:
                 raise DataError("is needed to advect textures but the dataset has no such field", path=dataset.source, field=name)
+        dataset.grid.require_lonlat("advection", path=dataset.source)
         self.dataset = dataset
         self.grid = grid = dataset.grid
+        self.radius = float(radius or getattr(dataset, "earth_radius", None) or EARTH_RADIUS)
         self.nan = nan
         self.index = _GridIndex(grid, pad=2)
         self.nk = grid.shape[0]
@@ -286,7 +292,7 @@ class WindField:
         # East and north unit vectors per column, scaled from m/s to unit-sphere radians per hour.
         lam, phi = np.deg2rad(g.lon)[None, :], np.deg2rad(g.lat)[:, None]
         sl, cl, sp, cp = np.sin(lam), np.cos(lam), np.sin(phi), np.cos(phi)
-        scale = HOUR / EARTH_RADIUS
+        scale = HOUR / self.radius
         self._east = [(a * scale).astype(np.float32) for a in np.broadcast_arrays(-sl, cl, 0.0 * phi)]
         self._north = [(a * scale).astype(np.float32) for a in np.broadcast_arrays(-sp * cl, -sp * sl, cp + 0.0 * lam)]
         h = g.height
@@ -303,8 +309,8 @@ class WindField:
             else:
                 dhdl = np.gradient(h, lam, axis=2)
             cos = np.cos(phi)[None, :, None]
-            self._dhdx = np.where(cos > 1e-9, dhdl / (EARTH_RADIUS * np.maximum(cos, 1e-9)), 0.0).astype(np.float32)
-            self._dhdy = (np.gradient(h, phi, axis=1) / EARTH_RADIUS).astype(np.float32)
+            self._dhdx = np.where(cos > 1e-9, dhdl / (self.radius * np.maximum(cos, 1e-9)), 0.0).astype(np.float32)
+            self._dhdy = (np.gradient(h, phi, axis=1) / self.radius).astype(np.float32)
         self.height_field = self.index.padded(h[..., None].astype(np.float64))
 
     def _read_wind(self, t):
@@ -365,7 +371,7 @@ class WindField:
             wz = w if self._dhdx is None else w - u * self._dhdx - v * self._dhdy
             np.multiply(wz, self._sdot_scale, out=f[..., 3])
         u64, v64 = u.astype(np.float64), v.astype(np.float64)
-        speed = (float(np.sqrt(np.max(u64 * u64 + v64 * v64))) * HOUR / EARTH_RADIUS, float(np.max(np.abs(f[..., 3]))))
+        speed = (float(np.sqrt(np.max(u64 * u64 + v64 * v64))) * HOUR / self.radius, float(np.max(np.abs(f[..., 3]))))
         return self.index.padded(f), speed
 
     def check_time(self, hours):
@@ -458,10 +464,15 @@ class AnalyticWind:
         Time range (default ``0..period_hours``).
     min_spacing : float
         Grid spacing in radians used by the CFL bound.
+    radius : float, optional
+        Planet radius (m) turning the winds into angular speed; default the
+        flow's own ``radius`` (the one its winds were made with), else
+        :data:`~nephele.core.grid.EARTH_RADIUS`.
     """
 
-    def __init__(self, flow, nk=2, hours=None, min_spacing=np.deg2rad(1.125)):
+    def __init__(self, flow, nk=2, hours=None, min_spacing=np.deg2rad(1.125), radius=None):
         self.flow = flow
+        self.radius = float(radius if radius is not None else getattr(flow, "radius", EARTH_RADIUS))
         self.nk = nk
         self.time_range = tuple(float(h) for h in (hours or (0.0, flow.period_hours)))
         self.min_spacing = float(min_spacing)
@@ -476,13 +487,13 @@ class AnalyticWind:
     def velocity(self, hours, xyz, s):
         lon, lat = _lonlat(xyz)
         u, v = self.flow.wind(lon, lat, hours)
-        return tangent_velocity(lon, lat, u, v) * (HOUR / EARTH_RADIUS), np.zeros(len(xyz))
+        return tangent_velocity(lon, lat, u, v) * (HOUR / self.radius), np.zeros(len(xyz))
 
     def max_speed(self, t0, t1):
         sp = 0.0
         for t in np.linspace(t0, t1, 5):
             u, v = self.flow.wind(self._lon, self._lat, t)
-            sp = max(sp, float(np.sqrt(np.max(u * u + v * v))) * HOUR / EARTH_RADIUS)
+            sp = max(sp, float(np.sqrt(np.max(u * u + v * v))) * HOUR / self.radius)
         return 1.05 * sp, 0.0
 
 
@@ -962,8 +973,14 @@ def active_vertices(values, level, periodic_lon=False):
 
 
 def start_coordinates(wind, copy):
-    """Start longitude, latitude (degrees) and height (m) of a :class:`Copy`."""
-    lon, lat, _ = xyz_to_lonlat(copy.xyz)
+    """Start longitude, latitude (degrees) and height (m) of a :class:`Copy`.
+
+    True longitude and latitude on the globe: a rotated-pole grid's winds are
+    traced in the grid's own frame, so its start points are turned back with
+    the grid's rotation.
+    """
+    rotation = getattr(getattr(wind, "grid", None), "rotation", None)
+    lon, lat, _ = xyz_to_lonlat(copy.xyz if rotation is None else copy.xyz @ rotation.T)
     if isinstance(wind, WindField):
         alt = wind.start_height(copy.xyz, copy.s)
     else:
@@ -971,12 +988,12 @@ def start_coordinates(wind, copy):
     return lon, lat, alt
 
 
-def great_circle_km(a, b):
-    """Great-circle distance in km between unit vectors ``a`` and ``b`` (n, 3)."""
+def great_circle_km(a, b, radius=EARTH_RADIUS):
+    """Great-circle distance in km between unit vectors ``a`` and ``b`` (n, 3) on a planet of ``radius`` metres."""
     a, b = _normalise(np.asarray(a, float)), _normalise(np.asarray(b, float))
     c = np.linalg.norm(np.cross(a, b), axis=1)
     d = np.sum(a * b, axis=1)
-    return np.arctan2(c, d) * EARTH_RADIUS / 1000.0
+    return np.arctan2(c, d) * float(radius) / 1000.0
 
 
 __all__ = [

@@ -122,9 +122,11 @@ def advect_contour(params):
     if color_var != ALTITUDE:
         attrs[color_var] = ds.read_at(color_var, params["hours"])
     wind = st.wind
+    rot = ds.grid.rotation
     for name, cp in zip(COPIES, copies):
         alt = wind.start_height(cp.xyz, cp.s) if len(cp.s) else np.zeros(0)
-        for c, vals in enumerate((cp.xyz[:, 0], cp.xyz[:, 1], cp.xyz[:, 2], alt)):
+        xyz = cp.xyz if rot is None else cp.xyz @ rot.T  # traced in a rotated grid's frame; the mesh is on the true globe
+        for c, vals in enumerate((xyz[:, 0], xyz[:, 1], xyz[:, 2], alt)):
             f = np.zeros(ds.grid.shape, dtype=np.float32)
             f.reshape(-1)[index] = vals
             attrs[f"_{name}{c}"] = f

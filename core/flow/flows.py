@@ -49,9 +49,12 @@ class DeformationalFlow:
     ----------
     period_hours : float
         ``T``; the flow reverses at ``T/2`` and every point is back home at ``T``.
+    radius : float
+        Planet radius ``R`` in metres (winds in m/s scale with it).
     """
 
     period_hours: float = 12 * DAY_HOURS
+    radius: float = EARTH_RADIUS
 
     def wind(self, lon, lat, hours):
         """``(u, v)`` in m/s at ``lon``, ``lat`` (degrees) and time ``hours``."""
@@ -59,9 +62,9 @@ class DeformationalFlow:
         t = np.asarray(hours, dtype=np.float64) * 3600.0
         lam = np.deg2rad(np.asarray(lon, dtype=np.float64)) - 2 * np.pi * t / T
         th = np.deg2rad(np.asarray(lat, dtype=np.float64))
-        k = 10.0 * EARTH_RADIUS / T
+        k = 10.0 * self.radius / T
         c = np.cos(np.pi * t / T)
-        u = k * np.sin(lam) ** 2 * np.sin(2 * th) * c + 2 * np.pi * EARTH_RADIUS / T * np.cos(th)
+        u = k * np.sin(lam) ** 2 * np.sin(2 * th) * c + 2 * np.pi * self.radius / T * np.cos(th)
         v = k * np.sin(2 * lam) * np.cos(th) * c
         return u, v
 
@@ -78,15 +81,16 @@ class SolidBodyRotation:
     """Williamson et al. (1992) case 1: rigid rotation tilted by ``alpha`` (radians).
 
     ``u = u0 (cosθ cosα + sinθ cosλ sinα)``, ``v = -u0 sinλ sinα``; the rotation
-    axis is ``(-sin α, 0, cos α)`` and ``u0 = 2πR / (12 days)``.
+    axis is ``(-sin α, 0, cos α)`` and ``u0 = 2πR / (12 days)``, ``R`` = ``radius`` (m).
     """
 
     alpha: float = 0.0
     period_hours: float = 12 * DAY_HOURS
+    radius: float = EARTH_RADIUS
 
     @property
     def u0(self):
-        return 2 * np.pi * EARTH_RADIUS / (self.period_hours * 3600.0)
+        return 2 * np.pi * self.radius / (self.period_hours * 3600.0)
 
     def wind(self, lon, lat, hours):
         """``(u, v)`` in m/s (steady; ``hours`` only broadcasts)."""
@@ -152,6 +156,7 @@ class FlowDataset(Dataset):
             raise DataError("needs at least 2 hourly steps", path=f"<{type(flow).__name__}>", field="time")
         super().__init__(grid, hourly("2000-01-01", n), [Variable("u", "m/s"), Variable("v", "m/s"), Variable("w", "m/s")],
                          f"<{type(flow).__name__}>", cache_steps=12)
+        self.earth_radius = float(getattr(flow, "radius", EARTH_RADIUS))
         self._lon = np.broadcast_to(grid.lon[None, None, :], grid.shape)
         self._lat = np.broadcast_to(grid.lat[None, :, None], grid.shape)
 

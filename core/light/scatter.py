@@ -81,6 +81,23 @@ def _transport_factors(tau):
     return t, esc
 
 
+def _phi(x):
+    """``(1 - exp(-x)) / x`` for ``x >= 0`` (1 at 0), overflow-safe."""
+    small = x < 1e-6
+    return np.where(small, 1.0 - 0.5 * x, -np.expm1(-x) / np.where(small, 1.0, x))
+
+
+def _exp_source_escape(tau, beta):
+    """Escape fraction of a source ``~ exp(-beta v)`` along a path ``v in [0, 1]`` of optical depth ``tau``.
+
+    ``esc = int exp(-beta v - tau (1 - v)) dv / int exp(-beta v) dv``, written as
+    ``exp(min(0, beta) - min(tau, beta)) phi(|beta - tau|) / phi(|beta|)`` with
+    ``phi(x) = (1 - e^-x) / x`` so no exponential overflows for any ``beta`` (either
+    sign) or ``tau``.  ``beta = 0`` gives the uniform source's ``(1 - e^-tau) / tau``.
+    """
+    return np.exp(np.minimum(0.0, beta) - np.minimum(tau, beta)) * _phi(np.abs(beta - tau)) / _phi(np.abs(beta))
+
+
 def _shift_indices(n, shift, periodic, margin):
     """Gather indices and weights moving a beam by ``shift`` cells (bilinear in 1-D)."""
     i0 = np.floor(shift).astype(np.int64)
@@ -91,7 +108,27 @@ def _shift_indices(n, shift, periodic, margin):
     return base + margin, base - 1 + margin, 1.0 - f, f
 
 
-def _sweep(sigma, h, dirs, wsub, emis, inflow, periodic, axis, cache=None, per_sub=False):
+def _offset(kappa):
+    """Centroid offset ``1/k - 1/(e^k - 1) - 1/2`` (in ``(-1/2, 1/2)``, odd in ``k``) of a
+    source ``exp(-k u)`` on ``u in [0, 1]``; overflow-safe for any ``k``."""
+    k = np.abs(kappa)
+    small = k < 1e-3
+    kk = np.where(small, 1.0, k)
+    off = np.where(small, -k / 12.0, 1.0 / kk - np.exp(-kk) / -np.expm1(-kk) - 0.5)
+    return np.sign(kappa) * off
+
+
+_KGRID = np.sinh(np.linspace(-np.arcsinh(400.0), np.arcsinh(400.0), 2001))
+_OGRID = _offset(_KGRID)
+
+
+def _rate_of_offset(delta):
+    """Inverse of :func:`_offset`: the exponential rate whose source has centroid offset ``delta``."""
+    return np.interp(-delta, -_OGRID, _KGRID).astype(np.float32)
+
+
+def _sweep(sigma, h, dirs, wsub, emis, inflow, periodic, axis, cache=None, per_sub=False, profile=None,
+           moments=False):
     """Sweep a group of beams through ``sigma`` layer by layer along array ``axis``.
 
     ``dirs`` (g, ns, 3): ``ns`` sub-directions for each of ``g`` bins, all with
@@ -101,8 +138,20 @@ def _sweep(sigma, h, dirs, wsub, emis, inflow, periodic, axis, cache=None, per_s
     outside (upstream face and non-periodic sides).
     ``cache``: a dict kept between calls with the same beams; it stores the
     per-layer transmittances (float32) so later passes skip the exponentials.
+
+    Sources inside a voxel are not spread evenly: with ``profile = (kappa, delta)``
+    (each (3, nz, ny, nx), x y z) the emission in a voxel falls as
+    ``exp(-kappa . u)`` over the voxel's unit cube ``u``, ``delta`` its centroid
+    offset (:func:`_offset` of ``kappa``).  Along a beam ``d`` crossing the layer
+    (path length ``l``, optical depth ``tau``) ``u`` moves by ``c = l d / h``, so the
+    source falls as ``exp(-beta v)``, ``beta = kappa . c``, and escapes with
+    :func:`_exp_source_escape`; without a profile the uniform ``(1 - e^-tau)/tau``.
+    ``moments``: also return the first moment of the received power about each
+    voxel's centre (3, nz, ny, nx; in voxel units, x y z, summed over beams): a beam
+    deposits ``exp(-tau v)``, centroid ``_offset(tau) c``; the power a source keeps in
+    its own voxel sits downstream of the source's centroid (closed form below).
     Returns received (g, ...) (``per_sub``: (g, ns, ...) per sub-direction),
-    total (g, ...) and the exit power (g,) through the far face.
+    total (g, ...), the exit power (g,) through the far face and the moments (or None).
     """
     g, ns, _ = dirs.shape
     d = dirs.reshape(-1, 3)
@@ -116,6 +165,7 @@ def _sweep(sigma, h, dirs, wsub, emis, inflow, periodic, axis, cache=None, per_s
     if sign == 0 or np.any(np.sign(dl) != sign):
         raise ValueError("_sweep: beams must share the sign of the sweep component")
     ell = h[comp] / np.abs(dl)  # path length across one layer
+    cross = (ell[:, None] * d / np.asarray(h, float)[None]).astype(np.float32)  # (K, 3) unit-cube move per layer
     sa = d[:, ca] / np.abs(dl) * (h[comp] / h[ca])
     sb = d[:, cb] / np.abs(dl) * (h[comp] / h[cb])
     pa, pb = periodic[ca], periodic[cb]
@@ -130,11 +180,16 @@ def _sweep(sigma, h, dirs, wsub, emis, inflow, periodic, axis, cache=None, per_s
     wa0, wa1, wb0, wb1 = (x[:, None, None] for x in (wa0, wa1, wb0, wb1))
     recv = np.zeros((g, ns, L, A, B) if per_sub else (g, L, A, B), np.float32)
     total = np.zeros((g, L, A, B), np.float32)
+    mom = np.zeros((3, L, A, B), np.float32) if moments else None
     em = None if emis is None else np.moveaxis(emis, axis + 1, 1)
+    if profile is not None:
+        kap = np.moveaxis(np.asarray(profile[0], np.float32), axis + 1, 1)
+        dlt = np.moveaxis(np.asarray(profile[1], np.float32), axis + 1, 1)
     pad = np.asarray(inflow, dtype=np.float32).reshape(K, 1, 1)
     beam = np.broadcast_to(pad, (K, A, B)).copy()
     w = np.asarray(wsub, dtype=np.float32).reshape(g, ns, 1, 1)
     wa0, wa1, wb0, wb1 = (x.astype(np.float32) for x in (wa0, wa1, wb0, wb1))
+    ell32 = ell.astype(np.float32)[:, None, None]
     order = range(L) if sign > 0 else range(L - 1, -1, -1)
     for n, k in enumerate(order):
         if n:  # move to this layer: bilinear transverse shift, inflow outside the grid
@@ -145,28 +200,49 @@ def _sweep(sigma, h, dirs, wsub, emis, inflow, periodic, axis, cache=None, per_s
                 beam = np.concatenate([np.broadcast_to(pad, (K, A, mb)), beam, np.broadcast_to(pad, (K, A, mb))], 2)
             beam = wb0 * beam[kb, ar, ib0[:, None, :]] + wb1 * beam[kb, ar, ib1[:, None, :]]
         if cache is not None and k in cache:
-            t, esc = cache[k]
+            t, esc, offb = cache[k]
         else:
-            t, esc = _transport_factors(sig[k][None] * ell[:, None, None])
-            t, esc = t.astype(np.float32), esc.astype(np.float32)
+            tau = sig[k][None] * ell[:, None, None]
+            t, esc = _transport_factors(tau)
+            t, esc, offb = t.astype(np.float32), esc.astype(np.float32), _offset(tau).astype(np.float32)
             if cache is not None:
-                cache[k] = (t, esc)
+                cache[k] = (t, esc, offb)
         if em is None:
             r = beam * (1.0 - t)
             tot = beam
             beam = beam * t
         else:
+            if profile is not None:
+                tau = sig[k][None].astype(np.float32) * ell32
+                beta = (cross @ kap[:, k].reshape(3, -1)).reshape(K, A, B)
+                esc = np.clip(_exp_source_escape(tau, beta), 0.0, 1.0).astype(np.float32)
             e = (em[:, k][:, None] * w).reshape(K, A, B)
-            r = beam * (1.0 - t) + e * (1.0 - esc)
+            rb = beam * (1.0 - t)
+            re = e * (1.0 - esc)
+            r = rb + re
             tot = beam + e
             beam = beam * t + e * esc
+        if moments:
+            rb = r if em is None else rb
+            mk = (cross.T @ (rb * offb).reshape(K, -1)).reshape(3, A, B)
+            if em is not None and profile is not None:
+                # what a source keeps sits downstream of it: with v_s its centroid along
+                # the path, the photons' mean end point v_s + (1 - esc) / tau (escapers
+                # stop at 1) gives the kept part's centroid x = (v_s - esc) / (1 - esc) + 1 / tau
+                vs = 0.5 + _offset(beta)
+                kept = np.maximum(1.0 - esc, 1e-30)
+                shift = np.where(tau < 1e-2, 1.0 / 6.0, (vs - esc) / kept + 1.0 / np.maximum(tau, 1e-2) - vs)
+                mk += dlt[:, k] * re.sum(0) + (cross.T @ (re * shift).reshape(K, -1)).reshape(3, A, B)
+            mom[:, k] = mk
         if per_sub:
             recv[:, :, k] = r.reshape(g, ns, A, B)
         else:
             recv[:, k] = r.reshape(g, ns, A, B).sum(1)
         total[:, k] = tot.reshape(g, ns, A, B).sum(1)
     exit_power = beam.reshape(g, ns, A, B).sum((1, 2, 3), dtype=np.float64)
-    return np.moveaxis(recv, -3, axis - 3), np.moveaxis(total, 1, axis + 1), exit_power
+    if moments:
+        mom = np.moveaxis(mom, 1, axis + 1)
+    return np.moveaxis(recv, -3, axis - 3), np.moveaxis(total, 1, axis + 1), exit_power, mom
 
 
 # --------------------------------------------------------------------------- solve
@@ -201,7 +277,8 @@ class Solution:
     injected : power that entered the cloud (first interception of sun and sky).
     passes, residual, converged, history : the convergence report.
     albedo_binned, g_binned, delta_f : albedo, asymmetry and delta-M fraction of the
-        scaled medium the binned flux was transported in; ``received`` is in that medium.
+        scaled medium the binned flux was transported in; ``received`` is in that medium,
+        except the first ``real_orders`` of ``received_peaked``, caught in the real medium.
     """
 
     sigma: np.ndarray
@@ -229,6 +306,7 @@ class Solution:
     albedo_binned: float = 0.0
     g_binned: float = 0.0
     delta_f: float = 0.0
+    real_orders: int = 0
 
     @property
     def report(self):
@@ -285,7 +363,8 @@ def _scatter_into(unshot, m_cols, recv, albedo, chunk=1 << 16):
 
 def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun_irradiance=1.0,
                 sky_radiance=0.0, tol=1e-3, max_passes=100, sub=2, periodic=(False, False, False),
-                delta_m=True, phase_sub=6, first_sub=4):
+                delta_m=True, phase_sub=6, first_sub=4, source_profile=True,
+                peaked_orders=2, real_orders=1):
     """The shooting solve as a generator: yields :class:`Progress` after each group of bins,
     returns the :class:`Solution` (``StopIteration.value``; :func:`solve` unwraps it).
 
@@ -310,6 +389,16 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
         slab tests ``f = g^4`` beat ``g^2`` (too much truncation for thin slabs) and
         ``g^8`` / no scaling (thick slabs), and it needs fewer passes.
     phase_sub : sub-squares per bin side for the phase matrix integrals.
+    peaked_orders : how many scattering orders of sunlight are shot per sub-direction
+        (weighted inside each bin as the previous order filled it) before the rest is
+        binned; at least 1.
+    real_orders : how many of the peaked flights of scattered sunlight travel in the
+        real medium and are scattered on with the full HG(g) (at most ``peaked_orders``);
+        delta-M applies after them.
+    source_profile : sources inside a voxel follow where the light was caught (an
+        exponential profile; exact for the sun's first scattering) instead of being
+        spread evenly, so optically thick voxels (tau ~ 1-2) keep their accuracy.
+        False gives the even spread (for comparisons).
     first_sub : sub-directions per bin side (a divisor of 48) carrying the sun's first
         scattering (weighted by the exact phase function within each bin) and its second
         (weighted by the first's interceptions scattered per sub-direction).
@@ -320,6 +409,9 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
     Nakajima & Tanaka, JQSRT 40 (1988) 51-69 (exact single scattering with delta-M).
     """
     sigma, size, sun = _check_inputs(sigma, size, albedo, g, sun_dir, sun_irradiance, sky_radiance)
+    if int(peaked_orders) < 1:
+        raise DataError(f"peaked_orders must be >= 1, got {peaked_orders}", field="peaked_orders")
+    real_orders = min(int(real_orders), int(peaked_orders))
     if int(max_passes) < 1 or not tol > 0:
         raise DataError("max_passes must be >= 1 and tol > 0", field="tol")
     periodic = tuple(bool(p) for p in periodic)
@@ -349,12 +441,15 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
     inflow = np.array([[sun_irradiance * abs(prop[c]) * area]])
 
     def sun_sweep(sig):
-        r, _, ex = _sweep(sig, h, prop[None, None, :], np.ones((1, 1)), None, inflow, periodic, 2 - c)
+        r, _, ex, _ = _sweep(sig, h, prop[None, None, :], np.ones((1, 1)), None, inflow, periodic, 2 - c)
         return r[0], float(ex[0])
 
-    r_sun, sun_exit_real = sun_sweep(sigma)
-    r_sun_s, sun_exit = sun_sweep(sig_s) if f > 0 else (r_sun, sun_exit_real)
-    injected = float(r_sun_s.sum())
+    # The sun beam and its first scattering are exact (real medium, full HG(g)); only the
+    # scattered light travels in the delta-M scaled medium.  Scattering the sun in the
+    # scaled medium too (HG(g*) has more back-scatter than HG(g)) put the slab tau=1,
+    # g=0.8 reflectance 9% high.
+    r_sun, sun_exit = sun_sweep(sigma)
+    injected = float(r_sun.sum())
 
     # The sun's first scattering, shot on first_sub x first_sub sub-directions per bin
     # weighted by the exact phase function about the true sun direction, so the
@@ -367,39 +462,81 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
     # from each sub-direction's own direction (phase.sub_phase_matrix); order 2
     # is shot on sub-direction weights of each bin summed over the grid
     # (phase.sub_sub_phase_matrix applied to order 1's interceptions).
-    qs = phase.direct_fractions(prop, g_s, sub=48, into_sub=first_sub)
+    qs = phase.direct_fractions(prop, g, sub=48, into_sub=first_sub)
     q = qs.sum(1)
     wq = np.where(q[:, None] > 1e-12, qs / np.maximum(q[:, None], 1e-300), 1.0 / qs.shape[1])
     fdirs = phase.bins(first_sub)[2]
     m_sub = phase.sub_phase_matrix(g_s, first_sub)  # (96, 96, first_sub**2)
+    m_real = phase.sub_phase_matrix(g, first_sub) if real_orders > 0 else None
     per = max(1, (1 << 24) // (fdirs.shape[1] * sigma.size))  # bins per sweep: <= 64 MB of float32
 
-    def shoot_peaked(emission, weights):
-        """Shoot ``emission(bins)`` on the sub-directions with ``weights``; scatter per sub-direction."""
+    # Where inside its voxel the unshot light sits (issue 18): light is caught mostly
+    # near the face it entered by, so a thick voxel's scattered light escapes more
+    # easily back through that face.  ``umom`` is the first moment (voxel units, x y z)
+    # of all unshot power about each voxel centre, shared by all bins; a group's
+    # emission gets the exponential profile with that centroid (_rate_of_offset).
+    # The sun's first scattering has its exact profile: the sun beam falls as
+    # exp(-sigma* x_c / prop_c) along its sweep axis c, i.e. rate sigma* h_c / prop_c.
+    umom = np.zeros((3,) + shape, np.float64) if source_profile else None
+
+    def unshot_profile(power):
+        if umom is None:
+            return None
+        dlt = np.clip(umom / np.where(power > 0, power, np.inf), -0.49, 0.49).astype(np.float32)
+        return _rate_of_offset(dlt), dlt
+
+    def keep_moments(mom, shot, prof, alb=alb_s):
+        """Unshot moments after a sweep: less what was shot, plus albedo times what was caught."""
+        if umom is not None:
+            if prof is not None:
+                umom[:] -= prof[1] * shot
+            umom[:] += alb * mom
+
+    if source_profile:
+        kap = np.zeros((3,) + shape, np.float32)
+        kap[c] = sigma * (h[c] / prop[c])
+        sun_profile = (kap, np.zeros_like(kap))
+        sun_profile[1][c] = _offset(kap[c])
+    else:
+        sun_profile = None
+
+    def shoot_peaked(emission, weights, prof, real):
+        """Shoot ``emission(bins)`` on the sub-directions with ``weights`` and the voxel
+        source profile ``prof``; scatter per sub-direction.  ``real``: fly in the real
+        medium and scatter with the full HG(g) (else the delta-M scaled medium)."""
         rec = np.zeros((NB,) + shape, np.float32)
         rsub = np.zeros(weights.shape)
+        sig_k, m_k, alb_k = (sigma, m_real, albedo) if real else (sig_s, m_sub, alb_s)
         for axis, group in groups:
             for s in range(0, len(group), per):
                 bs = group[s:s + per]
-                r, tot, ex = _sweep(sig_s, h, fdirs[bs], weights[bs], emission(bs), np.zeros(weights[bs].shape),
-                                    periodic, axis, per_sub=True)
+                r, tot, ex, mom = _sweep(sig_k, h, fdirs[bs], weights[bs], emission(bs), np.zeros(weights[bs].shape),
+                                         periodic, axis, per_sub=True, profile=prof, moments=umom is not None)
+                keep_moments(mom, 0.0, None, alb_k)
                 rec[bs] = r.sum(1, dtype=np.float32)
                 rsub[bs] = r.reshape(len(bs), r.shape[1], -1).sum(2, dtype=np.float64)
                 total[bs] += tot.astype(np.float32)
                 exit_flux[bs] += ex
-                _scatter_into(unshot, m_sub[:, bs].reshape(NB, -1), r.reshape((-1,) + shape), alb_s)
+                _scatter_into(unshot, m_k[:, bs].reshape(NB, -1), r.reshape((-1,) + shape), alb_k)
         received[:] += rec
         return rec, rsub
 
-    rec1, rsub1 = shoot_peaked(lambda bs: ((alb_s * q[bs])[:, None] * r_sun_s.reshape(1, -1))
-                               .reshape((len(bs),) + shape), wq)
-    w2 = np.einsum("ibja,ja->ib", phase.sub_sub_phase_matrix(g_s, first_sub), rsub1)
-    w2 = np.where(w2.sum(1, keepdims=True) > 0, w2 / np.maximum(w2.sum(1, keepdims=True), 1e-300),
-                  1.0 / w2.shape[1])
-    second = unshot.copy()
-    unshot[:] = 0.0
-    rec2, _ = shoot_peaked(lambda bs: second[bs], w2)
-    del second
+    rec, rsub = shoot_peaked(lambda bs: ((albedo * q[bs])[:, None] * r_sun.reshape(1, -1))
+                             .reshape((len(bs),) + shape), wq, sun_profile, real_orders > 0)
+    peaked, pweights = [rec], [wq]
+    for k in range(1, int(peaked_orders)):
+        wk = np.einsum("ibja,ja->ib", phase.sub_sub_phase_matrix(g if k <= real_orders else g_s, first_sub), rsub)
+        wk = np.where(wk.sum(1, keepdims=True) > 0, wk / np.maximum(wk.sum(1, keepdims=True), 1e-300),
+                      1.0 / wk.shape[1])
+        nxt = unshot.copy()
+        unshot[:] = 0.0
+        prof = unshot_profile(nxt.sum(0, dtype=np.float64))
+        if umom is not None:
+            umom[:] = 0.0
+        rec, rsub = shoot_peaked(lambda bs: nxt[bs], wk, prof, k < real_orders)
+        peaked.append(rec)
+        pweights.append(wk)
+        del nxt, prof
 
     # The sky: binned beams entering through the boundary, travelling downward.
     if sky_radiance > 0:
@@ -408,7 +545,9 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
             down = dirs[bs][..., 2] < 0
             area = np.prod([h[o] for o in range(3) if o != cc])
             sky_in = sky_radiance * wabs[bs] * np.abs(dirs[bs][..., cc]) * area * down
-            r, tot, ex = _sweep(sig_s, h, dirs[bs], wsub[bs], None, sky_in, periodic, axis)
+            r, tot, ex, mom = _sweep(sig_s, h, dirs[bs], wsub[bs], None, sky_in, periodic, axis,
+                                     moments=umom is not None)
+            keep_moments(mom, 0.0, None)
             received[bs] += r.astype(np.float32)
             total[bs] += tot.astype(np.float32)
             exit_flux[bs] += ex
@@ -421,15 +560,18 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
 
     passes = 0
     converged = residual <= tol
-    # transmittance caches per group (float32, 2 x beams x voxels each) when they fit
-    fits = 2 * NB * dirs.shape[1] * sigma.size <= 1 << 27
+    # transmittance caches per group (float32, 3 x beams x voxels each) when they fit
+    fits = 3 * NB * dirs.shape[1] * sigma.size <= 1 << 27
     caches = [{} if fits else None for _ in groups]
     while not converged and passes < int(max_passes):
         passes += 1
         for gi, (axis, bs) in enumerate(groups):
-            r, tot, ex = _sweep(sig_s, h, dirs[bs], wsub[bs], unshot[bs], np.zeros(wsub[bs].shape),
-                                periodic, axis, caches[gi])
+            shot = unshot[bs].sum(0, dtype=np.float64) if umom is not None else None
+            prof = unshot_profile(unshot.sum(0, dtype=np.float64)) if umom is not None else None
+            r, tot, ex, mom = _sweep(sig_s, h, dirs[bs], wsub[bs], unshot[bs], np.zeros(wsub[bs].shape),
+                                     periodic, axis, caches[gi], profile=prof, moments=umom is not None)
             unshot[bs] = 0.0
+            keep_moments(mom, shot, prof)
             received[bs] += r.astype(np.float32)
             total[bs] += tot.astype(np.float32)
             exit_flux[bs] += ex
@@ -442,11 +584,11 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
         sigma=sigma.astype(np.float32), size=size, albedo=float(albedo), g=float(g),
         sun_dir=tuple(float(v) for v in sun), sun_irradiance=float(sun_irradiance),
         sky_radiance=float(sky_radiance), received=received, total=total,
-        received_sun=r_sun.astype(np.float32), received_peaked=np.stack([rec1, rec2]),
-        peaked_weights=np.stack([wq, w2]).astype(np.float32), unshot=unshot, exit_flux=exit_flux,
+        received_sun=r_sun.astype(np.float32), received_peaked=np.stack(peaked),
+        peaked_weights=np.stack(pweights).astype(np.float32), unshot=unshot, exit_flux=exit_flux,
         sun_exit=sun_exit, injected=injected, passes=passes, residual=residual,
         converged=bool(converged), history=history, sub=int(sub), periodic=periodic,
-        albedo_binned=float(alb_s), g_binned=float(g_s), delta_f=float(f))
+        albedo_binned=float(alb_s), g_binned=float(g_s), delta_f=float(f), real_orders=real_orders)
 
 
 def solve(sigma, size, progress=None, **kw):
@@ -566,10 +708,12 @@ def view_source(sol, camera_position, chunk=1 << 15):
         ww = w[s:s + chunk]
         rest = rec[:, s:s + chunk] - peaked[:, :, s:s + chunk].sum(0)
         acc = np.einsum("nj,jn->n", phase.bin_phase_toward(ww, sol.g), rest)
+        out[s:s + chunk] += diffuse * acc
         for k in range(len(peaked)):
             pk = phase.bin_phase_toward(ww, sol.g, res=48, sub=sub, weights=fw[k])
-            acc += np.einsum("nj,jn->n", pk, peaked[k][:, s:s + chunk])
-        out[s:s + chunk] += diffuse * acc
+            # flights in the real medium: L_j = R_j / (sigma V Omega_j), scattered by albedo
+            fac = sol.albedo if k < sol.real_orders else diffuse
+            out[s:s + chunk] += fac * np.einsum("nj,jn->n", pk, peaked[k][:, s:s + chunk])
     return (out / vol).reshape(shape).astype(np.float32)
 
 

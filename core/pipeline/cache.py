@@ -57,12 +57,101 @@ def source_stamp(source):
 
 
 def default_cache_dir(blend_path=None):
-    """``<dir>/<stem>_nephele_cache`` beside a .blend, else ``$NEPHELE_CACHE`` or ``~/.cache/nephele``."""
+    """``<dir>/<stem>_nephele_cache`` beside a .blend, else ``$NEPHELE_CACHE`` or ``~/.cache/nephele``.
+
+    The shared folder (no .blend) suits content-addressed entries only (their
+    names are their contents' keys); files a scene links by name belong in
+    :func:`session_cache_dir` until the scene is saved.
+    """
     if blend_path:
         p = Path(blend_path)
         return p.parent / f"{p.stem}_nephele_cache"
     env = os.environ.get("NEPHELE_CACHE")
     return Path(env) if env else Path.home() / ".cache" / "nephele"
+
+
+_SESSION = {}
+"""``str(base) -> (pid, folder)`` of :func:`session_cache_dir`."""
+
+
+def session_cache_dir(base=None):
+    """A folder of this process alone: ``<base>/sessions/<pid>-<random token>``.
+
+    For an unsaved scene's files (baked sequences, scattering views): two
+    Blender sessions never share it, so neither can overwrite or delete the
+    other's frames.  Created on first call (``mkdir`` without ``exist_ok``: a
+    name another process already holds is never reused) and the same for the
+    rest of the process.  ``base``: default :func:`default_cache_dir`.
+    """
+    import secrets
+
+    base = Path(base) if base is not None else default_cache_dir()
+    pid, path = _SESSION.get(str(base), (None, None))
+    if pid != os.getpid():  # a forked worker gets its own folder too
+        while True:
+            path = base / "sessions" / f"{os.getpid()}-{secrets.token_hex(6)}"
+            try:
+                path.mkdir(parents=True, exist_ok=False)
+                break
+            except FileExistsError:
+                continue
+        _SESSION[str(base)] = (os.getpid(), path)
+    return path
+
+
+def tree_size(path):
+    """Bytes and number of files under ``path`` (0, 0 when absent)."""
+    total = count = 0
+    for root, _dirs, files in os.walk(path):
+        for name in files:
+            try:
+                total += os.lstat(os.path.join(root, name)).st_size
+                count += 1
+            except OSError:
+                pass
+    return total, count
+
+
+def available_memory():
+    """Bytes of memory the machine can still give (``MemAvailable`` of ``/proc/meminfo``,
+    else free pages from ``os.sysconf``; None when neither is known).  Needs no psutil,
+    which Blender does not ship."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return int(os.sysconf("SC_AVPHYS_PAGES")) * int(os.sysconf("SC_PAGE_SIZE"))
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def check_memory(need, what, *, available=None, field=None):
+    """Raise :class:`~.errors.DataError` when ``need`` bytes exceed the memory available.
+
+    Called before any large allocation (bakes, resampling, scattering solves), so
+    an impossible request fails with one clear line instead of the machine
+    swapping or the process being killed.
+    """
+    from ..errors import DataError
+
+    have = available_memory() if available is None else available
+    if have is not None and need > have:
+        raise DataError(f"{what} needs about {format_bytes(need)} of memory, more than the "
+                        f"{format_bytes(have)} this machine has available", field=field)
+    return need
+
+
+def format_bytes(n):
+    """``1536`` → ``"1.5 KB"`` (decimal units, as file managers show)."""
+    n = float(n)
+    for unit in ("B", "KB", "MB", "GB", "TB"):
+        if abs(n) < 1000.0 or unit == "TB":
+            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
+        n /= 1000.0
 
 
 class Cache:

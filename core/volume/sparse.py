@@ -70,7 +70,9 @@ class CurvilinearField:
     from 0), ``lat``, ``height`` ``(nk, nj, ni)`` and each array in ``values``
     are the grid's, with a copy of the first column appended at +360° when
     the longitudes are periodic, and a pole row (mean of the nearest row) at
-    ±90° when a periodic grid stops short of a pole.
+    ±90° when a periodic grid stops short of a pole.  ``rotation`` is the
+    grid's rotated-pole matrix (:attr:`GlobeGrid.rotation`): points are located
+    in the grid's own frame, so the field sits at its true place on the globe.
     """
 
     lon0: float
@@ -80,11 +82,12 @@ class CurvilinearField:
     values: dict
     radius: float
     exaggeration: float
+    rotation: np.ndarray = None
 
     @classmethod
     def from_grid(cls, grid, values, radius=1.0, exaggeration=DEFAULT_EXAGGERATION):
         """``values``: dict name → ``(nk, nj, ni)`` array (NaN = missing)."""
-        grid.validate()
+        grid.require_lonlat("a volume").validate()
         if not (np.isfinite(radius) and radius > 0 and np.isfinite(exaggeration) and exaggeration > 0):
             raise DataError(f"radius {radius} and exaggeration {exaggeration} must be positive", field="exaggeration")
         lon = grid.lon - grid.lon[0]
@@ -121,7 +124,7 @@ class CurvilinearField:
                         vals = {n: np.concatenate([a, rings[n][:, None]], axis=1) for n, a in vals.items()}
         if np.any(np.diff(height, axis=0) <= 0):
             raise DataError("levels are not strictly increasing upward", field="height")
-        return cls(float(grid.lon[0]), lon, lat, height, vals, float(radius), float(exaggeration))
+        return cls(float(grid.lon[0]), lon, lat, height, vals, float(radius), float(exaggeration), grid.rotation)
 
     @property
     def shape(self):
@@ -190,6 +193,8 @@ class CurvilinearField:
     def _locate_inside(self, xyz, table):
         """:meth:`locate` for the points inside only: ``(sel, flat, fk, fj, fi, h)``,
         ``sel`` the indices of the inside points, ``h`` the heights of all."""
+        if self.rotation is not None:
+            xyz = xyz @ self.rotation
         x, y, z = xyz[:, 0], xyz[:, 1], xyz[:, 2]
         rxy2 = x * x + y * y
         lon, i, fi = self._lon_index(x, y)
@@ -311,7 +316,8 @@ class CurvilinearField:
         lam = np.deg2rad(self.lon + self.lon0)[None, None, :]
         phi = np.deg2rad(self.lat)[None, :, None]
         cphi = np.cos(phi)
-        return np.stack(np.broadcast_arrays(r * cphi * np.cos(lam), r * cphi * np.sin(lam), r * np.sin(phi)), axis=-1)
+        pts = np.stack(np.broadcast_arrays(r * cphi * np.cos(lam), r * cphi * np.sin(lam), r * np.sin(phi)), axis=-1)
+        return pts if self.rotation is None else pts @ self.rotation.T
 
 
 class _IndexTable:
@@ -614,7 +620,7 @@ def _near_candidates(field, table, blocks, sub, voxel_size):
         return keep
     c = (blocks.astype(np.float64) * sub + 0.5 * (sub - 1)) * voxel_size
     R = 0.5 * (sub - 1) * np.sqrt(3.0) * voxel_size * 1.001 + 1e-12
-    lon, lat, r = xyz_to_lonlat(c)
+    lon, lat, r = xyz_to_lonlat(c if field.rotation is None else c @ field.rotation)
     h = height_from_radius(r, field.radius, field.exaggeration)
     dh = R / height_scale(field.exaggeration, field.radius)
     theta = np.rad2deg(np.arcsin(np.minimum(R / np.maximum(r, R), 1.0)))
@@ -742,8 +748,13 @@ def resample(
         X, Y, Z = ((b[:, a, None] * sub + np.arange(sub)) * voxel_size for a in range(3))
         X, Y, Z = X[:, :, None, None], Y[:, None, :, None], Z[:, None, None, :]
         full = (b.shape[0], sub, sub, sub)
-        lon, i, fi = (np.broadcast_to(a, full).reshape(-1) for a in field._lon_index(X, Y))
-        lat, h = (np.broadcast_to(a, full).reshape(-1) for a in field._lat_height(X * X + Y * Y, Z))
+        if field.rotation is None:
+            lon, i, fi = (np.broadcast_to(a, full).reshape(-1) for a in field._lon_index(X, Y))
+            lat, h = (np.broadcast_to(a, full).reshape(-1) for a in field._lat_height(X * X + Y * Y, Z))
+        else:  # a rotated-pole grid: locate in its own frame, where lon/lat no longer split by axis
+            P = np.stack(np.broadcast_arrays(X, Y, Z), axis=-1).reshape(-1, 3) @ field.rotation
+            lon, i, fi = field._lon_index(P[:, 0], P[:, 1])
+            lat, h = field._lat_height(P[:, 0] ** 2 + P[:, 1] ** 2, P[:, 2])
         sel, flat, fk, fj, fi, h = field._locate_columns(lon, i, fi, lat, h, table)
         nvox = lat.size
         dens = np.zeros(nvox, dtype=np.float32)

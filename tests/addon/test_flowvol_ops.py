@@ -15,7 +15,7 @@ _DS = SyntheticClimate(ni=64, nj=32, nk=4, days=1, seed=0)
 @pytest.fixture
 def flowvol_scene(empty_scene, monkeypatch):
     # The add-on (registered by the conftest's empty_scene) brings the classes and scene properties.
-    monkeypatch.setattr(fo, "_velocity", lambda props: ClimateVelocity(_DS, exaggeration=props.exaggeration))
+    monkeypatch.setattr(fo, "_velocity", lambda source, exaggeration: ClimateVelocity(_DS, exaggeration=exaggeration))
     p = empty_scene.nephele_flowvol
     p.hours, p.sides, p.steps, p.tolerance, p.live = 6.0, 12, 4, 0.03, False
     yield empty_scene
@@ -45,6 +45,33 @@ def test_operator_builds_the_core_surface_and_rebuilds_on_move(flowvol_scene):
     smoke.data.vertices.foreach_get("co", co2)
     assert np.linalg.norm(co2.reshape(-1, 3).mean(axis=0) - np.array(gen.location)) < np.linalg.norm(co.reshape(-1, 3).mean(axis=0) - np.array(gen.location))
     assert "tets" in p.status and len(smoke.data.polygons) != before
+
+
+def test_smoke_flows_with_the_frames(flowvol_scene):
+    """With "Flow with the frames" frame f shows the air released in the window moved on by (f - 1) h/frame."""
+    scene, p = flowvol_scene, flowvol_scene.nephele_flowvol
+    assert p.follow_frame
+    assert bpy.ops.nephele.add_flow_volume() == {"FINISHED"}
+    gen, smoke = bpy.data.objects[fo.GENERATOR], bpy.data.objects[fo.SMOKE]
+    vel = ClimateVelocity(_DS)
+    centre = np.array(gen.matrix_world.translation)
+
+    def smoke_vertices():
+        co = np.empty(len(smoke.data.vertices) * 3, np.float32)
+        smoke.data.vertices.foreach_get("co", co)
+        return co.reshape(-1, 3)
+
+    first = smoke_vertices()
+    scene.frame_set(7)  # 1 h per frame: the window [0, 6] h moves to [6, 12] h
+    fv = flow_volume(vel, centre, p.radius, p.hours, sides=p.sides, rings=1, t0=6.0, tol=p.tolerance, steps=p.steps)
+    assert np.allclose(smoke_vertices(), fv.surface.vertices, atol=1e-6)
+    assert "released 6-12 h" in smoke["nephele_status"]
+    scene.frame_set(1)
+    assert np.allclose(smoke_vertices(), first, atol=1e-6)
+    p.follow_frame = False
+    assert bpy.ops.nephele.update_flow_volume() == {"FINISHED"}
+    scene.frame_set(7)  # without it the smoke stays the release [start, start + hours]
+    assert np.allclose(smoke_vertices(), first, atol=1e-6)
 
 
 def test_update_without_generator_fails_cleanly(flowvol_scene):

@@ -10,7 +10,7 @@ from nephele.core.climate.readers import open_dataset
 DATA = __import__("pathlib").Path(__file__).resolve().parents[2] / "data"
 
 
-def test_polar_stereographic_grib2_is_refused_in_one_line():
+def test_polar_stereographic_grib2_single_level_is_refused_in_one_line():
     eccodes = pytest.importorskip("eccodes")
     pytest.importorskip("cfgrib")
     path = DATA / "polar_stereo.grib2"
@@ -19,9 +19,53 @@ def test_polar_stereographic_grib2_is_refused_in_one_line():
         grid, edition = eccodes.codes_get(h, "gridType"), eccodes.codes_get(h, "edition")
         eccodes.codes_release(h)
     assert (grid, edition) == ("polar_stereographic", 2)
-    with pytest.raises(DataError, match=r"polar_stereo.grib2: field 't': grid type 'polar_stereographic' .* not supported") as err:
+    # The projected grid is read now; the file's one field on one level is not a 3-D field.
+    with pytest.raises(DataError, match=r"polar_stereo.grib2: field 'variables': no 3-D field") as err:
         open_dataset(path)
     assert "\n" not in str(err.value)
+
+
+def test_polar_stereographic_grib2_levels_as_a_curvilinear_grid(tmp_path):
+    """The real message cloned onto three pressure levels: a 3-D field on the projected grid."""
+    eccodes = pytest.importorskip("eccodes")
+    pytest.importorskip("cfgrib")
+    from nephele.core.surface.contour import isosurface
+
+    out = tmp_path / "ps3.grib2"
+    with open(DATA / "polar_stereo.grib2", "rb") as f:
+        src = eccodes.codes_grib_new_from_file(f)
+    ni, nj = eccodes.codes_get(src, "Nx"), eccodes.codes_get(src, "Ny")
+    lats = eccodes.codes_get_array(src, "latitudes").reshape(nj, ni)
+    lons = eccodes.codes_get_array(src, "longitudes").reshape(nj, ni)
+    base = eccodes.codes_get_values(src).reshape(nj, ni)
+    with open(out, "wb") as w:
+        for k, p in enumerate((1000, 850, 500)):
+            h = eccodes.codes_clone(src)
+            eccodes.codes_set(h, "typeOfFirstFixedSurface", 100)
+            eccodes.codes_set(h, "level", p)
+            eccodes.codes_set_values(h, (base - 10.0 * k).ravel())
+            eccodes.codes_write(h, w)
+            eccodes.codes_release(h)
+    eccodes.codes_release(src)
+    ds = open_dataset(out)
+    g = ds.grid
+    assert g.curvilinear and g.shape == (3, nj, ni)
+    # Columns at ecCodes' own latitudes/longitudes (rows possibly reversed to keep the grid right-handed).
+    rows = slice(None) if np.allclose(g.lat2d[0], lats[0]) else slice(None, None, -1)
+    np.testing.assert_allclose(g.lat2d, lats[rows], atol=1e-9)
+    np.testing.assert_allclose((g.lon2d - lons[rows] + 180) % 360 - 180, 0.0, atol=1e-9)
+    t = ds.read("temperature", 0)
+    with open(out, "rb") as f:  # what ecCodes decodes from each written (re-packed) message
+        written = []
+        while (h := eccodes.codes_grib_new_from_file(f)) is not None:
+            written.append(eccodes.codes_get_values(h).reshape(nj, ni))
+            eccodes.codes_release(h)
+    for k in range(3):
+        np.testing.assert_allclose(t[k], written[k][rows], rtol=1e-7)
+    np.testing.assert_allclose(t[2], base[rows] - 20.0, atol=0.01)  # the message's packing step
+    level = float(np.nanmedian(t[1]))
+    mesh = isosurface(g.points(), t, level)
+    assert len(mesh.faces) > 1000
 
 
 def _write_grib(path, t_levels, levels_hpa, lon, lat_north_to_south, step=0, mode="wb"):

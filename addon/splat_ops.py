@@ -1,0 +1,464 @@
+"""Splats with a flowing wind texture (Fig. 3): one view-facing quad per sample.
+
+"Add wind splats" turns every sample of the scene's dataset whose opacity
+(the transfer function of the cloud field) is above zero into a splat.  The
+object is a mesh of points only; each point carries the splat's centre, the
+rows of its inverse cell Jacobian (world offsets to unit-kernel offsets),
+its opacity, colour and wind as point attributes written with
+``foreach_set``.  A Geometry Nodes modifier puts a quad on every point
+facing the scene's active camera, sized to the bounding box of the
+ellipsoid's shadow in the view plane, and sorts the points back to front
+(EEVEE blends one object's faces in their order).  The material computes
+the exact ray integral of the kernel through each shading point:
+
+``q = M (x - c)`` projected off ``m = M v``, footprint ``F(|q|) / |m|``
+
+with ``F`` the unit kernel's radial footprint table (an image), so the
+same material is right for orthographic and perspective views.  The splat's
+alpha is ``1 - exp(-opacity * footprint * streak)``; the streak texture is
+one of ``N`` phase-shifted maps (tiles of one image) laid along the wind
+projected on the view plane, chosen per splat from the model time, so the
+streaks move downwind as the frames advance.  The frame updater refills
+the points for the frame's model time, as the contours do.
+
+References
+----------
+.. [1] N. Max and R. Crawfis, "Advances in Scientific Visualization", Fig. 3.
+.. [2] L. Westover, "Footprint evaluation for volume rendering", SIGGRAPH 1990.
+.. [3] R. Crawfis and N. Max, "Texture splats for 3D scalar and vector field
+   visualization", IEEE Visualization 1993.
+"""
+
+import zlib
+
+import numpy as np
+
+import bpy
+
+from . import frame
+from .mesh import point_attribute, set_point_attribute
+from .panel import SubPanel
+
+KIND = "splats"
+GROUP_NAME = "Nephele Splats"
+OBJECT_NAME = "Nephele Splats"
+CENTER, M0, M1, M2, AXES = "splat_center", "splat_m0", "splat_m1", "splat_m2", "splat_axis"
+OPACITY, COLOR, WIND, SPEED, PHASE = "splat_opacity", "splat_color", "splat_wind", "splat_speed", "splat_phase"
+TIME_NODE = "Nephele splat time"
+
+
+# ---------------------------------------------------------------- points
+
+
+def fill_points(me, splats, phase=None):
+    """Replace ``me`` by one vertex per splat carrying the splat's attributes.
+
+    Parameters
+    ----------
+    me : bpy.types.Mesh
+    splats : nephele.core.splats.Splats
+        ``centers`` (object space), ``axes`` (principal semi-axes of the
+        cut-off ellipsoid as columns), ``radius`` (cut-off, cell units),
+        ``opacity``, ``color``, ``wind`` (scene units per hour).
+    phase : (n, 2) array, optional
+        Streak texture offsets of each splat in tiles (default: zero).
+
+    Notes
+    -----
+    Attributes: ``splat_center``; ``splat_m0..2``, the rows of
+    ``R axes⁻¹`` (scene offset → cell offset); ``splat_axis0..2``, the
+    columns of ``axes`` (the quad's half-size along a unit view-plane vector
+    ``e`` is ``|axesᵀ e|``); ``splat_opacity``, ``splat_color`` (RGBA),
+    ``splat_wind``, ``splat_phase`` (2-D, stored as a vector).
+    """
+    centers = np.ascontiguousarray(splats.centers, dtype=np.float32).reshape(-1, 3)
+    n = len(centers)
+    axes = np.asarray(splats.axes, dtype=np.float64).reshape(n, 3, 3)
+    to_cells = float(splats.radius) * np.linalg.inv(axes) if n else np.zeros((0, 3, 3))
+    phase = np.zeros((n, 2)) if phase is None else np.asarray(phase, dtype=np.float64).reshape(n, 2)
+    me.clear_geometry()
+    if n:
+        me.vertices.add(n)
+        me.attributes["position"].data.foreach_set("vector", centers.ravel())
+    rgba = np.ones((n, 4), dtype=np.float32)
+    rgba[:, :3] = np.asarray(splats.color, dtype=np.float32).reshape(n, 3)
+    for name, values in (
+        (CENTER, centers),
+        (M0, to_cells[:, 0, :]), (M1, to_cells[:, 1, :]), (M2, to_cells[:, 2, :]),
+        (AXES + "0", axes[:, :, 0]), (AXES + "1", axes[:, :, 1]), (AXES + "2", axes[:, :, 2]),
+        (OPACITY, np.asarray(splats.opacity, dtype=np.float32).reshape(n)),
+        (COLOR, rgba),
+        (WIND, np.asarray(splats.wind, dtype=np.float32).reshape(n, 3)),
+        (PHASE, np.column_stack([phase, np.zeros(n)])),
+    ):
+        set_point_attribute(me, name, values)
+    me.update()
+    return me
+
+
+# ---------------------------------------------------------------- geometry nodes
+
+
+def _link(tree, src, dst):
+    tree.links.new(src, dst)
+
+
+def _gn_vmath(tree, op, a, b=None, loc=(0, 0)):
+    node = tree.nodes.new("ShaderNodeVectorMath")
+    node.operation = op
+    node.location = loc
+    for i, v in enumerate((a, b)):
+        if v is None:
+            continue
+        if isinstance(v, bpy.types.NodeSocket):
+            _link(tree, v, node.inputs[i])
+        else:
+            node.inputs[i].default_value = v
+    return node.outputs["Value" if op in ("DOT_PRODUCT", "LENGTH", "DISTANCE") else "Vector"]
+
+
+def _gn_attr(tree, name, dtype="FLOAT_VECTOR", loc=(0, 0)):
+    node = tree.nodes.new("GeometryNodeInputNamedAttribute")
+    node.data_type = dtype
+    node.inputs["Name"].default_value = name
+    node.location = loc
+    return node.outputs["Attribute"]
+
+
+def splat_node_group(material):
+    """Geometry nodes: a camera-facing quad per point, sorted back to front, realized.
+
+    The quad lies in the active camera's x-y plane with half-sizes
+    ``|axesᵀ e_x|`` and ``|axesᵀ e_y|``: the bounding box of the cut-off
+    ellipsoid's shadow along the view.  Point attributes carry over to the
+    quad's corners for ``material`` (set on the quads: generated geometry
+    has no material of its own).
+    """
+    name = f"{GROUP_NAME} {material.name}"
+    ng = bpy.data.node_groups.get(name)
+    if ng is not None:
+        bpy.data.node_groups.remove(ng)
+    ng = bpy.data.node_groups.new(name, "GeometryNodeTree")
+    ng.interface.new_socket(name="Geometry", in_out="INPUT", socket_type="NodeSocketGeometry")
+    ng.interface.new_socket(name="Geometry", in_out="OUTPUT", socket_type="NodeSocketGeometry")
+    gin = ng.nodes.new("NodeGroupInput")
+    gin.location = (-1400, 0)
+    gout = ng.nodes.new("NodeGroupOutput")
+    gout.location = (1000, 0)
+    cam = ng.nodes.new("GeometryNodeInputActiveCamera")
+    cam.location = (-1400, -300)
+    info = ng.nodes.new("GeometryNodeObjectInfo")
+    info.transform_space = "RELATIVE"  # the camera in this object's space, where the attributes are
+    info.location = (-1200, -300)
+    _link(ng, cam.outputs[0], info.inputs["Object"])
+    rot = info.outputs["Rotation"]
+
+    def cam_axis(v, y):
+        node = ng.nodes.new("FunctionNodeRotateVector")
+        node.location = (-1000, y)
+        node.inputs["Vector"].default_value = v
+        _link(ng, rot, node.inputs["Rotation"])
+        return node.outputs[0]
+
+    ex, ey, ez = cam_axis((1, 0, 0), -300), cam_axis((0, 1, 0), -450), cam_axis((0, 0, 1), -600)
+
+    def half_size(e, y):
+        comps = [_gn_vmath(ng, "DOT_PRODUCT", _gn_attr(ng, AXES + str(k), loc=(-1000, y - 60 * k)), e,
+                           loc=(-800, y - 60 * k)) for k in range(3)]
+        comb = ng.nodes.new("ShaderNodeCombineXYZ")
+        comb.location = (-600, y)
+        for k in range(3):
+            _link(ng, comps[k], comb.inputs[k])
+        return _gn_vmath(ng, "LENGTH", comb.outputs[0], loc=(-400, y))
+
+    scale = ng.nodes.new("ShaderNodeCombineXYZ")
+    scale.location = (-200, -100)
+    _link(ng, half_size(ex, 0), scale.inputs[0])
+    _link(ng, half_size(ey, -250), scale.inputs[1])
+    scale.inputs[2].default_value = 1.0
+
+    # Back to front: the key is the depth along the camera's view (its -z).
+    pos = ng.nodes.new("GeometryNodeInputPosition")
+    pos.location = (-800, 300)
+    rel = _gn_vmath(ng, "SUBTRACT", pos.outputs[0], info.outputs["Location"], loc=(-600, 300))
+    key = _gn_vmath(ng, "DOT_PRODUCT", rel, ez, loc=(-400, 300))  # -depth: farthest first
+    sort = ng.nodes.new("GeometryNodeSortElements")
+    sort.domain = "POINT"
+    sort.location = (-200, 300)
+    _link(ng, gin.outputs[0], sort.inputs["Geometry"])
+    _link(ng, key, sort.inputs["Sort Weight"])
+
+    quad = ng.nodes.new("GeometryNodeMeshGrid")
+    quad.location = (0, -300)
+    quad.inputs["Size X"].default_value = 2.0
+    quad.inputs["Size Y"].default_value = 2.0
+    quad.inputs["Vertices X"].default_value = 2
+    quad.inputs["Vertices Y"].default_value = 2
+    inst = ng.nodes.new("GeometryNodeInstanceOnPoints")
+    inst.location = (200, 0)
+    _link(ng, sort.outputs[0], inst.inputs["Points"])
+    _link(ng, quad.outputs["Mesh"], inst.inputs["Instance"])
+    _link(ng, rot, inst.inputs["Rotation"])
+    _link(ng, scale.outputs[0], inst.inputs["Scale"])
+    real = ng.nodes.new("GeometryNodeRealizeInstances")
+    real.location = (500, 0)
+    _link(ng, inst.outputs[0], real.inputs["Geometry"])
+    setmat = ng.nodes.new("GeometryNodeSetMaterial")
+    setmat.location = (750, 0)
+    _link(ng, real.outputs[0], setmat.inputs["Geometry"])
+    setmat.inputs["Material"].default_value = material
+    _link(ng, setmat.outputs[0], gout.inputs[0])
+    return ng
+
+
+def add_modifier(obj, material):
+    """Give ``obj`` the splat Geometry Nodes modifier (once) drawing with ``material``."""
+    mod = obj.modifiers.get("Nephele splats") or obj.modifiers.new("Nephele splats", "NODES")
+    mod.node_group = splat_node_group(material)
+    return mod
+
+
+# ---------------------------------------------------------------- material
+
+
+def _sh_vmath(tree, op, a, b=None, loc=(0, 0)):
+    node = tree.nodes.new("ShaderNodeVectorMath")
+    node.operation = op
+    node.location = loc
+    for i, v in enumerate((a, b)):
+        if v is None:
+            continue
+        if isinstance(v, bpy.types.NodeSocket):
+            tree.links.new(v, node.inputs[i])
+        else:
+            node.inputs[i].default_value = v
+    return node.outputs["Value" if op in ("DOT_PRODUCT", "LENGTH", "DISTANCE") else "Vector"]
+
+
+def _sh_math(tree, op, a, b=None, c=None, loc=(0, 0)):
+    node = tree.nodes.new("ShaderNodeMath")
+    node.operation = op
+    node.location = loc
+    for i, v in enumerate((a, b, c)):
+        if v is None:
+            continue
+        if isinstance(v, bpy.types.NodeSocket):
+            tree.links.new(v, node.inputs[i])
+        else:
+            node.inputs[i].default_value = float(v)
+    return node.outputs[0]
+
+
+def _sh_attr(tree, name, loc, out="Vector"):
+    node = tree.nodes.new("ShaderNodeAttribute")
+    node.attribute_name = name
+    node.location = loc
+    return node.outputs[out]
+
+
+def data_image(name, values):
+    """A float, non-colour image holding ``values`` ((h, w) or (h, w, 4)), packed into the .blend."""
+    values = np.asarray(values, dtype=np.float32)
+    if values.ndim == 2:
+        values = np.repeat(values[..., None], 4, axis=2)
+        values[..., 3] = 1.0
+    h, w = values.shape[:2]
+    img = bpy.data.images.get(name)
+    if img is not None and (img.size[0], img.size[1]) != (w, h):
+        bpy.data.images.remove(img)
+        img = None
+    if img is None:
+        img = bpy.data.images.new(name, w, h, alpha=True, float_buffer=True)
+    img.colorspace_settings.name = "Non-Color"
+    img.alpha_mode = "CHANNEL_PACKED"
+    img.pixels.foreach_set(np.ascontiguousarray(values).ravel())
+    img.pack()
+    return img
+
+
+def footprint_image(kernel, size=1024):
+    """The kernel's radial footprint as a ``size × 1`` float image, linear in ``ρ²``.
+
+    Texel ``i`` holds ``kernel.footprint`` at ``ρ² = R² i / (size - 1)``
+    (the core renderer's lookup is linear in ``ρ²`` too); a lookup past the
+    last texel's centre clips to zero.
+    """
+    rho = np.sqrt(np.linspace(0.0, kernel.radius**2, int(size)))
+    table = kernel.footprint(np.column_stack([rho, np.zeros_like(rho)]))
+    return data_image(f"Nephele footprint {kernel.kind} R{kernel.radius:g} s{kernel.sigma:g} w{kernel.window}",
+                      table[None, :])
+
+
+def streaks_image(maps):
+    """The ``n`` streak maps side by side, each padded by one wrapped texel per side.
+
+    The padding gives bilinear filtering each map's own periodic neighbour at
+    its edges instead of the next map's.
+    """
+    maps = np.asarray(maps, dtype=np.float32)
+    n, size, _ = maps.shape
+    padded = np.pad(maps, ((0, 0), (1, 1), (1, 1)), mode="wrap")
+    atlas = np.concatenate(list(padded), axis=1)  # rows = v, columns = u, map k at columns k(size+2)...
+    return data_image(f"Nephele streaks {n}x{size} {zlib.crc32(maps.tobytes()):08x}", atlas)
+
+
+def splat_material(name, footprint, kernel_radius, *, extinction=1.0, streaks=None, n_maps=1, tile=0.1,
+                   contrast=0.0, streak_mean=1.0):
+    """The splat material (see the module docstring); rebuilt in place if it exists.
+
+    Parameters
+    ----------
+    footprint : bpy.types.Image
+        From :func:`footprint_image`.
+    kernel_radius : float
+        The kernel's cut-off in cell units.
+    extinction : float
+        Extinction per scene unit at opacity 1 (node "Nephele extinction").
+    streaks : bpy.types.Image, optional
+        From :func:`streaks_image` (``n_maps`` maps); None: no streaks.
+    tile : float
+        Scene units along the projected wind covered by one streak map.
+    contrast : float
+        0: no streaks; 1: optical depth × map / ``streak_mean``.
+
+    Notes
+    -----
+    The model time in hours (which picks each splat's streak map) is the
+    value node "Nephele splat time", set by the frame updater.
+    """
+    mat = bpy.data.materials.get(name) or bpy.data.materials.new(name)
+    if mat.node_tree is None:
+        mat.use_nodes = True
+    tree = mat.node_tree
+    tree.nodes.clear()
+    # EEVEE: blended in the geometry nodes' back-to-front order; Cycles: exact transparency.
+    mat.surface_render_method = "BLENDED"
+    mat.use_transparency_overlap = True
+    mat.use_backface_culling = False
+
+    tc = tree.nodes.new("ShaderNodeTexCoord")
+    tc.location = (-2200, 200)
+    geo = tree.nodes.new("ShaderNodeNewGeometry")
+    geo.location = (-2200, -200)
+    d = _sh_vmath(tree, "SUBTRACT", tc.outputs["Object"], _sh_attr(tree, CENTER, (-2200, 0)), loc=(-2000, 100))
+    view = geo.outputs["Incoming"]  # unit, towards the viewer; the object is not rotated
+    rows = [_sh_attr(tree, m, (-2000, -100 - 150 * i)) for i, m in enumerate((M0, M1, M2))]
+
+    def to_cells(vec, y):
+        comb = tree.nodes.new("ShaderNodeCombineXYZ")
+        comb.location = (-1600, y)
+        for i, row in enumerate(rows):
+            tree.links.new(_sh_vmath(tree, "DOT_PRODUCT", row, vec, loc=(-1800, y - 60 * i)), comb.inputs[i])
+        return comb.outputs[0]
+
+    u = to_cells(d, 300)  # the shading point's cell offset
+    m = to_cells(view, -300)  # the view direction in cell units per scene unit
+    mm = _sh_vmath(tree, "DOT_PRODUCT", m, m, loc=(-1400, -300))
+    um = _sh_vmath(tree, "DOT_PRODUCT", u, m, loc=(-1400, 0))
+    tm = _sh_vmath(tree, "SCALE", m, None, loc=(-1000, -100))
+    tree.links.new(_sh_math(tree, "DIVIDE", um, mm, loc=(-1200, 0)), tm.node.inputs["Scale"])
+    q = _sh_vmath(tree, "SUBTRACT", u, tm, loc=(-800, 100))  # off the view line through the shading point
+    rho2 = _sh_vmath(tree, "DOT_PRODUCT", q, q, loc=(-600, 100))
+
+    # F(ρ²): texel i's centre (i + 0.5)/n holds ρ² = R² i / (n - 1).
+    n = footprint.size[0]
+    uvx = _sh_math(tree, "MULTIPLY_ADD", rho2, (n - 1) / (n * float(kernel_radius) ** 2), 0.5 / n, loc=(-400, 100))
+    tex = _image_lookup(tree, footprint, uvx, 0.5, "Nephele footprint", (0, 100))
+    fp = _sh_math(tree, "MULTIPLY", tex, _sh_math(tree, "INVERSE_SQRT", mm, loc=(0, -200)), loc=(250, 0))
+    ext = tree.nodes.new("ShaderNodeValue")
+    ext.name = ext.label = "Nephele extinction"
+    ext.outputs[0].default_value = float(extinction)
+    ext.location = (250, -300)
+    tau = _sh_math(tree, "MULTIPLY", fp, _sh_attr(tree, OPACITY, (250, -450), out="Fac"), loc=(450, 0))
+    tau = _sh_math(tree, "MULTIPLY", tau, ext.outputs[0], loc=(600, 0))
+    if streaks is not None and contrast > 0:
+        t = streak_nodes(tree, streaks, n_maps, d, view, tile, location=(-600, -900))
+        gain = _sh_math(tree, "MULTIPLY_ADD", t, float(contrast) / float(streak_mean), 1.0 - float(contrast),
+                        loc=(600, -600))
+        tau = _sh_math(tree, "MULTIPLY", tau, gain, loc=(750, 0))
+    # alpha = 1 - exp(-τ): the splat's slab of optical depth τ.
+    minus = _sh_math(tree, "MULTIPLY", tau, -1.0, loc=(900, -100))
+    alpha = _sh_math(tree, "SUBTRACT", 1.0, _sh_math(tree, "EXPONENT", minus, loc=(1050, -100)), loc=(1200, 0))
+    emit = tree.nodes.new("ShaderNodeEmission")
+    emit.location = (1200, -300)
+    tree.links.new(_sh_attr(tree, COLOR, (1000, -400), out="Color"), emit.inputs["Color"])
+    transp = tree.nodes.new("ShaderNodeBsdfTransparent")
+    transp.location = (1200, -150)
+    mix = tree.nodes.new("ShaderNodeMixShader")
+    mix.location = (1400, 0)
+    tree.links.new(alpha, mix.inputs[0])
+    tree.links.new(transp.outputs[0], mix.inputs[1])
+    tree.links.new(emit.outputs[0], mix.inputs[2])
+    out = tree.nodes.new("ShaderNodeOutputMaterial")
+    out.location = (1600, 0)
+    tree.links.new(mix.outputs[0], out.inputs["Surface"])
+    return mat
+
+
+def _image_lookup(tree, image, x, y, name, loc):
+    """Red channel of ``image`` at texture coordinates (``x``, ``y``): bilinear, zero outside."""
+    uv = tree.nodes.new("ShaderNodeCombineXYZ")
+    uv.location = (loc[0] - 200, loc[1])
+    for i, v in enumerate((x, y)):
+        if isinstance(v, bpy.types.NodeSocket):
+            tree.links.new(v, uv.inputs[i])
+        else:
+            uv.inputs[i].default_value = float(v)
+    tex = tree.nodes.new("ShaderNodeTexImage")
+    tex.name = tex.label = name
+    tex.image = image
+    tex.interpolation = "Linear"
+    tex.extension = "CLIP"
+    tex.location = loc
+    tree.links.new(uv.outputs[0], tex.inputs["Vector"])
+    sep = tree.nodes.new("ShaderNodeSeparateColor")
+    sep.location = (loc[0] + 300, loc[1])
+    tree.links.new(tex.outputs["Color"], sep.inputs[0])
+    return sep.outputs[0]
+
+
+def streak_nodes(tree, image, n_maps, d, view, tile, location=(0, 0)):
+    """The streak map value at the shading point (see :func:`nephele.core.splats` conventions).
+
+    ``wp = wind - (wind·v) v``; ``e_a = wp/|wp|``, ``e_b = v × e_a``;
+    ``(a, b) = (d·e_a, d·e_b) / tile + phase``; map
+    ``k = floor(n frac(|wp| hours / tile))`` at ``(frac a, frac b)``.
+    """
+    x, y = location
+    wind = _sh_attr(tree, WIND, (x - 600, y))
+    along = _sh_vmath(tree, "SCALE", view, None, loc=(x - 400, y - 100))
+    tree.links.new(_sh_vmath(tree, "DOT_PRODUCT", wind, view, loc=(x - 600, y - 150)), along.node.inputs["Scale"])
+    wp = _sh_vmath(tree, "SUBTRACT", wind, along, loc=(x - 200, y))
+    speed = _sh_vmath(tree, "LENGTH", wp, loc=(x, y + 150))
+    ea = _sh_vmath(tree, "NORMALIZE", wp, loc=(x, y))
+    eb = _sh_vmath(tree, "CROSS_PRODUCT", view, ea, loc=(x + 200, y - 100))
+    phase = tree.nodes.new("ShaderNodeSeparateXYZ")
+    phase.location = (x + 200, y - 300)
+    tree.links.new(_sh_attr(tree, PHASE, (x, y - 300)), phase.inputs[0])
+    inv_tile = 1.0 / float(tile)
+    a = _sh_math(tree, "MULTIPLY_ADD", _sh_vmath(tree, "DOT_PRODUCT", d, ea, loc=(x + 400, y)), inv_tile,
+                 loc=(x + 600, y))
+    tree.links.new(phase.outputs[0], a.node.inputs[2])
+    b = _sh_math(tree, "MULTIPLY_ADD", _sh_vmath(tree, "DOT_PRODUCT", d, eb, loc=(x + 400, y - 150)), inv_tile,
+                 loc=(x + 600, y - 150))
+    tree.links.new(phase.outputs[1], b.node.inputs[2])
+    hours = tree.nodes.new("ShaderNodeValue")
+    hours.name = hours.label = TIME_NODE
+    hours.location = (x, y + 300)
+    cycles = _sh_math(tree, "MULTIPLY", _sh_math(tree, "MULTIPLY", speed, hours.outputs[0], loc=(x + 200, y + 250)),
+                      inv_tile, loc=(x + 400, y + 250))
+    k = _sh_math(tree, "FLOOR", _sh_math(tree, "MULTIPLY", _sh_math(tree, "FRACT", cycles, loc=(x + 600, y + 250)),
+                                         float(n_maps), loc=(x + 800, y + 250)), loc=(x + 1000, y + 250))
+    # Padded atlas: map k's texel centres u_i = (k (s+2) + 1 + i + 0.5) / (n (s+2)), i = frac(a) s - 0.5.
+    size = image.size[1] - 2
+    width = float(n_maps * (size + 2))
+    fa = _sh_math(tree, "FRACT", a, loc=(x + 800, y))
+    fb = _sh_math(tree, "FRACT", b, loc=(x + 800, y - 150))
+    ux = _sh_math(tree, "MULTIPLY_ADD", k, (size + 2) / width, loc=(x + 1200, y + 100))
+    tree.links.new(_sh_math(tree, "MULTIPLY_ADD", fa, size / width, 1.0 / width, loc=(x + 1000, y)),
+                   ux.node.inputs[2])
+    vy = _sh_math(tree, "MULTIPLY_ADD", fb, size / (size + 2.0), 1.0 / (size + 2.0), loc=(x + 1000, y - 150))
+    return _image_lookup(tree, image, ux, vy, "Nephele streaks", (x + 1500, y))
+
+
+CLASSES = ()

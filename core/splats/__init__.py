@@ -1,0 +1,44 @@
+"""Splats with a flowing wind texture (Fig. 3): normalised kernels, footprints, streaks, a reference renderer."""
+
+from .camera import Camera
+from .kernel import KINDS, SplatKernel, footprint_table, splat_kernel
+from .render import (
+    DEFAULT_LOOP_HOURS,
+    DEFAULT_PREFILTER,
+    DEFAULT_STREAK_STRENGTH,
+    ScreenSplats,
+    project_splats,
+    ray_integral,
+    reconstruct,
+    render_splats,
+    sphere_depth,
+    streak_offsets,
+)
+from .samples import ALTITUDE, Splats, cell_jacobians, principal_axes, splat_samples
+from .streaks import streak_maps, streak_orientation, structure_tensor
+
+__all__ = [
+    "ALTITUDE",
+    "DEFAULT_LOOP_HOURS",
+    "DEFAULT_PREFILTER",
+    "DEFAULT_STREAK_STRENGTH",
+    "KINDS",
+    "Camera",
+    "ScreenSplats",
+    "SplatKernel",
+    "Splats",
+    "cell_jacobians",
+    "footprint_table",
+    "principal_axes",
+    "project_splats",
+    "ray_integral",
+    "reconstruct",
+    "render_splats",
+    "splat_kernel",
+    "sphere_depth",
+    "splat_samples",
+    "streak_maps",
+    "streak_offsets",
+    "streak_orientation",
+    "structure_tensor",
+]

@@ -1,0 +1,159 @@
+"""The artist's workflow (issue 20): what each "Add ..." does with the defaults looks right.
+
+Driven through the operators as a user clicks them; renders are tiny (Cycles CPU).
+"""
+
+import math
+
+import numpy as np
+import pytest
+
+bpy = pytest.importorskip("bpy")
+
+from bpy_extras.object_utils import world_to_camera_view  # noqa: E402
+from mathutils import Vector  # noqa: E402
+
+from nephele.addon import globe_ops  # noqa: E402
+
+LUMA = np.array([0.2126, 0.7152, 0.0722])
+
+
+def _render(scene, path, size, samples):
+    scene.render.engine = "CYCLES"
+    scene.cycles.device = "CPU"
+    scene.cycles.samples = samples
+    scene.cycles.use_denoising = False
+    scene.render.resolution_x, scene.render.resolution_y = size
+    scene.render.resolution_percentage = 100
+    scene.render.image_settings.file_format = "PNG"
+    scene.render.filepath = str(path)
+    bpy.ops.render.render(write_still=True, scene=scene.name)
+    img = bpy.data.images.load(str(path), check_existing=False)
+    px = np.array(img.pixels[:], dtype=np.float64).reshape(size[1], size[0], 4)[::-1, :, :3]
+    bpy.data.images.remove(img)
+    return px @ LUMA
+
+
+def _globe_scene(scene, haze=False):
+    ops = bpy.ops.nephele
+    assert ops.import_dataset(kind="DEMO_SMALL") == {"FINISHED"}
+    assert ops.add_globe() == {"FINISHED"}
+    assert ops.add_sky(haze=haze) == {"FINISHED"}
+
+
+def _sees(scene, cam, points):
+    """Camera-view coordinates (x, y in [0, 1] inside the frame, z > 0 in front) of ``points``."""
+    return np.array([tuple(world_to_camera_view(scene, cam, Vector(p))) for p in points])
+
+
+def test_default_camera_frames_the_whole_globe(empty_scene):
+    scene = empty_scene
+    _globe_scene(scene)
+    for size in ((1920, 1080), (640, 480), (480, 640)):
+        scene.render.resolution_x, scene.render.resolution_y = size
+        assert bpy.ops.nephele.add_camera() == {"FINISHED"}
+        cam = scene.camera
+        d = cam.location.length
+        r = globe_ops.frame_radius(scene)
+        # The globe's silhouette as seen from the camera: a circle of angular radius asin(r/d).
+        rim = _rim(cam, r, np.linspace(0, 2 * math.pi, 64, endpoint=False))
+        xyz = _sees(scene, cam, rim)
+        assert (xyz[:, 2] > 0).all()
+        assert xyz[:, :2].min() > 0.0 and xyz[:, :2].max() < 1.0, (size, d, xyz[:, :2].min(), xyz[:, :2].max())
+        # The globe fills a good part of the short side (not a dot in the middle).
+        short = min(np.ptp(xyz[:, 0]) * size[0], np.ptp(xyz[:, 1]) * size[1]) / min(size)
+        assert short > 0.8
+    # The issue's old default (distance 3.6, 50 mm) cropped even the sea-level sphere top and bottom.
+    scene.render.resolution_x, scene.render.resolution_y = 1920, 1080
+    globe_ops.add_camera(scene, distance=3.6)
+    y = _sees(scene, scene.camera, _rim(scene.camera, 1.0, [math.pi / 2, -math.pi / 2]))[:, 1]
+    assert y.max() > 1.0 and y.min() < 0.0
+
+
+def _rim(cam, r, angles):
+    """Points of the silhouette of the sphere of radius ``r`` at the origin seen from ``cam``
+    (angle 0 toward the camera's right, pi/2 its up)."""
+    d = cam.location.length
+    axis = -cam.location.normalized()
+    m = cam.matrix_world.to_3x3()
+    right, up = m @ Vector((1, 0, 0)), m @ Vector((0, 1, 0))
+    a = math.asin(r / d)
+    return [cam.location + d * math.cos(a) * (math.cos(a) * axis + math.sin(a) * (math.cos(t) * right + math.sin(t) * up))
+            for t in angles]
+
+
+def test_volume_clouds_render_bright(empty_scene, tmp_path):
+    # The issue: Add volume clouds kept Cycles' volume_bounces = 0, and the clouds
+    # rendered as flat dark-grey slabs, darker than the ground under them
+    # (measured at 64x48: cloud pixels 0.26 luminance over ground of 0.27;
+    # with the 4 bounces of examples/fig2_volume.py, 0.44).
+    scene = empty_scene
+    scene.render.resolution_x, scene.render.resolution_y = 48, 36
+    _globe_scene(scene)
+    assert bpy.ops.nephele.add_camera() == {"FINISHED"}
+    scene.cycles.volume_bounces = 0  # Blender's default, what the user had
+    scene.nephele_volume.current_only = True
+    assert bpy.ops.nephele.add_volume_clouds() == {"FINISHED"}
+    assert scene.cycles.volume_bounces >= 4
+    clouds = bpy.data.objects["Nephele Clouds"]
+    lit = _render(scene, tmp_path / "clouds.png", (48, 36), 4)
+    clouds.hide_render = True
+    ground = _render(scene, tmp_path / "ground.png", (48, 36), 4)
+    mask = np.abs(lit - ground) > 0.05
+    assert mask.sum() > 40, "no clouds in view"
+    # Clouds lit by the sun and by each other are white over a dark ocean and
+    # land: at least 30 % brighter than the ground they cover.  The dark-slab
+    # render failed this (ratio 0.97).
+    ratio = lit[mask].mean() / ground[mask].mean()
+    assert ratio > 1.3, (ratio, lit[mask].mean(), ground[mask].mean())
+
+
+def test_scattering_cloud_lands_outside_the_globe_and_is_seen(empty_scene, tmp_path):
+    scene = empty_scene
+    _globe_scene(scene)
+    assert bpy.ops.nephele.add_camera() == {"FINISHED"}
+    p = scene.nephele_scatter
+    p.resolution = (8, 8, 6)
+    p.tolerance = 1e-2
+    scene.frame_end = scene.frame_start + 1
+    assert bpy.ops.nephele.add_scattering_cloud() == {"FINISHED"}
+    cloud = bpy.data.objects["Scattering cloud"]
+    globe = bpy.data.objects[globe_ops.GLOBE_NAME]
+    r = globe_ops.frame_radius(scene)
+    # Nowhere near the Earth: in a scene without it, or wholly outside it.
+    for s in cloud.users_scene:
+        if globe.name in s.objects:
+            corners = [cloud.matrix_world @ Vector(c) for c in cloud.bound_box]
+            assert min(c.length for c in corners) > r
+    cloud_scene = cloud.users_scene[0]
+    assert globe.name not in cloud_scene.objects
+    # Its scene's camera sees it, and the render shows it.
+    cam = cloud_scene.camera
+    centre = cloud.matrix_world @ (sum((Vector(c) for c in cloud.bound_box), Vector()) / 8)
+    x, y, z = _sees(cloud_scene, cam, [centre])[0]
+    assert z > 0 and 0 < x < 1 and 0 < y < 1
+    img = _render(cloud_scene, tmp_path / "scatter.png", (32, 24), 4)
+    assert img.max() > 0.05 and (img > 0.02).mean() > 0.1
+
+
+def test_dome_camera_sits_outside_the_globe_and_looks_at_it(empty_scene, tmp_path):
+    scene = empty_scene
+    _globe_scene(scene)
+    scene.cursor.location = (0.0, 0.0, 0.0)  # the globe's centre, where the issue's rig landed
+    assert bpy.ops.nephele.add_dome_camera(preset="domemaster", width=32, height=32) == {"FINISHED"}
+    rig = bpy.data.objects["DomeRig"]
+    cam = scene.camera
+    r = globe_ops.frame_radius(scene)
+    assert rig.matrix_world.translation.length > 1.5 * r
+    # The lens axis (the camera's -Z) points at the globe's centre.
+    look = cam.matrix_world.to_3x3() @ Vector((0, 0, -1))
+    to_globe = -cam.matrix_world.translation
+    assert math.degrees(look.angle(to_globe)) < 1.0
+    # The 180 deg fisheye frame shows the lit globe in the middle, space around it.
+    img = _render(scene, tmp_path / "dome.png", (32, 32), 4)
+    centre, corner = img[12:20, 12:20].mean(), img[:4, :4].mean()
+    assert centre > 0.05 and centre > 5 * corner
+    # A cursor the artist placed outside the globe is kept.
+    scene.cursor.location = (0.0, -5.0, 0.0)
+    assert bpy.ops.nephele.add_dome_camera(preset="domemaster", width=32, height=32) == {"FINISHED"}
+    assert tuple(bpy.data.objects["DomeRig"].location) == pytest.approx((0.0, -5.0, 0.0))

@@ -1,0 +1,177 @@
+"""Curvilinear horizontal grids: 2-D latitude/longitude (CF, WRF names) and projection-only files via PROJ.
+
+No small real 3-D file on a Lambert conformal or WRF grid was found in the
+packages used for tests/data, so the 3-D files here are written by the tests:
+a Lambert conformal conic grid whose 2-D latitude/longitude come from Snyder's
+spherical inverse written out here.  The reader's own projections are checked
+against PROJ in test_projections.py, and the real polar stereographic file
+(tests/data/toa_brightness_stereographic.nc, satellite brightness, 2-D, a
+subset) checks them against the producer's stored latitude/longitude.
+"""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+xr = pytest.importorskip("xarray")
+
+from nephele.core.errors import DataError  # noqa: E402
+from nephele.core.climate.grid import lonlat_to_xyz, xyz_to_lonlat  # noqa: E402
+from nephele.core.climate.readers import open_dataset  # noqa: E402
+
+DATA = Path(__file__).resolve().parents[2] / "data"
+R = 6370000.0  # WRF's sphere
+LCC = {"grid_mapping_name": "lambert_conformal_conic", "standard_parallel": [30.0, 60.0],
+       "longitude_of_central_meridian": -100.0, "latitude_of_projection_origin": 45.0,
+       "false_easting": 0.0, "false_northing": 0.0, "earth_radius": R}
+
+
+def lcc_inverse(x, y, lat1=30.0, lat2=60.0, lat0=45.0, lon0=-100.0, radius=R):
+    """Snyder (1987) eqs. 15-1..15-5 and 14-4, 15-10, 15-11 for the sphere: projection metres -> lon, lat (degrees)."""
+    p1, p2, p0 = np.deg2rad([lat1, lat2, lat0])
+    t = lambda p: np.tan(np.pi / 4 + p / 2)  # noqa: E731
+    n = np.log(np.cos(p1) / np.cos(p2)) / np.log(t(p2) / t(p1))
+    F = np.cos(p1) * t(p1) ** n / n
+    rho0 = radius * F / t(p0) ** n
+    rho = np.sign(n) * np.hypot(x, rho0 - y)
+    theta = np.arctan2(x, rho0 - y)
+    lat = 2 * np.arctan((radius * F / rho) ** (1 / n)) - np.pi / 2
+    return lon0 + np.rad2deg(theta / n), np.rad2deg(lat)
+
+
+def _lcc_file(path, *, with_latlon=True, wrf_names=False, y_down=False, nx=30, ny=20, dx=30000.0):
+    x = (np.arange(nx) - (nx - 1) / 2) * dx
+    y = (np.arange(ny) - (ny - 1) / 2) * dx
+    if y_down:
+        y = y[::-1]
+    X, Y = np.meshgrid(x, y)
+    lon, lat = lcc_inverse(X, Y)
+    z = np.array([500.0, 1500.0, 3000.0, 6000.0])
+    # Temperature falling 6.5 K/km and warmer to the south: contours at 270 K are tilted sheets.
+    t = 300.0 - 0.0065 * z[:, None, None] - 0.3 * (lat[None] - 45.0)
+    t = np.repeat(t[None], 2, axis=0).astype(np.float32)
+    coords = {"time": ("time", [0.0, 3.0], {"units": "hours since 2020-01-01", "standard_name": "time"}),
+              "z": ("z", z, {"units": "m", "standard_name": "height", "positive": "up"}),
+              "y": ("y", y, {"units": "m", "standard_name": "projection_y_coordinate"}),
+              "x": ("x", x, {"units": "m", "standard_name": "projection_x_coordinate"})}
+    data = {"T": (("time", "z", "y", "x"), t, {"units": "K", "grid_mapping": "lambert"}),
+            "lambert": ((), 0, LCC)}
+    if with_latlon and wrf_names:  # WRF writes XLAT/XLONG with a Time dimension and no CF standard_name
+        data["XLAT"] = (("time", "y", "x"), np.repeat(lat[None], 2, 0), {"units": "degree_north"})
+        data["XLONG"] = (("time", "y", "x"), np.repeat(lon[None], 2, 0), {"units": "degree_east"})
+    elif with_latlon:
+        coords["lat"] = (("y", "x"), lat, {"units": "degrees_north", "standard_name": "latitude"})
+        coords["lon"] = (("y", "x"), lon, {"units": "degrees_east", "standard_name": "longitude"})
+    xr.Dataset(data, coords=coords).to_netcdf(path)
+    return lon, lat, t
+
+
+@pytest.mark.parametrize("wrf_names", [False, True])
+def test_2d_latlon_grid_positions_and_contour(tmp_path, wrf_names):
+    from nephele.core.surface.contour import isosurface
+
+    lon, lat, t = _lcc_file(tmp_path / "lcc.nc", wrf_names=wrf_names)
+    ds = open_dataset(tmp_path / "lcc.nc")
+    g = ds.grid
+    assert g.curvilinear and not g.periodic_lon and g.shape == (4, 20, 30)
+    assert ds.earth_radius == R
+    # Every column sits at the file's 2-D latitude/longitude.
+    np.testing.assert_allclose(g.points(dtype=np.float64)[0], lonlat_to_xyz(lon, lat, g.radii()[0]), atol=1e-12)
+    tl, tt = g.true_lonlat()
+    np.testing.assert_allclose(tt, lat) and np.testing.assert_allclose(tl, lon)
+    np.testing.assert_array_equal(ds.read("temperature", 1), t[1])
+    # The contour at 285 K: a tilted sheet at z = (300 - 0.3 (lat - 45) - 285) / 0.0065 m.
+    mesh = isosurface(g.points(dtype=np.float64), ds.read("T", 0), 285.0, attributes={"altitude": g.height.astype(np.float32)})
+    assert len(mesh.faces) > 500
+    vlon, vlat, _ = xyz_to_lonlat(mesh.vertices)
+    expected = (15.0 - 0.3 * (vlat - 45.0)) / 0.0065
+    inside = (expected > 600) & (expected < 5900)
+    # Linear in height between levels, straight chords between columns: within 20 m of the plane.
+    np.testing.assert_allclose(mesh.attributes["altitude"][inside], expected[inside], atol=20.0)
+    assert lon.min() - 1e-6 < vlon.min() and vlon.max() < lon.max() + 1e-6
+
+
+def test_rows_north_to_south_are_flipped_to_a_right_handed_grid(tmp_path):
+    from nephele.core.surface.contour import isosurface
+
+    _lcc_file(tmp_path / "up.nc")
+    _lcc_file(tmp_path / "down.nc", y_down=True)
+    up, down = open_dataset(tmp_path / "up.nc"), open_dataset(tmp_path / "down.nc")
+    np.testing.assert_allclose(down.grid.lat2d, up.grid.lat2d, atol=1e-12)
+    np.testing.assert_array_equal(down.read("T", 0), up.read("T", 0))
+    a = isosurface(up.grid.points(), up.read("T", 0), 285.0)
+    b = isosurface(down.grid.points(), down.read("T", 0), 285.0)
+    assert a.area() == pytest.approx(b.area()) and len(a.faces) == len(b.faces)
+    # The flipped file gives the very same mesh, faces wound the same way (normals agree).
+    np.testing.assert_array_equal(a.faces, b.faces)
+    np.testing.assert_allclose(a.vertices, b.vertices, atol=1e-6)
+    np.testing.assert_allclose(a.normals, b.normals, atol=1e-5)
+
+
+def test_projection_only_file_positions_match_snyder(tmp_path):
+    lon, lat, _ = _lcc_file(tmp_path / "xy.nc", with_latlon=False)
+    ds = open_dataset(tmp_path / "xy.nc")
+    assert ds.grid.curvilinear
+    assert "grid: longitudes/latitudes computed from the lambert_conformal_conic grid mapping" in ds.notes
+    np.testing.assert_allclose(ds.grid.lat2d, lat, atol=1e-9)
+    np.testing.assert_allclose(ds.grid.lon2d, lon, atol=1e-9)
+
+
+def test_real_polar_stereographic_file_projection_matches_stored_latlon():
+    from nephele.core.climate.netcdf import projected_lonlat
+
+    with xr.open_dataset(DATA / "toa_brightness_stereographic.nc") as f:
+        lon, lat, _ = projected_lonlat(dict(f["stereographic"].attrs), f["x"].values, f["y"].values)
+        assert lat.shape == f["lat"].shape
+        # The producer's float32 latitudes/longitudes: equal to ~1e-5 degrees (float32 resolution at 80 degrees).
+        np.testing.assert_allclose(lat, f["lat"].values, atol=3e-5)
+        np.testing.assert_allclose(((lon - f["lon"].values) + 180.0) % 360.0 - 180.0, 0.0, atol=3e-5)
+
+
+def test_volumes_and_advection_refuse_a_curvilinear_grid(tmp_path):
+    from nephele.core.volume.sparse import CurvilinearField
+
+    _lcc_file(tmp_path / "lcc.nc")
+    ds = open_dataset(tmp_path / "lcc.nc")
+    with pytest.raises(DataError, match="curvilinear grid .* not supported yet; contours are"):
+        CurvilinearField.from_grid(ds.grid, {"value": ds.read("T", 0)})
+    with pytest.raises(DataError, match="curvilinear grid"):
+        ds.grid.to_grid(np.zeros((1, 3)))
+
+
+def test_bad_curvilinear_files(tmp_path):
+    lon, lat, t = _lcc_file(tmp_path / "lcc.nc")
+    with xr.open_dataset(tmp_path / "lcc.nc") as f:
+        f = f.load()
+    bad = f.copy()
+    bad["lat"] = bad["lat"].where(bad["lat"] < 46.0)
+    bad.to_netcdf(tmp_path / "nan.nc")
+    with pytest.raises(DataError, match=r"nan.nc: field 'lon': has NaN or infinite 2-D longitudes/latitudes"):
+        open_dataset(tmp_path / "nan.nc")
+    nomap = f.drop_vars(["lat", "lon"])
+    nomap["x"].attrs["units"] = "furlong"
+    nomap.to_netcdf(tmp_path / "units.nc")
+    with pytest.raises(DataError, match=r"units.nc: .*projection coordinates need units m or km"):
+        open_dataset(tmp_path / "units.nc")
+
+
+def test_cli_info_and_contour_on_a_projected_file(tmp_path, capsys):
+    trimesh = pytest.importorskip("trimesh")
+    from nephele.farm.cli import main
+
+    lon, lat, _ = _lcc_file(tmp_path / "xy.nc", with_latlon=False)
+    assert main(["info", str(tmp_path / "xy.nc"), "--json"]) == 0
+    import json
+
+    info = json.loads(capsys.readouterr().out)
+    assert info["curvilinear"] and info["earth_radius_m"] == R
+    assert info["true_lon"] == pytest.approx([lon.min(), lon.max()]) and info["true_lat"] == pytest.approx([lat.min(), lat.max()])
+    out = tmp_path / "t.ply"
+    assert main(["contour", str(tmp_path / "xy.nc"), "--var", "T", "--level", "285", "-o", str(out)]) == 0
+    v = np.asarray(trimesh.load(out, force="mesh", process=False).vertices, dtype=np.float64)
+    vlon, vlat, _ = xyz_to_lonlat(v)
+    assert len(v) > 500 and lat.min() - 1e-4 < vlat.min() and vlat.max() < lat.max() + 1e-4
+    capsys.readouterr()
+    assert main(["contour", str(tmp_path / "xy.nc"), "--var", "T", "--level", "400", "-o", str(out)]) == 2
+    assert "outside the data range" in capsys.readouterr().err

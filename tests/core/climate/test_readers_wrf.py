@@ -1,0 +1,85 @@
+"""WRF history layout: XLAT/XLONG(Time, y, x), eta levels with the geopotential PH + PHB on staggered levels,
+T as perturbation potential temperature, P + PB as pressure.
+
+No small real WRF output was found in the packages used for tests/data (Debian, PyPI sample data), so the
+file is written here with WRF's variable names, dimensions and units from a known atmosphere: heights,
+pressure and temperature are then known by hand at every mass level.
+"""
+
+import numpy as np
+import pytest
+
+xr = pytest.importorskip("xarray")
+
+from nephele.core.climate.grid import lonlat_to_xyz  # noqa: E402
+from nephele.core.climate.humidity import G0  # noqa: E402
+from nephele.core.climate.readers import open_dataset  # noqa: E402
+
+NZ, NY, NX, NT = 6, 12, 16, 2
+
+
+def _atmosphere(z):
+    """The written atmosphere: pressure (Pa) and air temperature (K) at height z (m)."""
+    return 1.0e5 * np.exp(-z / 8000.0), 288.0 - 0.0065 * z
+
+
+def _wrf_file(path):
+    y, x = np.meshgrid(np.arange(NY), np.arange(NX), indexing="ij")
+    lat = 40.0 + 0.25 * y + 0.02 * x  # a slightly sheared curvilinear grid
+    lon = -105.0 + 0.3 * x - 0.01 * y
+    hgt = 1500.0 + 800.0 * np.exp(-((x - 8) ** 2 + (y - 6) ** 2) / 10.0)  # a mountain
+    eta_w = np.linspace(0.0, 1.0, NZ + 1)
+    z_stag = hgt[None] + eta_w[:, None, None] * (12000.0 - hgt[None])  # terrain following, top at 12 km
+    z_mass = 0.5 * (z_stag[:-1] + z_stag[1:])
+    p, t_air = _atmosphere(z_mass)
+    theta_pert = t_air * (1.0e5 / p) ** (2.0 / 7.0) - 300.0
+    cloud = np.clip((z_mass - 1500.0) / 5000.0, 0.0, 1.0)  # linear in height through the 0.5 crossing
+    rep = lambda a: np.repeat(a[None], NT, axis=0).astype(np.float32)  # noqa: E731
+    data = {
+        "XLAT": (("Time", "south_north", "west_east"), rep(lat), {"units": "degree_north", "description": "LATITUDE, SOUTH IS NEGATIVE"}),
+        "XLONG": (("Time", "south_north", "west_east"), rep(lon), {"units": "degree_east", "description": "LONGITUDE, WEST IS NEGATIVE"}),
+        "XTIME": (("Time",), np.array([0.0, 60.0]), {"units": "minutes since 2020-06-01 00:00:00", "description": "minutes since 2020-06-01 00:00:00"}),
+        "HGT": (("Time", "south_north", "west_east"), rep(hgt), {"units": "m"}),
+        "PH": (("Time", "bottom_top_stag", "south_north", "west_east"), rep(0.1 * G0 * z_stag), {"units": "m2 s-2"}),
+        "PHB": (("Time", "bottom_top_stag", "south_north", "west_east"), rep(0.9 * G0 * z_stag), {"units": "m2 s-2"}),
+        "T": (("Time", "bottom_top", "south_north", "west_east"), rep(theta_pert), {"units": "K", "description": "perturbation potential temperature (theta-t0)"}),
+        "P": (("Time", "bottom_top", "south_north", "west_east"), rep(0.2 * p), {"units": "Pa"}),
+        "PB": (("Time", "bottom_top", "south_north", "west_east"), rep(0.8 * p), {"units": "Pa"}),
+        "CLDFRA": (("Time", "bottom_top", "south_north", "west_east"), rep(cloud), {"units": "", "description": "CLOUD FRACTION"}),
+        "U": (("Time", "bottom_top", "south_north", "west_east_stag"), np.zeros((NT, NZ, NY, NX + 1), np.float32), {"units": "m s-1"}),
+    }
+    xr.Dataset(data, attrs={"TITLE": " OUTPUT FROM WRF V4 MODEL (written by the Nephele test)", "MAP_PROJ": 1}).to_netcdf(path)
+    return lon, lat, z_mass, p, t_air, cloud
+
+
+def test_wrf_levels_temperature_and_positions(tmp_path):
+    lon, lat, z_mass, p, t_air, cloud = _wrf_file(tmp_path / "wrfout_d01.nc")
+    ds = open_dataset(tmp_path / "wrfout_d01.nc")
+    g = ds.grid
+    assert g.curvilinear and g.shape == (NZ, NY, NX)
+    assert ds.vertical.startswith("WRF eta levels")
+    assert ds.earth_radius == 6370000.0 and any(n.startswith("radius: WRF") for n in ds.notes)
+    np.testing.assert_allclose(g.height, z_mass, rtol=1e-6)  # (PH + PHB)/g destaggered, float32 in the file
+    np.testing.assert_allclose(g.points(dtype=np.float64)[0], lonlat_to_xyz(lon, lat, g.radii()[0]), atol=1e-6)
+    np.testing.assert_allclose(ds.read("pressure", 1), p, rtol=1e-6)
+    np.testing.assert_allclose(ds.read("temperature", 0), t_air, atol=2e-3)  # Poisson from theta and P + PB
+    assert ds.variables["temperature"].units == "K" and "WRF T" in ds.derived["temperature"]
+    # The file's own T is the perturbation potential temperature, by its own name.
+    np.testing.assert_allclose(ds.read("T", 0) + 300.0, t_air * (1e5 / p) ** (2 / 7), atol=2e-3)
+    np.testing.assert_allclose(ds.read("cloud", 0), cloud, atol=1e-6)
+    np.testing.assert_array_equal(ds.hours, [0.0, 1.0])
+    assert "U" in ds.skipped  # staggered winds are not read yet
+
+
+def test_wrf_cloud_contour_follows_the_written_cloud_layer(tmp_path):
+    from nephele.core.surface.contour import isosurface
+
+    _wrf_file(tmp_path / "wrfout_d01.nc")
+    ds = open_dataset(tmp_path / "wrfout_d01.nc")
+    g = ds.grid
+    mesh = isosurface(g.points(), ds.read("cloud", 1), 0.5, attributes={"altitude": g.height.astype(np.float32)})
+    assert len(mesh.faces) > 100
+    alt = mesh.attributes["altitude"]
+    # cloud = (z - 1500) / 5000 is 0.5 at z = 4000 m; linear in height along every cell edge there, so the
+    # contour's interpolated altitude is exact up to float32.
+    np.testing.assert_allclose(alt, 4000.0, atol=0.05)
