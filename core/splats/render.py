@@ -136,8 +136,9 @@ def _check(splats, kernel, camera, width, height):
 def project_splats(splats, kernel, camera, width, height, *, extinction=DEFAULT_EXTINCTION, prefilter=DEFAULT_PREFILTER, loop_hours=DEFAULT_LOOP_HOURS):
     """Screen-space footprints of the splats (see the module docstring).
 
-    Splats behind the eye or straddling its plane (perspective), with zero
-    opacity, or whose footprint misses the image are dropped.
+    Splats behind the eye or straddling its plane (perspective; orthographic:
+    centres behind the camera), with zero opacity, or whose footprint misses
+    the image are dropped.
 
     Returns
     -------
@@ -159,7 +160,7 @@ def project_splats(splats, kernel, camera, width, height, *, extinction=DEFAULT_
     n = len(splats)
     depth = -c[:, 2]
     if camera.orthographic:
-        ok = splats.opacity > 0
+        ok = (splats.opacity > 0) & (depth > 0)
         jp = np.zeros((n, 2, 3))
         jp[:, 0, 0], jp[:, 1, 1] = f, -f
         v = np.tile([0.0, 0.0, -1.0], (n, 1))
