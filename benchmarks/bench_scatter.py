@@ -280,8 +280,9 @@ def main(argv=None):
         "solved on 4 to 128 layers; relative error of R (and T) against truth computed in the benchmark "
         "(single scattering in closed form, Chandrasekhar's H-function iterated from its integral "
         "equation, an isotropic adding-doubling) or facts.md's adding-doubling. 'even' = sources spread "
-        "evenly in each voxel (`source_profile=False`, the solver before issue 18 apart from the exact "
-        "first scattering), 'profiles' = the default. Seconds: one solve with profiles.",
+        "evenly in each voxel (`source_profile=False`: the solver before issue 18, except that the sun's "
+        "first scattering now uses the real medium and the full HG), 'profiles' = the default. "
+        "Seconds: one solve with profiles.",
         "",
         md_table(["case", "mu0", "layers", "voxel tau", "truth", "err even", "err profiles", "s"], acc),
         "",
