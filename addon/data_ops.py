@@ -216,20 +216,21 @@ def adopt_files(blend_path):
     from . import frame
 
     new_root = default_cache_dir(blend_path)
-    old_root = cache_dir()
-    session = session_cache_dir()
+    old_root = default_cache_dir(bpy.data.filepath) if bpy.data.filepath else session_cache_dir(create=False)
+    session = session_cache_dir(create=False)
     moved = []
     for obj, p in list(_owned_layers()):
         old = layer_dir(p)
         if _inside(old, new_root):
             continue
-        rel = Path(os.path.relpath(old.resolve(), old_root.resolve())) if _inside(old, old_root) else Path(old.name)
+        rel = Path(os.path.relpath(old.resolve(), old_root.resolve())) \
+            if old_root is not None and _inside(old, old_root) else Path(old.name)
         new = new_root / rel
         if old.is_dir():
             new.parent.mkdir(parents=True, exist_ok=True)
             if new.exists():
                 shutil.rmtree(new)
-            if _inside(old, session):
+            if session is not None and _inside(old, session):
                 shutil.move(str(old), str(new))
             else:
                 shutil.copytree(old, new)

@@ -73,7 +73,7 @@ _SESSION = {}
 """``str(base) -> (pid, folder)`` of :func:`session_cache_dir`."""
 
 
-def session_cache_dir(base=None):
+def session_cache_dir(base=None, *, create=True):
     """A folder of this process alone: ``<base>/sessions/<pid>-<random token>``.
 
     For an unsaved scene's files (baked sequences, scattering views): two
@@ -81,12 +81,15 @@ def session_cache_dir(base=None):
     other's frames.  Created on first call (``mkdir`` without ``exist_ok``: a
     name another process already holds is never reused) and the same for the
     rest of the process.  ``base``: default :func:`default_cache_dir`.
+    ``create=False``: None instead of making one when the process has none yet.
     """
     import secrets
 
     base = Path(base) if base is not None else default_cache_dir()
     pid, path = _SESSION.get(str(base), (None, None))
     if pid != os.getpid():  # a forked worker gets its own folder too
+        if not create:
+            return None
         while True:
             path = base / "sessions" / f"{os.getpid()}-{secrets.token_hex(6)}"
             try:
