@@ -223,7 +223,7 @@ def part_frame(quick, picture=None):
     out = None
     for stride in ((2, 1) if quick else (4, 2, 1)):
         sp, t_s = timed(lambda: splat_samples(ds, "cloud", 12.0, TF, color_var="altitude", stride=stride, kernel=k))
-        img, t_r = timed(lambda: render_splats(sp, k, cam, w, h, streaks=maps, phase=0.25, depth=depth))
+        img, t_r = timed(lambda: render_splats(sp, k, cam, w, h, streaks=maps, hours=12.0, depth=depth))
         rows.append([f"splats, stride {stride}", len(sp), f"{t_s:.2f}", f"{t_r:.2f}", f"{w}×{h}, streaks, globe depth"])
         if stride == 1:
             out = img
