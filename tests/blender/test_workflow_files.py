@@ -132,6 +132,24 @@ def test_save_as_copies_from_the_other_file_and_chosen_folders_stay(demo, tmp_pa
     assert (tmp_path / "mine" / "clouds_0001.vdb").is_file()
 
 
+def test_save_copy_leaves_the_session_working_and_the_copy_complete(demo, tmp_path):
+    obj = _clouds(demo)
+    session_dir = data_ops.layer_dir(frame.params(obj))
+    files = _hashes(session_dir)
+    copy = tmp_path / "copy.blend"
+    assert bpy.ops.wm.save_as_mainfile(filepath=str(copy), copy=True) == {"FINISHED"}
+    # Still the unsaved session: its layer reads its own folder as before.
+    assert bpy.data.filepath == ""
+    assert data_ops.layer_dir(frame.params(obj)) == session_dir and _hashes(session_dir) == files
+    assert Path(bpy.path.abspath(obj.data.filepath)).parent == session_dir
+    # The copy has its own files and points into them.
+    assert _hashes(tmp_path / "copy_nephele_cache" / "volumes" / "Nephele_Clouds") == files
+    assert bpy.ops.wm.open_mainfile(filepath=str(copy)) == {"FINISHED"}
+    reopened = bpy.data.objects[volume_ops.OBJECT_NAME]
+    assert frame.params(reopened)["directory"] == "//copy_nephele_cache/volumes/Nephele_Clouds"
+    assert Path(bpy.path.abspath(reopened.data.filepath)).is_file()
+
+
 def test_clear_cache_frees_what_no_layer_uses_and_says_how_much(demo, tmp_path):
     obj = _clouds(demo)
     root = data_ops.cache_dir()
