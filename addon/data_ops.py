@@ -345,7 +345,14 @@ _HANDLERS = (("save_pre", _on_save_pre), ("save_post", _on_save_post))
 
 
 def install():
-    """Add the save handlers once (idempotent); called by the add-on's ``register()``."""
+    """Add the save handlers once (idempotent); called by the add-on's ``register()``.
+    Also removes ended sessions' empty or week-old folders."""
+    from ..core.cache import prune_sessions
+
+    try:
+        prune_sessions()
+    except OSError:
+        pass  # a read-only or missing cache folder: nothing to tidy
     for kind, fn in _HANDLERS:
         handlers = getattr(bpy.app.handlers, kind)
         if not any(getattr(h, "__name__", "") == fn.__name__ for h in handlers):

@@ -101,6 +101,43 @@ def session_cache_dir(base=None, *, create=True):
     return path
 
 
+def _alive(pid):
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OSError):
+        return True  # someone else's live process
+    return True
+
+
+def prune_sessions(base=None, max_age_days=7.0):
+    """Remove session folders (:func:`session_cache_dir`) whose process has ended and
+    which are empty or untouched for ``max_age_days`` (kept that long because
+    Blender's autosave of an unsaved file still points into them).  Another
+    live session's folder is never touched.  Returns the folders removed.
+    """
+    import shutil
+    import time
+
+    root = (Path(base) if base is not None else default_cache_dir()) / "sessions"
+    if not root.is_dir():
+        return []
+    gone = []
+    for d in root.iterdir():
+        pid, _, token = d.name.partition("-")
+        if not (pid.isdigit() and token) or int(pid) == os.getpid() or _alive(int(pid)):
+            continue
+        try:
+            newest = max((p.stat().st_mtime for p in d.rglob("*")), default=d.stat().st_mtime)
+        except OSError:
+            continue
+        if not any(d.iterdir()) or time.time() - newest > max_age_days * 86400.0:
+            shutil.rmtree(d, ignore_errors=True)
+            gone.append(d)
+    return gone
+
+
 def tree_size(path):
     """Bytes and number of files under ``path`` (0, 0 when absent)."""
     total = count = 0

@@ -73,6 +73,26 @@ def test_session_folder_is_this_process_alone(tmp_path):
     assert two != one and one.is_dir() and two.is_dir()
 
 
+def test_ended_sessions_empty_or_old_folders_are_pruned(tmp_path):
+    import time
+
+    sessions = tmp_path / "sessions"
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True,
+                          text=True).stdout.strip()
+    empty, recent, old = (sessions / f"{dead}-{t}" for t in ("aaaaaaaaaaaa", "bbbbbbbbbbbb", "cccccccccccc"))
+    live = sessions / f"{os.getppid()}-dddddddddddd"
+    for d in (empty, recent, old, live):
+        d.mkdir(parents=True)
+    for d in (recent, old, live):
+        (d / "clouds_0001.vdb").write_bytes(b"v")
+    week_ago = time.time() - 8 * 86400
+    os.utime(old / "clouds_0001.vdb", (week_ago, week_ago))
+    mine = core_cache.session_cache_dir(tmp_path)
+    gone = core_cache.prune_sessions(tmp_path)
+    assert sorted(gone) == sorted([empty, old])
+    assert recent.is_dir() and live.is_dir() and mine.is_dir()
+
+
 @pytest.fixture
 def demo(empty_scene, tmp_path, monkeypatch):
     monkeypatch.setenv("NEPHELE_CACHE", str(tmp_path / "user"))
