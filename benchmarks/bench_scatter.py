@@ -269,12 +269,13 @@ def main(argv=None):
                     help="a few accuracy cases, our solve and one Cycles point; prints, writes no docs")
     ap.add_argument("--reference-only", action="store_true")
     ap.add_argument("--accuracy-only", action="store_true", help="only the voxel-depth table (writes docs)")
+    ap.add_argument("--skip-accuracy", action="store_true", help="leave the voxel-depth table as it is")
     ap.add_argument("--views", type=int, default=120)
     args = ap.parse_args(argv)
     from report import md_table, write_section
 
     load = f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores at the start"
-    acc = accuracy(args.quick)
+    acc = [] if args.skip_accuracy else accuracy(args.quick)
     acc_md = [
         "Accuracy against voxel optical thickness (issue 18): homogeneous slabs periodic in x and y, "
         "solved on 4 to 128 layers; relative error of R (and T) against truth computed in the benchmark "
@@ -287,7 +288,7 @@ def main(argv=None):
         md_table(["case", "mu0", "layers", "voxel tau", "truth", "err even", "err profiles", "s"], acc),
         "",
     ]
-    if not args.quick:
+    if not (args.quick or args.skip_accuracy):
         write_section("scatter-accuracy", f"Machine load: {load} (shared machine, many processes).\n\n"
                       + "\n".join(acc_md), title="Multiple scattering: accuracy vs voxel depth")
     if args.accuracy_only:

@@ -683,6 +683,29 @@ def orbit_camera(angle, size=(1.0, 1.0, 0.75), *, distance=1.7, elevation=np.rad
     return Camera(tuple(pos), tuple(c), fov, int(width), int(height))
 
 
+def _sun_view_escape(sol, w):
+    """Per voxel, how much better the sun's first scattering escapes toward the viewer
+    than a source spread evenly through the voxel (what the ray march assumes).
+
+    The sun beam falls inside a voxel as ``exp(-sigma x_c / prop_c)`` along the sun
+    sweep's axis ``c``; across the voxel toward the viewer ``w`` (path ``l = min_i
+    h_i / |w_i|``, optical depth ``tau = sigma l``) that source escapes with
+    :func:`_exp_source_escape` (``beta = sigma h_c / prop_c * l w_c / h_c``) instead of
+    ``(1 - e^-tau) / tau``.  Without it a thick voxel's sunlit face was rendered too dark:
+    single scattering off a slab seen from above -9% at voxel tau 1, -26% at 2 (sun overhead).
+    """
+    shape = sol.sigma.shape
+    h = np.asarray(sol.size, float) / np.asarray(shape[::-1])
+    prop = -np.asarray(sol.sun_dir, float)
+    free = [c for c in range(3) if not sol.periodic[c]]
+    c = max(free, key=lambda c: abs(prop[c]))
+    with np.errstate(divide="ignore"):
+        ell = np.min(h[None] / np.abs(w), axis=1)
+    tau = sol.sigma.reshape(-1).astype(np.float64) * ell
+    beta = tau * w[:, c] / prop[c]
+    return _exp_source_escape(tau, beta) / _phi(tau)
+
+
 def view_source(sol, camera_position, chunk=1 << 15):
     """In-scattered radiance per unit length toward ``camera_position`` at every voxel.
 
@@ -713,6 +736,7 @@ def view_source(sol, camera_position, chunk=1 << 15):
     vol = np.prod(np.asarray(sol.size) / np.asarray(shape[::-1]))
     prop = -np.asarray(sol.sun_dir)
     out = sol.albedo * sol.received_sun.reshape(-1) * phase.hg(w @ prop, sol.g)
+    out *= _sun_view_escape(sol, w)
     rec = sol.received.reshape(NB, -1)
     # Binned radiance in the real medium: L_j = R_j / (sigma* V Omega_j) with
     # sigma* = sigma (1 - albedo f), scattered by the full HG(g) of the real medium.
