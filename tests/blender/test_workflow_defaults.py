@@ -18,6 +18,12 @@ from nephele.addon import globe_ops  # noqa: E402
 LUMA = np.array([0.2126, 0.7152, 0.0722])
 
 
+
+@pytest.fixture(autouse=True)
+def _own_cache(tmp_path, monkeypatch):
+    # Unsaved scenes write into a session folder under the user cache: keep the tests' in tmp.
+    monkeypatch.setenv("NEPHELE_CACHE", str(tmp_path / "user_cache"))
+
 def _render(scene, path, size, samples):
     scene.render.engine = "CYCLES"
     scene.cycles.device = "CPU"
