@@ -148,3 +148,11 @@ def test_seam_poles_threshold_and_empty(small):
     assert np.all(kept.opacity > at)
     none = splat_samples(small, "cloud", 0.0, TransferFunction(points=((0.0, 0.0),)))
     assert len(none) == 0 and none.axes.shape == (0, 3, 3)
+
+
+def test_real_netcdf_file_without_winds(shared_data):
+    # ECHAM5 pressure levels with relative humidity but no u/v: splats without wind (calm streaks).
+    path = shared_data / "climate" / "rectilinear_grid_3D.nc"
+    sp = splat_samples(str(path), "rh", 0.0, TransferFunction.ramp(0.8, 1.0), color_var="temperature", stride=2)
+    assert len(sp) > 100 and np.all(sp.wind == 0)
+    assert np.all(np.linalg.det(sp.axes) > 0) and np.all(np.isfinite(sp.color))
