@@ -366,6 +366,7 @@ def render_splats(
         depth = depth.ravel()
     color = np.zeros((h * w, 3))
     trans = np.ones(h * w)
+    color_of = splats.color[scr.keep].astype(np.float64)
     order = np.argsort(scr.key, kind="stable")  # front first
     counts = (scr.bbox[order, 1] - scr.bbox[order, 0] + 1) * (scr.bbox[order, 3] - scr.bbox[order, 2] + 1)
     ends = np.cumsum(counts)
@@ -398,11 +399,11 @@ def render_splats(
             a = t[:, 0, 0] * dx + t[:, 0, 1] * dy + off[:, 0]
             b = t[:, 1, 0] * dx + t[:, 1, 1] * dy + off[:, 1]
             tau = tau * ((1.0 - streak_contrast) + streak_contrast / mean * _lookup(layers, layer[s], a, b))
-        rgb = splats.color[scr.keep[s]].astype(np.float64)
-        pix = row * w + col
+        pix = (row * w + col).astype(np.int32)
         # Stable sort by pixel keeps each pixel's fragments front to back.
         o = np.argsort(pix, kind="stable")
-        pix, tau, rgb = pix[o], tau[o], rgb[o]
+        pix, tau = pix[o], tau[o]
+        rgb = color_of[s[o]]
         cum = np.cumsum(tau)
         before = cum - tau
         first = np.concatenate([[True], pix[1:] != pix[:-1]]) if pix.size else np.zeros(0, bool)
