@@ -158,9 +158,24 @@ def project_splats(splats, kernel, camera, width, height, *, extinction=DEFAULT_
     centres behind the camera), with zero opacity, or whose footprint misses
     the image are dropped.
 
+    Parameters
+    ----------
+    splats, kernel, camera, width, height
+        As for :func:`render_splats`.
+    extinction : float
+        Extinction per scene unit at opacity 1.
+    prefilter : float
+        Gaussian pixel prefilter variance (px²).
+    streak_tile : float, optional
+        Streak tile side in scene units (default :func:`default_tile`).
+
     Returns
     -------
     ScreenSplats
+
+    References
+    ----------
+    .. [1] M. Zwicker et al., "EWA Volume Splatting", IEEE Visualization 2001.
     """
     _check(splats, kernel, camera, width, height)
     if not (np.isfinite(extinction) and extinction >= 0):
