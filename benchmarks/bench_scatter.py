@@ -242,8 +242,7 @@ def accuracy(quick=False):
                 cases.append(("isotropic slab tau 32, albedo 0.99 vs own adding-doubling (R; T rel.)", 32.0, layers,
                               0.99, 0.0, mu0, r_ad, t_ad))
     for tau, g, om, r_ad, t_ad in AD_G08[:1] if quick else AD_G08:
-        for vt in ((2.0,) if quick else (2.0, 1.0, 0.5, 0.25)):
-            layers = max(1, int(round(tau / vt)))
+        for layers in sorted({max(1, int(round(tau / vt))) for vt in ((2.0,) if quick else (2.0, 1.0, 0.5, 0.25))}):
             cases.append((f"slab tau {tau:g} g 0.8 albedo {om:g}, facts.md adding-doubling (R; T rel.)", tau,
                           layers, om, g, 1.0, r_ad, t_ad))
     rows = []
