@@ -216,3 +216,15 @@ def test_anisotropic_splat_matches_line_integrals_of_the_ellipsoidal_kernel():
         errors[name] = worst
         assert worst < tol
     assert errors["perspective, 1/4 size"] < errors["perspective"] / 3
+
+
+@pytest.mark.parametrize("extinction", [1e-4, 1.0, 50.0, 1e9])
+def test_thin_and_thick_constant_media(extinction):
+    # Optical depth 5.5e-5 .. 5.5e8 through the slab: alpha = 1 - exp(-tau) without loss or NaN.
+    sp = lattice_splats(**SLAB)
+    cam = Camera.look_at((0, 0, 5), (0, 0, 0), up=(0, 1, 0), orthographic=True, ortho_scale=2.0)
+    img = render_splats(sp, K, cam, 24, 24, extinction=extinction).astype(np.float64)
+    tau = extinction * 11 * 0.05
+    assert np.all(np.isfinite(img))
+    assert np.allclose(img[..., 3], -np.expm1(-tau), rtol=1e-3, atol=1e-7)
+    assert np.allclose(img[..., :3], img[..., 3:], rtol=1e-5, atol=1e-7)
