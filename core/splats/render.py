@@ -46,8 +46,8 @@ DEFAULT_STREAK_CONTRAST = 0.6
 """How strongly the streak texture ``T`` modulates a splat's optical depth:
 ``τ × ((1 − contrast) + contrast · T / mean(T))`` (the mean optical depth is kept)."""
 
-MAX_FRAGMENTS = 4_000_000
-"""Pixel fragments composited per batch (bounds memory, ~200 MB)."""
+MAX_FRAGMENTS = 2_000_000
+"""Pixel fragments composited per batch (bounds the temporary memory to a few hundred MB)."""
 
 
 @dataclass(frozen=True, eq=False)

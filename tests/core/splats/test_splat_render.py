@@ -228,3 +228,14 @@ def test_thin_and_thick_constant_media(extinction):
     assert np.all(np.isfinite(img))
     assert np.allclose(img[..., 3], -np.expm1(-tau), rtol=1e-3, atol=1e-7)
     assert np.allclose(img[..., :3], img[..., 3:], rtol=1e-5, atol=1e-7)
+
+
+def test_batches_composite_like_one_pass(monkeypatch):
+    import nephele.core.splats.render as render
+
+    sp = blob(0.15)
+    cam = Camera.look_at((0.6, 0.4, 3), (0, 0, 0), up=(0, 1, 0), fov=45)
+    whole = render_splats(sp, K, cam, 32, 32, extinction=5.0)
+    monkeypatch.setattr(render, "MAX_FRAGMENTS", 500)  # many front-to-back batches
+    batched = render_splats(sp, K, cam, 32, 32, extinction=5.0)
+    assert np.allclose(whole, batched, atol=1e-6)
