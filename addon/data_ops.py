@@ -204,47 +204,82 @@ def _repoint(old, new):
             block.filepath = str(Path(new) / os.path.relpath(ab, old_s))
 
 
-def adopt_files(blend_path):
-    """Move (or, from another saved file, copy) every folder Nephele chose for a layer
-    to ``<blend dir>/<stem>_nephele_cache``, so the file being saved as ``blend_path``
-    points only into its own folder.
+def _link_or_copy(src, dst):
+    try:
+        os.link(src, dst)  # same disk: no second copy of the frames
+    except OSError:
+        shutil.copy2(src, dst)
 
-    From this session's folder the files are moved (a rename on one disk);
-    from another .blend's folder they are copied, since that file still uses
-    them.  Returns the list of ``(old, new)`` folders.
+
+_PENDING = []
+"""What the running save changed: ``(obj name, old params, old dir, new dir, from this session)``."""
+
+
+def adopt_files(blend_path):
+    """Give the file being saved as ``blend_path`` its own copy of every folder Nephele
+    chose for a layer, in ``<blend dir>/<stem>_nephele_cache``, and point the layers there.
+
+    Files are hard-linked where the disk allows (else copied), so nothing is
+    written twice; :func:`finish_save` then removes this session's originals
+    once the file is really the one being edited (a "save copy" instead
+    gets the layers pointed back).  Another .blend's folder is left intact,
+    since that file still uses it.  Returns the list of ``(old, new)`` folders.
     """
     from . import frame
 
     new_root = default_cache_dir(blend_path)
-    old_root = cache_dir()
-    session = session_cache_dir()
-    moved = []
+    old_root = default_cache_dir(bpy.data.filepath) if bpy.data.filepath else session_cache_dir(create=False)
+    session = session_cache_dir(create=False)
+    done = []
     for obj, p in list(_owned_layers()):
         old = layer_dir(p)
         if _inside(old, new_root):
             continue
-        rel = Path(os.path.relpath(old.resolve(), old_root.resolve())) if _inside(old, old_root) else Path(old.name)
+        rel = Path(os.path.relpath(old.resolve(), old_root.resolve())) \
+            if old_root is not None and _inside(old, old_root) else Path(old.name)
         new = new_root / rel
         if old.is_dir():
             new.parent.mkdir(parents=True, exist_ok=True)
             if new.exists():
                 shutil.rmtree(new)
-            if _inside(old, session):
-                shutil.move(str(old), str(new))
-            else:
-                shutil.copytree(old, new)
+            shutil.copytree(old, new, copy_function=_link_or_copy)
+        _PENDING.append((obj.name, json.dumps(p), old, new, session is not None and _inside(old, session)))
         _repoint(old, new)
         # Stored relative to the file being written (bpy.data.filepath is still the old one).
         p["directory"] = "//" + os.path.relpath(new, Path(blend_path).parent)
         frame.set_params(obj, p)
-        moved.append((old, new))
-    return moved
+        done.append((old, new))
+    return done
+
+
+def finish_save(filepath):
+    """After the save: the session's originals go when ``filepath`` is now the edited
+    file; after a "save copy" the layers point back where they were."""
+    from . import frame
+
+    copy = os.path.abspath(bpy.data.filepath or "") != os.path.abspath(filepath)
+    for name, old_params, old, new, from_session in _PENDING:
+        obj = bpy.data.objects.get(name)
+        if copy:
+            if obj is not None:
+                frame.set_params(obj, json.loads(old_params))
+            _repoint(new, old)
+        elif from_session and old.is_dir():
+            shutil.rmtree(old, ignore_errors=True)
+    _PENDING.clear()
 
 
 @persistent
 def _on_save_pre(filepath, *args):
+    _PENDING.clear()
     if filepath:
         adopt_files(filepath)
+
+
+@persistent
+def _on_save_post(filepath, *args):
+    if filepath:
+        finish_save(filepath)
 
 
 def in_use():
@@ -306,17 +341,29 @@ class NEPHELE_OT_clear_cache(bpy.types.Operator):
         return {"FINISHED"}
 
 
+_HANDLERS = (("save_pre", _on_save_pre), ("save_post", _on_save_post))
+
+
 def install():
-    """Add the save handler once (idempotent); called by the add-on's ``register()``."""
-    handlers = bpy.app.handlers.save_pre
-    if not any(getattr(h, "__name__", "") == _on_save_pre.__name__ for h in handlers):
-        handlers.append(_on_save_pre)
+    """Add the save handlers once (idempotent); called by the add-on's ``register()``.
+    Also removes ended sessions' empty or week-old folders."""
+    from ..core.pipeline.cache import prune_sessions
+
+    try:
+        prune_sessions()
+    except OSError:
+        pass  # a read-only or missing cache folder: nothing to tidy
+    for kind, fn in _HANDLERS:
+        handlers = getattr(bpy.app.handlers, kind)
+        if not any(getattr(h, "__name__", "") == fn.__name__ for h in handlers):
+            handlers.append(fn)
 
 
 def uninstall():
-    handlers = bpy.app.handlers.save_pre
-    for h in [h for h in handlers if getattr(h, "__name__", "") == _on_save_pre.__name__]:
-        handlers.remove(h)
+    for kind, fn in _HANDLERS:
+        handlers = getattr(bpy.app.handlers, kind)
+        for h in [h for h in handlers if getattr(h, "__name__", "") == fn.__name__]:
+            handlers.remove(h)
 
 
 class NEPHELE_OT_import_dataset(bpy.types.Operator):

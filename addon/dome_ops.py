@@ -365,8 +365,13 @@ def render_dome_eevee(filepath, *, scene=None, face_size=None, supersample=None,
     camera = dome_from_params(p)
     n = int(face_size or p.get("face_size") or default_face_size(camera))
     ss = int(supersample or p.get("supersample") or 2)
-    from ..core.pipeline.cache import Cache, default_cache_dir
+    from ..core.pipeline.cache import Cache, check_memory, default_cache_dir
 
+    # The remap table (a face index and two coordinates, float64, per supersample) and the
+    # six RGBA float faces, before they are allocated.
+    check_memory(camera.width * camera.height * ss * ss * 24 + 6 * n * n * 16 * 2,
+                 f"the cube-map dome frame {camera.width}x{camera.height} (cube face {n}, supersample {ss})",
+                 field="width")
     table = core_dome.stored_remap_table(camera, "cube", n, ss, Cache(default_cache_dir(bpy.data.filepath or None)))
     filepath = Path(filepath)
     eyes = core_dome.stereo_eyes(p["separation"]) if p.get("stereo") else {"": np.zeros(3)}
@@ -426,17 +431,18 @@ def _preset_changed(self, context):
 
 class NepheleDomeSettings(bpy.types.PropertyGroup):
     preset: bpy.props.EnumProperty(name="Preset", items=_PRESET_ITEMS, update=_preset_changed)
-    tilt: bpy.props.FloatProperty(name="Dome tilt", default=25.0, soft_min=0.0, soft_max=45.0,
+    tilt: bpy.props.FloatProperty(name="Dome tilt", default=25.0, min=-90.0, max=90.0, soft_min=0.0, soft_max=45.0,
                                   description="Degrees the dome's zenith is tipped forward from vertical")
-    fov: bpy.props.FloatProperty(name="Field of view", default=180.0, soft_min=90.0, soft_max=360.0,
+    fov: bpy.props.FloatProperty(name="Field of view", default=180.0, min=1.0, max=360.0, soft_min=90.0,
                                  description="Degrees across the frame width (the fisheye circle's diameter)")
-    width: bpy.props.IntProperty(name="Width", default=2048, soft_min=16)
-    height: bpy.props.IntProperty(name="Height", default=1500, soft_min=16)
+    width: bpy.props.IntProperty(name="Width", default=2048, min=8, max=16384, soft_min=16)
+    height: bpy.props.IntProperty(name="Height", default=1500, min=8, max=16384, soft_min=16)
     lens: bpy.props.EnumProperty(name="Lens", items=_LENS_ITEMS)
     stereo: bpy.props.BoolProperty(name="Stereo", default=False,
                                    description="Left/right cameras on a fixed horizontal baseline (_L/_R frames)")
-    separation: bpy.props.FloatProperty(name="Eye separation", default=0.065, min=0.0, soft_max=1.0, unit="LENGTH")
-    face_size: bpy.props.IntProperty(name="Cube face", default=0, min=0,
+    separation: bpy.props.FloatProperty(name="Eye separation", default=0.065, min=0.0, max=100.0, soft_max=1.0,
+                                        unit="LENGTH")
+    face_size: bpy.props.IntProperty(name="Cube face", default=0, min=0, max=8192,
                                      description="EEVEE route: cube face size in pixels (0: match the dome frame)")
 
 
@@ -448,6 +454,8 @@ class NEPHELE_OT_add_dome_camera(bpy.types.Operator):
     bl_options = {"REGISTER", "UNDO"}
 
     preset: bpy.props.EnumProperty(name="Preset", items=_PRESET_ITEMS)
+    # No hard limits here: out-of-range values reach core.dome, which refuses them by name
+    # (a clamp would silently render something else).
     tilt: bpy.props.FloatProperty(name="Dome tilt", default=25.0)
     fov: bpy.props.FloatProperty(name="Field of view", default=180.0)
     width: bpy.props.IntProperty(name="Width", default=2048)

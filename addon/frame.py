@@ -564,6 +564,7 @@ def uninstall():
         for h in [h for h in handlers if getattr(h, "__name__", "") == fn.__name__]:
             handlers.remove(h)
     cancel_all()
+    _WATCHING[0] = False  # a watcher cut off by the disable must not block the next one
     if bpy.app.timers.is_registered(_poll):
         bpy.app.timers.unregister(_poll)
     with _LOCK:

@@ -13,8 +13,11 @@ radius) differ from the scene's are listed as stale, with one button to bring
 them up to date.
 """
 
+import threading
+
 import bpy
 
+from ..core.pipeline.sources import frame_hours
 from . import contour_ops, data_ops, frame, materials
 from .panel import SubPanel
 
@@ -119,6 +122,39 @@ def range_line(stats, level=None):
     if level is not None:
         text += f"  ~{100 * share_above(stats, level):.0f}% above"
     return text, "INFO"
+
+
+_RANGES = {}  # (source, var, hours) -> stats, or None while a thread computes them
+
+
+def range_for(source, var, hours):
+    """The field's range for the panel without blocking it: the stats, or None while they are computed.
+
+    The first call starts a thread (reading a field of the full demo takes
+    about a second); a timer redraws the interface when it is done.
+    """
+    key = (str(source), str(var), round(float(hours), 6))
+    if key in _RANGES:
+        return _RANGES[key]
+    _RANGES[key] = None
+
+    def work():
+        try:
+            _RANGES[key] = contour_ops.field_stats(*key)
+        except Exception:  # noqa: BLE001 - no range is a hint missing, not an error
+            _RANGES[key] = {"min": float("nan"), "max": float("nan"), "hist": [], "finite": 0.0}
+
+    t = threading.Thread(target=work, name="nephele-range", daemon=True)
+    t.start()
+
+    def redraw():
+        if t.is_alive():
+            return 0.2
+        frame._redraw()
+        return None
+
+    bpy.app.timers.register(redraw, first_interval=0.2)
+    return None
 
 
 # ---------------------------------------------------------------- the Object property group
@@ -442,12 +478,25 @@ class NEPHELE_PT_layers(SubPanel, bpy.types.Panel):
         elif kind == "volume":
             box.label(text=f"{p.get('var')}, {p.get('mode')} mode, frames {p.get('frames')}")
             box.prop(lay, "threshold")
+            if p.get("source") and p.get("var"):
+                hours = _hours_shown(p, bpy.context.scene)
+                text, icon = range_line(range_for(p["source"], p["var"], hours), lay.threshold)
+                box.label(text=text.replace("above", "above the threshold"), icon=icon)
             pts = p.get("tf", {}).get("points", [])
             box.label(text="transfer: " + ", ".join(f"{v:g}→{a:g}" for v, a in pts[:4]))
             if obj.get("nephele_needs_bake"):
                 box.label(text=obj["nephele_needs_bake"], icon="ERROR")
         else:
             box.label(text=f"{kind}: edit in its own panel")
+
+
+def _hours_shown(p, scene):
+    """Model time of ``scene``'s frame for a layer with parameters ``p`` (0 when unknown)."""
+    try:
+        last = float(data_ops.dataset(p["source"]).hours[-1])
+        return frame_hours(scene.frame_current, p.get("frame_start", 1), p.get("hours_per_frame", 1.0), last)
+    except Exception:  # noqa: BLE001 - a hint for the panel only
+        return 0.0
 
 
 def _legend(layout, p):

@@ -254,13 +254,59 @@ BYTES_PER_CELL = 8000.0
 1.93 kB per cell)."""
 
 
+def _globe(scene):
+    """``(centre, radius with haze glow)`` of the scene's Nephele globe, or None."""
+    from mathutils import Vector
+
+    from .globe_ops import frame_radius
+
+    for ob in scene.objects:
+        if "nephele_globe" in ob:
+            return Vector(ob.matrix_world.translation), frame_radius(scene) * max(ob.matrix_world.to_scale())
+    return None
+
+
+def placement(scene, size):
+    """World position of the cloud box's corner (its ``(0, 0, 0)``).
+
+    Without a globe: centred on the origin, resting on z = 0 (the paper's
+    Fig. 6 set-up).  With one the box at the origin would sit inside the
+    Earth, so it goes in front of the scene camera, as far as it can while
+    staying wholly outside the globe (and its haze glow); with no camera, or
+    one too close to the globe, it floats above the north pole.
+    """
+    from mathutils import Vector
+
+    half = Vector(size) / 2.0
+    found = _globe(scene)
+    if found is None:
+        return (-half.x, -half.y, 0.0)
+    centre, radius = found
+    clear = radius + 1.1 * half.length  # the box's bounding sphere stays outside
+    cam = scene.camera
+    if cam is not None:
+        eye = cam.matrix_world.translation
+        ahead = (cam.matrix_world.to_3x3() @ Vector((0.0, 0.0, -1.0))).normalized()
+        # The farthest point along the view that keeps the cloud clear of the globe.
+        for s in np.linspace((eye - centre).length + radius, 1.5 * half.length, 200).tolist():
+            c = eye + s * ahead
+            if (c - centre).length >= clear and all((eye + t * ahead - centre).length >= clear
+                                                    for t in np.linspace(0.0, s, 16).tolist()):
+                return tuple(c - half)
+    c = centre + Vector((0.0, 0.0, clear))
+    return tuple(c - half)
+
+
+def scene_sun(scene):
+    """The scene's first visible sun lamp, or None."""
+    return next((ob for ob in scene.objects if ob.type == "LIGHT" and ob.data.type == "SUN" and not ob.hide_render),
+                None)
+
+
 def own_scene(context):
-    """The scene the cloud goes to: the current one, or, when that holds a globe
-    (the cloud's metre-sized box at the origin would sit inside the Earth), a
-    scene of its own with the same frame range and a black world."""
+    """A scene of the cloud's own (same frame range, black world), for the
+    "Own scene" option: its frames are stepped without the main scene's layers."""
     scene = context.scene
-    if not any("nephele_globe" in ob for ob in scene.objects):
-        return scene
     new = bpy.data.scenes.get(SCENE_NAME)
     if new is None:
         new = bpy.data.scenes.new(SCENE_NAME)
@@ -293,25 +339,33 @@ class ScatterJob:
     """
 
     def __init__(self, context, props):
+        from mathutils import Vector
+
         from ..core.pipeline.cache import check_memory
 
         self.params = cloud_params(props)
         check_memory(BYTES_PER_CELL * math.prod(self.params.shape),
                      f"the scattering solve on a {'x'.join(str(n) for n in props.resolution)} grid "
                      "(lower the grid)", field="resolution")
-        self.scene = own_scene(context)
+        self.scene = own_scene(context) if props.own_scene else context.scene
         props = self.scene.nephele_scatter
         self.props = props
         self.sigma = props.extinction * cd.cloud_density(self.params)
         self.size = tuple(props.size)
-        self.origin = (-0.5 * self.size[0], -0.5 * self.size[1], 0.0)
+        self.origin = placement(self.scene, self.size)
         self.sun = sun_direction(props.sun_elevation, props.sun_azimuth)
+        irradiance = props.sun_irradiance
+        lamp = scene_sun(self.scene) if props.use_scene_sun else None
+        if lamp is not None:
+            # Lit like the rest of the scene: the sun lamp's direction and strength.
+            self.sun = tuple(lamp.matrix_world.to_3x3() @ Vector((0.0, 0.0, 1.0)))
+            irradiance = lamp.data.energy
         self.directory = output_directory(props.directory)
         self.frames = list(range(self.scene.frame_start, self.scene.frame_end + 1))
         # the same solve as the farm's "scatter" task (nephele precompute), cached under its key
         self.task = scatter_task.task_params(
             self.params, props.extinction, albedo=props.albedo, g=props.anisotropy, sun_dir=list(self.sun),
-            sun_irradiance=props.sun_irradiance, sky_radiance=props.sky_radiance,
+            sun_irradiance=irradiance, sky_radiance=props.sky_radiance,
             tol=props.tolerance, max_passes=props.max_passes)
         self.gen = scatter.solve_steps(self.sigma, self.size, **self.task["solve"])
         self.solution = None
@@ -319,7 +373,7 @@ class ScatterJob:
         self.view_index = 0
         self.obj = None
         if self.scene.camera is None and props.orbit_camera:
-            c = (0.0, 0.0, 0.5 * self.size[2])
+            c = tuple(o + 0.5 * d for o, d in zip(self.origin, self.size))
             r = 1.7 * max(self.size)
             add_orbit_camera(c, r * math.cos(math.radians(15)), r * math.sin(math.radians(15)), self.frames,
                              scene=self.scene)
@@ -423,7 +477,7 @@ class NEPHELE_OT_add_scattering_cloud(bpy.types.Operator):
         _props_to_scene_check(props)
         self._job = ScatterJob(context, props)
         if self._job.scene is not context.scene:
-            self.report({"INFO"}, f"The scene holds a globe: the cloud goes to its own scene '{self._job.scene.name}'")
+            self.report({"INFO"}, f"The cloud goes to its own scene '{self._job.scene.name}'")
             if context.window is not None:
                 context.window.scene = self._job.scene
 
@@ -520,6 +574,13 @@ class NepheleScatterProps(bpy.types.PropertyGroup):
     sky_radiance: bpy.props.FloatProperty(name="Sky radiance", default=0.0, min=0.0)
     tolerance: bpy.props.FloatProperty(name="Tolerance", default=1e-3, min=1e-8, max=0.5)
     max_passes: bpy.props.IntProperty(name="Max passes", default=100, min=1)
+    use_scene_sun: bpy.props.BoolProperty(
+        name="Scene's sun", default=True,
+        description="Light the cloud with the scene's sun lamp (its direction and strength) when it has one")
+    own_scene: bpy.props.BoolProperty(
+        name="Own scene", default=False,
+        description="Put the cloud in a scene of its own (else in this one, in front of the camera and "
+                    "outside any globe)")
     orbit_camera: bpy.props.BoolProperty(name="Orbit camera", default=True,
                                          description="Add a camera looping around the cloud if the scene has none")
     directory: bpy.props.StringProperty(name="Output", default=DEFAULT_DIRECTORY, subtype="DIR_PATH")
@@ -545,12 +606,14 @@ class NEPHELE_PT_scatter(SubPanel, bpy.types.Panel):
         col.separator()
         col.prop(p, "albedo")
         col.prop(p, "anisotropy")
+        col.prop(p, "use_scene_sun")
         col.prop(p, "sun_elevation")
         col.prop(p, "sun_azimuth")
         col.prop(p, "sun_irradiance")
         col.prop(p, "sky_radiance")
         col.prop(p, "tolerance")
         col.prop(p, "max_passes")
+        col.prop(p, "own_scene")
         col.prop(p, "orbit_camera")
         col.prop(p, "directory")
         col.operator(NEPHELE_OT_add_scattering_cloud.bl_idname)

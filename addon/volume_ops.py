@@ -689,7 +689,7 @@ class NEPHELE_OT_add_volume_clouds(bpy.types.Operator):
     def _estimate(self, context):
         try:
             frames, est = panel_estimate(context, _settings(context.scene))
-        except (DataError, OSError, ImportError) as exc:
+        except (ValueError, OSError, ImportError) as exc:
             return str(exc)
         return estimate_text(frames, est)
 
@@ -767,7 +767,7 @@ class NEPHELE_PT_volume(SubPanel, bpy.types.Panel):
         try:
             frames, est = panel_estimate(context, s)
             layout.label(text=estimate_text(frames, est), icon="INFO")
-        except (DataError, OSError, ImportError) as exc:
+        except (ValueError, OSError, ImportError) as exc:  # DataError is a ValueError
             layout.label(text=str(exc), icon="ERROR")
         objs = _active_volumes(context)
         for line in look_warnings(context.scene, objs[0]) if objs else ():

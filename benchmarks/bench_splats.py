@@ -223,7 +223,7 @@ def part_frame(quick, picture=None):
     out = None
     for stride in ((2, 1) if quick else (4, 2, 1)):
         sp, t_s = timed(lambda: splat_samples(ds, "cloud", 12.0, TF, color_var="altitude", stride=stride, kernel=k))
-        img, t_r = timed(lambda: render_splats(sp, k, cam, w, h, streaks=maps, phase=0.25, depth=depth))
+        img, t_r = timed(lambda: render_splats(sp, k, cam, w, h, streaks=maps, hours=12.0, depth=depth))
         rows.append([f"splats, stride {stride}", len(sp), f"{t_s:.2f}", f"{t_r:.2f}", f"{w}×{h}, streaks, globe depth"])
         if stride == 1:
             out = img
@@ -242,16 +242,29 @@ def part_frame(quick, picture=None):
     vol, t_vol = timed(lambda: resample(ds.grid, cloud, TF, color_values=None, color_name="altitude"))
     rows.append(["anchor: core.volume.resample (Fig. 2 clouds)", f"{vol.stats['active_voxels']} voxels", "-", f"{t_vol:.2f}", "voxel 0.0027 (default), sparse 8³ blocks"])
     if picture is not None and out is not None:
-        save_png(out, picture)
+        save_png(out, picture, globe_image(cam, w, h, depth))
     return md_table(["method", "samples", "samples s", "render / resample s", "notes"], rows)
 
 
-def save_png(img, path):
-    """Composite over a dark blue globe-less background and write an 8-bit sRGB PNG (via matplotlib)."""
+def globe_image(cam, w, h, depth):
+    """A plain Lambert-shaded globe (ocean blue) under the splats, dark sky elsewhere."""
+    f = cam.pixels_per_unit(w)
+    cols, rows = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
+    d = np.stack([(cols - w / 2) / f, -(rows - h / 2) / f, -np.ones_like(cols)], -1)
+    d /= np.linalg.norm(d, axis=-1, keepdims=True)
+    world = d @ cam.world_to_camera[:3, :3]  # camera-space directions to scene
+    hit = np.isfinite(depth)
+    p = cam.position + np.where(hit, depth, 0.0)[..., None] * world
+    sun = np.array([0.6, -0.7, 0.4]) / np.linalg.norm([0.6, -0.7, 0.4])
+    shade = 0.15 + 0.85 * np.clip(p @ sun, 0, 1)
+    return np.where(hit[..., None], np.array([0.03, 0.08, 0.2]) * shade[..., None], np.array([0.005, 0.005, 0.012]))
+
+
+def save_png(img, path, background):
+    """Composite over ``background`` (linear RGB) and write an 8-bit sRGB PNG (via matplotlib)."""
     import matplotlib.image as mpimg
 
-    bg = np.array([0.02, 0.03, 0.08])
-    rgb = np.clip(img[..., :3] + (1 - img[..., 3:]) * bg, 0, 1)
+    rgb = np.clip(img[..., :3] + (1 - img[..., 3:]) * background, 0, 1)
     srgb = np.where(rgb <= 0.0031308, 12.92 * rgb, 1.055 * rgb ** (1 / 2.4) - 0.055)
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(path).with_suffix(".tmp.png")

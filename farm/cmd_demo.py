@@ -123,6 +123,7 @@ def build_blend(out, options):
 
 
 def run(args):
+    from ..core.errors import DataError
     from ..core.pipeline.sources import open_source
     from .frames import parse_frames
     from .post import contact_sheet
@@ -136,7 +137,10 @@ def run(args):
     if not SCRIPT.is_file():
         raise UsageError(f"the Fig. 1 example script is missing: {SCRIPT}")
     frames = parse_frames(args.frames)
-    open_source(args.source)  # bad data fails here, before any worker starts
+    ds = open_source(args.source)  # bad data fails here, before any worker starts
+    if "cloud" not in ds:  # the demo film contours cloudiness
+        raise DataError(f"has no cloud fraction to contour (fields: {', '.join(sorted(ds.variables))})",
+                        path=ds.source, field="cloud")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     options = {

@@ -83,8 +83,8 @@ def _transport_factors(tau):
 
 def _phi(x):
     """``(1 - exp(-x)) / x`` for ``x >= 0`` (1 at 0), overflow-safe."""
-    small = x < 1e-6
-    return np.where(small, 1.0 - 0.5 * x, -np.expm1(-x) / np.where(small, 1.0, x))
+    x = np.maximum(x, 1e-30)  # expm1 is exact to first order: 1 at 0
+    return -np.expm1(-x) / x
 
 
 def _exp_source_escape(tau, beta):
@@ -109,13 +109,11 @@ def _shift_indices(n, shift, periodic, margin):
 
 
 def _offset(kappa):
-    """Centroid offset ``1/k - 1/(e^k - 1) - 1/2`` (in ``(-1/2, 1/2)``, odd in ``k``) of a
-    source ``exp(-k u)`` on ``u in [0, 1]``; overflow-safe for any ``k``."""
-    k = np.abs(kappa)
-    small = k < 1e-3
-    kk = np.where(small, 1.0, k)
-    off = np.where(small, -k / 12.0, 1.0 / kk - np.exp(-kk) / -np.expm1(-kk) - 0.5)
-    return np.sign(kappa) * off
+    """Centroid offset ``1/k - 1/(e^k - 1) - 1/2 = 1/k - 1/(2 tanh(k/2))`` (in ``(-1/2, 1/2)``,
+    odd in ``k``) of a source ``exp(-k u)`` on ``u in [0, 1]``; overflow-safe for any ``k``."""
+    small = np.abs(kappa) < 1e-2
+    k = np.where(small, 1.0, kappa)
+    return np.where(small, -kappa / 12.0, 1.0 / k - 0.5 / np.tanh(0.5 * k))
 
 
 _KGRID = np.sinh(np.linspace(-np.arcsinh(400.0), np.arcsinh(400.0), 2001))
@@ -128,7 +126,7 @@ def _rate_of_offset(delta):
 
 
 def _sweep(sigma, h, dirs, wsub, emis, inflow, periodic, axis, cache=None, per_sub=False, profile=None,
-           moments=False):
+           moments=False, fresh=True):
     """Sweep a group of beams through ``sigma`` layer by layer along array ``axis``.
 
     ``dirs`` (g, ns, 3): ``ns`` sub-directions for each of ``g`` bins, all with
@@ -150,6 +148,7 @@ def _sweep(sigma, h, dirs, wsub, emis, inflow, periodic, axis, cache=None, per_s
     voxel's centre (3, nz, ny, nx; in voxel units, x y z, summed over beams): a beam
     deposits ``exp(-tau v)``, centroid ``_offset(tau) c``; the power a source keeps in
     its own voxel sits downstream of the source's centroid (closed form below).
+    With a ``cache``, the profile's escape fractions are kept too and reused unless ``fresh``.
     Returns received (g, ...) (``per_sub``: (g, ns, ...) per sub-direction),
     total (g, ...), the exit power (g,) through the far face and the moments (or None).
     """
@@ -158,6 +157,7 @@ def _sweep(sigma, h, dirs, wsub, emis, inflow, periodic, axis, cache=None, per_s
     comp = 2 - axis  # xyz component along the sweep
     others = [a for a in range(3) if a != axis]
     sig = np.moveaxis(sigma, axis, 0)
+    sig32 = sig.astype(np.float32) if profile is not None else None
     L, A, B = sig.shape
     ca, cb = 2 - others[0], 2 - others[1]
     dl = d[:, comp]
@@ -213,9 +213,23 @@ def _sweep(sigma, h, dirs, wsub, emis, inflow, periodic, axis, cache=None, per_s
             beam = beam * t
         else:
             if profile is not None:
-                tau = sig[k][None].astype(np.float32) * ell32
-                beta = (cross @ kap[:, k].reshape(3, -1)).reshape(K, A, B)
-                esc = np.clip(_exp_source_escape(tau, beta), 0.0, 1.0).astype(np.float32)
+                tau = sig32[k][None] * ell32
+                if cache is not None and ("p", k) in cache and not fresh:
+                    esc, shift = cache[("p", k)]
+                else:
+                    beta = (cross @ kap[:, k].reshape(3, -1)).reshape(K, A, B)
+                    esc = np.clip(_exp_source_escape(tau, beta), 0.0, 1.0)
+                    if moments:
+                        # what a source keeps sits downstream of it: with v_s its centroid along
+                        # the path, the photons' mean end point v_s + (1 - esc) / tau (escapers
+                        # stop at 1) gives the kept part's centroid x = (v_s - esc) / (1 - esc) + 1 / tau
+                        vs = 0.5 + _offset(beta)
+                        kept = np.maximum(1.0 - esc, 1e-30)
+                        shift = np.where(tau < 1e-2, 1.0 / 6.0, (vs - esc) / kept + 1.0 / np.maximum(tau, 1e-2) - vs)
+                    else:
+                        shift = None
+                    if cache is not None:
+                        cache[("p", k)] = (esc, shift)
             e = (em[:, k][:, None] * w).reshape(K, A, B)
             rb = beam * (1.0 - t)
             re = e * (1.0 - esc)
@@ -226,12 +240,6 @@ def _sweep(sigma, h, dirs, wsub, emis, inflow, periodic, axis, cache=None, per_s
             rb = r if em is None else rb
             mk = (cross.T @ (rb * offb).reshape(K, -1)).reshape(3, A, B)
             if em is not None and profile is not None:
-                # what a source keeps sits downstream of it: with v_s its centroid along
-                # the path, the photons' mean end point v_s + (1 - esc) / tau (escapers
-                # stop at 1) gives the kept part's centroid x = (v_s - esc) / (1 - esc) + 1 / tau
-                vs = 0.5 + _offset(beta)
-                kept = np.maximum(1.0 - esc, 1e-30)
-                shift = np.where(tau < 1e-2, 1.0 / 6.0, (vs - esc) / kept + 1.0 / np.maximum(tau, 1e-2) - vs)
                 mk += dlt[:, k] * re.sum(0) + (cross.T @ (re * shift).reshape(K, -1)).reshape(3, A, B)
             mom[:, k] = mk
         if per_sub:
@@ -364,7 +372,7 @@ def _scatter_into(unshot, m_cols, recv, albedo, chunk=1 << 16):
 def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun_irradiance=1.0,
                 sky_radiance=0.0, tol=1e-3, max_passes=100, sub=2, periodic=(False, False, False),
                 delta_m=True, phase_sub=6, first_sub=4, source_profile=True,
-                peaked_orders=2, real_orders=1):
+                peaked_orders=2, real_orders=1, profile_every=1):
     """The shooting solve as a generator: yields :class:`Progress` after each group of bins,
     returns the :class:`Solution` (``StopIteration.value``; :func:`solve` unwraps it).
 
@@ -389,6 +397,11 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
         slab tests ``f = g^4`` beat ``g^2`` (too much truncation for thin slabs) and
         ``g^8`` / no scaling (thick slabs), and it needs fewer passes.
     phase_sub : sub-squares per bin side for the phase matrix integrals.
+    profile_every : after pass 8, recompute the escape fractions of the unshot light's
+        voxel profiles only every this many passes (cached between; the moments are
+        tracked on every pass).  The profiles settle as passes go on, but slowly deep
+        inside: isotropic slab tau 32, voxel tau 2, T -0.6% with 1 (default), -1.3% with 2;
+        semi-infinite R +0.40% / +0.42%.  2 saves ~40% of a pass.
     peaked_orders : how many scattering orders of sunlight are shot per sub-direction
         (weighted inside each bin as the previous order filled it) before the rest is
         binned; at least 1.
@@ -560,16 +573,18 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
 
     passes = 0
     converged = residual <= tol
-    # transmittance caches per group (float32, 3 x beams x voxels each) when they fit
-    fits = 3 * NB * dirs.shape[1] * sigma.size <= 1 << 27
+    # transmittance caches per group (float32, 3 or 5 x beams x voxels each) when they fit
+    fits = (5 if source_profile else 3) * NB * dirs.shape[1] * sigma.size <= 1 << 27
     caches = [{} if fits else None for _ in groups]
     while not converged and passes < int(max_passes):
         passes += 1
+        refresh = passes <= 8 or passes % int(profile_every) == 0
         for gi, (axis, bs) in enumerate(groups):
             shot = unshot[bs].sum(0, dtype=np.float64) if umom is not None else None
             prof = unshot_profile(unshot.sum(0, dtype=np.float64)) if umom is not None else None
             r, tot, ex, mom = _sweep(sig_s, h, dirs[bs], wsub[bs], unshot[bs], np.zeros(wsub[bs].shape),
-                                     periodic, axis, caches[gi], profile=prof, moments=umom is not None)
+                                     periodic, axis, caches[gi], profile=prof, moments=umom is not None,
+                                     fresh=refresh)
             unshot[bs] = 0.0
             keep_moments(mom, shot, prof)
             received[bs] += r.astype(np.float32)
@@ -667,6 +682,29 @@ def orbit_camera(angle, size=(1.0, 1.0, 0.75), *, distance=1.7, elevation=np.rad
     return Camera(tuple(pos), tuple(c), fov, int(width), int(height))
 
 
+def _sun_view_escape(sol, w):
+    """Per voxel, how much better the sun's first scattering escapes toward the viewer
+    than a source spread evenly through the voxel (what the ray march assumes).
+
+    The sun beam falls inside a voxel as ``exp(-sigma x_c / prop_c)`` along the sun
+    sweep's axis ``c``; across the voxel toward the viewer ``w`` (path ``l = min_i
+    h_i / |w_i|``, optical depth ``tau = sigma l``) that source escapes with
+    :func:`_exp_source_escape` (``beta = sigma h_c / prop_c * l w_c / h_c``) instead of
+    ``(1 - e^-tau) / tau``.  Without it a thick voxel's sunlit face was rendered too dark:
+    single scattering off a slab seen from above -9% at voxel tau 1, -26% at 2 (sun overhead).
+    """
+    shape = sol.sigma.shape
+    h = np.asarray(sol.size, float) / np.asarray(shape[::-1])
+    prop = -np.asarray(sol.sun_dir, float)
+    free = [c for c in range(3) if not sol.periodic[c]]
+    c = max(free, key=lambda c: abs(prop[c]))
+    with np.errstate(divide="ignore"):
+        ell = np.min(h[None] / np.abs(w), axis=1)
+    tau = sol.sigma.reshape(-1).astype(np.float64) * ell
+    beta = tau * w[:, c] / prop[c]
+    return _exp_source_escape(tau, beta) / _phi(tau)
+
+
 def view_source(sol, camera_position, chunk=1 << 15):
     """In-scattered radiance per unit length toward ``camera_position`` at every voxel.
 
@@ -697,6 +735,7 @@ def view_source(sol, camera_position, chunk=1 << 15):
     vol = np.prod(np.asarray(sol.size) / np.asarray(shape[::-1]))
     prop = -np.asarray(sol.sun_dir)
     out = sol.albedo * sol.received_sun.reshape(-1) * phase.hg(w @ prop, sol.g)
+    out *= _sun_view_escape(sol, w)
     rec = sol.received.reshape(NB, -1)
     # Binned radiance in the real medium: L_j = R_j / (sigma* V Omega_j) with
     # sigma* = sigma (1 - albedo f), scattered by the full HG(g) of the real medium.

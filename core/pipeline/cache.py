@@ -74,7 +74,7 @@ _SESSION = {}
 """``str(base) -> (pid, folder)`` of :func:`session_cache_dir`."""
 
 
-def session_cache_dir(base=None):
+def session_cache_dir(base=None, *, create=True):
     """A folder of this process alone: ``<base>/sessions/<pid>-<random token>``.
 
     For an unsaved scene's files (baked sequences, scattering views): two
@@ -82,12 +82,15 @@ def session_cache_dir(base=None):
     other's frames.  Created on first call (``mkdir`` without ``exist_ok``: a
     name another process already holds is never reused) and the same for the
     rest of the process.  ``base``: default :func:`default_cache_dir`.
+    ``create=False``: None instead of making one when the process has none yet.
     """
     import secrets
 
     base = Path(base) if base is not None else default_cache_dir()
     pid, path = _SESSION.get(str(base), (None, None))
     if pid != os.getpid():  # a forked worker gets its own folder too
+        if not create:
+            return None
         while True:
             path = base / "sessions" / f"{os.getpid()}-{secrets.token_hex(6)}"
             try:
@@ -97,6 +100,43 @@ def session_cache_dir(base=None):
                 continue
         _SESSION[str(base)] = (os.getpid(), path)
     return path
+
+
+def _alive(pid):
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OSError):
+        return True  # someone else's live process
+    return True
+
+
+def prune_sessions(base=None, max_age_days=7.0):
+    """Remove session folders (:func:`session_cache_dir`) whose process has ended and
+    which are empty or untouched for ``max_age_days`` (kept that long because
+    Blender's autosave of an unsaved file still points into them).  Another
+    live session's folder is never touched.  Returns the folders removed.
+    """
+    import shutil
+    import time
+
+    root = (Path(base) if base is not None else default_cache_dir()) / "sessions"
+    if not root.is_dir():
+        return []
+    gone = []
+    for d in root.iterdir():
+        pid, _, token = d.name.partition("-")
+        if not (pid.isdigit() and token) or int(pid) == os.getpid() or _alive(int(pid)):
+            continue
+        try:
+            newest = max((p.stat().st_mtime for p in d.rglob("*")), default=d.stat().st_mtime)
+        except OSError:
+            continue
+        if not any(d.iterdir()) or time.time() - newest > max_age_days * 86400.0:
+            shutil.rmtree(d, ignore_errors=True)
+            gone.append(d)
+    return gone
 
 
 def tree_size(path):

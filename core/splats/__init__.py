@@ -3,15 +3,16 @@
 from .camera import Camera
 from .kernel import KINDS, SplatKernel, footprint_table, splat_kernel
 from .render import (
-    DEFAULT_LOOP_HOURS,
     DEFAULT_PREFILTER,
-    DEFAULT_STREAK_STRENGTH,
+    DEFAULT_STREAK_CONTRAST,
     ScreenSplats,
+    default_tile,
     project_splats,
     ray_integral,
     reconstruct,
     render_splats,
     sphere_depth,
+    streak_factor,
     streak_offsets,
 )
 from .samples import ALTITUDE, Splats, cell_jacobians, principal_axes, splat_samples
@@ -19,15 +20,15 @@ from .streaks import streak_maps, streak_orientation, structure_tensor
 
 __all__ = [
     "ALTITUDE",
-    "DEFAULT_LOOP_HOURS",
     "DEFAULT_PREFILTER",
-    "DEFAULT_STREAK_STRENGTH",
+    "DEFAULT_STREAK_CONTRAST",
     "KINDS",
     "Camera",
     "ScreenSplats",
     "SplatKernel",
     "Splats",
     "cell_jacobians",
+    "default_tile",
     "footprint_table",
     "principal_axes",
     "project_splats",
@@ -37,6 +38,7 @@ __all__ = [
     "splat_kernel",
     "sphere_depth",
     "splat_samples",
+    "streak_factor",
     "streak_maps",
     "streak_offsets",
     "streak_orientation",

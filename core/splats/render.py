@@ -42,14 +42,12 @@ from .samples import Splats
 DEFAULT_PREFILTER = 0.25
 """Variance (px²) of the Gaussian pixel prefilter: σ = 0.5 px."""
 
-DEFAULT_LOOP_HOURS = 6.0
-"""Hours of wind per streak cycle: a streak tile is ``|projected wind| × loop_hours`` long."""
+DEFAULT_STREAK_CONTRAST = 0.6
+"""How strongly the streak texture ``T`` modulates a splat's optical depth:
+``τ × ((1 − contrast) + contrast · T / mean(T))`` (the mean optical depth is kept)."""
 
-DEFAULT_STREAK_STRENGTH = 0.6
-"""How much the streak texture darkens the colour: ``colour × (1 − strength (1 − S))``."""
-
-MAX_FRAGMENTS = 4_000_000
-"""Pixel fragments composited per batch (bounds memory, ~200 MB)."""
+MAX_FRAGMENTS = 2_000_000
+"""Pixel fragments composited per batch (bounds the temporary memory to a few hundred MB)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -75,13 +73,14 @@ class ScreenSplats:
         Unit screen direction of the projected wind (x right, y down); ``(1, 0)`` when calm.
     wind_speed : (m,)
         Projected wind speed, pixels per hour.
-    tile : (m, 2)
-        Streak tile size in pixels along the wind (u) and across it (v): across,
-        the cut-off ellipse's major diameter; along, ``wind_speed · loop_hours``
-        but at least a quarter of that diameter.
+    tex : (m, 2, 2)
+        Pixel offset → streak texture coordinates (in tiles):
+        ``(a, b) = tex · δ + tex_offset`` (see :func:`streak_factor`).
     tex_offset : (m, 2)
-        Offset in tiles of the splat's streak texture, :func:`streak_offsets` of
-        its sample index, so that overlapping splats do not repeat one pattern.
+        :func:`streak_offsets` of the splat's position in :class:`Splats`.
+    rate : (m,)
+        ``|projected wind| / tile``: streak tiles per hour; the splat shows map
+        ``floor(n · frac(rate · hours)) mod n``.
     """
 
     keep: np.ndarray
@@ -92,8 +91,9 @@ class ScreenSplats:
     bbox: np.ndarray
     wind_dir: np.ndarray
     wind_speed: np.ndarray
-    tile: np.ndarray
+    tex: np.ndarray
     tex_offset: np.ndarray
+    rate: np.ndarray
 
 
 def streak_offsets(index):
@@ -133,23 +133,58 @@ def _check(splats, kernel, camera, width, height):
             raise DataError(f"must be an integer >= 1, got {v!r}", field=name)
 
 
-def project_splats(splats, kernel, camera, width, height, *, extinction=DEFAULT_EXTINCTION, prefilter=DEFAULT_PREFILTER, loop_hours=DEFAULT_LOOP_HOURS):
+def default_tile(splats):
+    """Default streak tile (scene units): the median cut-off diameter of the splats' largest axis."""
+    if not len(splats):
+        return 1.0
+    return float(2.0 * np.median(np.linalg.norm(splats.axes, axis=1).max(axis=1)))
+
+
+def _streak_frame(wind, v, fallback):
+    """``e_a`` (projected wind direction), ``e_b = v × e_a`` and ``|wp|`` for unit view vectors ``v``
+    toward the viewer; ``fallback`` (the camera's x axis) where the projected wind vanishes."""
+    wp = wind - np.einsum("ij,ij->i", wind, v)[:, None] * v
+    speed = np.linalg.norm(wp, axis=1)
+    fb = fallback - np.einsum("ij,ij->i", fallback, v)[:, None] * v
+    calm = speed < 1e-12
+    ea = np.where(calm[:, None], fb, wp) / np.where(calm, np.linalg.norm(fb, axis=1), speed)[:, None]
+    return ea, np.cross(v, ea), np.where(calm, 0.0, speed)
+
+
+def project_splats(splats, kernel, camera, width, height, *, extinction=DEFAULT_EXTINCTION, prefilter=DEFAULT_PREFILTER, streak_tile=None):
     """Screen-space footprints of the splats (see the module docstring).
 
-    Splats behind the eye or straddling its plane (perspective), with zero
-    opacity, or whose footprint misses the image are dropped.
+    Splats behind the eye or straddling its plane (perspective; orthographic:
+    centres behind the camera), with zero opacity, or whose footprint misses
+    the image are dropped.
+
+    Parameters
+    ----------
+    splats, kernel, camera, width, height
+        As for :func:`render_splats`.
+    extinction : float
+        Extinction per scene unit at opacity 1.
+    prefilter : float
+        Gaussian pixel prefilter variance (px²).
+    streak_tile : float, optional
+        Streak tile side in scene units (default :func:`default_tile`).
 
     Returns
     -------
     ScreenSplats
+
+    References
+    ----------
+    .. [1] M. Zwicker et al., "EWA Volume Splatting", IEEE Visualization 2001.
     """
     _check(splats, kernel, camera, width, height)
     if not (np.isfinite(extinction) and extinction >= 0):
         raise DataError(f"must be >= 0, got {extinction!r}", field="extinction")
     if not (np.isfinite(prefilter) and prefilter >= 0):
         raise DataError(f"must be >= 0 px², got {prefilter!r}", field="prefilter")
-    if not (np.isfinite(loop_hours) and loop_hours > 0):
-        raise DataError(f"must be positive, got {loop_hours!r}", field="loop_hours")
+    tile = default_tile(splats) if streak_tile is None else streak_tile
+    if not (np.isfinite(tile) and tile > 0):
+        raise DataError(f"must be a positive length in scene units, got {streak_tile!r}", field="streak_tile")
     R = kernel.radius
     rot = camera.world_to_camera[:3, :3]
     c = camera.to_camera(splats.centers)
@@ -159,7 +194,7 @@ def project_splats(splats, kernel, camera, width, height, *, extinction=DEFAULT_
     n = len(splats)
     depth = -c[:, 2]
     if camera.orthographic:
-        ok = splats.opacity > 0
+        ok = (splats.opacity > 0) & (depth > 0)
         jp = np.zeros((n, 2, 3))
         jp[:, 0, 0], jp[:, 1, 1] = f, -f
         v = np.tile([0.0, 0.0, -1.0], (n, 1))
@@ -200,17 +235,19 @@ def project_splats(splats, kernel, camera, width, height, *, extinction=DEFAULT_
     hi = np.minimum(hi, [width - 1, height - 1])
     vis = np.all(hi >= lo, axis=1)
     bbox = np.column_stack([lo[:, 0], hi[:, 0], lo[:, 1], hi[:, 1]])
-    # Streak frame: the wind's screen velocity through the same projection Jacobian.
+    # Streaks: the wind's screen velocity (for reference), and the texture frame in the
+    # view plane through the centre (e_a along the projected wind, e_b = v × e_a), in camera space.
     wc = splats.wind[idx] @ rot.T
     ws = np.einsum("nij,nj->ni", jp, wc)
     speed = np.linalg.norm(ws, axis=1)
     calm = speed <= 1e-12
     wdir = np.where(calm[:, None], [1.0, 0.0], ws / np.where(calm, 1.0, speed)[:, None])
-    major = 2.0 * R * np.sqrt(0.5 * (shape[:, 0, 0] + shape[:, 1, 1]) + np.sqrt(0.25 * (shape[:, 0, 0] - shape[:, 1, 1]) ** 2 + shape[:, 0, 1] ** 2))
-    tile = np.column_stack([np.maximum(speed * loop_hours, 0.25 * major), major])
+    toward = -v  # unit vector toward the viewer
+    ea, eb, wp = _streak_frame(wc, toward, np.tile([1.0, 0.0, 0.0], (len(idx), 1)))
+    tex = np.stack([np.einsum("ni,nik->nk", ea, b), np.einsum("ni,nik->nk", eb, b)], axis=1) / tile
     return ScreenSplats(
-        idx[vis], center[vis], key[vis], conic[vis], amplitude[vis], bbox[vis], wdir[vis], speed[vis], tile[vis],
-        streak_offsets(idx[vis]),
+        idx[vis], center[vis], key[vis], conic[vis], amplitude[vis], bbox[vis], wdir[vis], speed[vis], tex[vis],
+        streak_offsets(idx[vis]), wp[vis] / tile,
     )
 
 
@@ -280,11 +317,11 @@ def render_splats(
     height,
     *,
     streaks=None,
-    phase=0.0,
+    hours=0.0,
     extinction=DEFAULT_EXTINCTION,
     prefilter=DEFAULT_PREFILTER,
-    loop_hours=DEFAULT_LOOP_HOURS,
-    streak_strength=DEFAULT_STREAK_STRENGTH,
+    streak_tile=None,
+    streak_contrast=DEFAULT_STREAK_CONTRAST,
     depth=None,
 ):
     """Render splats: EWA footprints, sorted by distance, composited with *over*.
@@ -298,25 +335,24 @@ def render_splats(
     width, height : int
         Image size in pixels.
     streaks : (n_maps, size, size) array, optional
-        A :func:`~.streaks.streak_maps` cycle.  Each splat shows map
-        ``floor(phase · n_maps) mod n_maps``, turned so its +u runs along the
-        splat's projected wind, centred on the splat and shifted by its
-        ``tex_offset``, one tile ``tile = (wind_speed · loop_hours, major
-        diameter)`` pixels (see :class:`ScreenSplats`), blurred for
-        minification (a Gaussian pyramid, σ = 0.5·2^L texels at level
-        ``L = round(log2(texels per pixel))``); the colour is multiplied by
-        ``1 − streak_strength (1 − S)``.  Advancing ``phase`` by ``Δh /
-        loop_hours`` moves the streaks downwind by the wind's projected
-        displacement in ``Δh`` hours (in steps of a ``1/n_maps`` tile).
-    phase : float
-        Position in the streak cycle, in cycles (only its fraction matters).
+        A :func:`~.streaks.streak_maps` cycle.  Each splat's optical depth is
+        multiplied by :func:`streak_factor` — the map chosen by the time
+        ``hours`` and the splat's projected wind speed, laid in the view plane
+        along the projected wind with ``streak_tile`` scene units per tile —
+        at the point where the pixel's ray meets the plane through the
+        splat's centre (the EWA linearisation: ``ScreenSplats.tex``).  For
+        minification the map is blurred (a Gaussian pyramid, σ = 0.5·2^L
+        texels at level ``L = round(log2(texels per pixel))``).
+    hours : float
+        Model time driving the streak cycle: streaks move downwind at the
+        projected wind speed, in steps of ``1/n_maps`` tile.
     extinction : float
         Extinction per scene unit at opacity 1 (as the volume clouds).
     prefilter : float
         Pixel prefilter variance in px² (0: none).
-    loop_hours : float
-        Hours of wind per streak cycle.
-    streak_strength : float
+    streak_tile : float, optional
+        Streak tile side in scene units (default :func:`default_tile`).
+    streak_contrast : float
         0 (no streaks) .. 1.
     depth : (height, width) array, optional
         Opaque surface behind the splats (the globe: :func:`sphere_depth`):
@@ -335,13 +371,8 @@ def render_splats(
     .. [1] M. Zwicker et al., "EWA Volume Splatting", IEEE Visualization 2001.
     .. [2] N. Max and R. Crawfis, "Advances in Scientific Visualization", Fig. 3.
     """
-    if streaks is not None:
-        streaks = np.asarray(streaks, dtype=np.float64)
-        if streaks.ndim != 3 or streaks.shape[0] < 1 or min(streaks.shape[1:]) < 2:
-            raise DataError(f"needs (n_maps, size, size) maps, got shape {streaks.shape}", field="streaks")
-        if not (np.isfinite(phase) and 0 <= streak_strength <= 1):
-            raise DataError(f"phase {phase!r} must be finite and streak_strength {streak_strength!r} in [0, 1]", field="streaks")
-    scr = project_splats(splats, kernel, camera, width, height, extinction=extinction, prefilter=prefilter, loop_hours=loop_hours)
+    maps = _check_streaks(streaks, hours, streak_contrast)
+    scr = project_splats(splats, kernel, camera, width, height, extinction=extinction, prefilter=prefilter, streak_tile=streak_tile)
     w, h = int(width), int(height)
     if depth is not None:
         depth = np.asarray(depth, dtype=np.float64)
@@ -350,15 +381,19 @@ def render_splats(
         depth = depth.ravel()
     color = np.zeros((h * w, 3))
     trans = np.ones(h * w)
+    color_of = splats.color[scr.keep].astype(np.float64)
     order = np.argsort(scr.key, kind="stable")  # front first
     counts = (scr.bbox[order, 1] - scr.bbox[order, 0] + 1) * (scr.bbox[order, 3] - scr.bbox[order, 2] + 1)
     ends = np.cumsum(counts)
-    pyr = level = None
-    if streaks is not None:
-        pyr = _pyramid(streaks[int(np.floor(phase * streaks.shape[0])) % streaks.shape[0]])
-        # Minification: the pyramid level whose blur matches texels per pixel on the tile's shorter side.
-        per_px = max(streaks.shape[1:]) / np.maximum(scr.tile.min(axis=1), 1e-9)
-        level = np.clip(np.round(np.log2(np.maximum(per_px, 1.0))), 0, pyr.shape[0] - 1).astype(np.int64)
+    if maps is not None:
+        levels = 6
+        layers = np.concatenate([_pyramid(m, levels) for m in maps])
+        mean = float(maps.mean())
+        n_maps, size = maps.shape[0], max(maps.shape[1:])
+        k = np.floor(n_maps * np.mod(scr.rate * float(hours), 1.0)).astype(np.int64) % n_maps
+        per_px = size * np.linalg.norm(scr.tex, ord=2, axis=(1, 2))  # texels per pixel, largest direction
+        level = np.clip(np.round(np.log2(np.maximum(per_px, 1.0))), 0, levels - 1).astype(np.int64)
+        layer = k * levels + level
     start = 0
     while start < order.size:
         stop = max(start + 1, int(np.searchsorted(ends, (ends[start - 1] if start else 0) + MAX_FRAGMENTS, side="right")))
@@ -374,29 +409,83 @@ def render_splats(
             inside &= scr.key[s] <= depth[row * w + col]
         s, dx, dy, rho2, col, row = s[inside], dx[inside], dy[inside], rho2[inside], col[inside], row[inside]
         tau = scr.amplitude[s] * kernel.footprint_rho2(rho2)
-        rgb = splats.color[scr.keep[s]].astype(np.float64)
-        if pyr is not None:
-            wd, off = scr.wind_dir[s], scr.tex_offset[s]
-            su = (dx * wd[:, 0] + dy * wd[:, 1]) / scr.tile[s, 0] + 0.5 + off[:, 0]
-            sv = (-dx * wd[:, 1] + dy * wd[:, 0]) / scr.tile[s, 1] + 0.5 + off[:, 1]
-            rgb = rgb * (1.0 - streak_strength * (1.0 - _lookup(pyr, level[s], su, sv)))[:, None]
-        pix = row * w + col
+        if maps is not None:
+            t, off = scr.tex[s], scr.tex_offset[s]
+            a = t[:, 0, 0] * dx + t[:, 0, 1] * dy + off[:, 0]
+            b = t[:, 1, 0] * dx + t[:, 1, 1] * dy + off[:, 1]
+            tau = tau * ((1.0 - streak_contrast) + streak_contrast / mean * _lookup(layers, layer[s], a, b))
+        pix = (row * w + col).astype(np.int32)
         # Stable sort by pixel keeps each pixel's fragments front to back.
         o = np.argsort(pix, kind="stable")
-        pix, tau, rgb = pix[o], tau[o], rgb[o]
+        pix, tau = pix[o], tau[o]
+        rgb = color_of[s[o]]
         cum = np.cumsum(tau)
         before = cum - tau
         first = np.concatenate([[True], pix[1:] != pix[:-1]]) if pix.size else np.zeros(0, bool)
         seg = np.maximum.accumulate(np.where(first, np.arange(pix.size), 0))
         before = before - before[seg]
         contrib = (-np.expm1(-tau) * np.exp(-before))[:, None] * rgb
-        batch_color = np.stack([np.bincount(pix, contrib[:, k], minlength=h * w) for k in range(3)], axis=1)
+        batch_color = np.stack([np.bincount(pix, contrib[:, c], minlength=h * w) for c in range(3)], axis=1)
         color += trans[:, None] * batch_color
         trans *= np.exp(-np.bincount(pix, tau, minlength=h * w))
     out = np.empty((h, w, 4), dtype=np.float32)
     out[..., :3] = color.reshape(h, w, 3)
     out[..., 3] = (1.0 - trans).reshape(h, w)
     return out
+
+
+def _check_streaks(streaks, hours, contrast):
+    if streaks is None:
+        return None
+    maps = np.asarray(streaks, dtype=np.float64)
+    if maps.ndim != 3 or maps.shape[0] < 1 or min(maps.shape[1:]) < 2 or not np.all(np.isfinite(maps)) or maps.mean() <= 0:
+        raise DataError(f"needs finite (n_maps, size, size) maps with a positive mean, got shape {maps.shape}", field="streaks")
+    if not (np.isfinite(hours) and 0 <= contrast <= 1):
+        raise DataError(f"hours {hours!r} must be finite and the contrast {contrast!r} in [0, 1]", field="streaks")
+    return maps
+
+
+def streak_factor(splats, index, xyz, camera, hours, streaks, streak_tile=None, streak_contrast=DEFAULT_STREAK_CONTRAST):
+    """The streak modulation of splat ``index[i]``'s optical depth at scene point ``xyz[i]`` (no minification blur).
+
+    With ``v`` the unit vector from the point toward the viewer (orthographic:
+    the camera's +z), ``wp = wind − (wind·v) v``, ``e_a = wp/|wp|`` (the
+    camera's x axis made perpendicular to ``v`` when ``|wp| < 1e-12``) and
+    ``e_b = v × e_a``: texture coordinates
+    ``(a, b) = ((x − c)·e_a, (x − c)·e_b) / tile + streak_offsets(index)``,
+    map ``k = floor(n · frac(|wp| · hours / tile)) mod n``, sampled
+    bilinearly and periodically at ``(a mod 1, b mod 1)`` (a along the
+    columns, b along the rows) as ``T``; the factor is
+    ``(1 − contrast) + contrast · T / mean(maps)``.
+
+    Returns
+    -------
+    (m,) float64
+    """
+    maps = _check_streaks(streaks, hours, streak_contrast)
+    if maps is None:
+        raise DataError("needs the streak maps", field="streaks")
+    if not isinstance(camera, Camera):
+        raise DataError(f"needs a Camera, got {type(camera).__name__}", field="camera")
+    tile = default_tile(splats) if streak_tile is None else streak_tile
+    if not (np.isfinite(tile) and tile > 0):
+        raise DataError(f"must be a positive length in scene units, got {streak_tile!r}", field="streak_tile")
+    index = np.asarray(index, dtype=np.int64).reshape(-1)
+    x = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
+    rot = camera.world_to_camera[:3, :3]
+    if camera.orthographic:
+        v = np.tile(rot[2], (len(x), 1))
+    else:
+        v = camera.position - x
+        v /= np.linalg.norm(v, axis=1)[:, None]
+    ea, eb, wp = _streak_frame(splats.wind[index], v, np.tile(rot[0], (len(x), 1)))
+    rel = x - splats.centers[index]
+    off = streak_offsets(index)
+    a = np.einsum("ij,ij->i", rel, ea) / tile + off[:, 0]
+    b = np.einsum("ij,ij->i", rel, eb) / tile + off[:, 1]
+    n = maps.shape[0]
+    k = np.floor(n * np.mod(wp * float(hours) / tile, 1.0)).astype(np.int64) % n
+    return (1.0 - streak_contrast) + streak_contrast / maps.mean() * _lookup(maps, k, a, b)
 
 
 def sphere_depth(camera, width, height, radius=1.0, center=(0.0, 0.0, 0.0)):
@@ -521,14 +610,15 @@ def ray_integral(splats, kernel, camera, width, height, *, extinction=DEFAULT_EX
 
 
 __all__ = [
-    "DEFAULT_LOOP_HOURS",
     "DEFAULT_PREFILTER",
-    "DEFAULT_STREAK_STRENGTH",
+    "DEFAULT_STREAK_CONTRAST",
     "ScreenSplats",
+    "default_tile",
     "project_splats",
     "ray_integral",
     "reconstruct",
     "render_splats",
     "sphere_depth",
+    "streak_factor",
     "streak_offsets",
 ]

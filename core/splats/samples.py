@@ -73,6 +73,11 @@ class Splats:
     index: np.ndarray = None
 
     def __post_init__(self):
+        for name, dtype in (("centers", np.float64), ("axes", np.float64), ("color", np.float32), ("opacity", np.float32), ("wind", np.float64)):
+            object.__setattr__(self, name, np.asarray(getattr(self, name), dtype=dtype))
+        if self.index is not None:
+            object.__setattr__(self, "index", np.asarray(self.index, dtype=np.int64))
+        object.__setattr__(self, "radius", float(self.radius))
         n = len(self.centers)
         shapes = (("centers", (n, 3)), ("axes", (n, 3, 3)), ("color", (n, 3)), ("opacity", (n,)), ("wind", (n, 3)))
         for name, shape in shapes:

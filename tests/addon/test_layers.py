@@ -184,6 +184,14 @@ def test_volume_threshold_edits_live_within_the_baked_support(scene, tmp_path):
     assert "nephele_needs_bake" not in obj and obj.data.materials[0] is not None
     props, labels = _draw(layers.NEPHELE_PT_layers, scene, obj)
     assert "threshold" in props and "0.5→0" in labels
+    # The data range beside the threshold comes from a thread: the panel never waits for it.
+    import time
+
+    t_end = time.time() + 60
+    while "data 0 … 1" not in labels and time.time() < t_end:
+        time.sleep(0.05)
+        labels = _draw(layers.NEPHELE_PT_layers, scene, obj)[1]
+    assert "above the threshold" in labels
     lay.threshold = 0.1  # below the baked support: needs a new bake, and the panel says so
     assert frame.params(obj)["tf"]["points"][0] == pytest.approx([0.5, 0.0])
     assert "re-bake" in obj["nephele_needs_bake"]

@@ -18,6 +18,12 @@ from nephele.addon import globe_ops  # noqa: E402
 LUMA = np.array([0.2126, 0.7152, 0.0722])
 
 
+
+@pytest.fixture(autouse=True)
+def _own_cache(tmp_path, monkeypatch):
+    # Unsaved scenes write into a session folder under the user cache: keep the tests' in tmp.
+    monkeypatch.setenv("NEPHELE_CACHE", str(tmp_path / "user_cache"))
+
 def _render(scene, path, size, samples):
     scene.render.engine = "CYCLES"
     scene.cycles.device = "CPU"
@@ -108,32 +114,55 @@ def test_volume_clouds_render_bright(empty_scene, tmp_path):
     assert ratio > 1.3, (ratio, lit[mask].mean(), ground[mask].mean())
 
 
-def test_scattering_cloud_lands_outside_the_globe_and_is_seen(empty_scene, tmp_path):
-    scene = empty_scene
-    _globe_scene(scene)
-    assert bpy.ops.nephele.add_camera() == {"FINISHED"}
+def _scatter_small(scene):
     p = scene.nephele_scatter
     p.resolution = (8, 8, 6)
     p.tolerance = 1e-2
     scene.frame_end = scene.frame_start + 1
     assert bpy.ops.nephele.add_scattering_cloud() == {"FINISHED"}
-    cloud = bpy.data.objects["Scattering cloud"]
-    globe = bpy.data.objects[globe_ops.GLOBE_NAME]
+    return bpy.data.objects["Scattering cloud"]
+
+
+def _outside(obj, scene):
+    """The nearest corner of ``obj``'s box to the globe's centre lies outside the globe and its haze."""
+    corners = [obj.matrix_world @ Vector(c) for c in obj.bound_box]
+    return min(c.length for c in corners) > globe_ops.frame_radius(scene)
+
+
+def test_scattering_cloud_lands_outside_the_globe_in_front_of_the_camera(empty_scene, tmp_path):
+    # The issue: the cloud's 1 x 1 x 0.75 box sat at the origin, inside the Earth.
+    scene = empty_scene
+    _globe_scene(scene)
+    assert bpy.ops.nephele.add_camera() == {"FINISHED"}
+    cloud = _scatter_small(scene)
+    assert cloud.name in scene.objects and _outside(cloud, scene)
+    cam = scene.camera
+    corners = _sees(scene, cam, [cloud.matrix_world @ Vector(c) for c in cloud.bound_box])
+    assert (corners[:, 2] > 0).all()
+    centre = _sees(scene, cam, [cloud.matrix_world @ (sum((Vector(c) for c in cloud.bound_box), Vector()) / 8)])[0]
+    assert 0.3 < centre[0] < 0.7 and 0.3 < centre[1] < 0.7  # in the middle of the view
+    # The render shows it in front of the globe.
+    with_cloud = _render(scene, tmp_path / "scatter.png", (32, 24), 4)
+    cloud.hide_render = True
+    without = _render(scene, tmp_path / "no_scatter.png", (32, 24), 4)
+    diff = with_cloud - without
+    # 8x8x6 cells of noise: a small bright cloud (47 changed pixels of 768, up to +0.29 when written).
+    assert (np.abs(diff) > 0.02).sum() >= 25 and diff.max() > 0.1
+
+
+def test_scattering_cloud_without_camera_orbits_above_the_globe(empty_scene):
+    scene = empty_scene
+    _globe_scene(scene)
+    cloud = _scatter_small(scene)
+    assert _outside(cloud, scene)
+    cam = scene.camera
     r = globe_ops.frame_radius(scene)
-    # Nowhere near the Earth: in a scene without it, or wholly outside it.
-    for s in cloud.users_scene:
-        if globe.name in s.objects:
-            corners = [cloud.matrix_world @ Vector(c) for c in cloud.bound_box]
-            assert min(c.length for c in corners) > r
-    cloud_scene = cloud.users_scene[0]
-    assert globe.name not in cloud_scene.objects
-    # Its scene's camera sees it, and the render shows it.
-    cam = cloud_scene.camera
-    centre = cloud.matrix_world @ (sum((Vector(c) for c in cloud.bound_box), Vector()) / 8)
-    x, y, z = _sees(cloud_scene, cam, [centre])[0]
-    assert z > 0 and 0 < x < 1 and 0 < y < 1
-    img = _render(cloud_scene, tmp_path / "scatter.png", (32, 24), 4)
-    assert img.max() > 0.05 and (img > 0.02).mean() > 0.1
+    for f in (scene.frame_start, scene.frame_end):
+        scene.frame_set(f)
+        eye = cam.matrix_world.translation
+        assert eye.length > r  # the orbit never enters the Earth
+        x, y, z = _sees(scene, cam, [cloud.matrix_world @ (sum((Vector(c) for c in cloud.bound_box), Vector()) / 8)])[0]
+        assert z > 0 and 0 < x < 1 and 0 < y < 1
 
 
 def test_dome_camera_sits_outside_the_globe_and_looks_at_it(empty_scene, tmp_path):

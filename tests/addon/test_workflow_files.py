@@ -73,6 +73,26 @@ def test_session_folder_is_this_process_alone(tmp_path):
     assert two != one and one.is_dir() and two.is_dir()
 
 
+def test_ended_sessions_empty_or_old_folders_are_pruned(tmp_path):
+    import time
+
+    sessions = tmp_path / "sessions"
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True,
+                          text=True).stdout.strip()
+    empty, recent, old = (sessions / f"{dead}-{t}" for t in ("aaaaaaaaaaaa", "bbbbbbbbbbbb", "cccccccccccc"))
+    live = sessions / f"{os.getppid()}-dddddddddddd"
+    for d in (empty, recent, old, live):
+        d.mkdir(parents=True)
+    for d in (recent, old, live):
+        (d / "clouds_0001.vdb").write_bytes(b"v")
+    week_ago = time.time() - 8 * 86400
+    os.utime(old / "clouds_0001.vdb", (week_ago, week_ago))
+    mine = core_cache.session_cache_dir(tmp_path)
+    gone = core_cache.prune_sessions(tmp_path)
+    assert sorted(gone) == sorted([empty, old])
+    assert recent.is_dir() and live.is_dir() and mine.is_dir()
+
+
 @pytest.fixture
 def demo(empty_scene, tmp_path, monkeypatch):
     monkeypatch.setenv("NEPHELE_CACHE", str(tmp_path / "user"))
@@ -130,6 +150,24 @@ def test_save_as_copies_from_the_other_file_and_chosen_folders_stay(demo, tmp_pa
     # A folder the artist chose is left where it is.
     assert data_ops.layer_dir(frame.params(chosen)) == tmp_path / "mine"
     assert (tmp_path / "mine" / "clouds_0001.vdb").is_file()
+
+
+def test_save_copy_leaves_the_session_working_and_the_copy_complete(demo, tmp_path):
+    obj = _clouds(demo)
+    session_dir = data_ops.layer_dir(frame.params(obj))
+    files = _hashes(session_dir)
+    copy = tmp_path / "copy.blend"
+    assert bpy.ops.wm.save_as_mainfile(filepath=str(copy), copy=True) == {"FINISHED"}
+    # Still the unsaved session: its layer reads its own folder as before.
+    assert bpy.data.filepath == ""
+    assert data_ops.layer_dir(frame.params(obj)) == session_dir and _hashes(session_dir) == files
+    assert Path(bpy.path.abspath(obj.data.filepath)).parent == session_dir
+    # The copy has its own files and points into them.
+    assert _hashes(tmp_path / "copy_nephele_cache" / "volumes" / "Nephele_Clouds") == files
+    assert bpy.ops.wm.open_mainfile(filepath=str(copy)) == {"FINISHED"}
+    reopened = bpy.data.objects[volume_ops.OBJECT_NAME]
+    assert frame.params(reopened)["directory"] == "//copy_nephele_cache/volumes/Nephele_Clouds"
+    assert Path(bpy.path.abspath(reopened.data.filepath)).is_file()
 
 
 def test_clear_cache_frees_what_no_layer_uses_and_says_how_much(demo, tmp_path):

@@ -20,6 +20,12 @@ def demo(empty_scene):
     return empty_scene
 
 
+
+@pytest.fixture(autouse=True)
+def _own_cache(tmp_path, monkeypatch):
+    # Unsaved scenes write into a session folder under the user cache: keep the tests' in tmp.
+    monkeypatch.setenv("NEPHELE_CACHE", str(tmp_path / "user_cache"))
+
 def test_panel_values_are_bounded_where_they_are_set(demo):
     d = demo.nephele_data
     # The custom get/set bypassed min/max: -5, 0 h and 1e6 were stored as given.

@@ -151,3 +151,35 @@ def test_uniform_sky_on_isotropic_slab():
     r, t = sol.exit_flux[up].sum() / incident, sol.exit_flux[~up].sum() / incident
     assert sol.converged
     assert r == pytest.approx(r_ref, rel=1e-2) and t == pytest.approx(t_ref, rel=1e-2), (r, r_ref, t, t_ref)
+
+
+# Measured, radiance from above (render of view_source): before -9% / -26% (sun overhead)
+# and -15% / -38% (mu0 0.5) at voxel tau 1 / 2; now -1.5% / -2.3% and -2.1% / -2.6%
+# (the rest: the march interpolates voxel values trilinearly).
+@pytest.mark.parametrize("mu0", [1.0, 0.5])
+@pytest.mark.parametrize("layers", [16, 8, 4])  # voxel tau 0.5, 1, 2
+def test_rendered_single_scattering_from_above(mu0, layers):
+    omega, tau = 1e-3, 8.0
+    s = np.sqrt(1 - mu0 * mu0)
+    sol = scatter.solve(np.full((layers, 3, 3), tau), (1.0, 1.0, 1.0), albedo=omega, g=0.0, sun_dir=(s, 0, mu0),
+                        tol=1e-4, periodic=(True, True, False))
+    cam = scatter.Camera((0.5, 0.5, 30.0), (0.5, 0.5, 0.0), fov=np.radians(0.1), width=2, height=2, up=(0, 1, 0))
+    img = scatter.render(sol.sigma, scatter.view_source(sol, cam.position), sol.size, cam, step=0.05)
+    ref = omega * mu0 / (4 * np.pi * (1 + mu0)) * (1 - np.exp(-tau * (1 / mu0 + 1)))
+    assert img.mean() == pytest.approx(ref, rel=0.03)
+
+
+# facts.md adding-doubling (normal incidence) for g = 0.8: tau, omega, R, T.
+AD_G08 = [(1.0, 1.0, 0.06000, 0.93926), (4.0, 1.0, 0.25444, 0.74406), (4.0, 0.99, 0.23131, 0.70164),
+          (16.0, 0.99, 0.48166, 0.23837)]
+
+
+# Target (issue 18): 1% relative. Reached for g = 0 (all cases above); for g = 0.8
+# measured R -1.2% .. +1.7%, T -1.7% .. +0.2% over voxel tau 0.25 .. 2, and the same
+# at thin voxels with sources spread evenly: the rest is angular (96 bins for the
+# forward-peaked later orders), not voxel depth.  Asserted at 2%.
+@pytest.mark.parametrize("vtau", [2.0, 0.5])
+@pytest.mark.parametrize("tau,omega,r_ref,t_ref", AD_G08)
+def test_forward_peaked_slab_against_adding_doubling(tau, omega, r_ref, t_ref, vtau):
+    r, t = slab(tau, max(1, int(round(tau / vtau))), omega, 0.8, 1.0)
+    assert r == pytest.approx(r_ref, rel=0.02) and t == pytest.approx(t_ref, rel=0.02), (r, t)

@@ -123,3 +123,36 @@ def test_bad_input_raises_one_line_data_error(small, tmp_path):
         with pytest.raises(DataError) as e:
             call()
         assert "\n" not in str(e.value)
+
+
+def test_seam_poles_threshold_and_empty(small):
+    one = TransferFunction(points=((0.0, 1.0),))
+    sp = splat_samples(small, "cloud", 0.0, one)
+    by_index = {tuple(i): a for i, a in zip(sp.index, sp.axes)}
+    # Across the seam (lon 0 and the last column) the ellipsoids match as elsewhere (top level: no terrain).
+    def size(a):
+        return np.sort(np.linalg.norm(a, axis=0))
+
+    seam = np.abs(size(by_index[(7, 16, 0)]) - size(by_index[(7, 16, 63)])).max()
+    assert seam < 1e-6 * size(by_index[(7, 16, 0)])[2]  # a one-sided seam would differ by ~1e-3
+    # Next to the poles: finite, invertible, narrow in longitude.
+    for j in (0, 31):
+        a = by_index[(2, j, 5)]
+        assert np.all(np.isfinite(a)) and abs(np.linalg.det(a)) > 0
+        assert size(a)[0] < 0.2 * size(by_index[(2, 16, 5)])[1]
+    # Opacity exactly at the threshold is not kept; a transparent transfer function gives none.
+    cloud = small.read_at("cloud", 0.0)
+    ramp = TransferFunction.ramp(0.2, 0.7)
+    at = float(ramp(cloud).flat[np.argmax(ramp(cloud) > 0.1)])
+    kept = splat_samples(small, "cloud", 0.0, ramp, threshold=at)
+    assert np.all(kept.opacity > at)
+    none = splat_samples(small, "cloud", 0.0, TransferFunction(points=((0.0, 0.0),)))
+    assert len(none) == 0 and none.axes.shape == (0, 3, 3)
+
+
+def test_real_netcdf_file_without_winds(shared_data):
+    # ECHAM5 pressure levels with relative humidity but no u/v: splats without wind (calm streaks).
+    path = shared_data / "climate" / "rectilinear_grid_3D.nc"
+    sp = splat_samples(str(path), "rh", 0.0, TransferFunction.ramp(0.8, 1.0), color_var="temperature", stride=2)
+    assert len(sp) > 100 and np.all(sp.wind == 0)
+    assert np.all(np.linalg.det(sp.axes) > 0) and np.all(np.isfinite(sp.color))

@@ -4,7 +4,17 @@ import numpy as np
 import pytest
 
 from nephele.core.errors import DataError
-from nephele.core.splats import Camera, Splats, principal_axes, project_splats, render_splats, splat_kernel, streak_maps, streak_orientation
+from nephele.core.splats import (
+    Camera,
+    Splats,
+    principal_axes,
+    project_splats,
+    render_splats,
+    splat_kernel,
+    streak_factor,
+    streak_maps,
+    streak_orientation,
+)
 
 K = splat_kernel()
 
@@ -59,8 +69,8 @@ def test_rendered_streaks_follow_a_uniform_wind_within_5_degrees():
     errors = []
     for theta in np.deg2rad([0, 30, 75, 120, 160]):
         sp = slab(lambda c: 0.2 * np.array([np.cos(theta), np.sin(theta), 0.0]))
-        img = render_splats(sp, K, TOP, 128, 128, streaks=maps, streak_strength=1.0, extinction=10.0)
-        angle, _ = streak_orientation(img[..., :3].mean(-1), sigma=3)
+        img = render_splats(sp, K, TOP, 128, 128, streaks=maps, streak_contrast=1.0, extinction=10.0)
+        angle, _ = streak_orientation(img[..., 3], sigma=3)
         expected = np.arctan2(-np.sin(theta), np.cos(theta)) % np.pi  # image y points down
         errors.append(angle_error(angle, expected))
     rms = np.rad2deg(np.sqrt(np.mean(np.square(errors))))
@@ -77,8 +87,8 @@ def test_rendered_streaks_follow_a_rotating_wind_locally_within_5_degrees():
 
     sp = slab(wind, h=0.07)
     n = 192
-    img = render_splats(sp, K, TOP, n, n, streaks=streak_maps(), streak_strength=1.0, extinction=10.0)
-    lum = img[..., :3].mean(-1)
+    img = render_splats(sp, K, TOP, n, n, streaks=streak_maps(), streak_contrast=1.0, extinction=3.0)
+    lum = img[..., 3]
     f = TOP.pixels_per_unit(n)
     errors = []
     for row in range(16, n - 39, 24):
@@ -97,20 +107,43 @@ def test_rendered_streaks_follow_a_rotating_wind_locally_within_5_degrees():
 
 
 def test_streaks_move_downwind_at_the_projected_wind_speed():
-    # One splat covering the image; dividing by the streak-free render leaves the streak
-    # texture itself, which the next map must show shifted downwind by the wind's
-    # displacement in 1/8 of the loop (found by a least-squares search over shifts).
+    # One splat covering the image: the optical depth with streaks over the one without is
+    # the streak factor itself; it equals streak_factor() on the plane through the centre,
+    # and the next map (after tile/(n |wp|) hours) shows it shifted downwind by tile/n.
     maps = streak_maps()
-    speed, theta = 0.3, np.deg2rad(-30)  # scene units per hour
+    speed, theta, tile = 0.3, np.deg2rad(-30), 2.0  # scene units per hour; tile in scene units (107 px)
     wind = speed * np.array([np.cos(theta), np.sin(theta), 0.0])
     sp = Splats(np.zeros((1, 3)), principal_axes(np.eye(3)[None], K.radius), np.ones((1, 3)), np.ones(1), wind[None], K.radius)
-    plain = render_splats(sp, K, TOP, 128, 128, extinction=10.0)[..., 0].astype(np.float64)
-    a, b = (render_splats(sp, K, TOP, 128, 128, streaks=maps, phase=k / 8, streak_strength=1.0, extinction=10.0)[..., 0] / plain for k in (0, 1))
+
+    def optical_depth(**kw):
+        img = render_splats(sp, K, TOP, 128, 128, extinction=0.5, streak_tile=tile, streak_contrast=1.0, prefilter=0.0, **kw)
+        return -np.log1p(-img[..., 3].astype(np.float64))
+
+    plain = optical_depth()
+    step = tile / (8 * speed)  # hours per map
+    a, b = (optical_depth(streaks=maps, hours=h) / plain for h in (0.1 * step, 1.1 * step))
+    f = TOP.pixels_per_unit(128)
+    cols, rows = np.meshgrid(np.arange(128) + 0.5 - 64, np.arange(128) + 0.5 - 64)
+    xyz = np.column_stack([cols.ravel() / f, -rows.ravel() / f, np.zeros(cols.size)])
+    ref = streak_factor(sp, np.zeros(len(xyz), int), xyz, TOP, 0.1 * step, maps, tile, 1.0).reshape(128, 128)
+    inner = (slice(24, 104), slice(24, 104))
+    assert np.abs(a[inner] - ref[inner]).max() < 2e-3  # float32 alpha limits the ratio
     err = {(dx, dy): np.mean((a[24:104, 24:104] - b[24 + dy : 104 + dy, 24 + dx : 104 + dx]) ** 2) for dx in range(-20, 21) for dy in range(-20, 21)}
     dx, dy = min(err, key=err.get)
-    f = TOP.pixels_per_unit(128)
-    expected = speed * f * 6.0 / 8 * np.array([np.cos(theta), -np.sin(theta)])  # 1/8 of a 6 h loop; image y down
-    print(f"streak shift per map: ({dx}, {dy}) px; the wind moves ({expected[0]:.2f}, {expected[1]:.2f}) px in 0.75 h")
+    expected = tile / 8 * f * np.array([np.cos(theta), -np.sin(theta)])  # image y down
+    print(f"streak shift per map: ({dx}, {dy}) px; the wind moves ({expected[0]:.2f}, {expected[1]:.2f}) px in {step:.3f} h")
     assert np.hypot(dx - expected[0], dy - expected[1]) <= 1.0
-    scr = project_splats(sp, K, TOP, 128, 128)
-    assert scr.wind_speed[0] == pytest.approx(speed * f) and np.allclose(scr.wind_dir[0], expected / np.linalg.norm(expected))
+    scr = project_splats(sp, K, TOP, 128, 128, streak_tile=tile)
+    assert scr.wind_speed[0] == pytest.approx(speed * f) and scr.rate[0] == pytest.approx(speed / tile)
+
+
+def test_calm_wind_and_bad_streak_input():
+    maps = streak_maps(4, 32)
+    sp = Splats(np.zeros((1, 3)), principal_axes(np.eye(3)[None] * 0.3, K.radius), np.ones((1, 3)), np.ones(1), np.zeros((1, 3)), K.radius)
+    # Calm: streaks lie along the camera's x axis and do not move with time.
+    f0 = streak_factor(sp, [0, 0], [[0.1, 0.05, 0], [0.2, -0.1, 0]], TOP, 0.0, maps, 0.5)
+    f1 = streak_factor(sp, [0, 0], [[0.1, 0.05, 0], [0.2, -0.1, 0]], TOP, 7.3, maps, 0.5)
+    assert np.array_equal(f0, f1)
+    for kw in (dict(streaks=np.zeros((2, 2))), dict(streaks=maps, hours=np.nan), dict(streaks=maps, streak_contrast=2.0), dict(streaks=maps, streak_tile=-1.0)):
+        with pytest.raises(DataError):
+            render_splats(sp, K, TOP, 16, 16, **kw)
