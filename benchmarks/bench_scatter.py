@@ -156,10 +156,12 @@ def scaling(shapes=((18, 24, 24), (36, 48, 48), (72, 96, 96))):
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--ref-spp", type=int, default=1024)
-    ap.add_argument("--quick", action="store_true", help="fewer Cycles points")
+    ap.add_argument("--quick", action="store_true", help="smoke run: 16-spp reference, 4 views, 2 Cycles points, smallest grid")
     ap.add_argument("--reference-only", action="store_true")
     ap.add_argument("--views", type=int, default=120)
     args = ap.parse_args(argv)
+    if args.quick:
+        args.ref_spp, args.views = min(args.ref_spp, 16), min(args.views, 4)
     sigma, cam = scene()
     ref, ref_noise, ref_secs = reference(sigma, cam, args.ref_spp)
     if args.reference_only:
@@ -175,8 +177,8 @@ def main(argv=None):
     orbit_ours = t_solve + args.views * t_view
     rows.append((f"ours: {args.views}-view orbit", "", f"{orbit_ours:.1f}", "", "", "", "solve + views"))
     print(rows, flush=True)
-    spp_raw = (16, 64) if args.quick else (16, 64, 256)
-    spp_dn = (1, 4, 16) if args.quick else (1, 4, 16, 64)
+    spp_raw = (4,) if args.quick else (16, 64, 256)
+    spp_dn = (1,) if args.quick else (1, 4, 16, 64)
     best_dn = None
     for dn, spps in ((False, spp_raw), (True, spp_dn)):
         for spp in spps:
@@ -187,7 +189,7 @@ def main(argv=None):
                          f"first render (1 spp) {cold:.1f} s"))
             if dn and ce[2] <= e[2] and best_dn is None:
                 best_dn = (spp, secs)
-    scale = scaling()
+    scale = scaling(((18, 24, 24),) if args.quick else ((18, 24, 24), (36, 48, 48), (72, 96, 96)))
     body = [
         "Test cloud: 24x24x18 in a 1x1x0.75 box, extinction 40 x density, albedo 0.99, g = 0.8, "
         "one sun, black sky, 128x96 view; Cycles CPU with 2 threads in the same run. "
