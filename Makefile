@@ -11,7 +11,7 @@ BPY52 := build/venv-bpy52
 BPY50 := build/venv-bpy50
 PYTEST_ARGS ?=
 
-.PHONY: demo test test-main test-core311 test-extension test-slurm bench extension clean
+.PHONY: demo test test-main test-core311 test-extension test-slurm test-bench bench extension clean
 
 $(VENV)/.stamp: requirements.txt pyproject.toml
 	$(PY313) -m venv $(VENV)
@@ -42,7 +42,7 @@ $(BPY50)/.stamp: requirements-blender311.txt
 demo: $(VENV)/.stamp
 	$(VENV)/bin/nephele demo --out out/demo
 
-test: test-main test-core311 test-extension test-slurm
+test: test-main test-core311 test-extension test-slurm test-bench
 
 test-main: $(VENV)/.stamp
 	$(VENV)/bin/python -m pytest --ignore=tests/extension --ignore=tests/farm/slurm $(PYTEST_ARGS)
@@ -61,6 +61,15 @@ test-extension: $(VENV)/.stamp $(BPY52)/.stamp $(BPY50)/.stamp
 # slurm-wlm and munge are installed with apt-get when missing, which needs root).
 test-slurm: $(VENV)/.stamp
 	$(VENV)/bin/python -m pytest tests/farm/slurm $(PYTEST_ARGS)
+
+# Every benchmark's --quick mode as a smoke test, so none can rot; a quick run prints its table and
+# leaves docs/benchmarks.md alone (benchmarks/report.py).
+test-bench: $(VENV)/.stamp
+	@mkdir -p build
+	@for b in benchmarks/bench_*.py; do \
+	  echo "$$b --quick"; \
+	  $(VENV)/bin/python $$b --quick > build/bench-quick.log 2>&1 || { tail -40 build/bench-quick.log; exit 1; }; \
+	done
 
 bench: $(VENV)/.stamp
 	for b in benchmarks/bench_*.py; do $(VENV)/bin/python $$b || exit 1; done

@@ -133,7 +133,7 @@ def timed(fn):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--quick", action="store_true", help="100 and 1000 ellipsoids only, fewer error samples")
+    ap.add_argument("--quick", action="store_true", help="smoke run: 100 and 300 ellipsoids, 500 error samples")
     ap.add_argument("--sizes", type=int, nargs="*", default=None)
     ap.add_argument("--threads", type=int, default=None)
     ap.add_argument("--metaballs", action=argparse.BooleanOptionalAction, default=True,
@@ -149,8 +149,8 @@ def main():
         actin_table()
         return
     # Beyond 5,000 the meshes pass 6M vertices: too much for the shared 2-core test machine.
-    sizes = args.sizes or ([100, 1000] if args.quick else [100, 1000, 5000])
-    sample = args.sample or (2000 if args.quick else 5000)
+    sizes = args.sizes or ([100, 300] if args.quick else [100, 1000, 5000])
+    sample = args.sample or (500 if args.quick else 5000)
     h = SIGMA[0] / 4
     rng = np.random.default_rng(1)
     load0 = os.getloadavg()[0]

@@ -151,7 +151,11 @@ def main():
     ap.add_argument("--frames", type=int, default=16)
     ap.add_argument("--rounds", type=int, default=3, help="interleaved rounds of every method (load drifts)")
     ap.add_argument("--per-process-frames", type=int, default=6, help="frames for the process-per-frame method")
+    ap.add_argument("--quick", action="store_true",
+                    help="3 frames, 1 round, Blender's render and the 1-worker farm only, no resume part (smoke run)")
     args = ap.parse_args()
+    if args.quick:
+        args.frames, args.rounds = 3, 1
     from report import md_table, write_section
 
     n, k = args.frames, args.per_process_frames
@@ -165,6 +169,9 @@ def main():
         "Blender render(animation=True), `use_persistent_data`": lambda d: (blender_animation(d, n, cores, True), n),
         "farm, 1 worker, `--persistent-data`": lambda d: (farm(d, n, 1, True)[0], n),
     }
+    if args.quick:
+        methods = {k: v for k, v in methods.items() if k in ("Blender render(animation=True), 1 process",
+                                                            "farm, 1 worker (Dask LocalCluster)")}
     seen = {m: [] for m in methods}  # (total s, steady s per frame, frames)
     try:
         for r in range(args.rounds):
@@ -175,8 +182,11 @@ def main():
                 per = total / count if label.startswith("one subprocess") else steady(d)[0]
                 assert steady(d)[1] == count
                 seen[label].append((total, per, count))
-        one = in_process(work / "inproc", n, 2 * args.rounds, cores)
-        resume, cli, verify, adopt = resume_times(work)
+        if args.quick:
+            one, (resume, cli, verify, adopt) = [float("nan")] * 4, [float("nan")] * 4
+        else:
+            one = in_process(work / "inproc", n, 2 * args.rounds, cores)
+            resume, cli, verify, adopt = resume_times(work)
     finally:
         shutil.rmtree(work, ignore_errors=True)
 
@@ -185,7 +195,7 @@ def main():
         return statistics.median(totals), min(pers), statistics.median(pers), counts[0]
 
     ref = stats("Blender render(animation=True), 1 process")
-    ref_p = stats("Blender render(animation=True), `use_persistent_data`")
+    ref_p = stats("Blender render(animation=True), `use_persistent_data`") if not args.quick else ref
     rows = []
     for label in methods:
         total, best, med, count = stats(label)

@@ -87,7 +87,10 @@ def main(argv=None):
     ap.add_argument("--triangles", type=int, default=1_000_000)
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--no-write", action="store_true", help="print only, do not touch docs/benchmarks.md")
+    ap.add_argument("--quick", action="store_true", help="10k triangles, one repeat (smoke run; prints only)")
     args = ap.parse_args(argv)
+    if args.quick:
+        args.triangles, args.repeat = 10_000, 1
 
     import bpy
 

@@ -294,6 +294,8 @@ def main(argv=None):
                       + "\n".join(acc_md), title="Multiple scattering: accuracy vs voxel depth")
     if args.accuracy_only:
         return 0
+    if args.quick:
+        args.ref_spp, args.views = min(args.ref_spp, 16), min(args.views, 4)
     sigma, cam = scene()
     ref, ref_noise, ref_secs = reference(sigma, cam, args.ref_spp)
     if args.reference_only:

@@ -112,9 +112,10 @@ def exact_optical_depths(field, evs, o, d, t_end, step, rays_per_chunk=300):
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--quick", action="store_true", help="fewer rays and voxel sizes")
-    ap.add_argument("--source", default="demo")
+    ap.add_argument("--quick", action="store_true", help="smoke run: the small demo, fewer rays and voxel sizes")
+    ap.add_argument("--source", help="dataset (default: the demo; the small demo with --quick)")
     args = ap.parse_args(argv)
+    args.source = args.source or ("demo:small" if args.quick else "demo")
     rng = np.random.default_rng(0)
     load = os.getloadavg()
     ds = open_dataset(args.source)
@@ -122,18 +123,18 @@ def main(argv=None):
     values = ds.read("cloud", step_index)
     grid = ds.grid
     nk, nj, ni = grid.shape
-    n_rays = 400 if args.quick else 4000
+    n_rays = 100 if args.quick else 4000
     o, d = rays(n_rays, rng)
     field = CurvilinearField.from_grid(grid, {"v": values})
 
     # The anchor: the exact reference, at two steps to show it has converged.
-    ref_step = 0.00025
+    ref_step = 0.001 if args.quick else 0.00025
     (tau, t0, t1), ref_wall, ref_cpu = timed(lambda: reference_optical_depth(field, "v", TF, o, d, ref_step), 1)
     tau2, _, _ = reference_optical_depth(field, "v", TF, o, d, 2 * ref_step)
     a_ref = opacity(tau, DEFAULT_EXTINCTION)
     conv = np.abs(opacity(tau2, DEFAULT_EXTINCTION) - a_ref).max() * 100
 
-    sizes = (0.008, 0.004, DEFAULT_VOXEL_SIZE) if args.quick else (0.008, 0.006, 0.004, 0.003, 0.0027, 0.0025, 0.002, 0.0015)
+    sizes = (0.004, DEFAULT_VOXEL_SIZE) if args.quick else (0.008, 0.006, 0.004, 0.003, 0.0027, 0.0025, 0.002, 0.0015)
     families = (("Fig. 2 camera", slice(0, n_rays // 2)), ("chords", slice(n_rays // 2, n_rays)))
 
     def errors(err, digits=2):
@@ -226,7 +227,7 @@ def main(argv=None):
                          f"{vol.stats['bytes'] / max(vol.stats['active_voxels'], 1):.1f}"])
 
     # The exact mode, on the same rays against the same reference.
-    support_sizes = (0.02, DEFAULT_SUPPORT_SIZE) if args.quick else (0.02, DEFAULT_SUPPORT_SIZE, 0.005)
+    support_sizes = (DEFAULT_SUPPORT_SIZE,) if args.quick else (0.02, DEFAULT_SUPPORT_SIZE, 0.005)
     layout, layout_wall, layout_cpu = timed(lambda: atlas_layout(grid), 3)
     evs, exact_rows = [], []
     for ss in support_sizes:

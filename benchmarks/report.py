@@ -3,7 +3,9 @@
 ``write_section("contour", markdown)`` replaces the text between
 ``<!-- BEGIN contour -->`` and ``<!-- END contour -->`` (appending the section
 the first time), stamped with the date and the machine, atomically and under a
-file lock so that benchmarks may run side by side.
+file lock so that benchmarks may run side by side.  A quick run (``--quick`` on
+the command line, the smoke test of ``make test``) prints its section and
+leaves docs/benchmarks.md alone: its numbers are not the benchmark's.
 """
 
 import datetime
@@ -11,8 +13,10 @@ import fcntl
 import os
 import platform
 import re
-import tempfile
+import sys
 from pathlib import Path
+
+from nephele.core.files import atomic_write
 
 DOC = Path(__file__).resolve().parent.parent / "docs" / "benchmarks.md"
 HEADER = "# Benchmarks\n\nWritten by the scripts in `benchmarks/` (`make bench`). Each section says when and where it ran.\n"
@@ -54,13 +58,22 @@ def md_table(header, rows):
     return "\n".join(lines)
 
 
+def quick():
+    """True for a quick (smoke) run: ``--quick`` on the command line."""
+    return "--quick" in sys.argv[1:]
+
+
 def write_section(name, body, title=None, doc=DOC):
-    """Put ``body`` (markdown) into section ``name`` of docs/benchmarks.md."""
+    """Put ``body`` (markdown) into section ``name`` of docs/benchmarks.md (only print it in a quick run)."""
     stamp = datetime.datetime.now().strftime("%Y-%m-%d %H:%M")
     text = (
         f"<!-- BEGIN {name} -->\n## {title or name}\n\n"
         f"_Run {stamp} on {machine()}._\n\n{body.strip()}\n<!-- END {name} -->"
     )
+    if quick():
+        print(text)
+        print(f"(quick run: {Path(doc).name} not written)")
+        return
     doc = Path(doc)
     doc.parent.mkdir(parents=True, exist_ok=True)
     with open(doc.with_suffix(".lock"), "w") as lock:
@@ -68,8 +81,6 @@ def write_section(name, body, title=None, doc=DOC):
         old = doc.read_text() if doc.exists() else HEADER
         pattern = re.compile(rf"<!-- BEGIN {re.escape(name)} -->.*?<!-- END {re.escape(name)} -->", re.S)
         new = pattern.sub(lambda m: text, old) if pattern.search(old) else old.rstrip() + "\n\n" + text + "\n"
-        fd, tmp = tempfile.mkstemp(dir=doc.parent, prefix=".benchmarks.")
-        with os.fdopen(fd, "w") as f:
-            f.write(new)
-        os.replace(tmp, doc)
+        with atomic_write(doc) as tmp:
+            tmp.write_text(new)
     print(text)
