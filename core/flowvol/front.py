@@ -155,3 +155,36 @@ class Front:
             tris.append(np.stack([g(j, i), g(j, i + 1), g(j2, i + 1)], axis=1))
             tris.append(np.stack([g(j, i), g(j2, i + 1), g(j2, i)], axis=1))
         return np.concatenate(tris)
+
+    def merge_targets(self, tol, fraction):
+        """Where the front converged: for each lattice point, the point it is merged into (itself if kept).
+
+        In each layer a column is merged into its previous kept column when
+        the flow brought them closer than ``fraction * tol`` and than
+        ``fraction`` times their distance on the generator (on every ring), and
+        the kept column is within ``tol`` of the next one, so the front stays
+        within ``tol`` (Hultquist's point removal, one layer at a time).  Where
+        the flow did not converge nothing is merged, so uniform and shear flows
+        stay exact.  Generator corners are kept in the newest layer, the
+        generator itself.
+        """
+        K, J, R = len(self.taus), len(self.us), self.rings
+        cols = self.pos[:, 1:].reshape(K, J, R, 3)
+        target = np.arange(K * (1 + J * R)).reshape(K, 1 + J * R)
+        gen = self._generator(self.us, False).reshape(J, R, 3)
+        layers = np.arange(K)
+        keep = np.zeros(K, dtype=np.int64)
+        protect = np.zeros(K, dtype=bool)
+        protect[-1] = True
+        # Walk the columns once, every layer at a time: each layer keeps its own last kept column.
+        for j in range(1, J):
+            kept = cols[layers, keep]
+            gap = np.linalg.norm(kept - cols[:, j], axis=-1).max(axis=-1)
+            released = np.linalg.norm(gen[keep] - gen[j], axis=-1).max(axis=-1)
+            near = (gap < fraction * tol) & (gap < fraction * released)
+            bridge = np.linalg.norm(kept - cols[:, (j + 1) % J], axis=-1).max(axis=-1) < tol
+            merge = near & bridge & ~(protect & (self.us[j] == np.round(self.us[j])))
+            ks = np.nonzero(merge)[0]
+            target[ks, 1 + j * R:1 + (j + 1) * R] = target[ks[:, None], 1 + keep[ks, None] * R + np.arange(R)]
+            keep = np.where(merge, keep, j)
+        return target.reshape(-1)

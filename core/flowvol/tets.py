@@ -70,3 +70,28 @@ def face_use_counts(tets):
     """How many tetrahedra use each distinct face (1: boundary, 2: shared)."""
     key = np.sort(np.asarray(tets, dtype=np.int64)[:, _FACES].reshape(-1, 3), axis=1)
     return np.unique(key, axis=0, return_counts=True)[1]
+
+
+def merge_vertices(tets, target, reference, max_rounds=8):
+    """Tetrahedra after merging vertex ``i`` into ``target[i]``, degenerate ones dropped.
+
+    Merging a vertex into a neighbour is an edge collapse: shared faces stay
+    shared.  A merge that would invert a tetrahedron or fold two onto one
+    face (checked on the ``reference`` positions) is undone, with every
+    other merge into the same vertex.
+    """
+    tets = np.asarray(tets, dtype=np.int64).reshape(-1, 4)
+    target = np.array(target, dtype=np.int64)
+    for _ in range(max_rounds):
+        t = target[tets]
+        s = np.sort(t, axis=1)
+        t = t[np.all(s[:, 1:] != s[:, :-1], axis=1)]
+        vol = signed_volumes(reference, t)
+        key = np.sort(t[:, _FACES].reshape(-1, 3), axis=1)
+        _, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+        bad = (vol <= 0) | (counts[inverse.reshape(-1)] > 2).reshape(-1, 4).any(axis=1)
+        if not bad.any():
+            return t
+        undo = np.isin(target, np.unique(t[bad])) & (target != np.arange(len(target)))
+        target[undo] = np.nonzero(undo)[0]
+    return tets

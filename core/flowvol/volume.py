@@ -18,7 +18,7 @@ from ..mesh import Mesh, vertex_normals
 from .climate import ClimateVelocity
 from .front import Front, perpendicular_frame
 from .unstructured import UnstructuredVelocity
-from .tets import boundary_faces, orient, signed_volumes, split_prisms
+from .tets import boundary_faces, merge_vertices, orient, signed_volumes, split_prisms
 
 
 @dataclass
@@ -68,7 +68,7 @@ def _as_velocity(velocity):
     raise DataError(f"velocity must be a callable velocity(points, t) or a climate dataset, got {type(velocity).__name__}", field="velocity")
 
 
-def flow_volume(velocity, center, radius, duration, *, normal=None, sides=32, rings=2, t0=0.0, tol=None, steps=16, max_points=200_000):
+def flow_volume(velocity, center, radius, duration, *, normal=None, sides=32, rings=2, t0=0.0, tol=None, merge=0.5, steps=16, max_points=200_000):
     """The air released through a generator polygon during ``duration``, carried to ``t0 + duration``.
 
     Parameters
@@ -91,6 +91,10 @@ def flow_volume(velocity, center, radius, duration, *, normal=None, sides=32, ri
     tol : float, optional
         Largest distance between neighbouring front points (default: the
         generator's edge length).
+    merge : float
+        Where the front converges, neighbours closer than ``merge * tol`` are
+        merged (0: keep every point); every point is still integrated, but the
+        tetrahedra and the surface use only the kept ones.
     steps : int
         RK4 steps along each trajectory.
     max_points : int
@@ -115,6 +119,8 @@ def flow_volume(velocity, center, radius, duration, *, normal=None, sides=32, ri
     if int(sides) < 3 or int(rings) < 1 or int(steps) < 1:
         raise DataError(f"need sides >= 3, rings >= 1, steps >= 1 (got {sides}, {rings}, {steps})", field="sides")
     sides, rings, steps = int(sides), int(rings), int(steps)
+    if not 0 <= merge < 1:
+        raise DataError(f"merge must be in [0, 1), got {merge}", field="merge")
     velocity = _as_velocity(velocity)
     if normal is None:
         v = np.asarray(velocity(center[None], np.array([float(t0)])), dtype=np.float64).reshape(3)
@@ -132,10 +138,10 @@ def flow_volume(velocity, center, radius, duration, *, normal=None, sides=32, ri
         raise DataError(f"tol must be positive, got {tol}", field="tol")
     front = Front(velocity, center, e1, e2, float(radius), sides, rings, float(t0), float(duration), steps)
     complete = True if duration == 0 else front.refine(tol, max_points)
-    return _assemble(front, n, complete)
+    return _assemble(front, n, complete, tol, float(merge))
 
 
-def _assemble(front, normal, complete):
+def _assemble(front, normal, complete, tol, merge):
     K, G = front.pos.shape[:2]
     vertices = front.pos.reshape(-1, 3)
     release = np.repeat(front.taus, G)
@@ -151,6 +157,8 @@ def _assemble(front, normal, complete):
         ages = np.repeat(front.t_end - front.taus, G)
         reference = np.tile(front.generator, (K, 1)) + ages[:, None] * normal
         tets = orient(reference, split_prisms(prisms))
+        if merge > 0:
+            tets = merge_vertices(tets, front.merge_targets(tol, merge), reference)
     faces = boundary_faces(tets)
     used = np.unique(faces)
     remap = np.full(len(vertices), -1, dtype=np.int64)
