@@ -191,14 +191,21 @@ class UnstructuredVelocity:
             idx = near[todo, c]
             x = self.points[self.cells[idx]]  # (m, 8, 3)
             q = np.full((len(todo), 3), 0.5)
+            step = np.full((len(todo), 3), np.inf)
+            live = np.arange(len(todo))
             for _ in range(iterations):
-                w, d = trilinear(q)
-                r = np.einsum("mk,mkj->mj", w, x) - p[todo]
-                jac = np.einsum("mki,mkj->mji", d, x)  # d position_j / d q_i
+                w, d = trilinear(q[live])
+                r = np.einsum("mk,mkj->mj", w, x[live]) - p[todo[live]]
+                jac = np.einsum("mki,mkj->mji", d, x[live])  # d position_j / d q_i
                 ok = np.abs(np.linalg.det(jac)) > 0
-                step = np.zeros_like(q)
-                step[ok] = np.linalg.solve(jac[ok], r[ok][..., None])[..., 0]
-                q = np.clip(q - step, -1.0, 2.0)  # far-off candidates stay bounded
+                s = np.zeros((len(live), 3))
+                s[ok] = np.linalg.solve(jac[ok], r[ok][..., None])[..., 0]
+                q[live] = np.clip(q[live] - s, -1.0, 2.0)  # far-off candidates stay bounded
+                step[live] = s
+                # Converged, or far outside the cell after a few steps: stop iterating on it.
+                live = live[(np.abs(s).max(axis=1) >= 1e-12) & ok]
+                if len(live) == 0:
+                    break
             inside = np.all((q >= -tol) & (q <= 1 + tol), axis=1) & (np.abs(step).max(axis=1) < 1e-9)
             cell[todo[inside]] = idx[inside]
             rst[todo[inside]] = np.clip(q[inside], 0.0, 1.0)
