@@ -219,3 +219,16 @@ class UnstructuredVelocity:
         w, _ = trilinear(rst[ok])
         out[ok] = np.einsum("mk,mkj->mj", w, self.vectors[self.cells[cell[ok]]])
         return out
+
+    def updraft(self, height=0.1, margin=0.3):
+        """A generator place: ``height`` above the fastest rising (+z) grid point in the lower half, ``margin`` from the side walls.
+
+        Above a fire this is its plume, so the smoke is seeded where the hot air rises.
+        """
+        lo, hi = self.bounds[:, 0] + margin, self.bounds[:, 1] - margin
+        p = self.points
+        inside = np.all((p[:, :2] >= lo[:2]) & (p[:, :2] <= hi[:2]), axis=1) & (p[:, 2] < self.bounds[2].mean())
+        if not inside.any():
+            raise DataError(f"no grid point lies {margin} inside the side walls in the lower half", path=self.path)
+        i = np.argmax(np.where(inside, self.vectors[:, 2], -np.inf))
+        return p[i] + [0.0, 0.0, float(height)]
