@@ -136,8 +136,9 @@ def apply(obj, args, fv):
         gen.rotation_mode = "QUATERNION"
         gen.rotation_quaternion = Vector(fv.normal).to_track_quat("Z", "Y")
         _state["matrix"] = [tuple(r) for r in gen.matrix_world]
+    unit = "" if is_vtu(args["source"]) else " h"
     obj["nephele_status"] = (f"{len(fv.tets)} tets, volume {fv.volume:.3g}, released {args['t0']:g}-"
-                             f"{args['t0'] + args['duration']:g} h" + ("" if fv.complete else " (front size limit reached)"))
+                             f"{args['t0'] + args['duration']:g}{unit}" + ("" if fv.complete else " (front size limit reached)"))
 
 
 update_smoke = frame.register_job(KIND, plan, compute, apply)
