@@ -82,12 +82,13 @@ class Front:
     the point at perimeter parameter ``us[j]`` on ring ``(i + 1) / rings``.
     """
 
-    def __init__(self, velocity, center, e1, e2, radius, sides, rings, t0, duration, steps):
+    def __init__(self, velocity, center, e1, e2, radius, sides, rings, t0, duration, steps, layers=2):
         self.velocity, self.center, self.e1, self.e2 = velocity, center, e1, e2
         self.radius, self.sides, self.rings = radius, sides, rings
         self.t_end, self.steps = t0 + duration, steps
         self.us = np.arange(sides, dtype=np.float64)
-        self.taus = np.array([t0, t0 + duration])
+        # Release times start evenly spaced; ``layers`` from the expected spacing saves refinement rounds.
+        self.taus = np.linspace(t0, t0 + duration, max(int(layers), 2))
         self.pos = self._integrate(self.taus, self.us, centre=True)
 
     def _generator(self, us, centre):

@@ -122,8 +122,8 @@ def flow_volume(velocity, center, radius, duration, *, normal=None, sides=32, ri
     if not 0 <= merge < 1:
         raise DataError(f"merge must be in [0, 1), got {merge}", field="merge")
     velocity = _as_velocity(velocity)
+    v = np.asarray(velocity(center[None], np.array([float(t0)])), dtype=np.float64).reshape(3)
     if normal is None:
-        v = np.asarray(velocity(center[None], np.array([float(t0)])), dtype=np.float64).reshape(3)
         if not np.all(np.isfinite(v)):
             raise DataError(f"the velocity at the generator centre {center.tolist()} is missing (NaN)", field="velocity")
         if not np.linalg.norm(v) > 0:
@@ -136,7 +136,11 @@ def flow_volume(velocity, center, radius, duration, *, normal=None, sides=32, ri
     tol = 2 * radius * np.sin(np.pi / sides) if tol is None else float(tol)
     if not tol > 0:
         raise DataError(f"tol must be positive, got {tol}", field="tol")
-    front = Front(velocity, center, e1, e2, float(radius), sides, rings, float(t0), float(duration), steps)
+    # Layers spaced about tol apart at the centre's speed: fewer refinement rounds (each re-reads the winds).
+    G = 1 + sides * rings
+    speed = float(np.linalg.norm(v)) if np.all(np.isfinite(v)) else 0.0
+    layers = int(min(np.ceil(speed * float(duration) / tol), max_points // G)) + 1
+    front = Front(velocity, center, e1, e2, float(radius), sides, rings, float(t0), float(duration), steps, layers)
     complete = True if duration == 0 else front.refine(tol, max_points)
     return _assemble(front, n, complete, tol, float(merge))
 

@@ -238,3 +238,16 @@ def test_converging_flow_merges_front_points_and_keeps_the_volume():
 def test_merging_leaves_uniform_and_diverging_fronts_alone():
     fv = flow_volume(uniform, [1.0, 2.0, 3.0], 0.7, 2.5, sides=32, merge=0.9)
     assert len(np.unique(fv.tets)) == len(fv.vertices)
+
+
+def test_climate_stacked_steps_equal_step_by_step_reads(rotation_globe):
+    # One gather from the stacked steps and one read per step give the same winds.
+    _, ds = rotation_globe
+    stacked, per_step = ClimateVelocity(ds), ClimateVelocity(ds, stack_mb=0)
+    rng = np.random.default_rng(3)
+    p = np.array([stacked.point(lo, la, h) for lo, la, h in zip(rng.uniform(-180, 180, 200), rng.uniform(-89, 89, 200), rng.uniform(0, 9000, 200))])
+    t = rng.uniform(0, 24, 200)
+    t[:10] = np.round(t[:10])  # exactly on a step
+    a, b = stacked(p, t), per_step(p, t)
+    assert stacked._stack is not None and per_step._stack is None
+    assert np.allclose(a, b, rtol=1e-6, atol=1e-9 * np.abs(b).max())
