@@ -173,6 +173,9 @@ class UnstructuredVelocity:
         self.bounds = np.stack([self.points.min(axis=0), self.points.max(axis=0)], axis=1)
         corners = self.points[self.cells]
         self._tree = cKDTree(corners.mean(axis=1))
+        # A trilinear cell lies in the box of its corners: only candidates whose box holds the point are inverted.
+        pad = 1e-9 * np.ptp(self.points, axis=0).max()
+        self._lo, self._hi = corners.min(axis=1) - pad, corners.max(axis=1) + pad
         self._k = min(int(candidates), len(self.cells))
 
     def locate(self, points, tol=1e-7, iterations=12):
@@ -184,8 +187,12 @@ class UnstructuredVelocity:
             return cell, rst
         _, near = self._tree.query(p, k=self._k)
         near = near.reshape(len(p), -1)
-        todo = np.arange(len(p))
+        holds = np.all((p[:, None] >= self._lo[near]) & (p[:, None] <= self._hi[near]), axis=2)
+        near = np.take_along_axis(near, np.argsort(~holds, axis=1, kind="stable"), axis=1)
+        count = holds.sum(axis=1)
+        todo = np.nonzero(count > 0)[0]
         for c in range(near.shape[1]):
+            todo = todo[count[todo] > c]
             if len(todo) == 0:
                 break
             idx = near[todo, c]
