@@ -75,6 +75,14 @@ def advance(velocity, points, release, t_end, steps):
     return x
 
 
+def _splits(a, b, ratio, most=8):
+    """Points splitting each interval (a, b) into ``ceil(ratio)`` equal parts (at most ``most``)."""
+    parts = np.clip(np.ceil(ratio), 2, most).astype(int)
+    k = np.concatenate([np.arange(1, n) for n in parts])
+    start, end, n = np.repeat(a, parts - 1), np.repeat(b, parts - 1), np.repeat(parts, parts - 1)
+    return start + (end - start) * k / n
+
+
 class Front:
     """Front points on a (release time × generator column × ring) lattice plus the centre column.
 
@@ -122,11 +130,13 @@ class Front:
             rows = np.nonzero(lay > tol)[0]
             if len(cols) == 0 and len(rows) == 0:
                 return True
+            # Split each long gap into ceil(gap / tol) parts at once (at most 8 a round): fewer rounds,
+            # and every round re-reads the velocity for all the new points together.
             if len(cols):
                 nxt = np.where(cols + 1 < len(self.us), self.us[(cols + 1) % len(self.us)], self.sides)
-                self._add_columns(0.5 * (self.us[cols] + nxt))
+                self._add_columns(_splits(self.us[cols], nxt, gap[cols] / tol))
             if len(rows):
-                self._add_layers(0.5 * (self.taus[rows] + self.taus[rows + 1]))
+                self._add_layers(_splits(self.taus[rows], self.taus[rows + 1], lay[rows] / tol))
         return False
 
     def _add_columns(self, new_us):
