@@ -238,6 +238,9 @@ def test_converging_flow_merges_front_points_and_keeps_the_volume():
 def test_merging_leaves_uniform_and_diverging_fronts_alone():
     fv = flow_volume(uniform, [1.0, 2.0, 3.0], 0.7, 2.5, sides=32, merge=0.9)
     assert len(np.unique(fv.tets)) == len(fv.vertices)
+    div = lambda p, t: np.stack([p[:, 0], p[:, 1], np.ones(len(p))], axis=1)
+    fv = flow_volume(div, [0, 0, 0], 0.2, 2.0, sides=8, tol=0.1, steps=64, merge=0.9)
+    assert len(np.unique(fv.tets)) == len(fv.vertices)
 
 
 def test_climate_stacked_steps_equal_step_by_step_reads(rotation_globe):
