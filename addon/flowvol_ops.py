@@ -9,6 +9,10 @@ depsgraph handler rebuilds the smoke, debounced, when the generator moves.
 With "Flow with the frames" the release window moves with the frame (a job of
 :mod:`.frame`: in the background in the interface, at once in renders), so the
 smoke flows on in a film while the generator keeps releasing.
+With a ``.vtu`` file (e.g. the fire in a room) the velocity is that steady
+3-D flow instead of the climate winds (read and interpolated without VTK,
+which Blender does not ship) and the generator starts above the fastest
+updraft.
 """
 
 import json
@@ -18,7 +22,7 @@ import bpy
 import numpy as np
 from mathutils import Vector
 
-from ..core.flowvol import ClimateVelocity, flow_volume
+from ..core.flowvol import ClimateVelocity, UnstructuredVelocity, flow_volume
 from ..core.pipeline import sources
 from ..core.surface.mesh import Mesh
 from . import data_ops, frame
@@ -66,8 +70,13 @@ def smoke_material(color, density, name=SMOKE):
     return mat
 
 
-_VELOCITIES = {}  # (source, exaggeration) -> ClimateVelocity: keeps its converted wind steps between rebuilds
+_VELOCITIES = {}  # (source, exaggeration) -> velocity: keeps converted wind steps (or the read grid) between rebuilds
 _VELOCITIES_LOCK = threading.Lock()
+
+
+def is_vtu(source):
+    """Whether ``source`` names a VTK XML unstructured grid (a steady 3-D flow) rather than a climate source."""
+    return str(source).lower().endswith(".vtu")
 
 
 def _velocity(source, exaggeration):
@@ -75,7 +84,8 @@ def _velocity(source, exaggeration):
     with _VELOCITIES_LOCK:
         if key not in _VELOCITIES:
             _VELOCITIES.clear()
-            _VELOCITIES[key] = ClimateVelocity(sources.open_source(source), exaggeration=exaggeration)
+            _VELOCITIES[key] = (UnstructuredVelocity(source) if is_vtu(source) else
+                                ClimateVelocity(sources.open_source(source), exaggeration=exaggeration))
         return _VELOCITIES[key]
 
 
@@ -88,7 +98,7 @@ def release_window(params, frame_number):
     the generator keeps releasing (the end is clamped to the data's last hour).
     """
     t0, hours = float(params["start_hour"]), float(params["hours"])
-    if params.get("follow"):
+    if params.get("follow") and not is_vtu(params["source"]):  # a steady flow: every window gives the same tube
         ds = sources.open_source(params["source"])
         shift = sources.frame_hours(frame_number, params.get("frame_start", 1), params.get("hours_per_frame", 1.0))
         t_end = min(t0 + hours + shift, float(ds.hours[-1]))
@@ -126,8 +136,9 @@ def apply(obj, args, fv):
         gen.rotation_mode = "QUATERNION"
         gen.rotation_quaternion = Vector(fv.normal).to_track_quat("Z", "Y")
         _state["matrix"] = [tuple(r) for r in gen.matrix_world]
+    unit = "" if is_vtu(args["source"]) else " h"
     obj["nephele_status"] = (f"{len(fv.tets)} tets, volume {fv.volume:.3g}, released {args['t0']:g}-"
-                             f"{args['t0'] + args['duration']:g} h" + ("" if fv.complete else " (front size limit reached)"))
+                             f"{args['t0'] + args['duration']:g}{unit}" + ("" if fv.complete else " (front size limit reached)"))
 
 
 update_smoke = frame.register_job(KIND, plan, compute, apply)
@@ -136,7 +147,8 @@ update_smoke = frame.register_job(KIND, plan, compute, apply)
 def layer_params(props, scene):
     """The smoke layer's parameters (stored on the object; the generator's place is read per frame)."""
     cfg = data_ops.settings(scene)
-    return {"kind": KIND, "source": str(cfg["source"]), "exaggeration": float(props.exaggeration),
+    source = bpy.path.abspath(props.vtu_path) if props.vtu_path else str(cfg["source"])
+    return {"kind": KIND, "source": source, "exaggeration": float(props.exaggeration),
             "hours": float(props.hours), "start_hour": float(props.start_hour), "sides": int(props.sides),
             "steps": int(props.steps), "tolerance": float(props.tolerance), "follow": bool(props.follow_frame),
             "hours_per_frame": float(cfg["hours_per_frame"]), "frame_start": int(cfg["frame_start"])}
@@ -207,12 +219,13 @@ class NEPHELE_OT_add_flow_volume(bpy.types.Operator):
     def execute(self, context):
         props = context.scene.nephele_flowvol
         try:
-            vel = _velocity(data_ops.settings(context.scene)["source"], props.exaggeration)
+            source = layer_params(props, context.scene)["source"]
+            vel = _velocity(source, props.exaggeration)
             gen = bpy.data.objects.get(GENERATOR)
             if gen is None:
                 gen = bpy.data.objects.new(GENERATOR, generator_circle(props.sides))
                 context.scene.collection.objects.link(gen)
-            gen.location = vel.point(props.lon, props.lat, props.height)
+            gen.location = vel.updraft(props.vtu_height) if is_vtu(source) else vel.point(props.lon, props.lat, props.height)
             gen.scale = (props.radius,) * 3
             context.view_layer.update()
             build(context, props)
@@ -265,6 +278,12 @@ class NepheleFlowVolumeProps(bpy.types.PropertyGroup):
     follow_frame: bpy.props.BoolProperty(
         name="Flow with the frames", default=True,
         description="The release window moves on with the frame (by the dataset's hours per frame): the smoke flows in a film")
+    vtu_path: bpy.props.StringProperty(
+        name="3-D flow (.vtu)", default="", subtype="FILE_PATH",
+        description="A VTK XML unstructured grid with point vectors 'uvw' (e.g. the fire in a room): used instead of the climate winds; "
+                    "times in its units")
+    vtu_height: bpy.props.FloatProperty(name="Above the updraft", default=0.1, min=0.0,
+                                        description="The generator starts this far above the fastest updraft of the 3-D flow")
     status: bpy.props.StringProperty(name="Status", default="")
 
 
@@ -276,7 +295,7 @@ class NEPHELE_PT_flowvol(SubPanel, bpy.types.Panel):
     def draw(self, context):
         p = context.scene.nephele_flowvol
         col = self.layout.column()
-        for name in ("lon", "lat", "height", "radius", "hours", "start_hour", "sides", "steps", "tolerance", "exaggeration", "color", "density", "live", "follow_frame"):
+        for name in ("vtu_path", "vtu_height", "lon", "lat", "height", "radius", "hours", "start_hour", "sides", "steps", "tolerance", "exaggeration", "color", "density", "live", "follow_frame"):
             col.prop(p, name)
         col.operator(NEPHELE_OT_add_flow_volume.bl_idname)
         col.operator(NEPHELE_OT_update_flow_volume.bl_idname)

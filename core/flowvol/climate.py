@@ -34,15 +34,33 @@ class ClimateVelocity:
     keep_hours : float
         Hours of converted wind steps kept (every RK4 sweep visits the whole
         release window, so fewer than it would re-read every step each sweep).
+    stack_mb : float
+        The steps a call needs are stacked once (kept between calls) so every
+        point is interpolated in one gather, when they take at most this many
+        MB; otherwise each step is read on its own.
     """
 
-    def __init__(self, dataset, radius=1.0, exaggeration=DEFAULT_EXAGGERATION, nan="error", keep_hours=48):
+    def __init__(self, dataset, radius=1.0, exaggeration=DEFAULT_EXAGGERATION, nan="error", keep_hours=48, stack_mb=256):
         self.wind = WindField(dataset, nan=nan, read_ahead=False, cache_steps=steps_to_keep(dataset.grid, keep_hours))
         self.radius, self.exaggeration = float(radius), float(exaggeration)
+        self.stack_bytes, self._stack = stack_mb * 2**20, None
         h = np.asarray(dataset.grid.height, dtype=np.float64).reshape(self.wind.nk, -1).mean(axis=1)
         self.level_height = h
         # Scene units per level along the radius (vertical speed from the level rate).
         self._dr_ds = np.gradient(h) * self.radius * self.exaggeration / EARTH_RADIUS if len(h) > 1 else np.zeros(1)
+
+    def _stacked(self, lo, hi):
+        """Wind steps ``lo..hi`` (padded, converted) stacked along the level axis, kept between calls; None if too big."""
+        if self._stack is not None and self._stack[0] <= lo and hi <= self._stack[1]:
+            a, _, f = self._stack
+            nk = self.wind.nk
+            return f[(lo - a) * nk:(hi - a + 1) * nk]
+        first = self.wind._step(lo)  # the wind field's converted, padded step (cached there too)
+        if first.nbytes * (hi - lo + 1) > self.stack_bytes:
+            return None
+        f = np.concatenate([first] + [self.wind._step(i) for i in range(lo + 1, hi + 1)], axis=0)
+        self._stack = (lo, hi, f)
+        return f
 
     def level(self, points):
         """Fractional level index of scene points (clamped to the grid's levels)."""
@@ -72,10 +90,30 @@ class ClimateVelocity:
             self.wind.check_time(hour)
         i0 = np.clip(np.searchsorted(hours, t, side="right") - 1, 0, max(len(hours) - 2, 0))
         w1 = np.clip((t - hours[i0]) / (hours[np.minimum(i0 + 1, len(hours) - 1)] - hours[i0] if len(hours) > 1 else 1.0), 0.0, 1.0)
-        for i in np.unique(i0):
-            sel = i0 == i
-            for step, w in ((i, 1.0 - w1[sel]), (min(i + 1, len(hours) - 1), w1[sel])):
-                v, sdot = self.wind.velocity(float(hours[step]), unit[sel], s[sel])
-                rate = sdot * np.interp(s[sel], np.arange(len(self._dr_ds)), self._dr_ds)
-                out[sel] += w[:, None] * (v * r[sel, None] + rate[:, None] * unit[sel])
+        lo, hi = int(i0.min()), min(int(i0.max()) + 1, len(hours) - 1)
+        stack = self._stacked(lo, hi)
+        if stack is not None:
+            # Every point's two bracketing steps in one gather from the steps stacked along the level axis.
+            fk, fj, fi = self.wind.index.fractional(unit, s)
+            nk = self.wind.nk
+            upper = np.minimum(i0 + 1, len(hours) - 1)
+            both = self.wind.index.trilinear(stack, np.concatenate([(i0 - lo) * nk + fk, (upper - lo) * nk + fk]),
+                                             np.concatenate([fj, fj]), np.concatenate([fi, fi])).astype(np.float64)
+            n = len(p)
+            f = (1.0 - w1)[:, None] * both[:n] + w1[:, None] * both[n:]
+            v = f[:, :3] - np.einsum("ij,ij->i", f[:, :3], unit)[:, None] * unit
+            rate = f[:, 3] * np.interp(s, np.arange(len(self._dr_ds)), self._dr_ds)
+            return v * r[:, None] + rate[:, None] * unit
+        # Too many steps to stack: one wind read per hourly step for every point that needs it.
+        steps = np.concatenate([i0, np.minimum(i0 + 1, len(hours) - 1)])
+        weights = np.concatenate([1.0 - w1, w1])
+        owner = np.concatenate([np.arange(len(p)), np.arange(len(p))])
+        for step in np.unique(steps):
+            use = (steps == step) & (weights > 0)
+            sel, w = owner[use], weights[use]
+            if len(sel) == 0:
+                continue
+            v, sdot = self.wind.velocity(float(hours[step]), unit[sel], s[sel])
+            rate = sdot * np.interp(s[sel], np.arange(len(self._dr_ds)), self._dr_ds)
+            np.add.at(out, sel, w[:, None] * (v * r[sel, None] + rate[:, None] * unit[sel]))
         return out

@@ -75,6 +75,14 @@ def advance(velocity, points, release, t_end, steps):
     return x
 
 
+def _splits(a, b, ratio, most=8):
+    """Points splitting each interval (a, b) into ``ceil(ratio)`` equal parts (at most ``most``)."""
+    parts = np.clip(np.ceil(ratio), 2, most).astype(int)
+    k = np.concatenate([np.arange(1, n) for n in parts])
+    start, end, n = np.repeat(a, parts - 1), np.repeat(b, parts - 1), np.repeat(parts, parts - 1)
+    return start + (end - start) * k / n
+
+
 class Front:
     """Front points on a (release time × generator column × ring) lattice plus the centre column.
 
@@ -82,12 +90,13 @@ class Front:
     the point at perimeter parameter ``us[j]`` on ring ``(i + 1) / rings``.
     """
 
-    def __init__(self, velocity, center, e1, e2, radius, sides, rings, t0, duration, steps):
+    def __init__(self, velocity, center, e1, e2, radius, sides, rings, t0, duration, steps, layers=2):
         self.velocity, self.center, self.e1, self.e2 = velocity, center, e1, e2
         self.radius, self.sides, self.rings = radius, sides, rings
         self.t_end, self.steps = t0 + duration, steps
         self.us = np.arange(sides, dtype=np.float64)
-        self.taus = np.array([t0, t0 + duration])
+        # Release times start evenly spaced; ``layers`` from the expected spacing saves refinement rounds.
+        self.taus = np.linspace(t0, t0 + duration, max(int(layers), 2))
         self.pos = self._integrate(self.taus, self.us, centre=True)
 
     def _generator(self, us, centre):
@@ -121,11 +130,13 @@ class Front:
             rows = np.nonzero(lay > tol)[0]
             if len(cols) == 0 and len(rows) == 0:
                 return True
+            # Split each long gap into ceil(gap / tol) parts at once (at most 8 a round): fewer rounds,
+            # and every round re-reads the velocity for all the new points together.
             if len(cols):
                 nxt = np.where(cols + 1 < len(self.us), self.us[(cols + 1) % len(self.us)], self.sides)
-                self._add_columns(0.5 * (self.us[cols] + nxt))
+                self._add_columns(_splits(self.us[cols], nxt, gap[cols] / tol))
             if len(rows):
-                self._add_layers(0.5 * (self.taus[rows] + self.taus[rows + 1]))
+                self._add_layers(_splits(self.taus[rows], self.taus[rows + 1], lay[rows] / tol))
         return False
 
     def _add_columns(self, new_us):
@@ -155,3 +166,36 @@ class Front:
             tris.append(np.stack([g(j, i), g(j, i + 1), g(j2, i + 1)], axis=1))
             tris.append(np.stack([g(j, i), g(j2, i + 1), g(j2, i)], axis=1))
         return np.concatenate(tris)
+
+    def merge_targets(self, tol, fraction):
+        """Where the front converged: for each lattice point, the point it is merged into (itself if kept).
+
+        In each layer a column is merged into its previous kept column when
+        the flow brought them closer than ``fraction * tol`` and than
+        ``fraction`` times their distance on the generator (on every ring), and
+        the kept column is within ``tol`` of the next one, so the front stays
+        within ``tol`` (Hultquist's point removal, one layer at a time).  Where
+        the flow did not converge nothing is merged, so uniform and shear flows
+        stay exact.  Generator corners are kept in the newest layer, the
+        generator itself.
+        """
+        K, J, R = len(self.taus), len(self.us), self.rings
+        cols = self.pos[:, 1:].reshape(K, J, R, 3)
+        target = np.arange(K * (1 + J * R)).reshape(K, 1 + J * R)
+        gen = self._generator(self.us, False).reshape(J, R, 3)
+        layers = np.arange(K)
+        keep = np.zeros(K, dtype=np.int64)
+        protect = np.zeros(K, dtype=bool)
+        protect[-1] = True
+        # Walk the columns once, every layer at a time: each layer keeps its own last kept column.
+        for j in range(1, J):
+            kept = cols[layers, keep]
+            gap = np.linalg.norm(kept - cols[:, j], axis=-1).max(axis=-1)
+            released = np.linalg.norm(gen[keep] - gen[j], axis=-1).max(axis=-1)
+            near = (gap < fraction * tol) & (gap < fraction * released)
+            bridge = np.linalg.norm(kept - cols[:, (j + 1) % J], axis=-1).max(axis=-1) < tol
+            merge = near & bridge & ~(protect & (self.us[j] == np.round(self.us[j])))
+            ks = np.nonzero(merge)[0]
+            target[ks, 1 + j * R:1 + (j + 1) * R] = target[ks[:, None], 1 + keep[ks, None] * R + np.arange(R)]
+            keep = np.where(merge, keep, j)
+        return target.reshape(-1)

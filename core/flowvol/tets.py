@@ -57,16 +57,50 @@ def orient(vertices, tets):
 _FACES = np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]])
 
 
+def _face_ids(faces):
+    """Inverse indices and use counts of the distinct faces (any winding) among ``faces`` (k, 3)."""
+    key = np.sort(faces, axis=1)
+    n = int(key.max()) + 1 if len(key) else 1
+    if n < 2**21:  # one int64 per face: a 1-D unique instead of a row-wise one (several times faster)
+        key = (key[:, 0] * n + key[:, 1]) * n + key[:, 2]
+        _, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
+    else:
+        _, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    return inverse.reshape(-1), counts
+
+
 def boundary_faces(tets):
     """Triangles (k, 3) used by exactly one tetrahedron: the closed outer surface, facing out."""
     tets = np.asarray(tets, dtype=np.int64).reshape(-1, 4)
     faces = tets[:, _FACES].reshape(-1, 3)
-    key = np.sort(faces, axis=1)
-    _, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
-    return faces[counts[inverse.reshape(-1)] == 1]
+    inverse, counts = _face_ids(faces)
+    return faces[counts[inverse] == 1]
 
 
 def face_use_counts(tets):
     """How many tetrahedra use each distinct face (1: boundary, 2: shared)."""
-    key = np.sort(np.asarray(tets, dtype=np.int64)[:, _FACES].reshape(-1, 3), axis=1)
-    return np.unique(key, axis=0, return_counts=True)[1]
+    return _face_ids(np.asarray(tets, dtype=np.int64)[:, _FACES].reshape(-1, 3))[1]
+
+
+def merge_vertices(tets, target, reference, max_rounds=8):
+    """Tetrahedra after merging vertex ``i`` into ``target[i]``, degenerate ones dropped.
+
+    Merging a vertex into a neighbour is an edge collapse: shared faces stay
+    shared.  A merge that would invert a tetrahedron or fold two onto one
+    face (checked on the ``reference`` positions) is undone, with every
+    other merge into the same vertex.
+    """
+    tets = np.asarray(tets, dtype=np.int64).reshape(-1, 4)
+    target = np.array(target, dtype=np.int64)
+    for _ in range(max_rounds):
+        t = target[tets]
+        s = np.sort(t, axis=1)
+        t = t[np.all(s[:, 1:] != s[:, :-1], axis=1)]
+        vol = signed_volumes(reference, t)
+        inverse, counts = _face_ids(t[:, _FACES].reshape(-1, 3))
+        bad = (vol <= 0) | (counts[inverse] > 2).reshape(-1, 4).any(axis=1)
+        if not bad.any():
+            return t
+        undo = np.isin(target, np.unique(t[bad])) & (target != np.arange(len(target)))
+        target[undo] = np.nonzero(undo)[0]
+    return tets

@@ -18,7 +18,7 @@ from ..surface.mesh import Mesh, vertex_normals
 from .climate import ClimateVelocity
 from .front import Front, perpendicular_frame
 from .unstructured import UnstructuredVelocity
-from .tets import boundary_faces, orient, signed_volumes, split_prisms
+from .tets import boundary_faces, merge_vertices, orient, signed_volumes, split_prisms
 
 
 @dataclass
@@ -68,7 +68,7 @@ def _as_velocity(velocity):
     raise DataError(f"velocity must be a callable velocity(points, t) or a climate dataset, got {type(velocity).__name__}", field="velocity")
 
 
-def flow_volume(velocity, center, radius, duration, *, normal=None, sides=32, rings=2, t0=0.0, tol=None, steps=16, max_points=200_000):
+def flow_volume(velocity, center, radius, duration, *, normal=None, sides=32, rings=2, t0=0.0, tol=None, merge=0.5, steps=16, max_points=200_000):
     """The air released through a generator polygon during ``duration``, carried to ``t0 + duration``.
 
     Parameters
@@ -91,6 +91,10 @@ def flow_volume(velocity, center, radius, duration, *, normal=None, sides=32, ri
     tol : float, optional
         Largest distance between neighbouring front points (default: the
         generator's edge length).
+    merge : float
+        Where the front converges, neighbours closer than ``merge * tol`` are
+        merged (0: keep every point); every point is still integrated, but the
+        tetrahedra and the surface use only the kept ones.
     steps : int
         RK4 steps along each trajectory.
     max_points : int
@@ -115,9 +119,11 @@ def flow_volume(velocity, center, radius, duration, *, normal=None, sides=32, ri
     if int(sides) < 3 or int(rings) < 1 or int(steps) < 1:
         raise DataError(f"need sides >= 3, rings >= 1, steps >= 1 (got {sides}, {rings}, {steps})", field="sides")
     sides, rings, steps = int(sides), int(rings), int(steps)
+    if not 0 <= merge < 1:
+        raise DataError(f"merge must be in [0, 1), got {merge}", field="merge")
     velocity = _as_velocity(velocity)
+    v = np.asarray(velocity(center[None], np.array([float(t0)])), dtype=np.float64).reshape(3)
     if normal is None:
-        v = np.asarray(velocity(center[None], np.array([float(t0)])), dtype=np.float64).reshape(3)
         if not np.all(np.isfinite(v)):
             raise DataError(f"the velocity at the generator centre {center.tolist()} is missing (NaN)", field="velocity")
         if not np.linalg.norm(v) > 0:
@@ -130,12 +136,16 @@ def flow_volume(velocity, center, radius, duration, *, normal=None, sides=32, ri
     tol = 2 * radius * np.sin(np.pi / sides) if tol is None else float(tol)
     if not tol > 0:
         raise DataError(f"tol must be positive, got {tol}", field="tol")
-    front = Front(velocity, center, e1, e2, float(radius), sides, rings, float(t0), float(duration), steps)
+    # Layers spaced about tol apart at the centre's speed: fewer refinement rounds (each re-reads the winds).
+    G = 1 + sides * rings
+    speed = float(np.linalg.norm(v)) if np.all(np.isfinite(v)) else 0.0
+    layers = int(min(np.ceil(speed * float(duration) / tol), max_points // G)) + 1
+    front = Front(velocity, center, e1, e2, float(radius), sides, rings, float(t0), float(duration), steps, layers)
     complete = True if duration == 0 else front.refine(tol, max_points)
-    return _assemble(front, n, complete)
+    return _assemble(front, n, complete, tol, float(merge))
 
 
-def _assemble(front, normal, complete):
+def _assemble(front, normal, complete, tol, merge):
     K, G = front.pos.shape[:2]
     vertices = front.pos.reshape(-1, 3)
     release = np.repeat(front.taus, G)
@@ -151,6 +161,8 @@ def _assemble(front, normal, complete):
         ages = np.repeat(front.t_end - front.taus, G)
         reference = np.tile(front.generator, (K, 1)) + ages[:, None] * normal
         tets = orient(reference, split_prisms(prisms))
+        if merge > 0:
+            tets = merge_vertices(tets, front.merge_targets(tol, merge), reference)
     faces = boundary_faces(tets)
     used = np.unique(faces)
     remap = np.full(len(vertices), -1, dtype=np.int64)

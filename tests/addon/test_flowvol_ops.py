@@ -126,3 +126,27 @@ def test_cycles_smoke_matches_the_core_compositor(empty_scene, tmp_path):
     ref = composite(fv.vertices, fv.tets, origins, np.tile([1.0, 0, 0], (len(origins), 1)), color, tau).reshape(48, 48, 3)
     assert ref.mean() > 0.05
     assert got.mean() == pytest.approx(ref.mean(), rel=0.02)
+
+
+FIRE = "/work/shared/data/flow/fire_ug.vtu"
+
+
+@pytest.mark.skipif(not __import__("os").path.isfile(FIRE), reason="fire_ug.vtu not available")
+def test_operator_on_the_fire_vtu_without_vtk(empty_scene):
+
+    from nephele.core.flowvol import UnstructuredVelocity
+
+    p = empty_scene.nephele_flowvol
+    p.vtu_path, p.vtu_height, p.radius, p.hours, p.sides, p.steps, p.tolerance, p.live = FIRE, 0.1, 0.1, 1.0, 16, 8, 0.05, False
+    assert bpy.ops.nephele.add_flow_volume() == {"FINISHED"}, p.status
+    gen, smoke = bpy.data.objects[fo.GENERATOR], bpy.data.objects[fo.SMOKE]
+    fire = UnstructuredVelocity(FIRE)
+    centre = fire.updraft(0.1)
+    assert np.allclose(np.array(gen.location), centre, atol=1e-5)
+    fv = flow_volume(fire, centre, 0.1, 1.0, sides=16, rings=1, tol=0.05, steps=8)
+    assert len(smoke.data.polygons) == len(fv.surface.faces) > 0
+    z = np.array(gen.matrix_world.to_3x3().col[2])
+    assert np.allclose(z / np.linalg.norm(z), fv.normal, atol=1e-5) and fv.normal[2] > 0.5
+    co = np.empty(len(smoke.data.vertices) * 3, np.float32)
+    smoke.data.vertices.foreach_get("co", co)
+    assert np.all(co.reshape(-1, 3) >= fire.bounds[:, 0] - 1e-4) and np.all(co.reshape(-1, 3) <= fire.bounds[:, 1] + 1e-4)

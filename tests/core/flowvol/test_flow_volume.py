@@ -205,3 +205,52 @@ def test_climate_generator_outside_the_data_time_raises(rotation_globe):
     vel = ClimateVelocity(ds)
     with pytest.raises(DataError, match="outside"):
         flow_volume(vel, vel.point(0, 0, 5000.0), 0.02, 30.0, sides=6)
+
+
+def test_converging_flow_merges_front_points_and_keeps_the_volume():
+    # v = (-x, 0, 1): exact flow map (x e^-a, y, z + a); air of age a fills area A e^-a per unit
+    # height, so V = A (1 - e^-T).  The front narrows to a segment: its points merge.
+    conv = lambda p, t: np.stack([-p[:, 0], 0 * p[:, 0], np.ones(len(p))], axis=1)
+    T, exact = 6.0, polygon_area(1.0, 32) * (1 - np.exp(-6.0))
+    kept = flow_volume(conv, [0, 0, 0], 1.0, T, normal=[0, 0, 1], sides=32, tol=0.1, steps=64, merge=0.5)
+    full = flow_volume(conv, [0, 0, 0], 1.0, T, normal=[0, 0, 1], sides=32, tol=0.1, steps=64, merge=0.0)
+    for fv in (kept, full):
+        assert fv.volume == pytest.approx(exact, rel=2e-3)
+        check_mesh(fv)
+    layers = np.unique(kept.release)
+    used = np.zeros(len(kept.vertices), dtype=bool)
+    used[kept.tets.ravel()] = True
+    per_layer = np.bincount(np.searchsorted(layers, kept.release[used]), minlength=len(layers))
+    lattice = len(full.generator)
+    old = (T - layers) > 3.0
+    assert np.all(per_layer[old] <= 0.8 * lattice)  # measured 99 of 129
+    assert per_layer[-1] == lattice  # the newest layer is the whole generator
+    assert used.sum() < 0.9 * len(kept.vertices)
+    # Kept neighbours on the outer ring of every old layer are still within tol.
+    for k in np.nonzero(old)[0]:
+        pts = kept.vertices[used & np.isclose(kept.release, layers[k])]
+        r = np.hypot(pts[:, 0] * np.exp(T - layers[k]), pts[:, 1])  # undo the x compression
+        ring = pts[np.isclose(r, r.max(), rtol=0.2)]
+        ring = ring[np.argsort(np.arctan2(ring[:, 1], ring[:, 0] * np.exp(T - layers[k])))]
+        assert np.linalg.norm(np.roll(ring, -1, axis=0) - ring, axis=1).max() < 0.1
+
+
+def test_merging_leaves_uniform_and_diverging_fronts_alone():
+    fv = flow_volume(uniform, [1.0, 2.0, 3.0], 0.7, 2.5, sides=32, merge=0.9)
+    assert len(np.unique(fv.tets)) == len(fv.vertices)
+    div = lambda p, t: np.stack([p[:, 0], p[:, 1], np.ones(len(p))], axis=1)
+    fv = flow_volume(div, [0, 0, 0], 0.2, 2.0, sides=8, tol=0.1, steps=64, merge=0.9)
+    assert len(np.unique(fv.tets)) == len(fv.vertices)
+
+
+def test_climate_stacked_steps_equal_step_by_step_reads(rotation_globe):
+    # One gather from the stacked steps and one read per step give the same winds.
+    _, ds = rotation_globe
+    stacked, per_step = ClimateVelocity(ds), ClimateVelocity(ds, stack_mb=0)
+    rng = np.random.default_rng(3)
+    p = np.array([stacked.point(lo, la, h) for lo, la, h in zip(rng.uniform(-180, 180, 200), rng.uniform(-89, 89, 200), rng.uniform(0, 9000, 200))])
+    t = rng.uniform(0, 24, 200)
+    t[:10] = np.round(t[:10])  # exactly on a step
+    a, b = stacked(p, t), per_step(p, t)
+    assert stacked._stack is not None and per_step._stack is None
+    assert np.allclose(a, b, rtol=1e-6, atol=1e-9 * np.abs(b).max())
