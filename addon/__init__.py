@@ -21,6 +21,7 @@ MODULES = (
     "dome_ops",
     "muscle_ops",
     "flowvol_ops",
+    "splat_ops",
 )
 
 

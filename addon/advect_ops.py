@@ -2,10 +2,10 @@
 
 "Add advected cloud texture" turns a contour surface (kind ``"contour"``)
 into an advected contour (kind ``"advected_contour"``): every frame its mesh
-comes from the task ``"advect_contour"`` of :mod:`nephele.core.advect` (the
+comes from the task ``"advect_contour"`` of :mod:`nephele.core.flow.advect` (the
 same contour, plus per-vertex start coordinates of two texture copies and
 their weights, written with ``foreach_set``), from the cache or computed.
-The material evaluates the poor-man's fractal of :mod:`nephele.core.fractal`
+The material evaluates the poor-man's fractal of :mod:`nephele.core.texture.fractal`
 at the start coordinates in a shader node group that computes the same
 formula, and uses it as transparency on front faces only.
 
@@ -32,7 +32,7 @@ KIND = "advected_contour"
 
 
 def fractal_node_group(fractal=Fractal()):
-    """The shader node group computing :func:`nephele.core.fractal.texture_xyz`.
+    """The shader node group computing :func:`nephele.core.texture.fractal.texture_xyz`.
 
     Inputs ``Vector`` (start position, any length) and ``Altitude`` (m); output
     ``Texture`` in ``[0, 1]``.  Built once per parameter set and reused.
@@ -213,14 +213,14 @@ def add_advected_texture(obj, *, strategy="restart", period=24, integrator="rk4"
         A contour surface (``obj["nephele"]`` of kind ``"contour"``) or an
         already advected one (its settings are replaced).
     strategy : {"restart", "compose", "full"}
-        See :mod:`nephele.core.advect` (restart: two copies, cross-faded every
+        See :mod:`nephele.core.flow.advect` (restart: two copies, cross-faded every
         ``period`` frames; compose: one copy composed frame by frame; full:
         the paper's trace back to the first frame, cost growing with the frame).
     integrator : {"rk4", "rk2", "euler"}
     vertical : {"auto", "w", "levels"}
         Vertical motion from ``w``, or points keep their level (exact for the
         demo climate), or whichever the dataset's ``levels_follow_air`` says
-        (see :class:`nephele.core.advect.WindField`).
+        (see :class:`nephele.core.flow.advect.WindField`).
     fractal : Fractal
     lo, hi : float
         Texture values mapped to fully transparent and fully opaque.

@@ -2,7 +2,7 @@
 
 The object keeps only parameters (``obj["nephele"]``); on every frame change
 the updater maps the frame to model time, gets the mesh from the cache (or
-computes it with the ``"contour"`` task of :mod:`nephele.core.contour_task`)
+computes it with the ``"contour"`` task of :mod:`nephele.core.surface.contour_task`)
 and refills the object's mesh in place.  It uses only ``bpy.data`` and the
 scene it is given, so it works in a headless render of a saved .blend with
 nothing but :func:`nephele.addon.frame.install` (no add-on, no window).

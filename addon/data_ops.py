@@ -147,7 +147,7 @@ def frame_range_for(ds, cfg):
 def cache_dir():
     """Where this file's Nephele files go: ``<blend dir>/<stem>_nephele_cache``
     beside a saved .blend, else a folder of this session alone
-    (:func:`~nephele.core.cache.session_cache_dir`) that saving moves beside the .blend."""
+    (:func:`~nephele.core.pipeline.cache.session_cache_dir`) that saving moves beside the .blend."""
     if bpy.data.filepath:
         return default_cache_dir(bpy.data.filepath)
     return session_cache_dir()

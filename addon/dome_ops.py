@@ -1,10 +1,10 @@
 """Dome cameras in Blender: a Cycles fisheye that renders the final frame, and the EEVEE cube-map route.
 
 :func:`add_dome_camera` builds a rig: an empty ``DomeRig`` whose axes are the
-theatre frame of :mod:`nephele.core.dome` (x right, y front, z up; move or
+theatre frame of :mod:`nephele.core.camera.dome` (x right, y front, z up; move or
 turn the rig to place the audience), with one fisheye camera ``DomeCamera``
 or, in stereo, ``DomeCamera_L`` / ``DomeCamera_R`` a fixed baseline apart
-along the rig's x axis (see :func:`nephele.core.dome.stereo_eyes` for why not
+along the rig's x axis (see :func:`nephele.core.camera.dome.stereo_eyes` for why not
 Cycles' spherical stereo; Blender's own stereo also offsets the eyes along
 the camera's x axis, which on the front-at-top Omnimax frame is the
 audience's *left*, swapping the eyes).  Stereo renders use Blender's multi-view with the
@@ -18,7 +18,7 @@ equisolid lens ``FISHEYE_EQUISOLID``; the Omnimax lens offset is ``shift_y``
 (in frame heights for panoramic cameras).  EEVEE renders a panoramic camera
 as a plain perspective view without a word, so :func:`render_dome_eevee`
 renders six 90 deg cube faces per eye and remaps them with
-:func:`nephele.core.dome.remap`; :func:`engine_warning` (also run before every
+:func:`nephele.core.camera.dome.remap`; :func:`engine_warning` (also run before every
 render by a ``render_pre`` handler) says when a panoramic camera meets EEVEE.
 
 References
@@ -131,7 +131,7 @@ def add_dome_camera(
     ----------
     preset : {"domemaster", "omnimax"}
     tilt, fov, width, height, lens, lens_shift
-        See :func:`nephele.core.dome.dome_camera` (unset: the preset's defaults).
+        See :func:`nephele.core.camera.dome.dome_camera` (unset: the preset's defaults).
     stereo : bool
         Two cameras ``separation`` apart along the rig's x axis, rendered as
         multi-view ``_L`` / ``_R`` frames.
@@ -298,7 +298,7 @@ def _face_matrix(name):
 def render_cube_faces(scene, eye_matrix, face_size, workdir):
     """Render the six 90 deg faces seen from ``eye_matrix`` (the theatre frame at one eye).
 
-    Returns a (6, n, n, 4) float32 array in :data:`nephele.core.dome.CUBE_FACES` order.
+    Returns a (6, n, n, 4) float32 array in :data:`nephele.core.camera.dome.CUBE_FACES` order.
     """
     r = scene.render
     saved = (scene.camera, r.resolution_x, r.resolution_y, r.resolution_percentage, r.use_multiview, r.filepath,

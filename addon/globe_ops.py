@@ -3,7 +3,7 @@
 The globe and every layer over it (contours, volumes, textures) use the same
 ``radius`` and vertical ``exaggeration`` — both default to the scene's
 Nephele settings (:func:`nephele.addon.data_ops.settings`), which default to
-radius 1 and :data:`nephele.core.grid.DEFAULT_EXAGGERATION`.  The haze is
+radius 1 and :data:`nephele.core.climate.grid.DEFAULT_EXAGGERATION`.  The haze is
 the paper's "blue atmospheric haze, decreasing exponentially with altitude":
 a volume shell whose extinction is ``d0 * exp(-(r - R) / H)``.
 
@@ -60,10 +60,10 @@ def load_relief(relief=None):
     Parameters
     ----------
     relief : None, "flat", str/Path, or tuple
-        None: the relief shipped with Nephele (:mod:`nephele.core.relief`,
+        None: the relief shipped with Nephele (:mod:`nephele.core.climate.relief`,
         1° ETOPO-derived).  ``"flat"``: a smooth sea-level sphere.  A path:
         an ETOPO ``.cdf`` file (e.g. ``etopo60.cdf``, read by
-        :func:`nephele.core.relief.load_etopo`).  A tuple ``(lon (ni,), lat (nj,), height (nj, ni))``.
+        :func:`nephele.core.climate.relief.load_etopo`).  A tuple ``(lon (ni,), lat (nj,), height (nj, ni))``.
 
     Returns
     -------

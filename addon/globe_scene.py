@@ -23,7 +23,7 @@ def globe_scene(scene, o, *, sun_direction, haze=True, haze_mode="volume"):
     """Dataset settings, frame range, relief globe, sky/sun/haze; returns ``(globe, sky_dict)``.
 
     ``o`` holds ``source``, ``hours_per_frame``, ``frames`` and ``exaggeration``
-    (None: :data:`nephele.core.grid.DEFAULT_EXAGGERATION`).
+    (None: :data:`nephele.core.climate.grid.DEFAULT_EXAGGERATION`).
     """
     from nephele.core.climate.grid import DEFAULT_EXAGGERATION
 

@@ -37,7 +37,7 @@ def fill_mesh(me, mesh, *, smooth=True):
     Parameters
     ----------
     me : bpy.types.Mesh
-    mesh : nephele.core.mesh.Mesh or tuple
+    mesh : nephele.core.surface.mesh.Mesh or tuple
         ``vertices`` (n, 3), ``faces`` (m, 3) triangles and ``attributes``
         (name -> (n,) or (n, k) per-vertex arrays), or a tuple
         ``(vertices, faces[, attributes])``.

@@ -35,7 +35,12 @@ import numpy as np
 
 import bpy
 
-from . import frame
+from ..core.surface.contour_task import frame_hours
+from ..core.errors import DataError
+from ..core.splats import default_tile, splat_kernel, splat_samples, streak_maps, streak_offsets
+from ..core.volume.transfer import TransferFunction
+from ..core.volume.sparse import DEFAULT_EXTINCTION
+from . import data_ops, frame
 from .mesh import point_attribute, set_point_attribute
 from .panel import SubPanel
 
@@ -461,4 +466,157 @@ def streak_nodes(tree, image, n_maps, d, view, tile, location=(0, 0)):
     return _image_lookup(tree, image, ux, vy, "Nephele streaks", (x + 1500, y))
 
 
-CLASSES = ()
+
+# ---------------------------------------------------------------- object, updater, operator
+
+
+def _samples(params, hours):
+    kernel = splat_kernel(params["kernel"])
+    sp = splat_samples(data_ops.dataset(params["source"]), params["var"], hours,
+                       TransferFunction.from_dict(params["tf"]), color_var=params["color_var"] or None,
+                       exaggeration=params["exaggeration"], stride=params["stride"], kernel=kernel)
+    return sp, kernel
+
+
+@frame.register_updater(KIND)
+def update_splats(obj, params, scene, frame_number):
+    """Refill ``obj``'s points with the splats of the frame's model time and set the streak clock."""
+    ds = data_ops.dataset(params["source"])
+    hours = round(frame_hours(frame_number, params["frame_start"], params["hours_per_frame"],
+                              last_hour=float(ds.hours[-1])), 6)
+    mat = obj.data.materials[0] if obj.data.materials else None
+    if mat is not None and TIME_NODE in mat.node_tree.nodes:
+        mat.node_tree.nodes[TIME_NODE].outputs[0].default_value = hours
+    if obj.get("nephele_shown") == repr(hours) and len(obj.data.vertices):
+        return
+    sp, _ = _samples(params, hours)
+    fill_points(obj.data, sp, streak_offsets(np.arange(len(sp))))
+    obj["nephele_shown"] = repr(hours)
+    obj["nephele_hours"] = hours
+
+
+def add_wind_splats(var="cloud", tf=None, *, color_var="altitude", kernel="gaussian", stride=1,
+                    extinction=DEFAULT_EXTINCTION, streaks=True, n_maps=8, tile=None, contrast=0.6,
+                    source=None, exaggeration=None, scene=None, collection=None, name=OBJECT_NAME):
+    """Add (or rebuild) a splat object following the frame; returns ``(object, number of splats)``.
+
+    ``tf`` defaults to zero up to 0.3, 1 at 1; ``tile`` (scene units per
+    streak map) defaults to the first frame's :func:`default_tile`.
+    """
+    scene = scene or bpy.context.scene
+    cfg = data_ops.settings(scene)
+    tf = tf or TransferFunction.ramp(0.3, 1.0)
+    params = {
+        "kind": KIND, "source": str(source or cfg["source"]), "var": str(var), "tf": tf.to_dict(),
+        "color_var": str(color_var or ""), "kernel": str(kernel), "stride": int(stride),
+        "exaggeration": float(cfg["exaggeration"] if exaggeration is None else exaggeration),
+        "hours_per_frame": float(cfg["hours_per_frame"]), "frame_start": int(cfg["frame_start"]),
+    }
+    ds = data_ops.dataset(params["source"])
+    for field in (var,) + ((color_var,) if color_var and color_var != "altitude" else ()):
+        if field not in ds:
+            raise DataError(f"no such variable (available: {', '.join(sorted(ds.variables))})",
+                            path=params["source"], field=field)
+    hours = frame_hours(scene.frame_current, params["frame_start"], params["hours_per_frame"],
+                        last_hour=float(ds.hours[-1]))
+    sp, k = _samples(params, hours)
+    tile = float(default_tile(sp) if tile is None else tile)
+    if not tile > 0:
+        raise DataError(f"must be > 0, got {tile!r}", field="streak tile")
+    maps = streak_maps(int(n_maps), 64)
+    mat = splat_material(f"{name} material", footprint_image(k), k.radius, extinction=extinction,
+                         streaks=streaks_image(maps) if streaks else None, n_maps=int(n_maps), tile=tile,
+                         contrast=float(contrast) if streaks else 0.0, streak_mean=float(maps.mean()))
+    obj = bpy.data.objects.get(name)
+    if obj is None or obj.type != "MESH":
+        obj = bpy.data.objects.new(name, bpy.data.meshes.new(name))
+    coll = collection or scene.collection
+    if obj.name not in coll.objects:
+        coll.objects.link(obj)
+    obj.matrix_world.identity()  # the material works in object space with world view vectors
+    obj.data.materials.clear()
+    obj.data.materials.append(mat)
+    add_modifier(obj, mat)
+    params["tile"] = tile
+    frame.set_params(obj, params)
+    obj["nephele_shown"] = ""
+    update_splats(obj, params, scene, scene.frame_current + scene.frame_subframe)
+    return obj, len(obj.data.vertices)
+
+
+def render_settings(scene):
+    """Cycles settings splats need: every transparent layer traced, no Russian roulette on them."""
+    scene.cycles.transparent_max_bounces = 1024
+    scene.cycles.min_transparent_bounces = 1024
+    return scene
+
+
+class NephelePropsSplats(bpy.types.PropertyGroup):
+    var: bpy.props.StringProperty(name="Variable", default="cloud", description="Field behind the opacity")
+    threshold: bpy.props.FloatProperty(name="Threshold", default=0.3, min=0.0, max=1e6,
+                                       description="Opacity is zero up to this value: no splat there")
+    full: bpy.props.FloatProperty(name="Full at", default=1.0, min=0.0, max=1e6)
+    opacity: bpy.props.FloatProperty(name="Opacity", default=1.0, min=0.0, max=1e3)
+    color_var: bpy.props.StringProperty(name="Colour by", default="altitude",
+                                        description='"altitude", a field such as "temperature", or empty (white)')
+    kernel: bpy.props.EnumProperty(name="Kernel", default="gaussian", items=[
+        ("gaussian", "Normalised", "Windowed Gaussian, weights sum to 1 within ~1e-4"),
+        ("paper", "Paper", "Truncated Gaussian (sigma 0.65, R 2.5): within 0.5%")])
+    stride: bpy.props.IntProperty(name="Stride", default=1, min=1, max=16, description="Every n-th sample")
+    extinction: bpy.props.FloatProperty(name="Extinction", default=DEFAULT_EXTINCTION, min=0.0, max=1e6,
+                                        description="Extinction per scene unit at opacity 1")
+    streaks: bpy.props.BoolProperty(name="Wind streaks", default=True)
+    n_maps: bpy.props.IntProperty(name="Maps", default=8, min=1, max=64, description="Streak maps in a cycle")
+    tile: bpy.props.FloatProperty(name="Tile", default=0.0, min=0.0, max=10.0, precision=4,
+                                  description="Scene units per streak map (0: twice the median splat size)")
+    contrast: bpy.props.FloatProperty(name="Contrast", default=0.6, min=0.0, max=1.0)
+
+
+class NEPHELE_OT_add_wind_splats(bpy.types.Operator):
+    """One view-facing splat per cloudy sample, with streaks flowing along the wind"""
+
+    bl_idname = "nephele.add_wind_splats"
+    bl_label = "Add wind splats"
+    bl_options = {"REGISTER", "UNDO"}
+
+    def execute(self, context):
+        s = context.scene.nephele_splats
+        try:
+            tf = TransferFunction.ramp(s.threshold, s.full, s.opacity)
+            obj, n = add_wind_splats(s.var, tf, color_var=s.color_var, kernel=s.kernel, stride=s.stride,
+                                     extinction=s.extinction, streaks=s.streaks, n_maps=s.n_maps,
+                                     tile=s.tile or None, contrast=s.contrast, scene=context.scene)
+        except (DataError, ValueError, OSError, ImportError) as exc:
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        render_settings(context.scene)
+        self.report({"INFO"}, f"{obj.name}: {n} splats")
+        for o in list(context.view_layer.objects.selected):
+            if o is not None:
+                o.select_set(False)
+        obj.select_set(True)
+        context.view_layer.objects.active = obj
+        return {"FINISHED"}
+
+
+class NEPHELE_PT_splats(SubPanel, bpy.types.Panel):
+    bl_label = "Wind splats (Fig. 3)"
+    bl_idname = "NEPHELE_PT_splats"
+    bl_options = {"DEFAULT_CLOSED"}
+
+    def draw(self, context):
+        s = getattr(context.scene, "nephele_splats", None)
+        if s is None:
+            return
+        col = self.layout.column()
+        for prop in ("var", "threshold", "full", "opacity", "color_var", "kernel", "stride", "extinction",
+                     "streaks", "n_maps", "tile", "contrast"):
+            col.prop(s, prop)
+        self.layout.operator(NEPHELE_OT_add_wind_splats.bl_idname, icon="PARTICLES")
+        obj = context.active_object
+        if obj is not None and frame.params(obj).get("kind") == KIND:
+            self.layout.label(text=f"{len(obj.data.vertices)} splats, model time {obj.get('nephele_hours', 0):.2f} h")
+
+
+CLASSES = (NephelePropsSplats, NEPHELE_OT_add_wind_splats, NEPHELE_PT_splats)
+SCENE_PROPERTIES = {"nephele_splats": NephelePropsSplats}

@@ -32,7 +32,7 @@ def frame_path(directory, prefix, number, digits=4):
 
 
 def write_volume(path, volume, *, metadata=None):
-    """Write a :class:`~nephele.core.volume.SparseVolume` to ``path`` atomically.
+    """Write a :class:`~nephele.core.volume.sparse.SparseVolume` to ``path`` atomically.
 
     Grids: ``density`` (the transfer function's opacity) and, when the volume
     has one, the colour variable under its own name (e.g. ``altitude``),
@@ -66,7 +66,7 @@ def bake_frame(obj_params, frame, number, directory, prefix="clouds", *, cache=N
     ``obj_params`` as for :func:`nephele.core.volume.volume_task.frame_params`.  The file
     records the cache key of its exact inputs; with ``reuse`` an existing
     file with that key is kept (one metadata read).  ``cache``: a
-    :class:`~nephele.core.cache.Cache` or directory holding resampled volumes,
+    :class:`~nephele.core.pipeline.cache.Cache` or directory holding resampled volumes,
     e.g. filled by ``nephele precompute`` on Dask workers; an entry there is
     used instead of resampling.  Interactive bakes do not add entries (the
     .vdb files are the lasting result; a cache copy would double the disk use).

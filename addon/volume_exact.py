@@ -1,6 +1,6 @@
 """Exact volume shading in Blender: atlas images, a support VDB and the node graph.
 
-:mod:`nephele.core.volume_atlas` describes the program; this module writes
+:mod:`nephele.core.volume.volume_atlas` describes the program; this module writes
 its data where Blender loads it natively and builds the same program from
 shader nodes:
 
@@ -86,7 +86,7 @@ class _Nodes(Nodes):
     """:class:`.nodes.Nodes` plus the atlas program's piecewise maps and image lookups."""
 
     def piecewise(self, x, runs, label):
-        """Σ of clamped ramps (:func:`nephele.core.volume_atlas.axis_runs`)."""
+        """Σ of clamped ramps (:func:`nephele.core.volume.volume_atlas.axis_runs`)."""
         return self.add_all([self.map_range(x, x0, x1, 0.0, i1 - i0, label=label) for x0, x1, i0, i1 in runs],
                             label=label)
 
@@ -107,7 +107,7 @@ class _Nodes(Nodes):
 
 
 def field_nodes(tree, layout, values_image, heights_image, *, below, color_altitude, location=(-3200, 0)):
-    """The program of :meth:`nephele.core.volume_atlas.AtlasLayout.shade` as shader nodes.
+    """The program of :meth:`nephele.core.volume.volume_atlas.AtlasLayout.shade` as shader nodes.
 
     ``layout``: :meth:`AtlasLayout.to_dict`.  Returns sockets ``(value,
     colour, ok)``; ``ok`` is 1 where the density may be non-zero (inside the

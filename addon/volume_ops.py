@@ -1,7 +1,7 @@
 """Volume-rendered clouds (Fig. 2): a VDB sequence on disk, a volume object, a material.
 
 "Add volume clouds" resamples every frame's model time into a sparse volume
-(:func:`nephele.core.volume.resample`: opacity from the transfer function,
+(:func:`nephele.core.volume.sparse.resample`: opacity from the transfer function,
 a second grid with the colour variable), writes one ``.vdb`` per frame
 (:mod:`.vdb`) and makes a Volume object whose ``is_sequence`` maps frames to
 files — Blender loads the sequence natively, so a farm render needs neither
@@ -58,7 +58,7 @@ def volume_material(name, extinction, color_var, cmap, anisotropy=0.3, exact=Non
     cmap : ColorMap
     exact : dict, optional
         The exact mode (:mod:`.volume_exact`): ``layout``
-        (:meth:`~nephele.core.volume_atlas.AtlasLayout.to_dict`), ``tf``
+        (:meth:`~nephele.core.volume.volume_atlas.AtlasLayout.to_dict`), ``tf``
         (TransferFunction), ``below`` (metres), ``values`` and ``heights``
         (bpy images).  The density is then the transfer function of the
         field evaluated per sample, times ``extinction``.
@@ -316,7 +316,7 @@ def add_volume_clouds(var="cloud", tf=None, *, source=None, color_var=ALTITUDE, 
         workers then only converts cached arrays into .vdb files).
     cache : str or Cache, optional
         Resampled volumes to use instead of resampling (default: the
-        scene's cache, :func:`~nephele.core.cache.default_cache_dir`).
+        scene's cache, :func:`~nephele.core.pipeline.cache.default_cache_dir`).
     mode : {"exact", "voxels"}
         ``"exact"`` (default): the material evaluates the curvilinear field
         at every sample from atlas images (:mod:`.volume_exact`), the

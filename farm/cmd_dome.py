@@ -1,7 +1,7 @@
 """``nephele dome``: remap cube faces or equirect images to domemaster / Omnimax frames.
 
 Cube faces are found by a pattern with ``{face}`` (one of front, right, back,
-left, up, down; see :data:`nephele.core.dome.CUBE_AXES` for their axes), or a
+left, up, down; see :data:`nephele.core.camera.dome.CUBE_AXES` for their axes), or a
 folder holding ``face_<name>.png`` (what the EEVEE cube route keeps).  With
 ``--frames A-B`` the input and output patterns take ``{frame}`` (e.g.
 ``{frame:04d}``); the lookup table is built once and reused for every frame.

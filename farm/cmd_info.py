@@ -14,7 +14,7 @@ def add_arguments(p):
 
 
 def describe(ds):
-    """A dict describing a :class:`~nephele.core.dataset.Dataset` (what ``nephele info`` prints)."""
+    """A dict describing a :class:`~nephele.core.climate.dataset.Dataset` (what ``nephele info`` prints)."""
     import numpy as np
 
     g = ds.grid

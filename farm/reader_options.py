@@ -1,6 +1,6 @@
 """Command-line options overriding what a data file gets wrong or leaves out.
 
-The same overrides as :func:`nephele.core.readers.open_dataset` takes
+The same overrides as :func:`nephele.core.climate.readers.open_dataset` takes
 (``vertical=``, ``p0=``, ``time_units=``, ``radius=``, ``variables=``), shared
 by ``info``, ``contour``, ``volume`` and ``advect`` (``--vertical-coord`` because
 ``advect --vertical`` chooses how points move vertically).  ``--earth-radius`` is the
@@ -11,7 +11,7 @@ radius in scene units).
 from .cli import UsageError
 
 VERTICAL_CHOICES = ("pressure_hpa", "pressure_pa", "height_m", "height_km", "ncar_hybrid")
-"""Mirror of :data:`nephele.core.netcdf.VERTICAL_KINDS` (kept here so ``--help`` needs no xarray)."""
+"""Mirror of :data:`nephele.core.climate.netcdf.VERTICAL_KINDS` (kept here so ``--help`` needs no xarray)."""
 
 
 def add_reader_options(p):
@@ -28,7 +28,7 @@ def add_reader_options(p):
 
 
 def reader_kwargs(args):
-    """The keyword arguments of :func:`~nephele.core.readers.open_dataset` that ``args`` asks for."""
+    """The keyword arguments of :func:`~nephele.core.climate.readers.open_dataset` that ``args`` asks for."""
     kw = {}
     if getattr(args, "read_vertical", None):
         kw["vertical"] = args.read_vertical

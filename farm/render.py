@@ -248,11 +248,11 @@ def render_sequence(scene, frames, out_dir, *, workers=None, engine=None, sample
     scene_options : dict, optional
         Keyword arguments of an example script's ``build()``.
     precompute : bool
-        Run the scene's per-frame core tasks (:func:`nephele.core.tasks.plan`) on Dask into the
+        Run the scene's per-frame core tasks (:func:`nephele.core.pipeline.tasks.plan`) on Dask into the
         cache; each frame's render waits only for its own tasks.
     cache_dir : path, optional
         Cache of an example script's scene (default: beside the script, see
-        :func:`nephele.core.cache.default_cache_dir`).  A .blend's cache is always beside it,
+        :func:`nephele.core.pipeline.cache.default_cache_dir`).  A .blend's cache is always beside it,
         where the add-on's updaters look.
     overwrite : bool
         Re-render every frame, valid or not.
@@ -493,9 +493,9 @@ def precompute_scene(scene, frames, *, workers=None, scheduler=None, security=No
     """Run the per-frame core tasks ``scene`` needs for ``frames`` on Dask into its cache.
 
     One worker opens the scene to read every Nephele object's parameters
-    (``obj["nephele"]``); :func:`nephele.core.tasks.plan` turns them into
+    (``obj["nephele"]``); :func:`nephele.core.pipeline.tasks.plan` turns them into
     ``(kind, params)`` tasks per frame; distinct tasks run once each as Dask
-    tasks through :func:`nephele.core.tasks.run_cached` (a hit costs one file test).
+    tasks through :func:`nephele.core.pipeline.tasks.run_cached` (a hit costs one file test).
 
     Returns
     -------

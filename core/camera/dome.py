@@ -386,7 +386,7 @@ class RemapTable:
         return csr_matrix((self.weights, self.indices, self.indptr), shape=(self.shape[0] * self.shape[1], n_src))
 
     def arrays(self):
-        """Plain arrays for :class:`~nephele.core.cache.Cache` (no pickle)."""
+        """Plain arrays for :class:`~nephele.core.pipeline.cache.Cache` (no pickle)."""
         return {
             "shape": np.asarray(self.shape, dtype=np.int64),
             "source_shape": np.asarray(self.source_shape, dtype=np.int64),
@@ -522,7 +522,7 @@ def _remap_table(camera, source, source_shape, supersample, rows_per_chunk):
 
 
 def stored_remap_table(camera, source, source_shape, supersample=2, cache=None):
-    """:func:`remap_table`, kept on disk in a :class:`~nephele.core.cache.Cache` (kind ``"dome_map"``).
+    """:func:`remap_table`, kept on disk in a :class:`~nephele.core.pipeline.cache.Cache` (kind ``"dome_map"``).
 
     Render-farm workers are separate processes: the first one builds the
     table (seconds for a 2048 x 1500 frame), the others load it.

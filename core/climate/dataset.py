@@ -1,4 +1,4 @@
-"""Time-varying fields on a :class:`~nephele.core.grid.GlobeGrid`, read one time step at a time.
+"""Time-varying fields on a :class:`~nephele.core.climate.grid.GlobeGrid`, read one time step at a time.
 
 A 320×160×19 grid with 240 hourly steps and several fields is gigabytes, so a
 :class:`Dataset` never loads everything: :meth:`Dataset.read` returns one
@@ -177,7 +177,7 @@ class ArrayDataset(Dataset):
     """A dataset held in memory: ``fields[name]`` has shape ``(nt, nk, nj, ni)``.
 
     For tests and small data; real files use the lazy readers in
-    :mod:`nephele.core.readers`.
+    :mod:`nephele.core.climate.readers`.
     """
 
     def __init__(self, grid, times, fields, source="<memory>", units=None):

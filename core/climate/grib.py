@@ -4,7 +4,7 @@ cfgrib turns each GRIB hypercube (fields sharing one kind of level:
 ``isobaricInhPa``, ``hybrid``, ``heightAboveGround``…) into a CF-style
 xarray dataset; :func:`open_grib` takes the one with the most 3-D fields (or
 the ``level_type=`` asked for) and hands it to
-:class:`~nephele.core.netcdf.NetCDFDataset`, so pressure levels, units and
+:class:`~nephele.core.climate.netcdf.NetCDFDataset`, so pressure levels, units and
 names are understood the same way.  Regular latitude/longitude and Gaussian
 grids are read, and projected grids (Lambert conformal, polar stereographic)
 as curvilinear grids on the 2-D latitude/longitude ecCodes computes; reduced
@@ -56,7 +56,7 @@ def _level_type(cube):
 
 
 def open_grib(path, *, level_type=None, **kw):
-    """Open a GRIB file as a lazy :class:`~nephele.core.netcdf.NetCDFDataset`.
+    """Open a GRIB file as a lazy :class:`~nephele.core.climate.netcdf.NetCDFDataset`.
 
     Parameters
     ----------
@@ -65,7 +65,7 @@ def open_grib(path, *, level_type=None, **kw):
         The GRIB ``typeOfLevel`` to read (``"isobaricInhPa"``, ``"hybrid"``…);
         by default the kind of level with the most 3-D fields.
     **kw
-        Passed to :class:`~nephele.core.netcdf.NetCDFDataset` (``p0``, ``time_units``…).
+        Passed to :class:`~nephele.core.climate.netcdf.NetCDFDataset` (``p0``, ``time_units``…).
 
     Raises
     ------

@@ -1,13 +1,13 @@
 """Shared machinery of the file readers (NetCDF, GrADS): names, axis order, units, derived fields.
 
 A file's fields are mapped onto Nephele's standard names (see
-:mod:`nephele.core.dataset`), its axes put into the ``(level, lat, lon)``
+:mod:`nephele.core.climate.dataset`), its axes put into the ``(level, lat, lon)``
 order with level 0 at the bottom, latitude ascending and longitude ascending
 in [0, 360), and missing fields derived where possible:
 
 * ``pressure`` (Pa) from the vertical coordinate (pressure or hybrid levels);
-* ``rh`` from ``temperature``, ``q`` and ``pressure`` (:func:`~nephele.core.humidity.relative_humidity`);
-* ``cloud`` from ``rh`` by the Sundqvist (1989) scheme (:func:`~nephele.core.humidity.sundqvist_cloud`).
+* ``rh`` from ``temperature``, ``q`` and ``pressure`` (:func:`~nephele.core.climate.humidity.relative_humidity`);
+* ``cloud`` from ``rh`` by the Sundqvist (1989) scheme (:func:`~nephele.core.climate.humidity.sundqvist_cloud`).
 
 Relative humidity, read or derived, is clipped to [0, 1]: files on pressure
 levels hold values outside it (ECHAM5's ``rhumidity`` spans −0.14…1.26)

@@ -31,7 +31,7 @@ Horizontal grids: 1-D latitude/longitude; a CF rotated pole
 (``grid_latitude``/``grid_longitude`` with a ``rotated_latitude_longitude``
 grid mapping): the grid keeps its rotated coordinates (winds in such files are
 grid-relative) and carries the rotation to the true globe
-(:func:`~nephele.core.grid.rotated_pole_matrix`); and curvilinear grids with
+(:func:`~nephele.core.climate.grid.rotated_pole_matrix`); and curvilinear grids with
 2-D latitude/longitude (CF ``lat(y, x)``/``lon(y, x)``, WRF's ``XLAT``/``XLONG``,
 or only projection ``x``/``y`` with a Lambert conformal, polar stereographic,
 stereographic or Mercator grid mapping, placed by

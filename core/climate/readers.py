@@ -1,7 +1,7 @@
 """Open climate data: the embedded demo, CF NetCDF files and GrADS ``.ctl``/``.dat`` files.
 
 :func:`open_dataset` is the one entry point; every reader returns a lazy
-:class:`~nephele.core.dataset.Dataset` that reads one time step of one field
+:class:`~nephele.core.climate.dataset.Dataset` that reads one time step of one field
 at a time.
 
 References
@@ -18,7 +18,7 @@ GRIB_SUFFIXES = (".grib", ".grib1", ".grib2", ".grb", ".grb1", ".grb2")
 
 
 def open_dataset(source, **kw):
-    """Open ``source`` as a :class:`~nephele.core.dataset.Dataset`.
+    """Open ``source`` as a :class:`~nephele.core.climate.dataset.Dataset`.
 
     Parameters
     ----------

@@ -1,7 +1,7 @@
 """Zarr stores (directories ``*.zarr``) through xarray, read like CF NetCDF.
 
 A Zarr store written from a CF dataset (``xarray.Dataset.to_zarr``) keeps its
-variables and attributes, so :class:`~nephele.core.netcdf.NetCDFDataset`
+variables and attributes, so :class:`~nephele.core.climate.netcdf.NetCDFDataset`
 reads it the same way as the NetCDF file it came from: lazily, one chunked
 step at a time.
 
@@ -16,7 +16,7 @@ from .netcdf import NetCDFDataset
 
 
 def open_zarr_store(path, **kw):
-    """Open a Zarr store as a lazy :class:`~nephele.core.netcdf.NetCDFDataset`.
+    """Open a Zarr store as a lazy :class:`~nephele.core.climate.netcdf.NetCDFDataset`.
 
     Raises
     ------

@@ -219,7 +219,7 @@ def _catmull_rom(t):
 
 
 class WindField:
-    """The winds of a :class:`~nephele.core.dataset.Dataset` as a velocity field on the unit sphere.
+    """The winds of a :class:`~nephele.core.climate.dataset.Dataset` as a velocity field on the unit sphere.
 
     ``velocity(hours, xyz, s)`` gives the Cartesian velocity of unit vectors
     (per hour) and the rate of the level coordinate ``s`` (levels per hour):
@@ -253,7 +253,7 @@ class WindField:
     radius : float, optional
         Planet radius (m) turning winds into angular speed; default the
         dataset's ``earth_radius`` (from the file), else
-        :data:`~nephele.core.grid.EARTH_RADIUS`.
+        :data:`~nephele.core.climate.grid.EARTH_RADIUS`.
     """
 
     def __init__(self, dataset, nan="error", cache_steps=6, vertical="auto", read_ahead=None, radius=None):
@@ -453,7 +453,7 @@ def steps_to_keep(grid, period_hours, budget_mb=512):
 
 
 class AnalyticWind:
-    """A flow from :mod:`nephele.core.flows` as a velocity field (no vertical motion).
+    """A flow from :mod:`nephele.core.flow.flows` as a velocity field (no vertical motion).
 
     Parameters
     ----------
@@ -467,7 +467,7 @@ class AnalyticWind:
     radius : float, optional
         Planet radius (m) turning the winds into angular speed; default the
         flow's own ``radius`` (the one its winds were made with), else
-        :data:`~nephele.core.grid.EARTH_RADIUS`.
+        :data:`~nephele.core.climate.grid.EARTH_RADIUS`.
     """
 
     def __init__(self, flow, nk=2, hours=None, min_spacing=np.deg2rad(1.125), radius=None):

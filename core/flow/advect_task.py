@@ -41,7 +41,7 @@ _STRATEGIES = OrderedDict()
 def advect_task_params(obj_params, frame):
     """The inputs of the advected contour an object with ``obj_params`` shows at ``frame``.
 
-    The contour's own parameters (see :func:`nephele.core.contour_task.task_params`)
+    The contour's own parameters (see :func:`nephele.core.surface.contour_task.task_params`)
     plus the strategy settings (:data:`ADVECT_DEFAULTS`) and the frame index ``n``
     counted from the texture's start (the first frame, model time 0).
     """
@@ -102,7 +102,7 @@ def advect_contour(params):
     Returns
     -------
     dict of ndarray
-        :meth:`nephele.core.mesh.Mesh.to_arrays` with attributes ``altitude``,
+        :meth:`nephele.core.surface.mesh.Mesh.to_arrays` with attributes ``altitude``,
         the colour variable, and per copy ``a``/``b``: :data:`START`,
         :data:`START_ALT` and :data:`WEIGHT`.
     """

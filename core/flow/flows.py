@@ -11,7 +11,7 @@ Two standard test cases of transport on the sphere:
 Each flow gives ``(u, v)`` in m/s at longitudes/latitudes (degrees) and a time
 in hours.  :class:`FlowDataset` samples a flow hourly on a longitude–latitude
 grid (default 320×160, the paper's resolution) as a lazy
-:class:`~nephele.core.dataset.Dataset`, so tests and benchmarks can separate
+:class:`~nephele.core.climate.dataset.Dataset`, so tests and benchmarks can separate
 the integrator's error (analytic wind) from the data interpolation error
 (the same wind read from the grid).
 

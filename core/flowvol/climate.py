@@ -1,9 +1,9 @@
 """The globe's winds as a velocity of scene points, for flow volumes over the globe.
 
 A scene point ``p`` is a unit vector times the globe radius of its height
-(:func:`~nephele.core.grid.globe_radius`, exaggeration-aware).  Its level
+(:func:`~nephele.core.climate.grid.globe_radius`, exaggeration-aware).  Its level
 coordinate comes from the grid's mean level heights; the project's
-:class:`~nephele.core.advect.WindField` interpolates the winds (trilinear in
+:class:`~nephele.core.flow.advect.WindField` interpolates the winds (trilinear in
 level/row/column index, linear in time, rows mirrored across the poles and
 periodic longitudes, so generators may straddle the seam or a pole).  Time is
 in hours; velocities in scene units per hour.

@@ -14,9 +14,9 @@ meshes ``f = level`` in four steps, all whole-array NumPy:
    the level.  Only the others are evaluated.
 2. Node values of those blocks: per pair the exponent splits into three 2-D
    tables (k-j, k-i, j-i), so a node costs two multiplies per Gaussian.
-3. Marching cubes with the project's tables (:mod:`nephele.core._mc_tables`,
-   the classification ``value >= level`` and :data:`~nephele.core.contour.EDGE_MARGIN`
-   of :func:`~nephele.core.contour.isosurface`).  Every node belongs to one
+3. Marching cubes with the project's tables (:mod:`nephele.core.surface._mc_tables`,
+   the classification ``value >= level`` and :data:`~nephele.core.surface.contour.EDGE_MARGIN`
+   of :func:`~nephele.core.surface.contour.isosurface`).  Every node belongs to one
    block and every block reads it from there, so neighbouring blocks agree on
    every corner and every grid edge has one vertex: closed blobs are
    watertight.

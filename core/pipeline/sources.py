@@ -17,7 +17,7 @@ _MEMORY = {}
 
 
 def register_source(name, dataset):
-    """Make an in-memory :class:`~nephele.core.dataset.Dataset` available as source ``name``.
+    """Make an in-memory :class:`~nephele.core.climate.dataset.Dataset` available as source ``name``.
 
     For data built in a session (and tests); such a source exists only in
     this process, so the farm cannot precompute it.

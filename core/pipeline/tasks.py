@@ -82,7 +82,7 @@ def run(kind, params):
 def run_cached(kind, params, cache=None):
     """Load task ``kind`` for ``params`` from ``cache``, or compute it and store it there.
 
-    ``cache`` is a :class:`~nephele.core.cache.Cache`, a directory path, or None (no caching).
+    ``cache`` is a :class:`~nephele.core.pipeline.cache.Cache`, a directory path, or None (no caching).
     """
     if cache is None:
         return run(kind, params)

@@ -42,7 +42,7 @@ class Splats:
     Attributes
     ----------
     centers : (n, 3) float64
-        Scene positions (the globe convention of :mod:`nephele.core.grid`:
+        Scene positions (the globe convention of :mod:`nephele.core.climate.grid`:
         sea level at radius 1, heights scaled by the exaggeration).
     axes : (n, 3, 3) float64
         ``axes[s] = M``: principal semi-axes of the kernel's cut-off ellipsoid
@@ -223,7 +223,7 @@ def splat_samples(
     Parameters
     ----------
     dataset : Dataset or str
-        A dataset, or a source for :func:`nephele.core.readers.open_dataset`
+        A dataset, or a source for :func:`nephele.core.climate.readers.open_dataset`
         (``"demo"``, ``"demo:small"``, a file path).
     var : str
         Scalar behind the opacity (``"cloud"``).

@@ -4,7 +4,7 @@ A contour object in Blender stores its parameters (see
 :func:`nephele.addon.frame.set_params`); for every frame :func:`task_params`
 turns them into the exact inputs of one mesh (the model time interpolated
 between hourly steps), and the task ``"contour"`` computes it — in Blender
-through :func:`nephele.core.tasks.run_cached`, or ahead of time on the farm.
+through :func:`nephele.core.pipeline.tasks.run_cached`, or ahead of time on the farm.
 
 References
 ----------
@@ -80,7 +80,7 @@ def contour_mesh(params):
     Returns
     -------
     dict of ndarray
-        :meth:`nephele.core.mesh.Mesh.to_arrays` of the surface: vertices in
+        :meth:`nephele.core.surface.mesh.Mesh.to_arrays` of the surface: vertices in
         scene units, attributes ``altitude`` (metres) and, when ``color_var``
         names a field, that field.
     """

@@ -110,7 +110,7 @@ class Mesh:
         return Path(path)
 
     def to_arrays(self):
-        """The mesh as a flat dict of arrays (for :mod:`nephele.core.cache`)."""
+        """The mesh as a flat dict of arrays (for :mod:`nephele.core.pipeline.cache`)."""
         arrays = {"vertices": self.vertices, "faces": self.faces, "normals": self.normals}
         arrays.update({_ATTR_PREFIX + k: v for k, v in self.attributes.items()})
         return arrays

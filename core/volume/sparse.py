@@ -56,7 +56,7 @@ ALTITUDE = "altitude"
 
 EXACT = "exact"
 """Volume mode: the renderer shades the curvilinear field itself
-(:mod:`nephele.core.volume_atlas`); opacity exact along every ray."""
+(:mod:`nephele.core.volume.volume_atlas`); opacity exact along every ray."""
 
 VOXELS = "voxels"
 """Volume mode: opacity resampled into cubic voxels (:func:`resample`)."""

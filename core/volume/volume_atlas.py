@@ -1,12 +1,12 @@
 """Exact volume shading: the curvilinear field handed to the renderer as texture atlases.
 
-:func:`~nephele.core.volume.resample` bakes opacity into cubic voxels.  With
+:func:`~nephele.core.volume.sparse.resample` bakes opacity into cubic voxels.  With
 the 30× vertical exaggeration a voxel is far taller, in metres, than the
 levels near the ground are apart, and rays grazing a layer whose cloudiness
 hovers at the transfer function's threshold come out tens of percent wrong
 (``docs/benchmarks.md``).  Here the renderer evaluates the curvilinear field
 itself at every volume sample, exactly as
-:class:`~nephele.core.volume.CurvilinearField` defines it:
+:class:`~nephele.core.volume.sparse.CurvilinearField` defines it:
 
 1. longitude, latitude and height from the sample's position (``atan2``);
 2. the fractional column index from piecewise-linear maps of the closed
@@ -26,7 +26,7 @@ itself at every volume sample, exactly as
 
 Atlas layout: a tile per level (values) or per four levels (heights),
 stacked along the image's rows; a tile's rows are the closed latitude axis
-(pole rows included, see :class:`~nephele.core.volume.CurvilinearField`)
+(pole rows included, see :class:`~nephele.core.volume.sparse.CurvilinearField`)
 with one padding row above and below copying the edge rows, so bilinear
 lookups never bleed into the next tile; its columns are the longitudes, the
 seam closed by the texture's periodic (REPEAT) extension.  Values channels:
@@ -224,7 +224,7 @@ class AtlasLayout:
         function: outside the grid (strictly inside its longitude and latitude
         range for a regional grid), a missing corner, above the top level or
         more than ``below`` metres under the lowest level (the lowest level's
-        values are used in between, as :func:`~nephele.core.volume.resample`
+        values are used in between, as :func:`~nephele.core.volume.sparse.resample`
         does; the ground hides them).
         """
         p = np.asarray(xyz, dtype=np.float32).reshape(-1, 3)
@@ -303,7 +303,7 @@ def bilinear(img, u, v, periodic):
 
 
 def atlas_layout(grid, radius=1.0, exaggeration=DEFAULT_EXAGGERATION):
-    """The :class:`AtlasLayout` of a :class:`~nephele.core.grid.GlobeGrid`."""
+    """The :class:`AtlasLayout` of a :class:`~nephele.core.climate.grid.GlobeGrid`."""
     field = CurvilinearField.from_grid(grid, {}, radius, exaggeration)
     return _layout(field)
 
@@ -393,7 +393,7 @@ def support_voxels(field, tf, size, below=DEFAULT_BELOW):
     """Voxels of a grid of spacing ``size`` whose trilinear footprint covers every
     point that may have a non-zero opacity.
 
-    Every candidate cell's box (:func:`~nephele.core.volume.candidate_blocks`,
+    Every candidate cell's box (:func:`~nephele.core.volume.sparse.candidate_blocks`,
     reaching ``below`` metres into the ground at the lowest level) widened by
     one voxel, so a voxel centre lies less than a voxel from each of its points.
     """
@@ -409,7 +409,7 @@ def exact_volume(grid, values, tf, *, support_size=DEFAULT_SUPPORT_SIZE, color_v
     Parameters
     ----------
     grid, values, tf, color_values, color_name, radius, exaggeration
-        As for :func:`~nephele.core.volume.resample`.
+        As for :func:`~nephele.core.volume.sparse.resample`.
     support_size : float
         Scene units between support voxels.
     below : float

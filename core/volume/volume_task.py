@@ -33,7 +33,7 @@ def frame_params(obj_params, frame):
     :meth:`TransferFunction.to_dict`), optionally ``color_var`` (a field
     name, ``"altitude"`` or ``""`` for none), ``mode`` (:data:`VOXELS`, the
     default, with ``voxel_size``; or :data:`EXACT`, with ``support_size`` and
-    ``below``, see :mod:`nephele.core.volume_atlas`), ``exaggeration``,
+    ``below``, see :mod:`nephele.core.volume.volume_atlas`), ``exaggeration``,
     ``radius``, ``frame_start``, ``hours_per_frame``.
     The model time is interpolated linearly between steps and clamped to the
     data; it is rounded to 1e-6 h so equal frames share a cache entry.

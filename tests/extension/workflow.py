@@ -101,6 +101,10 @@ fv.hours, fv.sides, fv.steps = 6.0, 8, 4
 step("add_flow_volume", lambda: ops.add_flow_volume())
 active("")
 step("update_flow_volume", lambda: ops.update_flow_volume())
+spl = scene.nephele_splats
+spl.stride = 2
+step("add_wind_splats", lambda: ops.add_wind_splats())
+assert len(active("Splats").data.vertices) > 0
 step("add_globe", lambda: ops.add_globe())
 active("Globe")
 step("add_sky", lambda: ops.add_sky())
