@@ -17,7 +17,7 @@ import numpy as np
 
 from ..errors import DataError
 from ..pipeline.sources import open_source
-from ..pipeline.tasks import planner, task
+from ..pipeline.registry import planner, task
 from ..surface.contour import isosurface
 from ..surface.contour_task import ALTITUDE, task_params
 from .advect import (COPIES, DEFAULT_BAND, START, START_ALT, STRATEGIES, WEIGHT, ComposedTrace, Copy, FullTrace, RestartTrace,

@@ -4,7 +4,7 @@ import json
 from dataclasses import asdict
 
 from ..errors import DataError
-from ..pipeline.tasks import planner, task
+from ..pipeline.registry import planner, task
 from ..volume import cloud_density as cd
 from .scatter import solution_arrays, solve
 

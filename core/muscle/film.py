@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import DataError
-from ..pipeline.tasks import planner, task
+from ..pipeline.registry import planner, task
 from . import brownian as br
 from . import lattice as lat
 from .blobby import blobby_surface

@@ -16,14 +16,17 @@ from .sources import (  # noqa: F401
     open_source,
     register_source,
 )
-from .tasks import (  # noqa: F401
+from .registry import (  # noqa: F401
     PLANNERS,
     TASKS,
     TASK_MODULES,
+    code_stamp,
     load_all,
-    plan,
     planner,
+    task,
+)
+from .tasks import (  # noqa: F401
+    plan,
     run,
     run_cached,
-    task,
 )

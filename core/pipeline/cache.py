@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from ..files import atomic_write
+from . import registry
 
 CACHE_VERSION = 1
 """Bump when the meaning of cached arrays changes; old entries are then ignored."""
@@ -39,11 +40,9 @@ def canonical(params):
 
 def cache_key(kind, params):
     """Hex sha256 of the kind, the parameters, :data:`CACHE_VERSION` and the hash of
-    the code the task depends on (:func:`.tasks.code_stamp`), so changed code never
+    the code the task depends on (:func:`.registry.code_stamp`), so changed code never
     serves results made by the old code."""
-    from .tasks import code_stamp
-
-    text = canonical({"kind": kind, "params": params, "version": CACHE_VERSION, "code": code_stamp(kind)})
+    text = canonical({"kind": kind, "params": params, "version": CACHE_VERSION, "code": registry.code_stamp(kind)})
     return hashlib.sha256(text.encode()).hexdigest()
 
 

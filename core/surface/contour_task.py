@@ -21,7 +21,7 @@ from ..pipeline.codehash import code_stamp as file_stamp
 from ..pipeline.sources import frame_hours, open_source
 from ..errors import DataError
 from ..climate.grid import DEFAULT_EXAGGERATION
-from ..pipeline.tasks import planner, task
+from ..pipeline.registry import planner, task
 
 ALTITUDE = "altitude"
 """Name of the per-vertex height attribute (metres above sea level) every contour mesh carries."""

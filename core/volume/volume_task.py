@@ -20,7 +20,7 @@ from ..errors import DataError
 from ..pipeline.cache import source_stamp
 from ..pipeline.codehash import code_stamp as file_stamp
 from ..pipeline.sources import frame_hours, open_source
-from ..pipeline.tasks import planner, task
+from ..pipeline.registry import planner, task
 from .sparse import ALTITUDE, DEFAULT_VOXEL_SIZE, EXACT, VOXELS, resample
 from .transfer import TransferFunction
 from .volume_atlas import DEFAULT_BELOW, DEFAULT_SUPPORT_SIZE, exact_volume

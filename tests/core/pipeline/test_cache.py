@@ -1,6 +1,6 @@
 import numpy as np
 
-from nephele.core.pipeline import tasks
+from nephele.core.pipeline import registry, tasks
 from nephele.core.pipeline.cache import Cache, cache_key, default_cache_dir
 
 
@@ -25,7 +25,7 @@ def test_store_load_roundtrip_and_corrupt_entry(tmp_path):
 def test_run_cached_computes_once(tmp_path):
     calls = []
 
-    @tasks.task("_test_square")
+    @registry.task("_test_square")
     def square(params):
         calls.append(params)
         return {"y": np.array(params["x"]) ** 2}
@@ -33,7 +33,7 @@ def test_run_cached_computes_once(tmp_path):
     for _ in range(3):
         out = tasks.run_cached("_test_square", {"x": 3}, tmp_path)
     assert out["y"] == 9 and len(calls) == 1
-    del tasks.TASKS["_test_square"]
+    del registry.TASKS["_test_square"]
 
 
 def test_default_cache_dir_beside_blend(tmp_path):

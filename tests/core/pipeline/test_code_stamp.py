@@ -6,7 +6,7 @@ from pathlib import Path
 import pytest
 
 import nephele.core as core
-from nephele.core.pipeline import cache, codehash, tasks
+from nephele.core.pipeline import cache, codehash, registry
 
 CORE = Path(core.__file__).resolve().parent
 
@@ -31,9 +31,9 @@ def copy_root(tmp_path_factory):
 
 @pytest.mark.parametrize("kind", sorted(KINDS))
 def test_registered_task_module_matches(kind):
-    tasks.load_all()
-    assert Path(tasks.TASKS[kind].__code__.co_filename).name == KINDS[kind][0]
-    assert len(tasks.code_stamp(kind)) == 16
+    registry.load_all()
+    assert Path(registry.TASKS[kind].__code__.co_filename).name == KINDS[kind][0]
+    assert len(registry.code_stamp(kind)) == 16
 
 
 @pytest.mark.parametrize("kind", sorted(KINDS))
@@ -65,5 +65,5 @@ def test_unrelated_module_does_not_change_scatter_stamp(copy_root):
 
 def test_cache_key_includes_the_code_stamp(monkeypatch):
     key = cache.cache_key("contour", {"a": 1})
-    monkeypatch.setattr(tasks, "code_stamp", lambda kind: "different")
+    monkeypatch.setattr(registry, "code_stamp", lambda kind: "different")
     assert cache.cache_key("contour", {"a": 1}) != key
