@@ -60,7 +60,7 @@ test-extension: $(VENV)/.stamp $(BPY52)/.stamp $(BPY50)/.stamp
 # The farm on a real single-node Slurm cluster (slurmctld + slurmd + munged started by the tests;
 # slurm-wlm and munge are installed with apt-get when missing, which needs root).
 test-slurm: $(VENV)/.stamp
-	$(VENV)/bin/python -m pytest tests/farm/slurm $(PYTEST_ARGS)
+	$(VENV)/bin/python -m pytest tests/farm/slurm -m "not slow" $(PYTEST_ARGS)
 
 # Every benchmark's --quick mode as a smoke test, so none can rot; a quick run prints its table and
 # leaves docs/benchmarks.md alone (benchmarks/report.py).
