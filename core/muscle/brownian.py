@@ -13,10 +13,14 @@ Units: nanometres, microseconds, piconewtons (so energies are pN nm; kT at
   :func:`check_step` refuses ``k dt / g > MAX_RELAXATION``.
 * **Elastic collisions**: free hard spheres move, and pairs that would
   overlap exchange their pseudo-velocities ``dx / dt`` elastically at contact
-  (Strating 1999), conserving momentum and kinetic energy; heads, which turn
-  about their hinges, reject a move that would make them overlap an actin
-  filament, a thick-filament backbone or another head (hard-core Brownian
-  dynamics), so no two bodies ever overlap.
+  (Strating 1999), conserving momentum and kinetic energy.  Heads, which turn
+  about their hinges, bounce the same way: a head whose move would overlap an
+  actin filament, a thick-filament backbone or another head collides as a
+  rigid body (:func:`rigid_collision`; its pseudo angular velocity
+  ``dw / dt``, inertia = its rotational drag about the hinge, the hinge
+  taking up the linear momentum, filaments immovable across their axes).
+  The few moves a bounce cannot clear within a step are refused, so no two
+  bodies ever overlap.
 * **The cross-bridge cycle** (Lymn-Taylor) is a Markov chain over
   M.ATP (detached, lever down) -> M.ADP.Pi (hydrolysis and recovery stroke,
   lever up) -> A.M.ADP.Pi (weak binding) -> A.M.ADP (Pi release, power
@@ -210,6 +214,33 @@ def elastic_collision(v1, v2, m1, m2, normal):
     u = np.sum((v1 - v2) * n, axis=-1, keepdims=True)
     j = 2 * u / (m1 + m2)
     return v1 - j * m2 * n, v2 + j * m1 * n
+
+
+def rigid_collision(v1, w1, v2, w2, inv_m1, inv_i1, inv_m2, inv_i2, r1, r2, normal):
+    """Elastic collision of two rigid bodies touching at one point (rows): momentum and energy conserved.
+
+    Body 1 receives the impulse ``J n`` at arm ``r1`` (contact point minus its
+    centre of mass, or minus its hinge), body 2 receives ``-J n`` at ``r2``;
+    ``n`` points from body 2 to body 1.  With ``u = (v1 + w1 x r1 - v2 - w2 x
+    r2) . n`` the approach speed at the contact, the elastic impulse reverses
+    it: ``J = -2 u / (1/m1 + 1/m2 + |r1 x n|^2 / I1 + |r2 x n|^2 / I2)``, which
+    conserves the kinetic energy ``sum (m |v|^2 + I |w|^2) / 2``, the momentum
+    and the angular momentum about any point.  Inertias are isotropic scalars;
+    an inverse mass of 0 is a body held at its hinge (a pivot takes up the
+    momentum), an inverse mass and inertia of 0 an immovable obstacle.  Bodies
+    already separating (``u >= 0``) are returned unchanged.
+
+    Returns
+    -------
+    v1, w1, v2, w2 : the velocities and angular velocities after the collision.
+    """
+    v1, w1, v2, w2, r1, r2, n = (np.asarray(a, np.float64) for a in (v1, w1, v2, w2, r1, r2, normal))
+    im1, ii1, im2, ii2 = (np.asarray(a, np.float64)[..., None] for a in (inv_m1, inv_i1, inv_m2, inv_i2))
+    a1, a2 = np.cross(r1, n), np.cross(r2, n)
+    u = np.sum((v1 - v2) * n, -1, keepdims=True) + np.sum(w1 * a1, -1, keepdims=True) - np.sum(w2 * a2, -1, keepdims=True)
+    k = im1 + im2 + ii1 * np.sum(a1 * a1, -1, keepdims=True) + ii2 * np.sum(a2 * a2, -1, keepdims=True)
+    j = np.where(u < 0, -2 * u / np.where(k > 0, k, 1.0), 0.0)
+    return v1 + im1 * j * n, w1 + ii1 * j * a1, v2 - im2 * j * n, w2 - ii2 * j * a2
 
 
 def _contact_time(d0, dv, dist):
@@ -460,6 +491,7 @@ class CrossBridges:
         self.rng = np.random.default_rng(seed)
         self.heads = lat.myosin_heads(lattice)
         n = len(self.heads)
+        self._pairs = self._sphere_pairs()
         q = cycle_generator(p.rates)
         chem_dt = p.dt * 1e-6 * p.speedup
         self.P = transition_matrix(q, chem_dt)
@@ -470,6 +502,7 @@ class CrossBridges:
         self.P_blocked = transition_matrix(qb, chem_dt)
         self.slide = np.zeros(6)
         self.time = 0.0
+        self.collisions = self.rejected = 0  # of the last step: bounces resolved, moves refused
         # Filament axes in the orthorhombic box (both copies of the cell): xy distances need only box rounding.
         self._axes = [(lattice.to_box(np.column_stack([xy, np.zeros(len(xy))]))[:, :2], rad)
                       for xy, rad in ((lattice.thin_xy, lat.THIN_RADIUS), (lattice.thick_xy, lat.THICK_RADIUS))]
@@ -501,44 +534,141 @@ class CrossBridges:
     def overlaps(self, R=None):
         """Per head: does any of its spheres overlap a thin filament, a thick backbone or another head?
 
-        The tip sphere of a bound head is exempt from the thin filaments (its spring holds it at its site).
+        The tip sphere of a bound head is exempt from the thin filaments (its
+        spring holds it at its site); the first spheres of a molecule's two
+        heads share the hinge and may touch.
         """
-        c = self.spheres(R)
+        head, other = self._contacts(R, R)[:2]
+        bad = np.zeros(len(self.heads), bool)
+        bad[head] = True
+        bad[other[other >= 0]] = True
+        return bad
+
+    def _contacts(self, R, R0):
+        """Overlaps of the heads in frames ``R``, as collisions to resolve from frames ``R0``.
+
+        Returns one row per overlapping head sphere and filament, or pair of
+        head spheres: arrays ``head``, ``other`` (the other head, or -1 for a
+        filament), ``arm``, ``other_arm`` (sphere centres minus hinges in
+        ``R0``), ``normal`` (unit, from the other body towards the head, in
+        ``R0``) and ``depth`` (nm).
+        """
+        c, c0 = self.spheres(R), self.spheres(R0)
         n = len(c)
-        flat = c.reshape(-1, 3)
+        flat, flat0 = c.reshape(-1, 3), c0.reshape(-1, 3)
         lt = self.lattice
         box = lt.box[:2]
-        xy = lt.wrap(flat)[:, None, :2]
-        bad = np.zeros(len(flat), bool)
+        xy, xy0 = lt.wrap(flat)[:, None, :2], lt.wrap(flat0)[:, None, :2]
+        out = []
         for k, (axes, rad) in enumerate(self._axes):
             d = xy - axes[None]
             d -= np.round(d / box) * box
-            hit = (np.einsum("nak,nak->na", d, d) < (rad + HEAD_SPHERE_RADIUS - 1e-9) ** 2).any(axis=1)
+            r2 = np.einsum("nak,nak->na", d, d)
+            hit = r2 < (rad + HEAD_SPHERE_RADIUS - 1e-9) ** 2
             if k == 0:  # a bound head's tip rests on its actin: it may press into the thin filament
-                hit.reshape(n, -1)[:, -1] &= self.sites < 0
-            bad |= hit
-        bad = bad.reshape(n, -1).any(axis=1)
-        i, j = self._head_pairs(flat)
-        if len(i):
-            hi, hj = i // 3, j // 3
-            # The two heads of one molecule share a hinge: their first spheres may touch.
-            sib = (self.heads.molecule[hi] == self.heads.molecule[hj]) & (i % 3 == 0) & (j % 3 == 0)
-            hit = (hi != hj) & ~sib
-            bad[hi[hit]] = True
-            bad[hj[hit]] = True
-        return bad
+                hit.reshape(n, 3, -1)[:, -1] &= (self.sites < 0)[:, None]
+            s, a = np.nonzero(hit)
+            d0 = xy0[s, 0] - axes[a]
+            d0 -= np.round(d0 / box) * box
+            out.append((s, np.full(len(s), -1), np.column_stack([d0, np.zeros(len(s))]),
+                        rad + HEAD_SPHERE_RADIUS - np.sqrt(r2[s, a])))
+        i, j, shift = self._pairs
+        d = flat[i] - flat[j] + shift
+        dist = np.sqrt(np.einsum("nk,nk->n", d, d))
+        hit = dist < 2 * HEAD_SPHERE_RADIUS - 1e-9
+        out.append((i[hit], j[hit], flat0[i[hit]] - flat0[j[hit]] + shift[hit], 2 * HEAD_SPHERE_RADIUS - dist[hit]))
+        s = np.concatenate([o[0] for o in out])
+        o = np.concatenate([o[1] for o in out])
+        nrm = np.concatenate([o[2] for o in out]).reshape(-1, 3)
+        nrm /= np.maximum(np.linalg.norm(nrm, axis=1), 1e-12)[:, None]
+        pivots = self.heads.pivots
+        head, other = s // 3, np.where(o >= 0, o // 3, -1)
+        arm = flat0[s] - pivots[head]
+        other_arm = np.where((o >= 0)[:, None], flat0[np.maximum(o, 0)] - pivots[np.maximum(other, 0)], 0.0)
+        return head, other, arm, other_arm, nrm, np.concatenate([o[3] for o in out])
 
-    def _head_pairs(self, flat):
+    def _sphere_pairs(self):
+        """Head sphere pairs that can ever touch, with the period that brings them together.
+
+        Hinges are fixed, so sphere ``a`` of one head and ``b`` of another can
+        touch only if their hinges (in that periodic image) are closer than
+        ``s_a + s_b + 2 r``.  Returns flat sphere indices ``i``, ``j`` and the
+        (m, 3) period vectors to add to ``c_i - c_j``.
+        """
         from scipy.spatial import cKDTree
 
-        lt = self.lattice
-        both = lt.to_box(flat)
-        tree = cKDTree(both, boxsize=lt.box)
-        pairs = tree.query_pairs(2 * HEAD_SPHERE_RADIUS - 1e-9, output_type="ndarray")
-        m = len(flat)
-        i, j = pairs[:, 0] % m, pairs[:, 1] % m
-        keep = i != j
-        return i[keep], j[keep]
+        lt, piv = self.lattice, self.heads.pivots
+        n = len(piv)
+        reach = 2 * (HEAD_SPHERES[-1] + HEAD_SPHERE_RADIUS)
+        if 2 * reach >= lt.box.min():
+            raise DataError(f"the cell ({lt.box.min():.3g} nm across) is too small for heads {reach / 2:.3g} nm long",
+                            field="d10")
+        both = lt.to_box(piv)
+        pq = cKDTree(both, boxsize=lt.box).query_pairs(reach, output_type="ndarray")
+        hi, hj = pq[:, 0] % n, pq[:, 1] % n
+        d = both[pq[:, 0]] - both[pq[:, 1]]
+        d -= np.round(d / lt.box) * lt.box
+        t = d - (piv[hi] - piv[hj])
+        swap = hi > hj
+        hi, hj = np.where(swap, hj, hi), np.where(swap, hi, hj)
+        t = np.where(swap[:, None], -t, t)
+        keep = hi != hj
+        hi, hj, t = hi[keep], hj[keep], t[keep]
+        _, first = np.unique(np.column_stack([hi, hj, np.round(t / 1e-3)]), axis=0, return_index=True)
+        hi, hj, t = hi[first], hj[first], t[first]
+        a, b = (x.reshape(-1) for x in np.meshgrid(np.arange(3), np.arange(3), indexing="ij"))
+        hi, hj, t = np.repeat(hi, 9), np.repeat(hj, 9), np.repeat(t, 9, axis=0)
+        a, b = np.tile(a, len(first)), np.tile(b, len(first))
+        gap = np.linalg.norm(piv[hi] - piv[hj] + t, axis=1)
+        sib = (self.heads.molecule[hi] == self.heads.molecule[hj]) & (a == 0) & (b == 0)
+        keep = (gap < HEAD_SPHERES[a] + HEAD_SPHERES[b] + 2 * HEAD_SPHERE_RADIUS) & ~sib
+        return 3 * hi[keep] + a[keep], 3 * hj[keep] + b[keep], t[keep]
+
+    def _bounce(self, omega, R, passes=4):
+        """Elastic collisions of the hinged heads: reflect the pseudo angular velocities of colliding heads.
+
+        ``omega`` (n, 3) is each head's rotation vector for this step divided
+        by ``dt`` (Strating's pseudo-velocity).  Each pass finds the heads whose
+        trial frames overlap, takes each head's deepest contact, and applies
+        :func:`rigid_collision` with the contact normal of the current frames
+        (inverse inertia ``1 / drag``, inverse mass 0: the hinge holds the head;
+        filaments are immovable across their axes).  Returns the new pseudo
+        angular velocities and the number of bounces (approaching contacts).
+
+        Momentum is not a state variable of overdamped Brownian dynamics; as
+        in Strating's hard-sphere method, each body's displacement over the
+        step divided by ``dt`` stands for its velocity and its drag for its
+        mass, so the collision is the inertial rigid-body collision of those
+        pseudo-velocities.  The bounce is applied to the whole step (the
+        contact normal is taken in the start frames), an error of order one
+        step in where the bounce happens; moves still overlapping after the
+        passes are refused by the caller.
+        """
+        dt, inv_i = self.p.dt, 1.0 / self.drag
+        hits = 0
+        for _ in range(passes):
+            head, other, arm, oarm, nrm, depth = self._contacts(rotation_matrix(omega * dt) @ R, R)
+            if not len(head):
+                break
+            # One collision per head per pass, the deepest first.
+            used = np.zeros(len(R) + 1, bool)
+            pick = []
+            for k in np.argsort(-depth, kind="stable").tolist():
+                a, b = head[k], other[k]
+                if not (used[a] or used[b]):
+                    used[a] = used[b] = True
+                    used[-1] = False  # index -1: a filament, which takes any number of collisions
+                    pick.append(k)
+            k = np.array(pick, np.int64)
+            a, b = head[k], other[k]
+            wall = b < 0
+            zero = np.zeros((len(k), 3))
+            _, wa, _, wb = rigid_collision(zero, omega[a], zero, np.where(wall[:, None], 0.0, omega[b]), 0.0, inv_i,
+                                           0.0, np.where(wall, 0.0, inv_i), arm[k], oarm[k], nrm[k])
+            hits += int(np.any(wa != omega[a], axis=1).sum())
+            omega[a] = wa
+            omega[b[~wall]] = wb[~wall]
+        return omega, hits
 
     def _place(self, R):
         """Start frames free of overlaps: tilt overlapping heads further until they are free."""
@@ -663,10 +793,11 @@ class CrossBridges:
             self.states[released[keep]] = old_states[keep]
         # Mechanics.
         tau, pull = self._torque_and_pull()
-        dw = tau * p.dt / self.drag + np.sqrt(2 * self.kT * p.dt / self.drag) * rng.standard_normal((n, 3))
-        trial = rotation_matrix(dw) @ self.R
+        omega = tau / self.drag + np.sqrt(2 * self.kT / (self.drag * p.dt)) * rng.standard_normal((n, 3))
+        omega, self.collisions = self._bounce(omega, self.R)
+        trial = rotation_matrix(omega * p.dt) @ self.R
         moved = np.ones(n, bool)
-        while True:  # reject moves into overlaps; the old frames overlap nothing
+        while True:  # moves the bounces could not clear are refused; the old frames overlap nothing
             bad = self.overlaps(trial) & moved
             if not bad.any():
                 break

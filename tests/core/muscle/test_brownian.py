@@ -204,7 +204,8 @@ def run():
     record = []
     for _ in range(150):
         sim.step()
-        record.append((sim.overlaps().any(), sim.R.copy(), sim.states.copy(), sim.sites.copy(), sim.slide.copy()))
+        record.append((sim.overlaps().any(), sim.R.copy(), sim.states.copy(), sim.sites.copy(), sim.slide.copy(),
+                       sim.collisions, sim.rejected))
     return sim, record
 
 
@@ -282,3 +283,58 @@ def test_power_stroke_slides_the_filament_towards_the_m_line():
     others = np.arange(6) != f
     np.testing.assert_array_equal(strong[others], 0.0)
     assert strong[f] - weak[f] < -1.0
+
+
+def test_rigid_collision_conserves_momentum_angular_momentum_and_energy():
+    # Free rigid bodies touching at a point: momentum, angular momentum about the origin and energy conserved,
+    # the approach speed at the contact reversed (closed form of the elastic impulse).
+    rng = np.random.default_rng(21)
+    n = 200
+    x1, x2 = rng.normal(size=(n, 3)), rng.normal(size=(n, 3))
+    xc = (x1 + x2) / 2 + 0.3 * rng.normal(size=(n, 3))  # contact point, off both centres
+    v1, v2, w1, w2 = (rng.normal(size=(n, 3)) for _ in range(4))
+    m1, m2, i1, i2 = (rng.uniform(0.5, 3, n) for _ in range(4))
+    nrm = rng.normal(size=(n, 3))
+    nrm /= np.linalg.norm(nrm, axis=1)[:, None]
+    r1, r2 = xc - x1, xc - x2
+    a, wa, b, wb = br.rigid_collision(v1, w1, v2, w2, 1 / m1, 1 / i1, 1 / m2, 1 / i2, r1, r2, nrm)
+
+    def speed(v1, w1, v2, w2):
+        return np.sum((v1 + np.cross(w1, r1) - v2 - np.cross(w2, r2)) * nrm, 1)
+
+    u0, u1 = speed(v1, w1, v2, w2), speed(a, wa, b, wb)
+    np.testing.assert_allclose(u1, np.where(u0 < 0, -u0, u0), atol=1e-12)
+    assert (u0 < 0).sum() > 50 and np.all(u1 >= -1e-12)
+    np.testing.assert_allclose(m1[:, None] * a + m2[:, None] * b, m1[:, None] * v1 + m2[:, None] * v2, atol=1e-12)
+
+    def ang(v1, w1, v2, w2):
+        return (m1[:, None] * np.cross(x1, v1) + i1[:, None] * w1 + m2[:, None] * np.cross(x2, v2)
+                + i2[:, None] * w2)
+
+    np.testing.assert_allclose(ang(a, wa, b, wb), ang(v1, w1, v2, w2), atol=1e-12)
+
+    def energy(v1, w1, v2, w2):
+        return (m1 * np.sum(v1**2, 1) + i1 * np.sum(w1**2, 1) + m2 * np.sum(v2**2, 1) + i2 * np.sum(w2**2, 1)) / 2
+
+    np.testing.assert_allclose(energy(a, wa, b, wb), energy(v1, w1, v2, w2), rtol=1e-12)
+    # Hinged bodies (inverse mass 0: the hinge takes the momentum) and a body against an immovable wall:
+    # energy conserved, approach reversed, linear velocities untouched.
+    z = np.zeros((n, 3))
+    _, wa, _, wb = br.rigid_collision(z, w1, z, w2, 0.0, 1 / i1, 0.0, 1 / i2, r1, r2, nrm)
+    np.testing.assert_allclose(energy(z, wa, z, wb), energy(z, w1, z, w2), rtol=1e-12)
+    np.testing.assert_allclose(speed(z, wa, z, wb), np.abs(speed(z, w1, z, w2)), atol=1e-12)
+    _, wa, _, wb = br.rigid_collision(z, w1, z, z, 0.0, 1 / i1, 0.0, 0.0, r1, r2, nrm)
+    np.testing.assert_array_equal(wb, 0)
+    np.testing.assert_allclose(np.sum(wa**2, 1), np.sum(w1**2, 1), rtol=1e-12)
+    # A head swinging straight into a wall: its angular velocity is reversed.
+    _, wa, _, _ = br.rigid_collision([0, 0, 0.0], [0, 0, 2.0], [0, 0, 0.0], [0, 0, 0.0], 0.0, 1.0, 0.0, 0.0,
+                                     [10.0, 0, 0], [0, 0, 0.0], [0, -1.0, 0])
+    np.testing.assert_allclose(wa, [0, 0, -2.0])
+
+
+def test_heads_bounce_rather_than_refuse(run):
+    # Contacts are resolved by elastic bounces; refusing a move is the rare exception.
+    sim, record = run
+    bounces, refused = sum(r[5] for r in record), sum(r[6] for r in record)
+    assert bounces > 1000
+    assert refused < 0.02 * bounces
