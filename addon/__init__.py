@@ -22,6 +22,7 @@ MODULES = (
     "muscle_ops",
     "flowvol_ops",
     "splat_ops",
+    "presets",
 )
 
 

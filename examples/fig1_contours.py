@@ -17,42 +17,14 @@ import sys
 
 import bpy
 
-DEFAULTS = {
-    "source": "demo",
-    "level": 0.15,
-    "hours_per_frame": 1.0,
-    "exaggeration": None,  # None: nephele.core.climate.grid.DEFAULT_EXAGGERATION
-    "method": "cubes",
-    "haze": "volume",  # "volume", "shell" (cheap, closed form) or "none"
-    "camera_lon": -40.0,
-    "camera_lat": 22.0,
-    "camera_distance": 4.5,
-    "frames": (1, 24),
-    "size": (640, 480),
-    "samples": 32,
-}
+from nephele.addon import presets
+
+DEFAULTS = presets.FIG1_DEFAULTS  # the add-on's recipe, also its panel's preset
 
 
 def build(**options):
-    """Build the Fig. 1 scene into the current scene; returns a dict of the main objects.
-
-    Options (see :data:`DEFAULTS`): ``source``, ``level``, ``hours_per_frame``,
-    ``exaggeration``, ``method``, ``haze``, ``camera_lon``, ``camera_lat``,
-    ``camera_distance``, ``frames`` (first, last), ``size`` (w, h), ``samples``.
-    """
-    from nephele.addon import contour_ops, frame, globe_ops, globe_scene
-
-    o = globe_scene.merge_options(DEFAULTS, options)
-    scene = bpy.context.scene
-    haze = {True: "volume", False: "none"}.get(o["haze"], o["haze"])
-    globe, sky = globe_scene.globe_scene(scene, o, sun_direction=(0.55, -0.75, 0.35), haze=haze != "none",
-                                         haze_mode=haze if haze != "none" else "volume")
-    clouds = contour_ops.add_contour("cloud", o["level"], scene=scene, color_var="altitude",
-                                     method=o["method"], name="Clouds 15%")
-    camera = globe_ops.add_camera(scene, lon=o["camera_lon"], lat=o["camera_lat"], distance=o["camera_distance"])
-    globe_scene.render_settings(scene, o["size"], o["samples"])
-    frame.install()
-    return {"globe": globe, "clouds": clouds, "camera": camera, **sky}
+    """Build the Fig. 1 scene into the current scene (:func:`nephele.addon.presets.fig1`); returns a dict of the main objects."""
+    return presets.fig1(bpy.context.scene, **options)
 
 
 def main(argv=None):

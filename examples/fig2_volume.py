@@ -25,69 +25,17 @@ from pathlib import Path
 
 import bpy
 
-DEFAULTS = {
-    "source": "demo",
-    "threshold": 0.3,
-    "full": 0.7,
-    "extinction": None,  # None: nephele.core.volume.sparse.DEFAULT_EXTINCTION
-    "mode": None,  # None: "exact" for Cycles, "voxels" for EEVEE (which renders the exact shader striped)
-    "voxel_size": None,  # None: nephele.core.volume.sparse.DEFAULT_VOXEL_SIZE (voxel mode)
-    "color_var": "altitude",
-    "hours_per_frame": 1.0,
-    "exaggeration": None,  # None: nephele.core.climate.grid.DEFAULT_EXAGGERATION
-    "haze": True,
-    "camera_lon": -115.0,
-    "camera_lat": 28.0,
-    "camera_distance": 3.0,
-    "engine": "CYCLES",
-    "frames": (1, 24),
-    "size": (640, 480),
-    "samples": 32,
-    "vdb_dir": None,  # None: beside the saved .blend, else out/fig2_volume_vdb
-    "bake": "all",  # "lazy": each frame's .vdb written when shown (farm: after nephele precompute)
-}
+from nephele.addon import presets
+
+DEFAULTS = presets.FIG2_DEFAULTS  # the add-on's recipe, also its panel's preset
 
 
 def build(**options):
-    """Build the Fig. 2 scene into the current scene; returns a dict of the main objects.
-
-    Options (see :data:`DEFAULTS`): ``source``, ``threshold``, ``full``,
-    ``extinction``, ``mode`` (``"exact"``: the material evaluates the
-    curvilinear field per sample; ``"voxels"``: a resampled VDB),
-    ``voxel_size``, ``color_var``, ``hours_per_frame``,
-    ``exaggeration``, ``haze``, ``camera_lon``, ``camera_lat``,
-    ``camera_distance``, ``engine`` (CYCLES or BLENDER_EEVEE), ``frames``
-    (first, last), ``size`` (w, h), ``samples``, ``vdb_dir``, ``bake``
-    (``"all"`` now, or ``"lazy"``: per frame when shown, from the cache
-    that ``nephele precompute`` fills in parallel).
-    """
-    from nephele.addon import frame, globe_ops, globe_scene, volume_ops
-    from nephele.core.volume.transfer import TransferFunction
-    from nephele.core.volume.sparse import DEFAULT_EXTINCTION, DEFAULT_VOXEL_SIZE
-
-    o = globe_scene.merge_options(DEFAULTS, options)
-    scene = bpy.context.scene
-    globe, sky = globe_scene.globe_scene(scene, o, sun_direction=(-0.075, -0.863, 0.5), haze=bool(o["haze"]))
-    vdb_dir = o["vdb_dir"]
-    if vdb_dir is None and not bpy.data.filepath:
-        vdb_dir = str(Path(__file__).resolve().parent.parent / "out" / "fig2_volume_vdb")
-    clouds, infos = volume_ops.add_volume_clouds(
-        "cloud", TransferFunction.ramp(float(o["threshold"]), float(o["full"])), scene=scene,
-        color_var=o["color_var"],
-        voxel_size=DEFAULT_VOXEL_SIZE if o["voxel_size"] is None else float(o["voxel_size"]),
-        extinction=DEFAULT_EXTINCTION if o["extinction"] is None else float(o["extinction"]),
-        directory=vdb_dir, bake=o["bake"],
-        mode=o["mode"] or ("voxels" if o["engine"] == "BLENDER_EEVEE" else "exact"),
-    )
-    camera = globe_ops.add_camera(scene, lon=o["camera_lon"], lat=o["camera_lat"], distance=o["camera_distance"])
-
-    globe_scene.render_settings(scene, o["size"], o["samples"], engine=o["engine"])
-    # Clouds lit by the sun and by each other (a few volume bounces).
-    scene.cycles.volume_bounces = 4
-    scene.eevee.taa_render_samples = int(o["samples"])
-    volume_ops.eevee_volume_settings(scene)
-    frame.install()
-    return {"globe": globe, "clouds": clouds, "camera": camera, "bake": infos, **sky}
+    """Build the Fig. 2 scene into the current scene (:func:`nephele.addon.presets.fig2`); returns a dict of the
+    main objects.  ``vdb_dir`` None in an unsaved file: ``out/fig2_volume_vdb``."""
+    if options.get("vdb_dir") is None and not bpy.data.filepath:
+        options["vdb_dir"] = str(Path(__file__).resolve().parent.parent / "out" / "fig2_volume_vdb")
+    return presets.fig2(bpy.context.scene, **options)
 
 
 def main(argv=None):

@@ -26,46 +26,14 @@ from pathlib import Path
 
 import bpy
 
-DEFAULTS = {
-    "source": "demo",
-    "level": 0.15,
-    "hours_per_frame": 1.0,
-    "exaggeration": None,  # None: nephele.core.climate.grid.DEFAULT_EXAGGERATION
-    "method": "cubes",
-    "strategy": "restart",
-    "period": 24,
-    "vertical": "auto",  # the demo's levels follow the air (w is the lift of riding them): kept, exact there
-    "haze": True,
-    "camera_lon": -40.0,
-    "camera_lat": 30.0,
-    "camera_distance": 3.2,
-    "frames": (1, 13),
-    "size": (480, 360),
-    "samples": 16,
-}
+from nephele.addon import presets
+
+DEFAULTS = presets.FIG4_DEFAULTS  # the add-on's recipe, also its panel's preset
 
 
 def build(**options):
-    """Build the Fig. 4 scene into the current scene; returns a dict of the main objects.
-
-    Options (see :data:`DEFAULTS`): ``source``, ``level``, ``hours_per_frame``,
-    ``exaggeration``, ``method``, ``strategy``, ``period``, ``vertical``, ``haze``, ``camera_lon``, ``camera_lat``,
-    ``camera_distance``, ``frames`` (first, last), ``size`` (w, h), ``samples``.
-    """
-    from nephele.addon import advect_ops, contour_ops, frame, globe_ops, globe_scene
-
-    o = globe_scene.merge_options(DEFAULTS, options)
-    scene = bpy.context.scene
-    globe, sky = globe_scene.globe_scene(scene, o, sun_direction=(0.55, -0.75, 0.35), haze=bool(o["haze"]))
-    clouds = contour_ops.add_contour("cloud", o["level"], scene=scene, color_var="altitude",
-                                     method=o["method"], name="Clouds 15%")
-    advect_ops.add_advected_texture(clouds, strategy=o["strategy"], period=int(o["period"]), vertical=o["vertical"],
-                                    scene=scene)
-    camera = globe_ops.add_camera(scene, lon=o["camera_lon"], lat=o["camera_lat"], distance=o["camera_distance"])
-
-    globe_scene.render_settings(scene, o["size"], o["samples"])
-    frame.install()
-    return {"globe": globe, "clouds": clouds, "camera": camera, **sky}
+    """Build the Fig. 4 scene into the current scene (:func:`nephele.addon.presets.fig4`); returns a dict of the main objects."""
+    return presets.fig4(bpy.context.scene, **options)
 
 
 def main(argv=None):

@@ -19,39 +19,16 @@ ROOT = Path(__file__).resolve().parent.parent
 
 def build(frames=120, grid=(24, 24, 18), sun_irradiance=7.0, sky_radiance=0.35, directory=None,
           size=(300, 255), samples=32, **_):
-    """Build the Fig. 6 scene into the current (empty) scene; returns the cloud object."""
+    """Build the Fig. 6 scene into the current (empty) scene (:func:`nephele.addon.presets.fig6`); returns the cloud."""
     import bpy
 
     import nephele
+    from nephele.addon import presets
 
     if not hasattr(bpy.types.Scene, "nephele_scatter"):
         nephele.register()
-    scene = bpy.context.scene
-    scene.frame_start, scene.frame_end = 1, int(frames)
-    p = scene.nephele_scatter
-    p.resolution = tuple(int(v) for v in grid)
-    p.sun_irradiance = sun_irradiance
-    p.sky_radiance = sky_radiance
-    if directory:
-        p.directory = str(directory)
-    world = bpy.data.worlds.new("Fig6 sky")
-    if world.node_tree is None:
-        world.use_nodes = True
-    bg = world.node_tree.nodes["Background"]
-    bg.inputs["Color"].default_value = (0.22, 0.36, 0.66, 1.0)
-    bg.inputs["Strength"].default_value = 1.0
-    scene.world = world
-    if bpy.ops.nephele.add_scattering_cloud() != {"FINISHED"}:
-        raise RuntimeError("Add scattering cloud failed")
-    scene.render.engine = "CYCLES"
-    scene.cycles.device = "CPU"
-    scene.cycles.samples = int(samples)
-    scene.cycles.use_denoising = True  # OIDN: the emission volume's sampling noise only
-    scene.cycles.volume_bounces = 0  # the light is in the emission grid already
-    scene.view_settings.view_transform = "Standard"
-    scene.render.resolution_x, scene.render.resolution_y = size
-    scene.render.resolution_percentage = 100
-    return bpy.data.objects["Scattering cloud"]
+    return presets.fig6(bpy.context.scene, frames=frames, grid=grid, sun_irradiance=sun_irradiance,
+                        sky_radiance=sky_radiance, directory=directory, size=size, samples=samples)["cloud"]
 
 
 def _frames(text):

@@ -21,57 +21,21 @@ References
 """
 
 import argparse
-import math
 import sys
 from pathlib import Path
 
 import bpy
-import numpy as np
 
-DEFAULTS = {
-    "seed": 0,
-    "film_frames": 240,
-    "spacing": 0.8,  # nm; 0.5 for the full-quality film
-    "tiles": (3, 3, 1),
-    "dome": None,  # or "omnimax" / "domemaster"
-    "stereo": False,
-    "separation": 0.006,  # scene units (1 = 100 nm): a 0.6 nm eye base, about 1/30 of the nearest molecules
-    "size": (320, 240),
-    "samples": 8,
-}
+from nephele.addon import presets
+
+DEFAULTS = presets.FIG7_DEFAULTS  # the add-on's recipe, also its panel's preset
 
 
 def build(**options):
-    """Build the Fig. 7 scene; returns ``{"film": obj, "camera": camera or rig}``."""
-    from nephele.addon import dome_ops, frame, muscle_ops
-
-    o = {**DEFAULTS, **options}
+    """Build the Fig. 7 scene in a fresh empty file (:func:`nephele.addon.presets.fig7`);
+    returns ``{"film": obj, "camera": camera or rig}``."""
     bpy.ops.wm.read_factory_settings(use_empty=True)
-    scene = bpy.context.scene
-    scene.render.engine = "CYCLES"
-    scene.cycles.device = "CPU"
-    scene.cycles.samples = int(o["samples"])
-    scene.cycles.use_denoising = False
-    frame.install()
-    obj = muscle_ops.add_muscle_film(seed=o["seed"], frames=o["film_frames"], spacing=o["spacing"],
-                                     tiles=tuple(o["tiles"]), scene=scene)
-    cam = scene.camera
-    w, h = (int(v) for v in o["size"])
-    scene.render.resolution_x, scene.render.resolution_y, scene.render.resolution_percentage = w, h, 100
-    if o["dome"]:
-        # The dome's front is +y: turn the lattice so its fibre (local z) runs along +y, keeping it centred.
-        rot = np.array([[1, 0, 0], [0, 0, 1], [0, -1, 0]], float)  # rotation by -90 degrees about x
-        obj.rotation_euler = (-math.pi / 2, 0.0, 0.0)
-        obj.location = tuple(rot @ np.array(obj.location))
-        eye = rot @ np.array(cam.location)
-        bpy.data.objects.remove(cam, do_unlink=True)
-        cam = dome_ops.add_dome_camera(o["dome"], stereo=bool(o["stereo"]), separation=float(o["separation"]),
-                                       location=tuple(eye), width=w, height=h, scene=scene)
-        light = bpy.data.objects.get("Muscle light")  # the headlight rides with the audience
-        if light is not None:
-            light.parent = cam
-            light.location = (0.03, 0.03, 0.0)
-    return {"film": obj, "camera": cam}
+    return presets.fig7(bpy.context.scene, **options)
 
 
 def main(argv=None):
