@@ -306,6 +306,7 @@ class NEPHELE_PT_advect(SubPanel, bpy.types.Panel):
         layout = self.layout
         obj = context.active_object
         layout.operator(NEPHELE_OT_add_advected_texture.bl_idname)
+        layout.operator("nephele.paper_figure", text="Make the paper's figure", icon="IMAGE_DATA").figure = "FIG4"
         if obj is not None and frame.params(obj).get("kind") == KIND:
             p = frame.params(obj)
             col = layout.column(align=True)

@@ -289,6 +289,7 @@ class NEPHELE_PT_contour(SubPanel, bpy.types.Panel):
         col = self.layout.column(align=True)
         col.operator(NEPHELE_OT_add_contour.bl_idname, icon="MESH_ICOSPHERE")
         col.operator(NEPHELE_OT_update_contours.bl_idname, icon="FILE_REFRESH")
+        col.operator("nephele.paper_figure", text="Make the paper's figure", icon="IMAGE_DATA").figure = "FIG1"
         obj = context.active_object
         p = frame.params(obj) if obj is not None else {}
         if p.get("kind") == "contour" and hasattr(obj, "nephele_layer"):

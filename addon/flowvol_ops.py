@@ -299,6 +299,7 @@ class NEPHELE_PT_flowvol(SubPanel, bpy.types.Panel):
             col.prop(p, name)
         col.operator(NEPHELE_OT_add_flow_volume.bl_idname)
         col.operator(NEPHELE_OT_update_flow_volume.bl_idname)
+        col.operator("nephele.paper_figure", text="Make the paper's figure", icon="IMAGE_DATA").figure = "FIG5"
         if p.status:
             col.label(text=p.status)
 

@@ -210,6 +210,7 @@ class NEPHELE_PT_muscle(SubPanel, bpy.types.Panel):
     def draw(self, context):
         col = self.layout.column(align=True)
         col.operator(NEPHELE_OT_add_muscle_film.bl_idname, icon="FORCE_BROWNIAN")
+        col.operator("nephele.paper_figure", text="Make the paper's figure", icon="IMAGE_DATA").figure = "FIG7"
         obj = bpy.data.objects.get(OBJECT_NAME)
         p = frame.params(obj) if obj is not None else {}
         if p.get("kind") == "muscle":

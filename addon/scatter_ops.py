@@ -617,6 +617,7 @@ class NEPHELE_PT_scatter(SubPanel, bpy.types.Panel):
         col.prop(p, "orbit_camera")
         col.prop(p, "directory")
         col.operator(NEPHELE_OT_add_scattering_cloud.bl_idname)
+        col.operator("nephele.paper_figure", text="Make the paper's figure", icon="IMAGE_DATA").figure = "FIG6"
         if p.status:
             col.prop(p, "progress")
             col.label(text=p.status)

@@ -613,6 +613,7 @@ class NEPHELE_PT_splats(SubPanel, bpy.types.Panel):
                      "streaks", "n_maps", "tile", "contrast"):
             col.prop(s, prop)
         self.layout.operator(NEPHELE_OT_add_wind_splats.bl_idname, icon="PARTICLES")
+        self.layout.operator("nephele.paper_figure", text="Make the paper's figure", icon="IMAGE_DATA").figure = "FIG3"
         obj = context.active_object
         if obj is not None and frame.params(obj).get("kind") == KIND:
             self.layout.label(text=f"{len(obj.data.vertices)} splats, model time {obj.get('nephele_hours', 0):.2f} h")

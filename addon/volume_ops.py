@@ -743,6 +743,7 @@ class NEPHELE_PT_volume(SubPanel, bpy.types.Panel):
     def draw(self, context):
         layout = self.layout
         s = _settings(context.scene)
+        layout.operator("nephele.paper_figure", text="Make the paper's figure", icon="IMAGE_DATA").figure = "FIG2"
         if s is None:
             return
         col = layout.column()
