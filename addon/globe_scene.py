@@ -1,8 +1,9 @@
-"""What the globe examples (Figs. 1, 2 and 4) share: options, the globe scene,
+"""What the globe figures (Figs. 1-5) share: options, the globe scene,
 render settings and the command line that saves or renders it headless.
 
-Each example keeps its own ``DEFAULTS`` and ``build(**options)``; this module
-holds the parts that were the same in all of them.
+The figures' recipes and their ``*_DEFAULTS`` are in :mod:`.presets` (the
+panels' "Make the paper's figure" and the examples both call them); this
+module holds the parts that are the same in all of them.
 """
 
 import argparse
