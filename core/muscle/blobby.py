@@ -64,6 +64,8 @@ EXACT_RANGE = 12.0
 """The "exact" field counts every image within this many sigma (the rest is below 1e-31 w)."""
 
 _F32 = np.float32
+_EXP_MAX = _F32(40.0)
+"""Largest exponent of one of the three float32 factors (two of them multiply below exp(88.7), the overflow)."""
 
 
 @dataclass
@@ -426,11 +428,19 @@ def _node_values(b, grid, blocks, threads):
             bj = (u[1][:, None] * ar[:, 1] - 0.5 * uu[1][:, None] * a6[:, 1] + const).astype(_F32)
             ck = (u[2][:, None] * ar[:, 2] - 0.5 * uu[2][:, None] * a6[:, 2]).astype(_F32)
             a32 = a6.astype(_F32)
-            tji = np.exp(bj[:, None, :] + ai[None, :, :] - uxy * a32[:, 3])
-            tki = np.exp(-uxz * a32[:, 4])
-            tkj = np.exp(ck[:, None, :] - uyz * a32[:, 5])
+            eji = bj[:, None, :] + ai[None, :, :] - uxy * a32[:, 3]
+            eki = -uxz * a32[:, 4]
+            ekj = ck[:, None, :] - uyz * a32[:, 5]
+            # The three factors' exponents may exceed float32's exp range although their sum (<= ln w) does
+            # not (strongly sheared Gaussians): such Gaussians take the exponent's sum and one exp.
+            big = (eji.max(axis=(0, 1)) > _EXP_MAX) | (eki.max(axis=(0, 1)) > _EXP_MAX) | (ekj.max(axis=(0, 1)) > _EXP_MAX)
+            tji = np.exp(np.minimum(eji, _EXP_MAX))
+            tki = np.exp(np.minimum(eki, _EXP_MAX))
+            tkj = np.exp(np.minimum(ekj, _EXP_MAX))
             prod = tkj[:, :, None, :] * tki[:, None, :, :]
             prod *= tji[None]
+            if big.any():
+                prod[..., big] = np.exp(ekj[:, :, None, big] + eki[:, None, :, big] + eji[None, :, :, big])
             acc[..., :n] += prod
         values[bl] = np.moveaxis(acc, 3, 0)
 

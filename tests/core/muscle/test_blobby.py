@@ -12,6 +12,8 @@ from nephele.core.errors import DataError
 from nephele.core.surface.mesh import Mesh, triangle_areas
 from nephele.core.muscle import blobby_field, blobby_surface
 
+pytestmark = pytest.mark.filterwarnings("error::RuntimeWarning")  # no overflow in exp, no NaN
+
 
 def exact(points, c, r, s, w, box=None, images=2):
     """f and grad f by a plain loop over Gaussians (and periodic shifts -images..images)."""
