@@ -261,12 +261,14 @@ def fig5(scene, **options):
     return {"globe": globe, "smoke": bpy.data.objects["Flow volume smoke"], "camera": camera, **sky}
 
 
-def fig6(scene, **options):
+def fig6(scene, modal=False, **options):
     """Fig. 6, a cloud lit by multiple scattering with the camera looping around it, into ``scene``.
 
     Options (see :data:`FIG6_DEFAULTS`): ``frames`` (the orbit's length),
     ``grid``, ``sun_irradiance``, ``sky_radiance``, ``directory`` (the VDBs),
-    ``size``, ``samples``.  Returns ``{"cloud": obj, "camera": camera}``.
+    ``size``, ``samples``.  ``modal``: the solve runs as the scattering
+    operator's modal job (progress, Esc) and the cloud appears when it ends
+    (the returned ``"cloud"`` is then None).  Returns ``{"cloud": obj, "camera": camera}``.
     """
     o = globe_scene.merge_options(FIG6_DEFAULTS, options)
     scene.frame_start, scene.frame_end = 1, int(o["frames"])
@@ -284,7 +286,8 @@ def fig6(scene, **options):
     bg.inputs["Strength"].default_value = 1.0
     scene.world = world
     with bpy.context.temp_override(scene=scene):
-        if bpy.ops.nephele.add_scattering_cloud("EXEC_DEFAULT") != {"FINISHED"}:
+        result = bpy.ops.nephele.add_scattering_cloud("INVOKE_DEFAULT" if modal else "EXEC_DEFAULT")
+        if not result & {"FINISHED", "RUNNING_MODAL"}:
             raise RuntimeError(f"Add scattering cloud failed: {p.status}")
     scene.render.engine = "CYCLES"
     scene.cycles.device = "CPU"
@@ -294,7 +297,7 @@ def fig6(scene, **options):
     scene.view_settings.view_transform = "Standard"
     scene.render.resolution_x, scene.render.resolution_y = (int(v) for v in o["size"])
     scene.render.resolution_percentage = 100
-    return {"cloud": bpy.data.objects["Scattering cloud"], "camera": scene.camera}
+    return {"cloud": None if modal else bpy.data.objects["Scattering cloud"], "camera": scene.camera}
 
 
 def fig7(scene, **options):
@@ -381,8 +384,10 @@ class NEPHELE_OT_paper_figure(bpy.types.Operator):
         scene = context.scene
         if self.replace:
             clear_scene(scene)
+        # Fig. 6's solve (~30 s) runs as the scattering operator's modal job where there is a window to show it.
+        modal = {"modal": True} if self.figure == "FIG6" and context.window is not None else {}
         try:
-            FIGURES[self.figure][0](scene)
+            FIGURES[self.figure][0](scene, **modal)
         except (ValueError, RuntimeError, OSError) as exc:
             self.report({"ERROR"}, f"{FIGURES[self.figure][1]}: {exc}")
             return {"CANCELLED"}
