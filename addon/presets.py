@@ -350,7 +350,16 @@ FIGURES = {
 
 
 def clear_scene(scene):
-    """Remove ``scene``'s objects (those no other scene uses are deleted) and unset its camera and world."""
+    """Empty ``scene`` as a new file's: its objects removed (those no other scene uses are deleted), camera
+    and world unset, Cycles settings and colour management back to a new scene's (a previous figure's
+    bounces or view transform would otherwise change this one's look)."""
+    _reset(scene.cycles)
+    fresh = bpy.data.scenes.new("Nephele fresh settings")
+    try:
+        for name in ("view_transform", "look", "exposure", "gamma"):
+            setattr(scene.view_settings, name, getattr(fresh.view_settings, name))
+    finally:
+        bpy.data.scenes.remove(fresh)
     for obj in list(scene.objects):
         if len(obj.users_scene) > 1:
             for coll in list(obj.users_collection):

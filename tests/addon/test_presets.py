@@ -110,7 +110,12 @@ def test_fig7_camera_inside_the_lattice_sees_the_molecules():
 
 
 def test_replace_empties_the_scene_and_keep_adds():
+    scene = bpy.context.scene
+    factory = scene.view_settings.view_transform, scene.cycles.volume_bounces
+    scene.view_settings.view_transform, scene.cycles.volume_bounces = "Standard", 7  # as Fig. 6 / Fig. 2 leave them
     _build("FIG1")
+    # the example's settings: a new file's colour management and bounces, not the previous figure's
+    assert (scene.view_settings.view_transform, scene.cycles.volume_bounces) == factory
     _build("FIG5")
     names = {o.name for o in bpy.context.scene.objects}
     assert "Clouds 15%" not in names and "Flow volume smoke" in names
