@@ -8,6 +8,12 @@ Units: nanometres, microseconds, piconewtons (so energies are pN nm; kT at
   and turns by the rotation vector ``tau / g_r dt + sqrt(2 kT / g_r dt) xi``
   (Stokes drags ``6 pi eta r`` and ``8 pi eta r^3``; a head is a chain of
   spheres turning about its hinge, ``sum 6 pi eta r s^2 + 8 pi eta r^3``).
+* **Two hinges per head**: the lever turns about its hinge on the thick
+  filament (spring :attr:`Params.hinge_stiffness`, drag of the whole head)
+  and the motor domain about the elbow at the lever's end (spring
+  :attr:`Params.elbow_stiffness`, drag of the motor domain's spheres about
+  the elbow); the two springs are independent, so each hinge samples its own
+  Boltzmann distribution (:func:`hinge_velocities`, :func:`turn_hinges`).
   Euler-Maruyama on a spring of stiffness ``k`` is stable only for
   ``k dt / g < 2`` and inflates the sampled variance by ``1 / (1 - k dt / 2g)``;
   :func:`check_step` refuses ``k dt / g > MAX_RELAXATION``.
@@ -16,9 +22,10 @@ Units: nanometres, microseconds, piconewtons (so energies are pN nm; kT at
   (Strating 1999), conserving momentum and kinetic energy.  Heads, which turn
   about their hinges, bounce the same way: a head whose move would overlap an
   actin filament, a thick-filament backbone or another head collides as a
-  rigid body (:func:`rigid_collision`; its pseudo angular velocity
-  ``dw / dt``, inertia = its rotational drag about the hinge, the hinge
-  taking up the linear momentum, filaments immovable across their axes).
+  chain of hinged rigid links (:func:`hinged_collision`, the hinged case of
+  :func:`rigid_collision`; pseudo angular velocities ``dw / dt``, inertias =
+  the hinges' rotational drags, the hinges taking up the linear momentum,
+  filaments immovable across their axes).
   The few moves a bounce cannot clear within a step are refused, so no two
   bodies ever overlap.
 * **The cross-bridge cycle** (Lymn-Taylor) is a Markov chain over
@@ -28,12 +35,13 @@ Units: nanometres, microseconds, piconewtons (so energies are pN nm; kT at
   Each step advances it with the exact transition matrix ``expm(Q dt)``, so
   its occupancies converge to ``Q``'s steady state for any step.  Binding
   needs a free actin site within :attr:`Params.capture` of the head's tip.
-* **Animation forces** (the paper's "fake" forces): the state sets the hinge
-  spring's rest pose (detached: lever up after the recovery stroke, down
+* **Animation forces** (the paper's "fake" forces): the state sets the
+  lever hinge's rest pose (detached: lever up after the recovery stroke, down
   after detachment; weakly bound: the pose it bound in, so binding strains
   nothing; after Pi release: that pose swung by the power stroke,
-  ``pre_stroke - post_stroke`` = 80 degrees, tip towards the M line at -z),
-  and a bound tip is held to its actin site by a spring; the thin filaments
+  ``pre_stroke - post_stroke`` = 80 degrees, tip towards the M line at -z)
+  and the elbow's (straight when detached, the bend it bound with when
+  bound), and a bound tip is held to its actin site by a spring; the thin filaments
   slide under the reaction of those springs (contraction towards -z).
 * **Time scale**: the Brownian motion runs at its real speed (one film frame
   is :attr:`Params.frame_time` = 0.1 us of it) while the chemistry runs
@@ -65,6 +73,7 @@ import numpy as np
 
 from ..errors import DataError
 from . import lattice as lat
+from .molecules import LEVER_LENGTH
 
 KT_300 = 4.142
 """Boltzmann's constant times 300 K, pN nm."""
@@ -243,6 +252,70 @@ def rigid_collision(v1, w1, v2, w2, inv_m1, inv_i1, inv_m2, inv_i2, r1, r2, norm
     return v1 + im1 * j * n, w1 + ii1 * j * a1, v2 - im2 * j * n, w2 - ii2 * j * a2
 
 
+def hinged_collision(wa, wb, inv_ia, inv_ib, arms_a, arms_b, normal):
+    """Elastic collision of two bodies made of hinged rigid links, touching at one point (rows).
+
+    Each body moves by turning about ``k`` hinges with angular velocities
+    ``w`` (m, k, 3) and scalar inertias ``1 / inv_i`` (m, k); ``arms`` (m, k,
+    3) are the contact point minus each hinge (zero for a hinge whose turn
+    does not move the touching link).  Body a receives ``J n`` and body b
+    ``-J n``, ``n`` pointing from b to a; the elastic impulse reverses the
+    approach speed ``u`` at the contact,
+    ``J = -2 u / sum(inv_i |arm x n|^2)``, which conserves the kinetic energy
+    ``sum I |w|^2 / 2`` (the hinges take up the momentum).  An immovable
+    obstacle is a body b with ``inv_ib = 0``.  Separating bodies are returned
+    unchanged.
+
+    Returns
+    -------
+    wa, wb : the angular velocities after the collision.
+    """
+    wa, wb, arms_a, arms_b, n = (np.asarray(a, np.float64) for a in (wa, wb, arms_a, arms_b, normal))
+    ia, ib = (np.asarray(a, np.float64)[..., None] for a in (inv_ia, inv_ib))
+    a, b = np.cross(arms_a, n[:, None, :]), np.cross(arms_b, n[:, None, :])
+    u = np.einsum("mkj,mkj->m", wa, a) - np.einsum("mkj,mkj->m", wb, b)
+    k = np.einsum("mkj,mkj->m", ia * a, a) + np.einsum("mkj,mkj->m", ib * b, b)
+    j = np.where(u < 0, -2 * u / np.where(k > 0, k, 1.0), 0.0)[:, None, None]
+    return wa + ia * j * a, wb - ib * j * b
+
+
+def hinge_velocities(R, Q, R_eq, Q_eq, k_lever, k_elbow, g_lever, g_elbow, dt, rng, kT=KT_300,
+                     torque_lever=None, torque_elbow=None):
+    """Euler-Maruyama pseudo angular velocities of a head's two hinges (lab frame).
+
+    The lever's frame ``R`` turns about the hinge on the thick filament; the
+    motor domain's frame relative to the lever, ``Q`` (lab frame ``R Q``),
+    turns about the elbow (the converter).  The springs ``k_lever
+    |rotvec(R R_eq^T)|^2 / 2`` and ``k_elbow |rotvec(Q Q_eq^T)|^2 / 2`` are
+    independent (turning the lever carries the motor domain along and leaves
+    ``Q`` alone), so with the diagonal drags ``g_lever`` (the whole head about
+    its hinge) and ``g_elbow`` (the motor domain about the elbow) each
+    hinge's rotation vector samples variance ``kT / k`` per component.
+
+    Returns
+    -------
+    w_lever, w_elbow : (n, 3) arrays, rad / us; turn with :func:`turn_hinges`.
+    """
+    t1 = -k_lever * rotation_vector(R @ np.swapaxes(R_eq, -1, -2))
+    t2 = -k_elbow * np.einsum("nij,nj->ni", R, rotation_vector(Q @ np.swapaxes(Q_eq, -1, -2)))
+    if torque_lever is not None:
+        t1 = t1 + torque_lever
+    if torque_elbow is not None:
+        t2 = t2 + torque_elbow
+    n = len(t1)
+    w1 = t1 / g_lever + np.sqrt(2 * kT / (g_lever * dt)) * rng.standard_normal((n, 3))
+    w2 = t2 / g_elbow + np.sqrt(2 * kT / (g_elbow * dt)) * rng.standard_normal((n, 3))
+    return w1, w2
+
+
+def turn_hinges(R, Q, w_lever, w_elbow, dt):
+    """Turn the levers by ``w_lever dt`` (carrying their motor domains) and the motor domains by ``w_elbow dt``."""
+    a = rotation_matrix(w_lever * dt)
+    R1 = a @ R
+    M1 = rotation_matrix(w_elbow * dt) @ (a @ (R @ Q))
+    return R1, np.swapaxes(R1, -1, -2) @ M1
+
+
 def _contact_time(d0, dv, dist):
     """Smallest t in [0, 1] with |d0 + t dv| = dist (rows), or 1 where they never touch."""
     a = np.sum(dv * dv, axis=1)
@@ -383,7 +456,13 @@ def cycle_step(states, p, rng, p_blocked=None, blocked=None):
 
 
 HEAD_SPHERES = np.array([3.0, 8.5, 14.0])
-"""Distances of a head's collision spheres from its hinge along the head (S1 is 16.5 nm long)."""
+"""Distances of a head's collision spheres from its hinge along the straight head (S1 is 16.5 nm long)."""
+
+ELBOW = LEVER_LENGTH
+"""Distance of the elbow (the converter, where the motor domain turns on the lever) from the hinge, nm."""
+
+MOTOR_SPHERE = HEAD_SPHERES >= ELBOW
+"""Which collision spheres belong to the motor domain (they turn about the elbow too)."""
 
 HEAD_SPHERE_RADIUS = 2.5
 MAX_BOUND_PER_FILAMENT = 20
@@ -406,6 +485,9 @@ class Params:
     kT, viscosity : float
     hinge_stiffness : float
         Angular spring of the hinge, pN nm / rad^2 (20 kT: about 13 degrees rms).
+    elbow_stiffness : float
+        Angular spring between lever and motor domain, pN nm / rad^2 (5 kT: about 26 degrees rms; stiffer
+        needs a shorter ``dt``, as the motor domain's own drag about the elbow is small).
     bind_stiffness : float
         Spring holding a bound tip to its site, pN / nm.
     capture : float
@@ -426,6 +508,7 @@ class Params:
     kT: float = KT_300
     viscosity: float = WATER_VISCOSITY
     hinge_stiffness: float = 20 * KT_300
+    elbow_stiffness: float = 5 * KT_300
     bind_stiffness: float = 0.5
     capture: float = 4.0
     pre_stroke: float = np.deg2rad(50.0)
@@ -441,6 +524,12 @@ class Params:
         return float(np.sum(translational_drag(r, self.viscosity) * HEAD_SPHERES**2) + 3 * rotational_drag(r, self.viscosity))
 
     @property
+    def elbow_drag(self):
+        """Rotational drag of a motor domain about the elbow (its spheres, Stokes), pN nm us."""
+        r, s = HEAD_SPHERE_RADIUS, HEAD_SPHERES[MOTOR_SPHERE] - ELBOW
+        return float(np.sum(translational_drag(r, self.viscosity) * s**2) + len(s) * rotational_drag(r, self.viscosity))
+
+    @property
     def steps_per_frame(self):
         return max(1, int(round(self.frame_time / self.dt)))
 
@@ -449,11 +538,12 @@ class Params:
 class Frame:
     """The state of the cell at one film frame."""
 
-    rotations: np.ndarray  # (n, 3, 3) head frames (column 0: along the head, from hinge to tip)
+    rotations: np.ndarray  # (n, 3, 3) lever frames (column 0: along the lever, from hinge to elbow)
     states: np.ndarray  # (n,) cycle state
     sites: np.ndarray  # (n,) bound actin subunit or -1
     slide: np.ndarray  # (6,) thin filament displacement, nm
     time: float  # Brownian time, us
+    motor: np.ndarray  # (n, 3, 3) motor domain frames in the lab (column 0: from the elbow to the tip)
 
 
 def _tilt_frames(heads, tilt):
@@ -484,9 +574,9 @@ class CrossBridges:
         self.p = params or Params()
         p = self.p
         self.kT = _kT(p.kT)
-        self.drag = p.head_drag
-        stiff = p.hinge_stiffness + p.bind_stiffness * TIP_REACH**2
-        check_step(p.dt, self.drag, stiff)
+        self.drag, self.elbow_drag = p.head_drag, p.elbow_drag
+        check_step(p.dt, self.drag, p.hinge_stiffness + p.bind_stiffness * TIP_REACH**2)
+        check_step(p.dt, self.elbow_drag, p.elbow_stiffness + p.bind_stiffness * (TIP_REACH - ELBOW) ** 2)
         check_step(p.dt, p.filament_drag, p.bind_stiffness * MAX_BOUND_PER_FILAMENT, what="dt (filament sliding)")
         self.rng = np.random.default_rng(seed)
         self.heads = lat.myosin_heads(lattice)
@@ -509,6 +599,8 @@ class CrossBridges:
         # Start primed and detached (lever up): that pose clears the thin filaments.
         self.states = np.full(n, M_ADP_PI)
         self.sites = np.full(n, -1)
+        self.Q = np.tile(np.eye(3), (n, 1, 1))  # straight heads
+        self.Q_bind = self.Q.copy()
         self.R = self._place(_tilt_frames(self.heads, self._rest_tilt(self.states)))
         self.R_bind = self.R.copy()
         # The power stroke turns the head about ez x rest, swinging its tip towards -z (the M line).
@@ -520,10 +612,18 @@ class CrossBridges:
     def _rest_tilt(self, states):
         return np.where(np.isin(states, (M_ADP_PI, AM_ADP_PI)), self.p.pre_stroke, self.p.post_stroke)
 
-    def spheres(self, R=None):
-        """(n, 3, 3) collision sphere centres of every head."""
+    def spheres(self, R=None, Q=None):
+        """(n, 3, 3) collision sphere centres of every head (lever frames ``R``, motor domains ``Q`` on them)."""
         R = self.R if R is None else R
-        return self.heads.pivots[:, None, :] + HEAD_SPHERES[None, :, None] * R[:, None, :, 0]
+        Q = self.Q if Q is None else Q
+        lever, motor = R[:, None, :, 0], (R @ Q)[:, None, :, 0]
+        s = HEAD_SPHERES[None, :, None]
+        along = np.where(MOTOR_SPHERE[None, :, None], ELBOW * lever + (s - ELBOW) * motor, s * lever)
+        return self.heads.pivots[:, None, :] + along
+
+    def tips(self, R=None, Q=None):
+        """(n, 3) centres of the heads' tip spheres (the actin-binding end of the motor domain)."""
+        return self.spheres(R, Q)[:, -1]
 
     def site_positions(self, slide=None):
         """(m, 3) binding sites: one per actin subunit, where a bound tip sphere's centre sits."""
@@ -531,29 +631,31 @@ class CrossBridges:
         r = lat.THIN_RADIUS + HEAD_SPHERE_RADIUS + 0.05
         return sub.origins + r * sub.rotations[:, :, 0], sub.filament
 
-    def overlaps(self, R=None):
+    def overlaps(self, R=None, Q=None):
         """Per head: does any of its spheres overlap a thin filament, a thick backbone or another head?
 
         The tip sphere of a bound head is exempt from the thin filaments (its
         spring holds it at its site); the first spheres of a molecule's two
         heads share the hinge and may touch.
         """
-        head, other = self._contacts(R, R)[:2]
+        head, other = self._contacts(R, Q, R, Q)[:2]
         bad = np.zeros(len(self.heads), bool)
         bad[head] = True
         bad[other[other >= 0]] = True
         return bad
 
-    def _contacts(self, R, R0):
-        """Overlaps of the heads in frames ``R``, as collisions to resolve from frames ``R0``.
+    def _contacts(self, R, Q, R0, Q0):
+        """Overlaps of the heads in frames ``R, Q``, as collisions to resolve from frames ``R0, Q0``.
 
         Returns one row per overlapping head sphere and filament, or pair of
         head spheres: arrays ``head``, ``other`` (the other head, or -1 for a
-        filament), ``arm``, ``other_arm`` (sphere centres minus hinges in
-        ``R0``), ``normal`` (unit, from the other body towards the head, in
-        ``R0``) and ``depth`` (nm).
+        filament), ``arm``, ``other_arm`` ((m, 2, 3): sphere centre minus the
+        hinge and minus the elbow, zero for a lever sphere, in ``R0, Q0``),
+        ``normal`` (unit, from the other body towards the head, in ``R0, Q0``)
+        and ``depth`` (nm).
         """
-        c, c0 = self.spheres(R), self.spheres(R0)
+        R0 = self.R if R0 is None else R0
+        c, c0 = self.spheres(R, Q), self.spheres(R0, Q0)
         n = len(c)
         flat, flat0 = c.reshape(-1, 3), c0.reshape(-1, 3)
         lt = self.lattice
@@ -582,10 +684,15 @@ class CrossBridges:
         nrm = np.concatenate([o[2] for o in out]).reshape(-1, 3)
         nrm /= np.maximum(np.linalg.norm(nrm, axis=1), 1e-12)[:, None]
         pivots = self.heads.pivots
+        elbows = pivots + ELBOW * R0[:, :, 0]
+
+        def arms(sphere, h):
+            c = flat0[sphere]
+            return np.stack([c - pivots[h], np.where(MOTOR_SPHERE[sphere % 3, None], c - elbows[h], 0.0)], axis=1)
+
         head, other = s // 3, np.where(o >= 0, o // 3, -1)
-        arm = flat0[s] - pivots[head]
-        other_arm = np.where((o >= 0)[:, None], flat0[np.maximum(o, 0)] - pivots[np.maximum(other, 0)], 0.0)
-        return head, other, arm, other_arm, nrm, np.concatenate([o[3] for o in out])
+        other_arm = np.where((o >= 0)[:, None, None], arms(np.maximum(o, 0), np.maximum(other, 0)), 0.0)
+        return head, other, arms(s, head), other_arm, nrm, np.concatenate([o[3] for o in out])
 
     def _sphere_pairs(self):
         """Head sphere pairs that can ever touch, with the period that brings them together.
@@ -624,14 +731,14 @@ class CrossBridges:
         keep = (gap < HEAD_SPHERES[a] + HEAD_SPHERES[b] + 2 * HEAD_SPHERE_RADIUS) & ~sib
         return 3 * hi[keep] + a[keep], 3 * hj[keep] + b[keep], t[keep]
 
-    def _bounce(self, omega, R, passes=4):
+    def _bounce(self, w_lever, w_elbow, passes=4):
         """Elastic collisions of the hinged heads: reflect the pseudo angular velocities of colliding heads.
 
-        ``omega`` (n, 3) is each head's rotation vector for this step divided
-        by ``dt`` (Strating's pseudo-velocity).  Each pass finds the heads whose
+        ``w_lever``, ``w_elbow`` (n, 3) are each head's rotation vectors of its
+        two hinges for this step divided by ``dt`` (Strating's pseudo-velocity).  Each pass finds the heads whose
         trial frames overlap, takes each head's deepest contact, and applies
-        :func:`rigid_collision` with the contact normal of the current frames
-        (inverse inertia ``1 / drag``, inverse mass 0: the hinge holds the head;
+        :func:`hinged_collision` with the contact normal of the current frames
+        (inertias: the hinges' drags; the hinges take up the momentum;
         filaments are immovable across their axes).  Returns the new pseudo
         angular velocities and the number of bounces (approaching contacts).
 
@@ -644,14 +751,16 @@ class CrossBridges:
         step in where the bounce happens; moves still overlapping after the
         passes are refused by the caller.
         """
-        dt, inv_i = self.p.dt, 1.0 / self.drag
+        dt, inv_i = self.p.dt, np.array([1.0 / self.drag, 1.0 / self.elbow_drag])
+        w = np.stack([w_lever, w_elbow], axis=1)
         hits = 0
         for _ in range(passes):
-            head, other, arm, oarm, nrm, depth = self._contacts(rotation_matrix(omega * dt) @ R, R)
+            head, other, arm, oarm, nrm, depth = self._contacts(*turn_hinges(self.R, self.Q, w[:, 0], w[:, 1], dt),
+                                                                self.R, self.Q)
             if not len(head):
                 break
             # One collision per head per pass, the deepest first.
-            used = np.zeros(len(R) + 1, bool)
+            used = np.zeros(len(w) + 1, bool)
             pick = []
             for k in np.argsort(-depth, kind="stable").tolist():
                 a, b = head[k], other[k]
@@ -662,13 +771,12 @@ class CrossBridges:
             k = np.array(pick, np.int64)
             a, b = head[k], other[k]
             wall = b < 0
-            zero = np.zeros((len(k), 3))
-            _, wa, _, wb = rigid_collision(zero, omega[a], zero, np.where(wall[:, None], 0.0, omega[b]), 0.0, inv_i,
-                                           0.0, np.where(wall, 0.0, inv_i), arm[k], oarm[k], nrm[k])
-            hits += int(np.any(wa != omega[a], axis=1).sum())
-            omega[a] = wa
-            omega[b[~wall]] = wb[~wall]
-        return omega, hits
+            wa, wb = hinged_collision(w[a], np.where(wall[:, None, None], 0.0, w[b]), np.broadcast_to(inv_i, (len(k), 2)),
+                                      np.where(wall[:, None], 0.0, inv_i), arm[k], oarm[k], nrm[k])
+            hits += int(np.any(wa != w[a], axis=(1, 2)).sum())
+            w[a] = wa
+            w[b[~wall]] = wb[~wall]
+        return w[:, 0], w[:, 1], hits
 
     def _place(self, R):
         """Start frames free of overlaps: tilt overlapping heads further until they are free."""
@@ -711,13 +819,15 @@ class CrossBridges:
         if strong.any():
             stroke = (self.p.pre_stroke - self.p.post_stroke) * self._stroke_axis[strong]
             R_eq[strong] = rotation_matrix(stroke) @ self.R_bind[strong]
-        return R_eq
+        # The elbow rests straight, or, bound, at the bend it bound with.
+        Q_eq = np.where(BOUND[self.states][:, None, None], self.Q_bind, np.eye(3))
+        return R_eq, Q_eq
 
     def _tip_in_actin(self, idx):
         """(len(idx),) whether each head's tip sphere overlaps a thin filament, and the outward directions."""
         box = self.lattice.box[:2]
         thin = self._axes[0][0]
-        tip = self.lattice.wrap(self.heads.pivots[idx] + TIP_REACH * self.R[idx, :, 0])[:, :2]
+        tip = self.lattice.wrap(self.tips()[idx])[:, :2]
         d = tip[:, None] - thin[None]
         d -= np.round(d / box) * box
         r2 = np.einsum("nak,nak->na", d, d)
@@ -737,7 +847,7 @@ class CrossBridges:
             todo, out = todo[inside], out[inside]
             if not len(todo):
                 break
-            u = self.R[todo, :, 0]
+            u = self.tips()[todo] - self.heads.pivots[todo]
             w = np.cross(u, out)
             w *= step / np.maximum(np.linalg.norm(w, axis=1), 1e-12)[:, None]
             self.R[todo] = rotation_matrix(w) @ self.R[todo]
@@ -745,20 +855,20 @@ class CrossBridges:
         self.R[stuck] = R0[np.isin(idx, stuck)]
         return stuck
 
-    def _torque_and_pull(self):
-        p = self.p
-        R_eq = self._rest_frames()
-        tau = -p.hinge_stiffness * rotation_vector(self.R @ R_eq.transpose(0, 2, 1))
-        pull = np.zeros(6)
+    def _binding_torques(self):
+        """Torques of the binding springs about the hinges and elbows, and their pull on each thin filament."""
+        n = len(self.heads)
+        t1, t2, pull = np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(6)
         bound = self.sites >= 0
         if bound.any():
             sites, fil = self.site_positions()
-            tip = self.heads.pivots[bound] + TIP_REACH * self.R[bound, :, 0]
+            tip = self.tips()[bound]
             d = self.lattice.min_image(sites[self.sites[bound]] - tip)
-            f = p.bind_stiffness * d  # on the tip; the reaction pulls the filament
-            tau[bound] += np.cross(tip - self.heads.pivots[bound], f)
+            f = self.p.bind_stiffness * d  # on the tip; the reaction pulls the filament
+            t1[bound] = np.cross(tip - self.heads.pivots[bound], f)
+            t2[bound] = np.cross(tip - (self.heads.pivots[bound] + ELBOW * self.R[bound, :, 0]), f)
             np.add.at(pull, fil[self.sites[bound]], -f[:, 2])
-        return tau, pull
+        return t1, t2, pull
 
     def step(self):
         """One Brownian step: cycle transitions, hinge and binding torques, collisions, sliding."""
@@ -768,7 +878,7 @@ class CrossBridges:
         nearest = np.full(n, -1)
         look = np.flatnonzero(self.states == M_ADP_PI)
         if len(look):
-            nearest[look] = self._free_site(self.heads.pivots[look] + TIP_REACH * self.R[look, :, 0])
+            nearest[look] = self._free_site(self.tips()[look])
         reach = nearest >= 0
         new = cycle_step(self.states, self.P, rng, self.P_blocked, ~reach)
         # expm(Q dt) may chain steps (M.ATP -> M.ADP.Pi -> A.M.ADP.Pi): any head newly bound needs a site.
@@ -781,6 +891,7 @@ class CrossBridges:
         new[lose] = M_ADP_PI
         self.sites[idx[first]] = nearest[idx[first]]
         self.R_bind[idx[first]] = self.R[idx[first]]
+        self.Q_bind[idx[first]] = self.Q[idx[first]]
         released = np.flatnonzero((self.sites >= 0) & ~BOUND[new])
         old_sites, old_states = self.sites[released], self.states[released]
         self.sites[~BOUND[new]] = -1
@@ -792,25 +903,26 @@ class CrossBridges:
             self.sites[released[keep]] = old_sites[keep]
             self.states[released[keep]] = old_states[keep]
         # Mechanics.
-        tau, pull = self._torque_and_pull()
-        omega = tau / self.drag + np.sqrt(2 * self.kT / (self.drag * p.dt)) * rng.standard_normal((n, 3))
-        omega, self.collisions = self._bounce(omega, self.R)
-        trial = rotation_matrix(omega * p.dt) @ self.R
+        t1, t2, pull = self._binding_torques()
+        w1, w2 = hinge_velocities(self.R, self.Q, *self._rest_frames(), p.hinge_stiffness, p.elbow_stiffness, self.drag,
+                                  self.elbow_drag, p.dt, rng, self.kT, t1, t2)
+        w1, w2, self.collisions = self._bounce(w1, w2)
+        R, Q = turn_hinges(self.R, self.Q, w1, w2, p.dt)
         moved = np.ones(n, bool)
         while True:  # moves the bounces could not clear are refused; the old frames overlap nothing
-            bad = self.overlaps(trial) & moved
+            bad = self.overlaps(R, Q) & moved
             if not bad.any():
                 break
-            trial[bad] = self.R[bad]
+            R[bad], Q[bad] = self.R[bad], self.Q[bad]
             moved[bad] = False
         self.rejected = int(n - moved.sum())
-        self.R = trial
+        self.R, self.Q = R, Q
         noise = np.sqrt(2 * self.kT * p.dt / p.filament_drag) * rng.standard_normal(6)
         self.slide = self.slide + (pull - p.load) * p.dt / p.filament_drag + noise
         self.time += p.dt
 
     def frame(self):
-        return Frame(self.R.copy(), self.states.copy(), self.sites.copy(), self.slide.copy(), self.time)
+        return Frame(self.R.copy(), self.states.copy(), self.sites.copy(), self.slide.copy(), self.time, self.R @ self.Q)
 
     def run(self, frames):
         """Simulate ``frames`` film frames; returns the list of :class:`Frame` (the first is the start)."""

@@ -36,7 +36,7 @@ from ..pipeline.registry import planner, task
 from . import brownian as br
 from . import lattice as lat
 from .blobby import blobby_surface
-from .molecules import LEVEL, LEVER, MOTOR, S2_RADIUS, Cylinders, Ellipsoids, actin_subunit, cylinder_mesh, myosin_head
+from .molecules import LEVEL, LEVER, LEVER_LENGTH, MOTOR, S2_RADIUS, Cylinders, Ellipsoids, actin_subunit, cylinder_mesh, myosin_head
 
 ACTIN, MOTOR_PART, LEVER_PART, TAIL, BACKBONE = 0, MOTOR, LEVER, 3, 4
 """Molecule ids written per vertex (attribute ``"molecule"``) for the materials."""
@@ -110,8 +110,14 @@ def frame_molecules(lattice, frame):
     head = myosin_head()
     heads = lat.myosin_heads(lattice)
     h = len(heads)
-    h_rot = np.repeat(frame.rotations, len(head), 0) @ np.tile(head.rotations, (h, 1, 1))
-    h_ctr = np.einsum("hij,kj->hki", frame.rotations, head.centers).reshape(-1, 3) + np.repeat(heads.pivots, len(head), 0)
+    # Lever parts turn with the lever's frame about the hinge, motor parts with the motor domain's about the elbow.
+    motor = head.part == MOTOR
+    frames = np.where(motor[None, :, None, None], frame.motor[:, None], frame.rotations[:, None])  # (h, k, 3, 3)
+    elbow = np.array([LEVER_LENGTH, 0.0, 0.0])
+    origin = heads.pivots[:, None] + np.where(motor[None, :, None], LEVER_LENGTH * frame.rotations[:, None, :, 0], 0.0)
+    local = head.centers - np.where(motor[:, None], elbow, 0.0)
+    h_rot = (frames @ head.rotations[None]).reshape(-1, 3, 3)
+    h_ctr = (np.einsum("hkij,kj->hki", frames, local) + origin).reshape(-1, 3)
     h_part = np.tile(head.part, h)  # MOTOR_PART and LEVER_PART are the models' own part ids
     ctr = np.concatenate([a_ctr, h_ctr])
     rot = np.concatenate([a_rot, h_rot])

@@ -223,7 +223,7 @@ def test_cross_bridges_never_overlap_and_bind(run):
     # Bound tips stay near their sites (spring of 0.5 pN/nm: thermal spread ~ 3 nm).
     pos, _ = sim.site_positions()
     bound = sim.sites >= 0
-    tip = sim.heads.pivots[bound] + br.TIP_REACH * sim.R[bound, :, 0]
+    tip = sim.tips()[bound]
     gap = np.linalg.norm(sim.lattice.min_image(pos[sim.sites[bound]] - tip), axis=1)
     assert gap.max() < 4 * sim.p.capture
 
@@ -338,3 +338,75 @@ def test_heads_bounce_rather_than_refuse(run):
     bounces, refused = sum(r[5] for r in record), sum(r[6] for r in record)
     assert bounces > 1000
     assert refused < 0.02 * bounces
+
+
+def test_lever_and_elbow_hinges_each_sample_boltzmann():
+    # Two hinges per head: the lever about the thick filament (k1) and the motor domain about the elbow (k2).
+    # Each rotation vector's components have variance kT / k (springs of 300 kT and the same relaxation time
+    # g / k for both, k dt / g = 0.01: Euler-Maruyama +0.5 %, SO(3) curvature well below 1 %).
+    rng = np.random.default_rng(31)
+    p = br.Params()
+    g1, g2 = p.head_drag, p.elbow_drag
+    k1 = 300 * KT
+    k2 = k1 * g2 / g1
+    dt = 0.01 * g1 / k1
+    n = 6000
+    r_eq = br.rotation_matrix(rng.normal(0, 1, (n, 3)))
+    q_eq = br.rotation_matrix(rng.normal(0, 0.5, (n, 3)))
+    R, Q = r_eq.copy(), q_eq.copy()
+    s1, s2 = [], []
+    for step in range(1400):
+        w1, w2 = br.hinge_velocities(R, Q, r_eq, q_eq, k1, k2, g1, g2, dt, rng, KT)
+        R, Q = br.turn_hinges(R, Q, w1, w2, dt)
+        if step >= 400 and step % 100 == 0:
+            s1.append(br.rotation_vector(R @ r_eq.transpose(0, 2, 1)))
+            s2.append(br.rotation_vector(Q @ q_eq.transpose(0, 2, 1)))
+    v1, v2 = np.var(np.concatenate(s1)), np.var(np.concatenate(s2))
+    assert v1 / (KT / k1) == pytest.approx(1, abs=0.02)
+    assert v2 / (KT / k2) == pytest.approx(1, abs=0.02)
+    # Turning only the lever carries the motor domain along: its frame relative to the lever is unchanged.
+    R2, Q2 = br.turn_hinges(R[:5], Q[:5], rng.normal(size=(5, 3)), np.zeros((5, 3)), 0.1)
+    np.testing.assert_allclose(Q2, Q[:5], atol=1e-12)
+
+
+def test_hinged_collision_conserves_energy_and_reverses_the_approach():
+    rng = np.random.default_rng(33)
+    m = 300
+    wa, wb = rng.normal(size=(m, 2, 3)), rng.normal(size=(m, 2, 3))
+    ia, ib = rng.uniform(0.2, 2, (m, 2)), rng.uniform(0.2, 2, (m, 2))
+    arms_a, arms_b = rng.normal(size=(m, 2, 3)) * 5, rng.normal(size=(m, 2, 3)) * 5
+    arms_a[::3, 1] = 0  # contacts on a lever sphere: the elbow's turn does not move them
+    n = rng.normal(size=(m, 3))
+    n /= np.linalg.norm(n, axis=1)[:, None]
+
+    def speed(wa, wb):
+        return (np.einsum("mkj,mkj->m", wa, np.cross(arms_a, n[:, None])) -
+                np.einsum("mkj,mkj->m", wb, np.cross(arms_b, n[:, None])))
+
+    def energy(wa, wb):
+        return (np.einsum("mk,mkj,mkj->m", 1 / ia, wa, wa) + np.einsum("mk,mkj,mkj->m", 1 / ib, wb, wb)) / 2
+
+    a, b = br.hinged_collision(wa, wb, ia, ib, arms_a, arms_b, n)
+    u0 = speed(wa, wb)
+    assert (u0 < 0).sum() > 100
+    np.testing.assert_allclose(speed(a, b), np.abs(u0), atol=1e-10)
+    np.testing.assert_allclose(energy(a, b), energy(wa, wb), rtol=1e-12)
+    np.testing.assert_array_equal(a[::3, 1], wa[::3, 1])
+    # One hinge each: the same as two rigid bodies held at their hinges.
+    z = np.zeros((m, 3))
+    a1, b1 = br.hinged_collision(wa[:, :1], wb[:, :1], ia[:, :1], ib[:, :1], arms_a[:, :1], arms_b[:, :1], n)
+    _, wa2, _, wb2 = br.rigid_collision(z, wa[:, 0], z, wb[:, 0], 0.0, ia[:, 0], 0.0, ib[:, 0], arms_a[:, 0],
+                                        arms_b[:, 0], n)
+    np.testing.assert_allclose(a1[:, 0], wa2, atol=1e-12)
+    np.testing.assert_allclose(b1[:, 0], wb2, atol=1e-12)
+
+
+def test_heads_bend_at_the_elbow(run):
+    sim, record = run
+    f = sim.frame()
+    np.testing.assert_allclose(f.motor, sim.R @ sim.Q, atol=1e-12)
+    bend = np.linalg.norm(br.rotation_vector(sim.Q), axis=1)
+    assert 0.05 < np.median(bend) < 1.5
+    # The tip sits at the end of the motor domain, from the elbow.
+    elbow = sim.heads.pivots + br.ELBOW * sim.R[:, :, 0]
+    np.testing.assert_allclose(sim.tips(), elbow + (br.TIP_REACH - br.ELBOW) * f.motor[:, :, 0], atol=1e-12)
