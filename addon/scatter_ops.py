@@ -430,8 +430,11 @@ class ScatterJob:
     def _write_view(self, frame_number):
         from mathutils import Vector
 
+        from . import frame
+
         scene = self.scene
-        scene.frame_set(frame_number)
+        with frame.suspended():  # only the camera matters here: the layers update once, in _finish
+            scene.frame_set(frame_number)
         cam = scene.camera.matrix_world.translation
         local = Vector(cam) - Vector(self.origin)
         src = scatter.view_source(self.solution, tuple(local))

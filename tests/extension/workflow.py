@@ -25,7 +25,7 @@ MODULE = "bl_ext.user_default.nephele"
 DRIVEN = {"import_dataset", "add_contour", "update_frame", "add_advected_texture", "add_globe", "add_sky",
           "add_camera", "add_volume_clouds", "add_scattering_cloud", "add_dome_camera", "render_dome_cube",
           "add_flow_volume", "update_flow_volume", "add_muscle_film", "clear_cache", "cancel_jobs", "delete_layer",
-          "sync_layers"}
+          "sync_layers", "paper_figure"}
 # Registered but not driven here: the status-bar watcher is a modal operator that needs a window
 # (headless, work is synchronous and never needs watching).
 WINDOW_ONLY = {"watch_jobs"}
@@ -149,6 +149,13 @@ assert pixels.std() > 0.02 and pixels.max() > 0.1, "the rendered frame is blank"
 # The muscle film (its own world and lattice), small: one box, a coarse grid.
 step("add_muscle_film", lambda: ops.add_muscle_film(frames=2, spacing=1.5, tiles=(1, 1, 1), camera=False))
 active("")
+
+# A panel's "Make the paper's figure" preset, into a scene of its own (it replaces the scene's objects;
+# headless the operator runs without its confirm dialog).
+fig_scene = bpy.data.scenes.new("Paper figure")
+with bpy.context.temp_override(scene=fig_scene):
+    step("paper_figure", lambda: ops.paper_figure(figure="FIG1"))
+assert any(o.type == "MESH" for o in fig_scene.objects) and fig_scene.camera is not None
 
 # Disable: nothing of the add-on stays registered (recorded, checked by the test).
 addon_classes = [c for name, mod in list(sys.modules.items()) if name.startswith(MODULE)
