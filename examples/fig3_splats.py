@@ -19,40 +19,18 @@ import sys
 
 import bpy
 
-DEFAULTS = {
-    "source": "demo:small",
-    "hours_per_frame": 1.0,
-    "exaggeration": None,
-    "extinction": 60.0,
-    "contrast": 0.8,
-    "camera_lon": -30.0,
-    "camera_lat": 30.0,
-    "camera_distance": 3.6,
-    "frames": (1, 1),
-    "size": (320, 240),
-    "samples": 4,
-}
+from nephele.addon import presets
+
+DEFAULTS = presets.FIG3_DEFAULTS  # the add-on's recipe, also its panel's preset
 
 
 def build(**options):
-    """Build the Fig. 3 scene into the current scene; returns a dict of the main objects."""
+    """Build the Fig. 3 scene into the current scene (:func:`nephele.addon.presets.fig3`); returns a dict of the main objects."""
     import nephele
-    from nephele.addon import globe_ops, globe_scene, splat_ops
 
-    o = globe_scene.merge_options(DEFAULTS, options)
-    scene = bpy.context.scene
     if not hasattr(bpy.types.Scene, "nephele_splats"):
         nephele.register()
-    globe, sky = globe_scene.globe_scene(scene, o, sun_direction=(0.55, -0.75, 0.35), haze=False)
-    p = scene.nephele_splats
-    p.extinction, p.contrast = o["extinction"], o["contrast"]
-    assert bpy.ops.nephele.add_wind_splats() == {"FINISHED"}
-    splats = bpy.context.view_layer.objects.active
-    camera = globe_ops.add_camera(scene, lon=o["camera_lon"], lat=o["camera_lat"], distance=o["camera_distance"])
-    globe_scene.render_settings(scene, o["size"], o["samples"])
-    scene.cycles.use_denoising = False  # the denoiser smears the streaks
-    splat_ops.render_settings(scene)
-    return {"globe": globe, "splats": splats, "camera": camera, **sky}
+    return presets.fig3(bpy.context.scene, **options)
 
 
 def main(argv=None):

@@ -25,52 +25,18 @@ import sys
 
 import bpy
 
-DEFAULTS = {
-    "source": "demo:small",
-    "hours_per_frame": 1.0,
-    "exaggeration": None,
-    "lon": -40.0,
-    "lat": 35.0,
-    "height": 2000.0,
-    "radius": 0.05,
-    "hours": 24.0,
-    "sides": 32,
-    # Optical depth about 1 across the generator's diameter: translucent smoke, as in the paper.
-    "density": 10.0,
-    "camera_lon": -40.0,
-    "camera_lat": 38.0,
-    "camera_distance": 2.2,
-    "frames": (1, 1),
-    "size": (320, 240),
-    "samples": 16,
-}
+from nephele.addon import presets
+
+DEFAULTS = presets.FIG5_DEFAULTS  # the add-on's recipe, also its panel's preset
 
 
-def _register():
+def build(**options):
+    """Build the Fig. 5 scene into the current scene (:func:`nephele.addon.presets.fig5`); returns a dict of the main objects."""
     import nephele
 
     if not hasattr(bpy.types.Scene, "nephele_flowvol"):
         nephele.register()
-
-
-def build(**options):
-    """Build the Fig. 5 scene into the current scene; returns a dict of the main objects."""
-    from nephele.addon import globe_ops, globe_scene
-
-    o = globe_scene.merge_options(DEFAULTS, options)
-    scene = bpy.context.scene
-    globe, sky = globe_scene.globe_scene(scene, o, sun_direction=(0.55, -0.75, 0.35), haze=False)
-    _register()
-    p = scene.nephele_flowvol
-    p.lon, p.lat, p.height, p.radius, p.hours, p.sides = o["lon"], o["lat"], o["height"], o["radius"], o["hours"], o["sides"]
-    p.density = o["density"]
-    p.live = False
-    if o["exaggeration"] is not None:
-        p.exaggeration = o["exaggeration"]
-    assert bpy.ops.nephele.add_flow_volume() == {"FINISHED"}, p.status
-    camera = globe_ops.add_camera(scene, lon=o["camera_lon"], lat=o["camera_lat"], distance=o["camera_distance"])
-    globe_scene.render_settings(scene, o["size"], o["samples"])
-    return {"globe": globe, "smoke": bpy.data.objects["Flow volume smoke"], "camera": camera, **sky}
+    return presets.fig5(bpy.context.scene, **options)
 
 
 FIRE = {
@@ -118,9 +84,12 @@ def build_fire(**options):
     from nephele.addon import globe_scene
     from nephele.core.flowvol import UnstructuredVelocity
 
+    import nephele
+
     o = {**FIRE, **{k: v for k, v in options.items() if v is not None}}
     scene = bpy.context.scene
-    _register()
+    if not hasattr(bpy.types.Scene, "nephele_flowvol"):
+        nephele.register()
     world = bpy.data.worlds.new("Room world")
     world.color = (0.02, 0.02, 0.025)
     scene.world = world
