@@ -47,9 +47,10 @@ test: test-main test-core311 test-extension test-slurm test-bench
 test-main: $(VENV)/.stamp
 	$(VENV)/bin/python -m pytest --ignore=tests/extension --ignore=tests/farm/slurm $(PYTEST_ARGS)
 
-# Core only (no bpy, no farm): the numpy 1.26 / Python 3.11 that Blender 4.2-5.0 ship.
+# Core only (no bpy, no farm): the numpy 1.26 / Python 3.11 that Blender 4.2-5.0 ship. The slow cases
+# (thick scattering slabs, big blobby grids) run once, in test-main, to keep CI within its budget.
 test-core311: $(VENV311)/.stamp
-	$(VENV311)/bin/python -m pytest -m "not bpy" --ignore=tests/farm --ignore=tests/addon --ignore=tests/extension $(PYTEST_ARGS)
+	$(VENV311)/bin/python -m pytest -m "not bpy and not slow" --ignore=tests/farm --ignore=tests/addon --ignore=tests/extension $(PYTEST_ARGS)
 
 # Build the linux-x64 zips (wheels cached in build/wheels), install each into its Blender-only
 # Python through Blender's extension API and drive the whole sidebar workflow there.
