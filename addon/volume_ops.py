@@ -30,7 +30,7 @@ from ..core.pipeline.cache import check_memory, default_cache_dir, format_bytes
 from ..core.volume.sparse import ALTITUDE, DEFAULT_EXTINCTION, DEFAULT_VOXEL_SIZE, EXACT, VOXELS
 from ..core.volume.transfer import ALTITUDE_COLORS, TEMPERATURE_COLORS, ColorMap, TransferFunction
 from ..core.volume.volume_atlas import DEFAULT_BELOW, DEFAULT_SUPPORT_SIZE, atlas_layout
-from . import data_ops, frame, materials
+from . import data_ops, frame, materials, tf_ramp
 from .panel import SubPanel
 from .vdb import bake_frame, bake_sequence, frame_path
 
@@ -489,17 +489,25 @@ def _settings(scene):
     return getattr(scene, "nephele_volume", None)
 
 
+TF_THRESHOLD, TF_RAMP, TF_POINTS = "THRESHOLD", "RAMP", "POINTS"
 TF_POINTS_HELP = "a JSON list of [value, opacity] pairs with ascending values, e.g. [[0.3, 0], [1, 1]]"
 
 
 def panel_tf(s):
-    """The transfer function the panel describes (custom JSON points win).
+    """The transfer function the panel describes: the threshold ramp, the
+    colour-ramp widget (:mod:`.tf_ramp`) or the typed points, by ``tf_edit``.
 
     Raises :class:`DataError` naming the field and the expected form when the
-    custom points are not such a list (never the JSON parser's own words).
+    points are not such a list (never the JSON parser's own words) or the
+    ramp's range does not rise.
     """
+    if s.tf_edit == TF_RAMP and tf_ramp.ramp_node(s.tf_tree) is not None:
+        try:
+            return tf_ramp.ramp_tf(tf_ramp.ramp_node(s.tf_tree), s.tf_min, s.tf_max)
+        except ValueError as exc:
+            raise DataError(str(exc), field="Opacity ramp") from None
     text = s.tf_points.strip()
-    if text:
+    if s.tf_edit == TF_POINTS and text:
         try:
             pts = json.loads(text)
             return TransferFunction(points=tuple((float(v), float(o)) for v, o in pts))
@@ -579,6 +587,48 @@ def _on_tf_change(self, context):
             refresh_material(obj)
 
 
+def _on_tf_edit(self, context):
+    # The ramp starts as the transfer function the panel showed, over 0 .. its last point.
+    if self.tf_edit == TF_RAMP and tf_ramp.ramp_node(self.tf_tree) is None:
+        try:
+            tf = TransferFunction.ramp(self.threshold, self.full, self.opacity)
+        except DataError:
+            tf = TransferFunction.ramp(0.3)
+        lo = min(0.0, tf.points[0][0])
+        hi = max(tf.points[-1][0], lo + 1e-6)
+        self.tf_min, self.tf_max = lo, hi
+        self.tf_tree = tf_ramp.new_tree(f"Nephele opacity ({context.scene.name})", tf, lo, hi)
+    _on_tf_change(self, context)
+
+
+@bpy.app.handlers.persistent
+def _ramp_edited(scene, depsgraph):
+    # A ramp edit is a node-tree update, which calls no property callback: apply it here.
+    if not depsgraph.id_type_updated("NODETREE"):
+        return
+    trees = {u.id.original for u in depsgraph.updates if isinstance(u.id, bpy.types.NodeTree)}
+    for sc in bpy.data.scenes:
+        s = _settings(sc)
+        if s is not None and s.tf_edit == TF_RAMP and s.tf_tree is not None and s.tf_tree in trees:
+            _on_tf_change(s, _SceneContext(sc))
+
+
+class _SceneContext:
+    def __init__(self, scene):
+        self.scene = scene
+
+
+def install():
+    handlers = bpy.app.handlers.depsgraph_update_post
+    if not any(getattr(h, "__name__", "") == "_ramp_edited" for h in handlers):
+        handlers.append(_ramp_edited)
+
+
+def uninstall():
+    for h in [h for h in bpy.app.handlers.depsgraph_update_post if getattr(h, "__name__", "") == "_ramp_edited"]:
+        bpy.app.handlers.depsgraph_update_post.remove(h)
+
+
 class NephelePropsVolume(bpy.types.PropertyGroup):
     var: bpy.props.StringProperty(name="Variable", default="cloud", description="Field behind the opacity")
     mode: bpy.props.EnumProperty(
@@ -594,9 +644,21 @@ class NephelePropsVolume(bpy.types.PropertyGroup):
                                   description="Value where the opacity reaches its maximum")
     opacity: bpy.props.FloatProperty(name="Opacity", default=1.0, min=0.0, max=1.0, update=_on_tf_change,
                                      description="Opacity at the full value")
+    tf_edit: bpy.props.EnumProperty(
+        name="Transfer function", default=TF_THRESHOLD, update=_on_tf_edit,
+        items=[(TF_THRESHOLD, "Threshold", "Opacity rises linearly from the threshold to its full value"),
+               (TF_RAMP, "Ramp", "Opacity drawn as a ramp over a value range (black transparent, white opaque)"),
+               (TF_POINTS, "Points", "Opacity typed as [value, opacity] points")],
+    )
+    tf_tree: bpy.props.PointerProperty(type=bpy.types.NodeTree, name="Opacity ramp",
+                                       description="Node group holding the opacity ramp")
+    tf_min: bpy.props.FloatProperty(name="Ramp from", default=0.0, update=_on_tf_change,
+                                    description="Value at the ramp's left end")
+    tf_max: bpy.props.FloatProperty(name="Ramp to", default=1.0, update=_on_tf_change,
+                                    description="Value at the ramp's right end")
     tf_points: bpy.props.StringProperty(
         name="TF points", default="", update=_on_tf_change,
-        description='Custom transfer function as JSON [[value, opacity], ...] (overrides threshold/full/opacity)',
+        description="Transfer function as JSON [[value, opacity], ...]",
     )
     support_size: bpy.props.FloatProperty(
         name="Support voxel", default=DEFAULT_SUPPORT_SIZE, min=1e-3, max=1.0, precision=4,
@@ -735,6 +797,23 @@ class NEPHELE_OT_add_volume_clouds(bpy.types.Operator):
         return {"FINISHED"}
 
 
+def draw_tf(layout, s):
+    """The transfer-function editor: threshold fields, the ramp widget or the points."""
+    layout.row().prop(s, "tf_edit", expand=True)
+    node = tf_ramp.ramp_node(s.tf_tree)
+    if s.tf_edit == TF_RAMP and node is not None:
+        layout.template_color_ramp(node, "color_ramp", expand=True)
+        row = layout.row(align=True)
+        row.prop(s, "tf_min")
+        row.prop(s, "tf_max")
+    elif s.tf_edit == TF_POINTS:
+        layout.prop(s, "tf_points")
+    else:
+        layout.prop(s, "threshold")
+        layout.prop(s, "full")
+        layout.prop(s, "opacity")
+
+
 class NEPHELE_PT_volume(SubPanel, bpy.types.Panel):
     bl_label = "Volume clouds"
     bl_idname = "NEPHELE_PT_volume"
@@ -749,10 +828,7 @@ class NEPHELE_PT_volume(SubPanel, bpy.types.Panel):
         col = layout.column()
         col.prop(s, "var")
         col.prop(s, "mode")
-        col.prop(s, "threshold")
-        col.prop(s, "full")
-        col.prop(s, "opacity")
-        col.prop(s, "tf_points")
+        draw_tf(col, s)
         col.prop(s, "color_var")
         col.prop(s, "use_color_range")
         if s.use_color_range:

@@ -100,6 +100,7 @@ def test_bake_defaults_to_the_current_frame_and_says_what_more_costs(demo, tmp_p
 
 def test_bad_transfer_function_json_gets_a_clear_message(demo):
     s = demo.nephele_volume
+    s.tf_edit = "POINTS"
     for text in ("[[0.3, 0], [1, 1", '{"a": 1}', "[[1, 2, 3]]"):
         s.tf_points = text
         with pytest.raises(RuntimeError) as err:
