@@ -17,6 +17,7 @@ import bpy
 from bpy.app.handlers import persistent
 
 from ..core.climate.grid import DEFAULT_EXAGGERATION
+from ..core.climate.readers import VERTICAL_CHOICES, check_overrides
 from ..core.errors import DataError
 from ..core.pipeline.cache import default_cache_dir, format_bytes, session_cache_dir, tree_size
 from .panel import SubPanel
@@ -133,6 +134,63 @@ class NephelePropsData(bpy.types.PropertyGroup):
         name="Globe radius", min=1e-3, max=1e3, **_mirrored("radius"),
         description="Radius of sea level in scene units",
     )
+    # File overrides: what the next "File…" import tells the reader (the CLI's reader options).
+    # Their result is kept in the source name (path?key=value&...), so it survives saving.
+    read_vertical: bpy.props.EnumProperty(
+        name="Vertical coordinate",
+        items=[("FILE", "From the file", "What the file's level coordinate says")]
+        + [(k, k, f"The level coordinate is {k.replace('_', ' ')}") for k in VERTICAL_CHOICES],
+        default="FILE",
+        description="What the level coordinate is when the file does not say (--vertical-coord)",
+    )
+    read_p0: bpy.props.FloatProperty(
+        name="P0 (Pa)", default=0.0, min=0.0, soft_max=200000.0,
+        description="Reference pressure of hybrid levels in Pa; 0: the file's, else 100000 (--p0)",
+    )
+    read_time_units: bpy.props.StringProperty(
+        name="Time units",
+        description='CF time units replacing the file\'s, e.g. "days since 1988-01-01"; empty: the file\'s (--time-units)',
+    )
+    read_earth_radius: bpy.props.FloatProperty(
+        name="Earth radius (m)", default=0.0, min=0.0, soft_max=1e8,
+        description="Planet radius in metres; 0: the file's grid mapping or model convention, else 6371000 (--earth-radius)",
+    )
+    read_var_map: bpy.props.StringProperty(
+        name="Variable map",
+        description="Read the file's variable NAME as the standard field STD: STD=NAME, comma separated "
+                    "(e.g. temperature=T2, rh=RH) (--var-map)",
+    )
+
+
+def overrides(group, path=None):
+    """The reader overrides the panel's "File overrides" ask for, checked as the CLI checks its options
+    (:func:`~nephele.core.climate.readers.check_overrides`; :class:`DataError` names the file and field)."""
+    return check_overrides(
+        path,
+        vertical=None if group.read_vertical == "FILE" else group.read_vertical,
+        p0=group.read_p0 or None,
+        time_units=group.read_time_units,
+        radius=group.read_earth_radius or None,
+        variables=group.read_var_map,
+    )
+
+
+def open_with_overrides(path, kw):
+    """``(dataset, source name)`` of ``path`` read with the overrides ``kw``, as ``nephele`` commands
+    do: the name is ``path?key=value&...&file=ID`` (the file's identity, so cached results of another
+    version of the file are not reused), registered for this session and openable by any process."""
+    from ..core.pipeline.sources import open_source, register_source
+
+    if not kw:
+        return open_source(path), path
+    import hashlib
+
+    from ..core.climate.readers import open_dataset, override_source
+    from ..core.pipeline.cache import source_stamp
+
+    ds = open_dataset(path, **kw)
+    file_id = hashlib.sha256(source_stamp(path).encode()).hexdigest()[:12]
+    return ds, register_source(f"{override_source(path, **kw)}&file={file_id}", ds)
 
 
 def frame_range_for(ds, cfg):
@@ -395,10 +453,14 @@ class NEPHELE_OT_import_dataset(bpy.types.Operator):
 
     def execute(self, context):
         source = {"DEMO": "demo", "DEMO_SMALL": "demo:small"}.get(self.kind, bpy.path.abspath(self.filepath))
+        group = getattr(context.scene, "nephele_data", None)
         try:
-            ds = dataset(source)
+            if self.kind == "FILE" and group is not None:  # the panel's "File overrides"
+                ds, source = open_with_overrides(source, overrides(group, source))
+            else:
+                ds = dataset(source)
         except (DataError, OSError, ImportError) as exc:
-            self.report({"ERROR"}, str(exc))
+            self.report({"ERROR"}, str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__)
             return {"CANCELLED"}
         try:
             cfg = set_settings(context.scene, source=source, hours_per_frame=self.hours_per_frame)
@@ -430,6 +492,15 @@ class NEPHELE_PT_data(SubPanel, bpy.types.Panel):
         col.prop(group, "frame_start")
         col.prop(group, "exaggeration")
         col.prop(group, "radius")
+        header, body = layout.panel("NEPHELE_PT_data_overrides", default_closed=True)
+        header.label(text="File overrides")
+        if body is not None:  # used by the next "File…" import, as the CLI's reader options
+            col = body.column()
+            col.prop(group, "read_vertical")
+            col.prop(group, "read_p0")
+            col.prop(group, "read_time_units")
+            col.prop(group, "read_earth_radius")
+            col.prop(group, "read_var_map")
         row = layout.row()
         row.operator(NEPHELE_OT_clear_cache.bl_idname, icon="TRASH")
         where = "beside the .blend" if bpy.data.filepath else "this session's folder (moved beside the .blend on save)"

@@ -9,12 +9,120 @@ References
 .. [1] N. Max and R. Crawfis, "Advances in Scientific Visualization".
 """
 
+import math
 from pathlib import Path
+from urllib.parse import parse_qsl, urlencode
 
 from ..errors import DataError
 from .synthetic import SIZES, demo_dataset
 
 GRIB_SUFFIXES = (".grib", ".grib1", ".grib2", ".grb", ".grb1", ".grb2")
+OVERRIDES = ("vertical", "p0", "time_units", "radius", "variables")
+"""Keywords of :func:`open_dataset` that override what a NetCDF, GRIB or Zarr file gets wrong or leaves out."""
+OVERRIDE_FIELDS = {"vertical": "vertical coordinate", "p0": "P0", "time_units": "time units",
+                   "radius": "earth radius", "variables": "variable map"}
+"""How an override is named in messages (the Blender panel's labels)."""
+VERTICAL_CHOICES = ("pressure_hpa", "pressure_pa", "height_m", "height_km", "ncar_hybrid")
+"""What ``vertical=`` may say (:data:`~nephele.core.climate.netcdf.VERTICAL_KINDS`, kept here without xarray)."""
+
+
+def parse_var_map(text, path=None):
+    """``"temperature=T2, rh=RH"`` as ``{"temperature": "T2", "rh": "RH"}`` (commas or new lines between pairs)."""
+    mapping = {}
+    for item in str(text or "").replace("\n", ",").split(","):
+        if not item.strip():
+            continue
+        std, sep, raw = item.partition("=")
+        if not (sep and std.strip() and raw.strip()):
+            raise DataError(f"must look like STD=NAME (e.g. temperature=T2), got {item.strip()!r}", path=path,
+                            field=OVERRIDE_FIELDS["variables"])
+        mapping[std.strip()] = raw.strip()
+    return mapping
+
+
+def check_overrides(path=None, *, vertical=None, p0=None, time_units=None, radius=None, variables=None):
+    """The overrides given (not ``None``/empty), checked, as keywords of :func:`open_dataset`.
+
+    Parameters
+    ----------
+    path : str, optional
+        The file they are for (named in errors).
+    vertical, p0, time_units, radius, variables
+        As :class:`~nephele.core.climate.netcdf.NetCDFDataset` takes them:
+        a :data:`VERTICAL_CHOICES` entry, P0 in Pa (> 0), CF time units
+        (``"<unit> since <date>"``), the planet radius in metres (1e5..1e9:
+        a radius in km is the likely slip), ``{standard name: file variable}``
+        or its text form for :func:`parse_var_map`.
+
+    Raises
+    ------
+    DataError
+        One line naming the file and the override.
+    """
+
+    def bad(key, problem):
+        return DataError(problem, path=path, field=OVERRIDE_FIELDS[key])
+
+    kw = {}
+    if vertical:
+        if vertical not in VERTICAL_CHOICES:
+            raise bad("vertical", f"{vertical!r} is not one of {', '.join(VERTICAL_CHOICES)}")
+        kw["vertical"] = str(vertical)
+    if p0 is not None:
+        if not (isinstance(p0, (int, float)) and math.isfinite(p0) and p0 > 0):
+            raise bad("p0", f"must be a pressure > 0 in Pa (e.g. 100000), got {p0!r}")
+        kw["p0"] = float(p0)
+    if time_units and str(time_units).strip():
+        from .gridfile import cf_times
+
+        try:
+            cf_times([0.0], str(time_units).strip(), None, path, OVERRIDE_FIELDS["time_units"])
+        except DataError as exc:
+            raise bad("time_units", exc.problem) from None
+        kw["time_units"] = str(time_units).strip()
+    if radius is not None:
+        if not (isinstance(radius, (int, float)) and 1e5 <= radius <= 1e9):
+            raise bad("radius", f"is in metres (e.g. 6371229), got {radius!r}")
+        kw["radius"] = float(radius)
+    if isinstance(variables, str):
+        variables = parse_var_map(variables, path)
+    if variables:
+        kw["variables"] = dict(variables)
+    return kw
+
+
+def override_source(source, **kw):
+    """The source name of ``source`` read with the overrides ``kw``: ``SOURCE?key=value&...``.
+
+    The same name ``nephele`` commands give such a dataset; :func:`open_dataset`
+    opens it in any process (a saved scene, a farm worker).  A trailing
+    ``&file=ID`` (the CLI's file identity for cache keys) is allowed and ignored.
+    """
+    flat = {k: (",".join(f"{s}:{r}" for s, r in sorted(v.items())) if isinstance(v, dict) else v) for k, v in sorted(kw.items())}
+    return f"{source}?{urlencode(flat)}" if flat else str(source)
+
+
+def split_source(text):
+    """``(path, overrides)`` of a name made by :func:`override_source` (``(text, {})`` for a plain one)."""
+    text = str(text)
+    base, sep, query = text.partition("?")
+    if not sep or Path(text).exists():
+        return text, {}
+    kw = {}
+    for key, value in parse_qsl(query, keep_blank_values=True):
+        if key == "file":
+            continue
+        if key not in OVERRIDES:
+            raise DataError(f"unknown override {key!r} in the source name (known: {', '.join(OVERRIDES)})", path=base)
+        if key in ("p0", "radius"):
+            try:
+                value = float(value)
+            except ValueError:
+                raise DataError(f"is not a number: {value!r}", path=base, field=OVERRIDE_FIELDS[key]) from None
+        elif key == "variables":
+            value = parse_var_map(value.replace(":", "="), base)
+        kw[key] = value
+    return base, check_overrides(base, **kw)
 
 
 def open_dataset(source, **kw):
@@ -38,12 +146,24 @@ def open_dataset(source, **kw):
     ------
     DataError
         Missing file, unknown format or bad contents, naming file and field.
+
+    ``source`` may also be a name from :func:`override_source`
+    (``path?radius=6371220&...``): the file opened with those overrides.
     """
-    text = str(source)
+    text, named = split_source(source)
+    if named:
+        both = sorted(set(named) & set(kw))
+        if both:
+            raise DataError(f"overrides {', '.join(both)} given twice (in the source name and as arguments)", path=text)
+        kw = {**named, **kw}
+        source = text
+    given = sorted(k for k in OVERRIDES if k in kw)
     if text == "demo" or text.startswith("demo:"):
         size = text.partition(":")[2] or "full"
         if size not in SIZES:
             raise DataError(f"unknown demo size {size!r} (choose from {', '.join(SIZES)})", path=text)
+        if given:
+            raise DataError(f"the demo takes no file overrides ({', '.join(given)})", path=text)
         return demo_dataset(size, **kw)
     path = Path(source)
     suffix = path.suffix.lower()
@@ -68,6 +188,8 @@ def open_dataset(source, **kw):
     if suffix == ".ctl":
         if not path.is_file():
             raise DataError("file not found", path=path)
+        if given:
+            raise DataError(f"GrADS files take no overrides ({', '.join(given)}); they apply to NetCDF, GRIB and Zarr", path=path)
         from .grads import open_grads
 
         return open_grads(path, **kw)
@@ -76,4 +198,4 @@ def open_dataset(source, **kw):
     raise DataError(f"unknown format {suffix or '(no extension)'!r}: expected demo, .nc, .grib2, .zarr or .ctl", path=path)
 
 
-__all__ = ["open_dataset"]
+__all__ = ["OVERRIDES", "check_overrides", "open_dataset", "override_source", "parse_var_map", "split_source"]
