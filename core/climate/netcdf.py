@@ -41,7 +41,12 @@ WRF history files: eta levels at the heights ``(PH + PHB) / g`` of the first
 step (destaggered), pressure ``P + PB``, ``temperature`` from ``T`` (the
 perturbation potential temperature, kept as ``theta_perturbation``) by
 Poisson's equation, ``cloud`` from ``CLDFRA``, WRF's radius 6370 km.
-Staggered winds (``U``, ``V``, ``W``) are not read yet.
+Fields on one staggered dimension (``U`` on ``west_east_stag``, ``V`` on
+``south_north_stag``, ``W``, ``PH``, ``PHB`` on ``bottom_top_stag``) are read
+at the mass points, each value the mean of its two staggered neighbours
+(Arakawa C grid); ``u``/``v`` are turned from grid to earth axes with the
+file's ``COSALPHA``/``SINALPHA`` (``u_e = U cos a - V sin a``,
+``v_e = V cos a + U sin a``) when it has them.
 
 Times come from CF units (``hours since 2001-01-01``…, any CF calendar as
 elapsed time).  Anything else (units ``Month``, no units) becomes step
@@ -241,6 +246,36 @@ WRF_RADIUS = 6370000.0
 """WRF's planet radius (m, ``EARTH_RADIUS_M`` in WRF's module_model_constants)."""
 
 
+WRF_STAGGER = {"bottom_top_stag": "bottom_top", "south_north_stag": "south_north", "west_east_stag": "west_east"}
+"""WRF's staggered dimensions and the mass dimensions they straddle (one more point each)."""
+
+
+def _wrf_staggered(ds, dims, time_dim):
+    """WRF fields staggered along one of ``dims`` = (level, y, x): ``{name: staggered dims in the order of dims}``,
+    and ``{name: reason}`` for those whose staggered size is not the mass size + 1."""
+    found, bad = {}, {}
+    for name, var in ds.data_vars.items():
+        own = [d for d in var.dims if d != time_dim]
+        stag = [d for d in own if d in WRF_STAGGER]
+        if len(own) != 3 or len(stag) != 1 or sorted(WRF_STAGGER.get(d, d) for d in own) != sorted(dims):
+            continue
+        mass = WRF_STAGGER[stag[0]]
+        if ds.sizes[stag[0]] != ds.sizes[mass] + 1:
+            bad[name] = f"{stag[0]} has {ds.sizes[stag[0]]} points for {ds.sizes[mass]} on {mass} (expected one more)"
+            continue
+        found[name] = tuple(stag[0] if d == mass else d for d in dims)
+    return found, bad
+
+
+def destagger(a, axis):
+    """Values at the mass points of a C grid: the mean of each pair of neighbours along ``axis``."""
+    a = np.asarray(a, dtype=np.float64)
+    n = a.shape[axis]
+    if n < 2:
+        raise ValueError(f"need at least 2 staggered points along axis {axis}, got {n}")
+    return 0.5 * (np.take(a, np.arange(n - 1), axis=axis) + np.take(a, np.arange(1, n), axis=axis))
+
+
 def _is_wrf(ds, zdim):
     """A WRF history file: mass levels ``bottom_top`` with the geopotential ``PH``/``PHB`` on ``bottom_top_stag``."""
     return zdim == "bottom_top" and all(n in ds.variables and "bottom_top_stag" in ds[n].dims for n in ("PH", "PHB"))
@@ -369,8 +404,22 @@ class NetCDFDataset(FileDataset):
         self._nt = times.size
 
         self._wrf = _is_wrf(ds, zdim) and self._vertical_kind is None
+        self._stagger, self._alpha = {}, None
         if self._wrf:
             heights, level_index, pressure, vertical = self._wrf_levels(ds, path, zdim, lat_index, lon_index)
+            self._stagger, bad = _wrf_staggered(ds, self._dims, time_dim)
+            skipped.update(bad)
+            for name in self._stagger:
+                skipped.pop(name, None)
+                names.append(name)
+            if self._stagger:
+                notes.append(f"staggered: {', '.join(sorted(self._stagger))} read at the mass points (mean of the two neighbours)")
+            if {"U", "V"} <= set(self._stagger):
+                if "COSALPHA" in ds.variables and "SINALPHA" in ds.variables:
+                    self._alpha = tuple(self._wrf_plane(ds, n, lat_index, lon_index) for n in ("COSALPHA", "SINALPHA"))
+                    notes.append("wind: U, V turned from grid to earth axes with COSALPHA/SINALPHA")
+                else:
+                    notes.append("wind: U, V are along the grid's axes (the file has no COSALPHA/SINALPHA to turn them east/north)")
         else:
             heights, level_index, pressure, vertical = self._vertical(ds, path, zdim, names, lat_index, lon_index, lat.size, lon.size)
         grid = GlobeGrid(lon, lat, heights, rotation=rotation, lon2d=lon2d, lat2d=lat2d).validate(path)
@@ -424,6 +473,11 @@ class NetCDFDataset(FileDataset):
             self.aliases.pop("temperature", None)
 
     def _read(self, name, t):
+        if name in ("u", "v") and self._alpha is not None and self.file_names.get("u") == "U" and self.file_names.get("v") == "V":
+            # WRF's U, V are along the grid's x and y; COSALPHA/SINALPHA turn them to east and north.
+            u, v = (np.asarray(super(NetCDFDataset, self)._read(n, t), dtype=np.float64) for n in ("u", "v"))
+            cos_a, sin_a = self._alpha
+            return (u * cos_a - v * sin_a if name == "u" else v * cos_a + u * sin_a).astype(np.float32)
         if name == "temperature" and self._wrf and "temperature" not in self._fields:
             theta = np.asarray(self._read("theta_perturbation", t), dtype=np.float64) + WRF_T0
             return (theta * (np.asarray(self._pressure(t), dtype=np.float64) / 1.0e5) ** WRF_RCP).astype(np.float32)
@@ -456,6 +510,13 @@ class NetCDFDataset(FileDataset):
                 return (plane("P", t) + plane("PB", t))[level_index].astype(np.float32)
 
         return heights, level_index, pressure, "WRF eta levels (terrain following, heights from PH + PHB)"
+
+    def _wrf_plane(self, ds, name, lat_index, lon_index):
+        """A 2-D WRF field (first step) in Nephele's (y, x) order, shaped (1, ny, nx) to broadcast over levels."""
+        var = ds[name]
+        var = var.isel({d: 0 for d in var.dims if d not in self._dims[1:]})
+        plane = np.asarray(var.transpose(*self._dims[1:]).values, dtype=np.float64)
+        return plane[np.ix_(lat_index, lon_index)][None]
 
     # ------------------------------------------------------------------ horizontal
     @staticmethod
@@ -675,6 +736,10 @@ class NetCDFDataset(FileDataset):
         var = self._ds[name]
         if self._time_dim in var.dims:
             var = var.isel({self._time_dim: t})
+        staggered = self._stagger.get(name)
+        if staggered is not None:  # WRF's C grid: to the mass points
+            axis = next(i for i, d in enumerate(staggered) if d in WRF_STAGGER)
+            return destagger(var.transpose(*staggered).values, axis).astype(np.float32)
         return np.asarray(var.transpose(*self._dims).values, dtype=np.float32)
 
     def close(self):

@@ -23,7 +23,29 @@ def _atmosphere(z):
     return 1.0e5 * np.exp(-z / 8000.0), 288.0 - 0.0065 * z
 
 
-def _wrf_file(path):
+K = 0.7  # wavenumber (per grid step) of the written winds
+
+
+def _staggered_winds(z_stag, alpha):
+    """U = 10 sin(K x) on west_east_stag (x = -1/2 .. NX - 1/2), V = 5 + 3 cos(K y) on south_north_stag,
+    W = 0.001 z on bottom_top_stag; their mean over two neighbours is known in closed form:
+    10 sin(K i) cos(K/2), 5 + 3 cos(K j) cos(K/2), and 0.001 z at the mass levels (W linear in z)."""
+    xs, ys = np.arange(NX + 1) - 0.5, np.arange(NY + 1) - 0.5
+    u = np.broadcast_to(10.0 * np.sin(K * xs), (NT, NZ, NY, NX + 1)).astype(np.float32)
+    v = np.broadcast_to((5.0 + 3.0 * np.cos(K * ys))[:, None], (NT, NZ, NY + 1, NX)).astype(np.float32)
+    w = np.repeat((1e-3 * z_stag)[None], NT, axis=0).astype(np.float32)
+    out = {
+        "U": (("Time", "bottom_top", "south_north", "west_east_stag"), u, {"units": "m s-1", "stagger": "X"}),
+        "V": (("Time", "bottom_top", "south_north_stag", "west_east"), v, {"units": "m s-1", "stagger": "Y"}),
+        "W": (("Time", "bottom_top_stag", "south_north", "west_east"), w, {"units": "m s-1", "stagger": "Z"}),
+    }
+    if alpha is not None:  # WRF's rotation from grid to earth axes, here one angle per column
+        for name, f in (("COSALPHA", np.cos), ("SINALPHA", np.sin)):
+            out[name] = (("Time", "south_north", "west_east"), np.repeat(f(alpha)[None], NT, axis=0).astype(np.float32), {"units": ""})
+    return out
+
+
+def _wrf_file(path, winds=False, alpha=None):
     y, x = np.meshgrid(np.arange(NY), np.arange(NX), indexing="ij")
     lat = 40.0 + 0.25 * y + 0.02 * x  # a slightly sheared curvilinear grid
     lon = -105.0 + 0.3 * x - 0.01 * y
@@ -46,8 +68,9 @@ def _wrf_file(path):
         "P": (("Time", "bottom_top", "south_north", "west_east"), rep(0.2 * p), {"units": "Pa"}),
         "PB": (("Time", "bottom_top", "south_north", "west_east"), rep(0.8 * p), {"units": "Pa"}),
         "CLDFRA": (("Time", "bottom_top", "south_north", "west_east"), rep(cloud), {"units": "", "description": "CLOUD FRACTION"}),
-        "U": (("Time", "bottom_top", "south_north", "west_east_stag"), np.zeros((NT, NZ, NY, NX + 1), np.float32), {"units": "m s-1"}),
     }
+    if winds:
+        data.update(_staggered_winds(z_stag, alpha))
     xr.Dataset(data, attrs={"TITLE": " OUTPUT FROM WRF V4 MODEL (written by the Nephele test)", "MAP_PROJ": 1}).to_netcdf(path)
     return lon, lat, z_mass, p, t_air, cloud
 
@@ -68,7 +91,52 @@ def test_wrf_levels_temperature_and_positions(tmp_path):
     np.testing.assert_allclose(ds.read("T", 0) + 300.0, t_air * (1e5 / p) ** (2 / 7), atol=2e-3)
     np.testing.assert_allclose(ds.read("cloud", 0), cloud, atol=1e-6)
     np.testing.assert_array_equal(ds.hours, [0.0, 1.0])
-    assert "U" in ds.skipped  # staggered winds are not read yet
+    assert "staggered: PH, PHB read at the mass points (mean of the two neighbours)" in ds.notes  # no winds here
+    assert "u" not in ds.variables and not any(n.startswith("wind") for n in ds.notes)
+
+
+def test_staggered_winds_at_mass_points_closed_form(tmp_path):
+    _lon, _lat, z_mass, *_ = _wrf_file(tmp_path / "wrfout_d01.nc", winds=True)
+    ds = open_dataset(tmp_path / "wrfout_d01.nc")
+    assert {"u", "v", "w"} <= set(ds.variables) and not {"U", "V", "W"} & set(ds.skipped)
+    assert ds.file_names["u"] == "U" and ds.file_names["w"] == "W"
+    i, j = np.arange(NX), np.arange(NY)
+    u, v, w = ds.wind(1)
+    assert u.shape == v.shape == w.shape == ds.grid.shape == (NZ, NY, NX)
+    np.testing.assert_allclose(u, np.broadcast_to(10.0 * np.sin(K * i) * np.cos(K / 2), u.shape), atol=2e-6)
+    np.testing.assert_allclose(v, np.broadcast_to((5.0 + 3.0 * np.cos(K * j) * np.cos(K / 2))[:, None], v.shape), atol=2e-6)
+    np.testing.assert_allclose(w, 1e-3 * z_mass, rtol=1e-6)
+    assert np.array_equal(ds.read("U", 0), u)  # the file's own name
+    # The destaggered geopotential is the level heights' geopotential: (PH + PHB) / g at mass points.
+    np.testing.assert_allclose((ds.read("PH", 0) + ds.read("PHB", 0)) / G0, z_mass, rtol=1e-5)
+    assert any(n.startswith("staggered: PH, PHB, U, V, W") for n in ds.notes)
+    assert any("along the grid's axes" in n for n in ds.notes)
+
+
+def test_staggered_winds_turned_to_earth_axes_with_cosalpha(tmp_path):
+    y, x = np.meshgrid(np.arange(NY), np.arange(NX), indexing="ij")
+    alpha = np.deg2rad(-20.0 + 2.0 * x + 0.5 * y)  # the grid's x axis turned from east, column by column
+    _wrf_file(tmp_path / "wrfout_d01.nc", winds=True, alpha=alpha)
+    ds = open_dataset(tmp_path / "wrfout_d01.nc")
+    ug = np.broadcast_to(10.0 * np.sin(K * x) * np.cos(K / 2), (NZ, NY, NX))
+    vg = np.broadcast_to(5.0 + 3.0 * np.cos(K * y) * np.cos(K / 2), (NZ, NY, NX))
+    u, v, _ = ds.wind(0)
+    np.testing.assert_allclose(u, ug * np.cos(alpha) - vg * np.sin(alpha), atol=5e-6)
+    np.testing.assert_allclose(v, vg * np.cos(alpha) + ug * np.sin(alpha), atol=5e-6)
+    np.testing.assert_allclose(np.hypot(u, v), np.hypot(ug, vg), atol=5e-6)  # a rotation keeps the speed
+    assert any(n.startswith("wind: U, V turned") for n in ds.notes)
+
+
+def test_staggered_field_of_the_wrong_size_is_skipped_with_its_reason(tmp_path):
+    import xarray as xr
+
+    _wrf_file(tmp_path / "a.nc")
+    with xr.open_dataset(tmp_path / "a.nc") as f:
+        f = f.load()
+    f["U"] = (("Time", "bottom_top", "south_north", "west_east_stag"), np.zeros((NT, NZ, NY, NX + 2), np.float32))
+    f.to_netcdf(tmp_path / "b.nc")
+    ds = open_dataset(tmp_path / "b.nc")
+    assert "u" not in ds.variables and "expected one more" in ds.skipped["U"]
 
 
 def test_wrf_cloud_contour_follows_the_written_cloud_layer(tmp_path):
