@@ -3,11 +3,12 @@
 Blender ships no VTK, so the file is read here with the standard library
 and NumPy (:func:`read_vtu`: inline or appended data, raw or base64,
 optionally zlib-compressed) and the point vectors are interpolated in each
-hexahedron with its trilinear shape functions: the cell is found among the
-nearest cell centres (scipy ``cKDTree``) by Newton inversion of the
-trilinear map.  Points outside every cell get NaN, which
-:func:`~nephele.core.flowvol.flow_volume` reports as a :class:`DataError`
-naming the field.
+hexahedron with its trilinear shape functions: the cell is found through a
+uniform bucket grid of cell boxes (built once per file) and the trilinear
+map inverted exactly where it is affine, by Newton's method elsewhere.
+Points outside every cell get NaN: a flow volume's points stop where they
+leave the grid (a wall or an outlet); a generator outside it is a
+:class:`DataError` naming the field.
 
 References
 ----------
@@ -23,7 +24,6 @@ import zlib
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from ..errors import DataError
 
@@ -137,26 +137,42 @@ def trilinear(rst):
     """Shape functions (n, 8) of VTK's hexahedron at parametric points (n, 3), and their derivatives (n, 8, 3)."""
     c = _CORNERS[None]
     p = rst[:, None, :]
-    f = np.where(c == 1, p, 1 - p)  # (n, 8, 3) factors
+    f = np.where(c == 1, p, 1 - p)  # (n, 8) factors
     w = f.prod(axis=2)
     sign = 2 * c - 1
     d = np.stack([sign[..., 0] * f[..., 1] * f[..., 2], sign[..., 1] * f[..., 0] * f[..., 2], sign[..., 2] * f[..., 0] * f[..., 1]], axis=2)
     return w, d
 
 
+def _weights(rst):
+    """Shape functions (n, 8) of VTK's hexahedron only (no derivatives): the interpolation's hot path."""
+    r, s, t = rst[:, 0], rst[:, 1], rst[:, 2]
+    r0, s0, t0 = 1 - r, 1 - s, 1 - t
+    a, b, c, d = r0 * s0, r * s0, r * s, r0 * s
+    return np.stack([a * t0, b * t0, c * t0, d * t0, a * t, b * t, c * t, d * t], axis=1)
+
+
 class UnstructuredVelocity:
     """``velocity(points (n, 3), t) -> (n, 3)`` from the point vectors ``field`` of a hexahedral ``.vtu`` file.
+
+    Points are located with a uniform bucket grid built once per file: each
+    bucket lists the cells whose bounding box overlaps it, so a point's
+    candidates are one row of a table.  Cells whose trilinear map is affine
+    (parallelepipeds, e.g. the fire's boxes) are inverted exactly with a
+    stored inverse Jacobian; other cells by Newton's method.
 
     Parameters
     ----------
     path : str or Path
     field : str
         A 3-component point array.
-    candidates : int
-        Nearest cell centres tried for each point.
+    bucket_cells : float
+        Buckets per cell along each axis (bucket edge = median cell extent / this).
     """
 
-    def __init__(self, path, field="uvw", candidates=8):
+    bounded = True  # velocity is NaN outside the cells: flow volumes stop at the boundary instead of failing
+
+    def __init__(self, path, field="uvw", bucket_cells=2.0):
         self.path, self.field = str(path), field
         grid = read_vtu(path)
         types = grid["types"]
@@ -171,60 +187,151 @@ class UnstructuredVelocity:
         self.vectors = arr.astype(np.float64)
         self.cells = grid["connectivity"].reshape(-1, 8)
         self.bounds = np.stack([self.points.min(axis=0), self.points.max(axis=0)], axis=1)
-        corners = self.points[self.cells]
-        self._tree = cKDTree(corners.mean(axis=1))
-        # A trilinear cell lies in the box of its corners: only candidates whose box holds the point are inverted.
-        pad = 1e-9 * np.ptp(self.points, axis=0).max()
+        self._build_locator(float(bucket_cells))
+
+    @property
+    def vectors(self):
+        return self._vectors
+
+    @vectors.setter
+    def vectors(self, value):
+        # Corner vectors gathered per cell once: one gather per call instead of two.
+        self._vectors = np.asarray(value, dtype=np.float64)
+        if hasattr(self, "cells"):
+            self._cell_vectors = self._vectors[self.cells]
+
+    def _build_locator(self, bucket_cells):
+        corners = self.points[self.cells]  # (c, 8, 3)
+        self._cell_vectors = self._vectors[self.cells]
+        ext = np.ptp(self.points, axis=0).max()
+        pad = 1e-9 * ext
         self._lo, self._hi = corners.min(axis=1) - pad, corners.max(axis=1) + pad
-        self._k = min(int(candidates), len(self.cells))
+        # The trilinear map x0 + a_r r + a_s s + a_t t + (bilinear and trilinear terms): affine when those vanish.
+        x = corners
+        twist = np.stack([x[:, 0] - x[:, 1] + x[:, 2] - x[:, 3], x[:, 0] - x[:, 1] + x[:, 5] - x[:, 4],
+                          x[:, 0] - x[:, 3] + x[:, 7] - x[:, 4], x[:, 1] - x[:, 0] - x[:, 2] + x[:, 3] + x[:, 4] - x[:, 5] + x[:, 6] - x[:, 7]], axis=1)
+        jac = np.stack([x[:, 1] - x[:, 0], x[:, 3] - x[:, 0], x[:, 4] - x[:, 0]], axis=2)  # columns d x / d(r, s, t)
+        det = np.linalg.det(jac)
+        size = np.abs(self._hi - self._lo).max(axis=1)
+        self._affine = (np.abs(twist).max(axis=(1, 2)) <= 1e-9 * size) & (np.abs(det) > 1e-12 * size**3)
+        self._inv = np.zeros_like(jac)
+        self._inv[self._affine] = np.linalg.inv(jac[self._affine])
+        self._origin = x[:, 0]
+        # Buckets: per axis the grid's own distinct corner coordinates where there are few of them (a
+        # lattice-aligned mesh: one cell per bucket), else uniform about the median cell extent.
+        # Each cell is listed in every bucket its box overlaps.
+        clo, chi = corners.min(axis=1), corners.max(axis=1)
+        h = np.maximum(np.median(chi - clo, axis=0) / bucket_cells, 1e-12 * max(ext, 1e-300))
+        self._edges = []
+        for ax in range(3):
+            lattice = np.unique(corners[..., ax])
+            n = max(int(np.ceil((lattice[-1] - lattice[0]) / h[ax])), 1)
+            self._edges.append(lattice if len(lattice) - 1 <= 4 * n and len(lattice) > 1 else np.linspace(lattice[0], lattice[-1], n + 1))
+        nb = np.array([len(e) - 1 for e in self._edges])
+        self._nb = nb
+        i0 = np.stack([np.searchsorted(e, clo[:, ax], "right") - 1 for ax, e in enumerate(self._edges)], axis=1)
+        i1 = np.stack([np.searchsorted(e, chi[:, ax], "left") - 1 for ax, e in enumerate(self._edges)], axis=1)
+        i0 = np.clip(i0, 0, nb - 1)
+        i1 = np.clip(np.maximum(i1, i0), 0, nb - 1)
+        span = (i1 - i0 + 1).max(axis=0)
+        offs = np.stack(np.meshgrid(*[np.arange(s) for s in span], indexing="ij"), axis=-1).reshape(-1, 3)
+        b = i0[:, None] + offs[None]  # (c, k, 3)
+        ok = np.all(b <= i1[:, None], axis=2)
+        flat = ((b[..., 0] * nb[1] + b[..., 1]) * nb[2] + b[..., 2])[ok]
+        cell = np.broadcast_to(np.arange(len(self.cells))[:, None], ok.shape)[ok]
+        bo = b[ok]
+        blo = np.stack([e[bo[:, ax]] for ax, e in enumerate(self._edges)], axis=1)
+        bhi = np.stack([e[bo[:, ax] + 1] for ax, e in enumerate(self._edges)], axis=1)
+        # In each bucket the cells covering most of it come first: usually the first candidate holds the point.
+        overlap = np.prod(np.clip(np.minimum(chi[cell], bhi) - np.maximum(clo[cell], blo), 0, None), axis=1)
+        order = np.lexsort((-overlap, flat))
+        flat, cell = flat[order], cell[order]
+        counts = np.bincount(flat, minlength=int(np.prod(nb)))
+        start = np.concatenate([[0], np.cumsum(counts)[:-1]])
+        table = np.full((len(counts), max(int(counts.max()), 1)), -1, dtype=np.int32 if len(self.cells) < 2**31 else np.int64)
+        table[flat, np.arange(len(flat)) - start[flat]] = cell
+        self._table = table
+        self._lo_all, self._hi_all = self._lo.min(axis=0), self._hi.max(axis=0)
+        self._eps = 1e-9 * ext
 
     def locate(self, points, tol=1e-7, iterations=12):
         """Cell index (-1 outside) and parametric coordinates of each point."""
         p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
         cell = np.full(len(p), -1, dtype=np.int64)
         rst = np.full((len(p), 3), np.nan)
-        if len(p) == 0:
-            return cell, rst
-        _, near = self._tree.query(p, k=self._k)
-        near = near.reshape(len(p), -1)
-        holds = np.all((p[:, None] >= self._lo[near]) & (p[:, None] <= self._hi[near]), axis=2)
-        near = np.take_along_axis(near, np.argsort(~holds, axis=1, kind="stable"), axis=1)
-        count = holds.sum(axis=1)
-        todo = np.nonzero(count > 0)[0]
-        for c in range(near.shape[1]):
-            todo = todo[count[todo] > c]
+        todo = np.nonzero(np.all((p >= self._lo_all) & (p <= self._hi_all), axis=1))[0]  # also drops NaN
+        # A point on a bucket face belongs to the bucket above it; if no cell there holds it
+        # (a wall, an obstacle), the buckets below along each axis are tried.
+        for below in self._SHIFTS:
             if len(todo) == 0:
                 break
-            idx = near[todo, c]
-            x = self.points[self.cells[idx]]  # (m, 8, 3)
-            q = np.full((len(todo), 3), 0.5)
-            step = np.full((len(todo), 3), np.inf)
-            live = np.arange(len(todo))
-            for _ in range(iterations):
-                w, d = trilinear(q[live])
-                r = np.einsum("mk,mkj->mj", w, x[live]) - p[todo[live]]
-                jac = np.einsum("mki,mkj->mji", d, x[live])  # d position_j / d q_i
-                ok = np.abs(np.linalg.det(jac)) > 0
-                s = np.zeros((len(live), 3))
-                s[ok] = np.linalg.solve(jac[ok], r[ok][..., None])[..., 0]
-                q[live] = np.clip(q[live] - s, -1.0, 2.0)  # far-off candidates stay bounded
-                step[live] = s
-                # Converged, or far outside the cell after a few steps: stop iterating on it.
-                live = live[(np.abs(s).max(axis=1) >= 1e-12) & ok]
-                if len(live) == 0:
-                    break
-            inside = np.all((q >= -tol) & (q <= 1 + tol), axis=1) & (np.abs(step).max(axis=1) < 1e-9)
-            cell[todo[inside]] = idx[inside]
-            rst[todo[inside]] = np.clip(q[inside], 0.0, 1.0)
-            todo = todo[~inside]
+            q = p[todo] - below * self._eps
+            g = np.stack([np.searchsorted(e, q[:, ax], "right") - 1 for ax, e in enumerate(self._edges)], axis=1)
+            g = np.clip(g, 0, self._nb - 1)
+            todo = self._in_rows(p, todo, self._table[(g[:, 0] * self._nb[1] + g[:, 1]) * self._nb[2] + g[:, 2]],
+                                 cell, rst, tol, iterations)
         return cell, rst
+
+    _SHIFTS = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 1, 0], [1, 0, 1], [0, 1, 1], [1, 1, 1]])
+
+    def _in_rows(self, p, todo, cand, cell, rst, tol, iterations):
+        """Locate points ``p[todo]`` among their candidate cells ``cand`` (rows padded with -1); the points left."""
+        # Affine cells: the bucket's first candidate (usually the one), then all the others at once.
+        for cols in (slice(0, 1), slice(1, None)):
+            idx = cand[:, cols]
+            if len(todo) == 0 or idx.shape[1] == 0:
+                break
+            safe = np.maximum(idx, 0)
+            r = np.einsum("mcij,mcj->mci", self._inv[safe], p[todo][:, None] - self._origin[safe])
+            ins = (idx >= 0) & self._affine[safe] & np.all((r >= -tol) & (r <= 1 + tol), axis=2)
+            first = np.argmax(ins, axis=1)
+            got = ins[np.arange(len(todo)), first]
+            cell[todo[got]] = idx[got, first[got]]
+            rst[todo[got]] = np.clip(r[got, first[got]], 0.0, 1.0)
+            todo, cand = todo[~got], cand[~got]
+        # General hexahedra: Newton's method in each candidate whose box holds the point.
+        for c in range(cand.shape[1] if len(todo) and not self._affine.all() else 0):
+            idx = cand[:, c]
+            q = p[todo]
+            safe = np.maximum(idx, 0)
+            try_ = np.nonzero((idx >= 0) & ~self._affine[safe] & np.all((q >= self._lo[safe]) & (q <= self._hi[safe]), axis=1))[0]
+            if len(try_) == 0:
+                continue
+            r, ins = self._newton(idx[try_], q[try_], tol, iterations)
+            got = np.zeros(len(todo), dtype=bool)
+            got[try_[ins]] = True
+            cell[todo[got]] = idx[got]
+            rst[todo[got]] = r[ins]
+            todo, cand = todo[~got], cand[~got]
+        return todo
+
+    def _newton(self, idx, p, tol, iterations):
+        """Parametric coordinates of ``p`` in general hexahedra ``idx`` by Newton's method, and whether inside."""
+        x = self.points[self.cells[idx]]  # (m, 8, 3)
+        q = np.full((len(idx), 3), 0.5)
+        step = np.full((len(idx), 3), np.inf)
+        live = np.arange(len(idx))
+        for _ in range(iterations):
+            w, d = trilinear(q[live])
+            r = np.einsum("mk,mkj->mj", w, x[live]) - p[live]
+            jac = np.einsum("mki,mkj->mji", d, x[live])  # d position_j / d q_i
+            ok = np.abs(np.linalg.det(jac)) > 0
+            s = np.zeros((len(live), 3))
+            s[ok] = np.linalg.solve(jac[ok], r[ok][..., None])[..., 0]
+            q[live] = np.clip(q[live] - s, -1.0, 2.0)  # far-off candidates stay bounded
+            step[live] = s
+            # Converged, or a singular map: stop iterating on it.
+            live = live[(np.abs(s).max(axis=1) >= 1e-12) & ok]
+            if len(live) == 0:
+                break
+        inside = np.all((q >= -tol) & (q <= 1 + tol), axis=1) & (np.abs(step).max(axis=1) < 1e-9)
+        return np.clip(q, 0.0, 1.0), inside
 
     def __call__(self, points, t=None):
         cell, rst = self.locate(points)
         out = np.full((len(cell), 3), np.nan)
-        ok = cell >= 0
-        w, _ = trilinear(rst[ok])
-        out[ok] = np.einsum("mk,mkj->mj", w, self.vectors[self.cells[cell[ok]]])
+        ok = np.nonzero(cell >= 0)[0]
+        out[ok] = np.einsum("mk,mkj->mj", _weights(rst[ok]), self._cell_vectors[cell[ok]])
         return out
 
     def updraft(self, height=0.1, margin=0.3):
