@@ -759,6 +759,8 @@ class NEPHELE_OT_add_volume_clouds(bpy.types.Operator):
         s = _settings(context.scene)
         wm = context.window_manager
         frames = bake_frames(context, s)
+        # Several frames in the interface: the layer is added at once and its frames bake in the background.
+        background = context.window is not None and frames[1] > frames[0]
 
         def progress(i, n, info):
             wm.progress_update(int(100 * i / max(n, 1)))
@@ -769,7 +771,7 @@ class NEPHELE_OT_add_volume_clouds(bpy.types.Operator):
             obj, infos = add_volume_clouds(
                 s.var, tf, color_var=s.color_var, cmap=panel_cmap(s), voxel_size=s.voxel_size,
                 extinction=s.extinction, directory=s.directory or None, scene=context.scene, frames=frames,
-                progress=progress, mode=s.mode, support_size=s.support_size,
+                progress=progress, mode=s.mode, support_size=s.support_size, bake="lazy" if background else "all",
             )
         except (DataError, ValueError, OSError, ImportError) as exc:
             self.report({"ERROR"}, str(exc))
@@ -778,7 +780,9 @@ class NEPHELE_OT_add_volume_clouds(bpy.types.Operator):
             wm.progress_end()
         p = frame.params(obj)
         msg = empty_message(p)
-        if msg:
+        if background:
+            bpy.ops.nephele.bake_volume("INVOKE_DEFAULT", name=obj.name)
+        elif msg:
             self.report({"WARNING"}, msg)
         else:
             voxels = sum(i["active_voxels"] for i in infos)
@@ -853,6 +857,8 @@ class NEPHELE_PT_volume(SubPanel, bpy.types.Panel):
             msg = empty_message(frame.params(objs[0]))
             if msg:
                 layout.label(text="Volume is empty: lower the threshold", icon="ERROR")
+            if frame.params(objs[0]).get("lazy"):
+                layout.operator("nephele.bake_volume", text="Bake all frames now", icon="RENDER_ANIMATION")
             if stale(context):
                 layout.label(text="Transfer function changed", icon="INFO")
                 layout.operator(NEPHELE_OT_add_volume_clouds.bl_idname, text="Re-bake volume")

@@ -25,7 +25,7 @@ MODULE = "bl_ext.user_default.nephele"
 DRIVEN = {"import_dataset", "add_contour", "update_frame", "add_advected_texture", "add_globe", "add_sky",
           "add_camera", "add_volume_clouds", "add_scattering_cloud", "add_dome_camera", "render_dome_cube",
           "add_flow_volume", "update_flow_volume", "add_muscle_film", "clear_cache", "cancel_jobs", "delete_layer",
-          "sync_layers", "paper_figure", "add_wind_splats"}
+          "sync_layers", "paper_figure", "add_wind_splats", "bake_volume"}
 # Registered but not driven here: the status-bar watcher is a modal operator that needs a window
 # (headless, work is synchronous and never needs watching).
 WINDOW_ONLY = {"watch_jobs"}
@@ -114,6 +114,7 @@ vol = scene.nephele_volume
 vol.current_only = True
 vol.directory = str(OUT / "volume")
 step("add_volume_clouds", lambda: ops.add_volume_clouds())
+step("bake_volume", lambda: ops.bake_volume())
 active("Clouds")
 sc = scene.nephele_scatter
 sc.resolution = (8, 8, 6)
