@@ -64,7 +64,8 @@ def test_a_stopped_bake_leaves_only_whole_files(lazy, tmp_path):
     assert 1 <= len(job.infos) < 3 or job.done
     job.finish(obj)
     assert _baked(obj) == sorted(i["frame"] for i in job.infos)
-    leftovers = [f.name for f in data_ops.layer_dir(frame.params(obj)).iterdir() if not f.name.endswith(".vdb")]
+    leftovers = [f.name for f in data_ops.layer_dir(frame.params(obj)).iterdir()
+                 if f.name.startswith(".") or ".tmp" in f.name or not f.name.endswith(".vdb")]
     assert leftovers == []  # no temporary or half-written file
 
 
