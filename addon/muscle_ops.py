@@ -27,7 +27,9 @@ import numpy as np
 from ..core.pipeline.cache import default_cache_dir
 from ..core.surface.mesh import Mesh
 from ..core.muscle import film
-from ..core.pipeline.tasks import plan, run_cached
+from ..core.muscle import lattice as lat
+from ..core.pipeline.cache import Cache
+from ..core.pipeline.tasks import plan as task_plan, run_cached
 from . import frame, materials
 from .mesh import fill_mesh, new_object
 from .panel import SubPanel
@@ -60,14 +62,29 @@ def frame_mesh(arrays):
                 {"molecule": np.concatenate([arrays["molecule"], arrays["cyl_molecule"]]).astype(np.float32)})
 
 
-@frame.register_updater("muscle")
-def update_muscle(obj, params, scene, frame_number):
-    """Refill ``obj`` with the film frame for ``frame_number`` (skipped if already shown)."""
-    (kind, tp), = plan(params, frame_number)
+def plan(obj, params, scene, frame_number):
+    """Plan of the film layer for :func:`nephele.addon.frame.register_job` (None when the frame is shown).
+
+    The first frame shown needs the whole simulation (tens of seconds): in the
+    interface it runs on the worker thread like every other frame."""
+    (kind, tp), = task_plan(params, frame_number)
     if obj.get("nephele_shown") == tp["frame"] and len(obj.data.vertices):
-        return
-    fill_mesh(obj.data, frame_mesh(run_cached(kind, tp, cache_dir())))
-    obj["nephele_shown"] = tp["frame"]
+        return None
+    cache = cache_dir()
+    return tp["frame"], {"kind": kind, "tp": tp, "cache": str(cache)}, Cache(cache).file(kind, tp).is_file()
+
+
+def compute(args, job=None):
+    """Worker side (no ``bpy``): the frame's arrays from the cache or the simulation."""
+    return run_cached(args["kind"], args["tp"], args["cache"])
+
+
+def apply(obj, args, result):
+    fill_mesh(obj.data, frame_mesh(result))
+
+
+update_muscle = frame.register_job("muscle", plan, compute, apply)
+"""Synchronous updater ``(obj, params, scene, frame)`` (headless, renders)."""
 
 
 def _tile(obj, box, tiles):
@@ -122,8 +139,9 @@ def add_muscle_film(*, seed=0, frames=240, spacing=0.5, frame_time=0.1, tiles=(3
     mat = materials.attribute_material("Muscle molecules", "molecule", 0.0, 4.0, COLOURS, roughness=0.4,
                                        emission=0.05)
     materials.assign(obj, mat)
-    update_muscle(obj, frame.params(obj), scene, scene.frame_current)
-    cell = film.simulate(p)[0]
+    # In the interface the first frame (the whole simulation) computes in the background.
+    frame.submit(obj, scene, scene.frame_current)
+    cell = lat.unit_cell(d10=p["d10"])
     _tile(obj, cell.box, tiles)
     scene.frame_start, scene.frame_end = int(frame_start), int(frame_start) + p["frames"] - 1
     if camera:

@@ -69,3 +69,28 @@ def test_example_renders_omnimax_stereo(tmp_path):
     eyes = [np.array(bpy.data.images.load(str(p)).pixels[:]).reshape(36, 48, 4)[..., :3] for p in paths]
     assert all(e.std() > 0.02 for e in eyes)
     assert not np.array_equal(eyes[0], eyes[1])
+
+
+def test_adding_the_film_in_the_interface_does_not_wait_for_the_simulation(ops, tmp_path, monkeypatch):
+    """Issue 20 ("never freeze"): the first frame needs the whole simulation; in the interface
+    (forced headless with frame.force_background_jobs) it runs on the worker thread."""
+    from nephele.core.muscle import film
+
+    monkeypatch.setattr(muscle_ops, "cache_dir", lambda: tmp_path / "cache")
+    film._SIMS.clear()
+    scene = bpy.context.scene
+    frame.force_background_jobs(True)
+    try:
+        obj = muscle_ops.add_muscle_film(frames=3, spacing=2.0, tiles=(1, 1, 1), scene=scene)
+        assert len(obj.data.polygons) == 0 and frame.busy()  # returned before the simulation ran
+        assert scene.camera.name == muscle_ops.CAMERA_NAME
+        assert frame.wait(300)
+        assert obj.get("nephele_shown") == 0 and len(obj.data.polygons) > 500
+        background = np.array([v.co[:] for v in obj.data.vertices])
+    finally:
+        frame.cancel_all()
+        frame.wait(120)
+        frame.force_background_jobs(False)
+    monkeypatch.setattr(muscle_ops, "cache_dir", lambda: tmp_path / "cache_sync")  # computed again, here
+    obj = muscle_ops.add_muscle_film(frames=3, spacing=2.0, tiles=(1, 1, 1), scene=scene)
+    np.testing.assert_array_equal(np.array([v.co[:] for v in obj.data.vertices]), background)
