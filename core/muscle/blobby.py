@@ -612,13 +612,16 @@ class _Refiner:
 
     Per (block, Gaussian) pair the exponent is a quadratic in the point's offset
     ``u`` from the block's first node: 10 coefficients, so a batch of blocks
-    with the same number of Gaussians is one batched matrix product.
+    with the same number of Gaussians is one batched matrix product; a second
+    one sums ``e_g [A_g, A_g r_g, 1]``: the gradient and the field.  float32
+    throughout (offsets within a block, a few ulps of a field near the level).
     """
 
-    BUDGET = 1 << 19  # (vertex, Gaussian) products per batch
+    BUDGET = 1 << 18  # (vertex, Gaussian) products per batch
+    PAD = 1.2  # vertex counts of a batch's blocks within this factor: little padding
 
-    def __init__(self, b, grid, blocks, threads):
-        self.blocks, self.threads = blocks, threads
+    def __init__(self, b, grid, blocks):
+        self.blocks = blocks
         self.count = np.diff(blocks.fine_start)
         self.x0 = blocks.q * grid.size
         g = blocks.fine_g
@@ -630,109 +633,133 @@ class _Refiner:
         coef[:, 3:6] = -a6[:, 3:6]
         coef[:, 6:9] = ar
         coef[:, 9] = b.lnw[g] - 0.5 * np.einsum("ni,ni->n", rel, ar)
-        kern = np.empty((len(g), 9), _F32)
+        kern = np.empty((len(g), 10), _F32)
         kern[:, 0:6] = a6
         kern[:, 6:9] = ar
+        kern[:, 9] = 1
         self.coef, self.kern, self.src = coef, kern, b.src[g]
 
-    def __call__(self, pts, blk):
-        n = len(pts)
-        f = np.empty(n)
-        grad = np.empty((n, 3))
-        arg = np.empty(n, np.int64)
-        if n == 0:
-            return f, grad, arg
-        order = np.argsort(blk, kind="stable")
-        ub, first, nv = np.unique(blk[order], return_index=True, return_counts=True)
+    def batches(self, blk):
+        """Vertices sorted by block ``blk`` in padded batches ``(vid (nbt, vmax), nv (nbt,), ub (nbt,))``
+        of blocks with the same number of Gaussians and similar vertex counts."""
+        if len(blk) == 0:
+            return []
+        first = np.flatnonzero(np.r_[True, blk[1:] != blk[:-1]])
+        nv = np.diff(np.r_[first, len(blk)])
+        ub = blk[first]
         ng = self.count[ub]
-        batches = []
-        by_g = np.lexsort((nv, ng))
-        cuts = np.flatnonzero(np.diff(ng[by_g])) + 1
-        for grp in np.split(by_g, cuts):
-            # Same Gaussian count; vertex counts ascending: the padding stays small.
-            gcount = int(ng[grp[0]])
-            start = 0
-            while start < len(grp):
-                stop = start + 1
-                while stop < len(grp) and (stop + 1 - start) * nv[grp[stop]] * gcount <= self.BUDGET:
-                    stop += 1
-                batches.append(grp[start:stop])
-                start = stop
+        band = np.floor(np.log(nv) / np.log(self.PAD)).astype(np.int64)
+        by = np.lexsort((nv, band, ng))
+        cuts = np.flatnonzero(np.diff(ng[by]) | np.diff(band[by])) + 1
+        out = []
+        for grp in np.split(by, cuts):
+            per = max(1, self.BUDGET // max(int(nv[grp[-1]] * ng[grp[0]]), 1))
+            for lo in range(0, len(grp), per):
+                sel = grp[lo : lo + per]
+                vid = first[sel, None] + np.minimum(np.arange(nv[sel].max()), nv[sel, None] - 1)
+                out.append((vid, nv[sel], ub[sel]))
+        return out
 
-        def run(sel):
-            self._batch(pts, order[first[sel, None] + np.minimum(np.arange(nv[sel].max()), nv[sel, None] - 1)],
-                        nv[sel], ub[sel], f, grad, arg)
+    def gather(self, ub):
+        """Rows of the blocks' Gaussians (nbt, G) and their coefficients, ready for :meth:`evaluate`."""
+        rows = self.blocks.fine_start[ub][:, None] + np.arange(int(self.count[ub[0]]))
+        return rows, self.coef[rows].transpose(0, 2, 1), self.kern[rows]
 
-        _map(run, batches, self.threads)
-        return f, grad, arg
-
-    def _batch(self, pts, vid, nv, ub, f, grad, arg):
-        nbt, vmax = vid.shape
-        gcount = int(self.count[ub[0]])
-        u = pts[vid] - self.x0[ub][:, None, :]  # (nbt, vmax, 3)
-        feat = np.empty((nbt, vmax, 10), _F32)
-        feat[..., 0:3] = u * u
-        feat[..., 3] = u[..., 0] * u[..., 1]
-        feat[..., 4] = u[..., 0] * u[..., 2]
-        feat[..., 5] = u[..., 1] * u[..., 2]
+    @staticmethod
+    def evaluate(u, coef, kern):
+        """f (nbt, vmax), grad (nbt, vmax, 3) and the terms e (nbt, vmax, G) at float32 offsets u."""
+        feat = np.empty(u.shape[:2] + (10,), _F32)
+        np.multiply(u, u, out=feat[..., 0:3])
+        x, y, z = u[..., 0], u[..., 1], u[..., 2]
+        np.multiply(x, y, out=feat[..., 3])
+        np.multiply(x, z, out=feat[..., 4])
+        np.multiply(y, z, out=feat[..., 5])
         feat[..., 6:9] = u
         feat[..., 9] = 1
-        rows = self.blocks.fine_start[ub][:, None] + np.arange(gcount)  # (nbt, G)
-        e = np.exp(feat @ self.coef[rows].transpose(0, 2, 1))  # (nbt, vmax, G)
-        m = (e @ self.kern[rows]).astype(np.float64)  # sum_g e_g [A_g, A_g r_g]
-        valid = np.arange(vmax) < nv[:, None]
-        ids = vid[valid]
-        u = u[valid]
-        m = m[valid]
-        f[ids] = e.sum(axis=2, dtype=np.float64)[valid]
-        # grad = sum_g e_g A_g (r_g - u)
-        grad[ids, 0] = m[:, 6] - (m[:, 0] * u[:, 0] + m[:, 3] * u[:, 1] + m[:, 4] * u[:, 2])
-        grad[ids, 1] = m[:, 7] - (m[:, 3] * u[:, 0] + m[:, 1] * u[:, 1] + m[:, 5] * u[:, 2])
-        grad[ids, 2] = m[:, 8] - (m[:, 4] * u[:, 0] + m[:, 5] * u[:, 1] + m[:, 2] * u[:, 2])
-        best = np.argmax(e, axis=2)
-        arg[ids] = self.src[np.take_along_axis(rows, best, axis=1)][valid]
+        e = np.exp(feat @ coef)
+        m = e @ kern  # sum_g e_g [A_g, A_g r_g, 1]
+        grad = np.empty(u.shape, _F32)  # sum_g e_g A_g (r_g - u)
+        grad[..., 0] = m[..., 6] - (m[..., 0] * x + m[..., 3] * y + m[..., 4] * z)
+        grad[..., 1] = m[..., 7] - (m[..., 3] * x + m[..., 1] * y + m[..., 5] * z)
+        grad[..., 2] = m[..., 8] - (m[..., 4] * x + m[..., 5] * y + m[..., 2] * z)
+        return m[..., 9], grad, e
 
 
-def _project(refiner, grid, blk, axis, node, t, a_above, level, tol):
-    """Slide vertices along their edges onto f = level: Newton steps, bisection when one leaves the bracket."""
-    base = grid.coords(node)
-    step = grid.h[axis]
+def _compact(live, per_vertex, per_row):
+    """The live entries of a padded (rows, vmax) layout, packed to the front of their rows
+    (padding repeats a row's first live entry); rows without any are dropped."""
+    bi, vi = np.nonzero(live)
+    first = np.flatnonzero(np.r_[True, bi[1:] != bi[:-1]])
+    cnt = np.diff(np.r_[first, len(bi)])
+    src = first[:, None] + np.minimum(np.arange(cnt.max()), cnt[:, None] - 1)
+    sb, sv = bi[src], vi[src]
+    valid = np.arange(src.shape[1]) < cnt[:, None]
+    return valid, [a[sb, sv] for a in per_vertex], [a[bi[first]] for a in per_row]
+
+
+def _project(refiner, grid, blk, axis, node, t, a_above, level, tol, threads):
+    """Slide vertices along their edges onto f = level: Newton steps, bisection when one leaves the bracket.
+
+    A batch of blocks (:meth:`_Refiner.batches`) iterates together; the vertices still moving
+    are packed together whenever they are fewer than half.
+    """
     n = len(t)
-    lo = np.zeros(n)
-    hi = np.ones(n)
-    sign = np.where(a_above, 1.0, -1.0)  # sign of f - level at the lower node
-    grad = np.empty((n, 3))
+    order = np.argsort(blk, kind="stable")
+    base = grid.coords(node[order])
+    ax_sorted = axis[order]
+    step = grid.h[ax_sorted].astype(_F32)
+    t0 = t[order].astype(_F32)
+    above0 = a_above[order]  # f - level >= 0 at the lower node
+    lvl, tol2 = _F32(level), _F32(tol) ** 2
+    lower, upper = _F32(EDGE_MARGIN), _F32(1 - EDGE_MARGIN)
+    t_out = np.empty(n, _F32)
+    grad = np.empty((n, 3), _F32)
     arg = np.empty(n, np.int64)
-    todo = np.arange(n)
-    for it in range(NEWTON_STEPS + 1):
-        if len(todo) == 0:
-            break
-        ax = axis[todo]
-        p = base[todo]
-        r = np.arange(len(todo))
-        p[r, ax] += t[todo] * step[todo]
-        ff, gg, aa = refiner(p, blk[todo])
-        grad[todo], arg[todo] = gg, aa
-        if it == NEWTON_STEPS:
-            break
-        g = ff - level
-        dist = np.abs(g) / np.maximum(np.sqrt(np.einsum("ij,ij->i", gg, gg)), 1e-300)
-        go = dist >= tol
-        todo, g, gg, r, ax = todo[go], g[go], gg[go], r[: np.count_nonzero(go)], ax[go]
-        tt = t[todo]
-        side = g * sign[todo] > 0  # still on the lower node's side
-        lo[todo] = np.where(side, tt, lo[todo])
-        hi[todo] = np.where(side, hi[todo], tt)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            new = tt - g / (gg[r, ax] * step[todo])
-        bad = ~np.isfinite(new) | (new <= lo[todo]) | (new >= hi[todo])
-        new = np.clip(np.where(bad, 0.5 * (lo[todo] + hi[todo]), new), EDGE_MARGIN, 1 - EDGE_MARGIN)
-        moved = new != tt
-        t[todo] = new
-        todo = todo[moved]
+    ids3 = np.arange(3)
+
+    def run(batch):
+        vid, nv, ub = batch
+        rows, coef, kern = refiner.gather(ub)
+        valid = np.arange(vid.shape[1]) < nv[:, None]
+        ax = ax_sorted[vid]
+        u0 = (base[vid] - refiner.x0[ub][:, None, :]).astype(_F32)
+        st, ab, tt = step[vid], above0[vid], t0[vid]
+        lo, hi = np.zeros(vid.shape, _F32), np.ones(vid.shape, _F32)
+        for it in range(NEWTON_STEPS + 1):
+            hot = ax[..., None] == ids3
+            f, g, e = refiner.evaluate(u0 + hot * (tt * st)[..., None], coef, kern)
+            live = np.zeros(vid.shape, bool)
+            if it < NEWTON_STEPS:
+                diff = f - lvl
+                go = valid & (diff * diff >= tol2 * np.einsum("...i,...i", g, g)) & (diff != 0)
+                side = (diff > 0) == ab  # still on the lower node's side
+                lo = np.where(go & side, tt, lo)
+                hi = np.where(go & ~side, tt, hi)
+                with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+                    new = tt - diff / (np.take_along_axis(g, ax[..., None], -1)[..., 0] * st)
+                good = (new > lo) & (new < hi)  # False for NaN
+                new = np.clip(np.where(good, new, _F32(0.5) * (lo + hi)), lower, upper)
+                live = go & (new != tt)
+            done = valid & ~live
+            ids = vid[done]
+            t_out[ids] = tt[done]
+            grad[ids] = g[done]
+            arg[ids] = refiner.src[rows[np.nonzero(done)[0], np.argmax(e[done], axis=-1)]]
+            if not live.any():
+                break
+            tt = np.where(live, new, tt)
+            if 2 * np.count_nonzero(live) < live.size:
+                valid, (vid, ax, u0, st, ab, tt, lo, hi), (rows, coef, kern) = _compact(
+                    live, (vid, ax, u0, st, ab, tt, lo, hi), (rows, coef, kern))
+            else:
+                valid = live
+
+    _map(run, refiner.batches(blk[order]), threads)
     pos = base
-    pos[np.arange(n), axis] += t * step
-    return pos, grad, arg
+    pos[np.arange(n), ax_sorted] += t_out * step
+    out = np.empty_like(pos), np.empty(grad.shape), np.empty_like(arg)
+    out[0][order], out[1][order], out[2][order] = pos, grad, arg
+    return out
 
 
 def _assemble(parts, spans, store):
@@ -864,8 +891,8 @@ def blobby_surface(
     verts, faces, ref_base, ref_shift, rep_shift, n_own = _assemble(parts, spans, store)
 
     smin = float(s[w > 0].min())
-    refiner = _Refiner(b, grid, blocks, threads)
-    pos, grad, arg = _project(refiner, grid, *verts, level, NEWTON_TOL * smin)
+    refiner = _Refiner(b, grid, blocks)
+    pos, grad, arg = _project(refiner, grid, *verts, level, NEWTON_TOL * smin, threads)
     if grid.box is not None and len(rep_shift):
         # Representatives of duplicates were placed in their block's frame (a coordinate
         # across the seam exactly L): move them to the box's own frame (exactly 0).
