@@ -114,9 +114,10 @@ class GlobeGrid:
         longitude and latitude of every column.  ``lon``/``lat`` are then the
         grid's own ascending axis coordinates (projection x/y or indices), not
         degrees; :meth:`points` places the columns at ``lon2d``/``lat2d``.
-        Contours work on such grids (they need only :meth:`points`); code that
-        must turn scene points back into grid indices calls
-        :meth:`require_lonlat` first.
+        Contours work on such grids (they need only :meth:`points`), and voxel
+        volumes (:class:`~nephele.core.climate.columns.ColumnLocator` turns
+        points into column indices); other code that must turn scene points
+        back into grid indices calls :meth:`require_lonlat` first.
     """
 
     lon: np.ndarray
@@ -155,7 +156,7 @@ class GlobeGrid:
         """Raise :class:`DataError` for a curvilinear grid: ``what`` needs 1-D longitude/latitude axes."""
         if self.curvilinear:
             raise DataError(
-                f"{what} on a curvilinear grid (2-D longitude/latitude) is not supported yet; contours are",
+                f"{what} on a curvilinear grid (2-D longitude/latitude) is not supported yet; contours and voxel volumes are",
                 path=path,
                 field="grid",
             )

@@ -35,6 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import DataError
+from ..climate.columns import ColumnLocator
 from ..climate.grid import DEFAULT_EXAGGERATION, EARTH_RADIUS, globe_radius, height_from_radius, xyz_to_lonlat
 from ..threads import default_threads
 from .transfer import TransferFunction
@@ -73,6 +74,10 @@ class CurvilinearField:
     ±90° when a periodic grid stops short of a pole.  ``rotation`` is the
     grid's rotated-pole matrix (:attr:`GlobeGrid.rotation`): points are located
     in the grid's own frame, so the field sits at its true place on the globe.
+    ``columns``: for a curvilinear grid (2-D longitude/latitude), the
+    :class:`~nephele.core.climate.columns.ColumnLocator` turning points into
+    fractional column indices; ``lon``/``lat`` are then the index axes
+    ``0..ni-1``/``0..nj-1`` (no seam, no poles to close).
     """
 
     lon0: float
@@ -83,11 +88,19 @@ class CurvilinearField:
     radius: float
     exaggeration: float
     rotation: np.ndarray = None
+    columns: ColumnLocator = None
 
     @classmethod
-    def from_grid(cls, grid, values, radius=1.0, exaggeration=DEFAULT_EXAGGERATION):
-        """``values``: dict name → ``(nk, nj, ni)`` array (NaN = missing)."""
-        grid.require_lonlat("a volume").validate()
+    def from_grid(cls, grid, values, radius=1.0, exaggeration=DEFAULT_EXAGGERATION, curvilinear=False):
+        """``values``: dict name → ``(nk, nj, ni)`` array (NaN = missing).
+
+        ``curvilinear``: accept a grid with 2-D longitude/latitude (located by
+        :class:`~nephele.core.climate.columns.ColumnLocator`); callers whose
+        own lookup needs 1-D axes (the exact-mode atlas) leave it False.
+        """
+        if grid.curvilinear and not curvilinear:
+            grid.require_lonlat("the exact volume mode")
+        grid.validate()
         if not (np.isfinite(radius) and radius > 0 and np.isfinite(exaggeration) and exaggeration > 0):
             raise DataError(f"radius {radius} and exaggeration {exaggeration} must be positive", field="exaggeration")
         lon = grid.lon - grid.lon[0]
@@ -99,6 +112,12 @@ class CurvilinearField:
             if a.shape != grid.shape:
                 raise DataError(f"shape {a.shape} does not match the grid {grid.shape}", field=name)
             vals[name] = a
+        if grid.curvilinear:
+            if np.any(np.diff(height, axis=0) <= 0):
+                raise DataError("levels are not strictly increasing upward", field="height")
+            nk, nj, ni = grid.shape
+            return cls(0.0, np.arange(ni, dtype=np.float64), np.arange(nj, dtype=np.float64), height, vals, float(radius),
+                       float(exaggeration), None, ColumnLocator(grid.lon2d, grid.lat2d))
         if grid.periodic_lon:
             lon = np.append(lon, 360.0)
             height = np.concatenate([height, height[:, :, :1]], axis=2)
@@ -193,6 +212,8 @@ class CurvilinearField:
     def _locate_inside(self, xyz, table):
         """:meth:`locate` for the points inside only: ``(sel, flat, fk, fj, fi, h)``,
         ``sel`` the indices of the inside points, ``h`` the heights of all."""
+        if self.columns is not None:
+            return self._locate_columns(*self._column_coords(xyz), table)
         if self.rotation is not None:
             xyz = xyz @ self.rotation
         x, y, z = xyz[:, 0], xyz[:, 1], xyz[:, 2]
@@ -214,6 +235,15 @@ class CurvilinearField:
         fi = (lon - ax[i]) / (ax[i + 1] - ax[i])
         np.clip(fi, 0.0, 1.0, out=fi)
         return lon, i, fi
+
+    def _column_coords(self, xyz):
+        """A curvilinear grid's ``(i, cell, fraction, j, height)`` of points ``(n, 3)``: the arguments
+        of :meth:`_locate_columns` (``i``/``j`` fractional column indices, -1 outside the grid)."""
+        xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
+        x, j = self.columns(xyz)
+        i = self._index_tables[0](x)
+        fi = np.clip(x - self.lon[i], 0.0, 1.0)
+        return x, i, fi, j, height_from_radius(np.sqrt(np.einsum("ij,ij->i", xyz, xyz)), self.radius, self.exaggeration)
 
     def _lat_height(self, rxy2, z):
         """Latitude (degrees) and height (metres) from ``x² + y²`` and ``z``."""
@@ -313,6 +343,9 @@ class CurvilinearField:
     def cell_corner_points(self):
         """Cartesian vertices ``(nk, nj, ni, 3)`` of the closed grid."""
         r = globe_radius(self.height, self.radius, self.exaggeration)
+        if self.columns is not None:  # the columns' unit vectors, from their gnomonic chart positions
+            u = np.concatenate([self.columns.xy, np.ones(self.columns.shape + (1,))], axis=-1) @ self.columns.basis
+            return r[..., None] * (u / np.linalg.norm(u, axis=-1, keepdims=True))[None]
         lam = np.deg2rad(self.lon + self.lon0)[None, None, :]
         phi = np.deg2rad(self.lat)[None, :, None]
         cphi = np.cos(phi)
@@ -568,7 +601,8 @@ def candidate_blocks(field, name, tf, voxel_size, block=8, *, pad=0.0, below=Non
                 np.minimum(bmin, p, out=bmin)
                 np.maximum(bmax, p, out=bmax)
     # Faces between corners are arcs: pad by the sagitta of the widest arc.
-    dang = np.deg2rad(max(np.diff(field.lon).max(), np.diff(field.lat).max()))
+    widest = field.columns.cell_degrees() if field.columns is not None else max(np.diff(field.lon).max(), np.diff(field.lat).max())
+    dang = np.deg2rad(widest)
     rmax = field.radius_range()[1]
     pad = rmax * (1 - np.cos(dang / 2)) + 1e-9 + pad
     # Cells on the lowest level also reach one voxel diagonal into the ground
@@ -616,7 +650,7 @@ def _near_candidates(field, table, blocks, sub, voxel_size):
     a pole or with a wide window are kept)."""
     n = blocks.shape[0]
     keep = np.ones(n, bool)
-    if n == 0:
+    if n == 0 or field.columns is not None:  # a curvilinear grid: no lon/lat axes to test against
         return keep
     c = (blocks.astype(np.float64) * sub + 0.5 * (sub - 1)) * voxel_size
     R = 0.5 * (sub - 1) * np.sqrt(3.0) * voxel_size * 1.001 + 1e-12
@@ -651,15 +685,17 @@ def _near_candidates(field, table, blocks, sub, voxel_size):
     return keep
 
 
-def scalar_field(grid, values, color_values=None, color_name=None, radius=1.0, exaggeration=DEFAULT_EXAGGERATION):
+def scalar_field(grid, values, color_values=None, color_name=None, radius=1.0, exaggeration=DEFAULT_EXAGGERATION,
+                 curvilinear=False):
     """The :class:`CurvilinearField` of ``values`` (as ``"value"``) and, for a
-    colour variable other than :data:`ALTITUDE`, ``color_values`` (as ``"color"``)."""
+    colour variable other than :data:`ALTITUDE`, ``color_values`` (as ``"color"``);
+    ``curvilinear`` as in :meth:`CurvilinearField.from_grid`."""
     arrays = {"value": values}
     if color_name is not None and color_name != ALTITUDE:
         if color_values is None:
             raise DataError("color_values are needed for a colour variable other than altitude", field=color_name)
         arrays["color"] = color_values
-    return CurvilinearField.from_grid(grid, arrays, radius, exaggeration)
+    return CurvilinearField.from_grid(grid, arrays, radius, exaggeration, curvilinear=curvilinear)
 
 
 def resample(
@@ -718,7 +754,7 @@ def resample(
     if int(block) < 1:
         raise DataError(f"must be >= 1, got {block}", field="block")
     block = int(block)
-    field = scalar_field(grid, values, color_values, color_name, radius, exaggeration)
+    field = scalar_field(grid, values, color_values, color_name, radius, exaggeration, curvilinear=True)
     # Blocks further out than the whole globe would overflow the block keys.
     if field.radius_range()[1] / (voxel_size * block) > (_KEY_OFFSET - 2):
         raise DataError(f"voxel size {voxel_size} is too small for a globe of radius {radius}", field="voxel_size")
@@ -748,7 +784,9 @@ def resample(
         X, Y, Z = ((b[:, a, None] * sub + np.arange(sub)) * voxel_size for a in range(3))
         X, Y, Z = X[:, :, None, None], Y[:, None, :, None], Z[:, None, None, :]
         full = (b.shape[0], sub, sub, sub)
-        if field.rotation is None:
+        if field.columns is not None:  # a curvilinear grid: fractional column indices per voxel
+            lon, i, fi, lat, h = field._column_coords(np.stack(np.broadcast_arrays(X, Y, Z), axis=-1).reshape(-1, 3))
+        elif field.rotation is None:
             lon, i, fi = (np.broadcast_to(a, full).reshape(-1) for a in field._lon_index(X, Y))
             lat, h = (np.broadcast_to(a, full).reshape(-1) for a in field._lat_height(X * X + Y * Y, Z))
         else:  # a rotated-pole grid: locate in its own frame, where lon/lat no longer split by axis

@@ -129,15 +129,101 @@ def test_real_polar_stereographic_file_projection_matches_stored_latlon():
         np.testing.assert_allclose(((lon - f["lon"].values) + 180.0) % 360.0 - 180.0, 0.0, atol=3e-5)
 
 
-def test_volumes_and_advection_refuse_a_curvilinear_grid(tmp_path):
+def test_exact_volumes_and_advection_refuse_a_curvilinear_grid(tmp_path):
     from nephele.core.volume.sparse import CurvilinearField
 
     _lcc_file(tmp_path / "lcc.nc")
     ds = open_dataset(tmp_path / "lcc.nc")
-    with pytest.raises(DataError, match="curvilinear grid .* not supported yet; contours are"):
+    with pytest.raises(DataError, match="exact volume mode on a curvilinear grid .* not supported yet; contours and voxel volumes are"):
         CurvilinearField.from_grid(ds.grid, {"value": ds.read("T", 0)})
     with pytest.raises(DataError, match="curvilinear grid"):
         ds.grid.to_grid(np.zeros((1, 3)))
+
+
+def _t_closed_form(h, lat):
+    return 300.0 - 0.0065 * h - 0.3 * (lat - 45.0)  # the LCC file's T (linear in height, in latitude)
+
+
+def test_column_locator_inverts_the_grid_and_its_cells(tmp_path):
+    from nephele.core.climate.columns import ColumnLocator
+
+    _lcc_file(tmp_path / "lcc.nc")
+    g = open_dataset(tmp_path / "lcc.nc").grid
+    loc = ColumnLocator(g.lon2d, g.lat2d)
+    nj, ni = g.lon2d.shape
+    jj, ii = np.meshgrid(np.arange(nj), np.arange(ni), indexing="ij")
+    i, j = loc(lonlat_to_xyz(g.lon2d, g.lat2d, 1.002).reshape(-1, 3))  # every column, above the sphere
+    np.testing.assert_allclose(i, ii.ravel(), atol=1e-9)
+    np.testing.assert_allclose(j, jj.ravel(), atol=1e-9)
+    # Points made as the bilinear mix of a cell's corners in the chart come back with their fractions.
+    rng = np.random.default_rng(3)
+    j0, i0, s, t = rng.integers(0, nj - 1, 5000), rng.integers(0, ni - 1, 5000), rng.random(5000), rng.random(5000)
+    P = loc.xy
+    xy = (((1 - s) * (1 - t))[:, None] * P[j0, i0] + (s * (1 - t))[:, None] * P[j0, i0 + 1]
+          + ((1 - s) * t)[:, None] * P[j0 + 1, i0] + (s * t)[:, None] * P[j0 + 1, i0 + 1])
+    i, j = loc(np.c_[xy, np.ones(len(xy))] @ loc.basis)
+    np.testing.assert_allclose(i, i0 + s, atol=1e-9)
+    np.testing.assert_allclose(j, j0 + t, atol=1e-9)
+    # Outside the region (and on the far side of the globe): -1.
+    i, j = loc(lonlat_to_xyz(np.array([-140.0, 80.0, -100.0]), np.array([45.0, -45.0, 20.0])))
+    assert np.all(i == -1) and np.all(j == -1)
+    assert 0.2 < loc.cell_degrees() < 0.4  # 30 km cells (0.27 degrees), diagonals 0.38
+
+
+def test_voxel_volume_on_a_curvilinear_grid_matches_the_closed_form(tmp_path):
+    from nephele.core.climate.grid import height_from_radius
+    from nephele.core.volume.sparse import CurvilinearField, height_scale, resample
+    from nephele.core.volume.transfer import TransferFunction
+
+    _lcc_file(tmp_path / "lcc.nc")
+    ds = open_dataset(tmp_path / "lcc.nc")
+    g, t = ds.grid, ds.read("T", 0)
+    field = CurvilinearField.from_grid(g, {"value": t}, curvilinear=True)
+    # Random points inside the grid's columns and levels: the interpolated T is the written T there
+    # (exact in height, second order across a 30 km cell in latitude).
+    rng = np.random.default_rng(5)
+    nj, ni = g.lon2d.shape
+    jj, ii = rng.uniform(0, nj - 1, 4000), rng.uniform(0, ni - 1, 4000)
+    j0, i0 = np.minimum(jj.astype(int), nj - 2), np.minimum(ii.astype(int), ni - 2)
+    fj, fi = jj - j0, ii - i0
+    corners = lonlat_to_xyz(g.lon2d, g.lat2d)
+    u = (((1 - fj) * (1 - fi))[:, None] * corners[j0, i0] + ((1 - fj) * fi)[:, None] * corners[j0, i0 + 1]
+         + (fj * (1 - fi))[:, None] * corners[j0 + 1, i0] + (fj * fi)[:, None] * corners[j0 + 1, i0 + 1])
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    h = rng.uniform(500.0, 6000.0, 4000)
+    xyz = u * (1.0 + 30.0 * h / 6371000.0)[:, None]
+    lon, lat, _ = xyz_to_lonlat(xyz)
+    got = field.sample("value", xyz)
+    assert np.all(np.isfinite(got))
+    np.testing.assert_allclose(got, _t_closed_form(h, lat), atol=2e-3)
+    # Outside: NaN (beyond the region, below the lowest level, above the top).
+    out = np.array([lonlat_to_xyz(-140.0, 45.0, 1.001), u[0] * (1 + 30 * 100.0 / 6371000.0), u[0] * (1 + 30 * 7000.0 / 6371000.0)])
+    assert np.all(np.isnan(field.sample("value", out)))
+
+    # The resampled volume: opacity rising from 0 at T = 279 K to 1 at 281 K (a tilted slab near the ground).
+    tf = TransferFunction.ramp(279.0, 281.0)
+    vol = resample(g, t, tf, voxel_size=0.002)
+    assert not vol.empty and vol.stats["active_voxels"] > 1000
+    idx = np.argwhere(vol.density > 0.5)
+    centres = (vol.blocks[idx[:, 0]] * vol.block + idx[:, 1:]) * vol.voxel_size
+    _, vlat, r = xyz_to_lonlat(centres)
+    hv = height_from_radius(r)
+    # Every opaque voxel lies over the grid's columns, between its levels or at most 1.75 voxels under the
+    # lowest (500 m), where the resampler extends the lowest level's values (CurvilinearField.locate).
+    depth = 1.75 * 0.002 / height_scale()
+    flat, f, _, ok = field.locate(centres, clamp_below=depth)
+    assert np.all(ok) and hv.min() > 500.0 - depth - 1.0 and hv.max() < 6000.0
+    expect = _t_closed_form(np.maximum(hv, 500.0), vlat)
+    np.testing.assert_allclose(field.interpolate("value", flat, f, ok), expect, atol=2e-3)
+    # Opacity > 0.5 means T > 280 K at the voxel centre (up to the 2e-3 K interpolation error) ...
+    assert np.all(expect > 280.0 - 2e-3)
+    # ... and is exact trilinear resampling: the voxel holds the transfer function of that value.
+    np.testing.assert_allclose(vol.density[tuple(idx.T)], tf(expect), atol=2e-3)
+    # Nothing is missed: well inside the grid where T > 286 K (every voxel corner around such a point,
+    # at most 2.8 K cooler, is opaque), the volume is opaque.
+    deep = (_t_closed_form(h, lat) > 286.0) & (h > 1000.0) & (ii > 1) & (ii < ni - 2) & (jj > 1) & (jj < nj - 2)
+    assert deep.sum() > 300
+    np.testing.assert_allclose(vol.sample(xyz[deep]), 1.0, atol=1e-6)
 
 
 def test_bad_curvilinear_files(tmp_path):
