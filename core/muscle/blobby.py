@@ -501,16 +501,18 @@ class _Chunk:
     a_above: np.ndarray  # (v,) lower node above the level
     faces: np.ndarray  # (T, 3) >= 0: local vertex; < 0: -(1 + reference)
     ref_owner: np.ndarray  # (r,) active block owning the edge, or -1 (duplicate vertex in this chunk)
-    ref_slot: np.ndarray  # (r,) index into the owner's face store, or the local duplicate vertex
+    ref_slot: np.ndarray  # (r,) the owner's face slot (index into face_slots), or the local duplicate vertex
     ref_shift: np.ndarray  # (r, 3) periodic shift in box lengths
     n_owned: int
     dup_key: np.ndarray  # (d,) wrapped global edge key of duplicate vertices (local ids n_owned..)
     dup_shift: np.ndarray  # (d, 3)
+    face_key: np.ndarray  # (s,) ascending block * len(face_slots) + face slot of owned vertices other blocks may use
+    face_vid: np.ndarray  # (s,) their local vertex ids
 
 
-def _march(values, blocks, grid, level, span, et, store):
+def _march(values, blocks, grid, level, span, et):
     """Marching cubes over blocks ``span``: owned edges get vertices, edges owned by a
-    neighbour become references to its face store (resolved once every chunk is done)."""
+    neighbour become references to its face slot (resolved once every chunk is done)."""
     B, E = BLOCK, BLOCK + 1
     bl = np.arange(*span)
     n = len(bl)
@@ -531,10 +533,13 @@ def _march(values, blocks, grid, level, span, et, store):
     np.not_equal(above[:, :B], above[:, 1:], out=cut[:, 2, :B])
     own = np.flatnonzero(cut & et.own)
     ghost = np.flatnonzero(cut & ~et.own)
-    lut = np.empty(n * 3 * E**3, np.int64)
+    lut = np.empty(n * 3 * E**3, np.int32)
     lut[own] = np.arange(len(own))
     lut[ghost] = -1 - np.arange(len(ghost))
-    store[bl] = np.where(cut.reshape(n, -1)[:, et.face_slots], lut.reshape(n, -1)[:, et.face_slots], -1)
+    # Owned vertices on a lower face, by (block, face slot): ascending, since own is.
+    fi = et.face_index[own % (3 * E**3)]
+    on_face = np.flatnonzero(fi >= 0)
+    face_key = bl[own[on_face] // (3 * E**3)] * len(et.face_slots) + fi[on_face]
 
     # Own vertices: edge ends read from the extended block.
     vb, rest = np.divmod(own, 3 * E**3)
@@ -596,7 +601,8 @@ def _march(values, blocks, grid, level, span, et, store):
         t = (level - va64) / (vz.astype(np.float64) - va64)
     t = np.clip(np.where(np.isfinite(t), t, 0.5), EDGE_MARGIN, 1 - EDGE_MARGIN)
     return _Chunk(
-        vblk, vaxis, vnode, t, va >= lvl, faces, np.where(owner < 0, -1, owner), ref_slot, shift, n_owned, dup_key, dup_shift
+        vblk, vaxis, vnode, t, va >= lvl, faces, np.where(owner < 0, -1, owner), ref_slot, shift, n_owned, dup_key, dup_shift,
+        face_key, on_face,
     )
 
 
@@ -762,13 +768,14 @@ def _project(refiner, grid, blk, axis, node, t, a_above, level, tol, threads):
     return out
 
 
-def _assemble(parts, spans, store):
+def _assemble(parts, nslot):
     """Global vertex numbering: every chunk's own edges, then one representative per
     duplicated edge; faces keep references (negative) resolved to (base vertex, shift)."""
     owned = np.array([p.n_owned for p in parts])
     offs = np.concatenate([[0], np.cumsum(owned)])
     n_own = int(offs[-1])
-    chunk_of_block = np.repeat(np.arange(len(spans)), [hi - lo for lo, hi in spans])
+    face_key = np.concatenate([p.face_key for p in parts] + [[-1]])  # ascending; a sentinel at the end
+    face_vid = np.concatenate([p.face_vid + offs[ci] for ci, p in enumerate(parts)] + [[-1]])
     ndup = np.array([len(p.t) - p.n_owned for p in parts])
     dup_off = np.concatenate([[0], np.cumsum(ndup)])
     dup_keys = np.concatenate([p.dup_key for p in parts])
@@ -786,7 +793,7 @@ def _assemble(parts, spans, store):
     faces, ref_base, ref_shift = [], [], []
     nref = 0
     for ci, p in enumerate(parts):
-        fc = p.faces.copy()
+        fc = p.faces.astype(np.int64)
         neg = fc < 0
         fc[~neg] += offs[ci]
         fc[neg] -= nref
@@ -795,8 +802,9 @@ def _assemble(parts, spans, store):
         act = p.ref_owner >= 0
         base = np.empty(len(act), np.int64)
         own = p.ref_owner[act]
-        local = store[own, p.ref_slot[act]]
-        base[act] = np.where(local >= 0, local + offs[chunk_of_block[own]], -1)
+        want = own * nslot + p.ref_slot[act]
+        at = np.minimum(np.searchsorted(face_key[:-1], want), len(face_key) - 1)
+        base[act] = np.where(face_key[at] == want, face_vid[at], -1)
         d = ~act
         base[d] = n_own + dup_index[dup_off[ci] + p.ref_slot[d] - p.n_owned]
         ref_base.append(base)
@@ -884,11 +892,10 @@ def blobby_surface(
     values = _node_values(b, grid, blocks, threads)
 
     et = _edge_tables()
-    store = np.empty((len(blocks.q), len(et.face_slots)), np.int32)
     spans = _chunks(len(blocks.q), max(1, 2048 * 512 // BLOCK**3))
-    parts = _map(lambda sp: _march(values, blocks, grid, level, sp, et, store), spans, threads)
+    parts = _map(lambda sp: _march(values, blocks, grid, level, sp, et), spans, threads)
     del values
-    verts, faces, ref_base, ref_shift, rep_shift, n_own = _assemble(parts, spans, store)
+    verts, faces, ref_base, ref_shift, rep_shift, n_own = _assemble(parts, len(et.face_slots))
 
     smin = float(s[w > 0].min())
     refiner = _Refiner(b, grid, blocks)
