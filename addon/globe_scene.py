@@ -26,7 +26,7 @@ def globe_scene(scene, o, *, sun_direction, haze=True, haze_mode="volume"):
     ``o`` holds ``source``, ``hours_per_frame``, ``frames`` and ``exaggeration``
     (None: :data:`nephele.core.climate.grid.DEFAULT_EXAGGERATION`).
     """
-    from nephele.core.climate.grid import DEFAULT_EXAGGERATION
+    from ..core.climate.grid import DEFAULT_EXAGGERATION
 
     from . import data_ops, globe_ops
 

@@ -39,6 +39,23 @@ def test_no_blender_imports_in_core():
     assert offenders == []
 
 
+def test_extension_code_imports_itself_relatively():
+    # Installed as an extension the package is bl_ext.user_default.nephele: an absolute
+    # "nephele" import inside the add-on or core fails there (no such top-level module).
+    offenders = []
+    for part in ("addon", "core"):
+        for path in (ROOT / part).rglob("*.py"):
+            for node in ast.walk(ast.parse(path.read_text())):
+                if isinstance(node, ast.Import):
+                    names = [a.name for a in node.names]
+                elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+                    names = [node.module]
+                else:
+                    continue
+                offenders += [f"{path.relative_to(ROOT)}:{node.lineno}" for n in names if n.split(".")[0] == "nephele"]
+    assert offenders == []
+
+
 def test_manifest_fields():
     tomllib = pytest.importorskip("tomllib")
     m = tomllib.loads((ROOT / "blender_manifest.toml").read_text())
