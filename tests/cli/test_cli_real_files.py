@@ -107,3 +107,41 @@ def test_all_nan_field_is_one_line_and_exit_2(tmp_path, monkeypatch, capsys, com
     rc, _, err = run(capsys, command[0], tmp_path / "allnan.nc", "--var", "T", *command[1:])
     one_line_error(rc, err, "allnan.nc", "'temperature'", "every value at time step 0 is missing")
     assert sorted(p.name for p in tmp_path.rglob("*")) == ["allnan.nc"]
+
+
+def _lcc_file(path):
+    """The Lambert conformal test file of tests/core/climate/test_readers_curvilinear.py (2-D lat/lon)."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(
+        "curvilinear_files", Path(__file__).resolve().parents[1] / "core" / "climate" / "test_readers_curvilinear.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod._lcc_file(path)
+
+
+def test_voxel_volume_on_a_curvilinear_grid(tmp_path, capsys):
+    from nephele.fileio import openvdb
+
+    try:
+        openvdb()
+    except ImportError:
+        pytest.skip("openvdb (bundled with bpy) is not installed")
+    _lcc_file(tmp_path / "lcc.nc")
+    out = tmp_path / "vol"
+    rc, _, err = run(capsys, "volume", tmp_path / "lcc.nc", "--var", "T", "--threshold", "279", "--full", "281",
+                     "--mode", "voxels", "--voxel-size", "0.002", "--steps", "0-0", "--out", out, "--quiet")
+    assert rc == 0, err
+    assert [p.name for p in sorted(out.glob("*.vdb"))] == ["clouds_0001.vdb"]
+    meta = json.loads((out / "sequence.json").read_text())
+    assert meta["mode"] == "voxels" and meta["grids"][0] == "density"
+    # The file holds the core resampler's voxels: the same active count.
+    from nephele.core.climate.readers import open_dataset
+    from nephele.core.volume.sparse import resample
+    from nephele.core.volume.transfer import TransferFunction
+
+    ds = open_dataset(tmp_path / "lcc.nc")
+    want = resample(ds.grid, ds.read("T", 0), TransferFunction.ramp(279.0, 281.0), voxel_size=0.002).stats["active_voxels"]
+    grids, _ = openvdb().readAll(str(out / "clouds_0001.vdb"))
+    density = next(g for g in grids if g.name == "density")
+    assert want > 1000 and density.activeVoxelCount() == want

@@ -151,3 +151,30 @@ def test_wrf_cloud_contour_follows_the_written_cloud_layer(tmp_path):
     # cloud = (z - 1500) / 5000 is 0.5 at z = 4000 m; linear in height along every cell edge there, so the
     # contour's interpolated altitude is exact up to float32.
     np.testing.assert_allclose(alt, 4000.0, atol=0.05)
+
+
+def test_wrf_cloud_voxel_volume_follows_the_written_cloud_layer(tmp_path):
+    from nephele.core.climate.grid import height_from_radius, xyz_to_lonlat
+    from nephele.core.volume.sparse import height_scale, resample
+    from nephele.core.volume.transfer import TransferFunction
+
+    _wrf_file(tmp_path / "wrfout_d01.nc")
+    ds = open_dataset(tmp_path / "wrfout_d01.nc")
+    tf = TransferFunction.ramp(0.3, 0.7)  # cloud 0.3..0.7: heights 3000..5000 m, over the mountain too
+    vol = resample(ds.grid, ds.read("cloud", 0), tf, voxel_size=0.002)
+    assert vol.stats["active_voxels"] > 1000
+    idx = np.argwhere((vol.density > 0.0) & (vol.density < 1.0))
+    centres = (vol.blocks[idx[:, 0]] * vol.block + idx[:, 1:]) * vol.voxel_size
+    lon, lat, r = xyz_to_lonlat(centres)
+    h = height_from_radius(r)
+    # Over the mountain the lowest level (up to 3108 m) is already in the ramp: the resampler extends it
+    # at most 1.75 voxels into the ground (CurvilinearField.locate), nothing lower.
+    lowest = ds.grid.height[0].max()
+    assert 3000.0 < lowest < 3200.0
+    assert idx.shape[0] > 500 and h.min() > 3000.0 - 1.75 * 0.002 / height_scale() and h.max() < 5000.0 + 1.0
+    assert lat.min() >= 40.0 - 1e-6 and lat.max() <= 40.0 + 0.25 * (NY - 1) + 0.02 * (NX - 1) + 1e-6
+    # cloud = (z - 1500) / 5000 is linear in height and the cells' heights are trilinear too, so the
+    # resampled cloud at a voxel centre above every column's lowest level is exactly (h - 1500) / 5000.
+    above = h > lowest
+    assert above.sum() > 500
+    np.testing.assert_allclose(vol.density[tuple(idx[above].T)], tf((h[above] - 1500.0) / 5000.0), atol=2e-5)
