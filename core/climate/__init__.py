@@ -1,5 +1,8 @@
 """Climate data: the globe grid, datasets and their readers (NetCDF, GrADS, GRIB, Zarr), the synthetic demo, humidity and relief."""
 
+from .columns import (  # noqa: F401
+    ColumnLocator,
+)
 from .dataset import (  # noqa: F401
     ArrayDataset,
     Dataset,
@@ -48,10 +51,16 @@ from .humidity import (  # noqa: F401
 )
 from .netcdf import (  # noqa: F401
     NetCDFDataset,
+    destagger,
     open_netcdf,
 )
 from .readers import (  # noqa: F401
+    OVERRIDES,
+    check_overrides,
     open_dataset,
+    override_source,
+    parse_var_map,
+    split_source,
 )
 from .relief import (  # noqa: F401
     RELIEF_FILE,

@@ -752,4 +752,4 @@ def open_netcdf(path, **kw):
     return NetCDFDataset(path, **kw)
 
 
-__all__ = ["NetCDFDataset", "open_netcdf"]
+__all__ = ["NetCDFDataset", "destagger", "open_netcdf"]

@@ -178,3 +178,14 @@ def test_wrf_cloud_voxel_volume_follows_the_written_cloud_layer(tmp_path):
     above = h > lowest
     assert above.sum() > 500
     np.testing.assert_allclose(vol.density[tuple(idx[above].T)], tf((h[above] - 1500.0) / 5000.0), atol=2e-5)
+
+
+def test_destagger_closed_form_and_too_few_points():
+    from nephele.core.climate.netcdf import destagger
+
+    a = np.arange(24.0).reshape(2, 3, 4) ** 2  # f(x) = x^2 along the last axis: mean of neighbours f(x + 1/2) + 1/4
+    x = np.arange(24.0).reshape(2, 3, 4)[..., :-1]
+    np.testing.assert_allclose(destagger(a, 2), (x + 0.5) ** 2 + 0.25, rtol=1e-15)
+    assert destagger(a, 0).shape == (1, 3, 4) and destagger(a, 1).shape == (2, 2, 4)
+    with pytest.raises(ValueError, match="at least 2"):
+        destagger(np.zeros((1, 3)), 0)
