@@ -47,32 +47,78 @@ def polygon_points(center, e1, e2, radius, sides, u, rho):
     return center + (radius * np.asarray(rho, dtype=np.float64))[..., None] * ((1 - f) * corner(k) + f * corner(k + 1))
 
 
-def advance(velocity, points, release, t_end, steps):
+def advance(velocity, points, release, t_end, steps, stop=False):
     """Carry ``points`` released at times ``release`` (n,) to ``t_end`` with ``steps`` RK4 steps each.
 
     Every point takes the same number of steps, of its own length, so all are
     integrated together; ``velocity(points, t)`` receives a time per point.
+    With ``stop``, a point whose step meets a missing (NaN) velocity has left
+    the field's domain (a wall, an outlet): it stays at its exit point, found
+    by bisection between its last position inside and the first stage point
+    outside, and is no longer moved.  A point released where the velocity is
+    missing is always a :class:`DataError`.
+
+    Returns
+    -------
+    x : (n, 3) array
+    out : (n,) bool array
+        The points that left the domain (``stop`` only).
     """
     x = np.array(points, dtype=np.float64).reshape(-1, 3)
     t = np.asarray(release, dtype=np.float64).reshape(-1).copy()
     h = ((t_end - t) / steps)[:, None]
+    out = np.zeros(len(x), dtype=bool)
     if len(x) == 0:
-        return x
+        return x, out
 
-    def f(p, tt):
+    def f(p, tt, where):
         v = np.asarray(velocity(p, tt), dtype=np.float64).reshape(-1, 3)
-        if not np.all(np.isfinite(v)):
-            raise DataError(f"{int(np.sum(~np.isfinite(v).all(axis=1)))} of {len(v)} velocities are missing (NaN) along the flow volume", field="velocity")
-        return v
+        bad = ~np.isfinite(v).all(axis=1)
+        if bad.any() and (not stop or where == "release"):
+            what = "of the generator's points lie outside the velocity's domain" if where == "release" else "velocities are missing"
+            raise DataError(f"{int(bad.sum())} of {len(v)} {what} (NaN) along the flow volume", field="velocity")
+        v[bad] = 0.0
+        return v, bad
 
-    for _ in range(steps):
-        k1 = f(x, t)
-        k2 = f(x + 0.5 * h * k1, t + 0.5 * h[:, 0])
-        k3 = f(x + 0.5 * h * k2, t + 0.5 * h[:, 0])
-        k4 = f(x + h * k3, t + h[:, 0])
-        x = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-        t = t + h[:, 0]
-    return x
+    live = np.arange(len(x))  # indices of the points still moving
+    who, inner, outer, when = [], [], [], []  # each exit's point, its last position inside, first outside, time
+    prev = x.copy()
+    for step in range(steps):
+        xl, tl, hl = x[live], t[live], h[live]
+        k1, b1 = f(xl, tl, "release" if step == 0 else "step")
+        stages = [xl + 0.5 * hl * k1, xl + 0.5 * hl * k1, xl + hl * k1]
+        k2, b2 = f(stages[0], tl + 0.5 * hl[:, 0], "step")
+        stages[1] = xl + 0.5 * hl * k2
+        k3, b3 = f(stages[1], tl + 0.5 * hl[:, 0], "step")
+        stages[2] = xl + hl * k3
+        k4, b4 = f(stages[2], tl + hl[:, 0], "step")
+        new = xl + hl / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        gone = b1 | b2 | b3 | b4
+        if gone.any():
+            # The segment holding the exit: back to the last step's start when the step began outside.
+            first = np.select([b1[:, None], b2[:, None], b3[:, None]], [xl, stages[0], stages[1]], stages[2])
+            start = np.where(b1[:, None], prev[live], xl)
+            who.append(live[gone])
+            inner.append(start[gone])
+            outer.append(first[gone])
+            when.append(tl[gone])
+            x[live[gone]] = start[gone]
+            out[live[gone]] = True
+        prev[live] = xl
+        x[live[~gone]] = new[~gone]
+        t[live] = tl + hl[:, 0]
+        live = live[~gone]
+        if len(live) == 0:
+            break
+    if inner:
+        a, b, tt = np.concatenate(inner), np.concatenate(outer), np.concatenate(when)
+        for _ in range(16):  # bisection to 2^-16 of the segment; ``a`` stays inside
+            mid = 0.5 * (a + b)
+            _, bad = f(mid, tt, "step")
+            a = np.where(bad[:, None], a, mid)
+            b = np.where(bad[:, None], mid, b)
+        x[np.concatenate(who)] = a
+    return x, out
 
 
 def _splits(a, b, ratio, most=8):
@@ -88,28 +134,26 @@ class Front:
 
     ``pos[k, 0]`` is the centre released at ``taus[k]``; ``pos[k, 1 + j * rings + i]``
     the point at perimeter parameter ``us[j]`` on ring ``(i + 1) / rings``.
+    ``out`` marks the points that left the velocity's domain (``stop``: they
+    rest at their exit point).
     """
 
-    def __init__(self, velocity, center, e1, e2, radius, sides, rings, t0, duration, steps, layers=2):
+    def __init__(self, velocity, center, e1, e2, radius, sides, rings, t0, duration, steps, layers=2, stop=False):
         self.velocity, self.center, self.e1, self.e2 = velocity, center, e1, e2
         self.radius, self.sides, self.rings = radius, sides, rings
-        self.t_end, self.steps = t0 + duration, steps
+        self.t_end, self.steps, self.stop = t0 + duration, steps, stop
         self.us = np.arange(sides, dtype=np.float64)
         # Release times start evenly spaced; ``layers`` from the expected spacing saves refinement rounds.
         self.taus = np.linspace(t0, t0 + duration, max(int(layers), 2))
-        self.pos = self._integrate(self.taus, self.us, centre=True)
+        g = self._generator(self.us, True)
+        x, out = advance(velocity, np.tile(g, (len(self.taus), 1)), np.repeat(self.taus, len(g)), self.t_end, steps, stop)
+        self.pos, self.out = x.reshape(len(self.taus), len(g), 3), out.reshape(len(self.taus), len(g))
 
     def _generator(self, us, centre):
         rho = np.arange(1, self.rings + 1) / self.rings
         pts = polygon_points(self.center, self.e1, self.e2, self.radius, self.sides, us[:, None] + 0 * rho, rho + 0 * us[:, None])
         pts = pts.reshape(-1, 3)
         return np.vstack([self.center[None], pts]) if centre else pts
-
-    def _integrate(self, taus, us, centre):
-        g = self._generator(us, centre)
-        release = np.repeat(taus, len(g))
-        x = advance(self.velocity, np.tile(g, (len(taus), 1)), release, self.t_end, self.steps)
-        return x.reshape(len(taus), len(g), 3)
 
     @property
     def generator(self):
@@ -121,39 +165,58 @@ class Front:
         return self.pos[:, 1 + (r - 1)::r]
 
     def refine(self, tol, max_points):
-        """Insert columns and layers until neighbours are within ``tol`` (or ``max_points`` is reached)."""
+        """Insert columns and layers until neighbours are within ``tol`` (or ``max_points`` is reached).
+
+        Neighbours that both left the domain are not refined: no tetrahedron uses them.
+        """
+        r = self.rings
         while self.pos.shape[0] * self.pos.shape[1] < max_points:
-            ring = self.ring()
-            gap = np.linalg.norm(np.roll(ring, -1, axis=1) - ring, axis=2).max(axis=0)
+            ring, ring_out = self.ring(), self.out[:, 1 + (r - 1)::r]
+            d = np.linalg.norm(np.roll(ring, -1, axis=1) - ring, axis=2)
+            d[ring_out & np.roll(ring_out, -1, axis=1)] = 0.0
+            gap = d.max(axis=0)
             cols = np.nonzero(gap > tol)[0]
-            lay = np.linalg.norm(self.pos[1:] - self.pos[:-1], axis=2).max(axis=1)
+            d = np.linalg.norm(self.pos[1:] - self.pos[:-1], axis=2)
+            d[self.out[1:] & self.out[:-1]] = 0.0
+            lay = d.max(axis=1)
             rows = np.nonzero(lay > tol)[0]
             if len(cols) == 0 and len(rows) == 0:
                 return True
-            # Split each long gap into ceil(gap / tol) parts at once (at most 8 a round): fewer rounds,
-            # and every round re-reads the velocity for all the new points together.
+            # Split each long gap into ceil(gap / tol) parts at once (at most 8 a round): fewer rounds.
+            new_us = np.zeros(0)
             if len(cols):
                 nxt = np.where(cols + 1 < len(self.us), self.us[(cols + 1) % len(self.us)], self.sides)
-                self._add_columns(_splits(self.us[cols], nxt, gap[cols] / tol))
-            if len(rows):
-                self._add_layers(_splits(self.taus[rows], self.taus[rows + 1], lay[rows] / tol))
+                new_us = _splits(self.us[cols], nxt, gap[cols] / tol)
+            new_taus = _splits(self.taus[rows], self.taus[rows + 1], lay[rows] / tol) if len(rows) else np.zeros(0)
+            self._insert(new_us, new_taus)
         return False
 
-    def _add_columns(self, new_us):
-        new = self._integrate(self.taus, new_us, centre=False).reshape(len(self.taus), len(new_us), self.rings, 3)
-        old = self.pos[:, 1:].reshape(len(self.taus), len(self.us), self.rings, 3)
+    def _insert(self, new_us, new_taus):
+        """Add columns at perimeter parameters ``new_us`` and layers at release times ``new_taus``.
+
+        The new columns of the old layers and the new layers (all columns) are
+        integrated together: one sweep of velocity reads per refinement round.
+        """
+        K, J, R = len(self.taus), len(self.us), self.rings
         us = np.concatenate([self.us, new_us])
         order = np.argsort(us, kind="stable")
-        cols = np.concatenate([old, new], axis=1)[:, order].reshape(len(self.taus), -1, 3)
-        self.us = us[order]
-        self.pos = np.concatenate([self.pos[:, :1], cols], axis=1)
+        gc = self._generator(new_us, centre=False)
+        gl = self._generator(us[order], centre=True)
+        x, out = advance(self.velocity, np.concatenate([np.tile(gc, (K, 1)), np.tile(gl, (len(new_taus), 1))]),
+                         np.concatenate([np.repeat(self.taus, len(gc)), np.repeat(new_taus, len(gl))]), self.t_end, self.steps, self.stop)
+        m = K * len(gc)
 
-    def _add_layers(self, new_taus):
-        new = self._integrate(new_taus, self.us, centre=True)
+        def columns(old, new, shape):
+            # Old and new columns of the old layers, in perimeter order.
+            cols = np.concatenate([old[:, 1:].reshape((K, J, R) + shape), new.reshape((K, len(new_us), R) + shape)], axis=1)
+            return np.concatenate([old[:, :1], cols[:, order].reshape((K, -1) + shape)], axis=1)
+
+        pos, was_out = columns(self.pos, x[:m], (3,)), columns(self.out, out[:m], ())
         taus = np.concatenate([self.taus, new_taus])
-        order = np.argsort(taus, kind="stable")
-        self.taus = taus[order]
-        self.pos = np.concatenate([self.pos, new], axis=0)[order]
+        layers = np.argsort(taus, kind="stable")
+        self.us, self.taus = us[order], taus[layers]
+        self.pos = np.concatenate([pos, x[m:].reshape(len(new_taus), len(gl), 3)])[layers]
+        self.out = np.concatenate([was_out, out[m:].reshape(len(new_taus), len(gl))])[layers]
 
     def triangles(self):
         """Generator triangles (indices into one layer's points)."""

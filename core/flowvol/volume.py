@@ -41,6 +41,10 @@ class FlowVolume:
     normal : (3,) array
     complete : bool
         False when refinement stopped at ``max_points`` before reaching ``tol``.
+    exited : (n,) bool array
+        Vertices whose air left the velocity's domain (a wall or an outlet of
+        an unstructured grid) before ``t_end``: they rest at their exit point
+        and no tetrahedron uses them, so the smoke ends there.
     """
 
     vertices: np.ndarray
@@ -51,6 +55,7 @@ class FlowVolume:
     generator: np.ndarray
     normal: np.ndarray
     complete: bool = True
+    exited: np.ndarray = None
 
     @property
     def volume(self):
@@ -140,7 +145,9 @@ def flow_volume(velocity, center, radius, duration, *, normal=None, sides=32, ri
     G = 1 + sides * rings
     speed = float(np.linalg.norm(v)) if np.all(np.isfinite(v)) else 0.0
     layers = int(min(np.ceil(speed * float(duration) / tol), max_points // G)) + 1
-    front = Front(velocity, center, e1, e2, float(radius), sides, rings, float(t0), float(duration), steps, layers)
+    # A velocity with a bounded domain (NaN outside, e.g. a room's grid): air that leaves it stops there.
+    stop = bool(getattr(velocity, "bounded", False))
+    front = Front(velocity, center, e1, e2, float(radius), sides, rings, float(t0), float(duration), steps, layers, stop)
     complete = True if duration == 0 else front.refine(tol, max_points)
     return _assemble(front, n, complete, tol, float(merge))
 
@@ -163,6 +170,8 @@ def _assemble(front, normal, complete, tol, merge):
         tets = orient(reference, split_prisms(prisms))
         if merge > 0:
             tets = merge_vertices(tets, front.merge_targets(tol, merge), reference)
+        if front.out.any():  # the smoke ends where its air left the domain
+            tets = tets[~front.out.reshape(-1)[tets].any(axis=1)]
     faces = boundary_faces(tets)
     used = np.unique(faces)
     remap = np.full(len(vertices), -1, dtype=np.int64)
@@ -170,4 +179,4 @@ def _assemble(front, normal, complete, tol, merge):
     sv = vertices[used]
     sf = remap[faces]
     surface = Mesh(sv, sf, vertex_normals(sv, sf), {"age": (front.t_end - release[used]).astype(np.float32)})
-    return FlowVolume(vertices, tets, surface, release, front.t_end - release, front.generator, normal, complete)
+    return FlowVolume(vertices, tets, surface, release, front.t_end - release, front.generator, normal, complete, front.out.reshape(-1).copy())
