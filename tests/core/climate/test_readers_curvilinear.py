@@ -261,3 +261,37 @@ def test_cli_info_and_contour_on_a_projected_file(tmp_path, capsys):
     capsys.readouterr()
     assert main(["contour", str(tmp_path / "xy.nc"), "--var", "T", "--level", "400", "-o", str(out)]) == 2
     assert "outside the data range" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("case", ["date line", "pole", "real stereographic"])
+def test_column_locator_hard_places(tmp_path, case):
+    """The chart works on unit vectors: no seam at the date line, no singularity at a pole inside the
+    grid, and on the real satellite file's producer latitudes/longitudes (float32, 17..81 N)."""
+    from nephele.core.climate.columns import ColumnLocator
+
+    if case == "real stereographic":
+        with xr.open_dataset(DATA / "toa_brightness_stereographic.nc") as f:
+            lon2d, lat2d = f["lon"].values.astype(np.float64), f["lat"].values.astype(np.float64)
+    else:
+        x = (np.arange(30) - 14.5) * 30000.0
+        X, Y = np.meshgrid(x, x[:20])
+        lon2d, lat2d = lcc_inverse(X, Y, lon0=180.0 if case == "date line" else -100.0)
+        if case == "date line":
+            lon2d = (lon2d + 180.0) % 360.0 - 180.0  # as files write it: a jump from 180 to -180
+            assert lon2d.max() > 179.0 and lon2d.min() < -179.0
+        else:  # a polar cap: 20 x 30 columns 100 km apart around the North Pole (azimuthal, equal spacing)
+            rho = np.hypot(X * 3.3, Y * 3.3)
+            lon2d, lat2d = np.rad2deg(np.arctan2(X, -Y)), 90.0 - np.rad2deg(rho / R)
+            assert lat2d.max() > 89.0
+    loc = ColumnLocator(lon2d, lat2d)
+    nj, ni = lon2d.shape
+    jj, ii = np.meshgrid(np.arange(nj), np.arange(ni), indexing="ij")
+    i, j = loc(lonlat_to_xyz(lon2d, lat2d).reshape(-1, 3))
+    np.testing.assert_allclose(i, ii.ravel(), atol=1e-8)
+    np.testing.assert_allclose(j, jj.ravel(), atol=1e-8)
+    # Cell centres (mean of the corners' unit vectors) land inside their own cell.
+    p = lonlat_to_xyz(lon2d, lat2d)
+    centre = p[:-1, :-1] + p[1:, :-1] + p[:-1, 1:] + p[1:, 1:]
+    i, j = loc(centre.reshape(-1, 3))
+    cj, ci = np.meshgrid(np.arange(nj - 1), np.arange(ni - 1), indexing="ij")
+    assert np.all((i > ci.ravel()) & (i < ci.ravel() + 1) & (j > cj.ravel()) & (j < cj.ravel() + 1))
