@@ -50,7 +50,7 @@ def check_overrides(path=None, *, vertical=None, p0=None, time_units=None, radiu
     vertical, p0, time_units, radius, variables
         As :class:`~nephele.core.climate.netcdf.NetCDFDataset` takes them:
         a :data:`VERTICAL_CHOICES` entry, P0 in Pa (> 0), CF time units
-        (``"<unit> since <date>"``), the planet radius in metres (1e5..1e9:
+        (``"<unit> since <date>"``, months and years too), the planet radius in metres (1e5..1e9:
         a radius in km is the likely slip), ``{standard name: file variable}``
         or its text form for :func:`parse_var_map`.
 
@@ -73,10 +73,13 @@ def check_overrides(path=None, *, vertical=None, p0=None, time_units=None, radiu
             raise bad("p0", f"must be a pressure > 0 in Pa (e.g. 100000), got {p0!r}")
         kw["p0"] = float(p0)
     if time_units and str(time_units).strip():
-        from .gridfile import cf_times
+        from .gridfile import cf_times, parse_iso
+        from .netcdf import _MONTHS_SINCE
 
+        units, field = str(time_units).strip(), OVERRIDE_FIELDS["time_units"]
         try:
-            cf_times([0.0], str(time_units).strip(), None, path, OVERRIDE_FIELDS["time_units"])
+            months = _MONTHS_SINCE.match(units)  # calendar months/years, which the reader takes through cftime
+            parse_iso(months.group(2), path, field) if months else cf_times([0.0], units, None, path, field)
         except DataError as exc:
             raise bad("time_units", exc.problem) from None
         kw["time_units"] = str(time_units).strip()

@@ -17,6 +17,7 @@ def test_check_overrides_keeps_only_what_is_given():
     assert check_overrides("f.nc", vertical="", p0=None, time_units=" ", radius=None, variables="") == {}
     kw = check_overrides("f.nc", vertical="ncar_hybrid", p0=95000, time_units=" days since 1988-01-01 ",
                          radius=6371229, variables="temperature = T2,\nrh=RH")
+    assert check_overrides("f.nc", time_units="months since 1850-01-01") == {"time_units": "months since 1850-01-01"}
     assert kw == {"vertical": "ncar_hybrid", "p0": 95000.0, "time_units": "days since 1988-01-01", "radius": 6371229.0,
                   "variables": {"temperature": "T2", "rh": "RH"}}
 
@@ -29,6 +30,7 @@ def test_check_overrides_keeps_only_what_is_given():
         ({"p0": float("nan")}, ["field 'P0'"]),
         ({"time_units": "Month"}, ["field 'time units'", "since"]),
         ({"time_units": "days since yesterday"}, ["field 'time units'"]),
+        ({"time_units": "months since the flood"}, ["field 'time units'"]),
         ({"radius": 6371.0}, ["field 'earth radius'", "metres"]),
         ({"radius": float("inf")}, ["field 'earth radius'"]),
         ({"variables": "temperature"}, ["field 'variable map'", "STD=NAME"]),
