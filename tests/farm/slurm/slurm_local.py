@@ -83,6 +83,7 @@ class LocalSlurm:
         self.env = {"SLURM_CONF": str(self.conf)}
         self.partition = PARTITION
         self.pids = {}
+        self.pid_files = {}
 
     def run(self, *cmd, check=True, timeout=30):
         """Run a Slurm client command against this cluster; returns its stdout."""
@@ -174,9 +175,11 @@ PartitionName={PARTITION} Nodes={host} Default=YES MaxTime=INFINITE State=UP
         return " | ".join(lines)
 
     def _pid(self, name, path, timeout=10):
+        self.pid_files[name] = path  # stop() reads it again if it was not readable here
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
-            with contextlib.suppress(OSError, ValueError):
+            # IndexError: the daemon has created its pid file but not written it yet.
+            with contextlib.suppress(OSError, ValueError, IndexError):
                 self.pids[name] = int(path.read_text().split()[0])
                 return
             time.sleep(0.05)
@@ -193,6 +196,9 @@ PartitionName={PARTITION} Nodes={host} Default=YES MaxTime=INFINITE State=UP
                     time.sleep(0.2)
         for name in DAEMONS:
             pid = self.pids.pop(name, None)
+            if pid is None and name in self.pid_files:
+                with contextlib.suppress(OSError, ValueError, IndexError):
+                    pid = int(self.pid_files[name].read_text().split()[0])
             if pid is None:
                 continue
             with contextlib.suppress(ProcessLookupError):

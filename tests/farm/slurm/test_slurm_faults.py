@@ -19,6 +19,7 @@ from nephele.farm.frames import TMP_DIR
 
 FARM = Path(__file__).resolve().parents[1]
 SCENE = FARM / "cube_scene.py"
+GATED = Path(__file__).resolve().parent / "gated_scene.py"
 ROOT = FARM.parents[1]
 
 
@@ -129,19 +130,104 @@ def test_resume_after_the_whole_run_was_killed(slurm_jobs, tmp_path):
     assert sorted(map(int, m["frames"])) == list(range(1, 13))
 
 
+def test_job_killed_at_its_time_limit_mid_sequence(slurm_jobs, tmp_path):
+    """Slurm itself ends the only worker job at its time limit mid-sequence; a new job finishes the sequence.
+
+    A real wall time is at least one minute and slurmctld checks limits every 30 s, so waiting for one
+    costs 60-90 s.  Instead the running job's limit is cut to what it has already used
+    (``scontrol update TimeLimit=0``, as an operator may do): slurmctld's own time-limit check then
+    times the job out exactly as at the end of its wall time (state TIMEOUT, reason TimeLimit,
+    SIGTERM, SIGKILL after KillWait, "DUE TO TIME LIMIT" in its log), within 30 s.  The worker's
+    --lifetime (8 min for 00:10:00) does not retire it first: this is the hard case of a job that
+    outlives its margin, e.g. a frame longer than the 20% the lifetime leaves.  Frames are held
+    slow (~1 s) until the job is gone, so the kill always lands mid-sequence, then run at full speed.
+    """
+    from nephele.farm.cluster import worker_lifetime
+    from nephele.farm.render import render_sequence
+
+    assert worker_lifetime("00:10:00") == 480
+    out = tmp_path / "out"
+    gate = tmp_path / "slow"
+    gate.touch()
+    n = 80  # held slow, the victim could not finish them within the 30 s the kill may take
+    box = {}
+
+    def run():
+        box["res"] = render_sequence(GATED, f"1-{n}", out, progress=False, retries=2,
+                                     scene_options={"gate": str(gate), "slow": 0.3}, **_kwargs(slurm_jobs))
+
+    t = threading.Thread(target=run)
+    t.start()
+    deadline = time.monotonic() + 90
+    while len(list(out.glob("frame_*.png"))) < 2 and time.monotonic() < deadline:
+        time.sleep(0.05)
+    running = [j for j, st in slurm_jobs.jobs().items() if st == "RUNNING"]
+    assert len(running) == 1
+    victim = running[0]
+    slurm_jobs.run("scontrol", "update", f"JobId={victim}", "TimeLimit=0")
+    deadline = time.monotonic() + 60
+    while slurm_jobs.jobs().get(victim) == "RUNNING" and time.monotonic() < deadline:
+        time.sleep(0.2)
+    gate.unlink()
+    t.join(120)
+    assert not t.is_alive()
+    res = box["res"]
+    assert res.ok and res.rendered == list(range(1, n + 1))  # each frame once
+    only_frames(out, range(1, n + 1))  # whole PNGs only, no temp or partial file
+    assert not (out / TMP_DIR).exists()
+    state = slurm_jobs.run("squeue", "-h", "-t", "all", "-j", victim, "-o", "%T %r").split()
+    assert state == ["TIMEOUT", "TimeLimit"]
+    log = (out / "logs" / "jobs" / f"nephele-{victim}.err").read_text()
+    assert "DUE TO TIME LIMIT" in log
+    by_job = {}
+    for f, e in res.manifest["frames"].items():
+        by_job.setdefault(e.get("job"), []).append(int(f))
+    assert victim in by_job and len(by_job) >= 2  # the victim rendered, then a replacement job
+    later = [j for j in by_job if j != victim]
+    assert all(int(j) > int(victim) for j in later)
+    assert max(by_job[victim]) < n and min(min(by_job[j]) for j in later) > min(by_job[victim])  # killed mid-sequence
+
+
 @pytest.mark.slow
 def test_worker_reaching_its_wall_time_hands_over(slurm_jobs, tmp_path):
-    """--walltime 00:01:00: the worker retires at 48 s (before Slurm's kill) and a new job finishes the sequence."""
+    """--walltime 00:01:00: the worker retires at 48 s (before Slurm's kill) and a new job finishes the sequence.
+
+    About 70 s (the wall time cannot be shorter than a minute), so it is left out of ``make test``;
+    the time-limit kill itself is covered by the test above.
+    """
     from nephele.farm.cluster import worker_lifetime
     from nephele.farm.render import render_sequence
 
     assert worker_lifetime("00:01:00") == 48
     out = tmp_path / "out"
-    res = render_sequence(SCENE, "1-24", out, progress=False, scene_options={"delay": 2.5}, retries=2,
-                          **_kwargs(slurm_jobs, "--walltime", "00:01:00"))
-    assert res.ok and res.rendered == list(range(1, 25))
-    only_frames(out, range(1, 25))
+    gate = tmp_path / "slow"
+    gate.touch()
+    n = 80  # held slow (~1 s each) until the first job has retired: it cannot finish them in 48 s
+    box = {}
+
+    def run():
+        box["res"] = render_sequence(GATED, f"1-{n}", out, progress=False, retries=2,
+                                     scene_options={"gate": str(gate), "slow": 0.3},
+                                     **_kwargs(slurm_jobs, "--walltime", "00:01:00"))
+
+    t = threading.Thread(target=run)
+    t.start()
+    deadline = time.monotonic() + 90
+    while not slurm_jobs.jobs() and time.monotonic() < deadline:
+        time.sleep(0.2)
+    first = min(slurm_jobs.jobs(), key=int)
+    while slurm_jobs.jobs().get(first) in ("PENDING", "RUNNING") and time.monotonic() < deadline:
+        time.sleep(0.2)
+    gate.unlink()
+    t.join(120)
+    assert not t.is_alive()
+    res = box["res"]
+    assert res.ok and res.rendered == list(range(1, n + 1))
+    only_frames(out, range(1, n + 1))
     jobs = sorted({e["job"] for e in res.manifest["frames"].values()}, key=int)
-    assert len(jobs) >= 2  # the sequence outlived the first job
-    log = (out / "logs" / "jobs" / f"nephele-{jobs[0]}.err").read_text()
+    assert jobs[0] == first and len(jobs) >= 2  # the sequence outlived the first job
+    state = slurm_jobs.run("squeue", "-h", "-t", "all", "-j", first, "-o", "%T").split()
+    # It left by itself (dask-jobqueue then cancels the finished job); Slurm did not time it out.
+    assert state in (["COMPLETED"], ["CANCELLED"])
+    log = (out / "logs" / "jobs" / f"nephele-{first}.err").read_text()
     assert "lifetime" in log
