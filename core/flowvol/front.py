@@ -110,6 +110,16 @@ def advance(velocity, points, release, t_end, steps, stop=False):
         live = live[~gone]
         if len(live) == 0:
             break
+    if stop and len(live):
+        # The last step may end outside although its stages were inside: back to that step's start.
+        _, gone = f(x[live], t[live], "step")
+        if gone.any():
+            who.append(live[gone])
+            inner.append(prev[live[gone]])
+            outer.append(x[live[gone]])
+            when.append(t[live[gone]])
+            x[live[gone]] = prev[live[gone]]
+            out[live[gone]] = True
     if inner:
         a, b, tt = np.concatenate(inner), np.concatenate(outer), np.concatenate(when)
         for _ in range(16):  # bisection to 2^-16 of the segment; ``a`` stays inside
@@ -167,17 +177,18 @@ class Front:
     def refine(self, tol, max_points):
         """Insert columns and layers until neighbours are within ``tol`` (or ``max_points`` is reached).
 
-        Neighbours that both left the domain are not refined: no tetrahedron uses them.
+        Neighbours of a point that left the domain are not refined: no tetrahedron uses it, and where
+        the flow tears at a wall or an obstacle's edge the gap would never close.
         """
         r = self.rings
         while self.pos.shape[0] * self.pos.shape[1] < max_points:
             ring, ring_out = self.ring(), self.out[:, 1 + (r - 1)::r]
             d = np.linalg.norm(np.roll(ring, -1, axis=1) - ring, axis=2)
-            d[ring_out & np.roll(ring_out, -1, axis=1)] = 0.0
+            d[ring_out | np.roll(ring_out, -1, axis=1)] = 0.0
             gap = d.max(axis=0)
             cols = np.nonzero(gap > tol)[0]
             d = np.linalg.norm(self.pos[1:] - self.pos[:-1], axis=2)
-            d[self.out[1:] & self.out[:-1]] = 0.0
+            d[self.out[1:] | self.out[:-1]] = 0.0
             lay = d.max(axis=1)
             rows = np.nonzero(lay > tol)[0]
             if len(cols) == 0 and len(rows) == 0:
@@ -190,6 +201,24 @@ class Front:
             new_taus = _splits(self.taus[rows], self.taus[rows + 1], lay[rows] / tol) if len(rows) else np.zeros(0)
             self._insert(new_us, new_taus)
         return False
+
+    def ended(self):
+        """Points no tetrahedron may use (layers, points): those that left the domain and their lattice neighbours.
+
+        Gaps next to a point that left are not refined, so the smoke ends one
+        lattice step before the exits, where the front is still resolved.
+        """
+        K, J, R = len(self.taus), len(self.us), self.rings
+        out = self.out
+        end = out.copy()
+        end[1:] |= out[:-1]
+        end[:-1] |= out[1:]
+        cols = out[:, 1:].reshape(K, J, R)
+        near = np.roll(cols, 1, axis=1) | np.roll(cols, -1, axis=1)
+        end[:, 1:] |= near.reshape(K, J * R)
+        end[:, 0] |= cols[:, :, 0].any(axis=1)  # the centre's neighbours are the inner ring
+        end[:, 1::R] |= out[:, :1]
+        return end
 
     def _insert(self, new_us, new_taus):
         """Add columns at perimeter parameters ``new_us`` and layers at release times ``new_taus``.

@@ -149,6 +149,9 @@ def flow_volume(velocity, center, radius, duration, *, normal=None, sides=32, ri
     stop = bool(getattr(velocity, "bounded", False))
     front = Front(velocity, center, e1, e2, float(radius), sides, rings, float(t0), float(duration), steps, layers, stop)
     complete = True if duration == 0 else front.refine(tol, max_points)
+    if stop and hasattr(velocity, "bounds"):
+        # Exit points lie on the grid's boundary up to the cell search's tolerance: keep them inside its box.
+        front.pos[front.out] = np.clip(front.pos[front.out], velocity.bounds[:, 0], velocity.bounds[:, 1])
     return _assemble(front, n, complete, tol, float(merge))
 
 
@@ -171,7 +174,7 @@ def _assemble(front, normal, complete, tol, merge):
         if merge > 0:
             tets = merge_vertices(tets, front.merge_targets(tol, merge), reference)
         if front.out.any():  # the smoke ends where its air left the domain
-            tets = tets[~front.out.reshape(-1)[tets].any(axis=1)]
+            tets = tets[~front.ended().reshape(-1)[tets].any(axis=1)]
     faces = boundary_faces(tets)
     used = np.unique(faces)
     remap = np.full(len(vertices), -1, dtype=np.int64)

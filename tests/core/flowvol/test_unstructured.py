@@ -127,3 +127,51 @@ def test_outside_the_room_and_bad_files_raise(fire, tmp_path):
     (tmp_path / "junk.vtu").write_text("not xml")
     with pytest.raises(DataError, match="not VTK XML"):
         UnstructuredVelocity(tmp_path / "junk.vtu")
+
+
+def _closed_positive(fv):
+    """Positive tetrahedra, shared faces matched, and a closed, consistently wound surface with the tets' volume."""
+    assert np.all(signed_volumes(fv.vertices, fv.tets) > 0)
+    assert np.all(face_use_counts(fv.tets) <= 2)
+    f = fv.surface.faces.astype(np.int64)
+    edges = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    directed, counts = np.unique(edges, axis=0, return_counts=True)
+    assert np.all(counts == 1)
+    rev = {tuple(e) for e in directed}
+    assert all((b, a) in rev for a, b in directed)
+    v = fv.surface.vertices.astype(np.float64)[f]
+    assert np.einsum("ij,ij->i", v[:, 0], np.cross(v[:, 1], v[:, 2])).sum() / 6 == pytest.approx(fv.volume, rel=1e-5)
+
+
+def test_smoke_in_a_bounded_uniform_flow_stops_at_the_wall():
+    # Uniform flow along x in the box [0, 1]^3 (NaN outside): air released before t = 1.2 reaches x = 1.
+    def box(p, t):
+        v = np.tile([1.0, 0.0, 0.0], (len(p), 1))
+        v[np.any((p < 0) | (p > 1), axis=1)] = np.nan
+        return v
+
+    box.bounded = True
+    tol = 0.05
+    fv = flow_volume(box, [0.2, 0.5, 0.5], 0.1, 2.0, normal=[1, 0, 0], sides=8, rings=1, steps=4, tol=tol)
+    assert fv.complete and fv.exited.any() and not fv.exited.all()
+    assert np.allclose(fv.vertices[fv.exited, 0], 1.0, atol=1e-5)  # each rests at its exit point on the wall
+    assert np.all(fv.vertices[fv.exited, 0] <= 1.0)
+    assert np.all(fv.age[fv.exited] >= 0.8 - 1e-6)  # only air older than the way to the wall left
+    assert not fv.exited[np.unique(fv.tets)].any()
+    area = 0.5 * 8 * 0.1**2 * np.sin(2 * np.pi / 8)
+    # The tube from the generator to the wall (0.8 long), ending one lattice step (< tol) before it.
+    assert area * (0.8 - 2 * tol) <= fv.volume < area * 0.8
+    _closed_positive(fv)
+
+
+def test_smoke_that_leaves_the_room_stops_there(fire):
+    # Three seconds of smoke above the fire: some of it leaves the room (refused before: NaN velocities).
+    fv = flow_volume(fire, fire.updraft(0.1), 0.1, 3.0, sides=16, rings=1, steps=8, tol=0.1)
+    assert fv.complete and fv.exited.any() and (~fv.exited).any() and fv.volume > 0
+    lo, hi = fire.bounds[:, 0], fire.bounds[:, 1]
+    assert np.all((fv.vertices >= lo) & (fv.vertices <= hi))
+    assert np.all(np.isfinite(fire(fv.vertices)))  # every point, exit points too, lies in a cell of the grid
+    assert not fv.exited[np.unique(fv.tets)].any()
+    _closed_positive(fv)
+    with pytest.raises(DataError, match="outside"):  # a generator outside the room is still refused
+        flow_volume(fire, [10.0, 1.0, 1.0], 0.1, 1.0, normal=[1, 0, 0])
