@@ -36,6 +36,8 @@ def test_operator_points_equal_core_samples(empty_scene):
     # The modifier makes one quad per splat.
     ev = obj.evaluated_get(bpy.context.evaluated_depsgraph_get())
     assert len(ev.data.polygons) == len(sp)
+    # Seen by camera rays only (no shadow or bounce rays through the splats: Cycles' main cost).
+    assert obj.visible_camera and not (obj.visible_shadow or obj.visible_diffuse or obj.visible_glossy)
 
 
 def test_bad_input_is_one_error(empty_scene):
