@@ -289,8 +289,10 @@ def _block_pairs(b, grid, cut, cut_fine):
         hi = np.minimum(hi, grid.nb - 1)
     cnt = np.maximum(hi - lo + 1, 0)
     tot = cnt.prod(axis=1)
-    # The A-norm of the half-diagonal of a block, per Gaussian.
-    ra = np.linalg.norm(size / 2) / b.smin
+    # The largest A-norm of a block's half-diagonals, per Gaussian: a point of the block is within
+    # this Mahalanobis distance of its centre (the norm is convex, so a corner is farthest).
+    diag = np.array([[1, 1, 1], [-1, 1, 1], [1, -1, 1], [1, 1, -1]]) * (size / 2)
+    ra = np.sqrt(np.max([_quad(b.a, np.broadcast_to(dv, b.c.shape)) for dv in diag], axis=0))
     ends = np.cumsum(tot)
     start = 0
     while start < len(tot):
@@ -711,11 +713,9 @@ def _project(refiner, grid, blk, axis, node, t, a_above, level, tol, threads):
     """
     n = len(t)
     order = np.argsort(blk, kind="stable")
-    base = grid.coords(node[order])
-    ax_sorted = axis[order]
-    step = grid.h[ax_sorted].astype(_F32)
-    t0 = t[order].astype(_F32)
-    above0 = a_above[order]  # f - level >= 0 at the lower node
+    base = grid.coords(node)
+    step = grid.h[axis].astype(_F32)
+    t0 = t.astype(_F32)
     lvl, tol2 = _F32(level), _F32(tol) ** 2
     lower, upper = _F32(EDGE_MARGIN), _F32(1 - EDGE_MARGIN)
     t_out = np.empty(n, _F32)
@@ -725,11 +725,12 @@ def _project(refiner, grid, blk, axis, node, t, a_above, level, tol, threads):
 
     def run(batch):
         vid, nv, ub = batch
+        vid = order[vid]  # the caller's vertex numbers
         rows, coef, kern = refiner.gather(ub)
         valid = np.arange(vid.shape[1]) < nv[:, None]
-        ax = ax_sorted[vid]
+        ax = axis[vid]
         u0 = (base[vid] - refiner.x0[ub][:, None, :]).astype(_F32)
-        st, ab, tt = step[vid], above0[vid], t0[vid]
+        st, ab, tt = step[vid], a_above[vid], t0[vid]  # ab: f - level >= 0 at the lower node
         lo, hi = np.zeros(vid.shape, _F32), np.ones(vid.shape, _F32)
         for it in range(NEWTON_STEPS + 1):
             hot = ax[..., None] == ids3
@@ -750,7 +751,8 @@ def _project(refiner, grid, blk, axis, node, t, a_above, level, tol, threads):
             ids = vid[done]
             t_out[ids] = tt[done]
             grad[ids] = g[done]
-            arg[ids] = refiner.src[rows[np.nonzero(done)[0], np.argmax(e[done], axis=-1)]]
+            best = e.reshape(-1, e.shape[-1]).argmax(axis=1).reshape(done.shape)  # (faster than axis=-1 in 3-D)
+            arg[ids] = refiner.src[rows[np.nonzero(done)[0], best[done]]]
             if not live.any():
                 break
             tt = np.where(live, new, tt)
@@ -762,10 +764,8 @@ def _project(refiner, grid, blk, axis, node, t, a_above, level, tol, threads):
 
     _map(run, refiner.batches(blk[order]), threads)
     pos = base
-    pos[np.arange(n), ax_sorted] += t_out * step
-    out = np.empty_like(pos), np.empty(grad.shape), np.empty_like(arg)
-    out[0][order], out[1][order], out[2][order] = pos, grad, arg
-    return out
+    pos[np.arange(n), axis] += t_out * step
+    return pos, grad, arg
 
 
 def _assemble(parts, nslot):
@@ -794,9 +794,7 @@ def _assemble(parts, nslot):
     nref = 0
     for ci, p in enumerate(parts):
         fc = p.faces.astype(np.int64)
-        neg = fc < 0
-        fc[~neg] += offs[ci]
-        fc[neg] -= nref
+        fc = np.where(fc < 0, fc - nref, fc + offs[ci])
         nref += len(p.ref_owner)
         faces.append(fc)
         act = p.ref_owner >= 0
