@@ -64,7 +64,9 @@ class ClimateVelocity:
 
     def level(self, points):
         """Fractional level index of scene points (clamped to the grid's levels)."""
-        r = np.linalg.norm(points, axis=1)
+        return self._level(np.linalg.norm(points, axis=1))
+
+    def _level(self, r):
         hgt = height_from_radius(r, self.radius, self.exaggeration)
         return np.interp(hgt, self.level_height, np.arange(len(self.level_height))) if len(self.level_height) > 1 else np.zeros(len(r))
 
@@ -81,7 +83,7 @@ class ClimateVelocity:
         if np.any(r == 0):
             raise DataError("a flow-volume point is at the globe's centre", path=self.wind.dataset.source, field="position")
         unit = p / r[:, None]
-        s = self.level(p)
+        s = self._level(r)
         out = np.zeros_like(p)
         # Every point has its own time: read the winds at the hourly steps bracketing each
         # point (one call per step, no blended grid per distinct time) and blend linearly.
