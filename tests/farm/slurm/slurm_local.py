@@ -26,23 +26,23 @@ class Unavailable(RuntimeError):
     """Slurm cannot run here (not root, no apt, install failed); the message says why."""
 
 
-def ensure_installed(timeout=600):
-    """Install slurm-wlm and munge with apt-get when a daemon is missing (needs root)."""
-    if all(shutil.which(d) for d in (*DAEMONS, "sbatch", "sinfo")):
+def ensure_installed(timeout=600, packages=PACKAGES, commands=(*DAEMONS, "sbatch", "sinfo")):
+    """Install ``packages`` (slurm-wlm and munge) with apt-get when a command is missing (needs root)."""
+    if all(shutil.which(d) for d in commands):
         return
     if os.geteuid() != 0:
-        raise Unavailable("slurm-wlm/munge are not installed and installing them needs root")
+        raise Unavailable(f"{'/'.join(packages)} not installed and installing needs root")
     if not shutil.which("apt-get"):
-        raise Unavailable("slurm-wlm/munge are not installed and there is no apt-get to install them")
+        raise Unavailable(f"{'/'.join(packages)} not installed and there is no apt-get to install them")
     env = {**os.environ, "DEBIAN_FRONTEND": "noninteractive"}
     # One installer at a time (parallel test sessions); apt's own lock is waited for too.
     with open("/tmp/nephele-apt-slurm.lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
-        if all(shutil.which(d) for d in (*DAEMONS, "sbatch", "sinfo")):
+        if all(shutil.which(d) for d in commands):
             return
         for cmd in (["apt-get", "update", "-qq"],
                     ["apt-get", "install", "-y", "-qq", "-o", "DPkg::Lock::Timeout=120",
-                     "--no-install-recommends", *PACKAGES]):
+                     "--no-install-recommends", *packages]):
             try:
                 r = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=timeout)
             except subprocess.TimeoutExpired:
@@ -50,9 +50,9 @@ def ensure_installed(timeout=600):
             if r.returncode:
                 tail = (r.stderr or r.stdout).strip().splitlines()[-1:] or ["?"]
                 raise Unavailable(f"{' '.join(cmd)} failed: {tail[0]}")
-    missing = [d for d in (*DAEMONS, "sbatch", "sinfo") if not shutil.which(d)]
+    missing = [d for d in commands if not shutil.which(d)]
     if missing:
-        raise Unavailable(f"apt-get installed {PACKAGES} but these are still missing: {missing}")
+        raise Unavailable(f"apt-get installed {packages} but these are still missing: {missing}")
 
 
 def _free_ports(n):
