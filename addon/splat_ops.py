@@ -122,6 +122,20 @@ def _gn_vmath(tree, op, a, b=None, loc=(0, 0)):
     return node.outputs["Value" if op in ("DOT_PRODUCT", "LENGTH", "DISTANCE") else "Vector"]
 
 
+def _gn_math(tree, op, a, b=None, loc=(0, 0)):
+    node = tree.nodes.new("ShaderNodeMath")
+    node.operation = op
+    node.location = loc
+    for i, v in enumerate((a, b)):
+        if v is None:
+            continue
+        if isinstance(v, bpy.types.NodeSocket):
+            _link(tree, v, node.inputs[i])
+        else:
+            node.inputs[i].default_value = v
+    return node.outputs[0]
+
+
 def _gn_attr(tree, name, dtype="FLOAT_VECTOR", loc=(0, 0)):
     node = tree.nodes.new("GeometryNodeInputNamedAttribute")
     node.data_type = dtype
@@ -133,9 +147,13 @@ def _gn_attr(tree, name, dtype="FLOAT_VECTOR", loc=(0, 0)):
 def splat_node_group(material):
     """Geometry nodes: a camera-facing quad per point, sorted back to front, realized.
 
-    The quad lies in the active camera's x-y plane with half-sizes
-    ``|axesᵀ e_x|`` and ``|axesᵀ e_y|``: the bounding box of the cut-off
-    ellipsoid's shadow along the view.  Point attributes carry over to the
+    The quad lies in the active camera's x-y plane, turned and sized to the
+    principal axes of the cut-off ellipsoid's shadow along the view: with
+    ``a = axesᵀ e_x`` and ``b = axesᵀ e_y`` the shadow's shape matrix is
+    ``[[a·a, a·b], [a·b, b·b]]``; its axes are at ``θ = ½ atan2(2 a·b,
+    a·a − b·b)`` from ``e_x`` with half-lengths ``√λ±`` (4/π of the
+    ellipse's area; the camera-aligned bounding box was up to twice that for
+    the flat splats of thin levels seen obliquely).  Point attributes carry over to the
     quad's corners for ``material`` (set on the quads: generated geometry
     has no material of its own).
     """
@@ -167,20 +185,47 @@ def splat_node_group(material):
 
     ex, ey, ez = cam_axis((1, 0, 0), -300), cam_axis((0, 1, 0), -450), cam_axis((0, 0, 1), -600)
 
-    def half_size(e, y):
+    def shadow(e, y):
+        """``axesᵀ e``: the ellipsoid's semi-axes projected on the view-plane direction ``e``."""
         comps = [_gn_vmath(ng, "DOT_PRODUCT", _gn_attr(ng, AXES + str(k), loc=(-1000, y - 60 * k)), e,
                            loc=(-800, y - 60 * k)) for k in range(3)]
         comb = ng.nodes.new("ShaderNodeCombineXYZ")
         comb.location = (-600, y)
         for k in range(3):
             _link(ng, comps[k], comb.inputs[k])
-        return _gn_vmath(ng, "LENGTH", comb.outputs[0], loc=(-400, y))
+        return comb.outputs[0]
 
+    # The shadow ellipse {P M u : |u| <= 1} has the 2x2 shape matrix C = (P M)(P M)ᵀ, P = [e_x e_y]ᵀ:
+    # its principal axes are at angle θ = atan2(2 c01, c00 - c11) / 2 from e_x, half-lengths √λ±.
+    a, b = shadow(ex, 0), shadow(ey, -250)
+    c00 = _gn_vmath(ng, "DOT_PRODUCT", a, a, loc=(-400, 100))
+    c11 = _gn_vmath(ng, "DOT_PRODUCT", b, b, loc=(-400, 0))
+    c01 = _gn_vmath(ng, "DOT_PRODUCT", a, b, loc=(-400, -100))
+    half_diff = _gn_math(ng, "MULTIPLY", _gn_math(ng, "SUBTRACT", c00, c11, loc=(-250, 50)), 0.5, loc=(-100, 50))
+    mean = _gn_math(ng, "MULTIPLY", _gn_math(ng, "ADD", c00, c11, loc=(-250, 150)), 0.5, loc=(-100, 150))
+    root = _gn_math(ng, "SQRT", _gn_math(ng, "ADD", _gn_math(ng, "MULTIPLY", half_diff, half_diff, loc=(50, 0)),
+                                         _gn_math(ng, "MULTIPLY", c01, c01, loc=(50, -100)), loc=(200, 0)),
+                    loc=(350, 0))
     scale = ng.nodes.new("ShaderNodeCombineXYZ")
-    scale.location = (-200, -100)
-    _link(ng, half_size(ex, 0), scale.inputs[0])
-    _link(ng, half_size(ey, -250), scale.inputs[1])
+    scale.location = (700, -100)
+    _link(ng, _gn_math(ng, "SQRT", _gn_math(ng, "ADD", mean, root, loc=(500, 100)), loc=(600, 100)), scale.inputs[0])
+    # max(., 0): λ₋ of a splat seen exactly edge-on is 0 up to rounding.
+    _link(ng, _gn_math(ng, "SQRT", _gn_math(ng, "MAXIMUM", _gn_math(ng, "SUBTRACT", mean, root, loc=(500, -50)), 0.0,
+                                            loc=(550, -50)), loc=(600, -50)), scale.inputs[1])
     scale.inputs[2].default_value = 1.0
+    theta = _gn_math(ng, "MULTIPLY", _gn_math(ng, "ARCTAN2", _gn_math(ng, "MULTIPLY", c01, 2.0, loc=(-250, -150)),
+                                              half_diff, loc=(-100, -150)), 0.5, loc=(50, -200))
+    # ARCTAN2(y, x) = atan2(2 c01, (c00 - c11)/2 ... ) has the sign of atan2(2 c01, c00 - c11): same angle.
+    spin = ng.nodes.new("FunctionNodeAxisAngleToRotation")
+    spin.location = (200, -250)
+    spin.inputs["Axis"].default_value = (0.0, 0.0, 1.0)
+    _link(ng, theta, spin.inputs["Angle"])
+    turn = ng.nodes.new("FunctionNodeRotateRotation")
+    turn.location = (400, -250)
+    turn.rotation_space = "LOCAL"
+    _link(ng, rot, turn.inputs["Rotation"])
+    _link(ng, spin.outputs[0], turn.inputs["Rotate By"])
+    quad_rot = turn.outputs[0]
 
     # Back to front: the key is the depth along the camera's view (its -z).
     pos = ng.nodes.new("GeometryNodeInputPosition")
@@ -203,7 +248,7 @@ def splat_node_group(material):
     inst.location = (200, 0)
     _link(ng, sort.outputs[0], inst.inputs["Points"])
     _link(ng, quad.outputs["Mesh"], inst.inputs["Instance"])
-    _link(ng, rot, inst.inputs["Rotation"])
+    _link(ng, quad_rot, inst.inputs["Rotation"])
     _link(ng, scale.outputs[0], inst.inputs["Scale"])
     real = ng.nodes.new("GeometryNodeRealizeInstances")
     real.location = (500, 0)
