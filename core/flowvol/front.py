@@ -280,19 +280,25 @@ class Front:
         cols = self.pos[:, 1:].reshape(K, J, R, 3)
         target = np.arange(K * (1 + J * R)).reshape(K, 1 + J * R)
         gen = self._generator(self.us, False).reshape(J, R, 3)
-        layers = np.arange(K)
-        keep = np.zeros(K, dtype=np.int64)
-        protect = np.zeros(K, dtype=bool)
-        protect[-1] = True
+        # A layer's first merge is into the column just before: layers without such a near pair never merge.
+        gap = np.linalg.norm(cols[:, 1:] - cols[:, :-1], axis=-1).max(axis=-1)
+        released = np.linalg.norm(gen[1:] - gen[:-1], axis=-1).max(axis=-1)
+        layers = np.nonzero(((gap < fraction * tol) & (gap < fraction * released)).any(axis=1))[0]
+        if len(layers) == 0:
+            return target.reshape(-1)
+        cols = cols[layers]
+        keep = np.zeros(len(layers), dtype=np.int64)
+        protect = layers == K - 1
+        rows = np.arange(len(layers))
         # Walk the columns once, every layer at a time: each layer keeps its own last kept column.
         for j in range(1, J):
-            kept = cols[layers, keep]
+            kept = cols[rows, keep]
             gap = np.linalg.norm(kept - cols[:, j], axis=-1).max(axis=-1)
             released = np.linalg.norm(gen[keep] - gen[j], axis=-1).max(axis=-1)
             near = (gap < fraction * tol) & (gap < fraction * released)
             bridge = np.linalg.norm(kept - cols[:, (j + 1) % J], axis=-1).max(axis=-1) < tol
             merge = near & bridge & ~(protect & (self.us[j] == np.round(self.us[j])))
             ks = np.nonzero(merge)[0]
-            target[ks, 1 + j * R:1 + (j + 1) * R] = target[ks[:, None], 1 + keep[ks, None] * R + np.arange(R)]
+            target[layers[ks], 1 + j * R:1 + (j + 1) * R] = target[layers[ks][:, None], 1 + keep[ks, None] * R + np.arange(R)]
             keep = np.where(merge, keep, j)
         return target.reshape(-1)
