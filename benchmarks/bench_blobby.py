@@ -155,12 +155,15 @@ def main():
     rng = np.random.default_rng(1)
     load0 = os.getloadavg()[0]
     rows = []
+    ours, balls = {}, {}
     for n in sizes:
         blobs, side = scene(n)
         for box in (None, np.full(3, side)):
             t, mesh = timed(lambda: blobby_surface(*blobs, LEVEL, h, box=box, cutoff=CUTOFF, threads=args.threads))
             emax, erms = error(mesh.vertices, blobs, box, sample, rng)
             kind = "ours, periodic box" if box is not None else "ours"
+            if box is None:
+                ours[n] = t
             rows.append([n, kind, t, len(mesh.vertices), len(mesh.faces), erms, emax])
             print(rows[-1], flush=True)
         nodes = float(np.ceil((side + 2 * CUTOFF * SIGMA[1]) / h) + 1) ** 3
@@ -178,9 +181,15 @@ def main():
             print(rows[-1], flush=True)
         if args.metaballs and n <= args.metaball_max:
             t, nv, nf = metaballs(*blobs, h)
+            balls[n] = t
             rows.append([n, "Blender metaballs (own falloff)", t, nv, f"{nf} quads/tris", "n/a", "n/a"])
             print(rows[-1], flush=True)
+        elif args.metaballs:
+            rows.append([n, "Blender metaballs (own falloff)", f"not run (--metaball-max {args.metaball_max})", "", "", "", ""])
     load1 = os.getloadavg()[0]
+    ratios = "; ".join(f"{n}: {balls[n] / ours[n]:.1f}x" for n in sizes if n in balls and n in ours)
+    speed = (f" Ours (no box) against the metaballs in this run, seconds ratio: {ratios} (goal: 10x at 5,000 "
+             "ellipsoids, in 2 s)." if ratios else "")
     body = (
         f"Random Gaussian ellipsoids (sigmas {SIGMA[0]}-{SIGMA[1]} per axis, random rotations, weights 1-2, "
         f"level {LEVEL}, one per {VOLUME_PER_BLOB:g} volume units), spacing sigma_min/4 = {h}, cutoff {CUTOFF} sigma, "
@@ -192,7 +201,7 @@ def main():
         "with the same centres, axes and lone-blob semi-axes at the same resolution, timed through the "
         "depsgraph to a mesh; their falloff is Blender's polynomial, not a Gaussian, so their surface is "
         f"not the same and has no error column. Load average {load0:.1f} at the start, "
-        f"{load1:.1f} at the end, {os.cpu_count()} cores shared.\n\n"
+        f"{load1:.1f} at the end, {os.cpu_count()} cores shared.{speed}\n\n"
         + md_table(["ellipsoids", "method", "seconds", "vertices", "triangles", "rms error", "max error"], rows)
     )
     write_section("blobby", body, title="Blobby surfaces (sums of Gaussian ellipsoids)")

@@ -459,9 +459,8 @@ class _EdgeTables:
     whose lower node it owns (all coordinates below BLOCK).
     """
 
-    table: np.ndarray  # (256, 5, 3) local cube edges (PAIRS index) per configuration
+    table: np.ndarray  # (256, 5, 3) per configuration: each triangle corner's edge slot offset from its cell's (axis 0) slot
     ntri: np.ndarray  # (256,)
-    delta: np.ndarray  # (28,) slot offset of each local cube edge from its cell's (axis 0) slot
     own: np.ndarray  # (3, E, E, E) the block owns this edge slot
     face_slots: np.ndarray  # (F,) owned slots on a lower face (other blocks refer to them)
     face_index: np.ndarray  # (3 E^3,) slot -> index into face_slots, or -1
@@ -481,7 +480,7 @@ def _edge_tables():
     face_slots = np.flatnonzero(on_face.reshape(-1))
     face_index = np.full(3 * E**3, -1, np.int64)
     face_index[face_slots] = np.arange(len(face_slots))
-    return _EdgeTables(table, ntri, delta, own, face_slots, face_index)
+    return _EdgeTables(delta[table], ntri, own, face_slots, face_index)
 
 
 _GHOSTS = []
@@ -596,7 +595,7 @@ def _march(values, blocks, grid, level, span, et):
     base = np.repeat(cb * 3 * E**3 + (ck * E + cj) * E + ci, counts)
     cells = np.repeat(cells, counts)
     slot = np.arange(len(cells)) - np.repeat(np.cumsum(counts) - counts, counts)
-    faces = lut[base[:, None] + et.delta[et.table[cfg[cells], slot]]]
+    faces = lut[base[:, None] + et.table[cfg[cells], slot]]
 
     va64 = va.astype(np.float64)
     with np.errstate(divide="ignore", invalid="ignore"):
