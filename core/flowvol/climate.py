@@ -46,6 +46,8 @@ class ClimateVelocity:
         self.stack_bytes, self._stack = stack_mb * 2**20, None
         h = np.asarray(dataset.grid.height, dtype=np.float64).reshape(self.wind.nk, -1).mean(axis=1)
         self.level_height = h
+        self._levels = np.arange(len(h), dtype=np.float64)
+        self._hours = np.asarray(self.wind.hours, dtype=np.float64)
         # Scene units per level along the radius (vertical speed from the level rate).
         self._dr_ds = np.gradient(h) * self.radius * self.exaggeration / EARTH_RADIUS if len(h) > 1 else np.zeros(1)
 
@@ -79,20 +81,21 @@ class ClimateVelocity:
     def __call__(self, points, hours):
         p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
         t = np.broadcast_to(np.asarray(hours, dtype=np.float64), (len(p),))
-        r = np.linalg.norm(p, axis=1)
-        if np.any(r == 0):
+        r = np.sqrt(np.einsum("ij,ij->i", p, p))
+        if not r.all():
             raise DataError("a flow-volume point is at the globe's centre", path=self.wind.dataset.source, field="position")
         unit = p / r[:, None]
         s = self._level(r)
-        out = np.zeros_like(p)
         # Every point has its own time: read the winds at the hourly steps bracketing each
         # point (one call per step, no blended grid per distinct time) and blend linearly.
-        hours = np.asarray(self.wind.hours, dtype=np.float64)
-        for hour in (t.min(), t.max()):
-            self.wind.check_time(hour)
-        i0 = np.clip(np.searchsorted(hours, t, side="right") - 1, 0, max(len(hours) - 2, 0))
+        hours = self._hours
+        t_lo, t_hi = t.min(), t.max()
+        self.wind.check_time(t_lo)
+        self.wind.check_time(t_hi)
+        i0 = np.searchsorted(hours, t, side="right") - 1
+        np.clip(i0, 0, max(len(hours) - 2, 0), out=i0)
         w1 = np.clip((t - hours[i0]) / (hours[np.minimum(i0 + 1, len(hours) - 1)] - hours[i0] if len(hours) > 1 else 1.0), 0.0, 1.0)
-        lo, hi = int(i0.min()), min(int(i0.max()) + 1, len(hours) - 1)
+        lo, hi = int(i0[0] if t_lo == t_hi else i0.min()), min(int(i0.max()) + 1, len(hours) - 1)
         stack = self._stacked(lo, hi)
         if stack is not None:
             # Every point's two bracketing steps in one gather from the steps stacked along the level axis.
@@ -104,9 +107,10 @@ class ClimateVelocity:
             n = len(p)
             f = (1.0 - w1)[:, None] * both[:n] + w1[:, None] * both[n:]
             v = f[:, :3] - np.einsum("ij,ij->i", f[:, :3], unit)[:, None] * unit
-            rate = f[:, 3] * np.interp(s, np.arange(len(self._dr_ds)), self._dr_ds)
+            rate = f[:, 3] * np.interp(s, self._levels, self._dr_ds)
             return v * r[:, None] + rate[:, None] * unit
         # Too many steps to stack: one wind read per hourly step for every point that needs it.
+        out = np.zeros_like(p)
         steps = np.concatenate([i0, np.minimum(i0 + 1, len(hours) - 1)])
         weights = np.concatenate([1.0 - w1, w1])
         owner = np.concatenate([np.arange(len(p)), np.arange(len(p))])

@@ -172,7 +172,9 @@ def _assemble(front, normal, complete, tol, merge):
         reference = np.tile(front.generator, (K, 1)) + ages[:, None] * normal
         tets = orient(reference, split_prisms(prisms))
         if merge > 0:
-            tets = merge_vertices(tets, front.merge_targets(tol, merge), reference)
+            target = front.merge_targets(tol, merge)
+            if np.any(target != np.arange(len(target))):
+                tets = merge_vertices(tets, target, reference)
         if front.out.any():  # the smoke ends where its air left the domain
             tets = tets[~front.ended().reshape(-1)[tets].any(axis=1)]
     faces = boundary_faces(tets)
