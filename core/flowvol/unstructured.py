@@ -276,17 +276,25 @@ class UnstructuredVelocity:
 
     def _in_rows(self, p, todo, cand, cell, rst, tol, iterations):
         """Locate points ``p[todo]`` among their candidate cells ``cand`` (rows padded with -1); the points left."""
-        # Affine cells: the bucket's first candidate (usually the one), then all the others at once.
-        for cols in (slice(0, 1), slice(1, None)):
-            idx = cand[:, cols]
-            if len(todo) == 0 or idx.shape[1] == 0:
-                break
-            safe = np.maximum(idx, 0)
-            r = np.einsum("mcij,mcj->mci", self._inv[safe], p[todo][:, None] - self._origin[safe])
-            ins = (idx >= 0) & self._affine[safe] & np.all((r >= -tol) & (r <= 1 + tol), axis=2)
+        # Affine cells: the bucket's first candidate (usually the one, the only one on a lattice-aligned grid).
+        idx = cand[:, 0]
+        safe = np.maximum(idx, 0)
+        q = p[todo]
+        r = np.einsum("mij,mj->mi", self._inv[safe], q - self._origin[safe])
+        got = (idx >= 0) & self._affine[safe] & (r >= -tol).all(axis=1) & (r <= 1 + tol).all(axis=1)
+        cell[todo[got]] = idx[got]
+        rst[todo[got]] = np.clip(r[got], 0.0, 1.0)
+        if got.all():
+            return todo[:0]
+        todo, cand, q = todo[~got], cand[~got], q[~got]
+        if cand.shape[1] > 1:  # then all the others at once
+            others = cand[:, 1:]
+            safe = np.maximum(others, 0)
+            r = np.einsum("mcij,mcj->mci", self._inv[safe], q[:, None] - self._origin[safe])
+            ins = (others >= 0) & self._affine[safe] & np.all((r >= -tol) & (r <= 1 + tol), axis=2)
             first = np.argmax(ins, axis=1)
             got = ins[np.arange(len(todo)), first]
-            cell[todo[got]] = idx[got, first[got]]
+            cell[todo[got]] = others[got, first[got]]
             rst[todo[got]] = np.clip(r[got, first[got]], 0.0, 1.0)
             todo, cand = todo[~got], cand[~got]
         # General hexahedra: Newton's method in each candidate whose box holds the point.

@@ -175,3 +175,14 @@ def test_smoke_that_leaves_the_room_stops_there(fire):
     _closed_positive(fv)
     with pytest.raises(DataError, match="outside"):  # a generator outside the room is still refused
         flow_volume(fire, [10.0, 1.0, 1.0], 0.1, 1.0, normal=[1, 0, 0])
+
+
+def test_newton_path_for_general_hexahedra_agrees_with_the_affine_inversion(fire):
+    # The fire's cells are boxes (inverted exactly); treated as general hexahedra they take Newton's method.
+    general = UnstructuredVelocity(FIRE)
+    general._affine[:] = False
+    q = np.random.default_rng(0).uniform(fire.bounds[:, 0] - 0.05, fire.bounds[:, 1] + 0.05, (2000, 3))
+    (c1, r1), (c2, r2) = fire.locate(q), general.locate(q)
+    ok = c1 >= 0
+    assert np.array_equal(ok, c2 >= 0) and 0.5 < ok.mean() < 0.99
+    assert np.array_equal(c1[ok], c2[ok]) and np.abs(r1[ok] - r2[ok]).max() < 1e-9
