@@ -1,7 +1,11 @@
-"""Farm overhead: the Dask farm (1 and 2 workers) against Blender's own animation render and a process per frame.
+"""Farm overhead: the Dask farm (1 and 2 workers, and one Slurm job) against Blender's own animation render and a process per frame.
 
 All on the same tiny scene (tests/farm/cube_scene.py: a turning cube, Cycles,
-64x48, 4 samples), in one run.  Steady per-frame time is taken from the
+64x48, 4 samples), in one run.  The Slurm row runs the same sequence through
+dask-jobqueue on a single-node Slurm cluster (slurmctld + slurmd + munged)
+started on this machine by tests/farm/slurm/slurm_local.py (root; Debian's
+slurm-wlm and munge, installed with apt-get when missing) and stopped by PID
+at the end; without root the row is left out and the section says why.  Steady per-frame time is taken from the
 frames' own file times (the moment each was moved into place), so start-up
 (Python, bpy, cluster, scene) is reported apart.  Then the resume check of an
 already complete 240-frame directory.
@@ -23,6 +27,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
+sys.path.insert(0, str(ROOT / "tests" / "farm" / "slurm"))
 SCENE = ROOT / "tests" / "farm" / "cube_scene.py"
 SIZE, SAMPLES = (64, 48), 4
 
@@ -116,6 +121,39 @@ def farm(out, n, workers, persistent=False):
     return time.perf_counter() - t0, res
 
 
+def farm_slurm(out, n, slurm, cpus):
+    """The farm on one Slurm job of ``cpus`` CPUs (its one bpy renders with that many threads)."""
+    from slurm_local import render_args
+
+    from nephele.farm import cli
+    from nephele.farm.cmd_render import cluster_kwargs
+    from nephele.farm.render import render_sequence
+
+    args = cli.build_parser().parse_args(["render", str(SCENE), "--frames", "1", "--out", str(out),
+                                          *render_args(slurm, "--job-cpus", str(cpus), "--job-mem", "2GB")])
+    t0 = time.perf_counter()
+    res = render_sequence(SCENE, f"1-{n}", out, engine="CYCLES", samples=SAMPLES, scene_options={"size": list(SIZE)},
+                          progress=False, **cluster_kwargs(args))
+    assert res.ok, res.failure_report()
+    assert res.manifest["run"]["worker_scene"]["threads"] == cpus
+    return time.perf_counter() - t0, res
+
+
+def start_slurm(root):
+    """``(cluster, seconds to start its daemons, None)`` or ``(None, None, why not)``."""
+    from slurm_local import LocalSlurm, Unavailable
+
+    cluster = LocalSlurm(root)
+    t0 = time.perf_counter()
+    try:
+        cluster.start()
+    except Unavailable as exc:
+        cluster.stop()
+        return None, None, str(exc)
+    os.environ["SLURM_CONF"] = str(cluster.conf)  # dask-jobqueue's sbatch/scancel use this cluster
+    return cluster, time.perf_counter() - t0, None
+
+
 def resume_times(work):
     """A complete 240-frame directory: in-process check, the CLI end to end, --verify, and without manifest."""
     from nephele.farm.render import render_sequence
@@ -151,8 +189,10 @@ def main():
     ap.add_argument("--frames", type=int, default=16)
     ap.add_argument("--rounds", type=int, default=3, help="interleaved rounds of every method (load drifts)")
     ap.add_argument("--per-process-frames", type=int, default=6, help="frames for the process-per-frame method")
+    ap.add_argument("--no-slurm", action="store_true", help="leave out the single-node Slurm cluster row")
     ap.add_argument("--quick", action="store_true",
-                    help="3 frames, 1 round, Blender's render and the 1-worker farm only, no resume part (smoke run)")
+                    help="3 frames, 1 round, Blender's render and the 1-worker farm only, no Slurm, no resume part "
+                         "(smoke run)")
     args = ap.parse_args()
     if args.quick:
         args.frames, args.rounds = 3, 1
@@ -161,10 +201,16 @@ def main():
     n, k = args.frames, args.per_process_frames
     cores = os.cpu_count() or 1
     work = Path(tempfile.mkdtemp(prefix="bench_farm_"))
+    load0 = os.getloadavg()
+    slurm, slurm_start, no_slurm = None, None, "left out (--quick)" if args.quick else "left out (--no-slurm)"
+    if not (args.quick or args.no_slurm):
+        slurm, slurm_start, no_slurm = start_slurm(work / "slurm")
+    slurm_label = "farm, 1 Slurm job (dask-jobqueue on local slurmctld + slurmd)"
     methods = {
         "Blender render(animation=True), 1 process": lambda d: (blender_animation(d, n, cores), n),
         "one subprocess per frame": lambda d: (process_per_frame(d, range(1, k + 1), cores), k),
         "farm, 1 worker (Dask LocalCluster)": lambda d: (farm(d, n, 1)[0], n),
+        slurm_label: lambda d: (farm_slurm(d, n, slurm, cores)[0], n),
         "farm, 2 workers (Dask LocalCluster)": lambda d: (farm(d, n, 2)[0], n),
         "Blender render(animation=True), `use_persistent_data`": lambda d: (blender_animation(d, n, cores, True), n),
         "farm, 1 worker, `--persistent-data`": lambda d: (farm(d, n, 1, True)[0], n),
@@ -172,6 +218,8 @@ def main():
     if args.quick:
         methods = {k: v for k, v in methods.items() if k in ("Blender render(animation=True), 1 process",
                                                             "farm, 1 worker (Dask LocalCluster)")}
+    if slurm is None:
+        methods.pop(slurm_label, None)
     seen = {m: [] for m in methods}  # (total s, steady s per frame, frames)
     try:
         for r in range(args.rounds):
@@ -188,7 +236,10 @@ def main():
             one = in_process(work / "inproc", n, 2 * args.rounds, cores)
             resume, cli, verify, adopt = resume_times(work)
     finally:
+        if slurm is not None:
+            slurm.stop()
         shutil.rmtree(work, ignore_errors=True)
+    load1 = os.getloadavg()
 
     def stats(label):
         totals, pers, counts = zip(*seen[label])
@@ -205,6 +256,23 @@ def main():
             vs += f" (vs Blender with persistent data: {(best - ref_p[1]) / ref_p[1]:+.0%} / {(med - ref_p[2]) / ref_p[2]:+.0%})"
         rows.append([label, count, total, startup, best, med, "reference" if label == next(iter(methods)) else vs])
 
+    if slurm_label in methods:
+        loc, slu = stats("farm, 1 worker (Dask LocalCluster)"), stats(slurm_label)
+        startup_of = {r[0]: r[3] for r in rows}
+        d_best, d_med = (slu[1] - loc[1]) / loc[1], (slu[2] - loc[2]) / loc[2]
+        same = abs(d_best) < 0.15 and abs(d_med) < 0.15
+        slurm_text = f"""
+**Slurm against LocalCluster** (same scene, same machine, same rounds, both one bpy with {cores} render
+threads): the daemons (munged, slurmctld, slurmd; `tests/farm/slurm/slurm_local.py`) started in
+{slurm_start:.2f} s, once, before the rounds.  Start-up to the steady state (cluster, `sbatch`, the job
+starting, bpy and the scene in the worker): Slurm {startup_of[slurm_label]:.2f} s, LocalCluster
+{startup_of["farm, 1 worker (Dask LocalCluster)"]:.2f} s.  Steady s/frame, best / median: Slurm
+{slu[1]:.4f} / {slu[2]:.4f}, LocalCluster {loc[1]:.4f} / {loc[2]:.4f} ({d_best:+.0%} / {d_med:+.0%}).
+""" + ("Within the load's drift the per-frame cost is the same: once the job's worker has joined, a frame is "
+       "a Dask task to a worker on this machine either way.\n" if same else
+       "The difference is larger than 15%: rerun at a lower load before drawing a conclusion.\n")
+    else:
+        slurm_text = f"\nThe single-node Slurm row is missing from this run: {no_slurm}.\n"
     table = md_table(["method", "frames", "total s (median)", "start-up s", "s/frame steady, best", "s/frame steady, median",
                       "per frame vs Blender (best / median)"], rows)
     body = f"""
@@ -217,9 +285,11 @@ frames − 1 (start-up excluded); *start-up* is the rest of the wall time (Pytho
 cluster, the scene).  The one-process-per-frame row pays the start-up on every frame
 (its s/frame is total / frames).  The farm's per-frame time includes what Blender's does not:
 decoding the frame with OpenImageIO, the PNG check, sha256, fsync and the move into place.
+Load average (1/5/15 min) at the start: {load0[0]:.2f} / {load0[1]:.2f} / {load0[2]:.2f}; at the end:
+{load1[0]:.2f} / {load1[1]:.2f} / {load1[2]:.2f}.
 
 {table}
-
+{slurm_text}
 The farm's own per-frame work, measured in one process with the same scene ({2 * args.rounds}
 interleaved rounds of {n} frames, so load drift hits both alike):
 
@@ -241,7 +311,8 @@ Resume of an already complete 240-frame directory (nothing to render, no cluster
 Goal: resume under 0.1 s — the check itself (first row) {"meets it" if resume < 0.1 else "misses it"}; the
 command end to end is dominated by Python start-up and imports.
 """
-    write_section("farm", body, title="Farm: overhead against Blender's own animation render, and resume")
+    write_section("farm", body, title="Farm: overhead against Blender's own animation render, Slurm against "
+                                      "LocalCluster, and resume")
 
 
 if __name__ == "__main__":
