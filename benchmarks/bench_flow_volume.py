@@ -232,7 +232,7 @@ def main():
     load0 = os.getloadavg()[0]
     parts = [("ABC flow (divergence-free), 16-sided generator r = 0.3, 1 time unit, 16 RK4 steps per trajectory", part_abc(args.quick)),
              ("Demo climate (SyntheticClimate 160×80×6), generator r = 0.03 at 40°W 35°N 2 km, tol 0.02, 8 RK4 steps", part_climate(args.quick)),
-             ("Fire in a room (fire_ug.vtu, 12,323 points, 10,462 hexahedra), generator r = 0.1 m 0.1 m above the fastest updraft, 8 RK4 steps", part_fire(args.quick)),
+             ("Fire in a room (fire_ug.vtu, 12,323 points, 10,462 hexahedra), generator r = 0.1 m placed 0.1 m above the fastest updraft, 8 RK4 steps", part_fire(args.quick)),
              ("Beside VTK on the same seeds", part_vtk(args.quick))]
     load1 = os.getloadavg()[0]
     body = (f"Shared 2-core machine, other jobs running (1-minute load average {load0:.1f} at the start, {load1:.1f} at the end; "
