@@ -40,6 +40,18 @@ def _wait_jobs_gone(slurm, timeout=20):
     return False
 
 
+def _jobs_with_frames(out):
+    """Jobs named in the logs of the frames already in ``out`` (each log starts with '... job N) ...')."""
+    import re
+
+    jobs = set()
+    for png in out.glob("frame_*.png"):
+        log = out / "logs" / f"{png.stem}.log"
+        if log.is_file():
+            jobs.update(re.findall(r"job (\d+)\)", log.read_text(errors="replace")))
+    return jobs
+
+
 @pytest.mark.parametrize("extra, option, words", [
     (["--queue", "nope"], "--queue", "invalid partition"),
     (["--job-mem", "5000GB"], "--job-mem", "Memory specification can not be satisfied"),
@@ -83,11 +95,14 @@ def test_scancel_of_a_working_job(slurm_jobs, tmp_path):
     t = threading.Thread(target=run)
     t.start()
     deadline = time.monotonic() + 90
-    while len(list(out.glob("frame_*.png"))) < 3 and time.monotonic() < deadline:
+    while time.monotonic() < deadline:  # 3 frames, and a running job that has rendered one of them
+        running = [j for j, st in slurm_jobs.jobs().items() if st == "RUNNING"]
+        rendered = [j for j in running if j in _jobs_with_frames(out)]
+        if len(list(out.glob("frame_*.png"))) >= 3 and rendered:
+            break
         time.sleep(0.05)
-    running = [j for j, st in slurm_jobs.jobs().items() if st == "RUNNING"]
-    assert len(running) == 2
-    victim = running[0]
+    assert len(running) == 2 and rendered
+    victim = rendered[0]  # under load the other job's worker may still be starting: it would have no frame
     slurm_jobs.run("scancel", victim)
     t.join(180)
     assert not t.is_alive()
