@@ -336,11 +336,15 @@ def add_volume_clouds(var="cloud", tf=None, *, source=None, color_var=ALTITUDE, 
     tf = tf or TransferFunction.ramp(0.3, 1.0)
     cmap = cmap or default_color_map(color_var)
     ds = data_ops.dataset(source)
-    if var not in ds.variables:
+    # The file's own names ('T') are accepted as well as Nephele's ('temperature'), as for contours.
+    if var not in ds:
         raise DataError(f"no such variable (available: {', '.join(sorted(ds.variables))})", path=source, field=var)
-    if color_var and color_var != ALTITUDE and color_var not in ds.variables:
-        raise DataError(f"no such colour variable (available: altitude, {', '.join(sorted(ds.variables))})",
-                        path=source, field=color_var)
+    var = ds.resolve(var)
+    if color_var and color_var != ALTITUDE:
+        if color_var not in ds:
+            raise DataError(f"no such colour variable (available: altitude, {', '.join(sorted(ds.variables))})",
+                            path=source, field=color_var)
+        color_var = ds.resolve(color_var)
     if frames is None:
         d0, d1 = data_ops.frame_range_for(ds, cfg)
         f0, f1 = max(scene.frame_start, d0), min(scene.frame_end, d1)
@@ -704,19 +708,21 @@ def panel_estimate(context, s):
     """``(frames, estimate dict)`` of what the panel's bake would take, or raises DataError."""
     cfg = data_ops.settings(context.scene)
     ds = data_ops.dataset(scene=context.scene)
-    if s.var not in ds.variables:
+    if s.var not in ds:
         raise DataError(f"no such variable (available: {', '.join(sorted(ds.variables))})", field=s.var)
+    var = ds.resolve(s.var)
     f0, f1 = bake_frames(context, s)
     from ..core.pipeline.sources import frame_hours
 
     hours = frame_hours(f0, cfg["frame_start"], cfg["hours_per_frame"], last_hour=float(ds.hours[-1]))
     tf = panel_tf(s)
-    size = s.support_size if s.mode == EXACT else s.voxel_size
+    mode = exact_or_voxels(context.scene, s.mode)
+    size = s.support_size if mode == EXACT else s.voxel_size
     # The panel redraws often: one field read per distinct question.
-    key = (cfg["source"], s.var, json.dumps(tf.to_dict()), hours, s.mode, size, cfg["exaggeration"], cfg["radius"])
+    key = (cfg["source"], var, json.dumps(tf.to_dict()), hours, mode, size, cfg["exaggeration"], cfg["radius"])
     est = _ESTIMATES.get(key)
     if est is None:
-        est = bake_estimate(ds, s.var, tf, hours=hours, mode=s.mode, size=size,
+        est = bake_estimate(ds, var, tf, hours=hours, mode=mode, size=size,
                             exaggeration=cfg["exaggeration"], radius=cfg["radius"])
         if len(_ESTIMATES) > 32:
             _ESTIMATES.clear()
@@ -731,6 +737,14 @@ def estimate_text(frames, est):
     n = frames[1] - frames[0] + 1
     return (f"{n} frame{'s' if n > 1 else ''} ({frames[0]}-{frames[1]}): about {format_bytes(n * est['disk'])} "
             f"on disk, {n * est['seconds']:.0f} s, {format_bytes(est['memory'])} of memory")
+
+
+def exact_or_voxels(scene, mode):
+    """``mode``, or voxels where the exact mode's atlas cannot place the scene's grid (rotated pole, 2-D lon/lat)."""
+    if mode != EXACT:
+        return mode
+    grid = data_ops.dataset(scene=scene).grid
+    return VOXELS if grid.rotation is not None or grid.curvilinear else mode
 
 
 class NEPHELE_OT_add_volume_clouds(bpy.types.Operator):
@@ -768,10 +782,14 @@ class NEPHELE_OT_add_volume_clouds(bpy.types.Operator):
         wm.progress_begin(0, 100)
         try:
             tf = panel_tf(s)
+            mode = exact_or_voxels(context.scene, s.mode)
+            if mode != s.mode:
+                self.report({"INFO"}, "the exact mode cannot place a rotated-pole or curvilinear (2-D lon/lat) grid "
+                                      "yet: baking voxels")
             obj, infos = add_volume_clouds(
                 s.var, tf, color_var=s.color_var, cmap=panel_cmap(s), voxel_size=s.voxel_size,
                 extinction=s.extinction, directory=s.directory or None, scene=context.scene, frames=frames,
-                progress=progress, mode=s.mode, support_size=s.support_size, bake="lazy" if background else "all",
+                progress=progress, mode=mode, support_size=s.support_size, bake="lazy" if background else "all",
             )
         except (DataError, ValueError, OSError, ImportError) as exc:
             self.report({"ERROR"}, str(exc))

@@ -92,9 +92,10 @@ def run(args):
     if color_var and color_var != "altitude" and color_var not in ds:
         raise DataError(f"no such colour variable (available: altitude, {', '.join(sorted(ds.variables))})",
                         path=args.source, field=color_var)
-    if args.mode == "exact" and ds.grid.rotation is not None:
-        raise DataError("the exact mode's atlas shader works in longitude/latitude and cannot place a rotated-pole "
-                        "grid yet; use --mode voxels", path=ds.source, field="grid")
+    if args.mode == "exact" and (ds.grid.rotation is not None or ds.grid.curvilinear):
+        raise DataError("the exact mode's atlas shader works in longitude/latitude axes and cannot place a "
+                        "rotated-pole or curvilinear (2-D lon/lat) grid yet; use --mode voxels", path=ds.source,
+                        field="grid")
     first, last = _steps(args.steps, ds.times.size)
     if not np.isfinite(ds.read(args.var, first)).any():  # cheap: the bake reads this step from the cache
         raise DataError(f"every value at time step {first} is missing (NaN): nothing to show", path=ds.source,

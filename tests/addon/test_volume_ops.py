@@ -6,6 +6,7 @@ import pytest
 bpy = pytest.importorskip("bpy")
 
 from nephele.addon import data_ops, frame, volume_ops  # noqa: E402
+from nephele.core.errors import DataError  # noqa: E402
 from nephele.fileio import read_grid  # noqa: E402
 from nephele.core.pipeline.sources import register_source  # noqa: E402
 from nephele.core.climate.dataset import ArrayDataset, hourly  # noqa: E402
@@ -312,3 +313,37 @@ def test_exact_mode_render_matches_the_reference_opacity(scene, tmp_path):
     assert abs(err.mean()) < 0.003, err.mean()
     assert np.sqrt(np.mean(err**2)) < 0.012, np.sqrt(np.mean(err**2))
     assert np.percentile(np.abs(err), 99) < 0.05, np.percentile(np.abs(err), 99)
+
+
+def test_curvilinear_file_bakes_voxels_by_its_own_variable_name(empty_scene, tmp_path):
+    """A 2-D lat/lon grid: the panel's exact mode cannot place it, so the operator bakes voxels and says so;
+    the file's own name ('T') is accepted as for contours."""
+    xr = pytest.importorskip("xarray")
+    ny, nx = 12, 16
+    lat, lon = np.meshgrid(np.linspace(40, 50, ny), np.linspace(-10, 5, nx), indexing="ij")
+    lon = lon + 0.3 * (lat - 45)  # sheared columns: not a lon/lat product grid
+    z = np.array([500.0, 1500.0, 3000.0, 6000.0])
+    t = (300.0 - 0.0065 * z[:, None, None] - 0.3 * (lat[None] - 45.0))[None].repeat(2, 0).astype(np.float32)
+    path = tmp_path / "curvilinear.nc"
+    xr.Dataset(
+        {"T": (("time", "z", "y", "x"), t, {"units": "K"})},
+        coords={"time": ("time", [0.0, 3.0], {"units": "hours since 2020-01-01", "standard_name": "time"}),
+                "z": ("z", z, {"units": "m", "standard_name": "height", "positive": "up"}),
+                "lat": (("y", "x"), lat, {"units": "degrees_north", "standard_name": "latitude"}),
+                "lon": (("y", "x"), lon, {"units": "degrees_east", "standard_name": "longitude"})},
+    ).to_netcdf(path)
+    scene = empty_scene
+    assert bpy.ops.nephele.import_dataset(kind="FILE", filepath=str(path)) == {"FINISHED"}
+    assert data_ops.dataset(scene=scene).grid.curvilinear
+    s = scene.nephele_volume
+    s.var, s.color_var, s.mode = "T", "", volume_ops.EXACT
+    s.tf_edit, s.threshold, s.full = "THRESHOLD", 286.0, 290.0
+    s.voxel_size, s.directory = 0.004, str(tmp_path / "vol")
+    assert volume_ops.exact_or_voxels(scene, volume_ops.EXACT) == volume_ops.VOXELS
+    assert bpy.ops.nephele.add_volume_clouds() == {"FINISHED"}
+    p = frame.params(scene.objects[volume_ops.OBJECT_NAME])
+    assert p["mode"] == volume_ops.VOXELS and p["var"] == "temperature" and not p["empty"]
+    # The core function keeps refusing the exact mode there, in one line.
+    with pytest.raises(DataError, match="curvilinear"):
+        volume_ops.add_volume_clouds("T", scene=scene, mode=volume_ops.EXACT, directory=str(tmp_path / "v2"),
+                                     color_var="")
