@@ -36,8 +36,10 @@ def torque_wrappers(slurm_jobs):
     return slurm_jobs
 
 
-def test_render_with_pbs_job_scripts(torque_wrappers, tmp_path, capsys):
+def test_render_with_pbs_job_scripts(torque_wrappers, tmp_path, capsys, monkeypatch):
     slurm = torque_wrappers
+    # Slurm's qsub ignores the scripts' #PBS -o/-e and writes the job's output where it was submitted.
+    monkeypatch.chdir(tmp_path)
     out = tmp_path / "out"
     args = ["pbs" if a == "slurm" else a for a in render_args(slurm, "--job-cpus", "2")]
     assert args[:2] == ["--cluster", "pbs"]
