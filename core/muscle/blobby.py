@@ -620,8 +620,7 @@ class _Refiner:
     Per (block, Gaussian) pair the exponent is a quadratic in the point's offset
     ``u`` from the block's first node: 10 coefficients, so a batch of blocks
     with the same number of Gaussians is one batched matrix product; a second
-    one sums ``e_g [A_g, A_g r_g, 1]``: the gradient and the field.  float32
-    throughout (offsets within a block, a few ulps of a field near the level).
+    one sums ``e_g [A_g, A_g r_g]``: the gradient (finished in float64, where it cancels).
     """
 
     BUDGET = 1 << 18  # (vertex, Gaussian) products per batch
@@ -640,10 +639,9 @@ class _Refiner:
         coef[:, 3:6] = -a6[:, 3:6]
         coef[:, 6:9] = ar
         coef[:, 9] = b.lnw[g] - 0.5 * np.einsum("ni,ni->n", rel, ar)
-        kern = np.empty((len(g), 10), _F32)
+        kern = np.empty((len(g), 9), _F32)
         kern[:, 0:6] = a6
         kern[:, 6:9] = ar
-        kern[:, 9] = 1
         self.coef, self.kern, self.src = coef, kern, b.src[g]
 
     def batches(self, blk):
@@ -674,7 +672,7 @@ class _Refiner:
 
     @staticmethod
     def evaluate(u, coef, kern):
-        """f (nbt, vmax), grad (nbt, vmax, 3) and the terms e (nbt, vmax, G) at float32 offsets u."""
+        """f (nbt, vmax), grad (nbt, vmax, 3) float64 and the terms e (nbt, vmax, G) at offsets u."""
         feat = np.empty(u.shape[:2] + (10,), _F32)
         np.multiply(u, u, out=feat[..., 0:3])
         x, y, z = u[..., 0], u[..., 1], u[..., 2]
@@ -684,12 +682,13 @@ class _Refiner:
         feat[..., 6:9] = u
         feat[..., 9] = 1
         e = np.exp(feat @ coef)
-        m = e @ kern  # sum_g e_g [A_g, A_g r_g, 1]
-        grad = np.empty(u.shape, _F32)  # sum_g e_g A_g (r_g - u)
+        m = (e @ kern).astype(np.float64)  # sum_g e_g [A_g, A_g r_g]
+        grad = np.empty(u.shape)  # sum_g e_g A_g (r_g - u), float64: it cancels
         grad[..., 0] = m[..., 6] - (m[..., 0] * x + m[..., 3] * y + m[..., 4] * z)
         grad[..., 1] = m[..., 7] - (m[..., 3] * x + m[..., 1] * y + m[..., 5] * z)
         grad[..., 2] = m[..., 8] - (m[..., 4] * x + m[..., 5] * y + m[..., 2] * z)
-        return m[..., 9], grad, e
+        f = e.reshape(-1, e.shape[-1]).sum(axis=1, dtype=np.float64).reshape(e.shape[:-1])  # 2-D: faster
+        return f, grad, e
 
 
 def _compact(live, per_vertex, per_row):
@@ -713,12 +712,9 @@ def _project(refiner, grid, blk, axis, node, t, a_above, level, tol, threads):
     n = len(t)
     order = np.argsort(blk, kind="stable")
     base = grid.coords(node)
-    step = grid.h[axis].astype(_F32)
-    t0 = t.astype(_F32)
-    lvl, tol2 = _F32(level), _F32(tol) ** 2
-    lower, upper = _F32(EDGE_MARGIN), _F32(1 - EDGE_MARGIN)
-    t_out = np.empty(n, _F32)
-    grad = np.empty((n, 3), _F32)
+    step = grid.h[axis]
+    t_out = np.empty(n)
+    grad = np.empty((n, 3))
     arg = np.empty(n, np.int64)
     ids3 = np.arange(3)
 
@@ -728,23 +724,23 @@ def _project(refiner, grid, blk, axis, node, t, a_above, level, tol, threads):
         rows, coef, kern = refiner.gather(ub)
         valid = np.arange(vid.shape[1]) < nv[:, None]
         ax = axis[vid]
-        u0 = (base[vid] - refiner.x0[ub][:, None, :]).astype(_F32)
-        st, ab, tt = step[vid], a_above[vid], t0[vid]  # ab: f - level >= 0 at the lower node
-        lo, hi = np.zeros(vid.shape, _F32), np.ones(vid.shape, _F32)
+        u0 = base[vid] - refiner.x0[ub][:, None, :]
+        st, ab, tt = step[vid], a_above[vid], t[vid]  # ab: f - level >= 0 at the lower node
+        lo, hi = np.zeros(vid.shape), np.ones(vid.shape)
         for it in range(NEWTON_STEPS + 1):
             hot = ax[..., None] == ids3
             f, g, e = refiner.evaluate(u0 + hot * (tt * st)[..., None], coef, kern)
             live = np.zeros(vid.shape, bool)
             if it < NEWTON_STEPS:
-                diff = f - lvl
-                go = valid & (diff * diff >= tol2 * np.einsum("...i,...i", g, g)) & (diff != 0)
+                diff = f - level
+                go = valid & (np.abs(diff) >= tol * np.maximum(np.sqrt(np.einsum("...i,...i", g, g)), 1e-300))
                 side = (diff > 0) == ab  # still on the lower node's side
                 lo = np.where(go & side, tt, lo)
                 hi = np.where(go & ~side, tt, hi)
                 with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
                     new = tt - diff / (np.take_along_axis(g, ax[..., None], -1)[..., 0] * st)
                 good = (new > lo) & (new < hi)  # False for NaN
-                new = np.clip(np.where(good, new, _F32(0.5) * (lo + hi)), lower, upper)
+                new = np.clip(np.where(good, new, 0.5 * (lo + hi)), EDGE_MARGIN, 1 - EDGE_MARGIN)
                 live = go & (new != tt)
             done = valid & ~live
             ids = vid[done]
