@@ -156,3 +156,41 @@ def test_perspective_render_matches_core_renderer(empty_scene, tmp_path):
     assert ref.mean() > 0.05
     assert mean_err < 0.02
     assert block_err < 0.05
+
+
+@pytest.mark.parametrize("streaks", [False, True])
+def test_eevee_render_matches_core_renderer(empty_scene, tmp_path, streaks):
+    # EEVEE runs here on Mesa's llvmpipe (no GPU): its shadow pass is left out (the splats cast none),
+    # which otherwise did not finish in 25 min at this size.
+    scene = empty_scene
+    obj, n = _add(scene, streaks=streaks, extinction=30.0, tile=0.5, contrast=0.8)
+    scene.frame_set(6)
+    sp = splat_samples("demo:small", "cloud", 5.0, TF, color_var="altitude")
+    co = _ortho_camera(scene, sp.centers[np.argmax(sp.opacity)], 0.6)
+    scene.world = bpy.data.worlds.new("black")
+    scene.world.use_nodes = True
+    scene.world.node_tree.nodes["Background"].inputs[0].default_value = (0, 0, 0, 1)
+    scene.view_settings.view_transform = "Standard"
+    scene.render.engine = "BLENDER_EEVEE"
+    scene.eevee.taa_render_samples = 1
+    scene.eevee.use_shadows = False
+    scene.render.filter_size = 0.01
+    w, h = 64, 48
+    scene.render.resolution_x, scene.render.resolution_y, scene.render.resolution_percentage = w, h, 100
+    scene.render.image_settings.file_format = "OPEN_EXR"
+    scene.render.filepath = str(tmp_path / "eevee.exr")
+    bpy.ops.render.render(write_still=True)
+    img = bpy.data.images.load(str(tmp_path / "eevee.exr"))
+    px = np.array(img.pixels[:], dtype=np.float64).reshape(h, w, 4)[::-1, :, :3]
+    cam = Camera(np.array(co.matrix_world.inverted()), orthographic=True, ortho_scale=0.6)
+    ref = render_splats(sp, splat_kernel(), cam, w, h, extinction=30.0, prefilter=0.0, hours=5.0,
+                        streaks=streak_maps(8, 64) if streaks else None, streak_tile=0.5,
+                        streak_contrast=0.8)[..., :3]
+    mean_err = abs(px.mean() - ref.mean()) / ref.mean()
+    blocks = lambda a: a.reshape(h // 4, 4, w // 4, 4, 3).mean(axis=(1, 3))  # noqa: E731
+    block_err = np.abs(blocks(px) - blocks(ref)).max() / ref.mean()
+    print(f"EEVEE, splats {n}, streaks {streaks}: mean {px.mean():.4f} vs {ref.mean():.4f} ({mean_err:.2%}), "
+          f"worst 4x4 block {block_err:.2%} of the mean")
+    assert ref.mean() > 0.05
+    assert mean_err < 0.02
+    assert block_err < 0.05
