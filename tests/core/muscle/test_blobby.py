@@ -295,3 +295,17 @@ def test_against_skimage_marching_cubes_on_a_dense_grid():
 
     gap = cKDTree(ref.vertices).query(mesh.vertices)[0]
     assert gap.max() < h
+
+
+def test_same_mesh_with_any_number_of_threads():
+    # Blocks are meshed and projected in batches spread over threads: the result must not depend on them.
+    c, r, s, w = random_blobs(6, 40, 0, 9)
+    level, h = 0.3, 0.5 / 4
+    one_thread = blobby_surface(c, r, s, w, level, h, threads=1)
+    three = blobby_surface(c, r, s, w, level, h, threads=3)
+    assert len(one_thread.vertices) > 1000
+    assert np.array_equal(one_thread.vertices, three.vertices)
+    assert np.array_equal(one_thread.faces, three.faces)
+    assert np.array_equal(one_thread.normals, three.normals)
+    assert np.array_equal(one_thread.attributes["blob"], three.attributes["blob"])
+    assert distance(one_thread, c, r, s, w, level).max() < 0.01 * s.min()
