@@ -273,7 +273,8 @@ def save_png(img, path, background):
 
 
 BLENDER_CASES = [
-    # (label, scene, width, height, splats seen by camera rays only)
+    # (label, scene, width, height, splats seen by camera rays only); "eevee": EEVEE, 1 sample, no shadows
+    ("splats in EEVEE (Mesa llvmpipe: software OpenGL, no GPU here)", "eevee", 640, 480, True),
     ("splats, camera rays only (the add-on's setting)", "splats", 640, 480, True),
     ("anchor: volume clouds (Fig. 2 material, exact mode), same camera", "volume", 640, 480, True),
     ("splats, camera rays only", "splats", 160, 120, True),
@@ -283,7 +284,8 @@ BLENDER_CASES = [
 
 def blender_child(scene_kind, w, h, camera_only):
     """In a fresh Blender-Python process: build Fig. 3 (or the same view of the Fig. 2 volume clouds)
-    from the full demo at 0 h, render one Cycles frame at 1 spp on 2 threads; prints one JSON line."""
+    from the full demo at 0 h, render one Cycles frame at 1 spp on 2 threads (or EEVEE, 1 sample);
+    prints one JSON line."""
     import json
 
     import bpy
@@ -297,7 +299,7 @@ def blender_child(scene_kind, w, h, camera_only):
     view = {k: presets.FIG3_DEFAULTS[k] for k in ("camera_lon", "camera_lat", "camera_distance")}
     scene = bpy.context.scene
     t0 = time.perf_counter()
-    if scene_kind == "splats":
+    if scene_kind in ("splats", "eevee"):
         objs = presets.fig3(scene, source="demo", size=(w, h), samples=1, frames=(1, 1))
         n = len(objs["splats"].data.vertices)
         if not camera_only:
@@ -309,6 +311,10 @@ def blender_child(scene_kind, w, h, camera_only):
     scene.frame_set(1)  # 0 h
     build = time.perf_counter() - t0
     scene.render.threads_mode, scene.render.threads = "FIXED", 2
+    if scene_kind == "eevee":
+        scene.render.engine = "BLENDER_EEVEE"
+        scene.eevee.taa_render_samples = 1
+        scene.eevee.use_shadows = False  # llvmpipe: the shadow pass alone takes minutes
     scene.render.filepath = str(Path(os.environ.get("TMPDIR", "/tmp")) / f"nephele_bench_splats_{scene_kind}_{w}.png")
     t0 = time.perf_counter()
     bpy.ops.render.render(write_still=True)
@@ -326,7 +332,7 @@ def part_blender():
         r = json.loads(next(line for line in out.splitlines() if line.startswith("BENCH "))[6:])
         print(label, w, h, r, flush=True)
         rows.append([label, f"{w}×{h}", r["splats"] or "-", f"{r['build']:.1f}", f"{r['render']:.1f}"])
-    return md_table(["scene (full demo, 0 h, Cycles CPU, 1 spp, 2 threads)", "size", "splats", "build s", "render s"], rows)
+    return md_table(["scene (full demo, 0 h; Cycles CPU 1 spp, 2 threads, unless EEVEE)", "size", "splats", "build s", "render s"], rows)
 
 
 def main():
