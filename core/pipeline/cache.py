@@ -47,12 +47,23 @@ def cache_key(kind, params):
 
 
 def source_stamp(source):
-    """Identity of a data source for cache keys: a file's path, size and mtime, or the name itself."""
-    p = Path(str(source))
+    """Identity of a data source for cache keys: a file's path, size and mtime, or the name itself.
+
+    A file read with overrides (``path?key=value&...``, see
+    :func:`nephele.core.climate.readers.override_source`) is the file's identity
+    now plus the overrides: the ``file=`` part its name got when it was
+    imported would not notice the file changing afterwards.
+    """
+    text = str(source)
+    p = Path(text)
     if p.is_file():
         st = p.stat()
         return f"{p.resolve()}|{st.st_size}|{st.st_mtime_ns}"
-    return str(source)
+    base, sep, query = text.partition("?")
+    if sep and Path(base).is_file():
+        kept = "&".join(q for q in query.split("&") if not q.startswith("file="))
+        return f"{source_stamp(base)}?{kept}"
+    return text
 
 
 def default_cache_dir(blend_path=None):

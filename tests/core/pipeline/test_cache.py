@@ -38,3 +38,23 @@ def test_run_cached_computes_once(tmp_path):
 
 def test_default_cache_dir_beside_blend(tmp_path):
     assert default_cache_dir(tmp_path / "scene.blend") == tmp_path / "scene_nephele_cache"
+
+
+def test_source_stamp_of_an_override_name_follows_the_file(tmp_path):
+    """A file read with overrides is named path?key=value&file=ID (the ID taken at import): its cache
+    identity must still change when the file does, or a saved scene or a farm worker would be served
+    results made from the old file."""
+    import os
+
+    from nephele.core.pipeline.cache import source_stamp
+
+    f = tmp_path / "data.nc"
+    f.write_bytes(b"one")
+    name = f"{f}?radius=6371220.0&file=abc123"
+    before = source_stamp(name)
+    assert before.startswith(source_stamp(f)) and "radius=6371220.0" in before and "abc123" not in before
+    assert source_stamp(f"{f}?radius=6371229.0&file=abc123") != before  # other overrides, other results
+    f.write_bytes(b"two!")
+    os.utime(f, ns=(1, 2))
+    assert source_stamp(name) != before
+    assert source_stamp("demo:small") == "demo:small"
