@@ -57,7 +57,7 @@ def worker_environment():
 
 def check_frame(out_dir):
     """Dask task: render a 32x24 Workbench cube into ``out_dir/cluster_check.png`` (atomically); returns seconds."""
-    from .frames import TMP_DIR
+    from ..core.files import atomic_write
     from .worker import _import_bpy, decode, render_threads
 
     bpy = _import_bpy()
@@ -87,14 +87,10 @@ def check_frame(out_dir):
     if threads:
         r.threads_mode, r.threads = "FIXED", threads
     r.image_settings.file_format = "PNG"
-    out = Path(out_dir)
-    tmp_dir = out / TMP_DIR
-    tmp_dir.mkdir(parents=True, exist_ok=True)
-    tmp = tmp_dir / f"cluster_check.{os.getpid()}.png"
-    r.filepath = str(tmp)
-    bpy.ops.render.render(write_still=True)
-    decode(tmp, (32, 24))
-    os.replace(tmp, out / "cluster_check.png")
+    with atomic_write(Path(out_dir) / "cluster_check.png") as tmp:
+        r.filepath = str(tmp)
+        bpy.ops.render.render(write_still=True)
+        decode(tmp, (32, 24))
     return time.perf_counter() - t0
 
 
