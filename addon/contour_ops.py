@@ -21,7 +21,7 @@ from ..core.pipeline.tasks import run_cached
 from ..core.surface import contour_task
 from ..core.surface.mesh import Mesh
 from . import data_ops, frame, materials
-from .mesh import fill_mesh
+from .mesh import fill_mesh, select_only
 from .panel import SubPanel
 
 COLOR_RANGES = {"altitude": (0.0, 12000.0), "temperature": (220.0, 300.0), "cloud": (0.0, 1.0)}
@@ -222,15 +222,6 @@ def report_result(op, obj):
     else:
         op.report({"INFO"}, f"{obj.name}: {len(obj.data.polygons)} triangles")
     return {"FINISHED"}
-
-
-def select_only(context, obj):
-    """Blender's convention: the new object alone selected and active."""
-    for o in list(context.view_layer.objects.selected):
-        if o is not None:  # None: an object this operator replaced
-            o.select_set(False)
-    obj.select_set(True)
-    context.view_layer.objects.active = obj
 
 
 class NEPHELE_OT_add_contour(frame.BackgroundAdd, bpy.types.Operator):

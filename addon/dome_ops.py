@@ -41,6 +41,7 @@ from ..core.camera import dome as core_dome
 from ..core.errors import DataError
 from ..fileio import read_image, write_image
 from . import frame
+from .mesh import select_only
 from .panel import SubPanel
 
 RIG_NAME = "DomeRig"
@@ -494,11 +495,7 @@ class NEPHELE_OT_add_dome_camera(bpy.types.Operator):
         msg = engine_warning(context.scene)
         if msg:
             self.report({"WARNING"}, msg)
-        for o in list(context.view_layer.objects.selected):  # Blender convention: the new object alone selected and active
-            if o is not None:  # None: an object this operator replaced
-                o.select_set(False)
-        rig.select_set(True)
-        context.view_layer.objects.active = rig
+        select_only(context, rig)
         return {"FINISHED"}
 
 

@@ -27,7 +27,7 @@ from ..core.pipeline import sources
 from ..core.surface.mesh import Mesh
 from . import data_ops, frame
 from .materials import enable_nodes
-from .mesh import fill_mesh, new_object
+from .mesh import fill_mesh, new_object, select_only
 from .panel import SubPanel
 
 KIND = "flowvol"
@@ -234,10 +234,7 @@ class NEPHELE_OT_add_flow_volume(bpy.types.Operator):
             return {"CANCELLED"}
         install_handler()
         # The generator is what the artist moves next: leave it selected and active.
-        for o in list(context.view_layer.objects.selected):
-            o.select_set(False)
-        gen.select_set(True)
-        context.view_layer.objects.active = gen
+        select_only(context, gen)
         self.report({"INFO"}, props.status)
         return {"FINISHED"}
 

@@ -23,7 +23,7 @@ from ..core.climate import relief as core_relief
 from ..core.climate.grid import EARTH_RADIUS, globe_radius, lonlat_to_xyz
 from . import data_ops, materials
 from .camera import camera_object, look_at
-from .mesh import fill_mesh
+from .mesh import fill_mesh, select_only
 from .nodes import Nodes
 from .panel import SubPanel
 
@@ -511,11 +511,7 @@ class NEPHELE_OT_add_globe(bpy.types.Operator):
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
         self.report({"INFO"}, f"{obj.name}: {len(obj.data.polygons)} triangles")
-        for o in list(context.view_layer.objects.selected):  # Blender convention: the new object alone selected and active
-            if o is not None:  # None: an object this operator replaced
-                o.select_set(False)
-        obj.select_set(True)
-        context.view_layer.objects.active = obj
+        select_only(context, obj)
         return {"FINISHED"}
 
 
@@ -531,11 +527,7 @@ class NEPHELE_OT_add_sky(bpy.types.Operator):
 
     def execute(self, context):
         sun = add_sky_and_haze(context.scene, haze=self.haze, sun_strength=self.sun_strength)["sun"]
-        for o in list(context.view_layer.objects.selected):  # Blender convention: the new object alone selected and active
-            if o is not None:  # None: an object this operator replaced
-                o.select_set(False)
-        sun.select_set(True)
-        context.view_layer.objects.active = sun
+        select_only(context, sun)
         return {"FINISHED"}
 
 
@@ -559,11 +551,7 @@ class NEPHELE_OT_add_camera(bpy.types.Operator):
                                    f"(radius {inside:.3g}): give more, or 0 to frame the globe")
             return {"CANCELLED"}
         cam = add_camera(context.scene, lon=self.lon, lat=self.lat, distance=self.distance or None, lens=self.lens)
-        for o in list(context.view_layer.objects.selected):  # Blender convention: the new object alone selected and active
-            if o is not None:  # None: an object this operator replaced
-                o.select_set(False)
-        cam.select_set(True)
-        context.view_layer.objects.active = cam
+        select_only(context, cam)
         return {"FINISHED"}
 
 

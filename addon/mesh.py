@@ -124,3 +124,12 @@ def new_object(name, mesh, *, collection=None, smooth=True):
     obj = bpy.data.objects.new(name, new_mesh(name, mesh, smooth=smooth))
     (collection or bpy.context.scene.collection).objects.link(obj)
     return obj
+
+
+def select_only(context, obj):
+    """Blender's convention: the new object alone selected and active."""
+    for o in list(context.view_layer.objects.selected):
+        if o is not None:  # None: an object this operator replaced
+            o.select_set(False)
+    obj.select_set(True)
+    context.view_layer.objects.active = obj

@@ -31,7 +31,7 @@ from ..core.muscle import lattice as lat
 from ..core.pipeline.cache import Cache
 from ..core.pipeline.tasks import plan as task_plan, run_cached
 from . import frame, materials
-from .mesh import fill_mesh, new_object
+from .mesh import fill_mesh, new_object, select_only
 from .panel import SubPanel
 
 OBJECT_NAME = "Muscle film"
@@ -213,11 +213,7 @@ class NEPHELE_OT_add_muscle_film(bpy.types.Operator):
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
         self.report({"INFO"}, f"{obj.name}: {len(obj.data.polygons)} triangles per box")
-        for o in list(context.view_layer.objects.selected):
-            if o is not None:
-                o.select_set(False)
-        obj.select_set(True)
-        context.view_layer.objects.active = obj
+        select_only(context, obj)
         return {"FINISHED"}
 
 

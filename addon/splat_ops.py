@@ -41,7 +41,7 @@ from ..core.splats import default_tile, splat_kernel, splat_samples, streak_maps
 from ..core.volume.transfer import TransferFunction
 from ..core.volume.sparse import DEFAULT_EXTINCTION
 from . import data_ops, frame
-from .mesh import point_attribute, set_point_attribute
+from .mesh import point_attribute, select_only, set_point_attribute
 from .panel import SubPanel
 
 KIND = "splats"
@@ -685,11 +685,7 @@ class NEPHELE_OT_add_wind_splats(bpy.types.Operator):
             return {"CANCELLED"}
         render_settings(context.scene)
         self.report({"INFO"}, f"{obj.name}: {n} splats")
-        for o in list(context.view_layer.objects.selected):
-            if o is not None:
-                o.select_set(False)
-        obj.select_set(True)
-        context.view_layer.objects.active = obj
+        select_only(context, obj)
         return {"FINISHED"}
 
 

@@ -32,6 +32,7 @@ from ..core.volume.transfer import ALTITUDE_COLORS, TEMPERATURE_COLORS, ColorMap
 from ..core.volume.volume_atlas import DEFAULT_BELOW, DEFAULT_SUPPORT_SIZE, atlas_layout
 from . import data_ops, frame, materials, tf_ramp
 from .panel import SubPanel
+from .mesh import select_only
 from .vdb import bake_frame, bake_sequence, frame_path
 
 KIND = "volume"
@@ -811,11 +812,7 @@ class NEPHELE_OT_add_volume_clouds(bpy.types.Operator):
             self.report({"INFO"}, f"Cycles {attr.replace('_', ' ')} raised from {old} to {new} for lit clouds")
         for line in look_warnings(context.scene, obj):
             self.report({"WARNING"}, line)
-        for o in list(context.view_layer.objects.selected):  # Blender convention: the new object alone selected and active
-            if o is not None:  # None: an object this operator replaced
-                o.select_set(False)
-        obj.select_set(True)
-        context.view_layer.objects.active = obj
+        select_only(context, obj)
         return {"FINISHED"}
 
 
