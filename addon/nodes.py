@@ -1,4 +1,4 @@
-"""Shader node wiring shared by the materials: math nodes fed by numbers or sockets."""
+"""Node wiring shared by the materials and the splats' geometry nodes: math nodes fed by numbers or sockets."""
 
 
 class Nodes:
@@ -34,13 +34,13 @@ class Nodes:
                 self._set(sock, v)
         return node.outputs[0]
 
-    def vmath(self, op, a, b=None, label=None):
-        node = self._place(self.tree.nodes.new("ShaderNodeVectorMath"), label)
+    def vmath(self, op, a, b=None, label=None, loc=None):
+        node = self._place(self.tree.nodes.new("ShaderNodeVectorMath"), label, loc)
         node.operation = op
         self._set(node.inputs[0], a)
         if b is not None:
             self._set(node.inputs[1], b)
-        return node.outputs["Value" if op in ("DOT_PRODUCT", "LENGTH") else "Vector"]
+        return node.outputs["Value" if op in ("DOT_PRODUCT", "LENGTH", "DISTANCE") else "Vector"]
 
     def map_range(self, x, a, b, c=0.0, d=1.0, label=None):
         """Clamped linear ``(x − a) / (b − a)`` onto ``c..d``."""

@@ -42,6 +42,7 @@ from ..core.volume.transfer import TransferFunction
 from ..core.volume.sparse import DEFAULT_EXTINCTION
 from . import data_ops, frame
 from .mesh import point_attribute, select_only, set_point_attribute
+from .nodes import Nodes
 from .panel import SubPanel
 
 KIND = "splats"
@@ -108,34 +109,6 @@ def _link(tree, src, dst):
     tree.links.new(src, dst)
 
 
-def _gn_vmath(tree, op, a, b=None, loc=(0, 0)):
-    node = tree.nodes.new("ShaderNodeVectorMath")
-    node.operation = op
-    node.location = loc
-    for i, v in enumerate((a, b)):
-        if v is None:
-            continue
-        if isinstance(v, bpy.types.NodeSocket):
-            _link(tree, v, node.inputs[i])
-        else:
-            node.inputs[i].default_value = v
-    return node.outputs["Value" if op in ("DOT_PRODUCT", "LENGTH", "DISTANCE") else "Vector"]
-
-
-def _gn_math(tree, op, a, b=None, loc=(0, 0)):
-    node = tree.nodes.new("ShaderNodeMath")
-    node.operation = op
-    node.location = loc
-    for i, v in enumerate((a, b)):
-        if v is None:
-            continue
-        if isinstance(v, bpy.types.NodeSocket):
-            _link(tree, v, node.inputs[i])
-        else:
-            node.inputs[i].default_value = v
-    return node.outputs[0]
-
-
 def _gn_attr(tree, name, dtype="FLOAT_VECTOR", loc=(0, 0)):
     node = tree.nodes.new("GeometryNodeInputNamedAttribute")
     node.data_type = dtype
@@ -164,6 +137,7 @@ def splat_node_group(material):
     ng = bpy.data.node_groups.new(name, "GeometryNodeTree")
     ng.interface.new_socket(name="Geometry", in_out="INPUT", socket_type="NodeSocketGeometry")
     ng.interface.new_socket(name="Geometry", in_out="OUTPUT", socket_type="NodeSocketGeometry")
+    g = Nodes(ng)
     gin = ng.nodes.new("NodeGroupInput")
     gin.location = (-1400, 0)
     gout = ng.nodes.new("NodeGroupOutput")
@@ -187,8 +161,8 @@ def splat_node_group(material):
 
     def shadow(e, y):
         """``axesᵀ e``: the ellipsoid's semi-axes projected on the view-plane direction ``e``."""
-        comps = [_gn_vmath(ng, "DOT_PRODUCT", _gn_attr(ng, AXES + str(k), loc=(-1000, y - 60 * k)), e,
-                           loc=(-800, y - 60 * k)) for k in range(3)]
+        comps = [g.vmath("DOT_PRODUCT", _gn_attr(ng, AXES + str(k), loc=(-1000, y - 60 * k)), e,
+                         loc=(-800, y - 60 * k)) for k in range(3)]
         comb = ng.nodes.new("ShaderNodeCombineXYZ")
         comb.location = (-600, y)
         for k in range(3):
@@ -198,23 +172,23 @@ def splat_node_group(material):
     # The shadow ellipse {P M u : |u| <= 1} has the 2x2 shape matrix C = (P M)(P M)ᵀ, P = [e_x e_y]ᵀ:
     # its principal axes are at angle θ = atan2(2 c01, c00 - c11) / 2 from e_x, half-lengths √λ±.
     a, b = shadow(ex, 0), shadow(ey, -250)
-    c00 = _gn_vmath(ng, "DOT_PRODUCT", a, a, loc=(-400, 100))
-    c11 = _gn_vmath(ng, "DOT_PRODUCT", b, b, loc=(-400, 0))
-    c01 = _gn_vmath(ng, "DOT_PRODUCT", a, b, loc=(-400, -100))
-    half_diff = _gn_math(ng, "MULTIPLY", _gn_math(ng, "SUBTRACT", c00, c11, loc=(-250, 50)), 0.5, loc=(-100, 50))
-    mean = _gn_math(ng, "MULTIPLY", _gn_math(ng, "ADD", c00, c11, loc=(-250, 150)), 0.5, loc=(-100, 150))
-    root = _gn_math(ng, "SQRT", _gn_math(ng, "ADD", _gn_math(ng, "MULTIPLY", half_diff, half_diff, loc=(50, 0)),
-                                         _gn_math(ng, "MULTIPLY", c01, c01, loc=(50, -100)), loc=(200, 0)),
-                    loc=(350, 0))
+    c00 = g.vmath("DOT_PRODUCT", a, a, loc=(-400, 100))
+    c11 = g.vmath("DOT_PRODUCT", b, b, loc=(-400, 0))
+    c01 = g.vmath("DOT_PRODUCT", a, b, loc=(-400, -100))
+    half_diff = g.math("MULTIPLY", g.math("SUBTRACT", c00, c11, loc=(-250, 50)), 0.5, loc=(-100, 50))
+    mean = g.math("MULTIPLY", g.math("ADD", c00, c11, loc=(-250, 150)), 0.5, loc=(-100, 150))
+    root = g.math("SQRT", g.math("ADD", g.math("MULTIPLY", half_diff, half_diff, loc=(50, 0)),
+                                 g.math("MULTIPLY", c01, c01, loc=(50, -100)), loc=(200, 0)),
+                  loc=(350, 0))
     scale = ng.nodes.new("ShaderNodeCombineXYZ")
     scale.location = (700, -100)
-    _link(ng, _gn_math(ng, "SQRT", _gn_math(ng, "ADD", mean, root, loc=(500, 100)), loc=(600, 100)), scale.inputs[0])
+    _link(ng, g.math("SQRT", g.math("ADD", mean, root, loc=(500, 100)), loc=(600, 100)), scale.inputs[0])
     # max(., 0): λ₋ of a splat seen exactly edge-on is 0 up to rounding.
-    _link(ng, _gn_math(ng, "SQRT", _gn_math(ng, "MAXIMUM", _gn_math(ng, "SUBTRACT", mean, root, loc=(500, -50)), 0.0,
-                                            loc=(550, -50)), loc=(600, -50)), scale.inputs[1])
+    _link(ng, g.math("SQRT", g.math("MAXIMUM", g.math("SUBTRACT", mean, root, loc=(500, -50)), 0.0,
+                                    loc=(550, -50)), loc=(600, -50)), scale.inputs[1])
     scale.inputs[2].default_value = 1.0
-    theta = _gn_math(ng, "MULTIPLY", _gn_math(ng, "ARCTAN2", _gn_math(ng, "MULTIPLY", c01, 2.0, loc=(-250, -150)),
-                                              half_diff, loc=(-100, -150)), 0.5, loc=(50, -200))
+    theta = g.math("MULTIPLY", g.math("ARCTAN2", g.math("MULTIPLY", c01, 2.0, loc=(-250, -150)),
+                                      half_diff, loc=(-100, -150)), 0.5, loc=(50, -200))
     # ARCTAN2(y, x) = atan2(2 c01, (c00 - c11)/2 ... ) has the sign of atan2(2 c01, c00 - c11): same angle.
     spin = ng.nodes.new("FunctionNodeAxisAngleToRotation")
     spin.location = (200, -250)
@@ -230,8 +204,8 @@ def splat_node_group(material):
     # Back to front: the key is the depth along the camera's view (its -z).
     pos = ng.nodes.new("GeometryNodeInputPosition")
     pos.location = (-800, 300)
-    rel = _gn_vmath(ng, "SUBTRACT", pos.outputs[0], info.outputs["Location"], loc=(-600, 300))
-    key = _gn_vmath(ng, "DOT_PRODUCT", rel, ez, loc=(-400, 300))  # -depth: farthest first
+    rel = g.vmath("SUBTRACT", pos.outputs[0], info.outputs["Location"], loc=(-600, 300))
+    key = g.vmath("DOT_PRODUCT", rel, ez, loc=(-400, 300))  # -depth: farthest first
     sort = ng.nodes.new("GeometryNodeSortElements")
     sort.domain = "POINT"
     sort.location = (-200, 300)
