@@ -38,6 +38,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "benchmarks"))
+sys.path.insert(0, str(ROOT / "tests" / "core" / "light"))  # the independent truths the tests use
 OUT = ROOT / "out" / "bench" / "scatter"
 
 SIZE = (1.0, 1.0, 0.75)
@@ -162,52 +163,6 @@ def scaling(shapes=((18, 24, 24), (36, 48, 48), (72, 96, 96))):
 
 # ----------------------------------------------------------------- accuracy vs voxel depth
 
-def _gauss01(n):
-    x, w = np.polynomial.legendre.leggauss(n)
-    return 0.5 * (x + 1.0), 0.5 * w
-
-
-def h_albedo(omega, mu0, n=200):
-    """Plane albedo ``1 - H(mu0) sqrt(1 - omega)`` of a semi-infinite isotropic medium,
-    H iterated from ``1/H = sqrt(1-omega) + omega/2 int mu' H(mu') / (mu + mu') dmu'``."""
-    mu, w = _gauss01(n)
-    h = np.ones(n)
-    for _ in range(5000):
-        new = 1.0 / (np.sqrt(1 - omega) + 0.5 * omega * ((w * mu * h)[None] / (mu[:, None] + mu[None])).sum(1))
-        done = np.max(np.abs(new - h)) < 1e-14
-        h = new
-        if done:
-            break
-    return 1.0 - np.sqrt(1 - omega) / (np.sqrt(1 - omega) + 0.5 * omega * np.sum(w * mu * h / (mu0 + mu)))
-
-
-def single_r(omega, tau, mu0, n=64):
-    """Once-scattered plane albedo of an isotropic slab (closed form, Gauss quadrature in mu)."""
-    mu, w = _gauss01(n)
-    return 0.5 * omega * np.sum(w * mu / (mu + mu0) * (1 - np.exp(-tau * (1 / mu0 + 1 / mu))))
-
-
-def adding_doubling_iso(tau, omega, mu0, n=32, doublings=30):
-    """(R, T) of an isotropic slab, collimated sun at ``mu0`` (azimuth-averaged doubling)."""
-    mu, w = _gauss01(n)
-    d = tau / 2.0 ** doublings
-    r = omega * d * w[None] / (2 * mu[:, None])
-    t = np.diag(np.exp(-d / mu)) + r
-    r0 = omega * d / (4 * np.pi * mu)
-    t0 = r0.copy()
-    e = np.exp(-d / mu0)
-    eye = np.eye(n)
-    for _ in range(doublings):
-        gm = np.linalg.inv(eye - r @ r)
-        down = gm @ (t0 + e * (r @ r0))
-        up = e * r0 + r @ down
-        r0, t0 = r0 + t @ up, e * t0 + t @ down
-        tg = t @ gm
-        r, t = r + tg @ r @ t, tg @ t
-        e = e * e
-    return 2 * np.pi * np.sum(w * mu * r0) / mu0, 2 * np.pi * np.sum(w * mu * t0) / mu0 + e
-
-
 def _slab(tau, layers, omega, g, mu0, profile):
     from nephele.core import scatter
 
@@ -227,16 +182,18 @@ AD_G08 = [(4.0, 0.8, 1.0, 0.25444, 0.74406), (4.0, 0.8, 0.99, 0.23131, 0.70164),
 
 def accuracy(quick=False):
     """Rows: case, mu0, layers, voxel tau, truth, error even spread, error with profiles, seconds."""
+    from radiative_truth import adding_doubling_iso, h_function, single_scattering_r
+
     mus = (1.0, 0.5, float(np.sin(np.radians(15.0))))
     cases = []
     for mu0 in mus[::2] if quick else mus:
         for layers in ((16, 4) if quick else (32, 16, 8, 4)):
             cases.append(("single scattering g=0, tau 8, albedo 1e-3 (R rel.)", 8.0, layers, 1e-3, 0.0, mu0,
-                          single_r(1e-3, 8.0, mu0), None))
+                          single_scattering_r(1e-3, 0.0, 8.0, mu0), None))
     for mu0 in mus[::2] if quick else mus:
         for layers in ((64, 16) if quick else (128, 64, 32, 16)):
             cases.append(("semi-infinite g=0, albedo 0.9 vs H-function (tau 32; R rel.)", 32.0, layers, 0.9, 0.0,
-                          mu0, h_albedo(0.9, mu0), None))
+                          mu0, 1.0 - h_function(0.9)(mu0) * np.sqrt(0.1), None))
     if not quick:
         for mu0 in mus[:2]:
             r_ad, t_ad = adding_doubling_iso(32.0, 0.99, mu0)
@@ -279,8 +236,8 @@ def main(argv=None):
     acc = [] if args.skip_accuracy else accuracy(args.quick)
     acc_md = [
         "Accuracy against voxel optical thickness (issue 18): homogeneous slabs periodic in x and y, "
-        "solved on 4 to 128 layers; relative error of R (and T) against truth computed in the benchmark "
-        "(single scattering in closed form, Chandrasekhar's H-function iterated from its integral "
+        "solved on 4 to 128 layers; relative error of R (and T) against independent truth (tests/core/light/radiative_truth.py, "
+        "shared with the tests: single scattering in closed form, Chandrasekhar's H-function iterated from its integral "
         "equation, an isotropic adding-doubling) or facts.md's adding-doubling. 'even' = sources spread "
         "evenly in each voxel (`source_profile=False`: the solver before issue 18, except that the sun's "
         "first scattering now uses the real medium and the full HG), 'profiles' = the default. "
