@@ -1,4 +1,6 @@
-"""Cameras: the dome (fisheye, cube-map) projections."""
+"""Cameras: the dome (fisheye, cube-map) projections and red-cyan anaglyphs of stereo pairs."""
+
+from .anaglyph import red_cyan  # noqa: F401
 
 from .dome import (  # noqa: F401
     CUBE_AXES,
