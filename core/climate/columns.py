@@ -68,6 +68,32 @@ class ColumnLocator:
         from scipy.spatial import cKDTree
 
         self._tree = cKDTree(self.xy.reshape(-1, 2))
+        # A point inside a cell is at most the cell's diameter from its nearest column: farther points are outside.
+        x = self.xy
+        corners = (x[:-1, :-1], x[:-1, 1:], x[1:, :-1], x[1:, 1:])
+        self._reach = max(float(np.linalg.norm(a - b, axis=-1).max()) for n, a in enumerate(corners) for b in corners[n + 1 :])
+        self._raster()
+        self._points = p.reshape(-1, 3)
+        self._tree3 = None
+
+    def _raster(self, per_cell=2):
+        """A uniform raster over the chart's box naming, per pixel, the cell that holds its centre (or the
+        nearest column's cell), and whether the whole pixel lies outside every cell: a first guess for
+        :meth:`__call__` that one Newton inversion (or a short walk) confirms."""
+        nj, ni = self.shape
+        lo, hi = self.xy.reshape(-1, 2).min(axis=0), self.xy.reshape(-1, 2).max(axis=0)
+        m = np.maximum(np.ceil(np.array([ni, nj]) * per_cell), 1).astype(int)
+        step = (hi - lo) / m
+        centres = lo + (np.stack(np.meshgrid(np.arange(m[0]), np.arange(m[1]), indexing="xy"), axis=-1).reshape(-1, 2) + 0.5) * step
+        dist, near = self._tree.query(centres, k=1)
+        jn, in_ = np.divmod(np.asarray(near), ni)
+        cj, ci = np.clip(jn, 0, nj - 2), np.clip(in_, 0, ni - 2)
+        fi, fj = self._search(centres, np.arange(len(centres)))
+        inside = fi >= 0
+        ci[inside], cj[inside] = np.minimum(fi[inside].astype(int), ni - 2), np.minimum(fj[inside].astype(int), nj - 2)
+        self._lo, self._step, self._m = lo, step, m
+        self._cell = np.stack([cj, ci], axis=-1)
+        self._empty = np.asarray(dist) > self._reach * (1 + 1e-9) + 0.5 * float(np.hypot(*step))
 
     def chart(self, xyz):
         """Gnomonic chart coordinates ``(n, 2)`` of points ``(n, 3)`` (any distance from the centre);
@@ -86,6 +112,19 @@ class ColumnLocator:
         cosines = [np.sum(p[1:] * p[:-1], axis=-1), np.sum(p[:, 1:] * p[:, :-1], axis=-1),
                    np.sum(p[1:, 1:] * p[:-1, :-1], axis=-1), np.sum(p[1:, :-1] * p[:-1, 1:], axis=-1)]
         return float(np.rad2deg(np.arccos(np.clip(min(x.min() for x in cosines), -1.0, 1.0))))
+
+    def nearest(self, xyz):
+        """``(i, j)`` integer indices of the column nearest each point ``(n, 3)`` (by the angle from the centre)."""
+        if self._tree3 is None:
+            from scipy.spatial import cKDTree
+
+            self._tree3 = cKDTree(self._points)
+        q = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            q = q / np.linalg.norm(q, axis=1, keepdims=True)
+        _, near = self._tree3.query(np.nan_to_num(q), k=1)
+        j, i = np.divmod(np.asarray(near, dtype=np.int64), self.shape[1])
+        return i, j
 
     def _invert(self, x, y, j0, i0, iters=4):
         """Fractions ``(s, t)`` along i and j of chart points ``(x, y)`` in cells with lowest corner ``(j0, i0)``.
@@ -120,13 +159,51 @@ class ColumnLocator:
         xy = self.chart(xyz)
         n = xy.shape[0]
         out_i, out_j = np.full(n, -1.0), np.full(n, -1.0)
-        todo = np.flatnonzero(np.all(np.isfinite(xy), axis=1))
+        ok = np.all(np.isfinite(xy), axis=1)
+        q = np.floor((np.where(ok[:, None], xy, 0.0) - self._lo) / self._step)
+        ok &= np.all((q >= -1) & (q <= self._m), axis=1)  # well off the chart's box: in no cell
+        q = np.clip(q, 0, self._m - 1).astype(np.int64)  # a pixel's width off the box: the edge pixel decides
+        todo = np.flatnonzero(ok)
+        pix = q[todo, 1] * self._m[0] + q[todo, 0]
+        todo, pix = todo[~self._empty[pix]], pix[~self._empty[pix]]
+        nj, ni = self.shape
+        j0, i0 = self._cell[pix, 0], self._cell[pix, 1]
+        for _ in range(3):  # the raster's cell, then up to two steps toward the point
+            if not todo.size:
+                break
+            s, t = self._invert(xy[todo, 0], xy[todo, 1], j0, i0)
+            hit = (s >= -_EDGE) & (s <= 1 + _EDGE) & (t >= -_EDGE) & (t <= 1 + _EDGE)
+            out_i[todo[hit]] = i0[hit] + np.clip(s[hit], 0.0, 1.0)
+            out_j[todo[hit]] = j0[hit] + np.clip(t[hit], 0.0, 1.0)
+            todo, s, t, j0, i0 = todo[~hit], s[~hit], t[~hit], j0[~hit], i0[~hit]
+            di = np.clip(np.floor(np.nan_to_num(s)), -1, 1).astype(np.int64)
+            dj = np.clip(np.floor(np.nan_to_num(t)), -1, 1).astype(np.int64)
+            # Beyond a boundary cell's outer edge (and next to the cell): outside the region.
+            off_i = ((di < 0) & (i0 == 0)) | ((di > 0) & (i0 == ni - 2))
+            off_j = ((dj < 0) & (j0 == 0)) | ((dj > 0) & (j0 == nj - 2))
+            near = (s > -1) & (s < 2) & (t > -1) & (t < 2)
+            gone = near & (off_i | off_j) & (off_i | (di == 0)) & (off_j | (dj == 0))
+            todo, j0, i0 = todo[~gone], np.clip(j0 + dj, 0, nj - 2)[~gone], np.clip(i0 + di, 0, ni - 2)[~gone]
+        if todo.size:  # the few left (edges, skewed cells): the search from the nearest columns
+            fi, fj = self._search(xy[todo], np.arange(todo.size))
+            out_i[todo], out_j[todo] = fi, fj
+        return out_i, out_j
+
+    def _search(self, xy, todo):
+        """Fractional ``(i, j)`` of chart points ``xy`` by trying the cells around their nearest columns; -1 outside."""
+        n = xy.shape[0]
+        out_i, out_j = np.full(n, -1.0), np.full(n, -1.0)
         nj, ni = self.shape
         for k in (1, 4):  # nearest column first; the few left (skewed cells, edges) try the 4 nearest
             if not todo.size:
                 break
-            _, near = self._tree.query(xy[todo], k=k)
+            dist, near = self._tree.query(xy[todo], k=k)
             near = np.asarray(near).reshape(todo.size, k)
+            if k == 1:
+                close = np.asarray(dist).reshape(-1) <= self._reach * (1 + 1e-9)
+                todo, near = todo[close], near[close]
+                if not todo.size:
+                    break
             found = np.zeros(todo.size, bool)
             for col in near.T:
                 jn, in_ = np.divmod(col, ni)
@@ -151,6 +228,5 @@ class ColumnLocator:
                     found[left[hit]] = True
             todo = todo[~found]
         return out_i, out_j
-
 
 __all__ = ["ColumnLocator"]

@@ -37,7 +37,8 @@ from scipy import ndimage
 
 from ..errors import DataError
 from .flows import tangent_velocity
-from ..climate.grid import EARTH_RADIUS, xyz_to_lonlat
+from ..climate.columns import ColumnLocator
+from ..climate.grid import EARTH_RADIUS, lonlat_to_xyz, xyz_to_lonlat
 from ..threads import default_threads
 
 HOUR = 3600.0
@@ -89,6 +90,7 @@ class _GridIndex:
         self.lat_axis = np.concatenate([-180.0 - lat[south][::-1], lat, 180.0 - lat[north]])
         self.njp = nj + 2 * p
         self.nip = ni + 3
+        self.poles = p > 0
         self._lon_step = _uniform_step(self.lon_axis)
         self._lat_step = _uniform_step(self.lat_axis)
         self._offsets = {}
@@ -198,6 +200,75 @@ class _GridIndex:
         return out
 
 
+class _ColumnIndex(_GridIndex):
+    """:class:`_GridIndex` of a curvilinear (2-D longitude/latitude, regional) grid.
+
+    Points are located with :class:`~nephele.core.climate.columns.ColumnLocator`
+    (bilinear cells in the gnomonic chart, Newton inversion), so every stencil
+    is the same fixed set of index-space taps as on a longitude/latitude grid.
+    Padded fields repeat the edge rows (two each side) and columns.  A point
+    outside the region has NaN indices, and the gathers give 0 there: the air
+    outside a regional grid is calm, so a trajectory that leaves the region
+    stops within one step of its edge.
+    """
+
+    def __init__(self, grid, path=None):
+        self.shape = grid.shape
+        nk, nj, ni = grid.shape
+        self.periodic = False
+        self.poles = False
+        self.pad = 2
+        self.njp, self.nip = nj + 2 * self.pad, ni + 3
+        self._offsets = {}
+        self.locator = ColumnLocator(grid.lon2d, grid.lat2d, path)
+
+    def padded(self, f, out=None):
+        nk, nj, ni = self.shape
+        p = self.pad
+        if out is None:
+            out = np.empty((nk, nj + 2 * p, ni + 3) + f.shape[3:], dtype=f.dtype)
+        out[:, p : p + nj, 1 : ni + 1] = f
+        out[:, :p, 1 : ni + 1] = f[:, :1]
+        out[:, p + nj :, 1 : ni + 1] = f[:, -1:]
+        out[:, :, 0], out[:, :, ni + 1], out[:, :, ni + 2] = out[:, :, 1], out[:, :, ni], out[:, :, ni]
+        return out
+
+    def fractional(self, xyz, s, clamp=False):
+        """Fractional ``(fk, fj, fi)`` (``fj`` in padded rows); NaN outside the region, or with
+        ``clamp`` the nearest column's indices there."""
+        fi, fj = self.locator(xyz)
+        outside = fi < 0
+        if outside.any():
+            if clamp:
+                ci, cj = self.locator.nearest(np.asarray(xyz)[outside])
+                fi[outside], fj[outside] = ci, cj
+            else:
+                fi[outside] = fj[outside] = np.nan
+        return np.clip(s, 0.0, self.shape[0] - 1), fj + self.pad, fi
+
+    def _gather(self, f, fk, fj, fi, cubic, chunk=2048):
+        outside = np.isnan(fi)
+        if not outside.any():
+            return super()._gather(f, fk, fj, fi, cubic, chunk)
+        out = super()._gather(f, fk, np.where(outside, float(self.pad), fj), np.where(outside, 0.0, fi), cubic, chunk)
+        out[outside] = 0.0
+        return out
+
+
+def grid_index(grid, pad=2, path=None):
+    """The :class:`_GridIndex` of ``grid``: longitude/latitude axes, or located columns on a curvilinear grid."""
+    return _ColumnIndex(grid, path) if grid.curvilinear else _GridIndex(grid, pad)
+
+
+def _column_spacing(grid):
+    """Smallest angle (radians) between neighbouring columns of a curvilinear grid."""
+    p = lonlat_to_xyz(grid.lon2d, grid.lat2d)
+    angles = []
+    for a, b in ((p[1:], p[:-1]), (p[:, 1:], p[:, :-1])):
+        angles.append(np.arctan2(np.linalg.norm(np.cross(a, b), axis=-1), np.sum(a * b, axis=-1)).min())
+    return float(min(angles))
+
+
 def _uniform_step(axis):
     """The spacing of an evenly spaced axis, or None."""
     d = np.diff(axis)
@@ -270,12 +341,11 @@ class WindField:
         for name in ("u", "v"):
             if name not in dataset:
                 raise DataError("is needed to advect textures but the dataset has no such field", path=dataset.source, field=name)
-        dataset.grid.require_lonlat("advection", path=dataset.source)
         self.dataset = dataset
         self.grid = grid = dataset.grid
         self.radius = float(radius or getattr(dataset, "earth_radius", None) or EARTH_RADIUS)
         self.nan = nan
-        self.index = _GridIndex(grid, pad=2)
+        self.index = grid_index(grid, pad=2, path=dataset.source)
         self.nk = grid.shape[0]
         self.hours = dataset.hours
         self.time_range = (float(self.hours[0]), float(self.hours[-1]))
@@ -283,14 +353,17 @@ class WindField:
         self._blends = OrderedDict()
         self._cache_steps = cache_steps
         self._speed = {}
-        self.min_spacing = float(np.deg2rad(np.min(np.diff(grid.lat))))
+        self.min_spacing = _column_spacing(grid) if grid.curvilinear else float(np.deg2rad(np.min(np.diff(grid.lat))))
         self._geometry()
 
     def _geometry(self):
         g = self.grid
         nk, nj, ni = g.shape
         # East and north unit vectors per column, scaled from m/s to unit-sphere radians per hour.
-        lam, phi = np.deg2rad(g.lon)[None, :], np.deg2rad(g.lat)[:, None]
+        if g.curvilinear:
+            lam, phi = np.deg2rad(g.lon2d), np.deg2rad(g.lat2d)
+        else:
+            lam, phi = np.deg2rad(g.lon)[None, :], np.deg2rad(g.lat)[:, None]
         sl, cl, sp, cp = np.sin(lam), np.cos(lam), np.sin(phi), np.cos(phi)
         scale = HOUR / self.radius
         self._east = [(a * scale).astype(np.float32) for a in np.broadcast_arrays(-sl, cl, 0.0 * phi)]
@@ -301,6 +374,8 @@ class WindField:
         flat = np.all(h == h[:, :1, :1])
         if flat:
             self._dhdx = self._dhdy = None
+        elif g.curvilinear:
+            self._dhdx, self._dhdy = (a.astype(np.float32) for a in _curvilinear_slopes(g, h, self.radius))
         else:
             lam, phi = np.deg2rad(g.lon), np.deg2rad(g.lat)
             if g.periodic_lon:
@@ -430,7 +505,28 @@ class WindField:
 
     def start_height(self, xyz, s):
         """Height in metres of the points (the grid's level heights interpolated)."""
-        return self.index.trilinear(self.height_field, *self.index.fractional(xyz, s))[:, 0]
+        fr = self.index.fractional(xyz, s, clamp=True) if self.grid.curvilinear else self.index.fractional(xyz, s)
+        return self.index.trilinear(self.height_field, *fr)[:, 0]
+
+
+def _curvilinear_slopes(grid, h, radius):
+    """East and north slopes ``(dh/dx, dh/dy)`` (nk, nj, ni) of level heights ``h`` on a curvilinear grid.
+
+    The chain rule through the columns' positions: with ``J`` the east/north
+    metres per column index (central differences of the unit vectors, one
+    sided at the edges), ``(dh/di, dh/dj) = Jᵀ (dh/dx, dh/dy)``.
+    """
+    p = lonlat_to_xyz(grid.lon2d, grid.lat2d)
+    lam, phi = np.deg2rad(grid.lon2d), np.deg2rad(grid.lat2d)
+    east = np.stack([-np.sin(lam), np.cos(lam), np.zeros_like(lam)], axis=-1)
+    north = np.stack([-np.sin(phi) * np.cos(lam), -np.sin(phi) * np.sin(lam), np.cos(phi)], axis=-1)
+    pi, pj = np.gradient(p, axis=1) * radius, np.gradient(p, axis=0) * radius
+    a, b = np.sum(east * pi, axis=-1), np.sum(east * pj, axis=-1)  # J = [[a, b], [c, d]]
+    c, d = np.sum(north * pi, axis=-1), np.sum(north * pj, axis=-1)
+    det = a * d - b * c
+    hi, hj = np.gradient(h, axis=2), np.gradient(h, axis=1)
+    # Solve [[a, c], [b, d]] (dh/dx, dh/dy) = (dh/di, dh/dj).
+    return (d * hi - c * hj) / det, (a * hj - b * hi) / det
 
 
 def _tangent(out, xyz):
@@ -663,7 +759,7 @@ class _StreamedMap:
         self.st = strategy
         self.order = order
         self.band = band
-        self.index = _GridIndex(strategy.grid, pad=2)
+        self.index = grid_index(strategy.grid, pad=2)
         self.map = self.index.padded(np.zeros(strategy.grid.shape + (4 * copies,), dtype=np.float32))
         self.frames = [None] * copies
         self.starts = [None] * copies
@@ -680,7 +776,7 @@ class _StreamedMap:
             return np.arange(int(np.prod(self.st.grid.shape)))
         mask = np.zeros(self.st.grid.shape, dtype=bool)
         mask.reshape(-1)[index] = True
-        return np.flatnonzero(dilate(mask, self.band, periodic_lon=self.st.grid.periodic_lon, poles=self.index.pad > 0))
+        return np.flatnonzero(dilate(mask, self.band, periodic_lon=self.st.grid.periodic_lon, poles=self.index.poles))
 
     def advance(self, copies, n, index):
         """Move copies ``copies`` (all at frame ``n - 1``) to frame ``n`` for the vertices around ``index``."""
@@ -919,6 +1015,11 @@ COPIES = ("a", "b")
 def grid_vertices(grid, index=None):
     """Unit vectors of grid vertices (all, or the flat indices ``index``), ``(n, 3)``."""
     nk, nj, ni = grid.shape
+    if grid.curvilinear:
+        cols = lonlat_to_xyz(grid.lon2d, grid.lat2d).reshape(-1, 3)
+        if index is None:
+            return np.tile(cols, (nk, 1))
+        return cols[np.asarray(index) % (nj * ni)]
     lam = np.deg2rad(grid.lon)
     phi = np.deg2rad(grid.lat)
     if index is None:

@@ -5,8 +5,12 @@ A scene point ``p`` is a unit vector times the globe radius of its height
 coordinate comes from the grid's mean level heights; the project's
 :class:`~nephele.core.flow.advect.WindField` interpolates the winds (trilinear in
 level/row/column index, linear in time, rows mirrored across the poles and
-periodic longitudes, so generators may straddle the seam or a pole).  Time is
-in hours; velocities in scene units per hour.
+periodic longitudes, so generators may straddle the seam or a pole).  On a
+curvilinear (2-D longitude/latitude, regional) grid the wind field locates
+points in the grid's columns, and the velocity is NaN outside the region
+(``bounded``): :func:`~nephele.core.flowvol.volume.flow_volume` stops air that
+leaves the region at its exit point and drops the tetrahedra that reach it.
+Time is in hours; velocities in scene units per hour.
 
 References
 ----------
@@ -42,6 +46,7 @@ class ClimateVelocity:
 
     def __init__(self, dataset, radius=1.0, exaggeration=DEFAULT_EXAGGERATION, nan="error", keep_hours=48, stack_mb=256):
         self.wind = WindField(dataset, nan=nan, read_ahead=False, cache_steps=steps_to_keep(dataset.grid, keep_hours))
+        self.bounded = bool(dataset.grid.curvilinear)  # NaN outside a regional grid (flow_volume stops air there)
         self.radius, self.exaggeration = float(radius), float(exaggeration)
         self.stack_bytes, self._stack = stack_mb * 2**20, None
         h = np.asarray(dataset.grid.height, dtype=np.float64).reshape(self.wind.nk, -1).mean(axis=1)
@@ -97,19 +102,29 @@ class ClimateVelocity:
         w1 = np.clip((t - hours[i0]) / (hours[np.minimum(i0 + 1, len(hours) - 1)] - hours[i0] if len(hours) > 1 else 1.0), 0.0, 1.0)
         lo, hi = int(i0[0] if t_lo == t_hi else i0.min()), min(int(i0.max()) + 1, len(hours) - 1)
         stack = self._stacked(lo, hi)
-        if stack is not None:
-            # Every point's two bracketing steps in one gather from the steps stacked along the level axis.
-            fk, fj, fi = self.wind.index.fractional(unit, s)
-            nk = self.wind.nk
-            upper = np.minimum(i0 + 1, len(hours) - 1)
-            both = self.wind.index.trilinear(stack, np.concatenate([(i0 - lo) * nk + fk, (upper - lo) * nk + fk]),
-                                             np.concatenate([fj, fj]), np.concatenate([fi, fi])).astype(np.float64)
-            n = len(p)
-            f = (1.0 - w1)[:, None] * both[:n] + w1[:, None] * both[n:]
-            v = f[:, :3] - np.einsum("ij,ij->i", f[:, :3], unit)[:, None] * unit
-            rate = f[:, 3] * np.interp(s, self._levels, self._dr_ds)
-            return v * r[:, None] + rate[:, None] * unit
-        # Too many steps to stack: one wind read per hourly step for every point that needs it.
+        fr = self.wind.index.fractional(unit, s) if stack is not None or self.bounded else None
+        out = self._stacked_velocity(stack, fr, unit, r, s, i0, w1, lo) if stack is not None else self._per_step(p, unit, r, s, i0, w1)
+        if self.bounded:
+            out[np.isnan(fr[2])] = np.nan
+        return out
+
+    def _stacked_velocity(self, stack, fr, unit, r, s, i0, w1, lo):
+        """Every point's two bracketing steps in one gather from the steps stacked along the level axis."""
+        hours = self._hours
+        fk, fj, fi = fr
+        nk = self.wind.nk
+        upper = np.minimum(i0 + 1, len(hours) - 1)
+        both = self.wind.index.trilinear(stack, np.concatenate([(i0 - lo) * nk + fk, (upper - lo) * nk + fk]),
+                                         np.concatenate([fj, fj]), np.concatenate([fi, fi])).astype(np.float64)
+        n = len(unit)
+        f = (1.0 - w1)[:, None] * both[:n] + w1[:, None] * both[n:]
+        v = f[:, :3] - np.einsum("ij,ij->i", f[:, :3], unit)[:, None] * unit
+        rate = f[:, 3] * np.interp(s, self._levels, self._dr_ds)
+        return v * r[:, None] + rate[:, None] * unit
+
+    def _per_step(self, p, unit, r, s, i0, w1):
+        """Too many steps to stack: one wind read per hourly step for every point that needs it."""
+        hours = self._hours
         out = np.zeros_like(p)
         steps = np.concatenate([i0, np.minimum(i0 + 1, len(hours) - 1)])
         weights = np.concatenate([1.0 - w1, w1])
