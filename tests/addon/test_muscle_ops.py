@@ -71,6 +71,32 @@ def test_example_renders_omnimax_stereo(tmp_path):
     assert not np.array_equal(eyes[0], eyes[1])
 
 
+def test_example_main_denoises_and_writes_the_red_cyan_anaglyph(tmp_path):
+    sys.path.insert(0, str(EXAMPLES))
+    try:
+        import fig7_muscle
+    finally:
+        sys.path.remove(str(EXAMPLES))
+    from nephele.core.camera.anaglyph import grey
+    from nephele.fileio import read_image
+
+    with pytest.raises(SystemExit) as exc:
+        fig7_muscle.main(["--out", str(tmp_path), "--anaglyph", "half"])  # no stereo pair to combine
+    assert exc.value.code == 2
+    assert fig7_muscle.main(["--out", str(tmp_path), "--dome", "--stereo", "--anaglyph", "grey", "--size", "48", "36",
+                             "--spacing", "2.0", "--film-frames", "1", "--samples", "2", "--denoise",
+                             "--bounces", "2"]) == 0
+    c = bpy.context.scene.cycles
+    assert c.use_denoising and c.denoiser == "OPENIMAGEDENOISE" and c.denoising_input_passes == "RGB_ALBEDO_NORMAL"
+    assert (c.samples, c.max_bounces, c.diffuse_bounces, c.glossy_bounces, c.transmission_bounces) == (2, 2, 2, 2, 2)
+    left, right, ana = (read_image(tmp_path / f"fig7_omnimax_0001_{s}.png")[..., :3] for s in ("L", "R", "anaglyph"))
+    assert ana.shape == (36, 48, 3) and left.std() > 0.02 and not np.array_equal(left, right)
+    # 8-bit files: the anaglyph's grey of each eye is within half a step of the grey of the eye's file
+    np.testing.assert_allclose(ana[..., 0], grey(left), atol=0.51 / 255)
+    np.testing.assert_allclose(ana[..., 1], grey(right), atol=0.51 / 255)
+    assert np.array_equal(ana[..., 1], ana[..., 2])
+
+
 def test_adding_the_film_in_the_interface_does_not_wait_for_the_simulation(ops, tmp_path, monkeypatch):
     """Issue 20 ("never freeze"): the first frame needs the whole simulation; in the interface
     (forced headless with frame.force_background_jobs) it runs on the worker thread."""
