@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 import bpy
+from mathutils import Matrix
 
 from ..core.errors import DataError
 from ..core.climate.grid import EARTH_RADIUS
@@ -421,9 +422,9 @@ def add_volume_clouds(var="cloud", tf=None, *, source=None, color_var=ALTITUDE, 
     coll = collection or scene.collection
     if obj.name not in coll.objects:
         coll.objects.link(obj)
-    obj.location = (0.0, 0.0, 0.0)
-    obj.rotation_euler = (0.0, 0.0, 0.0)
-    obj.scale = (1.0, 1.0, 1.0)
+    # The exact mode shades a rotated-pole grid in its own frame: the object turns it into place.
+    rotation = ds.grid.rotation if mode == EXACT else None
+    obj.matrix_world = Matrix.Identity(4) if rotation is None else Matrix(rotation.tolist()).to_4x4()
     params["directory"] = data_ops.stored_dir(out_dir)
     params["owned"] = not directory  # a folder Nephele chose: saving moves it beside the .blend
     params["estimate"] = {k: float(v) for k, v in est.items()}
@@ -741,11 +742,10 @@ def estimate_text(frames, est):
 
 
 def exact_or_voxels(scene, mode):
-    """``mode``, or voxels where the exact mode's atlas cannot place the scene's grid (rotated pole, 2-D lon/lat)."""
+    """``mode``, or voxels where the exact mode's atlas cannot place the scene's grid (2-D lon/lat)."""
     if mode != EXACT:
         return mode
-    grid = data_ops.dataset(scene=scene).grid
-    return VOXELS if grid.rotation is not None or grid.curvilinear else mode
+    return VOXELS if data_ops.dataset(scene=scene).grid.curvilinear else mode
 
 
 class NEPHELE_OT_add_volume_clouds(bpy.types.Operator):
@@ -785,8 +785,8 @@ class NEPHELE_OT_add_volume_clouds(bpy.types.Operator):
             tf = panel_tf(s)
             mode = exact_or_voxels(context.scene, s.mode)
             if mode != s.mode:
-                self.report({"INFO"}, "the exact mode cannot place a rotated-pole or curvilinear (2-D lon/lat) grid "
-                                      "yet: baking voxels")
+                self.report({"INFO"}, "the exact mode cannot place a curvilinear (2-D lon/lat) grid yet: "
+                                      "baking voxels")
             obj, infos = add_volume_clouds(
                 s.var, tf, color_var=s.color_var, cmap=panel_cmap(s), voxel_size=s.voxel_size,
                 extinction=s.extinction, directory=s.directory or None, scene=context.scene, frames=frames,

@@ -24,6 +24,11 @@ itself at every volume sample, exactly as
    volume (a VDB of the blocks that may hold cloud) that keeps the renderer
    out of empty space.
 
+A rotated-pole grid is shaded in its own frame: the atlas, the support and
+:meth:`ExactVolume.shade` work in grid coordinates, and the renderer's
+object carries the grid's rotation (:attr:`ExactVolume.rotation`) to put the
+field at its true place.
+
 Atlas layout: a tile per level (values) or per four levels (heights),
 stacked along the image's rows; a tile's rows are the closed latitude axis
 (pole rows included, see :class:`~nephele.core.volume.sparse.CurvilinearField`)
@@ -44,7 +49,7 @@ References
 .. [2] P. Williams and N. Max, "A Volume Density Optical Model", 1992.
 """
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -353,6 +358,10 @@ class ExactVolume:
     below : float
         Metres under the lowest level that take its values.
     color_name : str or None
+    rotation : (3, 3) array or None
+        A rotated-pole grid's rotation (:attr:`GlobeGrid.rotation`): the
+        atlas and the support are in grid coordinates, and the object that
+        shows them takes this rotation (``world = rotation @ local``).
     """
 
     layout: AtlasLayout
@@ -361,16 +370,23 @@ class ExactVolume:
     support_size: float
     below: float
     color_name: str = None
+    rotation: np.ndarray = None
 
     @property
     def empty(self):
         return self.support.shape[0] == 0
 
+    def local(self, xyz):
+        """Scene points ``(n, 3)`` in the object's (the grid's) frame."""
+        xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
+        return xyz if self.rotation is None else xyz @ self.rotation
+
     def shade(self, xyz):
-        """:meth:`AtlasLayout.shade` masked by the support: ``(value, colour, ok)``."""
-        value, color, ok = self.layout.shade(self.values, xyz, below=self.below,
+        """:meth:`AtlasLayout.shade` masked by the support at scene points: ``(value, colour, ok)``."""
+        p = self.local(xyz)
+        value, color, ok = self.layout.shade(self.values, p, below=self.below,
                                              color_altitude=self.color_name == ALTITUDE)
-        return value, color, ok & self.in_support(xyz)
+        return value, color, ok & self._in_support(p)
 
     def sample(self, xyz):
         """The value the shader sees (NaN where its density is forced to zero)."""
@@ -378,10 +394,13 @@ class ExactVolume:
         return np.where(ok, value, np.nan)
 
     def in_support(self, xyz):
-        """Points where the support grid's trilinear mix is positive (the shader's test)."""
+        """Scene points where the support grid's trilinear mix is positive (the shader's test)."""
+        return self._in_support(self.local(xyz))
+
+    def _in_support(self, p):
         n = self.support.shape[0]
         grid = SparseVolume(self.support_size, 1, self.support, np.ones((n, 1, 1, 1), np.float32))
-        return grid.sample(xyz) > 0
+        return grid.sample(p) > 0
 
     def arrays(self):
         """Plain arrays for ``np.savez`` / the cache (no pickle); the layout is rebuilt from the grid."""
@@ -432,11 +451,15 @@ def exact_volume(grid, values, tf, *, support_size=DEFAULT_SUPPORT_SIZE, color_v
     if not (np.isfinite(below) and below >= 0):
         raise DataError(f"must be >= 0 metres, got {below}", field="below")
     field = scalar_field(grid, values, color_values, color_name, radius, exaggeration)
+    rotation = field.rotation
+    if rotation is not None:  # shaded in the grid's frame; the object turns it into place
+        field = replace(field, rotation=None)
     layout = layout or _layout(field)
     if (layout.nk, layout.rows) != field.shape[:2]:
         raise DataError("layout belongs to another grid", field="layout")
     support = support_voxels(field, tf, float(support_size), float(below))
-    return ExactVolume(layout, layout.values_atlas(field), support, float(support_size), float(below), color_name)
+    return ExactVolume(layout, layout.values_atlas(field), support, float(support_size), float(below), color_name,
+                       rotation)
 
 
 __all__ = [

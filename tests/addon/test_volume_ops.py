@@ -11,7 +11,7 @@ from nephele.fileio import read_grid  # noqa: E402
 from nephele.core.pipeline.sources import register_source  # noqa: E402
 from nephele.core.climate.dataset import ArrayDataset, hourly  # noqa: E402
 from nephele.core.volume.exact_ray import opacity, reference_optical_depth  # noqa: E402
-from nephele.core.climate.grid import GlobeGrid  # noqa: E402
+from nephele.core.climate.grid import GlobeGrid, lonlat_to_xyz, rotated_pole_matrix, xyz_to_lonlat  # noqa: E402
 from nephele.core.volume.transfer import TransferFunction  # noqa: E402
 from nephele.core.volume.sparse import CurvilinearField  # noqa: E402
 
@@ -19,19 +19,20 @@ NI, NJ, NK, NT = 48, 24, 8, 3
 SOURCE = "test:volume-blob"
 
 
-def blob_dataset():
-    """A cloud blob at 20°E, 20°N moving 10° east per hour, centred 5 km up."""
+def blob_dataset(rotation=None, source=SOURCE):
+    """A cloud blob at 20°E, 20°N moving 10° east per hour, centred 5 km up (grid
+    coordinates: with ``rotation``, a rotated-pole grid puts it elsewhere)."""
     lon = np.arange(NI) * 360.0 / NI
     lat = -90 + (np.arange(NJ) + 0.5) * 180.0 / NJ
     h = np.linspace(0.0, 16000.0, NK)[:, None, None] + np.zeros((NK, NJ, NI))
-    grid = GlobeGrid(lon, lat, h)
+    grid = GlobeGrid(lon, lat, h, rotation=rotation)
     L, P = np.meshgrid(lon, lat)
     cloud = np.zeros((NT, NK, NJ, NI), np.float32)
     for t in range(NT):
         blob = np.exp(-((((L - (20 + 10 * t) + 180) % 360) - 180) / 22) ** 2 - ((P - 20) / 14) ** 2)
         cloud[t] = blob[None] * np.exp(-(((h - 5000.0) / 3000.0) ** 2))
     ds = ArrayDataset(grid, hourly("2000-01-01", NT), {"cloud": cloud, "temperature": 230 + 40 * cloud})
-    register_source(SOURCE, ds)
+    register_source(source, ds)
     return ds
 
 
@@ -152,14 +153,14 @@ def _render(scene, path, engine, size=(64, 48), samples=4):
     return px[..., :3].max(axis=2)
 
 
-def _lit_scene(scene):
+def _lit_scene(scene, lon=20.0, lat=20.0):
     from nephele.addon import globe_ops
 
     world = bpy.data.worlds.new("black")
     scene.world = world
     world.use_nodes = True
     world.node_tree.nodes["Background"].inputs["Color"].default_value = (0, 0, 0, 1)
-    cam = globe_ops.add_camera(scene, lon=20.0, lat=20.0, distance=3.0, lens=50.0)
+    cam = globe_ops.add_camera(scene, lon=lon, lat=lat, distance=3.0, lens=50.0)
     sun = bpy.data.objects.new("sun", bpy.data.lights.new("sun", "SUN"))
     sun.data.energy = 5.0
     scene.collection.objects.link(sun)
@@ -270,16 +271,26 @@ def test_lazy_volume_is_written_per_frame_from_the_precomputed_cache(scene, tmp_
         assert np.count_nonzero(dense) == np.count_nonzero(cached["density"])
 
 
-def test_exact_mode_render_matches_the_reference_opacity(scene, tmp_path):
+@pytest.mark.parametrize("rotated", [False, True])
+def test_exact_mode_render_matches_the_reference_opacity(scene, tmp_path, rotated):
     # The exact mode's node graph against the curvilinear reference, pixel by
     # pixel: a black absorbing volume over a transparent film makes the alpha
     # the ray's opacity.  Box pixel filter and no adaptive sampling so each
     # pixel is the mean over its area, which the reference supersamples 4×4;
-    # what remains is Monte-Carlo noise (null scattering is unbiased).
+    # what remains is Monte-Carlo noise (null scattering is unbiased).  Rotated:
+    # the same blob on a rotated-pole grid (the UM file's pole), seen where the
+    # rotation puts it; the reference locates points through the rotation itself.
+    rotation = rotated_pole_matrix(177.5, 37.5) if rotated else None
+    source = SOURCE + ("-rotated" if rotated else "")
+    ds = blob_dataset(rotation, source)
+    data_ops.set_settings(scene, source=source)
+    centre = lonlat_to_xyz(20.0, 20.0)  # the blob, in grid coordinates
+    lon, lat, _ = xyz_to_lonlat(centre if rotation is None else centre @ rotation.T)
     tf = TransferFunction.ramp(0.3, 1.0)
     obj, _ = volume_ops.add_volume_clouds("cloud", tf, directory=str(tmp_path / "vdb"), extinction=200.0,
                                           scene=scene, frames=(1, 1))
-    cam = _lit_scene(scene)
+    assert np.allclose(np.array(obj.matrix_world)[:3, :3], np.eye(3) if rotation is None else rotation, atol=1e-6)
+    cam = _lit_scene(scene, float(lon), float(lat))
     tree = obj.data.materials[0].node_tree
     pv = tree.nodes["Nephele volume"]
     for link in list(pv.inputs["Color"].links):
@@ -299,7 +310,6 @@ def test_exact_mode_render_matches_the_reference_opacity(scene, tmp_path):
     bpy.ops.render.render(write_still=True)
     img = bpy.data.images.load(r.filepath)
     alpha = np.array(img.pixels[:], dtype=np.float32).reshape(36, 48, 4)[::-1, :, 3]
-    ds = blob_dataset()
     field = CurvilinearField.from_grid(ds.grid, {"cloud": ds.read("cloud", 0)})
     ref = np.zeros_like(alpha, dtype=np.float64)
     sub = (np.arange(4) + 0.5) / 4

@@ -375,6 +375,54 @@ def test_support_of_the_demo_covers_every_cloudy_point():
     assert ev.in_support(pts[a > 0]).all()
 
 
+def test_rotated_pole_grid_is_shaded_in_its_frame_and_lands_at_its_true_place():
+    # The UM file's pole (37.5 N, 177.5 E) on a regional grid around grid (0, 0):
+    # the reference locates scene points through the rotation itself.
+    from nephele.core.climate.grid import rotated_pole_matrix
+
+    base = terrain_grid(np.linspace(-20.0, 20.0, 21), np.linspace(-15.0, 15.0, 16), seed=23)
+    R = rotated_pole_matrix(177.5, 37.5)
+    grid = GlobeGrid(base.lon, base.lat, base.height, rotation=R)
+    values = field_values(grid)
+    ev = exact_volume(grid, values, TF, support_size=0.01)
+    np.testing.assert_array_equal(ev.rotation, R)
+    field = CurvilinearField.from_grid(grid, {"value": values})
+    rng = np.random.default_rng(24)
+    # Points over the true region (grid points turned by R) and around it.
+    local = np.concatenate([random_points(rng, 30000, (-25, 25), (-20, 20)), cloudy_points(field, rng, 30000) @ R])
+    pts = local @ R.T
+    ref = reference(field, pts, ev.below)
+    a = np.nan_to_num(TF(ref))
+    assert (a > 0).sum() > 10000
+    assert ev.in_support(pts[a > 0]).all()
+    s = ev.sample(pts)
+    a32 = np.where(np.isfinite(s), tf_eval32(TF, s), 0.0)
+    np.testing.assert_allclose(a32, a, atol=2.5 * TOL)
+    # Shaded at the grid's own coordinates, the field would be somewhere else entirely.
+    assert np.isfinite(ev.sample(local)).mean() < 0.05 < np.isfinite(s).mean()
+
+
+def test_um_rotated_pole_file_exact_volume_lies_over_wales():
+    pytest.importorskip("xarray")
+    from pathlib import Path
+
+    from nephele.core.climate.grid import xyz_to_lonlat
+    from nephele.core.climate.readers import open_dataset
+
+    ds = open_dataset(Path(__file__).resolve().parents[2] / "data" / "um_hybrid_height.nc")
+    values = ds.read("air_potential_temperature", 0)
+    tf = TransferFunction.ramp(float(np.percentile(values, 50)), float(values.max()))
+    ev = exact_volume(ds.grid, values, tf, support_size=0.0005)
+    assert not ev.empty and ev.rotation is not None
+    centres = ((ev.support.astype(np.float64) + 0.5) * ev.support_size) @ ev.rotation.T  # object → scene
+    lon, lat, _ = xyz_to_lonlat(centres)
+    assert 51.5 < lat.mean() < 53.5 and -4.5 < lon.mean() < -2.0, (lon.mean(), lat.mean())
+    field = CurvilinearField.from_grid(ds.grid, {"value": values})
+    pts = cloudy_points(field, np.random.default_rng(25), 20000)
+    a = np.nan_to_num(tf(reference(field, pts, ev.below)))
+    assert (a > 0).sum() > 2000 and ev.in_support(pts[a > 0]).all()
+
+
 def test_empty_when_threshold_above_the_maximum():
     grid = terrain_grid(np.arange(36) * 10.0, -85.0 + 10.0 * np.arange(18), seed=20)
     values = field_values(grid)
