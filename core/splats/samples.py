@@ -24,11 +24,12 @@ from pathlib import Path
 import numpy as np
 
 from ..climate.dataset import Dataset
+from ..climate.grid import DEFAULT_EXAGGERATION, EARTH_RADIUS, GlobeGrid
 from ..errors import DataError
-from ..climate.grid import DEFAULT_EXAGGERATION, EARTH_RADIUS
 from ..climate.readers import open_dataset
 from ..volume.transfer import ALTITUDE_COLORS, TEMPERATURE_COLORS, ColorMap, TransferFunction
 from .kernel import SplatKernel, splat_kernel
+from .partition import ShellSampler, check_shells, shell_factors, shell_heights, widen, widening
 
 HOUR = 3600.0
 ALTITUDE = "altitude"
@@ -159,14 +160,14 @@ def cell_jacobians(grid, exaggeration=DEFAULT_EXAGGERATION, stride=1):
     return sub, np.stack(cols, axis=-1)
 
 
-def _color(dataset, color_var, colormap, hour, grid, sel):
+def _color(dataset, color_var, colormap, hour, height, pick, n):
     if color_var is None:
-        return np.ones((sel[0].size, 3), dtype=np.float32)
+        return np.ones((n, 3), dtype=np.float32)
     if color_var == ALTITUDE:
-        vals = grid.height[sel]
+        vals = height
         cmap = ALTITUDE_COLORS if colormap is None else colormap
     else:
-        vals = np.asarray(dataset.read_at(color_var, hour), dtype=np.float64)[sel]
+        vals = pick(dataset.read_at(color_var, hour))
         cmap = colormap
         if cmap is None:
             if color_var == "temperature":
@@ -180,16 +181,16 @@ def _color(dataset, color_var, colormap, hour, grid, sel):
     return np.nan_to_num(cmap(vals), nan=0.0).astype(np.float32)
 
 
-def _wind(dataset, hour, grid, exaggeration, sel, centers):
+def _wind(dataset, hour, grid, exaggeration, sel, centers, pick):
     """Scene velocity per hour: ``u`` east and ``v`` north on the sphere through
     the sample (angular speed × its radius, the shallow-atmosphere convention of
     the project's advection), ``w`` outward scaled by the exaggeration."""
     n = sel[0].size
     if "u" not in dataset or "v" not in dataset:
         return np.zeros((n, 3))
-    u = np.asarray(dataset.read_at("u", hour), dtype=np.float64)[sel]
-    v = np.asarray(dataset.read_at("v", hour), dtype=np.float64)[sel]
-    w = np.asarray(dataset.read_at("w", hour), dtype=np.float64)[sel] if "w" in dataset else np.zeros(n)
+    u = pick(dataset.read_at("u", hour))
+    v = pick(dataset.read_at("v", hour))
+    w = pick(dataset.read_at("w", hour)) if "w" in dataset else np.zeros(n)
     bad = ~(np.isfinite(u) & np.isfinite(v) & np.isfinite(w))
     if bad.any():
         raise DataError(f"{int(bad.sum())} splat samples have NaN wind at {hour:g} h", path=dataset.source, field="u/v/w")
@@ -217,8 +218,10 @@ def splat_samples(
     threshold=None,
     stride=1,
     kernel=None,
+    vertical="shells",
+    shells=None,
 ):
-    """One splat per grid sample whose opacity exceeds ``threshold``.
+    """One splat per sample whose opacity exceeds ``threshold``, on shells or the grid's own levels.
 
     Parameters
     ----------
@@ -239,16 +242,31 @@ def splat_samples(
     exaggeration : float
         Vertical exaggeration of the globe.
     threshold : float, optional
-        Keep samples with opacity strictly above it (default 0).
+        Keep samples with opacity (on shells: including the partition factor)
+        strictly above it (default 0).
     stride : int
         Take every ``stride``-th sample along each grid axis (kernels grow to match).
     kernel : SplatKernel, optional
         Its cut-off sets the axes' length (default :func:`splat_kernel`).
+    vertical : {"shells", "native"}
+        ``"shells"`` (default): sample the field, column by column (linear in
+        height), on levels at fixed heights above sea level, with kernels
+        widened where the spacing changes fast and per-sample factors folded
+        into the opacity, so that the weights sum to one within about 1e-3
+        (:mod:`.partition`; needs 1-D, evenly spaced longitudes).
+        ``"native"``: one splat per grid sample, ellipsoids from the cell
+        Jacobians, no factors (on terrain-following levels over steep terrain
+        the weights sum to one only within several per cent).
+    shells : (n,) array, optional
+        Shell heights in metres (default :func:`.partition.shell_heights`: the
+        grid's level heights over the sea).
 
     Returns
     -------
     Splats
-        Ordered by grid index (level slowest, longitude fastest).
+        Ordered by index (level or shell slowest, longitude fastest).  On
+        shells, ``index[:, 0]`` is the shell and ``opacity`` is the transfer
+        function's opacity times the sample's partition factor.
 
     References
     ----------
@@ -270,18 +288,50 @@ def splat_samples(
     kernel = splat_kernel() if kernel is None else kernel
     if not isinstance(kernel, SplatKernel):
         raise DataError(f"needs a SplatKernel, got {type(kernel).__name__}", field="kernel")
+    if vertical not in ("shells", "native"):
+        raise DataError(f"must be 'shells' or 'native', got {vertical!r}", path=dataset.source, field="vertical")
     stride = int(stride)
     grid = dataset.grid
-    values = np.asarray(dataset.read_at(var, float(hour)), dtype=np.float64)
+    values = dataset.read_at(var, float(hour))
+    if vertical == "shells":
+        heights = check_shells(grid, shell_heights(grid) if shells is None else shells, dataset.source)
+        step = np.diff(grid.lon)
+        if not np.allclose(step, step[0], rtol=1e-6, atol=0.0):
+            raise DataError("shells need evenly spaced longitudes (use vertical='native')", path=dataset.source, field="lon")
+        sampler = ShellSampler(grid, heights)
+        values = sampler(values)
+        layout = GlobeGrid(grid.lon, grid.lat, np.broadcast_to(heights[:, None, None], sampler.shape).copy(), rotation=grid.rotation)
+    else:
+        values = np.asarray(values, dtype=np.float64)
+        layout = grid
     opacity = np.nan_to_num(transfer(values[::stride, ::stride, ::stride]), nan=0.0)
+    points, jac = cell_jacobians(layout, exaggeration, stride)
+    if vertical == "shells":
+        lat, h = layout.lat[::stride], heights[::stride]
+        lam_lon, lam_lev = widening(lat, h, kernel.radius)
+        opacity = opacity * shell_factors(lat, h, (grid.lon[1] - grid.lon[0]) * stride, exaggeration, kernel)[:, :, None]
     sel_sub = np.nonzero(opacity > threshold)
-    points, jac = cell_jacobians(grid, exaggeration, stride)
+    opacity = opacity[sel_sub]
+    jac = jac[sel_sub]
+    if vertical == "shells":
+        jac = widen(jac, lam_lon[sel_sub[1]], lam_lev[sel_sub[0]])
     centers = points[sel_sub]
-    axes = principal_axes(jac[sel_sub], kernel.radius)
+    axes = principal_axes(jac, kernel.radius)
     sel = tuple(a * stride for a in sel_sub)
-    color = _color(dataset, color_var, colormap, float(hour), grid, sel)
-    wind = _wind(dataset, float(hour), grid, exaggeration, sel, centers)
-    return Splats(centers, axes, color, opacity[sel_sub].astype(np.float32), wind, kernel.radius, np.column_stack(sel))
+    if vertical == "shells":
+        height = heights[sel[0]]
+
+        def pick(a):
+            return sampler.at(a, sel)
+    else:
+        height = grid.height[sel]
+
+        def pick(a):
+            return np.asarray(a, dtype=np.float64)[sel]
+
+    color = _color(dataset, color_var, colormap, float(hour), height, pick, sel[0].size)
+    wind = _wind(dataset, float(hour), grid, exaggeration, sel, centers, pick)
+    return Splats(centers, axes, color, opacity.astype(np.float32), wind, kernel.radius, np.column_stack(sel))
 
 
 __all__ = ["ALTITUDE", "Splats", "cell_jacobians", "principal_axes", "splat_samples"]

@@ -19,7 +19,7 @@ def small():
 
 
 def test_one_splat_per_sample_above_the_threshold(small):
-    sp = splat_samples(small, "cloud", 5.0, TF, color_var="altitude")
+    sp = splat_samples(small, "cloud", 5.0, TF, color_var="altitude", vertical="native")
     cloud = small.read_at("cloud", 5.0)
     expected = np.count_nonzero(TF(cloud) > 0)
     assert len(sp) == expected > 100
@@ -27,12 +27,12 @@ def test_one_splat_per_sample_above_the_threshold(small):
     assert np.allclose(sp.opacity, TF(cloud[k, j, i]), atol=1e-6)
     assert np.allclose(sp.centers, small.grid.points(1.0, 30.0, dtype=np.float64)[k, j, i], atol=1e-12)
     assert np.allclose(sp.color, ALTITUDE_COLORS(small.grid.height[k, j, i]), atol=1e-6)
-    assert len(splat_samples(small, "cloud", 5.0, TF, threshold=0.5)) == np.count_nonzero(TF(cloud) > 0.5)
+    assert len(splat_samples(small, "cloud", 5.0, TF, threshold=0.5, vertical="native")) == np.count_nonzero(TF(cloud) > 0.5)
 
 
 def test_axes_are_the_cells_principal_axes(small):
     kern = splat_kernel()
-    sp = splat_samples(small, "cloud", 0.0, TF, kernel=kern)
+    sp = splat_samples(small, "cloud", 0.0, TF, kernel=kern, vertical="native")
     a = sp.axes
     gram = np.einsum("nji,njk->nik", a, a)
     off = gram - np.einsum("nii->ni", gram)[:, :, None] * np.eye(3)
@@ -48,8 +48,8 @@ def test_axes_are_the_cells_principal_axes(small):
 
 
 def test_stride_grows_the_kernels(small):
-    one = splat_samples(small, "cloud", 0.0, TransferFunction(points=((0.0, 1.0),)))
-    two = splat_samples(small, "cloud", 0.0, TransferFunction(points=((0.0, 1.0),)), stride=2)
+    one = splat_samples(small, "cloud", 0.0, TransferFunction(points=((0.0, 1.0),)), vertical="native")
+    two = splat_samples(small, "cloud", 0.0, TransferFunction(points=((0.0, 1.0),)), stride=2, vertical="native")
     assert len(one) == 8 * 32 * 64 and len(two) == 4 * 16 * 32
     # Same sample (0, 10, 20): the Jacobian's columns are differences over two grid steps.
     p = small.grid.points(1.0, 30.0, dtype=np.float64)
@@ -100,7 +100,7 @@ def test_nan_samples_are_transparent():
     cloud = np.ones((1,) + ds.grid.shape)
     cloud[0, 1, 5, 7] = np.nan
     nan_ds = ArrayDataset(ds.grid, ds.times, {"cloud": cloud})
-    sp = splat_samples(nan_ds, "cloud", 0.0, TF)
+    sp = splat_samples(nan_ds, "cloud", 0.0, TF, vertical="native")
     assert len(sp) == cloud.size - 1 and not (sp.index == [1, 5, 7]).all(1).any()
     assert np.all(sp.wind == 0)  # no wind fields: calm
 
@@ -127,7 +127,7 @@ def test_bad_input_raises_one_line_data_error(small, tmp_path):
 
 def test_seam_poles_threshold_and_empty(small):
     one = TransferFunction(points=((0.0, 1.0),))
-    sp = splat_samples(small, "cloud", 0.0, one)
+    sp = splat_samples(small, "cloud", 0.0, one, vertical="native")
     by_index = {tuple(i): a for i, a in zip(sp.index, sp.axes)}
     # Across the seam (lon 0 and the last column) the ellipsoids match as elsewhere (top level: no terrain).
     def size(a):
