@@ -156,3 +156,72 @@ def test_real_netcdf_file_without_winds(shared_data):
     sp = splat_samples(str(path), "rh", 0.0, TransferFunction.ramp(0.8, 1.0), color_var="temperature", stride=2)
     assert len(sp) > 100 and np.all(sp.wind == 0)
     assert np.all(np.linalg.det(sp.axes) > 0) and np.all(np.isfinite(sp.color))
+
+
+def terrain_dataset():
+    """Terrain-following levels over a 3 km ridge, a field linear in height, uniform wind."""
+    lon = np.arange(0, 360, 10.0)
+    lat = np.arange(-60, 61, 10.0)
+    ridge = 3000.0 * np.exp(-((lon[None, :] - 180.0) / 30.0) ** 2) * np.ones((lat.size, 1))
+    eta = np.linspace(0.0, 1.0, 6)
+    h = eta[:, None, None] * 10000.0 + (1 - eta[:, None, None]) ** 2 * ridge[None]
+    g = GlobeGrid(lon, lat, h)
+    shape = (1,) + g.shape
+    fields = {"cloud": (h / 10000.0)[None], "u": np.full(shape, 5.0), "v": np.zeros(shape), "w": np.zeros(shape)}
+    return ArrayDataset(g, hourly("2000-01-01", 1), fields)
+
+
+def test_shells_sample_each_column_linearly_in_height():
+    from nephele.core.splats.partition import ShellSampler, shell_factors, shell_heights
+
+    ds = terrain_dataset()
+    g = ds.grid
+    shells = shell_heights(g)
+    assert np.allclose(shells, np.linspace(0.0, 10000.0, 6))  # the levels over flat ground
+    vals = ShellSampler(g, shells)(ds.read_at("cloud", 0.0))
+    below = shells[:, None, None] < g.terrain[None]
+    assert np.all(np.isnan(vals[below])) and np.allclose(vals[~below], np.broadcast_to(shells[:, None, None] / 1e4, vals.shape)[~below], atol=1e-12)
+    ident = TransferFunction(points=((0.0, 0.0), (1.0, 1.0)))
+    sp = splat_samples(ds, "cloud", 0.0, ident, color_var="altitude")
+    k, j, i = sp.index.T
+    # One splat per shell sample above the ground with cloud > 0.
+    assert len(sp) == np.count_nonzero(np.nan_to_num(vals) > 0) > 0.7 * vals.size
+    r = np.linalg.norm(sp.centers, axis=1)
+    assert np.allclose(r, 1.0 + shells[k] * 30.0 / EARTH_RADIUS, rtol=0, atol=1e-12)
+    assert np.allclose(sp.color, ALTITUDE_COLORS(shells[k]), atol=1e-6)
+    factors = shell_factors(g.lat, shells, 10.0, 30.0, splat_kernel())
+    assert np.allclose(sp.opacity, (shells[k] / 1e4 * factors[k, j]).astype(np.float32), rtol=1e-6)
+    assert np.allclose(np.linalg.norm(sp.wind, axis=1), 5.0 * 3600 / EARTH_RADIUS * r, rtol=1e-9)
+    # The native layout keeps one splat per grid sample on the terrain-following levels.
+    native = splat_samples(ds, "cloud", 0.0, ident, vertical="native")
+    assert len(native) == np.count_nonzero(g.height > 0)
+
+
+def test_shell_kernels_widen_towards_the_poles_and_with_stretched_levels():
+    from nephele.core.splats.partition import widening
+
+    lat = np.arange(-89.5, 90, 1.0)
+    lam_lon, lam_lev = widening(lat, np.arange(10) ** 1.5 * 1000.0, 2.5)
+    assert lam_lon.min() == 1.0 and lam_lon[0] == lam_lon.max() > 5  # 2.5 rows from the pole row
+    eq = np.abs(lat) < 45
+    assert np.all(lam_lon[eq] < 1.05)
+    assert np.all(np.diff(lam_lev[:-3]) < 0) and lam_lev[-1] == 1.0  # spacing grows upwards
+    _, even = widening(lat, np.linspace(0, 9000.0, 10), 2.5)
+    assert np.allclose(even, 1.0)
+
+
+def test_shells_bad_input_raises_one_line_data_error(small):
+    ds = terrain_dataset()
+    uneven = ArrayDataset(
+        GlobeGrid(np.r_[0.0, 5.0, np.arange(20, 360, 10.0)], ds.grid.lat, np.broadcast_to(ds.grid.height[:, :, :1], (6, 13, 36)).copy()),
+        ds.times, {"cloud": np.ones((1, 6, 13, 36))},
+    )
+    for call in (
+        lambda: splat_samples(ds, "cloud", 0.0, TF, vertical="terrain"),
+        lambda: splat_samples(ds, "cloud", 0.0, TF, shells=[0.0, 5000.0, 3000.0]),
+        lambda: splat_samples(ds, "cloud", 0.0, TF, shells=[np.nan, 1.0]),
+        lambda: splat_samples(uneven, "cloud", 0.0, TF),
+    ):
+        with pytest.raises(DataError) as e:
+            call()
+        assert "\n" not in str(e.value)
