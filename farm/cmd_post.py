@@ -2,6 +2,7 @@
 
 from pathlib import Path
 
+from ..core.camera.anaglyph import MODES as ANAGLYPH_MODES
 from ..core.errors import DataError
 from .cli import UsageError
 
@@ -78,6 +79,9 @@ def add_arguments(p):
     st.add_argument("left", help="left-eye frame or directory; alone: a stereo render's directory (frame_*_L/_R)")
     st.add_argument("right", nargs="?", help="right-eye frame or directory")
     st.add_argument("--out", required=True, help="output directory (sbs_*.png, anaglyph_*.png)")
+    st.add_argument("--anaglyph-mode", choices=ANAGLYPH_MODES, default="colour",
+                    help="red from the left eye's colour or grey, green/blue from the right's colour or grey "
+                         "(half or grey when saturated red/blue objects must reach both eyes)")
     m = sub.add_parser("movie", help="encode frames as H.264 MP4 (bundled ffmpeg)")
     m.add_argument("inputs", nargs="+", help="frame files or directories")
     m.add_argument("--out", required=True, help="output .mp4")
@@ -118,7 +122,7 @@ def run(args):
         out_dir = Path(args.out)
         for (a, b), stem in zip(pairs, names):
             post.side_by_side(a, b, out_dir / f"sbs_{stem}.png")
-            post.anaglyph(a, b, out_dir / f"anaglyph_{stem}.png")
+            post.anaglyph(a, b, out_dir / f"anaglyph_{stem}.png", args.anaglyph_mode)
         print(f"{len(pairs)} side-by-side and anaglyph frames in {out_dir}")
     else:
         paths = frames_of(args.inputs, args.eye)

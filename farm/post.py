@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..core.camera.anaglyph import red_cyan
 from ..core.errors import DataError
 from ..core.files import atomic_write
 from ..fileio import oiio, write_image
@@ -159,11 +160,11 @@ def side_by_side(left, right, out):
     return write_image(out, np.concatenate([a, b], axis=1))
 
 
-def anaglyph(left, right, out):
-    """Red-cyan colour anaglyph: red from the left view, green and blue from the right view."""
+def anaglyph(left, right, out, mode="colour"):
+    """Red-cyan anaglyph (:func:`~nephele.core.camera.anaglyph.red_cyan`): red from the left view,
+    green and blue from the right; ``mode`` "colour", "half" or "grey"."""
     a, b = _pair(left, right)
-    px = np.concatenate([a[..., 0:1], b[..., 1:3]], axis=2)
-    return write_image(out, px)
+    return write_image(out, red_cyan(a[..., :3], b[..., :3], mode))
 
 
 def ffmpeg_exe():

@@ -69,6 +69,10 @@ def test_side_by_side_and_anaglyph(tmp_path):
     assert np.array_equal(sbs[:, :12], L) and np.array_equal(sbs[:, 12:], R)
     ana = post.read_rgba(post.anaglyph(lp, rp, tmp_path / "ana.png"))
     assert np.array_equal(ana[..., 0], L[..., 0]) and np.array_equal(ana[..., 1:3], R[..., 1:3])
+    # Half colour: red is the left eye's Rec. 709 grey (to 8-bit rounding), cyan the right eye's colour.
+    half = post.read_rgba(post.anaglyph(lp, rp, tmp_path / "half.png", "half"))
+    grey = L[..., :3] @ np.array([0.2126, 0.7152, 0.0722])
+    assert np.abs(half[..., 0] - grey).max() <= 0.5 / 255 + 1e-6 and np.array_equal(half[..., 1:3], R[..., 1:3])
     small = solid(tmp_path / "small.png", (1, 0, 0), size=(6, 8))
     with pytest.raises(post.DataError, match="differ in size"):
         post.side_by_side(lp, small, tmp_path / "x.png")
@@ -136,4 +140,9 @@ def test_post_cli_exr2png_and_stereo(tmp_path, capsys):
     assert names == ["anaglyph_frame_0001.png", "anaglyph_frame_0002.png", "sbs_frame_0001.png", "sbs_frame_0002.png"]
     ana = post.read_rgba(tmp_path / "st" / "anaglyph_frame_0002.png")
     assert np.allclose(ana[..., :3], 1.0)  # red from the left eye + cyan from the right eye = white
+    rc = cli.main(["post", "stereo", str(tmp_path / "left"), str(tmp_path / "right"), "--out", str(tmp_path / "grey"),
+                   "--anaglyph-mode", "grey"])
+    ana = post.read_rgba(tmp_path / "grey" / "anaglyph_frame_0001.png")
+    # Grey: pure red on the left is 0.2126 grey in red; pure cyan on the right 0.7874 in green and blue.
+    assert rc == 0 and np.allclose(ana[..., :3], [0.2126, 0.7874, 0.7874], atol=0.5 / 255 + 1e-6)
     capsys.readouterr()
