@@ -91,6 +91,7 @@ class _GridIndex:
         self.njp = nj + 2 * p
         self.nip = ni + 3
         self.poles = p > 0
+        self.bounded = not self.periodic  # a regional grid: points beyond its edges are outside
         self._lon_step = _uniform_step(self.lon_axis)
         self._lat_step = _uniform_step(self.lat_axis)
         self._offsets = {}
@@ -121,8 +122,12 @@ class _GridIndex:
         k, j, i = np.unravel_index(np.asarray(index), self.shape)
         return (k * self.njp + j + self.pad) * self.nip + i + 1
 
-    def fractional(self, xyz, s):
-        """Fractional indices ``(fk, fj, fi)`` of unit vectors ``xyz`` at level coordinate ``s``."""
+    def fractional(self, xyz, s, clamp=False):
+        """Fractional indices ``(fk, fj, fi)`` of unit vectors ``xyz`` at level coordinate ``s``.
+
+        On a regional (non-periodic) grid ``fi`` is NaN for points beyond its
+        edges (more than 1e-9 degrees), or with ``clamp`` the nearest edge's index.
+        """
         lon, lat = _lonlat(xyz)
         if self.periodic:
             d = np.mod(lon - self.lon0, 360.0)
@@ -131,6 +136,11 @@ class _GridIndex:
         fi = _axis_index(d, self.lon_axis, self._lon_step)
         fj = _axis_index(lat, self.lat_axis, self._lat_step)
         fk = np.clip(s, 0.0, self.shape[0] - 1)
+        if self.bounded and not clamp:
+            eps = 1e-9
+            outside = (d < -eps) | (d > self.lon_axis[-1] + eps) | (lat < self.lat_axis[0] - eps) | (lat > self.lat_axis[-1] + eps)
+            if outside.any():
+                fi[outside] = np.nan
         return fk, fj, fi
 
     def trilinear(self, f, fk, fj, fi):
@@ -152,6 +162,16 @@ class _GridIndex:
         return self._offsets[key]
 
     def _gather(self, f, fk, fj, fi, cubic, chunk=2048):
+        """Interpolated ``f`` at the fractional indices; on a bounded grid 0 where ``fi`` is NaN (outside)."""
+        if self.bounded:
+            outside = np.isnan(fi)
+            if outside.any():
+                out = self._taps(f, fk, np.where(outside, float(self.pad), fj), np.where(outside, 0.0, fi), cubic, chunk)
+                out[outside] = 0.0
+                return out
+        return self._taps(f, fk, fj, fi, cubic, chunk)
+
+    def _taps(self, f, fk, fj, fi, cubic, chunk):
         nk, njp, nip, c = f.shape
         flat = f.reshape(-1, c)
         n = fk.size
@@ -217,6 +237,7 @@ class _ColumnIndex(_GridIndex):
         nk, nj, ni = grid.shape
         self.periodic = False
         self.poles = False
+        self.bounded = True
         self.pad = 2
         self.njp, self.nip = nj + 2 * self.pad, ni + 3
         self._offsets = {}
@@ -245,14 +266,6 @@ class _ColumnIndex(_GridIndex):
             else:
                 fi[outside] = fj[outside] = np.nan
         return np.clip(s, 0.0, self.shape[0] - 1), fj + self.pad, fi
-
-    def _gather(self, f, fk, fj, fi, cubic, chunk=2048):
-        outside = np.isnan(fi)
-        if not outside.any():
-            return super()._gather(f, fk, fj, fi, cubic, chunk)
-        out = super()._gather(f, fk, np.where(outside, float(self.pad), fj), np.where(outside, 0.0, fi), cubic, chunk)
-        out[outside] = 0.0
-        return out
 
 
 def grid_index(grid, pad=2, path=None):
@@ -505,8 +518,7 @@ class WindField:
 
     def start_height(self, xyz, s):
         """Height in metres of the points (the grid's level heights interpolated)."""
-        fr = self.index.fractional(xyz, s, clamp=True) if self.grid.curvilinear else self.index.fractional(xyz, s)
-        return self.index.trilinear(self.height_field, *fr)[:, 0]
+        return self.index.trilinear(self.height_field, *self.index.fractional(xyz, s, clamp=True))[:, 0]
 
 
 def _curvilinear_slopes(grid, h, radius):

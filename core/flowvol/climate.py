@@ -6,9 +6,9 @@ coordinate comes from the grid's mean level heights; the project's
 :class:`~nephele.core.flow.advect.WindField` interpolates the winds (trilinear in
 level/row/column index, linear in time, rows mirrored across the poles and
 periodic longitudes, so generators may straddle the seam or a pole).  On a
-curvilinear (2-D longitude/latitude, regional) grid the wind field locates
-points in the grid's columns, and the velocity is NaN outside the region
-(``bounded``): :func:`~nephele.core.flowvol.volume.flow_volume` stops air that
+curvilinear (2-D longitude/latitude) grid the wind field locates points in the
+grid's columns.  On a regional grid (curvilinear, or longitudes that do not
+close the circle) the velocity is NaN outside the region (``bounded``): :func:`~nephele.core.flowvol.volume.flow_volume` stops air that
 leaves the region at its exit point and drops the tetrahedra that reach it.
 Time is in hours; velocities in scene units per hour.
 
@@ -46,7 +46,7 @@ class ClimateVelocity:
 
     def __init__(self, dataset, radius=1.0, exaggeration=DEFAULT_EXAGGERATION, nan="error", keep_hours=48, stack_mb=256):
         self.wind = WindField(dataset, nan=nan, read_ahead=False, cache_steps=steps_to_keep(dataset.grid, keep_hours))
-        self.bounded = bool(dataset.grid.curvilinear)  # NaN outside a regional grid (flow_volume stops air there)
+        self.bounded = self.wind.index.bounded  # NaN outside a regional grid (flow_volume stops air there)
         self.radius, self.exaggeration = float(radius), float(exaggeration)
         self.stack_bytes, self._stack = stack_mb * 2**20, None
         h = np.asarray(dataset.grid.height, dtype=np.float64).reshape(self.wind.nk, -1).mean(axis=1)

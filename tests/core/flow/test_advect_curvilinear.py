@@ -16,7 +16,7 @@ from scipy.integrate import solve_ivp
 
 from nephele.core.climate.columns import ColumnLocator
 from nephele.core.climate.dataset import ArrayDataset, hourly
-from nephele.core.climate.grid import GlobeGrid, lonlat_to_xyz
+from nephele.core.climate.grid import GlobeGrid, lonlat_to_xyz, xyz_to_lonlat
 from nephele.core.errors import DataError
 from nephele.core.flow import advect
 from nephele.core.flow.flows import DeformationalFlow, rotate, tangent_velocity
@@ -261,3 +261,45 @@ def test_streamed_strategies_on_a_regional_grid(name):
         lon, lat, alt = advect.start_coordinates(wind, cp)
         np.testing.assert_allclose(lonlat_to_xyz(lon, lat)[inner], cp.xyz[inner], atol=1e-12)
         assert np.all(np.isfinite(alt))
+
+
+def test_regional_lonlat_grid_across_the_date_line_follows_the_same_rule():
+    """A regional grid with 1-D axes (160E..160W, no wrap): inside it traces as before, air leaving stops outside."""
+    lon, lat = np.arange(160.0, 200.01, 0.5), np.arange(30.0, 60.01, 0.5)
+    g = GlobeGrid(lon, lat, np.array([0.0, 5000.0])[:, None, None] + np.zeros((2, lat.size, lon.size)))
+    assert not g.periodic_lon
+    axis = unit(lonlat_to_xyz(180.0, -45.0))
+    omega = 45.0 * 3600.0 / R  # 3900 km a day: every point's air of 24 h ago was outside the grid
+    L, P = np.meshgrid(lon, lat)
+    p = lonlat_to_xyz(L, P)
+    e, n = east_north(L, P)
+    vel = np.cross(axis, p) * (omega * R / 3600.0)
+    uv = (np.sum(vel * e, axis=-1), np.sum(vel * n, axis=-1))
+    wind = advect.WindField(wind_dataset(g, lambda t: uv))
+    assert wind.index.bounded
+    xyz = advect.grid_vertices(g, np.arange(lat.size * lon.size))
+    end = advect.trace(wind, xyz, np.zeros(len(xyz)), 24.0, 0.0)[0]
+    exact = lambda t: rotate(xyz, axis, -omega * t)  # noqa: E731
+
+    def inside(q):
+        qlon, qlat, _ = (np.mod(a, 360.0) if k == 0 else a for k, a in enumerate(xyz_to_lonlat(q)))
+        return (qlon >= 160.0 - 1e-9) & (qlon <= 200.0 + 1e-9) & (qlat >= 30.0 - 1e-9) & (qlat <= 60.0 + 1e-9)
+
+    times = np.arange(0.0, 24.0 + 1e-9, 0.05)
+    out = np.stack([~inside(exact(t)) for t in times])
+    first = np.argmax(out, axis=0)
+    once = out[-1] & np.array([out[f:, k].all() for k, f in enumerate(first)])  # left once, for good
+    assert once.sum() > 0.8 * len(xyz)
+    assert not inside(end[once]).any()
+    exit_point = np.stack([rotate(q, axis, -omega * times[f]) for q, f in zip(xyz[once], first[once])])
+    step_km = wind.min_spacing * R / 1000.0
+    d = advect.great_circle_km(end[once], exit_point, R)
+    print(f"regional lon/lat exit: {d.max():.1f} km at most (step {step_km:.1f} km)")
+    assert d.max() <= 2.0 * step_km + 0.05 * omega * R / 1000.0  # plus the 0.05 h sampling of the exit
+    # Inside it traces the rotation as before (3 h, air that stayed inside).
+    short = advect.trace(wind, xyz, np.zeros(len(xyz)), 3.0, 0.0)[0]
+    stay = np.all([inside(exact(t)) for t in np.linspace(0.0, 3.0, 31)], axis=0)
+    assert stay.sum() > 1000
+    err = advect.great_circle_km(short[stay], exact(3.0)[stay], R)
+    print(f"regional lon/lat inside: {err.max():.4f} km")
+    assert err.max() < 0.05

@@ -120,3 +120,31 @@ def test_generator_outside_the_region_is_refused(rotation_lcc):
     vel = ClimateVelocity(rotation_lcc)
     with pytest.raises(DataError, match="NaN"):
         flow_volume(vel, vel.point(-40.0, 45.0, 5000.0), 0.02, 6.0, sides=6)
+
+
+def test_regional_lonlat_grid_is_bounded_too():
+    """1-D axes that do not close the circle: NaN beyond the edges, air that leaves stops there."""
+    lon, lat = np.linspace(-120.0, -80.0, 81), np.linspace(30.0, 60.0, 61)
+    g = GlobeGrid(lon, lat, np.array([0.0, 5000.0, 10000.0])[:, None, None] + np.zeros((3, lat.size, lon.size)))
+    L, P = np.meshgrid(lon, lat)
+    p = lonlat_to_xyz(L, P)
+    vel = np.cross(AXIS, p) * (OMEGA * R / 3600.0)
+    lam, phi = np.deg2rad(L), np.deg2rad(P)
+    u = vel[..., 0] * -np.sin(lam) + vel[..., 1] * np.cos(lam)
+    v = -vel[..., 0] * np.sin(phi) * np.cos(lam) - vel[..., 1] * np.sin(phi) * np.sin(lam) + vel[..., 2] * np.cos(phi)
+    f = lambda a: np.broadcast_to(a, (25, 3) + a.shape).copy()  # noqa: E731
+    ds = ArrayDataset(g, hourly("2000-01-01", 25), {"u": f(u), "v": f(v), "w": f(0 * u)}, source="<regional lon/lat>")
+    ds.earth_radius = R
+    cv = ClimateVelocity(ds)
+    assert cv.bounded
+    inside = np.stack([cv.point(-100.0, 45.0, 5000.0), cv.point(-80.0, 60.0, 5000.0)])  # the second on a corner
+    np.testing.assert_allclose(cv(inside, np.zeros(2)), np.cross(AXIS, inside) * OMEGA, rtol=1e-3, atol=1e-9)
+    assert np.all(np.isnan(cv(np.stack([cv.point(-79.9, 45.0, 5000.0), cv.point(-100.0, 60.1, 5000.0)]), np.zeros(2))))
+    c = rotate(cv.point(-100.0, 45.0, 5000.0), AXIS, OMEGA * 6.0)
+    fv = flow_volume(cv, c, 0.02, 18.0, sides=12, rings=1, steps=12)
+    assert fv.exited.any() and not np.isin(np.flatnonzero(fv.exited), fv.tets).any()
+    from nephele.core.climate.grid import xyz_to_lonlat
+
+    elon, elat, _ = xyz_to_lonlat(fv.vertices[fv.exited])
+    edge = np.minimum.reduce([elon - lon[0], lon[-1] - elon, elat - lat[0], lat[-1] - elat])
+    assert edge.min() >= -1e-9 and edge.max() < 1e-3  # degrees: on the edge, from inside
