@@ -1,4 +1,8 @@
-"""One splat per grid sample: centre, ellipsoid fitted to its cell, colour, opacity, wind.
+"""One splat per sample: centre, ellipsoid fitted to its cell, colour, opacity, wind.
+
+By default the samples are the field resampled on *shells* (levels at fixed
+heights above sea level; :mod:`.partition`), where the weights sum to one
+within about 1e-3; ``vertical="native"`` takes the grid's own samples.
 
 A sample's kernel lives in *cell units*: the scene offset ``x`` from its
 centre has cell offset ``d = J⁻¹ x``, ``J`` the grid's local Jacobian
