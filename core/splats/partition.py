@@ -175,17 +175,37 @@ def stencil_weights(points, to_cell, frac_index, kernel, reach):
     """
     nk, nj, ni, _ = points.shape
     x, b = cell_points(points, frac_index)
+    # Cull whole cells first: a point of a cell lies within the cell's largest corner
+    # distance of its centre, which a sample's map stretches by at most its norm.
+    cells, owner = np.unique(b, axis=0, return_inverse=True)
+    owner = owner.reshape(-1)
+    centre, _ = cell_points(points, cells + 0.5)
+    size = np.zeros(len(cells))
+    for corner in np.ndindex(2, 2, 2):
+        c, _ = cell_points(points, cells + np.array(corner, dtype=np.float64))
+        size = np.maximum(size, np.linalg.norm(c - centre, axis=1))
+    stretch = np.linalg.norm(to_cell, ord=2, axis=(-2, -1))
     rk, rj, ri = reach
     out = [[], [], [], [], []]
     for off in np.ndindex(2 * rk + 2, 2 * rj + 2, 2 * ri + 2):
-        t = b + np.array(off) - np.array(reach)
-        ok = np.flatnonzero((t[:, 0] >= 0) & (t[:, 0] < nk) & (t[:, 1] >= 0) & (t[:, 1] < nj))
-        k, j, i = t[ok, 0], t[ok, 1], t[ok, 2] % ni
-        d = np.einsum("nij,nj->ni", to_cell[k, j, i], x[ok] - points[k, j, i])
+        shift = np.array(off) - np.array(reach)
+        t = cells + shift
+        ok = (t[:, 0] >= 0) & (t[:, 0] < nk) & (t[:, 1] >= 0) & (t[:, 1] < nj)
+        k, j, i = t[:, 0].clip(0, nk - 1), t[:, 1].clip(0, nj - 1), t[:, 2] % ni
+        dc = np.einsum("nij,nj->ni", to_cell[k, j, i], centre - points[k, j, i])
+        near = ok & (np.sqrt(np.einsum("ij,ij->i", dc, dc)) < kernel.radius + stretch[k, j, i] * size)
+        if not near.any():
+            continue
+        pts = np.flatnonzero(near[owner])
+        t = b[pts] + shift
+        k, j, i = t[:, 0], t[:, 1], t[:, 2] % ni
+        d = np.einsum("nij,nj->ni", to_cell[k, j, i], x[pts] - points[k, j, i])
         w = kernel.weight(d)
         hit = w > 0
-        for lst, a in zip(out, (ok, k, j, i, w)):
+        for lst, a in zip(out, (pts, k, j, i, w)):
             lst.append(a[hit])
+    if not out[0]:
+        return tuple(np.zeros(0, dtype=dt) for dt in (np.int64, np.int64, np.int64, np.int64, np.float64))
     return tuple(np.concatenate(a) for a in out)
 
 
