@@ -131,6 +131,140 @@ def advance(velocity, points, release, t_end, steps, stop=False):
     return x, out
 
 
+def _hermite(x0, v0, x1, v1, h, s):
+    """Cubic Hermite interpolation at fraction ``s`` (n,) of steps of length ``h`` (n,) between (x0, v0) and (x1, v1)."""
+    s2, s3 = s * s, s * s * s
+    w = [2 * s3 - 3 * s2 + 1, (s3 - 2 * s2 + s) * h, 3 * s2 - 2 * s3, (s3 - s2) * h]
+    return w[0][:, None] * x0 + w[1][:, None] * v0 + w[2][:, None] * x1 + w[3][:, None] * v1
+
+
+class Streams:
+    """Streamlines of generator points in a steady flow, each integrated once and read at any age.
+
+    In a steady flow the air released at time ``t`` is the generator carried for
+    ``t_end - t``: every layer of the front lies on the same streamlines, so
+    each generator point is integrated once from age 0 to ``duration``
+    (``steps`` RK4 steps, positions and velocities kept) and a layer is read
+    from them by cubic Hermite interpolation (Hultquist's stream tube).  With
+    ``stop``, a streamline that leaves the domain during a step is followed by
+    bisecting that step's length (``resolution`` in distance): ages up to the
+    longest step that stays inside are read, older ones rest at the exit point.
+
+    References
+    ----------
+    .. [1] J. P. M. Hultquist, "Constructing stream surfaces in steady 3D
+       vector fields", Proc. Visualization '92, 171-178.
+    """
+
+    def __init__(self, velocity, duration, steps, stop, resolution):
+        self.velocity, self.stop, self.resolution = velocity, stop, float(resolution)
+        self.steps, self.h = int(steps), float(duration) / int(steps)
+        self.x = np.zeros((0, self.steps + 1, 3))
+        self.v = np.zeros((0, self.steps + 1, 3))
+        self.last = np.zeros(0, dtype=np.int64)  # index of the last sample inside the domain
+        self.tail = np.zeros(0)  # length of the part-step after it that stays inside
+        self.tail_x, self.tail_v = np.zeros((0, 3)), np.zeros((0, 3))
+        self.beyond = np.zeros((0, 3))  # a point outside past the tail (its exit lies between them)
+        self.exit = None  # exit points, once found (:meth:`exits`)
+
+    def _f(self, p, release=False):
+        v = np.asarray(self.velocity(p, np.zeros(len(p))), dtype=np.float64).reshape(-1, 3)
+        bad = ~np.isfinite(v).all(axis=1)
+        if bad.any() and (release or not self.stop):
+            what = "of the generator's points lie outside the velocity's domain" if release else "velocities are missing"
+            raise DataError(f"{int(bad.sum())} of {len(v)} {what} (NaN) along the flow volume", field="velocity")
+        return v, bad
+
+    def _step(self, x, k1, h):
+        """One RK4 step of lengths ``h`` (n,) from ``x`` with its velocity ``k1``: end, its velocity, the first stage outside, out."""
+        hc = h[:, None]
+        s1 = x + 0.5 * hc * k1
+        k2, b2 = self._f(s1)
+        s2 = x + 0.5 * hc * np.where(b2[:, None], 0.0, k2)
+        k3, b3 = self._f(s2)
+        s3 = x + hc * np.where(b3[:, None], 0.0, k3)
+        k4, b4 = self._f(s3)
+        end = x + hc / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        bad = b2 | b3 | b4
+        ve, be = self._f(np.where(bad[:, None], x, end))
+        outside = np.select([b2[:, None], b3[:, None], b4[:, None]], [s1, s2, s3], end)
+        return end, ve, outside, bad | be
+
+    def add(self, points):
+        """Integrate the streamlines of generator ``points`` (n, 3); their indices."""
+        n, N, h = len(points), self.steps, self.h
+        x = np.zeros((n, N + 1, 3))
+        v = np.zeros((n, N + 1, 3))
+        x[:, 0] = points
+        v[:, 0] = self._f(x[:, 0], release=True)[0]
+        last = np.full(n, N, dtype=np.int64)
+        beyond = np.zeros((n, 3))
+        live = np.arange(n)
+        for i in range(N):
+            if len(live) == 0:
+                break
+            end, ve, outside, bad = self._step(x[live, i], v[live, i], np.full(len(live), h))
+            x[live, i + 1], v[live, i + 1] = end, ve
+            last[live[bad]], beyond[live[bad]] = i, outside[bad]
+            live = live[~bad]
+        # Streamlines that left during a step: bisect the step's length, keeping the longest that stays inside.
+        gone = np.nonzero(last < N)[0]
+        tail, tail_x, tail_v = np.zeros(n), x[np.arange(n), last], v[np.arange(n), last]
+        if len(gone):
+            x0, k1 = tail_x[gone], tail_v[gone]
+            lo, hi = np.zeros(len(gone)), np.full(len(gone), h)
+            xin, vin, far = x0.copy(), k1.copy(), beyond[gone]
+            speed = max(float(np.linalg.norm(k1, axis=1).max()), 1e-300)
+            for _ in range(int(np.clip(np.ceil(np.log2(h * speed / self.resolution)), 0, 16))):
+                mid = 0.5 * (lo + hi)
+                end, ve, outside, bad = self._step(x0, k1, mid)
+                lo, xin, vin = np.where(bad, lo, mid), np.where(bad[:, None], xin, end), np.where(bad[:, None], vin, ve)
+                hi, far = np.where(bad, mid, hi), np.where(bad[:, None], outside, far)
+            tail[gone], tail_x[gone], tail_v[gone], beyond[gone] = lo, xin, vin, far
+        first = len(self.x)
+        self.x, self.v = np.concatenate([self.x, x]), np.concatenate([self.v, v])
+        self.last, self.tail = np.concatenate([self.last, last]), np.concatenate([self.tail, tail])
+        self.tail_x, self.tail_v = np.concatenate([self.tail_x, tail_x]), np.concatenate([self.tail_v, tail_v])
+        self.beyond = np.concatenate([self.beyond, beyond])
+        self.exit = None
+        return np.arange(first, first + n)
+
+    def exits(self):
+        """Exit point of every streamline that leaves the domain (on its tail end's segment to the point beyond)."""
+        if self.exit is None:
+            self.exit = self.tail_x.copy()
+            gone = np.nonzero(self.last < self.steps)[0]
+            a, b = self.tail_x[gone], self.beyond[gone]
+            for _ in range(16 if len(gone) else 0):  # bisection to 2^-16 of the segment; ``a`` stays inside
+                mid = 0.5 * (a + b)
+                bad = self._f(mid)[1]
+                a = np.where(bad[:, None], a, mid)
+                b = np.where(bad[:, None], mid, b)
+            self.exit[gone] = a
+        return self.exit
+
+    def sample(self, ids, ages):
+        """Positions (m, 3) of streamlines ``ids`` at ``ages`` (m,) and whether they had left (resting at the tail end
+        until :meth:`exits` has placed them on the boundary)."""
+        ids, ages = np.asarray(ids), np.asarray(ages, dtype=np.float64)
+        h, last = self.h, self.last[ids]
+        i = np.clip(np.floor(ages / h).astype(np.int64), 0, self.steps - 1) if h > 0 else np.zeros(len(ids), dtype=np.int64)
+        out = ages > last * h + self.tail[ids] + 1e-12 * max(h, 1e-300)
+        inner = i < last
+        pos = np.empty((len(ids), 3))
+        k = np.nonzero(inner)[0]
+        c, j = ids[k], i[k]
+        pos[k] = _hermite(self.x[c, j], self.v[c, j], self.x[c, j + 1], self.v[c, j + 1], np.full(len(k), h),
+                          (ages[k] - j * h) / h if h > 0 else np.zeros(len(k)))
+        k = np.nonzero(~inner)[0]
+        c, t = ids[k], self.tail[ids[k]]
+        frac = np.clip((ages[k] - self.last[c] * h) / np.where(t > 0, t, 1.0), 0.0, 1.0)
+        pos[k] = _hermite(self.x[c, self.last[c]], self.v[c, self.last[c]], self.tail_x[c], self.tail_v[c], t, frac)
+        if out.any():
+            pos[out] = (self.exit if self.exit is not None else self.tail_x)[ids[out]]
+        return pos, out
+
+
 def _splits(a, b, ratio, most=8, margin=1.25):
     """Points splitting each interval (a, b) into ``ceil(margin * ratio)`` equal parts (at most ``most``).
 
@@ -153,7 +287,7 @@ class Front:
     rest at their exit point).
     """
 
-    def __init__(self, velocity, center, e1, e2, radius, sides, rings, t0, duration, steps, layers=2, stop=False):
+    def __init__(self, velocity, center, e1, e2, radius, sides, rings, t0, duration, steps, layers=2, stop=False, steady=False, resolution=None):
         self.velocity, self.center, self.e1, self.e2 = velocity, center, e1, e2
         self.radius, self.sides, self.rings = radius, sides, rings
         self.t_end, self.steps, self.stop = t0 + duration, steps, stop
@@ -161,8 +295,32 @@ class Front:
         # Release times start evenly spaced; ``layers`` from the expected spacing saves refinement rounds.
         self.taus = np.linspace(t0, t0 + duration, max(int(layers), 2))
         g = self._generator(self.us, True)
+        # A steady flow: one streamline per generator point, every layer read from them (no per-layer integration).
+        self.streams = Streams(velocity, duration, steps, stop, resolution or radius / sides) if steady and duration > 0 else None
+        if self.streams is not None:
+            self.ids = self.streams.add(g)  # each lattice column's streamline
+            alive = float((self.streams.last * self.streams.h + self.streams.tail).max())
+            if alive < duration and len(self.taus) > 2:
+                # All the generator's air has left before ``alive``: older layers would all rest at exits.
+                # The layers are spread over the ages where some air is left (and one beyond), plus the oldest.
+                gap = duration / (len(self.taus) - 1)
+                n = int(np.ceil(alive / gap)) + 1
+                self.taus = np.concatenate([[t0], self.t_end - gap * np.arange(n, -1, -1)]) if n * gap < duration else self.taus
+            self._sample()
+            return
         x, out = advance(velocity, np.tile(g, (len(self.taus), 1)), np.repeat(self.taus, len(g)), self.t_end, steps, stop)
         self.pos, self.out = x.reshape(len(self.taus), len(g), 3), out.reshape(len(self.taus), len(g))
+
+    def _sample(self):
+        K, G = len(self.taus), len(self.ids)
+        x, out = self.streams.sample(np.tile(self.ids, K), np.repeat(self.t_end - self.taus, G))
+        self.pos, self.out = x.reshape(K, G, 3), out.reshape(K, G)
+
+    def settle(self):
+        """Place the points that left the domain at their exit points (streamlines: found once, at the end)."""
+        if self.streams is not None and self.out.any():
+            self.streams.exits()
+            self._sample()
 
     def _generator(self, us, centre):
         rho = np.arange(1, self.rings + 1) / self.rings
@@ -235,6 +393,12 @@ class Front:
         us = np.concatenate([self.us, new_us])
         order = np.argsort(us, kind="stable")
         gc = self._generator(new_us, centre=False)
+        if self.streams is not None:  # new columns get their own streamlines; new layers are read from all
+            cols = np.concatenate([self.ids[1:].reshape(J, R), self.streams.add(gc).reshape(len(new_us), R)])
+            self.ids = np.concatenate([self.ids[:1], cols[order].reshape(-1)])
+            self.us, self.taus = us[order], np.sort(np.concatenate([self.taus, new_taus]), kind="stable")
+            self._sample()
+            return
         gl = self._generator(us[order], centre=True)
         x, out = advance(self.velocity, np.concatenate([np.tile(gc, (K, 1)), np.tile(gl, (len(new_taus), 1))]),
                          np.concatenate([np.repeat(self.taus, len(gc)), np.repeat(new_taus, len(gl))]), self.t_end, self.steps, self.stop)

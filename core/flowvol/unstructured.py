@@ -32,6 +32,8 @@ _DTYPES = {"Int8": "i1", "UInt8": "u1", "Int16": "i2", "UInt16": "u2", "Int32": 
            "Int64": "i8", "UInt64": "u8", "Float32": "f4", "Float64": "f8"}
 # Parametric corners (r, s, t) of VTK's hexahedron, in its node order.
 _CORNERS = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]], dtype=np.float64)
+# The corners in (t, s, r) lattice order: corner (r, s, t) at [t, s, r] after a reshape to (2, 2, 2).
+_LATTICE = np.array([0, 1, 3, 2, 4, 5, 7, 6])
 
 
 def _decode(raw, binary, header, compressed, order):
@@ -144,14 +146,6 @@ def trilinear(rst):
     return w, d
 
 
-def _weights(rst):
-    """Shape functions (n, 8) of VTK's hexahedron only (no derivatives): the interpolation's hot path."""
-    r, s, t = rst[:, 0], rst[:, 1], rst[:, 2]
-    r0, s0, t0 = 1 - r, 1 - s, 1 - t
-    a, b, c, d = r0 * s0, r * s0, r * s, r0 * s
-    return np.stack([a * t0, b * t0, c * t0, d * t0, a * t, b * t, c * t, d * t], axis=1)
-
-
 class UnstructuredVelocity:
     """``velocity(points (n, 3), t) -> (n, 3)`` from the point vectors ``field`` of a hexahedral ``.vtu`` file.
 
@@ -171,6 +165,7 @@ class UnstructuredVelocity:
     """
 
     bounded = True  # velocity is NaN outside the cells: flow volumes stop at the boundary instead of failing
+    steady = True  # one snapshot: flow volumes integrate each streamline once (a stream tube)
 
     def __init__(self, path, field="uvw", bucket_cells=2.0):
         self.path, self.field = str(path), field
@@ -199,10 +194,12 @@ class UnstructuredVelocity:
         self._vectors = np.asarray(value, dtype=np.float64)
         if hasattr(self, "cells"):
             self._cell_vectors = self._vectors[self.cells]
+            self._lattice_vectors = self._cell_vectors[:, _LATTICE].reshape(-1, 2, 2, 2, 3)
 
     def _build_locator(self, bucket_cells):
         corners = self.points[self.cells]  # (c, 8, 3)
         self._cell_vectors = self._vectors[self.cells]
+        self._lattice_vectors = self._cell_vectors[:, _LATTICE].reshape(-1, 2, 2, 2, 3)
         ext = np.ptp(self.points, axis=0).max()
         pad = 1e-9 * ext
         self._lo, self._hi = corners.min(axis=1) - pad, corners.max(axis=1) + pad
@@ -222,6 +219,7 @@ class UnstructuredVelocity:
         # Each cell is listed in every bucket its box overlaps.
         clo, chi = corners.min(axis=1), corners.max(axis=1)
         h = np.maximum(np.median(chi - clo, axis=0) / bucket_cells, 1e-12 * max(ext, 1e-300))
+        self.cell_size = float(np.median(chi - clo))  # a typical cell's extent: streamlines step about one cell
         self._edges = []
         for ax in range(3):
             lattice = np.unique(corners[..., ax])
@@ -260,16 +258,33 @@ class UnstructuredVelocity:
         cell = np.full(len(p), -1, dtype=np.int64)
         rst = np.full((len(p), 3), np.nan)
         todo = np.nonzero(np.all((p >= self._lo_all) & (p <= self._hi_all), axis=1))[0]  # also drops NaN
+        if len(todo) == 0:
+            return cell, rst
+        q = p[todo]
+        g = np.empty((len(todo), 3), dtype=np.int64)
+        near = np.empty((len(todo), 3), dtype=bool)
+        for ax, e in enumerate(self._edges):
+            g[:, ax] = np.minimum(np.searchsorted(e, q[:, ax], "right") - 1, self._nb[ax] - 1)
+            near[:, ax] = q[:, ax] - self._eps < e[g[:, ax]]
+        np.maximum(g, 0, out=g)
+        rows = lambda gg: self._table[(gg[:, 0] * self._nb[1] + gg[:, 1]) * self._nb[2] + gg[:, 2]]
+        left = self._in_rows(p, todo, rows(g), cell, rst, tol, iterations)
         # A point on a bucket face belongs to the bucket above it; if no cell there holds it
-        # (a wall, an obstacle), the buckets below along each axis are tried.
-        for below in self._SHIFTS:
-            if len(todo) == 0:
+        # (a wall, an obstacle), the buckets below along the axes of the faces it lies on are tried.
+        where = np.searchsorted(todo, left)
+        keep = near[where].any(axis=1)
+        left, where = left[keep], where[keep]
+        for below in self._SHIFTS[1:]:
+            if len(left) == 0:
                 break
-            q = p[todo] - below * self._eps
-            g = np.stack([np.searchsorted(e, q[:, ax], "right") - 1 for ax, e in enumerate(self._edges)], axis=1)
-            g = np.clip(g, 0, self._nb - 1)
-            todo = self._in_rows(p, todo, self._table[(g[:, 0] * self._nb[1] + g[:, 1]) * self._nb[2] + g[:, 2]],
-                                 cell, rst, tol, iterations)
+            try_ = np.nonzero(near[where][:, below == 1].all(axis=1))[0]
+            if len(try_) == 0:
+                continue
+            gg = np.maximum(g[where[try_]] - below, 0)
+            still = self._in_rows(p, left[try_], rows(gg), cell, rst, tol, iterations)
+            stay = np.ones(len(left), dtype=bool)
+            stay[try_[~np.isin(left[try_], still)]] = False  # located in this shift
+            left, where = left[stay], where[stay]
         return cell, rst
 
     _SHIFTS = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 1, 0], [1, 0, 1], [0, 1, 1], [1, 1, 1]])
@@ -336,11 +351,38 @@ class UnstructuredVelocity:
         return np.clip(q, 0.0, 1.0), inside
 
     def __call__(self, points, t=None):
-        cell, rst = self.locate(points)
+        p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        cell, rst = self._first_candidate(p)
+        miss = np.nonzero(cell < 0)[0]
+        if len(miss):  # the full search (faces between buckets, other candidates, Newton) for the rest
+            cell[miss], rst[miss] = self.locate(p[miss])
         out = np.full((len(cell), 3), np.nan)
         ok = np.nonzero(cell >= 0)[0]
-        out[ok] = np.einsum("mk,mkj->mj", _weights(rst[ok]), self._cell_vectors[cell[ok]])
+        r, s, t = rst[ok].T
+        v = self._lattice_vectors[cell[ok]]  # (m, t, s, r, 3): lerp along t, then s, then r
+        v = v[:, 0] + t[:, None, None, None] * (v[:, 1] - v[:, 0])
+        v = v[:, 0] + s[:, None, None] * (v[:, 1] - v[:, 0])
+        out[ok] = v[:, 0] + r[:, None] * (v[:, 1] - v[:, 0])
         return out
+
+    def _first_candidate(self, p, tol=1e-7):
+        """Cell and parametric coordinates of points in their bucket's first cell when it is affine (else -1).
+
+        The hot path of every velocity read: on a lattice-aligned grid of boxes it
+        locates nearly every point with a few array operations (the same test as
+        :meth:`locate`'s first pass, which handles the others).
+        """
+        flat = np.zeros(len(p), dtype=np.int64)
+        for ax, e in enumerate(self._edges):
+            g = np.searchsorted(e, p[:, ax], "right") - 1
+            np.clip(g, 0, self._nb[ax] - 1, out=g)
+            flat = flat * self._nb[ax] + g
+        cell = self._table[flat, 0].astype(np.int64)
+        r = np.einsum("mij,mj->mi", self._inv[cell], p - self._origin[cell])
+        ok = (cell >= 0) & self._affine[cell] & (np.abs(r - 0.5) <= 0.5 + tol).all(axis=1)
+        ok &= np.all((p >= self._lo_all) & (p <= self._hi_all), axis=1)
+        cell[~ok] = -1
+        return cell, np.clip(r, 0.0, 1.0)
 
     def updraft(self, height=0.1, margin=0.3):
         """A generator place: ``height`` above the fastest rising (+z) grid point in the lower half, ``margin`` from the side walls.

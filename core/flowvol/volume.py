@@ -73,7 +73,8 @@ def _as_velocity(velocity):
     raise DataError(f"velocity must be a callable velocity(points, t) or a climate dataset, got {type(velocity).__name__}", field="velocity")
 
 
-def flow_volume(velocity, center, radius, duration, *, normal=None, sides=32, rings=2, t0=0.0, tol=None, merge=0.5, steps=16, max_points=200_000):
+def flow_volume(velocity, center, radius, duration, *, normal=None, sides=32, rings=2, t0=0.0, tol=None, merge=0.5, steps=16, max_points=200_000,
+                steady=None):
     """The air released through a generator polygon during ``duration``, carried to ``t0 + duration``.
 
     Parameters
@@ -104,6 +105,14 @@ def flow_volume(velocity, center, radius, duration, *, normal=None, sides=32, ri
         RK4 steps along each trajectory.
     max_points : int
         Refinement stops (``complete=False``) beyond this many front points.
+    steady : bool, optional
+        The velocity does not depend on time (default: its ``steady``
+        attribute, e.g. :class:`UnstructuredVelocity`): each generator point's
+        streamline is integrated once (``steps`` RK4 steps over ``duration``)
+        and every layer is read from them (Hultquist's stream tube) instead of
+        integrating each layer on its own; with a ``cell_size`` (a grid's
+        typical cell) the streamline takes at least two steps per cell
+        crossed at the centre's speed.
 
     Returns
     -------
@@ -147,8 +156,15 @@ def flow_volume(velocity, center, radius, duration, *, normal=None, sides=32, ri
     layers = int(min(np.ceil(speed * float(duration) / tol), max_points // G)) + 1
     # A velocity with a bounded domain (NaN outside, e.g. a room's grid): air that leaves it stops there.
     stop = bool(getattr(velocity, "bounded", False))
-    front = Front(velocity, center, e1, e2, float(radius), sides, rings, float(t0), float(duration), steps, layers, stop)
+    steady = bool(getattr(velocity, "steady", False)) if steady is None else bool(steady)
+    if steady and getattr(velocity, "cell_size", None):
+        # A streamline serves every age: its steps are kept to half a cell of the grid at the centre's speed
+        # (a layer's own integration took ``steps`` steps of age / steps each; a cell per step left the fire's
+        # 1 s tube 2.7% too large, half a cell 0.1%).
+        steps = max(steps, int(np.ceil(2.0 * float(duration) * speed / velocity.cell_size)))
+    front = Front(velocity, center, e1, e2, float(radius), sides, rings, float(t0), float(duration), steps, layers, stop, steady, tol / 4)
     complete = True if duration == 0 else front.refine(tol, max_points)
+    front.settle()
     if stop and hasattr(velocity, "bounds"):
         # Exit points lie on the grid's boundary up to the cell search's tolerance: keep them inside its box.
         front.pos[front.out] = np.clip(front.pos[front.out], velocity.bounds[:, 0], velocity.bounds[:, 1])
@@ -170,13 +186,19 @@ def _assemble(front, normal, complete, tol, merge):
         # flow (a stagnation point, calm air) keeps the winding of its neighbours.
         ages = np.repeat(front.t_end - front.taus, G)
         reference = np.tile(front.generator, (K, 1)) + ages[:, None] * normal
-        tets = orient(reference, split_prisms(prisms))
-        if merge > 0:
-            target = front.merge_targets(tol, merge)
-            if np.any(target != np.arange(len(target))):
-                tets = merge_vertices(tets, target, reference)
-        if front.out.any():  # the smoke ends where its air left the domain
-            tets = tets[~front.ended().reshape(-1)[tets].any(axis=1)]
+        tets = split_prisms(prisms)
+        target = front.merge_targets(tol, merge) if merge > 0 else np.arange(len(vertices))
+        merged = np.any(target != np.arange(len(target)))
+        ended = front.ended().reshape(-1) if front.out.any() else None
+        if ended is not None:
+            # The smoke ends where its air left the domain.  Tets with a vertex that ends both before and
+            # after merging are dropped first: where most of the air left, most of the lattice goes unused.
+            tets = tets[~(ended & ended[target])[tets].any(axis=1)]
+        tets = orient(reference, tets)
+        if merged:
+            tets = merge_vertices(tets, target, reference)
+        if ended is not None:
+            tets = tets[~ended[tets].any(axis=1)]
     faces = boundary_faces(tets)
     used = np.unique(faces)
     remap = np.full(len(vertices), -1, dtype=np.int64)
