@@ -13,6 +13,16 @@ rows mirrored across each pole and periodic longitudes let points cross both.
 Vertical motion is clamped at the bottom and top levels.  The step is the
 smaller of ``dt_max`` and a CFL bound from the fastest wind of the interval.
 
+On a curvilinear grid (2-D latitude/longitude: WRF, Lambert conformal, polar
+stereographic) points are located in the grid's columns each stage
+(:class:`~nephele.core.climate.columns.ColumnLocator`) and the winds, east/north
+at each column turned Cartesian with that column's own east and north, are
+interpolated in the same index space; positions stay unit vectors, so the date
+line and a pole inside the grid need nothing special.  A regional grid
+(curvilinear, or 1-D longitudes that do not close the circle) has calm air
+outside: a trajectory that leaves it stops at its first step end outside,
+within two steps of where it crossed the edge.
+
 Three strategies give the start coordinates of frame ``n`` (:class:`FullTrace`,
 :class:`ComposedTrace`, :class:`RestartTrace`); each returns a list of
 :class:`Copy` (start positions and a blending weight).
@@ -308,8 +318,11 @@ class WindField:
     ``velocity(hours, xyz, s)`` gives the Cartesian velocity of unit vectors
     (per hour) and the rate of the level coordinate ``s`` (levels per hour):
     ``ds/dt = (w - u ∂h/∂x - v ∂h/∂y) / (∂h/∂s)``, which follows the
-    terrain-following levels.  Space: trilinear in level/row/column index;
-    time: linear between steps.
+    terrain-following levels.  Space: trilinear in level/row/column index
+    (a curvilinear grid's columns located, its slopes by the chain rule through
+    the columns' positions); time: linear between steps.  ``u``, ``v`` are
+    eastward and northward on every grid (readers turn grid-relative winds).
+    Zero outside a regional grid (see the module notes).
 
     Parameters
     ----------
@@ -773,6 +786,9 @@ class _StreamedMap:
         self.band = band
         self.index = grid_index(strategy.grid, pad=2)
         self.map = self.index.padded(np.zeros(strategy.grid.shape + (4 * copies,), dtype=np.float32))
+        # Regional grids: 1 near vertices whose start is not the composition's to give (their air came from
+        # outside and stopped at the edge); a foot point there is traced directly instead.
+        self.left = self.index.padded(np.zeros(strategy.grid.shape + (copies,), dtype=np.float32)) if self.index.bounded else None
         self.frames = [None] * copies
         self.starts = [None] * copies
         self.fallbacks = 0
@@ -781,6 +797,8 @@ class _StreamedMap:
     def reset(self, c, n):
         """Copy ``c`` is the identity at frame ``n``: every vertex starts where it is (zero displacement)."""
         self.map[..., 4 * c : 4 * c + 4] = 0.0
+        if self.left is not None:
+            self.left[..., c] = 0.0
         self.frames[c] = self.starts[c] = n
 
     def _band(self, index):
@@ -802,17 +820,30 @@ class _StreamedMap:
         asked = asked[need]
         top = st.grid.shape[0] - 1
         values = np.empty((need.size, 4 * len(copies)), dtype=np.float32)
+        left = self.index.trilinear(self.left, *fr) if self.left is not None else None
+        flags = np.zeros((need.size, len(copies)), dtype=bool)
         for a, c in enumerate(copies):
             dc = d[:, 4 * c : 4 * c + 4]
             sx, sz = _normalise(y + dc[:, :3]), np.clip(z + dc[:, 3], 0.0, top)
-            redo = asked & ~np.all(np.isfinite(dc), axis=1)
+            unsure = ~np.all(np.isfinite(dc), axis=1)
+            if left is not None:
+                unsure |= left[:, c] > 0
+            redo = asked & unsure
             if redo.any():
                 self.fallbacks += int(redo.sum())
                 sx[redo], sz[redo] = trace(st.wind, xyz[redo], s[redo], st.frame_hours[n], st.frame_hours[self.starts[c]],
                                            vertices=need[redo], **st.opts)
+            if left is not None:  # started outside (stopped at the edge), or composed from such starts
+                flags[:, a] = np.isnan(self.index.fractional(sx, sz)[2]) | (unsure & ~redo)
             values[:, 4 * a : 4 * a + 3] = sx - xyz
             values[:, 4 * a + 3] = sz - s
         self._store(copies, need, values)
+        if left is not None:
+            for a, c in enumerate(copies):
+                mark = np.zeros(st.grid.shape, dtype=bool)
+                mark.reshape(-1)[need] = flags[:, a]
+                # Grown by a cell: the bicubic stencil reaches one vertex beyond the trilinear one.
+                self.index.padded(dilate(mark, 1).astype(np.float32)[..., None], out=self.left[..., c : c + 1])
         for c in copies:
             self.frames[c] = n
 
