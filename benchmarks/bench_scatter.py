@@ -24,7 +24,8 @@ averages over blocks where the reference exceeds 2% of its maximum, divided by
 the mean reference there.
 
 Run: ``.venv/bin/python benchmarks/bench_scatter.py [--ref-spp 4096] [--quick]``;
-``--quick`` runs a few cases of each part and prints them without writing docs.
+``--quick`` runs a few cases of each part and prints them without writing docs;
+``--film 64 [--film 128]`` only times film-resolution solves and 640x480 views.
 """
 
 import argparse
@@ -137,6 +138,43 @@ def ours(sigma, cam, n_views=120, repeat_views=5):
     return img, sol, t_solve, float(np.median(times))
 
 
+def film(n, width=640, height=480, views=3, anchor=True):
+    """Film resolution (issue 18): the test cloud on n x n x 3n/4 voxels (the same Perlin
+    field sampled finer), one solve, then 640x480 views (source + plane march, 2 samples
+    per voxel), wall and CPU seconds and the load; the ray march (:func:`render`, step
+    0.4 voxel) of the first view as the anchor, with the difference of the two images."""
+    from nephele.core.volume import cloud_density
+    from nephele.core.light import scatter
+
+    shape = (3 * n // 4, n, n)
+    sigma = EXT * cloud_density.cloud_density(cloud_density.CloudParams(shape=shape, size=SIZE))
+    load0 = os.getloadavg()[0]
+    w, c = time.perf_counter(), time.process_time()
+    sol = scatter.solve(sigma, SIZE, albedo=ALBEDO, g=G, sun_dir=SUN, tol=1e-3)
+    rows = [(f"{n}x{n}x{shape[0]} solve", f"{time.perf_counter() - w:.1f}", f"{time.process_time() - c:.1f}",
+             f"{load0:.1f}-{os.getloadavg()[0]:.1f}", sol.report)]
+    for i in range(views):
+        cam = scatter.orbit_camera(VIEW_ANGLE + 2 * np.pi * i / 120, SIZE, width=width, height=height)
+        load0 = os.getloadavg()[0]
+        w, c = time.perf_counter(), time.process_time()
+        src = scatter.view_source(sol, cam.position)
+        ws, cs = time.perf_counter() - w, time.process_time() - c
+        img = scatter.march_planes(sigma, src, SIZE, cam, samples=2)
+        note = f"source {ws:.2f} s wall / {cs:.2f} s CPU" + (" (first view builds the phase tables)" if i == 0 else "")
+        if i == 0 and anchor:
+            w2, c2 = time.perf_counter(), time.process_time()
+            ref = scatter.render(sigma, src, SIZE, cam)
+            dw, dc = time.perf_counter() - w2, time.process_time() - c2
+            e = errors(img, ref)
+            note += (f"; ray march (render, step 0.4) {dw:.1f} s wall / {dc:.1f} s CPU, plane march vs it: "
+                     f"mean {e[0]:+.4f}, 4x4 {e[2]:.4f}")
+            w, c = w + dw, c + dc  # the anchor is not part of the view
+        rows.append((f"{width}x{height} view {i}", f"{time.perf_counter() - w:.2f}", f"{time.process_time() - c:.2f}",
+                     f"{load0:.1f}-{os.getloadavg()[0]:.1f}", note))
+        print(rows[-1], flush=True)
+    return rows
+
+
 def scaling(shapes=((18, 24, 24), (36, 48, 48), (72, 96, 96))):
     """Seconds per shooting pass (after the first) and passes to converge, per grid size."""
     from nephele.core.volume import cloud_density
@@ -229,8 +267,20 @@ def main(argv=None):
     ap.add_argument("--accuracy-only", action="store_true", help="only the voxel-depth table (writes docs)")
     ap.add_argument("--skip-accuracy", action="store_true", help="leave the voxel-depth table as it is")
     ap.add_argument("--views", type=int, default=120)
+    ap.add_argument("--film", type=int, action="append", default=[],
+                    help="only the film-resolution rows for an n x n x 3n/4 cloud (repeatable; writes docs)")
     args = ap.parse_args(argv)
     from report import md_table, write_section
+
+    if args.film:
+        rows = [r for n in args.film for r in film(n)]
+        write_section("scatter-film", "Film resolution (issue 18): the test cloud sampled on finer grids, "
+                      "solve and 640x480 views (view_source + march_planes, 2 samples per voxel). "
+                      f"{os.cpu_count()} cores shared with other jobs; load = 1-minute load average "
+                      "before-after each row; CPU = this process's CPU seconds (all its threads).\n\n"
+                      + md_table(["step", "wall s", "CPU s", "load", "note"], rows),
+                      title="Multiple scattering at film resolution")
+        return 0
 
     load = f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores at the start"
     acc = [] if args.skip_accuracy else accuracy(args.quick)
