@@ -187,7 +187,7 @@ class Streams:
         end = x + hc / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
         bad = b2 | b3 | b4
         ve, be = self._f(np.where(bad[:, None], x, end))
-        outside = np.select([b2[:, None], b3[:, None], b4[:, None]], [s1, s2, s3], end)
+        outside = np.where(b2[:, None], s1, np.where(b3[:, None], s2, np.where(b4[:, None], s3, end)))  # first stage out
         return end, ve, outside, bad | be
 
     def add(self, points):

@@ -372,17 +372,20 @@ class UnstructuredVelocity:
         locates nearly every point with a few array operations (the same test as
         :meth:`locate`'s first pass, which handles the others).
         """
+        # Small arrays (a front's points per RK stage): plain ufuncs, not np.clip's Python wrapper.
         flat = np.zeros(len(p), dtype=np.int64)
         for ax, e in enumerate(self._edges):
-            g = np.searchsorted(e, p[:, ax], "right") - 1
-            np.clip(g, 0, self._nb[ax] - 1, out=g)
-            flat = flat * self._nb[ax] + g
+            g = np.searchsorted(e, p[:, ax], "right")
+            g -= 1
+            np.minimum(np.maximum(g, 0, out=g), self._nb[ax] - 1, out=g)
+            flat *= self._nb[ax]
+            flat += g
         cell = self._table[flat, 0].astype(np.int64)
         r = np.einsum("mij,mj->mi", self._inv[cell], p - self._origin[cell])
         ok = (cell >= 0) & self._affine[cell] & (np.abs(r - 0.5) <= 0.5 + tol).all(axis=1)
         ok &= np.all((p >= self._lo_all) & (p <= self._hi_all), axis=1)
         cell[~ok] = -1
-        return cell, np.clip(r, 0.0, 1.0)
+        return cell, np.minimum(np.maximum(r, 0.0), 1.0)
 
     def updraft(self, height=0.1, margin=0.3):
         """A generator place: ``height`` above the fastest rising (+z) grid point in the lower half, ``margin`` from the side walls.

@@ -164,12 +164,18 @@ def test_fire_stream_tube_against_dop853_and_the_per_layer_front(fire):
 
 @fire_only
 def test_fire_ten_seconds_stream_tube_is_closed_and_converges_with_tol(fire):
+    # Most of the air leaves the room; the smoke ends a lattice step (about tol) before the exits, so the
+    # volume converges to first order in tol: measured 0.02906, 0.02991, 0.03033 m³ at tol 0.1, 0.05, 0.025.
     c = fire.updraft(0.1)
-    fine = flow_volume(fire, c, 0.1, 10.0, sides=32, rings=1, steps=8, tol=0.05)
-    coarse = flow_volume(fire, c, 0.1, 10.0, sides=32, rings=1, steps=8, tol=0.1)
-    for fv in (fine, coarse):
+    vols = []
+    for tol in (0.1, 0.05, 0.025):
+        fv = flow_volume(fire, c, 0.1, 10.0, sides=32, rings=1, steps=8, tol=tol)
         assert fv.complete and fv.exited.any() and fv.volume > 0
         assert np.all(np.isfinite(fire(fv.vertices)))  # exit points too lie in a cell
         assert not fv.exited[np.unique(fv.tets)].any()
         closed(fv)
-    assert fine.volume == pytest.approx(coarse.volume, rel=0.02)
+        vols.append(fv.volume)
+    d1, d2 = vols[1] - vols[0], vols[2] - vols[1]
+    assert 0 < d2 < 0.6 * d1  # halving tol halves the change (first order)
+    # Against the extrapolated limit: measured 2.7% under at tol 0.05, 1.4% at tol 0.025.
+    assert vols[2] == pytest.approx(vols[2] + d2, rel=0.02)
