@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.volume.volume_atlas import PAD, VALID, tf_ramps
+from ..core.volume.volume_atlas import INDEX_EDGE, PAD, VALID, tf_ramps
 from ..fileio import block_grid, oiio, write_image, write_vdb
 from .nodes import Nodes
 
@@ -106,12 +106,14 @@ class _Nodes(Nodes):
         return sep.outputs[0], sep.outputs[1], sep.outputs[2], tex.outputs["Alpha"]
 
 
-def field_nodes(tree, layout, values_image, heights_image, *, below, color_altitude, location=(-3200, 0)):
+def field_nodes(tree, layout, values_image, heights_image, *, below, color_altitude, index_image=None,
+                location=(-3200, 0)):
     """The program of :meth:`nephele.core.volume.volume_atlas.AtlasLayout.shade` as shader nodes.
 
-    ``layout``: :meth:`AtlasLayout.to_dict`.  Returns sockets ``(value,
-    colour, ok)``; ``ok`` is 1 where the density may be non-zero (inside the
-    grid, all corners present, in the support), else 0.
+    ``layout``: :meth:`AtlasLayout.to_dict`; ``index_image``: a curvilinear
+    grid's :class:`~nephele.core.volume.volume_atlas.IndexMap` image.  Returns
+    sockets ``(value, colour, ok)``; ``ok`` is 1 where the density may be
+    non-zero (inside the grid, all corners present, in the support), else 0.
     """
     L = layout
     g = _Nodes(tree, *location)
@@ -129,15 +131,24 @@ def field_nodes(tree, layout, values_image, heights_image, *, below, color_altit
     a = 6_371_000.0 / (L["radius"] * L["exaggeration"])
     h = g.math("MULTIPLY_ADD", length.outputs["Value"], a, -6_371_000.0 / L["exaggeration"], label="height")
     inside = []
-    # Relative longitude in [0, 360) for every grid: a regional grid may straddle ±180°.
-    lon = g.math("FLOORED_MODULO", lon, 360.0)
-    if not L["periodic"]:
-        inside += [g.math("GREATER_THAN", lon, L["lon_range"][0]), g.math("LESS_THAN", lon, L["lon_range"][1])]
-    if not (L["lat_range"][0] <= -90.0 and L["lat_range"][1] >= 90.0):
-        inside += [g.math("GREATER_THAN", lat, L["lat_range"][0]), g.math("LESS_THAN", lat, L["lat_range"][1])]
-    col = g.piecewise(lon, L["lon_runs"], "column")
-    row = g.piecewise(lat, L["lat_runs"], "row")
     W, nk, tile = L["width"], L["nk"], L["rows"] + 2 * PAD
+    if L.get("index"):
+        col, row, front = _index_nodes(g, coord.outputs["Object"], L["index"], index_image)
+        e = INDEX_EDGE
+        inside += [front, g.math("GREATER_THAN", col, -e), g.math("LESS_THAN", col, W - 1 + e),
+                   g.math("GREATER_THAN", row, -e), g.math("LESS_THAN", row, L["rows"] - 1 + e)]
+        # Outside, the clamp keeps the lookups below inside their own tiles.
+        col = g.math("MINIMUM", g.math("MAXIMUM", col, 0.0), W - 1, label="column")
+        row = g.math("MINIMUM", g.math("MAXIMUM", row, 0.0), L["rows"] - 1, label="row")
+    else:
+        # Relative longitude in [0, 360) for every grid: a regional grid may straddle ±180°.
+        lon = g.math("FLOORED_MODULO", lon, 360.0)
+        if not L["periodic"]:
+            inside += [g.math("GREATER_THAN", lon, L["lon_range"][0]), g.math("LESS_THAN", lon, L["lon_range"][1])]
+        if not (L["lat_range"][0] <= -90.0 and L["lat_range"][1] >= 90.0):
+            inside += [g.math("GREATER_THAN", lat, L["lat_range"][0]), g.math("LESS_THAN", lat, L["lat_range"][1])]
+        col = g.piecewise(lon, L["lon_runs"], "column")
+        row = g.piecewise(lat, L["lat_runs"], "row")
     periodic = L["periodic"]
     u = g.math("MULTIPLY_ADD", col, 1.0 / W, 0.5 / W, label="u")
     hrows = ((nk + 3) // 4) * tile
@@ -167,6 +178,18 @@ def field_nodes(tree, layout, values_image, heights_image, *, below, color_altit
     for m in inside[1:]:
         ok = g.math("MULTIPLY", ok, m, label="inside")
     return value, color, ok
+
+
+def _index_nodes(g, position, index, image):
+    """:meth:`IndexMap.lookup` as nodes: ``(column, row, front)`` sockets."""
+    q = [g.vmath("DOT_PRODUCT", position, tuple(b)) for b in index["basis"]]
+    front = g.math("GREATER_THAN", q[2], 0.0)
+    z = g.math("MULTIPLY_ADD", g.math("SUBTRACT", 1.0, front), 1.0, g.math("MULTIPLY", q[2], front))  # 1 behind the globe
+    (x0, y0), (x1, y1) = index["lo"], index["hi"]
+    u = g.math("MULTIPLY_ADD", g.math("DIVIDE", q[0], z), 1.0 / (x1 - x0), -x0 / (x1 - x0))
+    v = g.math("MULTIPLY_ADD", g.math("DIVIDE", q[1], z), 1.0 / (y1 - y0), -y0 / (y1 - y0))
+    col, row, _, _ = g.lookup(image, u, v, False, "Nephele column index")
+    return col, row, front
 
 
 def tf_nodes(tree, value, tf, location=(-600, 300)):

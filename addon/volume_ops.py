@@ -86,7 +86,8 @@ def volume_material(name, extinction, color_var, cmap, anisotropy=0.3, exact=Non
         from .volume_exact import field_nodes, tf_nodes
 
         value, color, ok = field_nodes(tree, exact["layout"], exact["values"], exact["heights"],
-                                       below=exact["below"], color_altitude=color_var == ALTITUDE)
+                                       below=exact["below"], color_altitude=color_var == ALTITUDE,
+                                       index_image=exact.get("index"))
         opacity = tf_nodes(tree, value, exact["tf"])
         # Density socket = opacity × inside × extinction (a linked socket replaces the Density value).
         dens = tree.nodes.new("ShaderNodeMath")
@@ -129,7 +130,8 @@ def refresh_material(obj):
     exact = None
     if p.get("mode") == EXACT:
         exact = {"layout": p["layout"], "tf": TransferFunction.from_dict(p["tf"]), "below": p["below"],
-                 "values": _atlas_image(obj.name, p), "heights": _heights_image(obj.name, p)}
+                 "values": _atlas_image(obj.name, p), "heights": _fixed_image(obj.name, p, "heights"),
+                 "index": _fixed_image(obj.name, p, "index") if p["layout"].get("index") else None}
     mat = volume_material(f"{obj.name} material", p["extinction"], p.get("color_var", ""), cmap, exact=exact)
     if exact is not None:
         _sequence_users(mat, p)
@@ -157,8 +159,9 @@ def _image(name, path):
     return img
 
 
-def _heights_image(name, p):
-    img = _image(f"{name} heights", data_ops.layer_dir(p) / f"{PREFIX}_heights.exr")
+def _fixed_image(name, p, what):
+    """A time-independent atlas image: the ``heights``, or a curvilinear grid's column ``index`` map."""
+    img = _image(f"{name} {what}", data_ops.layer_dir(p) / f"{PREFIX}_{what}.exr")
     img.reload()
     return img
 
@@ -395,6 +398,8 @@ def add_volume_clouds(var="cloud", tf=None, *, source=None, color_var=ALTITUDE, 
 
         layout = atlas_layout(ds.grid, params["radius"], params["exaggeration"])
         write_exr(out_dir / f"{PREFIX}_heights.exr", layout.heights)
+        if layout.index is not None:
+            write_exr(out_dir / f"{PREFIX}_index.exr", layout.index.image)
         params["layout"] = layout.to_dict()
     if bake == "all":
         infos = bake_sequence(params, range(f0, f1 + 1), out_dir, PREFIX, cache=cache, progress=progress)
@@ -718,7 +723,7 @@ def panel_estimate(context, s):
 
     hours = frame_hours(f0, cfg["frame_start"], cfg["hours_per_frame"], last_hour=float(ds.hours[-1]))
     tf = panel_tf(s)
-    mode = exact_or_voxels(context.scene, s.mode)
+    mode = s.mode
     size = s.support_size if mode == EXACT else s.voxel_size
     # The panel redraws often: one field read per distinct question.
     key = (cfg["source"], var, json.dumps(tf.to_dict()), hours, mode, size, cfg["exaggeration"], cfg["radius"])
@@ -739,13 +744,6 @@ def estimate_text(frames, est):
     n = frames[1] - frames[0] + 1
     return (f"{n} frame{'s' if n > 1 else ''} ({frames[0]}-{frames[1]}): about {format_bytes(n * est['disk'])} "
             f"on disk, {n * est['seconds']:.0f} s, {format_bytes(est['memory'])} of memory")
-
-
-def exact_or_voxels(scene, mode):
-    """``mode``, or voxels where the exact mode's atlas cannot place the scene's grid (2-D lon/lat)."""
-    if mode != EXACT:
-        return mode
-    return VOXELS if data_ops.dataset(scene=scene).grid.curvilinear else mode
 
 
 class NEPHELE_OT_add_volume_clouds(bpy.types.Operator):
@@ -783,14 +781,10 @@ class NEPHELE_OT_add_volume_clouds(bpy.types.Operator):
         wm.progress_begin(0, 100)
         try:
             tf = panel_tf(s)
-            mode = exact_or_voxels(context.scene, s.mode)
-            if mode != s.mode:
-                self.report({"INFO"}, "the exact mode cannot place a curvilinear (2-D lon/lat) grid yet: "
-                                      "baking voxels")
             obj, infos = add_volume_clouds(
                 s.var, tf, color_var=s.color_var, cmap=panel_cmap(s), voxel_size=s.voxel_size,
                 extinction=s.extinction, directory=s.directory or None, scene=context.scene, frames=frames,
-                progress=progress, mode=mode, support_size=s.support_size, bake="lazy" if background else "all",
+                progress=progress, mode=s.mode, support_size=s.support_size, bake="lazy" if background else "all",
             )
         except (DataError, ValueError, OSError, ImportError) as exc:
             self.report({"ERROR"}, str(exc))

@@ -5,8 +5,10 @@ Blender as a volume sequence, so a farm needs neither the add-on nor this
 command at render time; ``DIR/sequence.json`` records how they were made.
 In the exact mode (the default) each ``.vdb`` holds the support grid, an
 ``.exr`` of the same name the values atlas, and ``clouds_heights.exr`` the
-level heights; ``sequence.json`` then carries the atlas ``layout`` the
-material needs (:mod:`nephele.addon.volume_exact`).
+level heights (a curvilinear grid adds ``clouds_index.exr``, its column
+index map); ``sequence.json`` then carries the atlas ``layout`` the material
+needs (:mod:`nephele.addon.volume_exact`) and, for a rotated-pole grid, the
+``rotation`` (3×3, rows) that turns the volume object into place.
 """
 
 import json
@@ -92,10 +94,6 @@ def run(args):
     if color_var and color_var != "altitude" and color_var not in ds:
         raise DataError(f"no such colour variable (available: altitude, {', '.join(sorted(ds.variables))})",
                         path=args.source, field=color_var)
-    if args.mode == "exact" and (ds.grid.rotation is not None or ds.grid.curvilinear):
-        raise DataError("the exact mode's atlas shader works in longitude/latitude axes and cannot place a "
-                        "rotated-pole or curvilinear (2-D lon/lat) grid yet; use --mode voxels", path=ds.source,
-                        field="grid")
     first, last = _steps(args.steps, ds.times.size)
     if not np.isfinite(ds.read(args.var, first)).any():  # cheap: the bake reads this step from the cache
         raise DataError(f"every value at time step {first} is missing (NaN): nothing to show", path=ds.source,
@@ -121,7 +119,11 @@ def run(args):
         params["support_size"] = support
         layout = atlas_layout(ds.grid, args.radius, exaggeration)
         write_exr(out / f"{args.prefix}_heights.exr", layout.heights)
+        if layout.index is not None:  # a curvilinear grid's column lookup
+            write_exr(out / f"{args.prefix}_index.exr", layout.index.image)
         params["layout"] = layout.to_dict()
+        if ds.grid.rotation is not None:  # shaded in the grid's frame: the volume object takes this matrix
+            params["rotation"] = ds.grid.rotation.tolist()
 
     def progress(i, n, info):
         if not args.quiet:

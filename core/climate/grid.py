@@ -156,7 +156,7 @@ class GlobeGrid:
         """Raise :class:`DataError` for a curvilinear grid: ``what`` needs 1-D longitude/latitude axes."""
         if self.curvilinear:
             raise DataError(
-                f"{what} on a curvilinear grid (2-D longitude/latitude) is not supported yet; contours and voxel volumes are",
+                f"{what} on a curvilinear grid (2-D longitude/latitude) is not supported yet; contours, volumes, advected textures and flow volumes are",
                 path=path,
                 field="grid",
             )

@@ -91,15 +91,12 @@ class CurvilinearField:
     columns: ColumnLocator = None
 
     @classmethod
-    def from_grid(cls, grid, values, radius=1.0, exaggeration=DEFAULT_EXAGGERATION, curvilinear=False):
+    def from_grid(cls, grid, values, radius=1.0, exaggeration=DEFAULT_EXAGGERATION):
         """``values``: dict name → ``(nk, nj, ni)`` array (NaN = missing).
 
-        ``curvilinear``: accept a grid with 2-D longitude/latitude (located by
-        :class:`~nephele.core.climate.columns.ColumnLocator`); callers whose
-        own lookup needs 1-D axes (the exact-mode atlas) leave it False.
+        A grid with 2-D longitude/latitude is located by its columns
+        (:class:`~nephele.core.climate.columns.ColumnLocator`).
         """
-        if grid.curvilinear and not curvilinear:
-            grid.require_lonlat("the exact volume mode")
         grid.validate()
         if not (np.isfinite(radius) and radius > 0 and np.isfinite(exaggeration) and exaggeration > 0):
             raise DataError(f"radius {radius} and exaggeration {exaggeration} must be positive", field="exaggeration")
@@ -685,17 +682,15 @@ def _near_candidates(field, table, blocks, sub, voxel_size):
     return keep
 
 
-def scalar_field(grid, values, color_values=None, color_name=None, radius=1.0, exaggeration=DEFAULT_EXAGGERATION,
-                 curvilinear=False):
+def scalar_field(grid, values, color_values=None, color_name=None, radius=1.0, exaggeration=DEFAULT_EXAGGERATION):
     """The :class:`CurvilinearField` of ``values`` (as ``"value"``) and, for a
-    colour variable other than :data:`ALTITUDE`, ``color_values`` (as ``"color"``);
-    ``curvilinear`` as in :meth:`CurvilinearField.from_grid`."""
+    colour variable other than :data:`ALTITUDE`, ``color_values`` (as ``"color"``)."""
     arrays = {"value": values}
     if color_name is not None and color_name != ALTITUDE:
         if color_values is None:
             raise DataError("color_values are needed for a colour variable other than altitude", field=color_name)
         arrays["color"] = color_values
-    return CurvilinearField.from_grid(grid, arrays, radius, exaggeration, curvilinear=curvilinear)
+    return CurvilinearField.from_grid(grid, arrays, radius, exaggeration)
 
 
 def resample(
@@ -754,7 +749,7 @@ def resample(
     if int(block) < 1:
         raise DataError(f"must be >= 1, got {block}", field="block")
     block = int(block)
-    field = scalar_field(grid, values, color_values, color_name, radius, exaggeration, curvilinear=True)
+    field = scalar_field(grid, values, color_values, color_name, radius, exaggeration)
     # Blocks further out than the whole globe would overflow the block keys.
     if field.radius_range()[1] / (voxel_size * block) > (_KEY_OFFSET - 2):
         raise DataError(f"voxel size {voxel_size} is too small for a globe of radius {radius}", field="voxel_size")

@@ -29,6 +29,15 @@ A rotated-pole grid is shaded in its own frame: the atlas, the support and
 object carries the grid's rotation (:attr:`ExactVolume.rotation`) to put the
 field at its true place.
 
+A curvilinear grid (2-D longitude/latitude) replaces steps 1–2 by an *index
+map* (:class:`IndexMap`): the sample's gnomonic chart coordinates about the
+grid's centre (three dot products and two divisions) look up the fractional
+column indices in a texture of :data:`INDEX_TEXELS` texels per cell, filled by
+:class:`~nephele.core.climate.columns.ColumnLocator` (continued past the edge
+by the edge cells' own bilinear maps, so the edge is where the interpolated
+index crosses it).  The map is bilinear in each cell of the texture, so it
+carries a small error of its own (``docs/benchmarks.md``).
+
 Atlas layout: a tile per level (values) or per four levels (heights),
 stacked along the image's rows; a tile's rows are the closed latitude axis
 (pole rows included, see :class:`~nephele.core.volume.sparse.CurvilinearField`)
@@ -139,6 +148,83 @@ def tf_eval32(tf, s):
     return out
 
 
+INDEX_TEXELS = 4
+"""Texels of a curvilinear grid's index map per grid cell along each axis."""
+
+MAX_INDEX = 2048
+"""Largest side of the index map (texels)."""
+
+INDEX_EDGE = 1e-4
+"""Index units past the grid's edge still inside (float32 rounding; the map's own error is larger)."""
+
+
+@dataclass(eq=False)
+class IndexMap:
+    """A curvilinear grid's fractional column indices over its gnomonic chart (build with :func:`index_map`).
+
+    Attributes
+    ----------
+    basis : (3, 3) array
+        Rows: chart x, chart y and the chart's centre (:attr:`ColumnLocator.basis`).
+    lo, hi : (2,) arrays
+        Chart coordinates of the texture's outer edges.
+    image : (my, mx, 4) float32
+        R the column index ``i``, G the row index ``j`` at each texel centre.
+    """
+
+    basis: np.ndarray
+    lo: np.ndarray
+    hi: np.ndarray
+    image: np.ndarray
+
+    def to_dict(self):
+        return {"basis": self.basis.tolist(), "lo": self.lo.tolist(), "hi": self.hi.tolist(),
+                "size": [int(self.image.shape[1]), int(self.image.shape[0])]}
+
+    def lookup(self, p):
+        """The shader's ``(i, j, front)`` of float32 points ``p`` (n, 3): ``front`` False on the far side of the globe."""
+        q = p @ self.basis.T.astype(np.float32)
+        front = q[:, 2] > np.float32(0.0)
+        z = np.where(front, q[:, 2], np.float32(1.0))
+        lo, size = self.lo.astype(np.float32), (self.hi - self.lo).astype(np.float32)
+        u = (q[:, 0] / z - lo[0]) / size[0]
+        v = (q[:, 1] / z - lo[1]) / size[1]
+        texel = bilinear(self.image, u, v, False)
+        return texel[:, 0], texel[:, 1], front
+
+
+def index_map(columns, texels=INDEX_TEXELS, most=MAX_INDEX):
+    """The :class:`IndexMap` of a :class:`~nephele.core.climate.columns.ColumnLocator`.
+
+    Texel centres inside the grid take the locator's indices; those outside
+    take the bilinear map of the edge cell nearest them, extended, so that
+    the shader's bilinear lookup stays accurate up to the edge and puts the
+    edge where the interpolated index crosses it.
+    """
+    nj, ni = columns.shape
+    xy = columns.xy.reshape(-1, 2)
+    lo, hi = xy.min(axis=0), xy.max(axis=0)
+    m = np.minimum(np.array([ni, nj]) * texels, most).astype(int)
+    step = (hi - lo) / (m - 2)  # one texel of margin each side: the edge lies inside the texture
+    lo, hi = lo - step, hi + step
+    gx = lo[0] + (np.arange(m[0]) + 0.5) * step[0]
+    gy = lo[1] + (np.arange(m[1]) + 0.5) * step[1]
+    X, Y = (a.ravel() for a in np.meshgrid(gx, gy))
+    pts = np.stack([X, Y, np.ones_like(X)], axis=1) @ columns.basis
+    fi, fj = columns(pts)
+    out = fi < 0
+    if out.any():
+        i, j = columns.nearest(pts[out])
+        i0, j0 = np.clip(i, 0, ni - 2), np.clip(j, 0, nj - 2)
+        s, t = columns._invert(X[out], Y[out], j0, i0)
+        fi[out], fj[out] = i0 + s, j0 + t
+    img = np.zeros((m[1], m[0], 4), np.float32)
+    img[..., 0] = fi.reshape(m[1], m[0])
+    img[..., 1] = fj.reshape(m[1], m[0])
+    img[..., 3] = 1.0
+    return IndexMap(columns.basis.copy(), lo, hi, img)
+
+
 @dataclass(eq=False)
 class AtlasLayout:
     """Time-independent half of the exact shading: axes, tiles and the heights atlas.
@@ -161,6 +247,8 @@ class AtlasLayout:
     heights : (ceil(nk/4) * (rows + 2), width, 4) float32
         The heights atlas, metres.
     radius, exaggeration : float
+    index : IndexMap or None
+        A curvilinear grid's column lookup (the axis runs and ranges are then unused).
     """
 
     lon0: float
@@ -175,6 +263,7 @@ class AtlasLayout:
     heights: np.ndarray
     radius: float
     exaggeration: float
+    index: IndexMap = None
 
     @property
     def tile(self):
@@ -197,6 +286,7 @@ class AtlasLayout:
             "lon0": self.lon0, "periodic": self.periodic, "lon_runs": self.lon_runs, "lat_runs": self.lat_runs,
             "lon_range": list(self.lon_range), "lat_range": list(self.lat_range), "width": self.width,
             "rows": self.rows, "nk": self.nk, "radius": self.radius, "exaggeration": self.exaggeration,
+            "index": None if self.index is None else self.index.to_dict(),
         }
 
     def values_atlas(self, field):
@@ -241,14 +331,21 @@ class AtlasLayout:
         lat = np.arctan2(z, rxy) * deg
         r = np.sqrt(x * x + y * y + z * z)
         ok = np.ones(p.shape[0], bool)
-        # Relative longitude in [0, 360) for every grid: a regional grid may straddle ±180°.
-        lon = lon - f32(360.0) * np.floor(lon / f32(360.0))
-        if not self.periodic:
-            ok &= (lon > f32(self.lon_range[0])) & (lon < f32(self.lon_range[1]))
-        if not self.closed_lat:
-            ok &= (lat > f32(self.lat_range[0])) & (lat < f32(self.lat_range[1]))
-        col = map_runs(lon, self.lon_runs)
-        row = map_runs(lat, self.lat_runs)
+        if self.index is not None:
+            col, row, front = self.index.lookup(p)
+            e = f32(INDEX_EDGE)
+            ok &= front & (col > -e) & (col < f32(self.width - 1) + e) & (row > -e) & (row < f32(self.rows - 1) + e)
+            # Outside, the clamp keeps the lookups below inside their own tiles.
+            col, row = np.clip(col, f32(0.0), f32(self.width - 1)), np.clip(row, f32(0.0), f32(self.rows - 1))
+        else:
+            # Relative longitude in [0, 360) for every grid: a regional grid may straddle ±180°.
+            lon = lon - f32(360.0) * np.floor(lon / f32(360.0))
+            if not self.periodic:
+                ok &= (lon > f32(self.lon_range[0])) & (lon < f32(self.lon_range[1]))
+            if not self.closed_lat:
+                ok &= (lat > f32(self.lat_range[0])) & (lat < f32(self.lat_range[1]))
+            col = map_runs(lon, self.lon_runs)
+            row = map_runs(lat, self.lat_runs)
         a, b = self.height_coefficients()
         h = r * f32(a) + f32(b)
         u = col * f32(1.0 / self.width) + f32(0.5 / self.width)
@@ -314,7 +411,8 @@ def atlas_layout(grid, radius=1.0, exaggeration=DEFAULT_EXAGGERATION):
 
 
 def _layout(field):
-    periodic = bool(field.lon[-1] == 360.0)
+    curvilinear = field.columns is not None
+    periodic = bool(field.lon[-1] == 360.0) and not curvilinear
     nk, rows, ncols = field.shape
     width = ncols - 1 if periodic else ncols
     ntiles = (nk + 3) // 4
@@ -326,10 +424,12 @@ def _layout(field):
     img[:, PAD : PAD + rows] = hgt.reshape(ntiles, 4, rows, width).transpose(0, 2, 3, 1)
     _pad_rows(img)
     return AtlasLayout(
-        lon0=float(field.lon0), periodic=periodic, lon_runs=axis_runs(field.lon), lat_runs=axis_runs(field.lat),
+        lon0=float(field.lon0), periodic=periodic, lon_runs=[] if curvilinear else axis_runs(field.lon),
+        lat_runs=[] if curvilinear else axis_runs(field.lat),
         lon_range=(float(field.lon[0]), float(field.lon[-1])), lat_range=(float(field.lat[0]), float(field.lat[-1])),
         width=int(width), rows=int(rows), nk=int(nk), heights=img.reshape(-1, width, 4),
         radius=float(field.radius), exaggeration=float(field.exaggeration),
+        index=index_map(field.columns) if curvilinear else None,
     )
 
 
@@ -467,10 +567,14 @@ __all__ = [
     "DEFAULT_SUPPORT_SIZE",
     "AtlasLayout",
     "ExactVolume",
+    "INDEX_EDGE",
+    "INDEX_TEXELS",
+    "IndexMap",
     "atlas_layout",
     "axis_runs",
     "bilinear",
     "exact_volume",
+    "index_map",
     "support_voxels",
     "tf_eval32",
     "tf_ramps",

@@ -6,7 +6,6 @@ import pytest
 bpy = pytest.importorskip("bpy")
 
 from nephele.addon import data_ops, frame, volume_ops  # noqa: E402
-from nephele.core.errors import DataError  # noqa: E402
 from nephele.fileio import read_grid  # noqa: E402
 from nephele.core.pipeline.sources import register_source  # noqa: E402
 from nephele.core.climate.dataset import ArrayDataset, hourly  # noqa: E402
@@ -19,14 +18,20 @@ NI, NJ, NK, NT = 48, 24, 8, 3
 SOURCE = "test:volume-blob"
 
 
-def blob_dataset(rotation=None, source=SOURCE):
+def blob_dataset(rotation=None, source=SOURCE, curvilinear=False):
     """A cloud blob at 20°E, 20°N moving 10° east per hour, centred 5 km up (grid
-    coordinates: with ``rotation``, a rotated-pole grid puts it elsewhere)."""
+    coordinates: with ``rotation``, a rotated-pole grid puts it elsewhere).
+    ``curvilinear``: on a regional grid of sheared, curved columns (2-D lon/lat)."""
     lon = np.arange(NI) * 360.0 / NI
     lat = -90 + (np.arange(NJ) + 0.5) * 180.0 / NJ
     h = np.linspace(0.0, 16000.0, NK)[:, None, None] + np.zeros((NK, NJ, NI))
-    grid = GlobeGrid(lon, lat, h, rotation=rotation)
-    L, P = np.meshgrid(lon, lat)
+    if curvilinear:
+        P, L = np.meshgrid(np.linspace(-10.0, 50.0, NJ), np.linspace(-25.0, 65.0, NI), indexing="ij")
+        L = L + 0.3 * (P - 20.0) + 0.004 * (P - 20.0) ** 2
+        grid = GlobeGrid(np.arange(NI, dtype=float), np.arange(NJ, dtype=float), h, lon2d=L, lat2d=P)
+    else:
+        grid = GlobeGrid(lon, lat, h, rotation=rotation)
+        L, P = np.meshgrid(lon, lat)
     cloud = np.zeros((NT, NK, NJ, NI), np.float32)
     for t in range(NT):
         blob = np.exp(-((((L - (20 + 10 * t) + 180) % 360) - 180) / 22) ** 2 - ((P - 20) / 14) ** 2)
@@ -271,8 +276,8 @@ def test_lazy_volume_is_written_per_frame_from_the_precomputed_cache(scene, tmp_
         assert np.count_nonzero(dense) == np.count_nonzero(cached["density"])
 
 
-@pytest.mark.parametrize("rotated", [False, True])
-def test_exact_mode_render_matches_the_reference_opacity(scene, tmp_path, rotated):
+@pytest.mark.parametrize("grid", ["lonlat", "rotated", "curvilinear"])
+def test_exact_mode_render_matches_the_reference_opacity(scene, tmp_path, grid):
     # The exact mode's node graph against the curvilinear reference, pixel by
     # pixel: a black absorbing volume over a transparent film makes the alpha
     # the ray's opacity.  Box pixel filter and no adaptive sampling so each
@@ -280,9 +285,11 @@ def test_exact_mode_render_matches_the_reference_opacity(scene, tmp_path, rotate
     # what remains is Monte-Carlo noise (null scattering is unbiased).  Rotated:
     # the same blob on a rotated-pole grid (the UM file's pole), seen where the
     # rotation puts it; the reference locates points through the rotation itself.
-    rotation = rotated_pole_matrix(177.5, 37.5) if rotated else None
-    source = SOURCE + ("-rotated" if rotated else "")
-    ds = blob_dataset(rotation, source)
+    # Curvilinear: on sheared, curved columns, located by the index map in the
+    # shader and by ColumnLocator in the reference.
+    rotation = rotated_pole_matrix(177.5, 37.5) if grid == "rotated" else None
+    source = f"{SOURCE}-{grid}"
+    ds = blob_dataset(rotation, source, curvilinear=grid == "curvilinear")
     data_ops.set_settings(scene, source=source)
     centre = lonlat_to_xyz(20.0, 20.0)  # the blob, in grid coordinates
     lon, lat, _ = xyz_to_lonlat(centre if rotation is None else centre @ rotation.T)
@@ -325,8 +332,8 @@ def test_exact_mode_render_matches_the_reference_opacity(scene, tmp_path, rotate
     assert np.percentile(np.abs(err), 99) < 0.05, np.percentile(np.abs(err), 99)
 
 
-def test_curvilinear_file_bakes_voxels_by_its_own_variable_name(empty_scene, tmp_path):
-    """A 2-D lat/lon grid: the panel's exact mode cannot place it, so the operator bakes voxels and says so;
+def test_curvilinear_file_bakes_both_modes_by_its_own_variable_name(empty_scene, tmp_path):
+    """A 2-D lat/lon grid through the panel, exact mode (with its column index map) and voxels;
     the file's own name ('T') is accepted as for contours."""
     xr = pytest.importorskip("xarray")
     ny, nx = 12, 16
@@ -349,11 +356,14 @@ def test_curvilinear_file_bakes_voxels_by_its_own_variable_name(empty_scene, tmp
     s.var, s.color_var, s.mode = "T", "", volume_ops.EXACT
     s.tf_edit, s.threshold, s.full = "THRESHOLD", 286.0, 290.0
     s.voxel_size, s.directory = 0.004, str(tmp_path / "vol")
-    assert volume_ops.exact_or_voxels(scene, volume_ops.EXACT) == volume_ops.VOXELS
+    assert bpy.ops.nephele.add_volume_clouds() == {"FINISHED"}
+    obj = scene.objects[volume_ops.OBJECT_NAME]
+    p = frame.params(obj)
+    assert p["mode"] == volume_ops.EXACT and p["var"] == "temperature" and not p["empty"]
+    assert p["layout"]["index"]["size"] == [4 * nx, 4 * ny] and (tmp_path / "vol" / "clouds_index.exr").is_file()
+    index = obj.data.materials[0].node_tree.nodes["Nephele column index"]
+    assert index.image is not None and index.image.size[:] == (4 * nx, 4 * ny)
+    s.mode, s.directory = volume_ops.VOXELS, str(tmp_path / "vox")
     assert bpy.ops.nephele.add_volume_clouds() == {"FINISHED"}
     p = frame.params(scene.objects[volume_ops.OBJECT_NAME])
-    assert p["mode"] == volume_ops.VOXELS and p["var"] == "temperature" and not p["empty"]
-    # The core function keeps refusing the exact mode there, in one line.
-    with pytest.raises(DataError, match="curvilinear"):
-        volume_ops.add_volume_clouds("T", scene=scene, mode=volume_ops.EXACT, directory=str(tmp_path / "v2"),
-                                     color_var="")
+    assert p["mode"] == volume_ops.VOXELS and not p["empty"]

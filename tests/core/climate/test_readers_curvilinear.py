@@ -129,13 +129,10 @@ def test_real_polar_stereographic_file_projection_matches_stored_latlon():
         np.testing.assert_allclose(((lon - f["lon"].values) + 180.0) % 360.0 - 180.0, 0.0, atol=3e-5)
 
 
-def test_exact_volumes_and_advection_refuse_a_curvilinear_grid(tmp_path):
-    from nephele.core.volume.sparse import CurvilinearField
-
+def test_grid_coordinates_of_points_refuse_a_curvilinear_grid(tmp_path):
+    # Points map back to a curvilinear grid only through its columns (ColumnLocator), never to_grid.
     _lcc_file(tmp_path / "lcc.nc")
     ds = open_dataset(tmp_path / "lcc.nc")
-    with pytest.raises(DataError, match="exact volume mode on a curvilinear grid .* not supported yet; contours and voxel volumes are"):
-        CurvilinearField.from_grid(ds.grid, {"value": ds.read("T", 0)})
     with pytest.raises(DataError, match="curvilinear grid"):
         ds.grid.to_grid(np.zeros((1, 3)))
 
@@ -178,7 +175,7 @@ def test_voxel_volume_on_a_curvilinear_grid_matches_the_closed_form(tmp_path):
     _lcc_file(tmp_path / "lcc.nc")
     ds = open_dataset(tmp_path / "lcc.nc")
     g, t = ds.grid, ds.read("T", 0)
-    field = CurvilinearField.from_grid(g, {"value": t}, curvilinear=True)
+    field = CurvilinearField.from_grid(g, {"value": t})
     # Random points inside the grid's columns and levels: the interpolated T is the written T there
     # (exact in height, second order across a 30 km cell in latitude).
     rng = np.random.default_rng(5)
