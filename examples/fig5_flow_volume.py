@@ -123,10 +123,12 @@ def main(argv=None):
     ap.add_argument("--density", type=float, default=None, help="smoke density (per scene unit)")
     ap.add_argument("--fire", action="store_true", help="smoke above the fire in a room (fire_ug.vtu) instead of the globe")
     ap.add_argument("--vtu", default=FIRE["path"], help="the .vtu of --fire")
+    ap.add_argument("--seconds", type=float, default=None,
+                    help=f"--fire: release window in seconds (default {FIRE['seconds']:g}; longer releases reach the walls)")
     args = ap.parse_args(argv)
     bpy.ops.wm.read_factory_settings(use_empty=True)
     if args.fire:
-        build_fire(path=args.vtu, size=args.size, samples=args.samples, density=args.density)
+        build_fire(path=args.vtu, size=args.size, samples=args.samples, density=args.density, seconds=args.seconds)
         print(bpy.context.scene.nephele_flowvol.status)
         if args.save:
             globe_scene.save(args.save)
