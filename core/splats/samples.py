@@ -7,8 +7,8 @@ within about 1e-3; ``vertical="native"`` takes the grid's own samples.
 A sample's kernel lives in *cell units*: the scene offset ``x`` from its
 centre has cell offset ``d = J⁻¹ x``, ``J`` the grid's local Jacobian
 ``∂(scene position)/∂(i, j, k)`` (columns: one step in longitude, latitude
-and level index, by central differences; one-sided at the grid's edges,
-periodic across the seam).  On a locally affine grid the weights of all
+and level index — on a curvilinear grid, its two column indices — by central
+differences; one-sided at the grid's edges, periodic across the seam).  On a locally affine grid the weights of all
 samples then sum as on the unit lattice.  With ``J = U S Vᵀ`` (SVD), the
 cut-off ellipsoid ``|J⁻¹ x| ≤ R`` is ``{M u : |u| ≤ 1}`` with
 ``M = R U S`` — the kernel's principal axes as columns, which is what
@@ -33,7 +33,7 @@ from ..errors import DataError
 from ..climate.readers import open_dataset
 from ..volume.transfer import ALTITUDE_COLORS, TEMPERATURE_COLORS, ColorMap, TransferFunction
 from .kernel import SplatKernel, splat_kernel
-from .partition import ShellSampler, check_shells, shell_factors, shell_heights, widen, widening
+from .partition import ShellSampler, check_shells, curvilinear_shells, shell_factors, shell_heights, widen, widening
 
 HOUR = 3600.0
 ALTITUDE = "altitude"
@@ -188,7 +188,8 @@ def _color(dataset, color_var, colormap, hour, height, pick, n):
 def _wind(dataset, hour, grid, exaggeration, sel, centers, pick):
     """Scene velocity per hour: ``u`` east and ``v`` north on the sphere through
     the sample (angular speed × its radius, the shallow-atmosphere convention of
-    the project's advection), ``w`` outward scaled by the exaggeration."""
+    the project's advection; on a curvilinear grid east and north of the column's
+    own longitude and latitude), ``w`` outward scaled by the exaggeration."""
     n = sel[0].size
     if "u" not in dataset or "v" not in dataset:
         return np.zeros((n, 3))
@@ -198,8 +199,10 @@ def _wind(dataset, hour, grid, exaggeration, sel, centers, pick):
     bad = ~(np.isfinite(u) & np.isfinite(v) & np.isfinite(w))
     if bad.any():
         raise DataError(f"{int(bad.sum())} splat samples have NaN wind at {hour:g} h", path=dataset.source, field="u/v/w")
-    lam = np.deg2rad(grid.lon[sel[2]])
-    phi = np.deg2rad(grid.lat[sel[1]])
+    if grid.curvilinear:  # east/north of each column's own true longitude and latitude
+        lam, phi = np.deg2rad(grid.lon2d[sel[1], sel[2]]), np.deg2rad(grid.lat2d[sel[1], sel[2]])
+    else:
+        lam, phi = np.deg2rad(grid.lon[sel[2]]), np.deg2rad(grid.lat[sel[1]])
     east = np.column_stack([-np.sin(lam), np.cos(lam), np.zeros(n)])
     north = np.column_stack([-np.sin(phi) * np.cos(lam), -np.sin(phi) * np.sin(lam), np.cos(phi)])
     up = np.column_stack([np.cos(phi) * np.cos(lam), np.cos(phi) * np.sin(lam), np.sin(phi)])
@@ -208,6 +211,23 @@ def _wind(dataset, hour, grid, exaggeration, sel, centers, pick):
     r = np.linalg.norm(centers, axis=1)
     horiz = (u[:, None] * east + v[:, None] * north) * (HOUR / EARTH_RADIUS) * r[:, None]
     return horiz + (w * HOUR * exaggeration / EARTH_RADIUS)[:, None] * up
+
+
+def _layout(grid, heights, stride, exaggeration, kernel, path):
+    """Sample positions, Jacobians, factors (None: native) and the lon/lat shells' widening
+    ``(λ_lon, λ_lev)`` still to apply to the selected Jacobians (None: applied or native)."""
+    if heights is None:
+        return (*cell_jacobians(grid, exaggeration, stride), None, None)
+    if grid.curvilinear:
+        return (*curvilinear_shells(grid, heights, stride, exaggeration, kernel), None)
+    step = np.diff(grid.lon)
+    if not np.allclose(step, step[0], rtol=1e-6, atol=0.0):
+        raise DataError("shells need evenly spaced longitudes (use vertical='native')", path=path, field="lon")
+    layout = GlobeGrid(grid.lon, grid.lat, np.broadcast_to(heights[:, None, None], (heights.size,) + grid.shape[1:]).copy(), rotation=grid.rotation)
+    points, jac = cell_jacobians(layout, exaggeration, stride)
+    lat, h = grid.lat[::stride], heights[::stride]
+    factors = shell_factors(lat, h, (grid.lon[1] - grid.lon[0]) * stride, exaggeration, kernel)[:, :, None]
+    return points, jac, factors, widening(lat, h, kernel.radius)
 
 
 def splat_samples(
@@ -257,7 +277,8 @@ def splat_samples(
         height), on levels at fixed heights above sea level, with kernels
         widened where the spacing changes fast and per-sample factors folded
         into the opacity, so that the weights sum to one within about 1e-3
-        (:mod:`.partition`; needs 1-D, evenly spaced longitudes).
+        (:mod:`.partition`; on a longitude/latitude grid the longitudes must be
+        evenly spaced; on a curvilinear grid the factors are solved per sample).
         ``"native"``: one splat per grid sample, ellipsoids from the cell
         Jacobians, no factors (on terrain-following levels over steep terrain
         the weights sum to one only within several per cent).
@@ -298,27 +319,21 @@ def splat_samples(
     grid = dataset.grid
     values = dataset.read_at(var, float(hour))
     if vertical == "shells":
-        heights = check_shells(grid, shell_heights(grid) if shells is None else shells, dataset.source)
-        step = np.diff(grid.lon)
-        if not np.allclose(step, step[0], rtol=1e-6, atol=0.0):
-            raise DataError("shells need evenly spaced longitudes (use vertical='native')", path=dataset.source, field="lon")
+        heights = check_shells(shell_heights(grid) if shells is None else shells, dataset.source)
         sampler = ShellSampler(grid, heights)
         values = sampler(values)
-        layout = GlobeGrid(grid.lon, grid.lat, np.broadcast_to(heights[:, None, None], sampler.shape).copy(), rotation=grid.rotation)
     else:
+        heights = None
         values = np.asarray(values, dtype=np.float64)
-        layout = grid
     opacity = np.nan_to_num(transfer(values[::stride, ::stride, ::stride]), nan=0.0)
-    points, jac = cell_jacobians(layout, exaggeration, stride)
-    if vertical == "shells":
-        lat, h = layout.lat[::stride], heights[::stride]
-        lam_lon, lam_lev = widening(lat, h, kernel.radius)
-        opacity = opacity * shell_factors(lat, h, (grid.lon[1] - grid.lon[0]) * stride, exaggeration, kernel)[:, :, None]
+    points, jac, factors, lam = _layout(grid, heights, stride, exaggeration, kernel, dataset.source)
+    if factors is not None:
+        opacity = opacity * factors
     sel_sub = np.nonzero(opacity > threshold)
     opacity = opacity[sel_sub]
     jac = jac[sel_sub]
-    if vertical == "shells":
-        jac = widen(jac, lam_lon[sel_sub[1]], lam_lev[sel_sub[0]])
+    if lam is not None:
+        jac = widen(jac, lam[0][sel_sub[1]], lam[1][sel_sub[0]])
     centers = points[sel_sub]
     axes = principal_axes(jac, kernel.radius)
     sel = tuple(a * stride for a in sel_sub)
