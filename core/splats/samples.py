@@ -188,8 +188,9 @@ def _color(dataset, color_var, colormap, hour, height, pick, n):
 def _wind(dataset, hour, grid, exaggeration, sel, centers, pick):
     """Scene velocity per hour: ``u`` east and ``v`` north on the sphere through
     the sample (angular speed × its radius, the shallow-atmosphere convention of
-    the project's advection; on a curvilinear grid east and north of the column's
-    own longitude and latitude), ``w`` outward scaled by the exaggeration."""
+    the project's advection, on the dataset's ``earth_radius``; on a curvilinear
+    grid east and north of the column's own longitude and latitude), ``w``
+    outward scaled by the exaggeration."""
     n = sel[0].size
     if "u" not in dataset or "v" not in dataset:
         return np.zeros((n, 3))
@@ -209,7 +210,8 @@ def _wind(dataset, hour, grid, exaggeration, sel, centers, pick):
     if grid.rotation is not None:
         east, north, up = (a @ grid.rotation.T for a in (east, north, up))
     r = np.linalg.norm(centers, axis=1)
-    horiz = (u[:, None] * east + v[:, None] * north) * (HOUR / EARTH_RADIUS) * r[:, None]
+    sphere = float(getattr(dataset, "earth_radius", None) or EARTH_RADIUS)  # the file's sphere, as advection
+    horiz = (u[:, None] * east + v[:, None] * north) * (HOUR / sphere) * r[:, None]
     return horiz + (w * HOUR * exaggeration / EARTH_RADIUS)[:, None] * up
 
 

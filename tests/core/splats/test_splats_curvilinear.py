@@ -1,7 +1,8 @@
-"""Splats on curvilinear (2-D latitude/longitude, regional) grids: shells, partition of unity, winds, streaks.
+"""Splats on curvilinear (2-D latitude/longitude) and regional grids: shells, partition of unity, winds, streaks.
 
-Grids: a Lambert conformal conic grid over North America and a north polar
-stereographic grid with a column exactly at the pole (Snyder's spherical
+Grids: a Lambert conformal conic grid over North America, a north polar
+stereographic grid with a column exactly at the pole, and a longitude/latitude
+grid across the date line that does not close the circle (Snyder's spherical
 inverses written out here, as in ``tests/core/flow/test_advect_curvilinear.py``),
 50 km cells, shells stretched towards the ground.  Independent truth: the
 weights are summed here by brute force (a k-d tree over the splat centres,
@@ -87,13 +88,19 @@ def brute_sum(sp, kernel, x):
     return out
 
 
-@pytest.mark.parametrize("kind", ["lcc", "polar"])
-def test_shells_on_curvilinear_grids_are_a_partition_within_1e3(kind):
+@pytest.mark.parametrize("kind", ["lcc", "polar", "lonlat"])
+def test_shells_on_regional_grids_are_a_partition_within_1e3(kind):
     # The default layout on a regional grid: shells at fixed heights, kernels from each sample's
-    # own cell Jacobian, per-sample factors in the opacity.  Measured with the splats' own axes
-    # and opacities at 3000 random points of the interior (3 cells from every edge, the top
-    # and the ground), positions trilinear in the cells' corners.
-    g = regional_grid(kind)
+    # own cell Jacobian, per-sample factors in the opacity ("lonlat": 1-D axes across the date
+    # line that do not close the circle, the per-row factors).  Measured with the splats' own
+    # axes and opacities at 3000 random points of the interior (3 cells from every edge, the
+    # top and the ground), positions trilinear in the cells' corners.
+    if kind == "lonlat":
+        lon, lat = np.arange(160.0, 200.01, 0.5), np.arange(30.0, 60.01, 0.5)
+        g = GlobeGrid(lon, lat, SHELLS[:, None, None] + np.zeros((SHELLS.size, lat.size, lon.size))).validate()
+        assert not g.periodic_lon
+    else:
+        g = regional_grid(kind)
     kernel = splat_kernel()
     sp = splat_samples(dataset(g, cloud=1.0), "cloud", 0.0, ONE, kernel=kernel, exaggeration=EXAGGERATION)
     nk, nj, ni = g.shape
@@ -193,3 +200,53 @@ def test_stride_on_a_curvilinear_grid():
     s = int(np.flatnonzero((sp.index == [2, 14, 20]).all(1))[0])
     for nb in [(2, 14, 22), (2, 16, 20), (4, 14, 20)]:
         assert 0.95 < np.linalg.norm(sp.cell_offsets(p[nb], s)[0]) < 1.05
+
+
+def test_a_lambert_conformal_file_end_to_end(tmp_path):
+    # A CF file as a regional model writes it (projection x/y, 2-D lat/lon, eastward/northward winds,
+    # WRF's 6370 km sphere) through splat_samples and the renderer.
+    xr = pytest.importorskip("xarray")
+    from nephele.core.splats import render_splats, streak_maps
+
+    radius = 6370000.0
+    nx, ny, dx = 30, 24, 60e3
+    x, y = (np.arange(nx) - (nx - 1) / 2) * dx, (np.arange(ny) - (ny - 1) / 2) * dx
+    X, Y = np.meshgrid(x, y)
+    lon, lat = lcc_inverse(X * R / radius, Y * R / radius)  # Snyder's inverse on the file's sphere
+    axis = lonlat_to_xyz(-100.0, 20.0)
+    omega = 25.0 * 3600.0 / (radius * np.sin(np.deg2rad(25.0)))  # rad/h
+    col = lonlat_to_xyz(lon, lat)
+    vel = np.cross(axis, col) * (omega * radius / 3600.0)
+    lam, phi = np.deg2rad(lon), np.deg2rad(lat)
+    u = np.sum(vel * np.stack([-np.sin(lam), np.cos(lam), 0 * lam], axis=-1), axis=-1)
+    v = np.sum(vel * np.stack([-np.sin(phi) * np.cos(lam), -np.sin(phi) * np.sin(lam), np.cos(phi)], axis=-1), axis=-1)
+    z = np.array([1000.0, 3000.0, 6000.0, 9000.0])
+    q = np.clip((lat - 38.0) / 14.0, 0.0, 1.0)[None] * np.array([0.2, 1.0, 0.6, 0.1])[:, None, None]  # a cloud band
+    rep = lambda a: np.broadcast_to(a, (2, 4, ny, nx)).astype(np.float32)  # noqa: E731
+    lcc = {"grid_mapping_name": "lambert_conformal_conic", "standard_parallel": [30.0, 60.0],
+           "longitude_of_central_meridian": -100.0, "latitude_of_projection_origin": 45.0, "earth_radius": radius}
+    dims = ("time", "z", "y", "x")
+    xr.Dataset(
+        {"cloud": (dims, rep(q), {"units": "1", "grid_mapping": "lambert"}),
+         "u": (dims, rep(u), {"units": "m s-1", "standard_name": "eastward_wind", "grid_mapping": "lambert"}),
+         "v": (dims, rep(v), {"units": "m s-1", "standard_name": "northward_wind", "grid_mapping": "lambert"}),
+         "lambert": ((), 0, lcc)},
+        coords={"time": ("time", [0.0, 3.0], {"units": "hours since 2020-01-01", "standard_name": "time"}),
+                "z": ("z", z, {"units": "m", "standard_name": "height", "positive": "up"}),
+                "y": ("y", y, {"units": "m", "standard_name": "projection_y_coordinate"}),
+                "x": ("x", x, {"units": "m", "standard_name": "projection_x_coordinate"}),
+                "lat": (("y", "x"), lat, {"units": "degrees_north", "standard_name": "latitude"}),
+                "lon": (("y", "x"), lon, {"units": "degrees_east", "standard_name": "longitude"})},
+    ).to_netcdf(tmp_path / "lcc.nc")
+    sp = splat_samples(str(tmp_path / "lcc.nc"), "cloud", 1.5, TransferFunction.ramp(0.05, 0.8), color_var="altitude",
+                       exaggeration=EXAGGERATION)
+    k, j, i = sp.index.T
+    assert len(sp) > 1000 and np.all(np.isin(np.unique(k), np.arange(4)))
+    np.testing.assert_allclose(sp.centers / np.linalg.norm(sp.centers, axis=1)[:, None], col[j, i], atol=1e-12)
+    exact = omega * np.cross(axis, sp.centers)
+    np.testing.assert_allclose(sp.wind, exact, rtol=0, atol=1e-6 * np.linalg.norm(exact, axis=1).max())
+    centre = lonlat_to_xyz(-100.0, 45.0)
+    cam = Camera.look_at(3.0 * centre, centre, fov=8.0)
+    img = render_splats(sp, splat_kernel(), cam, 96, 96, streaks=streak_maps(4, 32), hours=1.5)
+    alpha = img[..., 3]
+    assert np.isfinite(img).all() and alpha.max() > 0.5 and (alpha > 0.01).mean() > 0.2
