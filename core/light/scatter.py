@@ -245,7 +245,11 @@ def _sweep(sigma, h, dirs, wsub, emis, inflow, periodic, axis, cache=None, per_s
     voxel's centre (3, nz, ny, nx; in voxel units, x y z, summed over beams): a beam
     deposits ``exp(-tau v)``, centroid ``_offset(tau) c``; the power a source keeps in
     its own voxel sits downstream of the source's centroid (closed form below).
-    With a ``cache``, the profile's escape fractions are kept too and reused unless ``fresh``.
+    With a ``cache``, the profile's escape fractions are kept too and reused unless ``fresh``
+    (``fresh=None``: recomputed and not kept, for callers that refresh them every time).
+    Emission must sit only in voxels with ``sigma > 0`` (a source needs extinction): each
+    layer is transported only on the rectangle around its non-empty voxels, elsewhere the
+    beams pass unchanged.
     Returns received (g, ...) (``per_sub``: (g, ns, ...) per sub-direction),
     total (g, ...), the exit power (g,) through the far face and the moments (or None).
     """
@@ -275,7 +279,7 @@ def _sweep(sigma, h, dirs, wsub, emis, inflow, periodic, axis, cache=None, per_s
     blocks = [np.arange(s, min(s + per, g)) for s in range(0, g, per)]
     nthreads = max(1, min(int(threads or default_threads()), len(blocks)))
     moms = [np.zeros((3, L, A, B), np.float32) if moments else None for _ in range(nthreads)]
-    geom = (h, comp, others, periodic, sign, L, A, B)
+    geom = (h, comp, others, periodic, sign, L, A, B, _layer_boxes(sig))
 
     def work(t):
         for ib in range(t, len(blocks), nthreads):
@@ -297,11 +301,23 @@ def _sweep(sigma, h, dirs, wsub, emis, inflow, periodic, axis, cache=None, per_s
     return np.moveaxis(recv, -3, axis - 3), np.moveaxis(total, 1, axis + 1), exit_power, mom
 
 
+def _layer_boxes(sig):
+    """Per layer of ``sig`` (L, A, B): slices (a, b) of the rectangle around its voxels with
+    ``sig > 0``, or None for an empty layer."""
+    occ = sig > 0
+    rows, cols = occ.any(2), occ.any(1)
+    out = []
+    for ra, rb in zip(rows, cols):
+        ia, jb = np.flatnonzero(ra), np.flatnonzero(rb)
+        out.append((slice(int(ia[0]), int(ia[-1]) + 1), slice(int(jb[0]), int(jb[-1]) + 1)) if len(ia) else None)
+    return out
+
+
 def _sweep_block(sig, geom, dirs, wsub, em, inflow, kap, dlt, cache, ib, fresh, mom, recv, total, exit_power,
                  bs, per_sub):
     """One block of bins of :func:`_sweep`, all layers; writes its bins of ``recv``, ``total``,
     ``exit_power`` and adds its moments to ``mom`` (the calling thread's own)."""
-    h, comp, others, periodic, sign, L, A, B = geom
+    h, comp, others, periodic, sign, L, A, B, rects = geom
     g, ns, _ = dirs.shape
     K = g * ns
     d = dirs.reshape(-1, 3)
@@ -319,7 +335,14 @@ def _sweep_block(sig, geom, dirs, wsub, em, inflow, kap, dlt, cache, ib, fresh, 
     for n, k in enumerate(order):
         if n:  # move to this layer: bilinear transverse shift, inflow outside the grid
             beam = shifter(beam)
-        tau = sig[k][None] * ell32
+        total[bs, k] = beam.reshape(g, ns, A, B).sum(1)
+        if rects[k] is None:  # empty layer: the beams pass unchanged
+            continue
+        wa, wb = rects[k]
+        box = (slice(None), wa, wb)
+        sh = (K, wa.stop - wa.start, wb.stop - wb.start)
+        bm = beam[box]
+        tau = sig[k][wa, wb][None] * ell32
         if cache is not None and (ib, k) in cache:
             t, offb = cache[(ib, k)]
         else:
@@ -328,15 +351,14 @@ def _sweep_block(sig, geom, dirs, wsub, em, inflow, kap, dlt, cache, ib, fresh, 
             if cache is not None:
                 cache[(ib, k)] = (t, offb)
         if em is None:
-            r = beam * (1.0 - t)
-            tot = beam
-            beam = beam * t
+            r = bm * (1.0 - t)
+            beam[box] = bm * t
         else:
             if kap is not None:
-                if cache is not None and ("p", ib, k) in cache and not fresh:
+                if cache is not None and ("p", ib, k) in cache and not (fresh is None or fresh):
                     esc, shift = cache[("p", ib, k)]
                 else:
-                    beta = (cross @ kap[:, k].reshape(3, -1)).reshape(K, A, B)
+                    beta = (cross @ kap[:, k, wa, wb].reshape(3, -1)).reshape(sh)
                     esc = np.clip(_exp_source_escape(tau, beta), 0.0, 1.0)
                     if mom is not None:
                         # what a source keeps sits downstream of it: with v_s its centroid along
@@ -347,27 +369,26 @@ def _sweep_block(sig, geom, dirs, wsub, em, inflow, kap, dlt, cache, ib, fresh, 
                         shift = np.where(tau < 1e-2, 1.0 / 6.0, (vs - esc) / kept + 1.0 / np.maximum(tau, 1e-2) - vs)
                     else:
                         shift = None
-                    if cache is not None:
+                    if cache is not None and fresh is not None:
                         cache[("p", ib, k)] = (esc, shift)
             else:
                 esc = _phi(tau)
-            e = (em[:, k][:, None] * w).reshape(K, A, B)
-            rb = beam * (1.0 - t)
+            e = (em[:, k, wa, wb][:, None] * w).reshape(sh)
+            rb = bm * (1.0 - t)
             re = e * (1.0 - esc)
             r = rb + re
-            tot = beam + e
-            beam = beam * t + e * esc
+            beam[box] = bm * t + e * esc
+            total[bs, k, wa, wb] += e.reshape((g, ns) + sh[1:]).sum(1)
         if mom is not None:
             rb = r if em is None else rb
-            mk = (cross.T @ (rb * offb).reshape(K, -1)).reshape(3, A, B)
+            mk = (cross.T @ (rb * offb).reshape(K, -1)).reshape((3,) + sh[1:])
             if em is not None and kap is not None:
-                mk += dlt[:, k] * re.sum(0) + (cross.T @ (re * shift).reshape(K, -1)).reshape(3, A, B)
-            mom[:, k] += mk
+                mk += dlt[:, k, wa, wb] * re.sum(0) + (cross.T @ (re * shift).reshape(K, -1)).reshape((3,) + sh[1:])
+            mom[:, k, wa, wb] += mk
         if per_sub:
-            recv[bs, :, k] = r.reshape(g, ns, A, B)
+            recv[bs, :, k, wa, wb] = r.reshape((g, ns) + sh[1:])
         else:
-            recv[bs, k] = r.reshape(g, ns, A, B).sum(1)
-        total[bs, k] = tot.reshape(g, ns, A, B).sum(1)
+            recv[bs, k, wa, wb] = r.reshape((g, ns) + sh[1:]).sum(1)
     exit_power[bs] = beam.reshape(g, ns, A, B).sum((1, 2, 3), dtype=np.float64)
 
 
@@ -718,9 +739,14 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
 
     passes = 0
     converged = residual <= tol
-    # transmittance caches per group (float32 x beams x voxels: transmittances, and with
-    # profiles also deposit centroids, escapes and shifts) when they fit
-    fits = (4 if source_profile else 1) * NB * dirs.shape[1] * sigma.size <= 1 << 27
+    # Caches per group when they fit in 1 GiB: per beam, on each layer's non-empty rectangle,
+    # the transmittances, with profiles the deposit centroids, and when profiles are not
+    # refreshed every pass their escapes and shifts (float32).
+    keep = int(profile_every) > 1
+    arrays = (1 + bool(source_profile)) * (1 + keep)
+    area = max(sum(0 if r is None else (r[0].stop - r[0].start) * (r[1].stop - r[1].start)
+                   for r in _layer_boxes(np.moveaxis(sigma, ax, 0))) for ax in range(3))
+    fits = arrays * NB * dirs.shape[1] * area <= 1 << 28
     caches = [{} if fits else None for _ in groups]
     while not converged and passes < int(max_passes):
         passes += 1
@@ -730,7 +756,7 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
             prof = unshot_profile(unshot.sum(0, dtype=np.float64)) if umom is not None else None
             r, tot, ex, mom = _sweep(sig_s, h, dirs[bs], wsub[bs], unshot[bs], np.zeros(wsub[bs].shape),
                                      periodic, axis, caches[gi], profile=prof, moments=umom is not None,
-                                     fresh=refresh)
+                                     fresh=refresh if keep else None)
             unshot[bs] = 0.0
             keep_moments(mom, shot, prof)
             received[bs] += r.astype(np.float32)

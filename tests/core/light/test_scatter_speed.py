@@ -174,3 +174,19 @@ def test_march_planes_empty_and_bad_input():
         scatter.march_planes(z, np.zeros((4, 4, 5)), (1, 1, 1), cam)
     with pytest.raises(ValueError):
         scatter.march_planes(z + 1, z, (1, 1, 1), cam, samples=0)
+
+
+def test_layer_rectangles_give_the_same_solution(monkeypatch):
+    # transport only on each layer's non-empty rectangle vs on whole planes
+    sig = small_cloud((12, 14, 16))
+    sig[:, 5:8, 6:9] = 0.0  # a hole through the cloud
+    kw = dict(albedo=0.95, g=0.7, sun_dir=(0.3, -0.2, 1.0), tol=1e-3)
+    part = scatter.solve(sig, (1, 1, 0.8), **kw)
+    assert any(r is None or r != (slice(0, 14), slice(0, 16)) for r in scatter._layer_boxes(sig.astype(np.float32)))
+    monkeypatch.setattr(scatter, "_layer_boxes", lambda s: [(slice(0, s.shape[1]), slice(0, s.shape[2]))] * len(s))
+    whole = scatter.solve(sig, (1, 1, 0.8), **kw)
+    assert whole.passes == part.passes
+    for name in ("received", "total", "received_peaked", "unshot"):
+        a, b = getattr(part, name), getattr(whole, name)
+        np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6 * np.abs(b).max(), err_msg=name)
+    np.testing.assert_allclose(part.exit_flux, whole.exit_flux, rtol=1e-5, atol=1e-9)
