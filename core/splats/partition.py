@@ -42,12 +42,15 @@ along the rows, so the two steps are taken per sample
   changes slowly), the level axis as above.
 * **Factors.**  One per sample (:func:`sample_factors`), least squares at the
   half-step lattice of the closed block of cells 3 from every edge, the top
-  and the ground, and 4 random points per cell, regularised towards
+  and the ground, and 2 random points per cell, regularised towards
   ``1 / (λ_i λ_j λ_lev)``.  Closing the block matters: with the lattice of
   cell-corner offsets only (as for rows), the samples next to the block's
   far faces were fitted on too few points and the sum there was 2e-3 off.
-  The solve costs about 300 kernel weights per sample (seconds for 10⁴
-  samples); cached per grid, shells, stride, exaggeration and kernel.
+  Solved in tiles of 48 × 48 columns with 8 more around each (the tiles'
+  seams leave the sum as it was); about 0.3 ms per sample on 2 busy cores
+  and about 1 GB at the peak, one tile's system (80 × 60 columns, 16 shells:
+  22 s), cached per grid, shells, stride, exaggeration and kernel — a
+  stride divides the time by its cube.
 
 The renderers draw exactly these weights: :func:`.samples.splat_samples`
 puts the widened axes in :attr:`.Splats.axes` and folds the factor into
@@ -74,9 +77,10 @@ _FACES = np.array(
 _RANDOM_PER_CELL = 8
 _REGULARISE = 1e-3
 _MARGIN = 3  # cells from the top, bottom and poles whose kernel support is incomplete
-_RANDOM_PER_SAMPLE_CELL = 4  # per-sample factors: random points per cell besides the half-step lattice
+_RANDOM_PER_SAMPLE_CELL = 2  # per-sample factors: random points per cell besides the half-step lattice
 _CHUNK = 50_000  # points per stencil_weights call in the per-sample solve
 _CG_RTOL, _CG_ITERATIONS = 1e-6, 300
+_TILE, _HALO = 48, 8  # per-sample factors: columns per tile side, and more around it
 
 
 def shell_heights(grid):
@@ -332,6 +336,40 @@ def _sample_reach(jac, lam_i, lam_j, heights, lam_lev, radius):
     return tuple(out)
 
 
+def _block_factors(points, to_cell, prior, reach, kernel):
+    """:func:`sample_factors` of one block of columns (fitted 3 cells from its edges)."""
+    from scipy import sparse
+    from scipy.sparse.linalg import LinearOperator, cg
+
+    shape = prior.shape
+    hi = np.array(shape) - _MARGIN - 1
+    if np.any(hi <= _MARGIN):
+        return prior.copy()
+    half = [np.arange(2 * _MARGIN, 2 * h + 1) / 2.0 for h in hi]
+    cells = np.stack(np.meshgrid(*[np.arange(_MARGIN, h) for h in hi], indexing="ij"), axis=-1).reshape(-1, 3)
+    rng = np.random.default_rng(0)
+    pts = np.vstack(
+        [np.stack(np.meshgrid(*half, indexing="ij"), axis=-1).reshape(-1, 3)]
+        + [cells + rng.random(cells.shape) for _ in range(_RANDOM_PER_SAMPLE_CELL)]
+    )
+    base = np.minimum(np.floor(pts), hi - 1)
+    pts = pts[np.lexsort(base.T[::-1])]  # a cell's points in one chunk: stencil_weights culls per cell
+    parts = []
+    for start in range(0, len(pts), _CHUNK):
+        row, k, j, i, w = stencil_weights(points, to_cell, pts[start : start + _CHUNK], kernel, reach)
+        cols = np.ravel_multi_index((k, j, i), shape)
+        parts.append(sparse.csr_matrix((w, (row, cols)), shape=(min(_CHUNK, len(pts) - start), prior.size)))
+    mat = sparse.vstack(parts).tocsr()
+    reg = _REGULARISE**2
+    n = prior.size
+    normal = LinearOperator((n, n), matvec=lambda c: mat.T @ (mat @ c) + reg * c, dtype=np.float64)
+    diag = np.bincount(mat.indices, mat.data**2, minlength=n) + reg
+    jacobi = LinearOperator((n, n), matvec=lambda c: c / diag, dtype=np.float64)
+    rhs = mat.T @ np.ones(mat.shape[0]) + reg * prior.ravel()
+    c, _ = cg(normal, rhs, x0=prior.ravel(), rtol=_CG_RTOL, maxiter=_CG_ITERATIONS, M=jacobi)
+    return c.reshape(shape)
+
+
 def sample_factors(points, jac, prior, reach, kernel):
     """Weight factors ``c (nk, nj, ni)``, one per sample, of a curvilinear shell layout.
 
@@ -339,7 +377,9 @@ def sample_factors(points, jac, prior, reach, kernel):
     edge centres) of the closed block of cells whose support is complete (3 cells from every
     edge) and at random points of its cells, regularised towards ``prior`` (the widened
     kernels' share); conjugate gradients on the normal equations, Jacobi-preconditioned,
-    from ``prior``.  Samples no such point sees keep ``prior``.
+    from ``prior``.  Samples no such point sees keep ``prior``.  Solved in tiles of
+    ``_TILE²`` columns, each with ``_HALO`` more columns around it (fitted to 3 from the
+    halo's edge, i.e. 5 columns past the tile), so that memory stays bounded.
 
     Parameters
     ----------
@@ -349,37 +389,19 @@ def sample_factors(points, jac, prior, reach, kernel):
     reach : (rk, rj, ri) index reach of the kernels, for :func:`stencil_weights`.
     kernel : SplatKernel
     """
-    from scipy import sparse
-    from scipy.sparse.linalg import LinearOperator, cg
-
     from .samples import principal_axes
 
-    shape = prior.shape
-    hi = np.array(shape) - _MARGIN - 1
-    if np.any(hi <= _MARGIN):
-        return prior.copy()
     radius = kernel.radius
     to_cell = radius * np.linalg.inv(principal_axes(jac.reshape(-1, 3, 3), radius)).reshape(jac.shape)
-    half = [np.arange(2 * _MARGIN, 2 * h + 1) / 2.0 for h in hi]
-    cells = np.stack(np.meshgrid(*[np.arange(_MARGIN, h) for h in hi], indexing="ij"), axis=-1).reshape(-1, 3)
-    rng = np.random.default_rng(0)
-    pts = np.vstack(
-        [np.stack(np.meshgrid(*half, indexing="ij"), axis=-1).reshape(-1, 3)]
-        + [cells + rng.random(cells.shape) for _ in range(_RANDOM_PER_SAMPLE_CELL)]
-    )
-    parts = []
-    for start in range(0, len(pts), _CHUNK):
-        row, k, j, i, w = stencil_weights(points, to_cell, pts[start : start + _CHUNK], kernel, reach)
-        parts.append(sparse.csr_matrix((w, (row, np.ravel_multi_index((k, j, i), shape))), shape=(min(_CHUNK, len(pts) - start), prior.size)))
-    mat = sparse.vstack(parts).tocsr()
-    reg = _REGULARISE**2
-    n = prior.size
-    normal = LinearOperator((n, n), matvec=lambda c: mat.T @ (mat @ c) + reg * c, dtype=np.float64)
-    diag = np.asarray(mat.multiply(mat).sum(axis=0)).ravel() + reg
-    jacobi = LinearOperator((n, n), matvec=lambda c: c / diag, dtype=np.float64)
-    rhs = mat.T @ np.ones(mat.shape[0]) + reg * prior.ravel()
-    c, _ = cg(normal, rhs, x0=prior.ravel(), rtol=_CG_RTOL, maxiter=_CG_ITERATIONS, M=jacobi)
-    return c.reshape(shape)
+    out = np.empty_like(prior)
+    nj, ni = prior.shape[1:]
+    for j0 in range(0, nj, _TILE):
+        for i0 in range(0, ni, _TILE):
+            ja, ia = max(j0 - _HALO, 0), max(i0 - _HALO, 0)
+            block = np.s_[:, ja : min(j0 + _TILE + _HALO, nj), ia : min(i0 + _TILE + _HALO, ni)]
+            c = _block_factors(points[block], to_cell[block], prior[block], reach, kernel)
+            out[:, j0 : j0 + _TILE, i0 : i0 + _TILE] = c[:, j0 - ja : j0 - ja + _TILE, i0 - ia : i0 - ia + _TILE]
+    return out
 
 
 @lru_cache(maxsize=2)

@@ -250,3 +250,25 @@ def test_a_lambert_conformal_file_end_to_end(tmp_path):
     img = render_splats(sp, splat_kernel(), cam, 96, 96, streaks=streak_maps(4, 32), hours=1.5)
     alpha = img[..., 3]
     assert np.isfinite(img).all() and alpha.max() > 0.5 and (alpha > 0.01).mean() > 0.2
+
+
+def test_factor_tiles_leave_the_partition_as_it_was(monkeypatch):
+    # The per-sample factors are solved in tiles of columns with a halo; tiles of 12 columns
+    # (12 seams cross the LCC grid's interior) against the whole grid in one piece.
+    from nephele.core.splats import partition
+
+    g = regional_grid("lcc", nx=38, ny=28)
+    kernel = splat_kernel()
+    nk, nj, ni = g.shape
+    rng = np.random.default_rng(1)
+    f = np.column_stack([rng.uniform(3, n - 4, 2000) for n in (nk, nj, ni)])
+    x = trilinear(g.points(1.0, EXAGGERATION, dtype=np.float64), f)
+    worst = {}
+    for tile in (48, 12):
+        monkeypatch.setattr(partition, "_TILE", tile)
+        partition._curvilinear.cache_clear()
+        sp = splat_samples(dataset(g, cloud=1.0), "cloud", 0.0, ONE, kernel=kernel, exaggeration=EXAGGERATION)
+        worst[tile] = np.abs(brute_sum(sp, kernel, x) - 1).max()
+    partition._curvilinear.cache_clear()
+    print(f"tiles: worst |sum - 1| = {worst[12]:.2e} in 12-column tiles, {worst[48]:.2e} in one piece")
+    assert worst[12] < 1e-3 and worst[48] < 1e-3
