@@ -194,3 +194,46 @@ def test_eevee_render_matches_core_renderer(empty_scene, tmp_path, streaks):
     assert ref.mean() > 0.05
     assert mean_err < 0.02
     assert block_err < 0.05
+
+
+def test_curvilinear_file_through_the_panel(empty_scene, tmp_path):
+    """A 2-D lat/lon file (sheared columns, winds east/north) imported and splatted by its own variable name:
+    the operator's points are the core's, and each splat's wind is the file's east/north wind turned into
+    the scene at its own column."""
+    xr = pytest.importorskip("xarray")
+    ny, nx = 14, 18
+    lat, lon = np.meshgrid(np.linspace(38, 52, ny), np.linspace(-12, 8, nx), indexing="ij")
+    lon = lon + 0.3 * (lat - 45)  # sheared columns: not a lon/lat product grid
+    z = np.array([500.0, 1500.0, 3000.0, 6000.0, 9000.0])
+    q = np.exp(-((lat - 45) / 4) ** 2 - ((lon + 2) / 5) ** 2)[None] * np.exp(-((z[:, None, None] - 3000) / 2500) ** 2)
+    rep = lambda a: np.repeat(np.broadcast_to(a, (len(z), ny, nx))[None], 2, 0).astype(np.float32)  # noqa: E731
+    path = tmp_path / "curvilinear_winds.nc"
+    xr.Dataset(
+        {"Q": (("time", "z", "y", "x"), rep(q), {"units": "1"}),
+         "U": (("time", "z", "y", "x"), rep(np.full((ny, nx), 10.0)), {"units": "m s-1", "standard_name": "eastward_wind"}),
+         "V": (("time", "z", "y", "x"), rep(np.full((ny, nx), 5.0)), {"units": "m s-1", "standard_name": "northward_wind"})},
+        coords={"time": ("time", [0.0, 3.0], {"units": "hours since 2020-01-01", "standard_name": "time"}),
+                "z": ("z", z, {"units": "m", "standard_name": "height", "positive": "up"}),
+                "lat": (("y", "x"), lat, {"units": "degrees_north", "standard_name": "latitude"}),
+                "lon": (("y", "x"), lon, {"units": "degrees_east", "standard_name": "longitude"})},
+    ).to_netcdf(path)
+    scene = empty_scene
+    assert bpy.ops.nephele.import_dataset(kind="FILE", filepath=str(path)) == {"FINISHED"}
+    assert data_ops.dataset(scene=scene).grid.curvilinear
+    s = scene.nephele_splats
+    s.var, s.threshold, s.full, s.color_var = "Q", 0.3, 0.9, "altitude"
+    assert bpy.ops.nephele.add_wind_splats() == {"FINISHED"}
+    obj = bpy.context.view_layer.objects.active
+    sp = splat_samples(data_ops.settings(scene)["source"], "Q", 0.0, TransferFunction.ramp(0.3, 0.9), color_var="altitude")
+    assert len(obj.data.vertices) == len(sp) > 50
+    np.testing.assert_allclose(point_attribute(obj.data, splat_ops.CENTER), sp.centers, atol=1e-6)
+    np.testing.assert_allclose(point_attribute(obj.data, splat_ops.OPACITY), sp.opacity, atol=1e-6)
+    # Winds: 10 m/s east, 5 m/s north at every splat, along its own east/north (unit vectors of its direction).
+    c = sp.centers / np.linalg.norm(sp.centers, axis=1)[:, None]
+    east = np.cross([0.0, 0.0, 1.0], c)
+    east /= np.linalg.norm(east, axis=1)[:, None]
+    north = np.cross(c, east)
+    w = point_attribute(obj.data, splat_ops.WIND)
+    we, wn = np.einsum("ij,ij->i", w, east), np.einsum("ij,ij->i", w, north)
+    assert np.all(np.abs(np.einsum("ij,ij->i", w, c)) < 1e-6 * np.linalg.norm(w, axis=1))  # tangent
+    np.testing.assert_allclose(wn / we, 0.5, rtol=1e-4)
