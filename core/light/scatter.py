@@ -1059,13 +1059,30 @@ def march_planes(sigma, source, size, camera, *, samples=1, background=0.0, chun
     xs = [p + (j + 0.5) / m - 0.5 for p in range(nc) for j in range(m)]
     xs = [x for x in xs if 0 <= x <= nc - 1 and (full[int(np.floor(x))] or full[int(np.floor(x)) + 1])]
     flat = pad.reshape(nc, -1)
+    order = xs if f[c] > 0 else xs[::-1]
+    # each sample's plane, linear between the voxel planes around it (None: all zero)
+    planes = []
+    for x in order:
+        p0 = int(np.floor(x))
+        fc = np.float32(x - p0)
+        parts = [w * flat[p] for p, w in ((p0, 1 - fc), (p0 + 1, fc)) if w > 0 and full[p]]
+        planes.append(sum(parts[1:], parts[0]) if parts else None)
+    # only rays that meet the interpolant's support (the non-empty voxels' box, grown by a voxel)
+    idx = np.nonzero(occ)
+    lo = np.array([idx[2 - a].min() - 0.5 for a in range(3)]) * h
+    hi = np.array([idx[2 - a].max() + 1.5 for a in range(3)]) * h
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t0, t1 = (lo - o) / d, (hi - o) / d
+    near = np.max(np.where(np.isnan(t0), -np.inf, np.minimum(t0, t1)), axis=1)
+    far = np.min(np.where(np.isnan(t0), np.inf, np.maximum(t0, t1)), axis=1)
+    inside = np.all((o >= lo) & (o <= hi))
+    hit = np.flatnonzero((far >= np.maximum(near, 0.0)) if not inside else np.ones(len(d), bool))
+    d = d[hit]
     dc = d[:, c]
     with np.errstate(divide="ignore"):
         ds = np.where(np.abs(dc) > 1e-12, h[c] / np.abs(dc) / m, 0.0)
-    order = xs if f[c] > 0 else xs[::-1]
 
-    def bilinear(p, i, fa, fb):
-        pl = flat[p]
+    def bilinear(pl, i, fa, fb):
         return (1 - fa) * ((1 - fb) * pl.take(i) + fb * pl.take(i + 1)) \
             + fa * ((1 - fb) * pl.take(i + nb) + fb * pl.take(i + nb + 1))
 
@@ -1074,9 +1091,9 @@ def march_planes(sigma, source, size, camera, *, samples=1, background=0.0, chun
         ok = (step > 0) & (np.sign(dd[:, c]) == np.sign(f[c]))
         rad = np.zeros(len(dd), np.float32)
         trans = np.ones(len(dd), np.float32)
-        for x in order:
-            p0 = int(np.floor(x))
-            fc = np.float32(x - p0)
+        for x, pl in zip(order, planes):
+            if pl is None:
+                continue
             t = ((x - 0.5) * h[c] - o[c]) / np.where(ok, dd[:, c], 1.0)
             front = ok & (t > 0)
             ua = np.clip((o[ca] + t * dd[:, ca]) / h[ca] + 0.5, 0.0, na - 1.0)
@@ -1085,13 +1102,7 @@ def march_planes(sigma, source, size, camera, *, samples=1, background=0.0, chun
             ib = np.minimum(ub.astype(np.int64), nb - 2)
             fa = (ua - ia).astype(np.float32)
             fb = (ub - ib).astype(np.float32)
-            i = ia * nb + ib
-            v = 0.0
-            if fc < 1 and full[p0]:
-                v = (1 - fc) * bilinear(p0, i, fa, fb)
-            if fc > 0 and full[p0 + 1]:
-                v = v + fc * bilinear(p0 + 1, i, fa, fb)
-            v = np.broadcast_to(np.asarray(v, np.complex64), (len(dd),))
+            v = bilinear(pl, ia * nb + ib, fa, fb)
             tau = np.where(front, v.real * step, 0.0).astype(np.float32)
             rad += trans * np.where(front, v.imag, 0.0) * step * _phi(tau)
             trans *= np.exp(-tau)
@@ -1105,7 +1116,7 @@ def march_planes(sigma, source, size, camera, *, samples=1, background=0.0, chun
         with ThreadPoolExecutor(n) as pool:
             parts = list(pool.map(run, chunks))
     for sl, part in zip(chunks, parts):
-        img[sl] = part
+        img[hit[sl]] = part
     return img.reshape(camera.height, camera.width)
 
 

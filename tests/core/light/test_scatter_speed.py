@@ -190,3 +190,20 @@ def test_layer_rectangles_give_the_same_solution(monkeypatch):
         a, b = getattr(part, name), getattr(whole, name)
         np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6 * np.abs(b).max(), err_msg=name)
     np.testing.assert_allclose(part.exit_flux, whole.exit_flux, rtol=1e-5, atol=1e-9)
+
+
+def test_march_planes_culls_only_rays_that_miss():
+    # a small cloud in a large empty grid: most rays miss it; one camera sits inside its box
+    sig = np.zeros((24, 32, 32))
+    sig[8:18, 10:22, 12:24] = small_cloud((10, 12, 12), 20.0)
+    src = sig * np.linspace(0.5, 1.5, 32)[None, None, :]
+    size = (1.0, 1.0, 0.75)
+    for pos, target, fov in (((2.5, 1.8, 1.2), (0.5, 0.5, 0.4), 15.0), ((0.55, 0.5, 0.4), (0.9, 0.2, 0.3), 60.0)):
+        cam = scatter.Camera(pos, target, np.radians(fov), 48, 36)
+        ref = scatter.render(sig, src, size, cam, step=0.1, background=0.5)
+        img = scatter.march_planes(sig, src, size, cam, samples=2, background=0.5)
+        np.testing.assert_array_equal(img[ref == np.float32(0.5)], np.float32(0.5))
+        lit = ref != np.float32(0.5)
+        assert 0.05 < lit.mean() < (0.6 if fov < 30 else 1.01)
+        assert img.mean() == pytest.approx(ref.mean(), rel=2e-3)
+        assert np.abs(img - ref)[lit].mean() <= 0.01 * np.abs(ref[lit] - 0.5).mean()
