@@ -886,6 +886,27 @@ def _sun_view_escape(sol, w, sigma):
     return _exp_source_escape(tau, beta) / _phi(tau)
 
 
+def _view_tables(sol):
+    """The non-empty voxels of ``sol`` (flat indices), their centres, extinction, direct-sun
+    power, binned power less its peaked parts (96, n) and peaked parts (orders, 96, n);
+    kept on ``sol`` while its arrays are the same objects."""
+    from ..volume.cloud_density import voxel_centres
+
+    src = tuple(getattr(sol, k) for k in ("sigma", "received", "received_sun", "received_peaked"))
+    kept = getattr(sol, "_view_cache", None)
+    if kept is not None and all(a is b for a, b in zip(kept[0], src)):
+        return kept[1]
+    # Only voxels with extinction catch light: elsewhere S = 0 (Fig. 6 cloud: 13% of the grid).
+    occ = np.flatnonzero(sol.sigma.reshape(-1) > 0)
+    x, y, z = voxel_centres(sol.sigma.shape, sol.size)
+    pts = np.stack(np.broadcast_arrays(x, y, z), -1).reshape(-1, 3)[occ]
+    peaked = sol.received_peaked.reshape(len(sol.received_peaked), NB, -1)[:, :, occ]
+    rest = sol.received.reshape(NB, -1)[:, occ] - peaked.sum(0)
+    tables = (occ, pts, sol.sigma.reshape(-1)[occ], sol.received_sun.reshape(-1)[occ], rest, peaked)
+    sol._view_cache = (src, tables)
+    return tables
+
+
 def view_source(sol, camera_position, chunk=1 << 15):
     """In-scattered radiance per unit length toward ``camera_position`` at every voxel.
 
@@ -898,46 +919,40 @@ def view_source(sol, camera_position, chunk=1 << 15):
     parts of ``R_j`` (``received_peaked``) ``pbar_j`` weights the bin's
     sub-directions as the solve filled them (``peaked_weights``).
 
+    The view-independent parts (the non-empty voxels' received powers, gathered) are
+    kept on ``sol`` after the first call and reused while its arrays are the same
+    objects (arrays edited in place afterwards are not seen).
+
     Returns
     -------
     ndarray float32 (nz, ny, nx): emission coefficient for an emission-absorption render.
     """
-    from ..volume.cloud_density import voxel_centres
-
     shape = sol.sigma.shape
     cam = np.asarray(camera_position, dtype=np.float64)
     if cam.shape != (3,) or not np.all(np.isfinite(cam)):
         raise ValueError(f"view_source: camera position must be a finite 3-vector, got {camera_position}")
-    # Only voxels with extinction catch light: elsewhere S = 0 (Fig. 6 cloud: 13% of the grid).
-    occ = np.flatnonzero(sol.sigma.reshape(-1) > 0)
-    x, y, z = voxel_centres(shape, sol.size)
-    pts = np.stack(np.broadcast_arrays(x, y, z), -1).reshape(-1, 3)[occ]
+    occ, pts, sig_occ, r_sun, rest, peaked = _view_tables(sol)
     w = cam[None] - pts
     nrm = np.linalg.norm(w, axis=1, keepdims=True)
     w = w / np.where(nrm > 0, nrm, 1.0)
     vol = np.prod(np.asarray(sol.size) / np.asarray(shape[::-1]))
     prop = -np.asarray(sol.sun_dir)
-    out = sol.albedo * sol.received_sun.reshape(-1)[occ] * phase.hg(w @ prop, sol.g)
-    out *= _sun_view_escape(sol, w, sol.sigma.reshape(-1)[occ])
-    rec = sol.received.reshape(NB, -1)
+    out = sol.albedo * r_sun * phase.hg(w @ prop, sol.g)
+    out *= _sun_view_escape(sol, w, sig_occ)
     # Binned radiance in the real medium: L_j = R_j / (sigma* V Omega_j) with
     # sigma* = sigma (1 - albedo f), scattered by the full HG(g) of the real medium.
     diffuse = sol.albedo / (1.0 - sol.albedo * sol.delta_f) if sol.albedo * sol.delta_f < 1 else 0.0
-    peaked = sol.received_peaked.reshape(len(sol.received_peaked), NB, -1)
     fw = np.asarray(sol.peaked_weights, np.float64)
     sub = int(round(np.sqrt(fw.shape[2])))
     for s in range(0, len(pts), chunk):
         ww = w[s:s + chunk]
-        ids = occ[s:s + chunk]
-        pks = peaked[:, :, ids]
-        rest = rec[:, ids] - pks.sum(0)
-        acc = np.einsum("nj,jn->n", phase.bin_phase_toward(ww, sol.g), rest)
+        acc = np.einsum("nj,jn->n", phase.bin_phase_toward(ww, sol.g), rest[:, s:s + chunk])
         out[s:s + chunk] += diffuse * acc
         for k in range(len(peaked)):
             pk = phase.bin_phase_toward(ww, sol.g, res=48, sub=sub, weights=fw[k])
             # flights in the real medium: L_j = R_j / (sigma V Omega_j), scattered by albedo
             fac = sol.albedo if k < sol.real_orders else diffuse
-            out[s:s + chunk] += fac * np.einsum("nj,jn->n", pk, pks[k])
+            out[s:s + chunk] += fac * np.einsum("nj,jn->n", pk, peaked[k][:, s:s + chunk])
     src = np.zeros(sol.sigma.size, np.float32)
     src[occ] = out / vol
     return src.reshape(shape)

@@ -207,3 +207,17 @@ def test_march_planes_culls_only_rays_that_miss():
         assert 0.05 < lit.mean() < (0.6 if fov < 30 else 1.01)
         assert img.mean() == pytest.approx(ref.mean(), rel=2e-3)
         assert np.abs(img - ref)[lit].mean() <= 0.01 * np.abs(ref[lit] - 0.5).mean()
+
+
+def test_view_source_reuses_its_tables_only_for_the_same_arrays():
+    import dataclasses
+
+    sol = scatter.solve(small_cloud(), (1, 1, 0.8), albedo=0.95, g=0.7, sun_dir=(0.3, -0.2, 1.0), tol=1e-2)
+    pos = scatter.orbit_camera(0.5, (1, 1, 0.8)).position
+    first = scatter.view_source(sol, pos)
+    np.testing.assert_array_equal(scatter.view_source(sol, pos), first)
+    other = scatter.orbit_camera(2.0, (1, 1, 0.8)).position
+    np.testing.assert_array_equal(scatter.view_source(sol, other), scatter.view_source(dataclasses.replace(sol), other))
+    sol.received = sol.received * 2.0  # a new array: the tables are rebuilt
+    np.testing.assert_array_equal(scatter.view_source(sol, pos), scatter.view_source(dataclasses.replace(sol), pos))
+    assert not np.array_equal(scatter.view_source(sol, pos), first)
