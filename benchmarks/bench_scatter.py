@@ -160,7 +160,7 @@ def film(n, width=640, height=480, views=3, anchor=True):
         src = scatter.view_source(sol, cam.position)
         ws, cs = time.perf_counter() - w, time.process_time() - c
         img = scatter.march_planes(sigma, src, SIZE, cam, samples=2)
-        note = f"source {ws:.2f} s wall / {cs:.2f} s CPU" + (" (first view builds the phase tables)" if i == 0 else "")
+        note = f"source {ws:.2f} s wall / {cs:.2f} s CPU" + (" (first view builds the phase and voxel tables)" if i == 0 else "")
         if i == 0 and anchor:
             w2, c2 = time.perf_counter(), time.process_time()
             ref = scatter.render(sigma, src, SIZE, cam)
