@@ -37,8 +37,9 @@ O(N) work each, i.e. O(N) per pass for all O(N^2) voxel-to-voxel interactions
 (Max 1994 amortises them to O(N log N)); the number of passes depends on the
 optical thickness and albedo, not on N.  Memory: a few 96 x N float arrays.
 Only the box around the non-empty voxels is solved (sun and sky are uniform, so
-empty space only translates beams).  A sweep moves whole planes of blocks of
-beams: transverse shifts by plane slices, transcendental functions by the
+empty space only translates beams), and each layer only on the rectangle around
+its non-empty voxels.  A sweep moves whole planes of blocks of beams: transverse
+shifts by plane slices, transcendental functions by the
 vectorised float32 ``exp`` only, blocks on threads (:mod:`..threads`).
 
 Views: :func:`march_planes` (film speed) or :func:`render` (any step, the anchor).
@@ -1039,7 +1040,9 @@ def march_planes(sigma, source, size, camera, *, samples=1, background=0.0, chun
     interpolant exact for axis-aligned rays.  ``samples`` per voxel along ``c`` (planes
     between the voxel planes are linear between them): 1 is a step of one voxel along
     ``c``, against :func:`render`'s default 0.4 of the smallest voxel side along the ray.
-    Rays are marched in chunks on threads (NumPy releases the GIL in its loops).
+    Only rays that meet the box of non-empty voxels (grown by the interpolant's voxel)
+    are marched, in chunks on threads (NumPy releases the GIL in its loops); the rest
+    see the background.
 
     Returns
     -------
