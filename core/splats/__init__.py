@@ -1,6 +1,7 @@
 """Splats with a flowing wind texture (Fig. 3): normalised kernels, footprints, streaks, a reference renderer."""
 
 from .camera import Camera
+from .cells import cell_jacobians, principal_axes
 from .kernel import KINDS, SplatKernel, footprint_table, splat_kernel
 from .render import (
     DEFAULT_PREFILTER,
@@ -15,7 +16,7 @@ from .render import (
     streak_factor,
     streak_offsets,
 )
-from .samples import ALTITUDE, Splats, cell_jacobians, principal_axes, splat_samples
+from .samples import ALTITUDE, Splats, splat_samples
 from .streaks import streak_maps, streak_orientation, structure_tensor
 
 __all__ = [

@@ -70,6 +70,8 @@ import numpy as np
 
 from ..climate.grid import GlobeGrid
 from ..errors import DataError
+from .cells import cell_jacobians, principal_axes
+from .kernel import SplatKernel
 
 _FACES = np.array(
     [[0, 0, 0], [0.5, 0.5, 0.5], [0.5, 0, 0], [0, 0.5, 0], [0, 0, 0.5], [0.5, 0.5, 0], [0.5, 0, 0.5], [0, 0.5, 0.5]]
@@ -284,8 +286,6 @@ def _factors(lat_bytes, shell_bytes, lon_step, exaggeration, kernel_params):
     from scipy import sparse
     from scipy.sparse.linalg import spsolve
 
-    from .kernel import SplatKernel
-    from .samples import cell_jacobians, principal_axes
 
     kernel = SplatKernel(*kernel_params)
     lat = np.frombuffer(lat_bytes)
@@ -389,7 +389,6 @@ def sample_factors(points, jac, prior, reach, kernel):
     reach : (rk, rj, ri) index reach of the kernels, for :func:`stencil_weights`.
     kernel : SplatKernel
     """
-    from .samples import principal_axes
 
     radius = kernel.radius
     to_cell = radius * np.linalg.inv(principal_axes(jac.reshape(-1, 3, 3), radius)).reshape(jac.shape)
@@ -406,8 +405,6 @@ def sample_factors(points, jac, prior, reach, kernel):
 
 @lru_cache(maxsize=2)
 def _curvilinear(lon_bytes, lat_bytes, columns, shell_bytes, stride, exaggeration, kernel_params):
-    from .kernel import SplatKernel
-    from .samples import cell_jacobians
 
     kernel = SplatKernel(*kernel_params)
     shells = np.frombuffer(shell_bytes)

@@ -4,16 +4,9 @@ By default the samples are the field resampled on *shells* (levels at fixed
 heights above sea level; :mod:`.partition`), where the weights sum to one
 within about 1e-3; ``vertical="native"`` takes the grid's own samples.
 
-A sample's kernel lives in *cell units*: the scene offset ``x`` from its
-centre has cell offset ``d = J⁻¹ x``, ``J`` the grid's local Jacobian
-``∂(scene position)/∂(i, j, k)`` (columns: one step in longitude, latitude
-and level index — on a curvilinear grid, its two column indices — by central
-differences; one-sided at the grid's edges, periodic across the seam).  On a locally affine grid the weights of all
-samples then sum as on the unit lattice.  With ``J = U S Vᵀ`` (SVD), the
-cut-off ellipsoid ``|J⁻¹ x| ≤ R`` is ``{M u : |u| ≤ 1}`` with
-``M = R U S`` — the kernel's principal axes as columns, which is what
-:class:`Splats` stores (a rotation times a scale, right-handed).  The weight
-at a scene point ``x`` is ``kernel.weight(R M⁻¹ (x − centre))``.
+A sample's kernel lives in *cell units* (:mod:`.cells`): :class:`Splats`
+stores its ellipsoid's principal axes ``M = R U S`` from the local cell
+Jacobian ``J = U S Vᵀ``.
 
 References
 ----------
@@ -32,6 +25,7 @@ from ..climate.grid import DEFAULT_EXAGGERATION, EARTH_RADIUS, GlobeGrid
 from ..errors import DataError
 from ..climate.readers import open_dataset
 from ..volume.transfer import ALTITUDE_COLORS, TEMPERATURE_COLORS, ColorMap, TransferFunction
+from .cells import cell_jacobians, principal_axes
 from .kernel import SplatKernel, splat_kernel
 from .partition import ShellSampler, check_shells, curvilinear_shells, shell_factors, shell_heights, widen, widening
 
@@ -110,58 +104,6 @@ class Splats:
         """Cell offsets ``d`` ``(m, 3)`` of scene points ``xyz`` from splat ``s``."""
         x = np.asarray(xyz, dtype=np.float64).reshape(-1, 3) - self.centers[s]
         return self.radius * np.linalg.solve(self.axes[s], x.T).T
-
-
-def principal_axes(jac, radius):
-    """``R U S`` from Jacobians ``(n, 3, 3)`` (see the module docstring).
-
-    Singular values are kept at least 1e-6 of the largest, so a cell that
-    collapses (a pole row) still gives an invertible, if flat, ellipsoid.
-    """
-    u, s, _ = np.linalg.svd(jac)
-    s = np.maximum(s, 1e-6 * s[:, :1])
-    u[:, :, 2] *= np.where(np.linalg.det(u) < 0, -1.0, 1.0)[:, None]  # right-handed
-    return radius * u * s[:, None, :]
-
-
-def _diff(p, axis, stride, periodic):
-    """Central differences of ``p`` along ``axis`` per ``stride`` samples; one-sided at open edges."""
-    n = p.shape[axis]
-    idx = np.arange(0, n, stride)
-    if periodic:
-        fwd = np.take(p, (idx + stride) % n, axis=axis)
-        bwd = np.take(p, (idx - stride) % n, axis=axis)
-        return 0.5 * (fwd - bwd)
-    hi = np.where(idx + stride < n, idx + stride, idx)
-    lo = np.where(idx - stride >= 0, idx - stride, idx)
-    span = ((hi - lo) / stride).astype(np.float64)
-    shape = [1] * p.ndim
-    shape[axis] = idx.size
-    d = np.take(p, hi, axis=axis) - np.take(p, lo, axis=axis)
-    return d / np.maximum(span, 1.0).reshape(shape)
-
-
-def cell_jacobians(grid, exaggeration=DEFAULT_EXAGGERATION, stride=1):
-    """Scene positions and Jacobians of the (strided) grid samples.
-
-    Returns
-    -------
-    points : (nk', nj', ni', 3) float64
-    jac : (nk', nj', ni', 3, 3) float64
-        Columns: ``∂x/∂i`` (longitude), ``∂x/∂j`` (latitude), ``∂x/∂k``
-        (level), per ``stride`` samples.
-    """
-    p = grid.points(1.0, exaggeration, dtype=np.float64)
-    sub = p[::stride, ::stride, ::stride]
-    periodic = grid.periodic_lon and grid.shape[2] % stride == 0
-    cols = []
-    for axis, per in ((2, periodic), (1, False), (0, False)):
-        d = _diff(p, axis, stride, per)
-        # _diff strides only its own axis: take the others' strided samples.
-        sl = [slice(None, None, stride)] * 3
-        sl[axis] = slice(None)
-        cols.append(d[tuple(sl)])
-    return sub, np.stack(cols, axis=-1)
 
 
 def _color(dataset, color_var, colormap, hour, height, pick, n):
@@ -355,4 +297,4 @@ def splat_samples(
     return Splats(centers, axes, color, opacity.astype(np.float32), wind, kernel.radius, np.column_stack(sel))
 
 
-__all__ = ["ALTITUDE", "Splats", "cell_jacobians", "principal_axes", "splat_samples"]
+__all__ = ["ALTITUDE", "Splats", "splat_samples"]
