@@ -126,7 +126,8 @@ def splat_node_group(material):
     ``[[a·a, a·b], [a·b, b·b]]``; its axes are at ``θ = ½ atan2(2 a·b,
     a·a − b·b)`` from ``e_x`` with half-lengths ``√λ±`` (4/π of the
     ellipse's area; the camera-aligned bounding box was up to twice that for
-    the flat splats of thin levels seen obliquely).  Point attributes carry over to the
+    the flat splats of thin levels seen obliquely), grown to hold the splat's
+    perspective view from the eye (see the comment in the code).  Point attributes carry over to the
     quad's corners for ``material`` (set on the quads: generated geometry
     has no material of its own).
     """
@@ -180,12 +181,34 @@ def splat_node_group(material):
     root = g.math("SQRT", g.math("ADD", g.math("MULTIPLY", half_diff, half_diff, loc=(50, 0)),
                                  g.math("MULTIPLY", c01, c01, loc=(50, -100)), loc=(200, 0)),
                   loc=(350, 0))
+    # Under perspective the rays through a splat are not along the camera's z: seen from the eye, the
+    # ellipsoid covers on the quad's plane (through its centre, parallel to the view plane) its shadow
+    # along the ray to its centre, the offset d_z t (t = lateral offset / depth, d_z the depth offset)
+    # added to the orthographic shadow, scaled by depth / (depth - d_z) <= k = depth / (depth - r).
+    # So each half-length grows by |t| r_z (r_z = the ellipsoid's extent along the view axis) and then
+    # by k: the quad holds every ray that meets the splat, for either kind of camera.  Splats reaching
+    # the eye's plane (depth <= r) get no quad, as the core renderer drops them.
+    pos = ng.nodes.new("GeometryNodeInputPosition")
+    pos.location = (-800, 300)
+    rel = g.vmath("SUBTRACT", pos.outputs[0], info.outputs["Location"], loc=(-600, 300))
+    depth = g.math("MULTIPLY", g.vmath("DOT_PRODUCT", rel, ez, loc=(-400, 450)), -1.0, loc=(-250, 450))
+    tilt = g.math("DIVIDE", g.vmath("LENGTH", g.vmath("CROSS_PRODUCT", rel, ez, loc=(-400, 550)), loc=(-250, 550)),
+                  depth, loc=(-100, 550))
+    reach = g.math("MAXIMUM", g.math("MAXIMUM", *(g.vmath("LENGTH", _gn_attr(ng, AXES + str(k), loc=(-600, 650 + 60 * k)),
+                                                          loc=(-400, 650 + 60 * k)) for k in range(2)), loc=(-250, 700)),
+                   g.vmath("LENGTH", _gn_attr(ng, AXES + "2", loc=(-600, 770)), loc=(-400, 770)), loc=(-100, 700))
+    gap = g.math("SUBTRACT", depth, reach, loc=(50, 650))
+    k = g.math("MULTIPLY", g.math("DIVIDE", depth, g.math("MAXIMUM", gap, 1e-9, loc=(200, 650)), loc=(350, 650)),
+               g.math("GREATER_THAN", gap, 1e-4, loc=(200, 750)), loc=(500, 650))
+    grow = g.math("MULTIPLY", tilt, g.vmath("LENGTH", shadow(ez, -500), loc=(-400, -500)), loc=(200, 500))
     scale = ng.nodes.new("ShaderNodeCombineXYZ")
-    scale.location = (700, -100)
-    _link(ng, g.math("SQRT", g.math("ADD", mean, root, loc=(500, 100)), loc=(600, 100)), scale.inputs[0])
+    scale.location = (900, -100)
+    major = g.math("SQRT", g.math("ADD", mean, root, loc=(500, 100)), loc=(600, 100))
     # max(., 0): λ₋ of a splat seen exactly edge-on is 0 up to rounding.
-    _link(ng, g.math("SQRT", g.math("MAXIMUM", g.math("SUBTRACT", mean, root, loc=(500, -50)), 0.0,
-                                    loc=(550, -50)), loc=(600, -50)), scale.inputs[1])
+    minor = g.math("SQRT", g.math("MAXIMUM", g.math("SUBTRACT", mean, root, loc=(500, -50)), 0.0, loc=(550, -50)),
+                   loc=(600, -50))
+    _link(ng, g.math("MULTIPLY", g.math("ADD", major, grow, loc=(700, 100)), k, loc=(800, 100)), scale.inputs[0])
+    _link(ng, g.math("MULTIPLY", g.math("ADD", minor, grow, loc=(700, -50)), k, loc=(800, -50)), scale.inputs[1])
     scale.inputs[2].default_value = 1.0
     theta = g.math("MULTIPLY", g.math("ARCTAN2", g.math("MULTIPLY", c01, 2.0, loc=(-250, -150)),
                                       half_diff, loc=(-100, -150)), 0.5, loc=(50, -200))
@@ -202,9 +225,6 @@ def splat_node_group(material):
     quad_rot = turn.outputs[0]
 
     # Back to front: the key is the depth along the camera's view (its -z).
-    pos = ng.nodes.new("GeometryNodeInputPosition")
-    pos.location = (-800, 300)
-    rel = g.vmath("SUBTRACT", pos.outputs[0], info.outputs["Location"], loc=(-600, 300))
     key = g.vmath("DOT_PRODUCT", rel, ez, loc=(-400, 300))  # -depth: farthest first
     sort = ng.nodes.new("GeometryNodeSortElements")
     sort.domain = "POINT"
