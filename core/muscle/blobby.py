@@ -588,14 +588,16 @@ def _march(values, blocks, grid, level, span, et):
     bits = bits[:, :, :-1] | (bits[:, :, 1:] << 2)
     cfg = (bits[:, :-1] | (bits[:, 1:] << 4)).reshape(-1)
     cells = np.flatnonzero((cfg != 0) & (cfg != 255))
-    counts = et.ntri[cfg[cells]]
+    c = cfg[cells].astype(np.int64)
+    counts = et.ntri[c]
     cb, rest = np.divmod(cells, B**3)
     ck, rest = np.divmod(rest, B * B)
     cj, ci = np.divmod(rest, B)
-    base = np.repeat(cb * 3 * E**3 + (ck * E + cj) * E + ci, counts)
-    cells = np.repeat(cells, counts)
-    slot = np.arange(len(cells)) - np.repeat(np.cumsum(counts) - counts, counts)
-    faces = lut[base[:, None] + et.table[cfg[cells], slot]]
+    # Triangle j of a cell of configuration c is row 5 c + j of the table.
+    row = np.arange(int(counts.sum())) + np.repeat(5 * c - (np.cumsum(counts) - counts), counts)
+    idx = et.table.reshape(-1, 3)[row]
+    idx += np.repeat(cb * 3 * E**3 + (ck * E + cj) * E + ci, counts)[:, None]
+    faces = lut[idx]
 
     va64 = va.astype(np.float64)
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -713,23 +715,25 @@ def _project(refiner, grid, blk, axis, node, t, a_above, level, tol, threads):
     order = np.argsort(blk, kind="stable")
     base = grid.coords(node)
     step = grid.h[axis]
+    # Everything in block order (batches then read and write contiguous runs), back at the end.
+    s_axis, s_base, s_step, s_above, s_t = axis[order], base[order], step[order], a_above[order], t[order]
     t_out = np.empty(n)
     grad = np.empty((n, 3))
     arg = np.empty(n, np.int64)
-    ids3 = np.arange(3)
 
     def run(batch):
-        vid, nv, ub = batch
-        vid = order[vid]  # the caller's vertex numbers
+        vid, nv, ub = batch  # indices into the block order
         rows, coef, kern = refiner.gather(ub)
         valid = np.arange(vid.shape[1]) < nv[:, None]
-        ax = axis[vid]
-        u0 = base[vid] - refiner.x0[ub][:, None, :]
-        st, ab, tt = step[vid], a_above[vid], t[vid]  # ab: f - level >= 0 at the lower node
+        ax = s_axis[vid]
+        u0 = s_base[vid] - refiner.x0[ub][:, None, :]
+        st, ab, tt = s_step[vid], s_above[vid], s_t[vid]  # ab: f - level >= 0 at the lower node
         lo, hi = np.zeros(vid.shape), np.ones(vid.shape)
         for it in range(NEWTON_STEPS + 1):
-            hot = ax[..., None] == ids3
-            f, g, e = refiner.evaluate(u0 + hot * (tt * st)[..., None], coef, kern)
+            along = np.arange(0, u0.size, 3) + ax.reshape(-1)  # the edge's coordinate in (..., 3) rows
+            u = u0.copy()
+            u.reshape(-1)[along] += (tt * st).reshape(-1)
+            f, g, e = refiner.evaluate(u, coef, kern)
             live = np.zeros(vid.shape, bool)
             if it < NEWTON_STEPS:
                 diff = f - level
@@ -738,16 +742,16 @@ def _project(refiner, grid, blk, axis, node, t, a_above, level, tol, threads):
                 lo = np.where(go & side, tt, lo)
                 hi = np.where(go & ~side, tt, hi)
                 with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-                    new = tt - diff / (np.take_along_axis(g, ax[..., None], -1)[..., 0] * st)
+                    new = tt - diff / (g.reshape(-1)[along].reshape(tt.shape) * st)
                 good = (new > lo) & (new < hi)  # False for NaN
                 new = np.clip(np.where(good, new, 0.5 * (lo + hi)), EDGE_MARGIN, 1 - EDGE_MARGIN)
                 live = go & (new != tt)
-            done = valid & ~live
-            ids = vid[done]
-            t_out[ids] = tt[done]
-            grad[ids] = g[done]
-            best = e.reshape(-1, e.shape[-1]).argmax(axis=1).reshape(done.shape)  # (faster than axis=-1 in 3-D)
-            arg[ids] = refiner.src[rows[np.nonzero(done)[0], best[done]]]
+            done = np.flatnonzero(valid & ~live)
+            ids = vid.reshape(-1)[done]
+            t_out[ids] = tt.reshape(-1)[done]
+            grad[ids] = g.reshape(-1, 3)[done]
+            best = e.reshape(-1, e.shape[-1])[done].argmax(axis=1)
+            arg[ids] = refiner.src[rows[done // vid.shape[1], best]]
             if not live.any():
                 break
             tt = np.where(live, new, tt)
@@ -759,8 +763,12 @@ def _project(refiner, grid, blk, axis, node, t, a_above, level, tol, threads):
 
     _map(run, refiner.batches(blk[order]), threads)
     pos = base
-    pos[np.arange(n), axis] += t_out * step
-    return pos, grad, arg
+    pos[order, s_axis] += t_out * s_step
+    out_grad = np.empty_like(grad)
+    out_grad[order] = grad
+    out_arg = np.empty_like(arg)
+    out_arg[order] = arg
+    return pos, out_grad, out_arg
 
 
 def _assemble(parts, nslot):
