@@ -30,7 +30,10 @@ passing through it, and the ``unshot`` scattered flux not yet propagated.
   a bin's flux over its solid angle, which reduces ray effects.  The received
   flux of the group is scattered at once by the 96x96 phase matrix into unshot,
   times the albedo.  Passes repeat until the unshot power falls below
-  ``tol`` times the power that entered the cloud, or ``max_passes``.
+  ``tol`` times the power that entered the cloud, or ``max_passes``.  Late passes
+  shrink geometrically (by ~0.71 per pass in the Fig. 6 cloud), so after each pass
+  the tail of passes still to come is extrapolated from the last two (:class:`_Tail`)
+  and the solve stops once that extrapolation is sure to ``tol``: 13 passes, not 20.
 
 Cost: one pass shoots all N voxels in all 96 bins with ``96 * sub^2`` sweeps of
 O(N) work each, i.e. O(N) per pass for all O(N^2) voxel-to-voxel interactions
@@ -62,6 +65,8 @@ N. Max, "Efficient light propagation for multiple anisotropic volume
 scattering", Eurographics Rendering Workshop 1994.
 M. F. Cohen et al., "A progressive refinement approach to fast radiosity
 image generation", SIGGRAPH 1988.
+P. Feda, W. Purgathofer, "Accelerating radiosity by overshooting", Eurographics
+Rendering Workshop 1992.
 K. D. Lathrop, "Ray effects in discrete ordinates equations", Nucl. Sci. Eng. 32 (1968).
 """
 
@@ -395,6 +400,52 @@ def _sweep_block(sig, geom, dirs, wsub, em, inflow, kap, dlt, cache, ib, fresh, 
 
 # --------------------------------------------------------------------------- solve
 
+class _Tail:
+    """The shooting passes' geometric tail, extrapolated (Aitken's delta-squared on the passes).
+
+    Late passes repeat the iteration's slowest mode: each pass adds ``rho`` times what the
+    pass before added to ``received``, ``total`` and the exit power, so the passes still to
+    come add ``rho / (1 - rho)`` times the last pass's increment (the "ambient" or overshoot
+    term of progressive radiosity: Cohen et al. 1988, Feda & Purgathofer 1992).  ``rho`` is
+    the ratio of the last two increments' power.  The extrapolation's own error comes from
+    the faster modes, not yet died out: they shrink at most by ``rho`` per pass, so the
+    extrapolated ``received`` still moves by at most ``rho / (1 - rho)`` times its last move
+    (L1 over voxels and bins), the bound :meth:`end` returns.  Fig. 6 cloud 64x64x48: the
+    bound is about twice the true error (against a solve to tol 1e-6).
+    Memory: copies of ``received`` and ``total`` at the pass start and the last increment.
+    """
+
+    def __init__(self, received, total, exit_flux):
+        self.arrays = (received, total, exit_flux)
+        self.start = self.last = self.factor = None
+
+    def begin(self):
+        """Before a pass: remember where it starts."""
+        self.start = [a.copy() for a in self.arrays]
+
+    def end(self):
+        """After a pass: the bound on the extrapolated ``received``'s L1 error (inf until it has one)."""
+        d = self.start[0]
+        np.subtract(self.arrays[0], d, out=d)  # this pass's increment, in place of the copy
+        power = float(d.sum(dtype=np.float64))
+        factor, change = None, np.inf
+        if self.last is not None and self.last[1] > 0 and 0 < power < self.last[1]:
+            rho = power / self.last[1]
+            factor = rho / (1.0 - rho)
+            if self.factor is not None:
+                move = (1.0 + factor) * d - np.float32(self.factor) * self.last[0]
+                change = factor * float(np.abs(move).sum(dtype=np.float64))
+        self.last, self.factor = (d, power), factor
+        return change
+
+    def apply(self):
+        """Add the extrapolated passes to ``received``, ``total`` and the exit power."""
+        rec, tot, ex = self.arrays
+        rec += np.float32(self.factor) * self.last[0]
+        tot += (tot - self.start[1]) * np.float32(self.factor)
+        ex += (ex - self.start[2]) * self.factor
+
+
 @dataclass
 class Progress:
     """What :func:`solve_steps` yields: ``pass_index`` (0 = sun and sky), bins
@@ -420,12 +471,14 @@ class Solution:
     received_sun : power intercepted from the direct sun beam.
     received_peaked : (2, 96, …) the parts of ``received`` scattered once and twice (sun light).
     peaked_weights : (2, 96, s*s) how those are distributed over the sub-directions of each bin.
-    unshot : (96, …) scattered power left unpropagated when the solve stopped.
+    unshot : (96, …) scattered power left unpropagated when the solve stopped (zero when
+        the passes' tail was extrapolated).
     exit_flux : (96,) power leaving the solved box (the grid, less empty margins on
         non-periodic axes) through the far face of each bin's sweep.
     sun_exit : direct sun power leaving through the far face of the sun sweep (same box).
     injected : power that entered the cloud (first interception of sun and sky).
-    passes, residual, converged, history : the convergence report.
+    passes, residual, converged, history : the convergence report (``history``: the unshot
+        residual after each pass; ``residual``: the last one, or the extrapolation's error).
     albedo_binned, g_binned, delta_f : albedo, asymmetry and delta-M fraction of the
         scaled medium the binned flux was transported in; ``received`` is in that medium,
         except the first ``real_orders`` of ``received_peaked``, caught in the real medium.
@@ -531,7 +584,7 @@ def _scatter_into(unshot, m_cols, recv, albedo, chunk=1 << 16):
 def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun_irradiance=1.0,
                 sky_radiance=0.0, tol=1e-3, max_passes=100, sub=2, periodic=(False, False, False),
                 delta_m=True, phase_sub=6, first_sub=4, source_profile=True,
-                peaked_orders=2, real_orders=1, profile_every=1):
+                peaked_orders=2, real_orders=1, profile_every=1, extrapolate=True):
     """The shooting solve as a generator: yields :class:`Progress` after each group of bins,
     returns the :class:`Solution` (``StopIteration.value``; :func:`solve` unwraps it).
 
@@ -544,8 +597,15 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
     sun_dir : direction toward the sun.
     sun_irradiance : sun power per unit area perpendicular to its rays.
     sky_radiance : constant radiance of the sky (light travelling downward).
-    tol : stop when unshot power <= tol * entered power.
+    tol : stop when unshot power <= tol * entered power, or (``extrapolate``) when the
+        bound on the extrapolated tail's error (albedo times the L1 error of ``received``,
+        :class:`_Tail`) is <= tol * entered power.
     max_passes : stop after this many passes even if not converged (see ``Solution.report``).
+    extrapolate : after each pass, extrapolate the geometric tail of the passes still to
+        come (:class:`_Tail`) and stop once that is as sure as ``tol``; the unshot power is
+        then counted as shot (``Solution.unshot`` zero, ``residual`` the estimated error).
+        Fig. 6 cloud 64x64x48, tol 1e-3: 13 passes instead of 20, L1 error of ``received``
+        3.8e-4 of the entered power instead of 2.3e-3 (against a solve to tol 1e-6).
     sub : sub-directions per bin side in the sweeps (flux spread over the bin).
     periodic : (x, y, z) periodic axes (slabs); at least one axis must not be.
     delta_m : transport the binned flux in the delta-M scaled medium (Wiscombe 1977):
@@ -749,8 +809,11 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
                    for r in _layer_boxes(np.moveaxis(sigma, ax, 0))) for ax in range(3))
     fits = arrays * NB * dirs.shape[1] * area <= 1 << 28
     caches = [{} if fits else None for _ in groups]
+    tail = _Tail(received, total, exit_flux) if extrapolate else None
     while not converged and passes < int(max_passes):
         passes += 1
+        if tail is not None:
+            tail.begin()
         refresh = passes <= 8 or passes % int(profile_every) == 0
         for gi, (axis, bs) in enumerate(groups):
             shot = unshot[bs].sum(0, dtype=np.float64) if umom is not None else None
@@ -768,6 +831,14 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
             yield Progress(passes, gi + 1, len(groups), residual)
         history.append(residual)
         converged = residual <= tol
+        if tail is not None and not converged:
+            err = alb_s * tail.end() / ref
+            if err <= tol:
+                tail.apply()
+                unshot[:] = 0.0
+                residual, converged = err, True
+                yield Progress(passes, len(groups), len(groups), residual)
+    del tail
 
     def full(a):
         if box is None:

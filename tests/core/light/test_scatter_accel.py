@@ -1,0 +1,52 @@
+"""The shooting solve's extrapolated tail (``extrapolate``) against the plain solve run to a
+tight tolerance: the same received, total and exit power within ``tol``, in fewer passes."""
+
+import numpy as np
+import pytest
+
+from nephele.core.light import scatter
+from nephele.core.volume import cloud_density
+
+TOL = 1e-3
+
+
+def l1(a, b, ref):
+    return float(np.abs(np.asarray(a, np.float64) - np.asarray(b, np.float64)).sum() / ref)
+
+
+def cases():
+    size = (1.0, 1.0, 0.75)
+    cloud = 40.0 * cloud_density.cloud_density(cloud_density.CloudParams(shape=(12, 16, 16), size=size))
+    yield "cloud", cloud, size, dict(albedo=0.99, g=0.8, sun_dir=(0.6, -0.35, 0.55))
+    yield "slab", np.full((16, 1, 1), 16.0), (1.0, 1.0, 1.0), dict(albedo=1.0, g=0.8, sun_dir=(0.3, 0.0, 1.0),
+                                                                    periodic=(True, True, False))
+
+
+@pytest.mark.parametrize("name,sigma,size,kw", list(cases()), ids=lambda v: v if isinstance(v, str) else "")
+def test_extrapolated_tail_matches_tight_plain_solve_in_fewer_passes(name, sigma, size, kw):
+    truth = scatter.solve(sigma, size, tol=1e-6, max_passes=2000, extrapolate=False, **kw)
+    plain = scatter.solve(sigma, size, tol=TOL, max_passes=2000, extrapolate=False, **kw)
+    fast = scatter.solve(sigma, size, tol=TOL, max_passes=2000, **kw)
+    assert truth.converged and plain.converged and fast.converged
+    assert fast.passes < plain.passes, (fast.passes, plain.passes)
+    assert fast.residual <= TOL and not fast.unshot.any()
+    ref = truth.injected
+    # albedo times the L1 error of received (voxels x bins) is what the bound promises
+    err = fast.albedo_binned * l1(fast.received, truth.received, ref)
+    assert err <= TOL, err
+    assert err <= fast.albedo_binned * l1(plain.received, truth.received, ref)
+    assert abs(fast.received.sum(dtype=np.float64) - truth.received.sum(dtype=np.float64)) <= TOL * ref
+    assert l1(fast.total, truth.total, truth.total.sum(dtype=np.float64)) <= TOL
+    assert l1(fast.exit_flux, truth.exit_flux, ref) <= TOL
+    if name == "slab":
+        r, t = scatter.slab_reflectance(fast)
+        r0, t0 = scatter.slab_reflectance(truth)
+        assert abs(r - r0) <= TOL and abs(t - t0) <= TOL and r + t == pytest.approx(1.0, abs=TOL)
+
+
+def test_tail_needs_a_steady_ratio():
+    # one pass only: no ratio yet, so no extrapolation (the plain stopping rule holds)
+    sigma = np.full((8, 1, 1), 4.0)
+    sol = scatter.solve(sigma, (1, 1, 1), albedo=0.99, g=0.5, tol=1e-9, max_passes=2, periodic=(True, True, False))
+    assert not sol.converged and sol.passes == 2 and sol.unshot.any()
+    assert sol.residual == pytest.approx(sol.history[-1])
