@@ -709,25 +709,26 @@ def _project(refiner, grid, blk, axis, node, t, a_above, level, tol, threads):
     """Slide vertices along their edges onto f = level: Newton steps, bisection when one leaves the bracket.
 
     A batch of blocks (:meth:`_Refiner.batches`) iterates together; the vertices still moving
-    are packed together whenever they are fewer than half.
+    are packed together whenever they are fewer than half.  Returns positions (float64), unit
+    normals (float32, from the analytic gradient), where the gradient vanished, and the
+    most-contributing Gaussian, each written by the batch that finishes the vertex.
     """
     n = len(t)
-    order = np.argsort(blk, kind="stable")
-    base = grid.coords(node)
-    step = grid.h[axis]
-    # Everything in block order (batches then read and write contiguous runs), back at the end.
-    s_axis, s_base, s_step, s_above, s_t = axis[order], base[order], step[order], a_above[order], t[order]
-    t_out = np.empty(n)
-    grad = np.empty((n, 3))
+    order = np.argsort(blk, kind="stable")  # nearly sorted already: batches read and write short runs
+    pos = np.empty((n, 3))
+    normal = np.empty((n, 3), _F32)
+    flat = np.empty(n, bool)
     arg = np.empty(n, np.int64)
 
     def run(batch):
-        vid, nv, ub = batch  # indices into the block order
+        vid, nv, ub = batch
+        vid = order[vid]  # the caller's vertex numbers
         rows, coef, kern = refiner.gather(ub)
         valid = np.arange(vid.shape[1]) < nv[:, None]
-        ax = s_axis[vid]
-        u0 = s_base[vid] - refiner.x0[ub][:, None, :]
-        st, ab, tt = s_step[vid], s_above[vid], s_t[vid]  # ab: f - level >= 0 at the lower node
+        ax = axis[vid]
+        base = grid.coords(node[vid])
+        u0 = base - refiner.x0[ub][:, None, :]
+        st, ab, tt = grid.h[ax], a_above[vid], t[vid]  # ab: f - level >= 0 at the lower node
         lo, hi = np.zeros(vid.shape), np.ones(vid.shape)
         for it in range(NEWTON_STEPS + 1):
             along = np.arange(0, u0.size, 3) + ax.reshape(-1)  # the edge's coordinate in (..., 3) rows
@@ -748,27 +749,26 @@ def _project(refiner, grid, blk, axis, node, t, a_above, level, tol, threads):
                 live = go & (new != tt)
             done = np.flatnonzero(valid & ~live)
             ids = vid.reshape(-1)[done]
-            t_out[ids] = tt.reshape(-1)[done]
-            grad[ids] = g.reshape(-1, 3)[done]
+            p = base.reshape(-1, 3)[done]
+            p[np.arange(len(done)), ax.reshape(-1)[done]] += (tt * st).reshape(-1)[done]
+            pos[ids] = p
+            gd = g.reshape(-1, 3)[done]
+            norm = np.linalg.norm(gd, axis=1)
+            normal[ids] = -gd / np.where(norm > 0, norm, 1.0)[:, None]
+            flat[ids] = norm <= 0
             best = e.reshape(-1, e.shape[-1])[done].argmax(axis=1)
             arg[ids] = refiner.src[rows[done // vid.shape[1], best]]
             if not live.any():
                 break
             tt = np.where(live, new, tt)
             if 2 * np.count_nonzero(live) < live.size:
-                valid, (vid, ax, u0, st, ab, tt, lo, hi), (rows, coef, kern) = _compact(
-                    live, (vid, ax, u0, st, ab, tt, lo, hi), (rows, coef, kern))
+                valid, (vid, ax, base, u0, st, ab, tt, lo, hi), (rows, coef, kern) = _compact(
+                    live, (vid, ax, base, u0, st, ab, tt, lo, hi), (rows, coef, kern))
             else:
                 valid = live
 
     _map(run, refiner.batches(blk[order]), threads)
-    pos = base
-    pos[order, s_axis] += t_out * s_step
-    out_grad = np.empty_like(grad)
-    out_grad[order] = grad
-    out_arg = np.empty_like(arg)
-    out_arg[order] = arg
-    return pos, out_grad, out_arg
+    return pos, normal, flat, arg
 
 
 def _assemble(parts, nslot):
@@ -793,13 +793,15 @@ def _assemble(parts, nslot):
     verts = tuple(field(name) for name in ("blk", "axis", "node", "t", "a_above"))
     rep_shift = np.concatenate([p.dup_shift for p in parts])[rep]
 
-    faces, ref_base, ref_shift = [], [], []
+    ntri = np.cumsum([0] + [len(p.faces) for p in parts])
+    faces = np.empty((int(ntri[-1]), 3), np.int32)  # (the mesh's type: vertex counts stay far below 2^31)
+    ref_base, ref_shift = [], []
     nref = 0
     for ci, p in enumerate(parts):
-        fc = p.faces.astype(np.int64)
-        fc = np.where(fc < 0, fc - nref, fc + offs[ci])
+        out = faces[ntri[ci] : ntri[ci + 1]]
+        np.add(p.faces, int(offs[ci]), out=out)
+        np.subtract(p.faces, nref, out=out, where=p.faces < 0)
         nref += len(p.ref_owner)
-        faces.append(fc)
         act = p.ref_owner >= 0
         base = np.empty(len(act), np.int64)
         own = p.ref_owner[act]
@@ -813,7 +815,7 @@ def _assemble(parts, nslot):
     ref_base = np.concatenate(ref_base)
     if np.any(ref_base < 0):
         raise AssertionError("blobby: a face refers to an edge its owner did not cut")
-    return verts, np.concatenate(faces), ref_base, np.concatenate(ref_shift), rep_shift, n_own
+    return verts, faces, ref_base, np.concatenate(ref_shift), rep_shift, n_own
 
 
 def blobby_surface(
@@ -900,7 +902,7 @@ def blobby_surface(
 
     smin = float(s[w > 0].min())
     refiner = _Refiner(b, grid, blocks)
-    pos, grad, arg = _project(refiner, grid, *verts, level, NEWTON_TOL * smin, threads)
+    pos, normals, flat, arg = _project(refiner, grid, *verts, level, NEWTON_TOL * smin, threads)
     if grid.box is not None and len(rep_shift):
         # Representatives of duplicates were placed in their block's frame (a coordinate
         # across the seam exactly L): move them to the box's own frame (exactly 0).
@@ -915,15 +917,13 @@ def blobby_surface(
         src = ref_base[moved][first]
         final[moved] = len(pos) + inv.reshape(-1)
         pos = np.concatenate([pos, pos[src] + ref_shift[moved][first] * grid.box])
-        grad = np.concatenate([grad, grad[src]])
+        normals = np.concatenate([normals, normals[src]])
+        flat = np.concatenate([flat, flat[src]])
         arg = np.concatenate([arg, arg[src]])
     neg = faces < 0
     faces[neg] = final[-1 - faces[neg]]
 
     vertices = pos.astype(_F32)
-    norm = np.linalg.norm(grad, axis=1)
-    normals = -grad / np.where(norm > 0, norm, 1.0)[:, None]
-    flat = norm <= 0
     if flat.any():
         normals[flat] = vertex_normals(vertices, faces)[flat]
     attrs = {"blob": arg.astype(np.int32)}
