@@ -274,7 +274,7 @@ class _Blocks:
     node_dims: np.ndarray  # (3,) nodes in that range (edge keys)
 
 
-_PAIR_CHUNK = 4_000_000
+_PAIR_CHUNK = 1 << 18  # (block, Gaussian) candidates per step: temporaries of a few MB
 
 
 def _block_pairs(b, grid, cut, cut_fine):
@@ -895,7 +895,7 @@ def blobby_surface(
     values = _node_values(b, grid, blocks, threads)
 
     et = _edge_tables()
-    spans = _chunks(len(blocks.q), max(1, 2048 * 512 // BLOCK**3))
+    spans = _chunks(len(blocks.q), max(1, 512 * 512 // BLOCK**3))
     parts = _map(lambda sp: _march(values, blocks, grid, level, sp, et), spans, threads)
     del values
     verts, faces, ref_base, ref_shift, rep_shift, n_own = _assemble(parts, len(et.face_slots))
