@@ -708,7 +708,9 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
     fdirs = phase.bins(first_sub)[2]
     m_sub = phase.sub_phase_matrix(g_s, first_sub)  # (96, 96, first_sub**2)
     m_real = phase.sub_phase_matrix(g, first_sub) if real_orders > 0 else None
-    per = max(1, (1 << 24) // (fdirs.shape[1] * sigma.size))  # bins per sweep: <= 64 MB of float32
+    # bins per sweep: <= 256 MB of float32; more bins make fewer, larger products in
+    # _scatter_into (128x128x96 cloud: 2 -> 8 bins, its first-pass time 26 -> 15 s at load 3-5)
+    per = max(1, (1 << 26) // (fdirs.shape[1] * sigma.size))
 
     # Where inside its voxel the unshot light sits (issue 18): light is caught mostly
     # near the face it entered by, so a thick voxel's scattered light escapes more
