@@ -449,7 +449,8 @@ class _Tail:
 @dataclass
 class Progress:
     """What :func:`solve_steps` yields: ``pass_index`` (0 = sun and sky), bins
-    done in this pass, and ``residual`` = unshot / power that entered the cloud."""
+    done in this pass, and ``residual`` = unshot / power that entered the cloud (in the
+    last step after an extrapolated tail: that extrapolation's error bound, :class:`_Tail`)."""
 
     pass_index: int
     group: int
