@@ -181,38 +181,45 @@ def splat_node_group(material):
     root = g.math("SQRT", g.math("ADD", g.math("MULTIPLY", half_diff, half_diff, loc=(50, 0)),
                                  g.math("MULTIPLY", c01, c01, loc=(50, -100)), loc=(200, 0)),
                   loc=(350, 0))
-    # Under perspective the rays through a splat are not along the camera's z: seen from the eye, the
-    # ellipsoid covers on the quad's plane (through its centre, parallel to the view plane) its shadow
-    # along the ray to its centre, the offset d_z t (t = lateral offset / depth, d_z the depth offset)
-    # added to the orthographic shadow, scaled by depth / (depth - d_z) <= k = depth / (depth - r).
-    # So each half-length grows by |t| r_z (r_z = the ellipsoid's extent along the view axis) and then
-    # by k: the quad holds every ray that meets the splat, for either kind of camera.  Splats reaching
-    # the eye's plane (depth <= r) get no quad, as the core renderer drops them.
+    theta = g.math("MULTIPLY", g.math("ARCTAN2", g.math("MULTIPLY", c01, 2.0, loc=(-250, -150)),
+                                      half_diff, loc=(-100, -150)), 0.5, loc=(50, -200))
+    # ARCTAN2(y, x) = atan2(2 c01, (c00 - c11)/2 ... ) has the sign of atan2(2 c01, c00 - c11): same angle.
+    # Under perspective the rays through a splat are not along the camera's z: a point d of the
+    # ellipsoid is seen on the quad's plane (through the centre, parallel to the view plane) at
+    # (d_xy + t d_z) depth / (depth - d_z), t = the centre's lateral offset / depth: the orthographic
+    # shadow plus a segment of length |t| r_z along t (r_z = the ellipsoid's extent along the view
+    # axis), scaled by at most k = depth / (depth - r).  So each half-length grows by r_z |t . axis|
+    # and then by k: the quad holds every ray that meets the splat, for either kind of camera.
+    # Splats reaching the eye's plane (depth <= r) get no quad, as the core renderer drops them.
     pos = ng.nodes.new("GeometryNodeInputPosition")
     pos.location = (-800, 300)
     rel = g.vmath("SUBTRACT", pos.outputs[0], info.outputs["Location"], loc=(-600, 300))
     depth = g.math("MULTIPLY", g.vmath("DOT_PRODUCT", rel, ez, loc=(-400, 450)), -1.0, loc=(-250, 450))
-    tilt = g.math("DIVIDE", g.vmath("LENGTH", g.vmath("CROSS_PRODUCT", rel, ez, loc=(-400, 550)), loc=(-250, 550)),
-                  depth, loc=(-100, 550))
+    tx = g.math("DIVIDE", g.vmath("DOT_PRODUCT", rel, ex, loc=(-400, 550)), depth, loc=(-250, 550))
+    ty = g.math("DIVIDE", g.vmath("DOT_PRODUCT", rel, ey, loc=(-400, 600)), depth, loc=(-250, 600))
+    cos, sin = g.math("COSINE", theta, loc=(200, 550)), g.math("SINE", theta, loc=(200, 600))
+    along = g.math("ABSOLUTE", g.math("MULTIPLY_ADD", tx, cos, g.math("MULTIPLY", ty, sin, loc=(350, 600)), loc=(500, 550)),
+                   loc=(650, 550))
+    across = g.math("ABSOLUTE", g.math("SUBTRACT", g.math("MULTIPLY", ty, cos, loc=(350, 650)),
+                                       g.math("MULTIPLY", tx, sin, loc=(350, 700)), loc=(500, 650)), loc=(650, 650))
     reach = g.math("MAXIMUM", g.math("MAXIMUM", *(g.vmath("LENGTH", _gn_attr(ng, AXES + str(k), loc=(-600, 650 + 60 * k)),
                                                           loc=(-400, 650 + 60 * k)) for k in range(2)), loc=(-250, 700)),
                    g.vmath("LENGTH", _gn_attr(ng, AXES + "2", loc=(-600, 770)), loc=(-400, 770)), loc=(-100, 700))
     gap = g.math("SUBTRACT", depth, reach, loc=(50, 650))
     k = g.math("MULTIPLY", g.math("DIVIDE", depth, g.math("MAXIMUM", gap, 1e-9, loc=(200, 650)), loc=(350, 650)),
                g.math("GREATER_THAN", gap, 1e-4, loc=(200, 750)), loc=(500, 650))
-    grow = g.math("MULTIPLY", tilt, g.vmath("LENGTH", shadow(ez, -500), loc=(-400, -500)), loc=(200, 500))
+    r_z = g.vmath("LENGTH", shadow(ez, -500), loc=(-400, -500))
     scale = ng.nodes.new("ShaderNodeCombineXYZ")
     scale.location = (900, -100)
     major = g.math("SQRT", g.math("ADD", mean, root, loc=(500, 100)), loc=(600, 100))
     # max(., 0): λ₋ of a splat seen exactly edge-on is 0 up to rounding.
     minor = g.math("SQRT", g.math("MAXIMUM", g.math("SUBTRACT", mean, root, loc=(500, -50)), 0.0, loc=(550, -50)),
                    loc=(600, -50))
-    _link(ng, g.math("MULTIPLY", g.math("ADD", major, grow, loc=(700, 100)), k, loc=(800, 100)), scale.inputs[0])
-    _link(ng, g.math("MULTIPLY", g.math("ADD", minor, grow, loc=(700, -50)), k, loc=(800, -50)), scale.inputs[1])
+    _link(ng, g.math("MULTIPLY", g.math("MULTIPLY_ADD", r_z, along, major, loc=(700, 100)), k, loc=(800, 100)),
+          scale.inputs[0])
+    _link(ng, g.math("MULTIPLY", g.math("MULTIPLY_ADD", r_z, across, minor, loc=(700, -50)), k, loc=(800, -50)),
+          scale.inputs[1])
     scale.inputs[2].default_value = 1.0
-    theta = g.math("MULTIPLY", g.math("ARCTAN2", g.math("MULTIPLY", c01, 2.0, loc=(-250, -150)),
-                                      half_diff, loc=(-100, -150)), 0.5, loc=(50, -200))
-    # ARCTAN2(y, x) = atan2(2 c01, (c00 - c11)/2 ... ) has the sign of atan2(2 c01, c00 - c11): same angle.
     spin = ng.nodes.new("FunctionNodeAxisAngleToRotation")
     spin.location = (200, -250)
     spin.inputs["Axis"].default_value = (0.0, 0.0, 1.0)
