@@ -19,6 +19,7 @@ xr = pytest.importorskip("xarray")
 from nephele.core.errors import DataError  # noqa: E402
 from nephele.core.climate.grid import lonlat_to_xyz, xyz_to_lonlat  # noqa: E402
 from nephele.core.climate.readers import open_dataset  # noqa: E402
+from projections import lcc_inverse  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[2] / "data"
 R = 6370000.0  # WRF's sphere
@@ -27,26 +28,13 @@ LCC = {"grid_mapping_name": "lambert_conformal_conic", "standard_parallel": [30.
        "false_easting": 0.0, "false_northing": 0.0, "earth_radius": R}
 
 
-def lcc_inverse(x, y, lat1=30.0, lat2=60.0, lat0=45.0, lon0=-100.0, radius=R):
-    """Snyder (1987) eqs. 15-1..15-5 and 14-4, 15-10, 15-11 for the sphere: projection metres -> lon, lat (degrees)."""
-    p1, p2, p0 = np.deg2rad([lat1, lat2, lat0])
-    t = lambda p: np.tan(np.pi / 4 + p / 2)  # noqa: E731
-    n = np.log(np.cos(p1) / np.cos(p2)) / np.log(t(p2) / t(p1))
-    F = np.cos(p1) * t(p1) ** n / n
-    rho0 = radius * F / t(p0) ** n
-    rho = np.sign(n) * np.hypot(x, rho0 - y)
-    theta = np.arctan2(x, rho0 - y)
-    lat = 2 * np.arctan((radius * F / rho) ** (1 / n)) - np.pi / 2
-    return lon0 + np.rad2deg(theta / n), np.rad2deg(lat)
-
-
 def _lcc_file(path, *, with_latlon=True, wrf_names=False, y_down=False, nx=30, ny=20, dx=30000.0):
     x = (np.arange(nx) - (nx - 1) / 2) * dx
     y = (np.arange(ny) - (ny - 1) / 2) * dx
     if y_down:
         y = y[::-1]
     X, Y = np.meshgrid(x, y)
-    lon, lat = lcc_inverse(X, Y)
+    lon, lat = lcc_inverse(X, Y, radius=R)
     z = np.array([500.0, 1500.0, 3000.0, 6000.0])
     # Temperature falling 6.5 K/km and warmer to the south: contours at 270 K are tilted sheets.
     t = 300.0 - 0.0065 * z[:, None, None] - 0.3 * (lat[None] - 45.0)
@@ -272,7 +260,7 @@ def test_column_locator_hard_places(tmp_path, case):
     else:
         x = (np.arange(30) - 14.5) * 30000.0
         X, Y = np.meshgrid(x, x[:20])
-        lon2d, lat2d = lcc_inverse(X, Y, lon0=180.0 if case == "date line" else -100.0)
+        lon2d, lat2d = lcc_inverse(X, Y, lon0=180.0 if case == "date line" else -100.0, radius=R)
         if case == "date line":
             lon2d = (lon2d + 180.0) % 360.0 - 180.0  # as files write it: a jump from 180 to -180
             assert lon2d.max() > 179.0 and lon2d.min() < -179.0

@@ -20,28 +20,10 @@ from nephele.core.climate.grid import GlobeGrid, lonlat_to_xyz, xyz_to_lonlat
 from nephele.core.errors import DataError
 from nephele.core.flow import advect
 from nephele.core.flow.flows import DeformationalFlow, rotate, tangent_velocity
+from projections import lcc_inverse, polar_inverse
 
 R = 6_371_000.0
 HOURS = 25
-
-
-def lcc_inverse(x, y, lat1=30.0, lat2=60.0, lat0=45.0, lon0=-100.0):
-    """Snyder (1987) eqs. 15-1..15-5, 14-4, 15-10, 15-11 (sphere): projection metres -> lon in [-180, 180), lat."""
-    p1, p2, p0 = np.deg2rad([lat1, lat2, lat0])
-    t = lambda p: np.tan(np.pi / 4 + p / 2)  # noqa: E731
-    n = np.log(np.cos(p1) / np.cos(p2)) / np.log(t(p2) / t(p1))
-    F = np.cos(p1) * t(p1) ** n / n
-    rho0 = R * F / t(p0) ** n
-    rho = np.sign(n) * np.hypot(x, rho0 - y)
-    lat = 2 * np.arctan((R * F / rho) ** (1 / n)) - np.pi / 2
-    lon = lon0 + np.rad2deg(np.arctan2(x, rho0 - y) / n)
-    return (lon + 180.0) % 360.0 - 180.0, np.rad2deg(lat)
-
-
-def polar_inverse(x, y):
-    """Snyder (1987) eqs. 20-18, 21-15, 20-16 (north polar stereographic, sphere, true scale at the pole)."""
-    c = 2 * np.arctan(np.hypot(x, y) / (2 * R))
-    return np.rad2deg(np.arctan2(x, -y)), 90.0 - np.rad2deg(c)
 
 
 def regional_grid(kind, nx=40, ny=30, dx=50e3, heights=(0.0, 5000.0, 10000.0)):

@@ -19,22 +19,11 @@ from nephele.core.errors import DataError
 from nephele.core.flow.flows import rotate
 from nephele.core.flowvol import ClimateVelocity, flow_volume
 from nephele.core.flowvol.tets import face_use_counts, signed_volumes
+from projections import lcc_inverse
 
 R = 6_371_000.0
 AXIS = lonlat_to_xyz(-100.0, 20.0)  # 25 degrees south of the grid's centre
 OMEGA = 30.0 * 3600.0 / (R * np.sin(np.deg2rad(25.0)))  # radians per hour: 30 m/s at the centre
-
-
-def lcc_inverse(x, y, lat1=30.0, lat2=60.0, lat0=45.0, lon0=-100.0):
-    """Snyder (1987) eqs. 15-1..15-5, 14-4, 15-10, 15-11 (sphere): projection metres -> lon, lat (degrees)."""
-    p1, p2, p0 = np.deg2rad([lat1, lat2, lat0])
-    t = lambda p: np.tan(np.pi / 4 + p / 2)  # noqa: E731
-    n = np.log(np.cos(p1) / np.cos(p2)) / np.log(t(p2) / t(p1))
-    F = np.cos(p1) * t(p1) ** n / n
-    rho0 = R * F / t(p0) ** n
-    rho = np.sign(n) * np.hypot(x, rho0 - y)
-    lat = 2 * np.arctan((R * F / rho) ** (1 / n)) - np.pi / 2
-    return lon0 + np.rad2deg(np.arctan2(x, rho0 - y) / n), np.rad2deg(lat)
 
 
 @pytest.fixture(scope="module")

@@ -19,30 +19,12 @@ from nephele.core.climate.grid import EARTH_RADIUS, GlobeGrid, lonlat_to_xyz
 from nephele.core.splats import Camera, project_splats, splat_kernel, splat_samples
 from nephele.core.splats.partition import shell_heights
 from nephele.core.volume.transfer import TransferFunction
+from projections import lcc_inverse, polar_inverse
 
 R = EARTH_RADIUS
 EXAGGERATION = 30.0
 ONE = TransferFunction(points=((0.0, 1.0),))
 SHELLS = np.linspace(0.0, 1.0, 12) ** 1.4 * 20000.0  # stretched: 600 m at the ground, 2.5 km at the top
-
-
-def lcc_inverse(x, y, lat1=30.0, lat2=60.0, lat0=45.0, lon0=-100.0):
-    """Snyder (1987) eqs. 15-1..15-5, 14-4, 15-10, 15-11 (sphere): projection metres -> lon, lat."""
-    p1, p2, p0 = np.deg2rad([lat1, lat2, lat0])
-    t = lambda p: np.tan(np.pi / 4 + p / 2)  # noqa: E731
-    n = np.log(np.cos(p1) / np.cos(p2)) / np.log(t(p2) / t(p1))
-    F = np.cos(p1) * t(p1) ** n / n
-    rho0 = R * F / t(p0) ** n
-    rho = np.sign(n) * np.hypot(x, rho0 - y)
-    lat = 2 * np.arctan((R * F / rho) ** (1 / n)) - np.pi / 2
-    lon = lon0 + np.rad2deg(np.arctan2(x, rho0 - y) / n)
-    return (lon + 180.0) % 360.0 - 180.0, np.rad2deg(lat)
-
-
-def polar_inverse(x, y):
-    """Snyder (1987) eqs. 20-18, 21-15, 20-16 (north polar stereographic, sphere, true scale at the pole)."""
-    c = 2 * np.arctan(np.hypot(x, y) / (2 * R))
-    return np.rad2deg(np.arctan2(x, -y)), 90.0 - np.rad2deg(c)
 
 
 def regional_grid(kind, heights=SHELLS, terrain=None, nx=None, ny=None, dx=50e3):
