@@ -7,7 +7,7 @@ from scipy.integrate import solve_ivp
 from nephele.core.errors import DataError
 from nephele.core.flow.flows import FlowDataset, SolidBodyRotation, sample_grid
 from nephele.core.flowvol import ClimateVelocity, flow_volume
-from nephele.core.flowvol.tets import face_use_counts, signed_volumes
+from mesh_checks import check_mesh
 
 
 def polygon_area(radius, sides):
@@ -42,36 +42,6 @@ def shear(p, t):
 def abc(p, t, A=np.sqrt(3), B=np.sqrt(2), C=1.0):
     x, y, z = p.T
     return np.stack([A * np.sin(z) + C * np.cos(y), B * np.sin(x) + A * np.cos(z), C * np.sin(y) + B * np.cos(x)], axis=1)
-
-
-def check_mesh(fv):
-    vol = signed_volumes(fv.vertices, fv.tets)
-    assert np.all(vol >= -1e-12 * max(vol.max(), 1e-300))
-    assert np.all(face_use_counts(fv.tets) <= 2)
-    f = fv.surface.faces.astype(np.int64)
-    # Closed and consistently wound: every directed edge appears once and its reverse once.
-    edges = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
-    directed, counts = np.unique(edges, axis=0, return_counts=True)
-    assert np.all(counts == 1)
-    rev = {tuple(e) for e in directed}
-    assert all((b, a) in rev for a, b in directed)
-    # The divergence theorem on the surface gives the tets' volume back.
-    v = fv.surface.vertices.astype(np.float64)[f]
-    assert np.einsum("ij,ij->i", v[:, 0], np.cross(v[:, 1], v[:, 2])).sum() / 6 == pytest.approx(fv.volume, rel=1e-5)
-    trimesh = _trimesh()
-    if trimesh is not None:
-        m = trimesh.Trimesh(v.reshape(-1, 3), np.arange(3 * len(f)).reshape(-1, 3), process=False)
-        m.merge_vertices()
-        assert m.is_watertight and m.is_winding_consistent
-    return vol
-
-
-def _trimesh():
-    try:
-        import trimesh
-    except ImportError:  # the numpy 1.26 environment has no trimesh; the edge check above still runs
-        return None
-    return trimesh
 
 
 @pytest.mark.parametrize("sides,duration", [(3, 1.0), (32, 2.5)])

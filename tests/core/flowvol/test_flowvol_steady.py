@@ -9,7 +9,7 @@ from scipy.integrate import solve_ivp
 
 from nephele.core.flowvol import flow_volume
 from nephele.core.flowvol.front import Streams, advance
-from nephele.core.flowvol.tets import face_use_counts, signed_volumes
+from mesh_checks import check_mesh
 from nephele.core.flowvol.unstructured import UnstructuredVelocity
 
 FIRE = Path("/work/shared/data/flow/fire_ug.vtu")
@@ -20,19 +20,6 @@ FIRE = _here if _here.is_file() else FIRE
 def abc(p, t, A=np.sqrt(3), B=np.sqrt(2), C=1.0):
     x, y, z = p.T
     return np.stack([A * np.sin(z) + C * np.cos(y), B * np.sin(x) + A * np.cos(z), C * np.sin(y) + B * np.cos(x)], axis=1)
-
-
-def closed(fv):
-    assert np.all(signed_volumes(fv.vertices, fv.tets) > 0)
-    assert np.all(face_use_counts(fv.tets) <= 2)
-    f = fv.surface.faces.astype(np.int64)
-    edges = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
-    directed, counts = np.unique(edges, axis=0, return_counts=True)
-    assert np.all(counts == 1)
-    rev = {tuple(e) for e in directed}
-    assert all((b, a) in rev for a, b in directed)
-    v = fv.surface.vertices.astype(np.float64)[f]
-    assert np.einsum("ij,ij->i", v[:, 0], np.cross(v[:, 1], v[:, 2])).sum() / 6 == pytest.approx(fv.volume, rel=1e-5)
 
 
 def dop853(v, points, ages):
@@ -78,7 +65,7 @@ def test_every_layer_of_the_stream_tube_matches_dop853_on_abc():
     # Divergence-free: volume = flux x duration.
     assert fv.volume == pytest.approx(polygon_flux(fv, abc) * 1.5, rel=1e-3)
     assert fv.volume == pytest.approx(per_layer.volume, rel=1e-6)
-    closed(fv)
+    check_mesh(fv, positive=True)
 
 
 @pytest.mark.parametrize("steady", [False, True])
@@ -90,7 +77,7 @@ def test_uniform_and_shear_flows_stay_exact(steady):
     shear = lambda p, t: np.stack([0 * p[:, 0], 0 * p[:, 0], 1 + p[:, 0]], axis=1)
     fv = flow_volume(shear, [0, 0, 0], 0.5, 2.0, normal=[0, 0, 1], sides=7, rings=3, steady=steady)
     assert fv.volume == pytest.approx(0.5 * 7 * 0.25 * np.sin(2 * np.pi / 7) * 2.0, rel=1e-12)
-    closed(fv)
+    check_mesh(fv, positive=True)
 
 
 def test_diverging_flow_points_come_from_the_generator():
@@ -159,7 +146,7 @@ def test_fire_stream_tube_against_dop853_and_the_per_layer_front(fire):
     # layer's own; younger ages read from it are within that (the front stays within tol = 0.05).
     assert steady_err <= layer_err * (1 + 1e-9) and steady_err < 0.02
     assert fv.volume == pytest.approx(per_layer.volume, rel=0.05)
-    closed(fv)
+    check_mesh(fv, positive=True)
 
 
 @fire_only
@@ -173,7 +160,7 @@ def test_fire_ten_seconds_stream_tube_is_closed_and_converges_with_tol(fire):
         assert fv.complete and fv.exited.any() and fv.volume > 0
         assert np.all(np.isfinite(fire(fv.vertices)))  # exit points too lie in a cell
         assert not fv.exited[np.unique(fv.tets)].any()
-        closed(fv)
+        check_mesh(fv, positive=True)
         vols.append(fv.volume)
     d1, d2 = vols[1] - vols[0], vols[2] - vols[1]
     assert 0 < d2 < 0.6 * d1  # halving tol halves the change (first order)

@@ -8,6 +8,7 @@ import pytest
 from nephele.core.errors import DataError
 from nephele.core.flowvol import flow_volume
 from nephele.core.flowvol.tets import face_use_counts, signed_volumes
+from mesh_checks import check_mesh
 from nephele.core.flowvol.unstructured import UnstructuredVelocity, read_vtu
 
 FIRE = Path(__file__).resolve().parents[4] / "shared" / "data" / "flow" / "fire_ug.vtu"
@@ -129,20 +130,6 @@ def test_outside_the_room_and_bad_files_raise(fire, tmp_path):
         UnstructuredVelocity(tmp_path / "junk.vtu")
 
 
-def _closed_positive(fv):
-    """Positive tetrahedra, shared faces matched, and a closed, consistently wound surface with the tets' volume."""
-    assert np.all(signed_volumes(fv.vertices, fv.tets) > 0)
-    assert np.all(face_use_counts(fv.tets) <= 2)
-    f = fv.surface.faces.astype(np.int64)
-    edges = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
-    directed, counts = np.unique(edges, axis=0, return_counts=True)
-    assert np.all(counts == 1)
-    rev = {tuple(e) for e in directed}
-    assert all((b, a) in rev for a, b in directed)
-    v = fv.surface.vertices.astype(np.float64)[f]
-    assert np.einsum("ij,ij->i", v[:, 0], np.cross(v[:, 1], v[:, 2])).sum() / 6 == pytest.approx(fv.volume, rel=1e-5)
-
-
 @pytest.mark.parametrize("steady", [False, True], ids=["per-layer", "stream-tube"])
 def test_smoke_in_a_bounded_uniform_flow_stops_at_the_wall(steady):
     # Uniform flow along x in the box [0, 1]^3 (NaN outside): air released before t = 1.2 reaches x = 1.
@@ -163,7 +150,7 @@ def test_smoke_in_a_bounded_uniform_flow_stops_at_the_wall(steady):
     # The tube from the generator to the wall (0.8 long), ending one lattice step (< tol) before the last
     # layer inside: at worst 2 tol short (the stream tube's layers fall on 0.7 exactly; 1e-12 for rounding).
     assert area * (0.8 - 2 * tol) * (1 - 1e-12) <= fv.volume < area * 0.8
-    _closed_positive(fv)
+    check_mesh(fv, positive=True)
 
 
 def test_smoke_that_leaves_the_room_stops_there(fire):
@@ -174,7 +161,7 @@ def test_smoke_that_leaves_the_room_stops_there(fire):
     assert np.all((fv.vertices >= lo) & (fv.vertices <= hi))
     assert np.all(np.isfinite(fire(fv.vertices)))  # every point, exit points too, lies in a cell of the grid
     assert not fv.exited[np.unique(fv.tets)].any()
-    _closed_positive(fv)
+    check_mesh(fv, positive=True)
     with pytest.raises(DataError, match="outside"):  # a generator outside the room is still refused
         flow_volume(fire, [10.0, 1.0, 1.0], 0.1, 1.0, normal=[1, 0, 0])
 
