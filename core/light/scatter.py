@@ -1043,6 +1043,14 @@ def _trilinear(grid, idx):
     return map_coordinates(g, coords, order=1, mode="constant", cval=0.0, prefilter=False)
 
 
+def _view_inputs(who, sigma, source, size, camera, dtype):
+    """A view's checked inputs: ``sigma``, ``source`` as ``dtype``, the voxel size (x, y, z) and the eye."""
+    sigma, source = np.asarray(sigma, dtype), np.asarray(source, dtype)
+    if sigma.shape != source.shape or sigma.ndim != 3:
+        raise ValueError(f"{who}: sigma and source must be 3-D arrays of one shape")
+    return sigma, source, np.asarray(size, float) / np.asarray(sigma.shape[::-1]), np.asarray(camera.position, float)
+
+
 def render(sigma, source, size, camera, *, step=0.4, background=0.0, chunk=8192):
     """Emission-absorption ray march: ``L = int S T ds + T_total * background`` per pixel.
 
@@ -1054,13 +1062,7 @@ def render(sigma, source, size, camera, *, step=0.4, background=0.0, chunk=8192)
     -------
     ndarray float32 (height, width).
     """
-    sigma = np.asarray(sigma, np.float64)
-    source = np.asarray(source, np.float64)
-    if sigma.shape != source.shape or sigma.ndim != 3:
-        raise ValueError("render: sigma and source must be 3-D arrays of one shape")
-    shape = sigma.shape
-    h = np.asarray(size, float) / np.asarray(shape[::-1])
-    o = np.asarray(camera.position, float)
+    sigma, source, h, o = _view_inputs("render", sigma, source, size, camera, np.float64)
     # march only through the box around the non-empty voxels (+ the half-voxel ramp)
     nz = np.nonzero((sigma > 0) | (source != 0))
     if len(nz[0]) == 0:
@@ -1122,16 +1124,10 @@ def march_planes(sigma, source, size, camera, *, samples=1, background=0.0, chun
     -------
     ndarray float32 (height, width).
     """
-    sigma = np.asarray(sigma, np.float32)
-    source = np.asarray(source, np.float32)
-    if sigma.shape != source.shape or sigma.ndim != 3:
-        raise ValueError("march_planes: sigma and source must be 3-D arrays of one shape")
+    sigma, source, h, o = _view_inputs("march_planes", sigma, source, size, camera, np.float32)
     m = int(samples)
     if m < 1:
         raise ValueError(f"march_planes: samples must be >= 1, got {samples}")
-    shape = sigma.shape
-    h = np.asarray(size, float) / np.asarray(shape[::-1])
-    o = np.asarray(camera.position, float)
     d = camera.rays().reshape(-1, 3)
     img = np.full(len(d), float(background), np.float32)
     occ = (sigma > 0) | (source != 0)
