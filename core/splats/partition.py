@@ -389,7 +389,6 @@ def sample_factors(points, jac, prior, reach, kernel):
     reach : (rk, rj, ri) index reach of the kernels, for :func:`stencil_weights`.
     kernel : SplatKernel
     """
-
     radius = kernel.radius
     to_cell = radius * np.linalg.inv(principal_axes(jac.reshape(-1, 3, 3), radius)).reshape(jac.shape)
     out = np.empty_like(prior)
@@ -405,7 +404,6 @@ def sample_factors(points, jac, prior, reach, kernel):
 
 @lru_cache(maxsize=2)
 def _curvilinear(lon_bytes, lat_bytes, columns, shell_bytes, stride, exaggeration, kernel_params):
-
     kernel = SplatKernel(*kernel_params)
     shells = np.frombuffer(shell_bytes)
     shape = (shells.size,) + columns
