@@ -1,6 +1,7 @@
-"""How many threads core work may use on this machine."""
+"""How many threads core work may use on this machine, and a map over them."""
 
 import os
+from concurrent.futures import ThreadPoolExecutor
 
 
 def default_threads():
@@ -11,3 +12,14 @@ def default_threads():
         return int(env)
     cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
     return max(1, min(cpus, 8))
+
+
+def thread_map(fn, items, threads=None):
+    """``[fn(x) for x in items]`` on up to ``threads`` threads (default :func:`default_threads`);
+    in this thread when one would do.  NumPy releases the GIL in its loops, so array work overlaps."""
+    items = list(items)
+    n = max(1, min(int(threads or default_threads()), len(items)))
+    if n == 1:
+        return [fn(x) for x in items]
+    with ThreadPoolExecutor(n) as pool:
+        return list(pool.map(fn, items))

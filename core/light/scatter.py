@@ -72,13 +72,12 @@ K. D. Lathrop, "Ray effects in discrete ordinates equations", Nucl. Sci. Eng. 32
 
 import json
 import os
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from . import phase
-from ..threads import default_threads
+from ..threads import default_threads, thread_map
 from ..errors import DataError
 from ..files import atomic_write
 
@@ -293,11 +292,7 @@ def _sweep(sigma, h, dirs, wsub, emis, inflow, periodic, axis, cache=None, per_s
             _sweep_block(sig, geom, dirs[bs], wsub[bs], None if em is None else em[bs], inflow[bs],
                          kap, dlt, cache, ib, fresh, moms[t], recv, total, exit_power, bs, per_sub)
 
-    if nthreads == 1:
-        work(0)
-    else:
-        with ThreadPoolExecutor(nthreads) as pool:
-            list(pool.map(work, range(nthreads)))
+    thread_map(work, range(nthreads), nthreads)
     mom = None
     if moments:
         mom = moms[0]
@@ -1197,12 +1192,7 @@ def march_planes(sigma, source, size, camera, *, samples=1, background=0.0, chun
         return rad + trans * np.float32(background)
 
     chunks = [slice(s, min(s + chunk, len(d))) for s in range(0, len(d), chunk)]
-    n = max(1, min(int(threads or default_threads()), len(chunks)))
-    if n == 1:
-        parts = [run(sl) for sl in chunks]
-    else:
-        with ThreadPoolExecutor(n) as pool:
-            parts = list(pool.map(run, chunks))
+    parts = thread_map(run, chunks, threads)
     for sl, part in zip(chunks, parts):
         img[hit[sl]] = part
     return img.reshape(camera.height, camera.width)

@@ -39,7 +39,6 @@ References
    molecules as contour surfaces of sums of Gaussian ellipsoids).
 """
 
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -48,7 +47,7 @@ from ..surface import _mc_tables as tables
 from ..surface.contour import EDGE_MARGIN
 from ..errors import DataError
 from ..surface.mesh import Mesh, vertex_normals
-from ..threads import default_threads
+from ..threads import default_threads, thread_map
 
 BLOCK = 8
 """Nodes per block edge: 8 nodes at spacing sigma/4 span 2 sigma."""
@@ -389,13 +388,6 @@ def _find_blocks(b, grid, level, cut, cut_fine):
     return _Blocks(act_q, nbr, grid_start, grid_g, fine_start, fine_g, index.lo * BLOCK, index.dims * BLOCK)
 
 
-def _map(fn, items, threads):
-    if threads > 1 and len(items) > 1:
-        with ThreadPoolExecutor(threads) as pool:
-            return list(pool.map(fn, items))
-    return [fn(x) for x in items]
-
-
 def _chunks(n, size):
     return [(lo, min(lo + size, n)) for lo in range(0, n, size)]
 
@@ -446,7 +438,7 @@ def _node_values(b, grid, blocks, threads):
             acc[..., :n] += prod
         values[bl] = np.moveaxis(acc, 3, 0)
 
-    _map(run, _chunks(na, max(1, 4096 * 64 // B**3)), threads)
+    thread_map(run, _chunks(na, max(1, 4096 * 64 // B**3)), threads)
     return values
 
 
@@ -767,7 +759,7 @@ def _project(refiner, grid, blk, axis, node, t, a_above, level, tol, threads):
             else:
                 valid = live
 
-    _map(run, refiner.batches(blk[order]), threads)
+    thread_map(run, refiner.batches(blk[order]), threads)
     return pos, normal, flat, arg
 
 
@@ -896,7 +888,7 @@ def blobby_surface(
 
     et = _edge_tables()
     spans = _chunks(len(blocks.q), max(1, 512 * 512 // BLOCK**3))
-    parts = _map(lambda sp: _march(values, blocks, grid, level, sp, et), spans, threads)
+    parts = thread_map(lambda sp: _march(values, blocks, grid, level, sp, et), spans, threads)
     del values
     verts, faces, ref_base, ref_shift, rep_shift, n_own = _assemble(parts, len(et.face_slots))
 
