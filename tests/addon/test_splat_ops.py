@@ -7,6 +7,7 @@ bpy = pytest.importorskip("bpy")
 
 from nephele.addon import data_ops, splat_ops  # noqa: E402
 from nephele.addon.mesh import point_attribute  # noqa: E402
+from conftest import import_sheared_file  # noqa: E402
 from nephele.core.splats import Camera, render_splats, splat_kernel, splat_samples, streak_maps  # noqa: E402
 from nephele.core.volume.transfer import TransferFunction  # noqa: E402
 
@@ -230,25 +231,13 @@ def test_curvilinear_file_through_the_panel(empty_scene, tmp_path):
     """A 2-D lat/lon file (sheared columns, winds east/north) imported and splatted by its own variable name:
     the operator's points are the core's, and each splat's wind is the file's east/north wind turned into
     the scene at its own column."""
-    xr = pytest.importorskip("xarray")
-    ny, nx = 14, 18
-    lat, lon = np.meshgrid(np.linspace(38, 52, ny), np.linspace(-12, 8, nx), indexing="ij")
-    lon = lon + 0.3 * (lat - 45)  # sheared columns: not a lon/lat product grid
-    z = np.array([500.0, 1500.0, 3000.0, 6000.0, 9000.0])
-    q = np.exp(-((lat - 45) / 4) ** 2 - ((lon + 2) / 5) ** 2)[None] * np.exp(-((z[:, None, None] - 3000) / 2500) ** 2)
-    rep = lambda a: np.repeat(np.broadcast_to(a, (len(z), ny, nx))[None], 2, 0).astype(np.float32)  # noqa: E731
-    path = tmp_path / "curvilinear_winds.nc"
-    xr.Dataset(
-        {"Q": (("time", "z", "y", "x"), rep(q), {"units": "1"}),
-         "U": (("time", "z", "y", "x"), rep(np.full((ny, nx), 10.0)), {"units": "m s-1", "standard_name": "eastward_wind"}),
-         "V": (("time", "z", "y", "x"), rep(np.full((ny, nx), 5.0)), {"units": "m s-1", "standard_name": "northward_wind"})},
-        coords={"time": ("time", [0.0, 3.0], {"units": "hours since 2020-01-01", "standard_name": "time"}),
-                "z": ("z", z, {"units": "m", "standard_name": "height", "positive": "up"}),
-                "lat": (("y", "x"), lat, {"units": "degrees_north", "standard_name": "latitude"}),
-                "lon": (("y", "x"), lon, {"units": "degrees_east", "standard_name": "longitude"})},
-    ).to_netcdf(path)
+    import_sheared_file(tmp_path / "curvilinear_winds.nc", {
+        "Q": (lambda lat, lon, z: np.exp(-((lat - 45) / 4) ** 2 - ((lon + 2) / 5) ** 2) * np.exp(-((z - 3000) / 2500) ** 2),
+              {"units": "1"}),
+        "U": (lambda lat, lon, z: np.full(lat.shape, 10.0), {"units": "m s-1", "standard_name": "eastward_wind"}),
+        "V": (lambda lat, lon, z: np.full(lat.shape, 5.0), {"units": "m s-1", "standard_name": "northward_wind"})},
+        z=[500.0, 1500.0, 3000.0, 6000.0, 9000.0], lat=(38.0, 52.0), lon=(-12.0, 8.0), shape=(14, 18))
     scene = empty_scene
-    assert bpy.ops.nephele.import_dataset(kind="FILE", filepath=str(path)) == {"FINISHED"}
     assert data_ops.dataset(scene=scene).grid.curvilinear
     s = scene.nephele_splats
     s.var, s.threshold, s.full, s.color_var = "Q", 0.3, 0.9, "altitude"

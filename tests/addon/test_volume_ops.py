@@ -7,6 +7,7 @@ bpy = pytest.importorskip("bpy")
 
 from nephele.addon import data_ops, frame, volume_ops  # noqa: E402
 from nephele.fileio import read_grid  # noqa: E402
+from conftest import import_sheared_file  # noqa: E402
 from nephele.core.pipeline.sources import register_source  # noqa: E402
 from nephele.core.climate.dataset import ArrayDataset, hourly  # noqa: E402
 from nephele.core.volume.exact_ray import opacity, reference_optical_depth  # noqa: E402
@@ -335,22 +336,11 @@ def test_exact_mode_render_matches_the_reference_opacity(scene, tmp_path, grid):
 def test_curvilinear_file_bakes_both_modes_by_its_own_variable_name(empty_scene, tmp_path):
     """A 2-D lat/lon grid through the panel, exact mode (with its column index map) and voxels;
     the file's own name ('T') is accepted as for contours."""
-    xr = pytest.importorskip("xarray")
     ny, nx = 12, 16
-    lat, lon = np.meshgrid(np.linspace(40, 50, ny), np.linspace(-10, 5, nx), indexing="ij")
-    lon = lon + 0.3 * (lat - 45)  # sheared columns: not a lon/lat product grid
-    z = np.array([500.0, 1500.0, 3000.0, 6000.0])
-    t = (300.0 - 0.0065 * z[:, None, None] - 0.3 * (lat[None] - 45.0))[None].repeat(2, 0).astype(np.float32)
-    path = tmp_path / "curvilinear.nc"
-    xr.Dataset(
-        {"T": (("time", "z", "y", "x"), t, {"units": "K"})},
-        coords={"time": ("time", [0.0, 3.0], {"units": "hours since 2020-01-01", "standard_name": "time"}),
-                "z": ("z", z, {"units": "m", "standard_name": "height", "positive": "up"}),
-                "lat": (("y", "x"), lat, {"units": "degrees_north", "standard_name": "latitude"}),
-                "lon": (("y", "x"), lon, {"units": "degrees_east", "standard_name": "longitude"})},
-    ).to_netcdf(path)
+    import_sheared_file(tmp_path / "curvilinear.nc", {
+        "T": (lambda lat, lon, z: 300.0 - 0.0065 * z - 0.3 * (lat - 45.0), {"units": "K"})},
+        z=[500.0, 1500.0, 3000.0, 6000.0], shape=(ny, nx))
     scene = empty_scene
-    assert bpy.ops.nephele.import_dataset(kind="FILE", filepath=str(path)) == {"FINISHED"}
     assert data_ops.dataset(scene=scene).grid.curvilinear
     s = scene.nephele_volume
     s.var, s.color_var, s.mode = "T", "", volume_ops.EXACT
