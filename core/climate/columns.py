@@ -189,6 +189,22 @@ class ColumnLocator:
             out_i[todo], out_j[todo] = fi, fj
         return out_i, out_j
 
+    def continued(self, xyz):
+        """``(i, j)`` as :meth:`__call__` inside the grid; outside, the bilinear map of the
+        nearest column's cell continued past the edge (no ``-1``: for lookups that must
+        interpolate across the edge, e.g. the exact volume mode's index map)."""
+        xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
+        fi, fj = self(xyz)
+        out = fi < 0
+        if out.any():
+            i, j = self.nearest(xyz[out])
+            nj, ni = self.shape
+            i0, j0 = np.clip(i, 0, ni - 2), np.clip(j, 0, nj - 2)
+            xy = self.chart(xyz[out])
+            s, t = self._invert(xy[:, 0], xy[:, 1], j0, i0)
+            fi[out], fj[out] = i0 + s, j0 + t
+        return fi, fj
+
     def _search(self, xy, todo):
         """Fractional ``(i, j)`` of chart points ``xy`` by trying the cells around their nearest columns; -1 outside."""
         n = xy.shape[0]

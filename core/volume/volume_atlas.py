@@ -210,14 +210,7 @@ def index_map(columns, texels=INDEX_TEXELS, most=MAX_INDEX):
     gx = lo[0] + (np.arange(m[0]) + 0.5) * step[0]
     gy = lo[1] + (np.arange(m[1]) + 0.5) * step[1]
     X, Y = (a.ravel() for a in np.meshgrid(gx, gy))
-    pts = np.stack([X, Y, np.ones_like(X)], axis=1) @ columns.basis
-    fi, fj = columns(pts)
-    out = fi < 0
-    if out.any():
-        i, j = columns.nearest(pts[out])
-        i0, j0 = np.clip(i, 0, ni - 2), np.clip(j, 0, nj - 2)
-        s, t = columns._invert(X[out], Y[out], j0, i0)
-        fi[out], fj[out] = i0 + s, j0 + t
+    fi, fj = columns.continued(np.stack([X, Y, np.ones_like(X)], axis=1) @ columns.basis)
     img = np.zeros((m[1], m[0], 4), np.float32)
     img[..., 0] = fi.reshape(m[1], m[0])
     img[..., 1] = fj.reshape(m[1], m[0])
