@@ -398,7 +398,7 @@ def _node_values(b, grid, blocks, threads):
     na = len(blocks.q)
     count = np.diff(blocks.grid_start)
     perm = np.argsort(-count, kind="stable")  # most Gaussians first: rank r's blocks are a prefix
-    values = np.zeros((na, B, B, B), _F32)
+    values = np.empty((na, B, B, B), _F32)  # (every block is written once)
     u = [np.arange(B) * grid.h[a] for a in range(3)]
     uu = [x * x for x in u]
     uxy = (u[1][:, None] * u[0][None, :]).astype(_F32)[:, :, None]  # [j, i]
@@ -408,34 +408,41 @@ def _node_values(b, grid, blocks, threads):
     def run(span):
         bl = perm[span[0] : span[1]]
         cnt = count[bl]
+        # The chunk's (block, Gaussian) pairs rank by rank: rank r's pairs are those of blocks bl[:n_r].
+        rank, at = np.nonzero(np.arange(int(cnt[0]))[:, None] < cnt[None, :])
+        ends = np.cumsum(np.bincount(rank))
+        g = blocks.grid_g[blocks.grid_start[bl[at]] + rank]
+        rel = b.c[g] - blocks.q[bl[at]] * grid.size
+        a6 = b.a[g]
+        ar = _amul(a6, rel)
+        const = b.lnw[g] - 0.5 * np.einsum("ni,ni->n", rel, ar)
+        # exponent(k, j, i) = const + u.Ar - 1/2 u^T A u, split into (j,i), (k,i), (k,j) tables.
+        ai = (u[0][:, None] * ar[:, 0] - 0.5 * uu[0][:, None] * a6[:, 0]).astype(_F32)
+        bj = (u[1][:, None] * ar[:, 1] - 0.5 * uu[1][:, None] * a6[:, 1] + const).astype(_F32)
+        ck = (u[2][:, None] * ar[:, 2] - 0.5 * uu[2][:, None] * a6[:, 2]).astype(_F32)
+        a32 = a6.astype(_F32)
+        eji = bj[:, None, :] + ai[None, :, :] - uxy * a32[:, 3]
+        eki = -uxz * a32[:, 4]
+        ekj = ck[:, None, :] - uyz * a32[:, 5]
+        # The three factors' exponents may exceed float32's exp range although their sum (<= ln w) does
+        # not (strongly sheared Gaussians): such Gaussians take the exponent's sum and one exp.
+        big = (eji.max(axis=(0, 1)) > _EXP_MAX) | (eki.max(axis=(0, 1)) > _EXP_MAX) | (ekj.max(axis=(0, 1)) > _EXP_MAX)
+        clamp = (lambda e: np.minimum(e, _EXP_MAX)) if big.any() else (lambda e: e)
+        tji, tki, tkj = np.exp(clamp(eji)), np.exp(clamp(eki)), np.exp(clamp(ekj))
         acc = np.zeros((B, B, B, len(bl)), _F32)
-        for r in range(int(cnt[0]) if len(cnt) else 0):
-            n = int(np.count_nonzero(cnt > r))
-            g = blocks.grid_g[blocks.grid_start[bl[:n]] + r]
-            x0 = blocks.q[bl[:n]] * grid.size
-            rel = b.c[g] - x0
-            a6 = b.a[g]
-            ar = _amul(a6, rel)
-            const = b.lnw[g] - 0.5 * np.einsum("ni,ni->n", rel, ar)
-            # exponent(k, j, i) = const + u.Ar - 1/2 u^T A u, split into (j,i), (k,i), (k,j) tables.
-            ai = (u[0][:, None] * ar[:, 0] - 0.5 * uu[0][:, None] * a6[:, 0]).astype(_F32)
-            bj = (u[1][:, None] * ar[:, 1] - 0.5 * uu[1][:, None] * a6[:, 1] + const).astype(_F32)
-            ck = (u[2][:, None] * ar[:, 2] - 0.5 * uu[2][:, None] * a6[:, 2]).astype(_F32)
-            a32 = a6.astype(_F32)
-            eji = bj[:, None, :] + ai[None, :, :] - uxy * a32[:, 3]
-            eki = -uxz * a32[:, 4]
-            ekj = ck[:, None, :] - uyz * a32[:, 5]
-            # The three factors' exponents may exceed float32's exp range although their sum (<= ln w) does
-            # not (strongly sheared Gaussians): such Gaussians take the exponent's sum and one exp.
-            big = (eji.max(axis=(0, 1)) > _EXP_MAX) | (eki.max(axis=(0, 1)) > _EXP_MAX) | (ekj.max(axis=(0, 1)) > _EXP_MAX)
-            tji = np.exp(np.minimum(eji, _EXP_MAX))
-            tki = np.exp(np.minimum(eki, _EXP_MAX))
-            tkj = np.exp(np.minimum(ekj, _EXP_MAX))
-            prod = tkj[:, :, None, :] * tki[:, None, :, :]
-            prod *= tji[None]
-            if big.any():
-                prod[..., big] = np.exp(ekj[:, :, None, big] + eki[:, None, :, big] + eji[None, :, :, big])
-            acc[..., :n] += prod
+        prod = np.empty_like(acc)
+        lo = 0
+        for hi in ends:
+            n = hi - lo
+            p = prod[..., :n]
+            np.multiply(tkj[:, :, None, lo:hi], tki[:, None, :, lo:hi], out=p)
+            np.multiply(p, tji[None, :, :, lo:hi], out=p)
+            sel = np.flatnonzero(big[lo:hi])
+            if len(sel):
+                s = lo + sel
+                p[..., sel] = np.exp(ekj[:, :, None, s] + eki[:, None, :, s] + eji[None, :, :, s])
+            np.add(acc[..., :n], p, out=acc[..., :n])
+            lo = hi
         values[bl] = np.moveaxis(acc, 3, 0)
 
     thread_map(run, _chunks(na, max(1, 4096 * 64 // B**3)), threads)
@@ -491,6 +498,7 @@ class _Chunk:
     axis: np.ndarray  # (v,) edge axis 0..2 (x, y, z)
     node: np.ndarray  # (v, 3) lower node (global integer, x y z)
     t: np.ndarray  # (v,) initial edge parameter
+    curv: np.ndarray  # (v,) d^2 f / dt^2 along the edge (t: the edge parameter), estimated from node values, or NaN
     a_above: np.ndarray  # (v,) lower node above the level
     faces: np.ndarray  # (T, 3) >= 0: local vertex; < 0: -(1 + reference)
     ref_owner: np.ndarray  # (r,) active block owning the edge, or -1 (duplicate vertex in this chunk)
@@ -536,13 +544,16 @@ def _march(values, blocks, grid, level, span, et):
 
     # Own vertices: edge ends read from the extended block.
     vb, rest = np.divmod(own, 3 * E**3)
-    vax, rest = np.divmod(rest, E**3)
+    vax, rest_own = np.divmod(rest, E**3)
+    rest = rest_own
     flat = ext.reshape(-1)
     va = flat[vb * E**3 + rest]
     vz = flat[vb * E**3 + rest + np.array([1, E, E * E])[vax]]
     vk, rest = np.divmod(rest, E * E)
     vj, vi = np.divmod(rest, E)
-    node = blocks.q[bl[vb]] * B + np.stack([vi, vj, vk], axis=1)
+    vijk = np.stack([vi, vj, vk], axis=1)
+    vcoord = vijk[np.arange(len(vax)), vax]
+    node = blocks.q[bl[vb]] * B + vijk
 
     # Ghost edges: owned by a neighbour (refer to its face store) or, if it is inactive, by nobody.
     gb, rest = np.divmod(ghost, 3 * E**3)
@@ -595,10 +606,46 @@ def _march(values, blocks, grid, level, span, et):
     with np.errstate(divide="ignore", invalid="ignore"):
         t = (level - va64) / (vz.astype(np.float64) - va64)
     t = np.clip(np.where(np.isfinite(t), t, 0.5), EDGE_MARGIN, 1 - EDGE_MARGIN)
+    t_own, curv = _edge_guess(flat, vb * E**3 + rest_own, vax, vcoord, blocks.nbr[bl[vb], 1 << vax] >= 0, level, t[:n_owned])
+    t[:n_owned] = t_own
+    curv = np.concatenate([curv, np.full(len(t) - n_owned, np.nan)]).astype(_F32)
     return _Chunk(
-        vblk, vaxis, vnode, t, va >= lvl, faces, np.where(owner < 0, -1, owner), ref_slot, shift, n_owned, dup_key, dup_shift,
-        face_key, on_face,
+        vblk.astype(np.int32), vaxis.astype(np.int8), vnode.astype(np.int32), t, curv, va >= lvl, faces, np.where(owner < 0, -1, owner), ref_slot, shift, n_owned, dup_key,
+        dup_shift, face_key, on_face,
     )
+
+
+def _edge_guess(flat, at, axis, coord, beyond_real, level, t):
+    """A vertex's edge parameter from the cubic (or, at a block's edge, quadratic) through the node values
+    along its edge, and that polynomial's second derivative d^2 f / dt^2 there (NaN where the
+    nodes needed are not all computed).  ``at``: the lower node's index in ``flat``; ``coord`` its
+    coordinate along the edge within the block; ``beyond_real``: the next block along the edge is active."""
+    B, E = BLOCK, BLOCK + 1
+    stride = np.array([1, E, E * E])[axis]
+    up1 = (coord + 1 < B) | beyond_real
+    has_m = coord >= 1
+    has_p2 = (coord + 2 < B) | ((coord + 2 == B) & beyond_real)
+    ok = up1 & (has_m | has_p2)
+    f64 = np.float64
+    fm = flat[np.where(has_m, at - stride, at)].astype(f64)
+    f0 = flat[at].astype(f64)
+    f1 = flat[at + stride].astype(f64)
+    f2 = flat[np.where(has_p2, at + 2 * stride, at)].astype(f64)
+    # p(t) = c0 + c1 t + c2 t^2 + c3 t^3 through nodes -1, 0, 1, 2 (or the three of them there are).
+    c0 = f0 - level
+    c2 = np.where(has_m, 0.5 * (fm + f1) - f0, 0.5 * (f0 + f2) - f1)
+    c3 = np.where(has_m & has_p2, (f2 - fm) / 6 + 0.5 * (f0 - f1), 0.0)
+    c1 = f1 - f0 - c2 - c3
+    t_lin = t
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for _ in range(2):  # Newton on the polynomial from the linear guess: to well below its own error
+            p = c0 + t * (c1 + t * (c2 + t * c3))
+            dp = c1 + t * (2 * c2 + 3 * t * c3)
+            t = np.clip(t - p / dp, EDGE_MARGIN, 1 - EDGE_MARGIN)
+    p = c0 + t * (c1 + t * (c2 + t * c3))
+    dp = c1 + t * (2 * c2 + 3 * t * c3)
+    ok &= np.abs(p) <= 1e-3 * np.abs(dp)  # a root of the polynomial on the edge (NaN: False)
+    return np.where(ok, t, t_lin), np.where(ok, 2 * c2 + 6 * t * c3, np.nan)
 
 
 def _edge_key(node, axis, blocks):
@@ -614,29 +661,17 @@ class _Refiner:
     Per (block, Gaussian) pair the exponent is a quadratic in the point's offset
     ``u`` from the block's first node: 10 coefficients, so a batch of blocks
     with the same number of Gaussians is one batched matrix product; a second
-    one sums ``e_g [A_g, A_g r_g]``: the gradient (finished in float64, where it cancels).
+    one sums ``e_g [A_g, A_g r_g]``: the gradient (finished in float64, where
+    it cancels).  The coefficients are made per batch (:meth:`gather`).
     """
 
     BUDGET = 1 << 18  # (vertex, Gaussian) products per batch
     PAD = 1.2  # vertex counts of a batch's blocks within this factor: little padding
 
     def __init__(self, b, grid, blocks):
-        self.blocks = blocks
+        self.b, self.blocks = b, blocks
         self.count = np.diff(blocks.fine_start)
         self.x0 = blocks.q * grid.size
-        g = blocks.fine_g
-        rel = b.c[g] - np.repeat(self.x0, self.count, axis=0)
-        a6 = b.a[g]
-        ar = _amul(a6, rel)
-        coef = np.empty((len(g), 10), _F32)
-        coef[:, 0:3] = -0.5 * a6[:, 0:3]
-        coef[:, 3:6] = -a6[:, 3:6]
-        coef[:, 6:9] = ar
-        coef[:, 9] = b.lnw[g] - 0.5 * np.einsum("ni,ni->n", rel, ar)
-        kern = np.empty((len(g), 9), _F32)
-        kern[:, 0:6] = a6
-        kern[:, 6:9] = ar
-        self.coef, self.kern, self.src = coef, kern, b.src[g]
 
     def batches(self, blk):
         """Vertices sorted by block ``blk`` in padded batches ``(vid (nbt, vmax), nv (nbt,), ub (nbt,))``
@@ -660,9 +695,21 @@ class _Refiner:
         return out
 
     def gather(self, ub):
-        """Rows of the blocks' Gaussians (nbt, G) and their coefficients, ready for :meth:`evaluate`."""
-        rows = self.blocks.fine_start[ub][:, None] + np.arange(int(self.count[ub[0]]))
-        return rows, self.coef[rows].transpose(0, 2, 1), self.kern[rows]
+        """The blocks' Gaussians (nbt, G) (input indices) and their coefficients, ready for :meth:`evaluate`."""
+        g = self.blocks.fine_g[self.blocks.fine_start[ub][:, None] + np.arange(int(self.count[ub[0]]))]
+        b = self.b
+        rel = b.c[g] - self.x0[ub][:, None, :]
+        a6 = b.a[g]
+        ar = _amul(a6, rel)
+        coef = np.empty(g.shape + (10,), _F32)
+        coef[..., 0:3] = -0.5 * a6[..., 0:3]
+        coef[..., 3:6] = -a6[..., 3:6]
+        coef[..., 6:9] = ar
+        coef[..., 9] = b.lnw[g] - 0.5 * np.einsum("...i,...i", rel, ar)
+        kern = np.empty(g.shape + (9,), _F32)
+        kern[..., 0:6] = a6
+        kern[..., 6:9] = ar
+        return b.src[g], coef.transpose(0, 2, 1), kern
 
     @staticmethod
     def evaluate(u, coef, kern):
@@ -697,8 +744,12 @@ def _compact(live, per_vertex, per_row):
     return valid, [a[sb, sv] for a in per_vertex], [a[bi[first]] for a in per_row]
 
 
-def _project(refiner, grid, blk, axis, node, t, a_above, level, tol, threads):
+def _project(refiner, grid, blk, axis, node, t, curv, a_above, level, tol, threads):
     """Slide vertices along their edges onto f = level: Newton steps, bisection when one leaves the bracket.
+
+    A vertex is done when its first-order distance is below ``tol``, or after a Newton step whose
+    second-order error, ``|f''| dt^2 / 2`` with ``f''`` the node values' estimate ``curv``, is below
+    a quarter of it: then its normal and Gaussian come from the point the step started from.
 
     A batch of blocks (:meth:`_Refiner.batches`) iterates together; the vertices still moving
     are packed together whenever they are fewer than half.  Returns positions (float64), unit
@@ -710,17 +761,17 @@ def _project(refiner, grid, blk, axis, node, t, a_above, level, tol, threads):
     pos = np.empty((n, 3))
     normal = np.empty((n, 3), _F32)
     flat = np.empty(n, bool)
-    arg = np.empty(n, np.int64)
+    arg = np.empty(n, np.int32)
 
     def run(batch):
         vid, nv, ub = batch
         vid = order[vid]  # the caller's vertex numbers
-        rows, coef, kern = refiner.gather(ub)
+        src, coef, kern = refiner.gather(ub)
         valid = np.arange(vid.shape[1]) < nv[:, None]
         ax = axis[vid]
         base = grid.coords(node[vid])
         u0 = base - refiner.x0[ub][:, None, :]
-        st, ab, tt = grid.h[ax], a_above[vid], t[vid]  # ab: f - level >= 0 at the lower node
+        st, ab, tt, cv = grid.h[ax], a_above[vid], t[vid], np.abs(curv[vid])  # ab: f - level >= 0 at the lower node
         lo, hi = np.zeros(vid.shape), np.ones(vid.shape)
         for it in range(NEWTON_STEPS + 1):
             along = np.arange(0, u0.size, 3) + ax.reshape(-1)  # the edge's coordinate in (..., 3) rows
@@ -728,9 +779,12 @@ def _project(refiner, grid, blk, axis, node, t, a_above, level, tol, threads):
             u.reshape(-1)[along] += (tt * st).reshape(-1)
             f, g, e = refiner.evaluate(u, coef, kern)
             live = np.zeros(vid.shape, bool)
+            final = tt
+            gn = np.sqrt(np.einsum("...i,...i", g, g))
             if it < NEWTON_STEPS:
                 diff = f - level
-                go = valid & (np.abs(diff) >= tol * np.maximum(np.sqrt(np.einsum("...i,...i", g, g)), 1e-300))
+                slack = tol * np.maximum(gn, 1e-300)
+                go = valid & (np.abs(diff) >= slack)
                 side = (diff > 0) == ab  # still on the lower node's side
                 lo = np.where(go & side, tt, lo)
                 hi = np.where(go & ~side, tt, hi)
@@ -738,24 +792,26 @@ def _project(refiner, grid, blk, axis, node, t, a_above, level, tol, threads):
                     new = tt - diff / (g.reshape(-1)[along].reshape(tt.shape) * st)
                 good = (new > lo) & (new < hi)  # False for NaN
                 new = np.clip(np.where(good, new, 0.5 * (lo + hi)), EDGE_MARGIN, 1 - EDGE_MARGIN)
-                live = go & (new != tt)
+                settled = good & (2 * cv * (new - tt) ** 2 < slack)  # False for NaN
+                final = np.where(go & settled, new, tt)
+                live = go & (new != tt) & ~settled
             done = np.flatnonzero(valid & ~live)
             ids = vid.reshape(-1)[done]
             p = base.reshape(-1, 3)[done]
-            p[np.arange(len(done)), ax.reshape(-1)[done]] += (tt * st).reshape(-1)[done]
+            p[np.arange(len(done)), ax.reshape(-1)[done]] += (final * st).reshape(-1)[done]
             pos[ids] = p
             gd = g.reshape(-1, 3)[done]
-            norm = np.linalg.norm(gd, axis=1)
+            norm = gn.reshape(-1)[done]
             normal[ids] = -gd / np.where(norm > 0, norm, 1.0)[:, None]
             flat[ids] = norm <= 0
             best = e.reshape(-1, e.shape[-1])[done].argmax(axis=1)
-            arg[ids] = refiner.src[rows[done // vid.shape[1], best]]
+            arg[ids] = src[done // vid.shape[1], best]
             if not live.any():
                 break
             tt = np.where(live, new, tt)
             if 2 * np.count_nonzero(live) < live.size:
-                valid, (vid, ax, base, u0, st, ab, tt, lo, hi), (rows, coef, kern) = _compact(
-                    live, (vid, ax, base, u0, st, ab, tt, lo, hi), (rows, coef, kern))
+                valid, (vid, ax, base, u0, st, ab, tt, cv, lo, hi), (src, coef, kern) = _compact(
+                    live, (vid, ax, base, u0, st, ab, tt, cv, lo, hi), (src, coef, kern))
             else:
                 valid = live
 
@@ -778,11 +834,10 @@ def _assemble(parts, nslot):
     dup_index = dup_index.reshape(-1)
 
     def field(name):
-        own = np.concatenate([getattr(p, name)[: p.n_owned] for p in parts])
         dup = np.concatenate([getattr(p, name)[p.n_owned :] for p in parts])
-        return np.concatenate([own, dup[rep]])
+        return np.concatenate([getattr(p, name)[: p.n_owned] for p in parts] + [dup[rep]])
 
-    verts = tuple(field(name) for name in ("blk", "axis", "node", "t", "a_above"))
+    verts = tuple(field(name) for name in ("blk", "axis", "node", "t", "curv", "a_above"))
     rep_shift = np.concatenate([p.dup_shift for p in parts])[rep]
 
     ntri = np.cumsum([0] + [len(p.faces) for p in parts])
