@@ -86,21 +86,20 @@ NB = phase.NBINS
 
 # --------------------------------------------------------------------------- sweeps
 
-# The sweeps spend their time in transcendental functions over (beams x plane) arrays:
-# NumPy's float32 ``exp`` is vectorised (~1 ns per value here) while ``expm1`` and ``tanh``
-# are not (15-30x slower), so everything below is written with ``exp`` alone and short
-# series where ``1 - exp(-x)`` would cancel.
+# The sweeps spend their time in elementwise functions over (beams x plane) float32 arrays,
+# at a few tenths of a ns per value each: NumPy's float32 ``exp``, ``expm1`` and ``tanh`` are
+# all vectorised (0.35-0.5 ns per value here, NumPy 1.26 and 2.5) while ``np.where`` costs
+# 2-3 ns and a Python float operand makes float32 arithmetic ~3x slower than a float32 one.
+# So the helpers below use ``expm1``/``tanh`` instead of series behind ``where``, and
+# float32 constants.
 
 def _phi(x):
-    """``(1 - exp(-x)) / x`` for ``x >= 0`` (1 at 0), overflow-safe, in ``x``'s float type.
-
-    Below 0.1 the series to ``x^3`` (error < ``x^4 / 120`` = 1e-6); above, ``1 - exp(-x)``
-    loses at most 6e-8 / 0.095 relative in float32.
-    """
-    small = x < 0.1
-    xs = np.where(small, 1.0, x)
-    big = (1.0 - np.exp(-xs)) / xs
-    return np.where(small, 1.0 - x * (0.5 - x * (1.0 / 6.0 - x * (1.0 / 24.0))), big)
+    """``(1 - exp(-x)) / x`` for ``x >= 0`` (1 at 0), in ``x``'s float type: ``-expm1(-x) / x``
+    (about 1 ulp; ``x`` raised to the smallest normal number so 0 gives 1)."""
+    x = np.asarray(x)
+    t = x.dtype.type if x.dtype.kind == "f" else np.float64
+    n = -np.maximum(x, t(np.finfo(t).tiny))
+    return np.expm1(n) / n
 
 
 def _transport_factors(tau):
@@ -116,7 +115,8 @@ def _exp_source_escape(tau, beta):
     ``phi(x) = (1 - e^-x) / x`` so no exponential overflows for any ``beta`` (either
     sign) or ``tau``.  ``beta = 0`` gives the uniform source's ``(1 - e^-tau) / tau``.
     """
-    return np.exp(np.minimum(0.0, beta) - np.minimum(tau, beta)) * _phi(np.abs(beta - tau)) / _phi(np.abs(beta))
+    zero = np.asarray(beta).dtype.type(0)
+    return np.exp(np.minimum(beta, zero) - np.minimum(tau, beta)) * _phi(np.abs(beta - tau)) / _phi(np.abs(beta))
 
 
 class _Shifter:
@@ -202,25 +202,36 @@ def _offset(kappa):
     """Centroid offset ``1/k - 1/(e^k - 1) - 1/2 = 1/k - 1/(2 tanh(k/2))`` (in ``(-1/2, 1/2)``,
     odd in ``k``) of a source ``exp(-k u)`` on ``u in [0, 1]``; overflow-safe for any ``k``.
 
-    ``1/(2 tanh(k/2)) = (1 + e^-|k|) / (2 (1 - e^-|k|))``; below ``|k| = 0.5`` the series
+    From ``|k| = 0.5`` on the tanh form (float32 error < 3e-7); below it the series
     ``-k/12 + k^3/720 - k^5/30240`` (error < 7e-9) avoids the cancellation.
     """
-    a = np.abs(kappa)
-    small = a < 0.5
-    k = np.where(small, 1.0, a)
-    e = np.exp(-k)
-    big = np.sign(kappa) * (1.0 / k - 0.5 * (1.0 + e) / (1.0 - e))
-    k2 = kappa * kappa
-    return np.where(small, kappa * (-1.0 / 12.0 + k2 * (1.0 / 720.0 - k2 * (1.0 / 30240.0))), big)
+    k = np.asarray(kappa)
+    f = k.dtype.type if k.dtype.kind == "f" else np.float64
+    a = np.abs(k)
+    kc = np.copysign(np.maximum(a, f(0.5)), k)
+    big = f(1) / kc - f(0.5) / np.tanh(f(0.5) * kc)
+    k2 = k * k
+    series = k * (f(-1 / 12) + k2 * (f(1 / 720) - k2 * f(1 / 30240)))
+    return big + (a < f(0.5)) * (series - big)  # a blend, not np.where (~3 ns per value)
 
 
 _KGRID = np.sinh(np.linspace(-np.arcsinh(400.0), np.arcsinh(400.0), 2001))
 _OGRID = _offset(_KGRID)
+# the inverse tabulated on 2^16 equal steps of the offset, for a lookup without a search
+# (np.interp's binary search: 75 ns per value; this: a few); |rate| <= 400 as on _KGRID
+_DLO, _DHI = float(_OGRID[-1]), float(_OGRID[0])
+_DSCALE = np.float32((1 << 16) / (_DHI - _DLO))
+_RTAB = np.interp(-(_DLO + np.arange((1 << 16) + 2) * (_DHI - _DLO) / (1 << 16)), -_OGRID, _KGRID).astype(np.float32)
+_RSTEP = np.diff(_RTAB)
 
 
 def _rate_of_offset(delta):
-    """Inverse of :func:`_offset`: the exponential rate whose source has centroid offset ``delta``."""
-    return np.interp(-delta, -_OGRID, _KGRID).astype(np.float32)
+    """Inverse of :func:`_offset`: the exponential rate (float32) whose source has centroid offset
+    ``delta``; linear between 2^16 + 1 tabulated offsets (``_offset`` of the result is within
+    1.5e-6 of ``delta`` for ``|delta| < 0.49``, as with np.interp on ``_KGRID``)."""
+    x = (np.clip(np.asarray(delta, np.float32), np.float32(_DLO), np.float32(_DHI)) - np.float32(_DLO)) * _DSCALE
+    i = x.astype(np.int32)
+    return _RTAB[i] + (x - i.astype(np.float32)) * _RSTEP[i]
 
 
 _BLOCK = 1 << 16  # values per beam-block layer (a few hundred kB per temporary)
@@ -332,6 +343,7 @@ def _sweep_block(sig, geom, dirs, wsub, em, inflow, kap, dlt, cache, ib, fresh, 
     beam = shifter.start()
     w = wsub.reshape(g, ns, 1, 1)
     ell32 = ell.astype(np.float32)[:, None, None]
+    f0, f1 = np.float32(0), np.float32(1)
     order = range(L) if sign > 0 else range(L - 1, -1, -1)
     for n, k in enumerate(order):
         if n:  # move to this layer: bilinear transverse shift, inflow outside the grid
@@ -351,23 +363,27 @@ def _sweep_block(sig, geom, dirs, wsub, em, inflow, kap, dlt, cache, ib, fresh, 
             offb = _offset(tau) if mom is not None else None
             if cache is not None:
                 cache[(ib, k)] = (t, offb)
+        bt = bm * t
         if em is None:
-            r = bm * (1.0 - t)
-            beam[box] = bm * t
+            r = bm - bt
+            beam[box] = bt
         else:
             if kap is not None:
                 if cache is not None and ("p", ib, k) in cache and not (fresh is None or fresh):
                     esc, shift = cache[("p", ib, k)]
                 else:
                     beta = (cross @ kap[:, k, wa, wb].reshape(3, -1)).reshape(sh)
-                    esc = np.clip(_exp_source_escape(tau, beta), 0.0, 1.0)
+                    esc = np.clip(_exp_source_escape(tau, beta), f0, f1)
                     if mom is not None:
                         # what a source keeps sits downstream of it: with v_s its centroid along
                         # the path, the photons' mean end point v_s + (1 - esc) / tau (escapers
                         # stop at 1) gives the kept part's centroid x = (v_s - esc) / (1 - esc) + 1 / tau
-                        vs = 0.5 + _offset(beta)
-                        kept = np.maximum(1.0 - esc, 1e-30)
-                        shift = np.where(tau < 1e-2, 1.0 / 6.0, (vs - esc) / kept + 1.0 / np.maximum(tau, 1e-2) - vs)
+                        vs = _offset(beta) + np.float32(0.5)
+                        kept = np.maximum(f1 - esc, np.float32(1e-30))
+                        shift = (vs - esc) / kept + f1 / np.maximum(tau, np.float32(1e-2)) - vs
+                        # thin (tau < 0.01): the limit 1/6; the clip keeps the blend finite
+                        shift = np.clip(shift, -f1, f1)
+                        shift += (tau < np.float32(1e-2)) * (np.float32(1 / 6) - shift)
                     else:
                         shift = None
                     if cache is not None and fresh is not None:
@@ -375,10 +391,11 @@ def _sweep_block(sig, geom, dirs, wsub, em, inflow, kap, dlt, cache, ib, fresh, 
             else:
                 esc = _phi(tau)
             e = (em[:, k, wa, wb][:, None] * w).reshape(sh)
-            rb = bm * (1.0 - t)
-            re = e * (1.0 - esc)
+            rb = bm - bt
+            ee = e * esc
+            re = e - ee
             r = rb + re
-            beam[box] = bm * t + e * esc
+            beam[box] = bt + ee
             total[bs, k, wa, wb] += e.reshape((g, ns) + sh[1:]).sum(1)
         if mom is not None:
             rb = r if em is None else rb
@@ -577,10 +594,46 @@ def _scatter_into(unshot, m_cols, recv, albedo, chunk=1 << 16):
         u[:, s:s + chunk] += m @ r[:, s:s + chunk].astype(np.float32)
 
 
+MERGE_TOL = 0.0
+
+
+def _quarters(first_sub, sub):
+    """Indices (sub*sub, k*k) of the ``first_sub``-side sub-squares of a bin in each of its
+    ``sub x sub`` quarters (``k = first_sub // sub``); an empty array when ``sub`` does not
+    divide ``first_sub`` into bigger parts (nothing to merge)."""
+    k = first_sub // sub
+    if sub < 1 or k < 2 or k * sub != first_sub:
+        return np.zeros((0, 0), int)
+    return np.arange(first_sub ** 2).reshape(sub, k, sub, k).transpose(0, 2, 1, 3).reshape(sub * sub, k * k)
+
+
+def _fine_bins(flux, kids, tol):
+    """Which bins keep all their sub-directions: all but the weakest, as many of those as
+    hold at most ``tol`` of the power of all ``flux`` (96,) together (those are merged by
+    quarters, :func:`_merge_quarters`); all when there is nothing to merge (``kids`` empty)."""
+    fine = np.ones(len(flux), bool)
+    if kids.size == 0 or tol <= 0:
+        return fine
+    order = np.argsort(flux, kind="stable")
+    fine[order[np.cumsum(flux[order]) <= tol * float(np.sum(flux))]] = False
+    return fine
+
+
+def _merge_quarters(dirs, weights, ushare, kids):
+    """Merge the sub-directions of bins (g, s*s, 3) by quarters: the directions (g, q, 3)
+    at each quarter's weighted mean, their weights (g, q), and each sub-direction's share
+    of its quarter (g, q, k*k) (solid-angle shares in an unlit quarter)."""
+    w, u = weights[:, kids], ushare[:, kids]
+    wsum = w.sum(2, keepdims=True)
+    share = np.where(wsum > 0, w / np.where(wsum > 0, wsum, 1.0), u / u.sum(2, keepdims=True))
+    d = (dirs[:, kids] * share[..., None]).sum(2)
+    return d / np.linalg.norm(d, axis=-1, keepdims=True), wsum[..., 0], share
+
+
 def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun_irradiance=1.0,
                 sky_radiance=0.0, tol=1e-3, max_passes=100, sub=2, periodic=(False, False, False),
                 delta_m=True, phase_sub=6, first_sub=4, source_profile=True,
-                peaked_orders=2, real_orders=1, profile_every=1, extrapolate=True):
+                peaked_orders=2, real_orders=1, profile_every=1, extrapolate=True, merge_tol=MERGE_TOL):
     """The shooting solve as a generator: yields :class:`Progress` after each group of bins,
     returns the :class:`Solution` (``StopIteration.value``; :func:`solve` unwraps it).
 
@@ -704,9 +757,6 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
     fdirs = phase.bins(first_sub)[2]
     m_sub = phase.sub_phase_matrix(g_s, first_sub)  # (96, 96, first_sub**2)
     m_real = phase.sub_phase_matrix(g, first_sub) if real_orders > 0 else None
-    # bins per sweep: <= 256 MB of float32; more bins make fewer, larger products in
-    # _scatter_into (128x128x96 cloud: 2 -> 8 bins, its first-pass time 26 -> 15 s at load 3-5)
-    per = max(1, (1 << 26) // (fdirs.shape[1] * sigma.size))
 
     # Where inside its voxel the unshot light sits (issue 18): light is caught mostly
     # near the face it entered by, so a thick voxel's scattered light escapes more
@@ -738,29 +788,48 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
     else:
         sun_profile = None
 
-    def shoot_peaked(emission, weights, prof, real):
+    kids = _quarters(first_sub, sub)
+    ushare = phase.bins(first_sub)[3] / phase.bins(first_sub)[1][:, None]
+
+    def shoot_peaked(emission, weights, prof, real, flux):
         """Shoot ``emission(bins)`` on the sub-directions with ``weights`` and the voxel
         source profile ``prof``; scatter per sub-direction.  ``real``: fly in the real
-        medium and scatter with the full HG(g) (else the delta-M scaled medium)."""
+        medium and scatter with the full HG(g) (else the delta-M scaled medium).
+        ``flux`` (96,): the power of each bin, which picks the bins swept on all
+        sub-directions (:func:`_fine_bins`); the others are swept merged by quarters."""
         rec = np.zeros((NB,) + shape, np.float32)
         rsub = np.zeros(weights.shape)
         sig_k, m_k, alb_k = (sigma, m_real, albedo) if real else (sig_s, m_sub, alb_s)
+        fine = _fine_bins(flux, kids, merge_tol)
         for axis, group in groups:
-            for s in range(0, len(group), per):
-                bs = group[s:s + per]
-                r, tot, ex, mom = _sweep(sig_k, h, fdirs[bs], weights[bs], emission(bs), np.zeros(weights[bs].shape),
-                                         periodic, axis, per_sub=True, profile=prof, moments=umom is not None)
-                keep_moments(mom, 0.0, None, alb_k)
-                rec[bs] = r.sum(1, dtype=np.float32)
-                rsub[bs] = r.reshape(len(bs), r.shape[1], -1).sum(2, dtype=np.float64)
-                total[bs] += tot.astype(np.float32)
-                exit_flux[bs] += ex
-                _scatter_into(unshot, m_k[:, bs].reshape(NB, -1), r.reshape((-1,) + shape), alb_k)
+            for merged in (False, True):
+                sel = group[fine[group] != merged]
+                ns = weights.shape[1] if not merged else len(kids)
+                step = max(1, (1 << 26) // (ns * sigma.size))
+                for s in range(0, len(sel), step):
+                    bs = sel[s:s + step]
+                    if merged:
+                        bdirs, bw, share = _merge_quarters(fdirs[bs], weights[bs], ushare[bs], kids)
+                        cols = np.einsum("ibqk,bqk->ibq", m_k[:, bs][:, :, kids], share)
+                    else:
+                        bdirs, bw, cols = fdirs[bs], weights[bs], m_k[:, bs]
+                    r, tot, ex, mom = _sweep(sig_k, h, bdirs, bw, emission(bs), np.zeros(bw.shape), periodic, axis,
+                                             per_sub=True, profile=prof, moments=umom is not None)
+                    keep_moments(mom, 0.0, None, alb_k)
+                    rec[bs] = r.sum(1, dtype=np.float32)
+                    caught = r.reshape(len(bs), ns, -1).sum(2, dtype=np.float64)
+                    if merged:
+                        rsub[np.ix_(bs, kids.reshape(-1))] = (caught[:, :, None] * share).reshape(len(bs), -1)
+                    else:
+                        rsub[bs] = caught
+                    total[bs] += tot.astype(np.float32)
+                    exit_flux[bs] += ex
+                    _scatter_into(unshot, cols.reshape(NB, -1), r.reshape((-1,) + shape), alb_k)
         received[:] += rec
         return rec, rsub
 
     rec, rsub = shoot_peaked(lambda bs: ((albedo * q[bs])[:, None] * r_sun.reshape(1, -1))
-                             .reshape((len(bs),) + shape), wq, sun_profile, real_orders > 0)
+                             .reshape((len(bs),) + shape), wq, sun_profile, real_orders > 0, albedo * q * injected)
     peaked, pweights = [rec], [wq]
     for k in range(1, int(peaked_orders)):
         wk = np.einsum("ibja,ja->ib", phase.sub_sub_phase_matrix(g if k <= real_orders else g_s, first_sub), rsub)
@@ -771,7 +840,8 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
         prof = unshot_profile(nxt.sum(0, dtype=np.float64))
         if umom is not None:
             umom[:] = 0.0
-        rec, rsub = shoot_peaked(lambda bs: nxt[bs], wk, prof, k < real_orders)
+        rec, rsub = shoot_peaked(lambda bs: nxt[bs], wk, prof, k < real_orders,
+                                 nxt.reshape(NB, -1).sum(1, dtype=np.float64))
         peaked.append(rec)
         pweights.append(wk)
         del nxt, prof
@@ -813,20 +883,27 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
         if tail is not None:
             tail.begin()
         refresh = passes <= 8 or passes % int(profile_every) == 0
+        # unshot power per voxel (all bins), kept up to date group by group instead of summing
+        # the 96 bins again (the phase matrix's columns sum to 1: a group adds albedo times
+        # what it caught); summed afresh once per pass
+        power = unshot.sum(0, dtype=np.float64)
         for gi, (axis, bs) in enumerate(groups):
-            shot = unshot[bs].sum(0, dtype=np.float64) if umom is not None else None
-            prof = unshot_profile(unshot.sum(0, dtype=np.float64)) if umom is not None else None
+            shot = unshot[bs].sum(0, dtype=np.float64)
+            prof = unshot_profile(power)
             r, tot, ex, mom = _sweep(sig_s, h, dirs[bs], wsub[bs], unshot[bs], np.zeros(wsub[bs].shape),
                                      periodic, axis, caches[gi], profile=prof, moments=umom is not None,
                                      fresh=refresh if keep else None)
             unshot[bs] = 0.0
             keep_moments(mom, shot, prof)
-            received[bs] += r.astype(np.float32)
-            total[bs] += tot.astype(np.float32)
+            received[bs] += r
+            total[bs] += tot
             exit_flux[bs] += ex
             _scatter_into(unshot, M[:, bs], r, alb_s)
-            residual = float(unshot.sum(dtype=np.float64)) / ref
+            power -= shot
+            power += alb_s * r.sum(0, dtype=np.float64)
+            residual = float(power.sum()) / ref
             yield Progress(passes, gi + 1, len(groups), residual)
+        residual = float(unshot.sum(dtype=np.float64)) / ref
         history.append(residual)
         converged = residual <= tol
         if tail is not None and not converged:
