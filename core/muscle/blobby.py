@@ -56,6 +56,9 @@ NEWTON_TOL = 2e-4
 """Newton stops when |f - level| / |grad f| < NEWTON_TOL * sigma_min."""
 
 NEWTON_STEPS = 12
+SETTLE_STEP = 2.0
+"""A Newton step may end a vertex only if shorter than SETTLE_STEP * NEWTON_TOL * sigma_min (its
+normal is the gradient where the step starts: off by about the step over the surface's radius)."""
 REFINE_EXTRA = 1.0
 """Vertices are projected onto the sum cut at (cutoff + REFINE_EXTRA) sigma."""
 
@@ -276,9 +279,11 @@ class _Blocks:
 _PAIR_CHUNK = 1 << 18  # (block, Gaussian) candidates per step: temporaries of a few MB
 
 
-def _block_pairs(b, grid, cut, cut_fine):
-    """Yield (q (p,3), g (p,), dist (p,)) for blocks whose closed box may meet a Gaussian's
-    ``cut_fine`` ellipsoid; ``dist`` bounds the Mahalanobis distance from below (sphere bound)."""
+def _block_pairs(b, grid, cut_fine, threads):
+    """The block index (:class:`_Index`, over every candidate block) and, per run of Gaussians,
+    (key (p,), g (p,), near (p,), far (p,)) for blocks whose closed box may meet a Gaussian's
+    ``cut_fine`` ellipsoid; ``near`` and ``far`` bound the Mahalanobis distance over the block from
+    below and above (sphere bounds).  None if no block is a candidate."""
     size = grid.size
     e = cut_fine * b.half
     lo = np.ceil((b.c - e) / size).astype(np.int64) - 1
@@ -288,15 +293,24 @@ def _block_pairs(b, grid, cut, cut_fine):
         hi = np.minimum(hi, grid.nb - 1)
     cnt = np.maximum(hi - lo + 1, 0)
     tot = cnt.prod(axis=1)
+    some = tot > 0
+    if not some.any():
+        return None, []
+    index = _Index(grid, lo[some].min(axis=0), hi[some].max(axis=0))
     # The largest A-norm of a block's half-diagonals, per Gaussian: a point of the block is within
     # this Mahalanobis distance of its centre (the norm is convex, so a corner is farthest).
     diag = np.array([[1, 1, 1], [-1, 1, 1], [1, -1, 1], [1, 1, -1]]) * (size / 2)
     ra = np.sqrt(np.max([_quad(b.a, np.broadcast_to(dv, b.c.shape)) for dv in diag], axis=0))
     ends = np.cumsum(tot)
-    start = 0
+    spans, start = [], 0
     while start < len(tot):
         done = ends[start - 1] if start else 0
         stop = max(int(np.searchsorted(ends, done + _PAIR_CHUNK, side="right")), start + 1)
+        spans.append((start, stop))
+        start = stop
+
+    def run(span):
+        start, stop = span
         t = tot[start:stop]
         g = np.repeat(np.arange(start, stop), t)
         k = np.arange(t.sum()) - np.repeat(np.cumsum(t) - t, t)
@@ -310,8 +324,9 @@ def _block_pairs(b, grid, cut, cut_fine):
         near = np.maximum(sq - ra[g], 0.0)  # lower bound of the distance over the block
         far = sq + ra[g]  # upper bound
         keep = near <= cut_fine
-        yield q[keep], g[keep], near[keep], far[keep]
-        start = stop
+        return index.key(q[keep]), g[keep], near[keep], far[keep]
+
+    return index, thread_map(run, spans, threads)
 
 
 class _Index:
@@ -330,22 +345,26 @@ class _Index:
             q = q % self.dims
         return (q[:, 2] * self.dims[1] + q[:, 1]) * self.dims[0] + q[:, 0]
 
+    def block(self, key):
+        """The block coordinates of keys (a periodic index's in [0, nb))."""
+        i, k = np.divmod(key, self.dims[0])
+        k2, j = np.divmod(i, self.dims[1])
+        return np.stack([k, j, k2], axis=1) + self.lo
+
     @property
     def total(self):
         return int(np.prod(self.dims))
 
 
-def _find_blocks(b, grid, level, cut, cut_fine):
+def _find_blocks(b, grid, level, cut, cut_fine, threads):
     """Classify blocks by bounds; return the active ones with their Gaussian lists, or None."""
-    parts = list(_block_pairs(b, grid, cut, cut_fine))
-    q = np.concatenate([p[0] for p in parts])
-    if len(q) == 0:
+    index, parts = _block_pairs(b, grid, cut_fine, threads)
+    key = np.concatenate([p[0] for p in parts]) if parts else np.zeros(0, np.int64)
+    if len(key) == 0:
         return None
     g = np.concatenate([p[1] for p in parts])
     near = np.concatenate([p[2] for p in parts])
     far = np.concatenate([p[3] for p in parts])
-    index = _Index(grid, q.min(axis=0), q.max(axis=0))
-    key = index.key(q)
     dense = index.total <= 1 << 25
     if dense:
         slot, nslot = key, index.total
@@ -373,7 +392,7 @@ def _find_blocks(b, grid, level, cut, cut_fine):
     grid_sel = on_grid[order]
     grid_g = fine_g[grid_sel]
     grid_start = np.searchsorted(ai_sorted[grid_sel], np.arange(len(act) + 1))
-    act_q = q[order[fine_start[:-1]]]
+    act_q = index.block(key[order[fine_start[:-1]]])
 
     # Neighbours at offsets (dx, dy, dz) in {0, 1}^3.
     nbr = np.empty((len(act), 8), np.int64)
@@ -626,26 +645,23 @@ def _edge_guess(flat, at, axis, coord, beyond_real, level, t):
     has_m = coord >= 1
     has_p2 = (coord + 2 < B) | ((coord + 2 == B) & beyond_real)
     ok = up1 & (has_m | has_p2)
-    f64 = np.float64
-    fm = flat[np.where(has_m, at - stride, at)].astype(f64)
-    f0 = flat[at].astype(f64)
-    f1 = flat[at + stride].astype(f64)
-    f2 = flat[np.where(has_p2, at + 2 * stride, at)].astype(f64)
-    # p(t) = c0 + c1 t + c2 t^2 + c3 t^3 through nodes -1, 0, 1, 2 (or the three of them there are).
-    c0 = f0 - level
-    c2 = np.where(has_m, 0.5 * (fm + f1) - f0, 0.5 * (f0 + f2) - f1)
-    c3 = np.where(has_m & has_p2, (f2 - fm) / 6 + 0.5 * (f0 - f1), 0.0)
+    fm = flat[np.where(has_m, at - stride, at)]
+    f0 = flat[at]
+    f1 = flat[at + stride]
+    f2 = flat[np.where(has_p2, at + 2 * stride, at)]
+    # p(t) = c0 + c1 t + c2 t^2 + c3 t^3 through nodes -1, 0, 1, 2 (or the three of them there are), float32.
+    c0 = f0 - _F32(level)
+    c2 = np.where(has_m, _F32(0.5) * (fm + f1) - f0, _F32(0.5) * (f0 + f2) - f1)
+    c3 = np.where(has_m & has_p2, (f2 - fm) / _F32(6) + _F32(0.5) * (f0 - f1), _F32(0))
     c1 = f1 - f0 - c2 - c3
-    t_lin = t
+    # One Newton step on p from the linear guess: its error (~0.1 edge) drops to ~1e-3, below what
+    # the projection's first Newton step needs to settle.
+    t0 = t.astype(_F32)
+    dp = c1 + t0 * (2 * c2 + 3 * t0 * c3)
     with np.errstate(divide="ignore", invalid="ignore"):
-        for _ in range(2):  # Newton on the polynomial from the linear guess: to well below its own error
-            p = c0 + t * (c1 + t * (c2 + t * c3))
-            dp = c1 + t * (2 * c2 + 3 * t * c3)
-            t = np.clip(t - p / dp, EDGE_MARGIN, 1 - EDGE_MARGIN)
-    p = c0 + t * (c1 + t * (c2 + t * c3))
-    dp = c1 + t * (2 * c2 + 3 * t * c3)
-    ok &= np.abs(p) <= 1e-3 * np.abs(dp)  # a root of the polynomial on the edge (NaN: False)
-    return np.where(ok, t, t_lin), np.where(ok, 2 * c2 + 6 * t * c3, np.nan)
+        t1 = np.clip(t0 - (c0 + t0 * (c1 + t0 * (c2 + t0 * c3))) / dp, _F32(EDGE_MARGIN), _F32(1 - EDGE_MARGIN))
+    ok &= dp * (f1 - f0) > 0  # p rises where the field does (NaN: False)
+    return np.where(ok, t1, t), np.where(ok, 2 * c2 + 6 * t1 * c3, np.nan)
 
 
 def _edge_key(node, axis, blocks):
@@ -673,11 +689,12 @@ class _Refiner:
         self.count = np.diff(blocks.fine_start)
         self.x0 = blocks.q * grid.size
 
-    def batches(self, blk):
-        """Vertices sorted by block ``blk`` in padded batches ``(vid (nbt, vmax), nv (nbt,), ub (nbt,))``
-        of blocks with the same number of Gaussians and similar vertex counts."""
-        if len(blk) == 0:
+    def batches(self, blk, order):
+        """Vertices ``order`` (sorted by their block in ``blk``) in padded batches ``(vid (nbt, vmax),
+        nv (nbt,), ub (nbt,))`` of blocks with the same number of Gaussians and similar vertex counts."""
+        if len(order) == 0:
             return []
+        blk = blk[order]
         first = np.flatnonzero(np.r_[True, blk[1:] != blk[:-1]])
         nv = np.diff(np.r_[first, len(blk)])
         ub = blk[first]
@@ -691,7 +708,7 @@ class _Refiner:
             for lo in range(0, len(grp), per):
                 sel = grp[lo : lo + per]
                 vid = first[sel, None] + np.minimum(np.arange(nv[sel].max()), nv[sel, None] - 1)
-                out.append((vid, nv[sel], ub[sel]))
+                out.append((order[vid], nv[sel], ub[sel]))
         return out
 
     def gather(self, ub):
@@ -751,72 +768,107 @@ def _project(refiner, grid, blk, axis, node, t, curv, a_above, level, tol, threa
     second-order error, ``|f''| dt^2 / 2`` with ``f''`` the node values' estimate ``curv``, is below
     a quarter of it: then its normal and Gaussian come from the point the step started from.
 
-    A batch of blocks (:meth:`_Refiner.batches`) iterates together; the vertices still moving
-    are packed together whenever they are fewer than half.  Returns positions (float64), unit
-    normals (float32, from the analytic gradient), where the gradient vanished, and the
-    most-contributing Gaussian, each written by the batch that finishes the vertex.
+    Every vertex is evaluated once, in batches of blocks (:meth:`_Refiner.batches`), and written;
+    the few still moving are batched again and iterate together, packed whenever fewer than half
+    still move, and written again when done.  Returns positions (float32), unit normals (float32,
+    from the analytic gradient), where the gradient vanished, and the most-contributing Gaussian.
     """
     n = len(t)
-    order = np.argsort(blk, kind="stable")  # nearly sorted already: batches read and write short runs
-    pos = np.empty((n, 3))
-    normal = np.empty((n, 3), _F32)
-    flat = np.empty(n, bool)
-    arg = np.empty(n, np.int32)
+    pos = np.empty((n + 1, 3), _F32)  # row n: where padding is written
+    normal = np.empty((n + 1, 3), _F32)
+    flat = np.empty(n + 1, bool)
+    arg = np.empty(n + 1, np.int32)
+    t = t.copy()
+    bracket = np.empty((n, 2))  # (lo, hi) of the vertices left after the first evaluation
 
-    def run(batch):
-        vid, nv, ub = batch
-        vid = order[vid]  # the caller's vertex numbers
-        src, coef, kern = refiner.gather(ub)
-        valid = np.arange(vid.shape[1]) < nv[:, None]
+    def setup(vid, ub):
         ax = axis[vid]
         base = grid.coords(node[vid])
         u0 = base - refiner.x0[ub][:, None, :]
-        st, ab, tt, cv = grid.h[ax], a_above[vid], t[vid], np.abs(curv[vid])  # ab: f - level >= 0 at the lower node
+        along = np.arange(0, u0.size, 3) + ax.reshape(-1)  # the edge's coordinate in (..., 3) rows
+        # ab: f - level >= 0 at the lower node
+        return ax, base, u0, along, grid.h[ax], a_above[vid], t[vid], np.abs(curv[vid])
+
+    def evaluate(u0, along, tt, st, coef, kern):
+        u = u0.copy()
+        u.reshape(-1)[along] += (tt * st).reshape(-1)
+        f, g, e = refiner.evaluate(u, coef, kern)
+        return f, g, np.sqrt(np.einsum("...i,...i", g, g)), e
+
+    def step(f, g, gn, valid, tt, lo, hi, ab, cv, along, st):
+        """Newton (or bisection) along the edge: (the position to write, the next one, still moving, lo, hi)."""
+        diff = f - level
+        slack = tol * np.maximum(gn, 1e-300)
+        go = valid & (np.abs(diff) >= slack)
+        side = (diff > 0) == ab  # still on the lower node's side
+        lo = np.where(go & side, tt, lo)
+        hi = np.where(go & ~side, tt, hi)
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            new = tt - diff / (g.reshape(-1)[along].reshape(tt.shape) * st)
+        good = (new > lo) & (new < hi)  # False for NaN
+        new = np.clip(np.where(good, new, 0.5 * (lo + hi)), EDGE_MARGIN, 1 - EDGE_MARGIN)
+        # (and a short one: the normal comes from where the step starts)
+        settled = good & (2 * cv * (new - tt) ** 2 < slack) & (np.abs(new - tt) * st < SETTLE_STEP * tol)  # False for NaN
+        return np.where(go & settled, new, tt), new, go & (new != tt) & ~settled, lo, hi
+
+    def write(ids, base, ax, final, st, g, gn, best):
+        """Outputs of vertices ``ids`` (rows of the other arguments)."""
+        p = base
+        p[np.arange(len(ids)), ax] += final * st
+        pos[ids] = p
+        normal[ids] = -g / np.where(gn > 0, gn, 1.0)[:, None]
+        flat[ids] = gn <= 0
+        arg[ids] = best
+
+    def first(batch):
+        """Evaluate and write every vertex of the batch (its padding to row n); return those still moving."""
+        vid, nv, ub = batch
+        src, coef, kern = refiner.gather(ub)
+        valid = np.arange(vid.shape[1]) < nv[:, None]
+        ax, base, u0, along, st, ab, tt, cv = setup(vid, ub)
+        f, g, gn, e = evaluate(u0, along, tt, st, coef, kern)
         lo, hi = np.zeros(vid.shape), np.ones(vid.shape)
-        for it in range(NEWTON_STEPS + 1):
-            along = np.arange(0, u0.size, 3) + ax.reshape(-1)  # the edge's coordinate in (..., 3) rows
-            u = u0.copy()
-            u.reshape(-1)[along] += (tt * st).reshape(-1)
-            f, g, e = refiner.evaluate(u, coef, kern)
+        final, new, live, lo, hi = step(f, g, gn, valid, tt, lo, hi, ab, cv, along, st)
+        best = np.take_along_axis(src, e.argmax(axis=-1), axis=1)
+        write(np.where(valid, vid, n).reshape(-1), base.reshape(-1, 3), ax.reshape(-1), final.reshape(-1), st.reshape(-1),
+              g.reshape(-1, 3), gn.reshape(-1), best.reshape(-1))
+        ids = vid[live]
+        t[ids], bracket[ids, 0], bracket[ids, 1] = new[live], lo[live], hi[live]
+        return ids
+
+    def rest(batch):
+        vid, nv, ub = batch
+        src, coef, kern = refiner.gather(ub)
+        valid = np.arange(vid.shape[1]) < nv[:, None]
+        ax, base, u0, along, st, ab, tt, cv = setup(vid, ub)
+        lo, hi = bracket[vid, 0], bracket[vid, 1]
+        for it in range(1, NEWTON_STEPS + 1):
+            f, g, gn, e = evaluate(u0, along, tt, st, coef, kern)
             live = np.zeros(vid.shape, bool)
             final = tt
-            gn = np.sqrt(np.einsum("...i,...i", g, g))
             if it < NEWTON_STEPS:
-                diff = f - level
-                slack = tol * np.maximum(gn, 1e-300)
-                go = valid & (np.abs(diff) >= slack)
-                side = (diff > 0) == ab  # still on the lower node's side
-                lo = np.where(go & side, tt, lo)
-                hi = np.where(go & ~side, tt, hi)
-                with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-                    new = tt - diff / (g.reshape(-1)[along].reshape(tt.shape) * st)
-                good = (new > lo) & (new < hi)  # False for NaN
-                new = np.clip(np.where(good, new, 0.5 * (lo + hi)), EDGE_MARGIN, 1 - EDGE_MARGIN)
-                settled = good & (2 * cv * (new - tt) ** 2 < slack)  # False for NaN
-                final = np.where(go & settled, new, tt)
-                live = go & (new != tt) & ~settled
+                final, new, live, lo, hi = step(f, g, gn, valid, tt, lo, hi, ab, cv, along, st)
             done = np.flatnonzero(valid & ~live)
-            ids = vid.reshape(-1)[done]
-            p = base.reshape(-1, 3)[done]
-            p[np.arange(len(done)), ax.reshape(-1)[done]] += (final * st).reshape(-1)[done]
-            pos[ids] = p
-            gd = g.reshape(-1, 3)[done]
-            norm = gn.reshape(-1)[done]
-            normal[ids] = -gd / np.where(norm > 0, norm, 1.0)[:, None]
-            flat[ids] = norm <= 0
-            best = e.reshape(-1, e.shape[-1])[done].argmax(axis=1)
-            arg[ids] = src[done // vid.shape[1], best]
+            best = src[done // vid.shape[1], e.reshape(-1, e.shape[-1])[done].argmax(axis=1)]
+            write(vid.reshape(-1)[done], base.reshape(-1, 3)[done], ax.reshape(-1)[done], final.reshape(-1)[done],
+                  st.reshape(-1)[done], g.reshape(-1, 3)[done], gn.reshape(-1)[done], best)
             if not live.any():
-                break
+                return
             tt = np.where(live, new, tt)
             if 2 * np.count_nonzero(live) < live.size:
                 valid, (vid, ax, base, u0, st, ab, tt, cv, lo, hi), (src, coef, kern) = _compact(
                     live, (vid, ax, base, u0, st, ab, tt, cv, lo, hi), (src, coef, kern))
+                along = np.arange(0, u0.size, 3) + ax.reshape(-1)
             else:
                 valid = live
 
-    thread_map(run, refiner.batches(blk[order]), threads)
-    return pos, normal, flat, arg
+    order = np.argsort(blk, kind="stable")  # nearly sorted already: batches read and write short runs
+    left = thread_map(first, refiner.batches(blk, order), threads)
+    left = np.concatenate(left) if left else np.zeros(0, np.int64)
+    if len(left):
+        left = left[np.argsort(blk[left], kind="stable")]
+        thread_map(rest, refiner.batches(blk, left), threads)
+    return pos[:n], normal[:n], flat[:n], arg[:n]
 
 
 def _assemble(parts, nslot):
@@ -936,7 +988,7 @@ def blobby_surface(
     if box is not None:
         b = _images(b, box, fine)
     grid = _grid(spacing, box)
-    blocks = _find_blocks(b, grid, level, cutoff, fine)
+    blocks = _find_blocks(b, grid, level, cutoff, fine, threads)
     if blocks is None:
         return Mesh.empty(names)
     values = _node_values(b, grid, blocks, threads)
@@ -953,7 +1005,7 @@ def blobby_surface(
     if grid.box is not None and len(rep_shift):
         # Representatives of duplicates were placed in their block's frame (a coordinate
         # across the seam exactly L): move them to the box's own frame (exactly 0).
-        pos[n_own:] -= rep_shift * grid.box
+        pos[n_own:] -= (rep_shift * grid.box).astype(_F32)  # (float32: L - L is exactly 0)
 
     # Periodic copies of seam vertices, one per (vertex, shift).
     final = ref_base.copy()
@@ -963,14 +1015,14 @@ def blobby_surface(
         ukey, first, inv = np.unique(key, return_index=True, return_inverse=True)
         src = ref_base[moved][first]
         final[moved] = len(pos) + inv.reshape(-1)
-        pos = np.concatenate([pos, pos[src] + ref_shift[moved][first] * grid.box])
+        pos = np.concatenate([pos, pos[src] + (ref_shift[moved][first] * grid.box).astype(_F32)])
         normals = np.concatenate([normals, normals[src]])
         flat = np.concatenate([flat, flat[src]])
         arg = np.concatenate([arg, arg[src]])
     neg = faces < 0
     faces[neg] = final[-1 - faces[neg]]
 
-    vertices = pos.astype(_F32)
+    vertices = pos
     if flat.any():
         normals[flat] = vertex_normals(vertices, faces)[flat]
     attrs = {"blob": arg.astype(np.int32)}
