@@ -104,6 +104,8 @@ def run(args):
         from ..fileio import dense_grids, write_vdb  # needs bpy's bundled openvdb
     import imageio.v3 as iio
 
+    from ..core.files import atomic_write
+
     white = None
     times = []
     for i in range(args.views):
@@ -111,19 +113,23 @@ def run(args):
         cam = scatter.orbit_camera(2 * math.pi * i / args.views, box, distance=args.distance,
                                    elevation=math.radians(args.elevation), width=w, height=h)
         src = scatter.view_source(sol, cam.position)
-        img = scatter.render(sigma, src, box, cam)
+        # the grid's planes, 2 samples per voxel: the ray march `render` at 1/10 of its cost (README, Fig. 6)
+        img = scatter.march_planes(sigma, src, box, cam, samples=2)
         times.append(time.perf_counter() - t)
         if white is None:
             white = float(np.percentile(img, 99.7)) or 1.0
-        np.save(out / f"view_{i + 1:04d}.npy", img)
-        iio.imwrite(out / f"view_{i + 1:04d}.png", tone_map(img, white))
+        with atomic_write(out / f"view_{i + 1:04d}.npy") as tmp:
+            np.save(tmp, img)
+        with atomic_write(out / f"view_{i + 1:04d}.png") as tmp:
+            iio.imwrite(tmp, tone_map(img, white))
         if args.vdb:
             write_vdb(out / f"scatter_{i + 1:04d}.vdb", dense_grids({"density": sigma, "emission": src}, box))
         say(f"view {i + 1}/{args.views}: {times[-1]:.2f} s")
-    (out / "scatter.json").write_text(json.dumps({
-        "grid": [nx, ny, nz], "box": box, "extinction": args.extinction, "albedo": args.albedo, "g": args.g,
-        "sun_dir": sun, "irradiance": args.irradiance, "sky": args.sky, "report": sol.report,
-        "passes": sol.passes, "residual": sol.residual, "converged": sol.converged,
-        "solve_seconds": t_solve, "view_seconds": times, "views": args.views, "size": [w, h]}, indent=1))
+    with atomic_write(out / "scatter.json") as tmp:
+        tmp.write_text(json.dumps({
+            "grid": [nx, ny, nz], "box": box, "extinction": args.extinction, "albedo": args.albedo, "g": args.g,
+            "sun_dir": sun, "irradiance": args.irradiance, "sky": args.sky, "report": sol.report,
+            "passes": sol.passes, "residual": sol.residual, "converged": sol.converged,
+            "solve_seconds": t_solve, "view_seconds": times, "views": args.views, "size": [w, h]}, indent=1))
     print(f"{sol.report}; solve {t_solve:.1f} s, {args.views} views, median {np.median(times):.2f} s each -> {out}")
     return 0

@@ -3,6 +3,7 @@
 import json
 
 import numpy as np
+import pytest
 
 from nephele.core.light import scatter
 from nephele.farm import cli
@@ -19,6 +20,12 @@ def test_scatter_command_writes_views_and_solution(tmp_path):
     assert sol.received.shape == (96, 6, 8, 8)
     img = np.load(out / "view_0001.npy")
     assert img.shape == (20, 24) and img.max() > 0 and np.all(np.isfinite(img))
+    # the view is the film-speed plane march; the ray march of the same solution is the anchor
+    cam = scatter.orbit_camera(0.0, (1, 1, 0.75), width=24, height=20)
+    anchor = scatter.render(sol.sigma, scatter.view_source(sol, cam.position), sol.size, cam, step=0.1)
+    assert img.mean() == pytest.approx(anchor.mean(), rel=5e-3)
+    assert np.abs(img - anchor).max() <= 0.03 * anchor.max()
+    assert not list(out.glob(".*.tmp*"))  # every file written whole (atomic_write)
     assert (out / "view_0002.png").stat().st_size > 0
     assert (out / "scatter_0002.vdb").stat().st_size > 0
 
