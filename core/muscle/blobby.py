@@ -448,19 +448,20 @@ def _node_values(b, grid, blocks, threads):
         big = (eji.max(axis=(0, 1)) > _EXP_MAX) | (eki.max(axis=(0, 1)) > _EXP_MAX) | (ekj.max(axis=(0, 1)) > _EXP_MAX)
         clamp = (lambda e: np.minimum(e, _EXP_MAX)) if big.any() else (lambda e: e)
         tji, tki, tkj = np.exp(clamp(eji)), np.exp(clamp(eki)), np.exp(clamp(ekj))
-        acc = np.zeros((B, B, B, len(bl)), _F32)
+        acc = np.empty((B, B, B, len(bl)), _F32)
         prod = np.empty_like(acc)
         lo = 0
         for hi in ends:
             n = hi - lo
-            p = prod[..., :n]
+            p = prod[..., :n] if lo else acc  # rank 0 (every block of the chunk) is the first term
             np.multiply(tkj[:, :, None, lo:hi], tki[:, None, :, lo:hi], out=p)
             np.multiply(p, tji[None, :, :, lo:hi], out=p)
             sel = np.flatnonzero(big[lo:hi])
             if len(sel):
                 s = lo + sel
                 p[..., sel] = np.exp(ekj[:, :, None, s] + eki[:, None, :, s] + eji[None, :, :, s])
-            np.add(acc[..., :n], p, out=acc[..., :n])
+            if lo:
+                np.add(acc[..., :n], p, out=acc[..., :n])
             lo = hi
         values[bl] = np.moveaxis(acc, 3, 0)
 
@@ -477,7 +478,7 @@ class _EdgeTables:
     whose lower node it owns (all coordinates below BLOCK).
     """
 
-    table: np.ndarray  # (256, 5, 3) per configuration: each triangle corner's edge slot offset from its cell's (axis 0) slot
+    table: np.ndarray  # (256, 5, 3) int32, per configuration: each triangle corner's edge slot offset from its cell's (axis 0) slot
     ntri: np.ndarray  # (256,)
     own: np.ndarray  # (3, E, E, E) the block owns this edge slot
     face_slots: np.ndarray  # (F,) owned slots on a lower face (other blocks refer to them)
@@ -498,7 +499,7 @@ def _edge_tables():
     face_slots = np.flatnonzero(on_face.reshape(-1))
     face_index = np.full(3 * E**3, -1, np.int64)
     face_index[face_slots] = np.arange(len(face_slots))
-    return _EdgeTables(delta[table], ntri, own, face_slots, face_index)
+    return _EdgeTables(delta[table].astype(np.int32), ntri, own, face_slots, face_index)
 
 
 _GHOSTS = []
@@ -609,8 +610,8 @@ def _march(values, blocks, grid, level, span, et):
     bits = bits[..., :-1] | (bits[..., 1:] << 1)
     bits = bits[:, :, :-1] | (bits[:, :, 1:] << 2)
     cfg = (bits[:, :-1] | (bits[:, 1:] << 4)).reshape(-1)
-    cells = np.flatnonzero((cfg != 0) & (cfg != 255))
-    c = cfg[cells].astype(np.int64)
+    cells = np.flatnonzero((cfg != 0) & (cfg != 255)).astype(np.int32)  # (n 8^3 < 2^31: int32 indices)
+    c = cfg[cells].astype(np.int32)
     counts = et.ntri[c]
     cb, rest = np.divmod(cells, B**3)
     ck, rest = np.divmod(rest, B * B)
@@ -770,7 +771,7 @@ def _project(refiner, grid, blk, axis, node, t, curv, a_above, level, tol, threa
 
     Every vertex is evaluated once, in batches of blocks (:meth:`_Refiner.batches`), and written;
     the few still moving are batched again and iterate together, packed whenever fewer than half
-    still move, and written again when done.  Returns positions (float32), unit normals (float32,
+    still move, and written again when done (``t`` is updated in place).  Returns positions (float32), unit normals (float32,
     from the analytic gradient), where the gradient vanished, and the most-contributing Gaussian.
     """
     n = len(t)
@@ -778,7 +779,6 @@ def _project(refiner, grid, blk, axis, node, t, curv, a_above, level, tol, threa
     normal = np.empty((n + 1, 3), _F32)
     flat = np.empty(n + 1, bool)
     arg = np.empty(n + 1, np.int32)
-    t = t.copy()
     bracket = np.empty((n, 2))  # (lo, hi) of the vertices left after the first evaluation
 
     def setup(vid, ub):
@@ -816,7 +816,7 @@ def _project(refiner, grid, blk, axis, node, t, curv, a_above, level, tol, threa
         p = base
         p[np.arange(len(ids)), ax] += final * st
         pos[ids] = p
-        normal[ids] = -g / np.where(gn > 0, gn, 1.0)[:, None]
+        normal[ids] = g / -np.where(gn > 0, gn, 1.0)[:, None]
         flat[ids] = gn <= 0
         arg[ids] = best
 
