@@ -309,3 +309,29 @@ def test_same_mesh_with_any_number_of_threads():
     assert np.array_equal(one_thread.normals, three.normals)
     assert np.array_equal(one_thread.attributes["blob"], three.attributes["blob"])
     assert distance(one_thread, c, r, s, w, level).max() < 0.01 * s.min()
+
+
+def test_edge_guess_against_a_lone_gaussian():
+    # The vertex's start on its edge: the cubic through the node values along the edge (quadratic at a
+    # block's edge), against the closed-form root of w exp(-x^2/2) = level and its second derivative.
+    from nephele.core.muscle.blobby import EDGE_MARGIN, _edge_guess
+
+    w, level, h = 2.0, 0.5, 0.25
+    root = np.sqrt(2 * np.log(w / level))
+    off = np.linspace(0.01, 0.99, 50)  # the root's place along each edge
+    x0 = root - off * h
+    vals = (w * np.exp(-0.5 * (x0[:, None] + np.arange(-1, 3) * h) ** 2)).astype(np.float32)  # nodes -1 .. 2
+    flat = np.concatenate([vals, np.zeros_like(vals)], axis=1).reshape(-1)  # 8 values per edge, stride 1
+    at = np.arange(len(off)) * 8 + 1
+    t_lin = np.clip((level - vals[:, 1]) / (vals[:, 2] - vals[:, 1]), EDGE_MARGIN, 1 - EDGE_MARGIN).astype(float)
+    axis, beyond = np.zeros(len(off), int), np.zeros(len(off), bool)
+    lin_err = np.abs(x0 + t_lin * h - root).max()
+    for coord, err_max, curv_tol in [(3, 5e-4, 0.1), (0, 1e-3, 0.25), (6, 1e-3, 0.25)]:  # cubic, quadratics
+        t, curv = _edge_guess(flat, at, axis, np.full(len(off), coord), beyond, level, t_lin)
+        x = x0 + t * h
+        assert np.abs(x - root).max() < min(err_max, 0.1 * lin_err)
+        d2 = w * (x**2 - 1) * np.exp(-0.5 * x**2) * h * h  # d^2 f / dt^2
+        assert np.abs(curv / d2 - 1).max() < curv_tol
+    # The last node of a block with no active block beyond: the linear guess, no curvature.
+    t, curv = _edge_guess(flat, at, axis, np.full(len(off), 7), beyond, level, t_lin)
+    assert np.array_equal(t, t_lin) and np.isnan(curv).all()
