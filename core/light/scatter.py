@@ -421,10 +421,15 @@ def _sweep_block(sig, geom, dirs, wsub, em, inflow, kap, dlt, cache, ib, fresh, 
             total[bs, k, wa, wb] += e.reshape((g, ns) + sh[1:]).sum(1)
         if mom is not None:
             rb = r if em is None else rb
-            mk = (cross.T @ (rb * offb).reshape(K, -1)).reshape((3,) + sh[1:])
+            # Moments along the sweep axis only: a beam crosses the whole layer there, while
+            # sideways it enters anywhere in its cell and its deposit spills into the
+            # neighbours.  Counting its sideways move as if it crossed the voxel's centre gave
+            # thin layers of cubic voxels a skewed profile (g 0.8, sun at 60 deg: R -15 %).
+            dep = rb * offb
             if em is not None and kap is not None:
-                mk += dlt[:, k, wa, wb] * re.sum(0) + (cross.T @ (re * shift).reshape(K, -1)).reshape((3,) + sh[1:])
-            mom[:, k, wa, wb] += mk
+                mom[:, k, wa, wb] += dlt[:, k, wa, wb] * re.sum(0)
+                dep = dep + re * shift
+            mom[comp, k, wa, wb] += (cross[:, comp] @ dep.reshape(K, -1)).reshape(sh[1:])
         if per_sub:
             recv[bs, :, k, wa, wb] = r.reshape((g, ns) + sh[1:])
         else:

@@ -2,7 +2,7 @@
 voxel-depth tests and ``benchmarks/bench_scatter.py``: single scattering of a
 slab in closed form, Chandrasekhar's H-function of a semi-infinite isotropic
 medium (iterated from its integral equation) and a small adding-doubling for
-isotropic slabs at any sun angle.
+Henyey-Greenstein slabs at any sun angle.
 """
 
 import numpy as np
@@ -40,19 +40,41 @@ def single_scattering_r(omega, g, tau, mu0, n=64, nphi=256):
     return omega / (4 * np.pi) * np.sum(w[:, None] * p * ang) * 2 * np.pi / nphi
 
 
-def adding_doubling_iso(tau, omega, mu0, n=32, doublings=30):
-    """(R, T) plane albedo and total transmission of an isotropic slab, collimated sun at ``mu0``.
+def hg_azimuth_mean(g, mu_out, mu_in, nphi=2048):
+    """Henyey-Greenstein phase function (per steradian) averaged over the azimuth between
+    directions with cosines ``mu_out`` (m,) and ``mu_in`` (n,) to +z; (m, n)."""
+    phi = (np.arange(nphi) + 0.5) * 2 * np.pi / nphi
+    mo, mi = np.asarray(mu_out, float)[:, None, None], np.asarray(mu_in, float)[None, :, None]
+    cos = mo * mi + np.sqrt(np.clip(1 - mo * mo, 0, None) * np.clip(1 - mi * mi, 0, None)) * np.cos(phi)
+    return ((1 - g * g) / (4 * np.pi * (1 + g * g - 2 * g * cos) ** 1.5)).mean(-1)
 
-    Azimuth-averaged radiances on ``n`` Gauss nodes; a layer ``tau / 2^doublings``
-    thin is doubled up.  Checks: the H-function albedo of a thick slab to 1e-6;
-    facts.md's tau=1 omega=1 (0.34130/0.65864) to 3e-5.
+
+def adding_doubling(tau, omega, mu0, g=0.0, n=32, doublings=30):
+    """(R, T) plane albedo and total transmission of a slab with Henyey-Greenstein
+    scattering (``g = 0``: isotropic), collimated sun at ``mu0``.
+
+    Azimuth-averaged radiances on ``n`` Gauss nodes per hemisphere; a layer
+    ``tau / 2^doublings`` thin (single scattering, the phase function renormalised
+    so each direction scatters exactly its power) is doubled up.  Checks: the
+    H-function albedo of a thick isotropic slab to 1e-6; facts.md's tau=1 omega=1
+    g=0 (0.34130/0.65864) to 3e-5; R + T = 1 at omega = 1; for g = 0.8 the same
+    R and T at n = 32 and 96 to 5 digits and a Monte Carlo run (4 x 10^6 photons:
+    tau 4: R 0.25470 +- 0.00007, tau 16: R 0.63428 +- 0.00018; here 0.25471 and
+    0.63391), while facts.md's g = 0.8 values are 0.1-0.3 % lower (R + T = 0.9985
+    and 0.9974 at omega = 1).
     """
     mu, w = gauss01(n)
+    # light travelling down has direction cosine -mu: forward = down -> down, back = down -> up
+    fwd, back = hg_azimuth_mean(g, -mu, -mu), hg_azimuth_mean(g, mu, -mu)
+    fwd0, back0 = hg_azimuth_mean(g, -mu, [-mu0])[:, 0], hg_azimuth_mean(g, mu, [-mu0])[:, 0]
+    norm = 2 * np.pi * (w[:, None] * (fwd + back)).sum(0)
+    fwd, back = fwd / norm[None], back / norm[None]
+    norm0 = 2 * np.pi * np.sum(w * (fwd0 + back0))
+    fwd0, back0 = fwd0 / norm0, back0 / norm0
     d = tau / 2.0 ** doublings
-    r = omega * d * w[None] / (2 * mu[:, None])  # thin layer, diffuse in -> diffuse out
-    t = np.diag(np.exp(-d / mu)) + r
-    r0 = omega * d / (4 * np.pi * mu)  # thin layer, unit collimated irradiance in
-    t0 = r0.copy()
+    r = omega * d * 2 * np.pi * back * w[None] / mu[:, None]  # thin layer, diffuse in -> diffuse out
+    t = np.diag(np.exp(-d / mu)) + omega * d * 2 * np.pi * fwd * w[None] / mu[:, None]
+    r0, t0 = omega * d * back0 / mu, omega * d * fwd0 / mu  # thin layer, unit collimated irradiance in
     e = np.exp(-d / mu0)
     eye = np.eye(n)
     for _ in range(doublings):

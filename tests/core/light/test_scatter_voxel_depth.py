@@ -3,7 +3,7 @@
 Independent truth (``radiative_truth.py``, not in core): single scattering of a slab in
 closed form, Chandrasekhar's H-function for a semi-infinite isotropic medium
 (iterated from its integral equation) and a small adding-doubling for
-isotropic slabs at any sun angle.  Voxel optical thickness 0.25 to 2 and suns
+Henyey-Greenstein slabs at any sun angle.  Voxel optical thickness 0.25 to 2 and suns
 from overhead down to 15 degrees.
 """
 
@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from nephele.core.light import scatter
-from radiative_truth import adding_doubling_iso, gauss01, h_function, single_scattering_r
+from radiative_truth import adding_doubling, gauss01, h_function, single_scattering_r
 
 
 def slab(tau, layers, omega, g, mu0, **kw):
@@ -29,11 +29,23 @@ def test_independent_truths_agree():
     # the adding-doubling here against the H-function and facts.md
     h = h_function(0.9)
     for mu0 in (1.0, 0.5, MU15):
-        assert adding_doubling_iso(64.0, 0.9, mu0)[0] == pytest.approx(1 - h(mu0) * np.sqrt(0.1), abs=2e-6)
-    r, t = adding_doubling_iso(1.0, 1.0, 1.0)
+        assert adding_doubling(64.0, 0.9, mu0)[0] == pytest.approx(1 - h(mu0) * np.sqrt(0.1), abs=2e-6)
+    r, t = adding_doubling(1.0, 1.0, 1.0)
     assert r == pytest.approx(0.34130, abs=5e-5) and t == pytest.approx(0.65864, abs=5e-5)
     # single scattering closed form against the adding-doubling at small albedo
-    assert single_scattering_r(1e-4, 0.0, 2.0, 0.5) == pytest.approx(adding_doubling_iso(2.0, 1e-4, 0.5)[0], rel=1e-4)
+    assert single_scattering_r(1e-4, 0.0, 2.0, 0.5) == pytest.approx(adding_doubling(2.0, 1e-4, 0.5)[0], rel=1e-4)
+    # Henyey-Greenstein g = 0.8: the closed form again, energy conserved at albedo 1,
+    # converged in the quadrature, and facts.md's values (which lose 0.1-0.3 % of the
+    # energy: R + T = 0.9985 at tau 4) within 0.4 %
+    for mu0 in (1.0, 0.5, MU15):
+        assert single_scattering_r(1e-4, 0.8, 2.0, mu0) == pytest.approx(
+            adding_doubling(2.0, 1e-4, mu0, g=0.8)[0], rel=1e-3)
+        r, t = adding_doubling(4.0, 1.0, mu0, g=0.8)
+        assert r + t == pytest.approx(1.0, abs=1e-6)
+        assert (r, t) == pytest.approx(adding_doubling(4.0, 1.0, mu0, g=0.8, n=64), rel=1e-5)
+    for tau, omega, r_facts, t_facts in AD_G08:
+        r, t = adding_doubling(tau, omega, 1.0, g=0.8)
+        assert r == pytest.approx(r_facts, rel=4e-3) and t == pytest.approx(t_facts, rel=4e-3)
 
 
 # Measured: before issue 18 (even spread in each voxel) -3.7% / -7.7% at voxel tau 0.5
@@ -73,7 +85,7 @@ def test_semi_infinite_against_h_function(mu0, layers):
 @pytest.mark.parametrize("mu0", [1.0, 0.5])
 @pytest.mark.parametrize("layers", [16, 32, 64, 128])  # voxel tau 2 .. 0.25
 def test_thick_isotropic_slab_against_adding_doubling(mu0, layers):
-    r_ref, t_ref = adding_doubling_iso(32.0, 0.99, mu0)
+    r_ref, t_ref = adding_doubling(32.0, 0.99, mu0)
     r, t = slab(32.0, layers, 0.99, 0.0, mu0)
     assert r == pytest.approx(r_ref, rel=1e-2) and t == pytest.approx(t_ref, rel=1e-2)
 
@@ -84,7 +96,7 @@ def test_uniform_sky_on_isotropic_slab():
     # reflected and transmitted fractions are 2 int R(mu0) mu0 dmu0 (adding-doubling)
     tau, omega, layers = 4.0, 0.99, 4  # voxel tau 1
     mu, w = gauss01(12)
-    ad = np.array([adding_doubling_iso(tau, omega, m) for m in mu])
+    ad = np.array([adding_doubling(tau, omega, m) for m in mu])
     r_ref, t_ref = 2 * np.sum(w * mu * ad[:, 0]), 2 * np.sum(w * mu * ad[:, 1])
     sol = scatter.solve(np.full((layers, 1, 1), tau), (1.0, 1.0, 1.0), albedo=omega, g=0.0, sun_irradiance=0.0,
                         sky_radiance=2.0, tol=1e-6, max_passes=5000, periodic=(True, True, False))
@@ -116,12 +128,36 @@ AD_G08 = [(1.0, 1.0, 0.06000, 0.93926), (4.0, 1.0, 0.25444, 0.74406), (4.0, 0.99
           (16.0, 0.99, 0.48166, 0.23837)]
 
 
-# Target (issue 18): 1% relative. Reached for g = 0 (all cases above); for g = 0.8
-# measured R -1.2% .. +1.7%, T -1.7% .. +0.2% over voxel tau 0.25 .. 2, and the same
-# at thin voxels with sources spread evenly: the rest is angular (96 bins for the
-# forward-peaked later orders), not voxel depth.  Asserted at 2%.
+# Target (issue 18): 1% relative; reached for g = 0 (all cases above), not yet for g = 0.8.
+# Truth: the adding-doubling here (facts.md's values are 0.1-0.3% low).  Measured,
+# voxel tau 2 / 0.5: overhead sun R -1.3% (one layer of tau 1) .. +1.5% (tau 4, thin
+# voxels), T down to -1.9% (tau 16); sun at 60 degrees T -2.9% / -2.1% (tau 16,
+# albedo 0.99), R -1.4% .. +0.6%.  The rest is angular (96 bins for the forward-peaked
+# later orders; the same at thin voxels), not voxel depth.  A one-layer slab with the
+# sun at 60 degrees was R -15% while a single periodic cell's sideways source profile
+# was tracked (a sideways centroid means nothing there).
+@pytest.mark.parametrize("mu0,rel", [(1.0, 0.02), (0.5, 0.03)])
 @pytest.mark.parametrize("vtau", [2.0, 0.5])
-@pytest.mark.parametrize("tau,omega,r_ref,t_ref", AD_G08)
-def test_forward_peaked_slab_against_adding_doubling(tau, omega, r_ref, t_ref, vtau):
-    r, t = slab(tau, max(1, int(round(tau / vtau))), omega, 0.8, 1.0)
-    assert r == pytest.approx(r_ref, rel=0.02) and t == pytest.approx(t_ref, rel=0.02), (r, t)
+@pytest.mark.parametrize("tau,omega", [(t, o) for t, o, _, _ in AD_G08])
+def test_forward_peaked_slab_against_adding_doubling(tau, omega, vtau, mu0, rel):
+    r_ref, t_ref = adding_doubling(tau, omega, mu0, g=0.8)
+    r, t = slab(tau, max(1, int(round(tau / vtau))), omega, 0.8, mu0)
+    assert r == pytest.approx(r_ref, rel=rel) and t == pytest.approx(t_ref, rel=rel), (r / r_ref - 1, t / t_ref - 1)
+
+
+# Cubic voxels (as in a 3-D cloud, unlike the flat voxels of the slabs above: there a
+# layer's beams move far sideways) in thin layers, oblique sun.  Measured: g = 0 within
+# 0.5 %, g = 0.8 within 1.5 %; before the moments were kept along the sweep axis only,
+# g = 0.8 was R -15 % / T +3.8 % (one layer of tau 1, sun at 60 degrees) and
+# R -22 % / T +23 % (tau 2, sun at 15 degrees).
+@pytest.mark.parametrize("g,rel", [(0.0, 0.01), (0.8, 0.02)])
+@pytest.mark.parametrize("mu0", [1.0, 0.5, MU15])
+@pytest.mark.parametrize("tau,layers", [(1.0, 1), (2.0, 1), (2.0, 2), (4.0, 2)])
+def test_cubic_voxels_in_thin_layers(tau, layers, mu0, g, rel):
+    s = np.sqrt(1 - mu0 * mu0)
+    sol = scatter.solve(np.full((layers, 3, 3), tau), (3.0 / layers, 3.0 / layers, 1.0), albedo=1.0, g=g,
+                        sun_dir=(s, 0.0, mu0), tol=1e-6, max_passes=5000, periodic=(True, True, False))
+    assert sol.converged
+    r, t = scatter.slab_reflectance(sol)
+    r_ref, t_ref = adding_doubling(tau, 1.0, mu0, g=g)
+    assert r == pytest.approx(r_ref, rel=rel) and t == pytest.approx(t_ref, rel=rel), (r / r_ref - 1, t / t_ref - 1)
