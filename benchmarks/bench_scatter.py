@@ -72,7 +72,7 @@ def errors(img, ref):
     return mean, out[0], out[1]
 
 
-def cycles_render(sigma, cam, samples, *, denoise=False, seed=0, threads=2, tag="pt"):
+def cycles_render(sigma, cam, samples, *, denoise=False, seed=0, threads=2, tag="pt", vdb=None):
     import bpy
 
     from nephele.addon import scatter_ops as so
@@ -82,30 +82,33 @@ def cycles_render(sigma, cam, samples, *, denoise=False, seed=0, threads=2, tag=
     so.add_camera(cam)
     so.black_world()
     so.add_sun(SUN, 1.0)
-    so.add_pathtraced_cloud(sigma, SIZE, albedo=ALBEDO, g=G, vdb_path=OUT / "cloud.vdb")
+    so.add_pathtraced_cloud(sigma, SIZE, albedo=ALBEDO, g=G, vdb_path=vdb or OUT / "cloud.vdb")
     so.cycles_settings(sc, 1, denoise=denoise, threads=threads)
     sc.cycles.seed = seed
     sc.render.use_persistent_data = True  # keep the synced scene between frames, as for an animation
     t = time.perf_counter()
-    so.render_array(sc, OUT / f"{tag}.exr")  # warm-up: kernels, scene and volume sync
+    exr = (Path(vdb).parent if vdb else OUT) / f"{tag}.exr"
+    so.render_array(sc, exr)  # warm-up: kernels, scene and volume sync
     cold = time.perf_counter() - t
     sc.cycles.samples = int(samples)
     sc.frame_set(2)  # a next frame of an animation: the scene is synced again
     t = time.perf_counter()
-    img = so.render_array(sc, OUT / f"{tag}.exr")
+    img = so.render_array(sc, exr)
     return img, time.perf_counter() - t, cold
 
 
-def reference(sigma, cam, spp):
-    """Two halves of ``spp`` samples each cached; returns (mean image, noise of the mean, seconds)."""
-    OUT.mkdir(parents=True, exist_ok=True)
-    path = OUT / f"reference_{spp}.npz"
+def reference(sigma, cam, spp, directory=None):
+    """Two halves of ``spp`` samples each, cached in ``directory`` (default :data:`OUT`; one per
+    grid); returns (mean image, noise of the mean, seconds)."""
+    directory = Path(directory or OUT)
+    directory.mkdir(parents=True, exist_ok=True)
+    path = directory / f"reference_{spp}_{cam.width}x{cam.height}.npz"
     if path.exists():
         z = np.load(path, allow_pickle=False)
         return z["image"], float(z["noise"]), float(z["seconds"])
     halves, secs = [], 0.0
     for seed in (1, 2):
-        img, s, _ = cycles_render(sigma, cam, spp // 2, seed=seed, tag=f"ref{seed}")
+        img, s, _ = cycles_render(sigma, cam, spp // 2, seed=seed, tag=f"ref{seed}", vdb=directory / "cloud.vdb")
         halves.append(img)
         secs += s
     ref = 0.5 * (halves[0] + halves[1])
@@ -138,11 +141,14 @@ def ours(sigma, cam, n_views=120, repeat_views=5):
     return img, sol, t_solve, float(np.median(times))
 
 
-def film(n, width=640, height=480, views=3, anchor=True):
+def film(n, width=640, height=480, views=3, anchor=True, cycles=None):
     """Film resolution (issue 18): the test cloud on n x n x 3n/4 voxels (the same Perlin
     field sampled finer), one solve, then 640x480 views (source + plane march, 2 samples
     per voxel), wall and CPU seconds and the load; the ray march (:func:`render`, step
-    0.4 voxel) of the first view as the anchor, with the difference of the two images."""
+    0.4 voxel) of the first view as the anchor, with the difference of the two images.
+    ``cycles = (spp_640, spp_test)``: also Cycles path-traced references of this grid
+    (cached per grid): the first 640x480 view against ``spp_640`` samples, the 128x96 test
+    view against ``spp_test``, beside Cycles raw and OIDN-denoised points at the test view."""
     from nephele.core.volume import cloud_density
     from nephele.core.light import scatter
 
@@ -179,7 +185,70 @@ def film(n, width=640, height=480, views=3, anchor=True):
         rows.append((f"{width}x{height} view {i}", f"{time.perf_counter() - w:.2f}", f"{time.process_time() - c:.2f}",
                      f"{load0:.1f}-{os.getloadavg()[0]:.1f}", note))
         print(rows[-1], flush=True)
+        if i == 0 and cycles and cycles[0]:
+            rows.append(_against_cycles(f"{width}x{height} view 0", img, sigma, cam, cycles[0], n))
+    if cycles:
+        rows += film_cycles(n, sigma, sol, cycles[1])
     return rows
+
+
+def _against_cycles(name, img, sigma, cam, spp, n):
+    """A row: ``img`` against the Cycles reference of this grid and camera (``spp``, cached)."""
+    ref, noise, secs = reference(sigma, cam, spp, OUT / f"film{n}")
+    e = errors(img, ref)
+    row = (f"{name} vs Cycles {spp} spp", "", "", "",
+           f"mean {e[0]:+.4f}, pixel {e[1]:.4f}, 4x4 {e[2]:.4f} (reference {secs:.0f} s, its own 4x4 noise {noise:.4f})")
+    print(row, flush=True)
+    return row
+
+
+def film_cycles(n, sigma, sol, spp, points=((False, 256), (True, 16), (True, 64))):
+    """Rows: the 128x96 test view of ``sol`` against a Cycles reference of the same grid
+    (``spp``), and Cycles raw / OIDN points rendered in this run (warm frames)."""
+    from nephele.core.light import scatter
+
+    _, cam = scene()
+    load0 = os.getloadavg()[0]
+    w, c = time.perf_counter(), time.process_time()
+    img = scatter.march_planes(sigma, scatter.view_source(sol, cam.position), SIZE, cam, samples=2)
+    ws, cs = time.perf_counter() - w, time.process_time() - c
+    ref, noise, secs = reference(sigma, cam, spp, OUT / f"film{n}")
+    picture(img, ref, f"scatter_vs_cycles_{n}.png")
+    e = errors(img, ref)
+    rows = [(f"{cam.width}x{cam.height} test view vs Cycles {spp} spp", f"{ws:.2f}", f"{cs:.2f}",
+             f"{load0:.1f}-{os.getloadavg()[0]:.1f}",
+             f"ours: mean {e[0]:+.4f}, pixel {e[1]:.4f}, 4x4 {e[2]:.4f} (reference {secs:.0f} s, its own 4x4 "
+             f"noise {noise:.4f})")]
+    for dn, k in points:
+        load0 = os.getloadavg()[0]
+        c = time.process_time()
+        im, secs, cold = cycles_render(sigma, cam, k, denoise=dn, seed=7, tag=f"film{n}",
+                                       vdb=OUT / f"film{n}" / "cloud.vdb")
+        ce = errors(im, ref)
+        rows.append((f"Cycles {'OIDN' if dn else 'raw'} {k} spp, test view", f"{secs:.2f}",
+                     f"{time.process_time() - c:.2f}", f"{load0:.1f}-{os.getloadavg()[0]:.1f}",
+                     f"mean {ce[0]:+.4f}, pixel {ce[1]:.4f}, 4x4 {ce[2]:.4f} (warm frame; the 1-spp first render "
+                     f"{cold:.1f} s is in the CPU s)"))
+        print(rows[-1], flush=True)
+    return rows
+
+
+def picture(ours, ref, name):
+    """docs/images/``name``: ours | the Cycles reference | ours - reference (red: ours brighter,
+    blue: darker, full scale 25 % of the reference's 99.5th percentile), each 3x enlarged."""
+    import imageio.v3 as iio
+
+    from nephele.core.files import atomic_write
+
+    hi = float(np.percentile(ref, 99.5)) or 1.0
+    tone = lambda a: np.repeat(((np.clip(a / hi, 0, 1) ** (1 / 2.2)) * 255 + 0.5).astype(np.uint8)[..., None], 3, -1)  # noqa: E731
+    d = (ours - ref) / (0.25 * hi)
+    diff = (np.stack([np.clip(d, 0, 1), np.zeros_like(d), np.clip(-d, 0, 1)], -1) * 255 + 0.5).astype(np.uint8)
+    gap = np.full((ours.shape[0], 4, 3), 255, np.uint8)
+    row = np.concatenate([tone(ours), gap, tone(ref), gap, diff], 1)
+    row = np.repeat(np.repeat(row, 3, 0), 3, 1)
+    with atomic_write(ROOT / "docs" / "images" / name) as tmp:
+        iio.imwrite(tmp, row)
 
 
 def scaling(shapes=((18, 24, 24), (36, 48, 48), (72, 96, 96))):
@@ -208,52 +277,61 @@ def scaling(shapes=((18, 24, 24), (36, 48, 48), (72, 96, 96))):
 
 # ----------------------------------------------------------------- accuracy vs voxel depth
 
-def _slab(tau, layers, omega, g, mu0, profile):
-    from nephele.core import scatter
+def _slab(tau, layers, omega, g, mu0, profile, cubic=False):
+    """A homogeneous slab periodic in x and y: one column of flat voxels, or (``cubic``) 3 x 3
+    columns of cubes as in a 3-D cloud."""
+    from nephele.core.light import scatter
 
     s = np.sqrt(max(0.0, 1 - mu0 * mu0))
+    shape, size = ((layers, 3, 3), (3.0 / layers, 3.0 / layers, 1.0)) if cubic else ((layers, 1, 1), (1.0, 1.0, 1.0))
     t = time.perf_counter()
-    sol = scatter.solve(np.full((layers, 1, 1), float(tau)), (1.0, 1.0, 1.0), albedo=omega, g=g,
+    sol = scatter.solve(np.full(shape, float(tau)), size, albedo=omega, g=g,
                         sun_dir=(s, 0.0, mu0), tol=1e-6, max_passes=5000, periodic=(True, True, False),
                         source_profile=profile)
     r, tr = scatter.slab_reflectance(sol)
     return r, tr, time.perf_counter() - t
 
 
-# facts.md adding-doubling, normal incidence: tau, g, omega, R, T
-AD_G08 = [(4.0, 0.8, 1.0, 0.25444, 0.74406), (4.0, 0.8, 0.99, 0.23131, 0.70164),
-          (16.0, 0.8, 0.99, 0.48166, 0.23837), (1.0, 0.8, 1.0, 0.06000, 0.93926)]
+# slabs with g = 0.8 (facts.md's cases): tau, omega
+G08 = [(1.0, 1.0), (4.0, 1.0), (4.0, 0.99), (16.0, 0.99)]
 
 
 def accuracy(quick=False):
     """Rows: case, mu0, layers, voxel tau, truth, error even spread, error with profiles, seconds."""
-    from radiative_truth import adding_doubling_iso, h_function, single_scattering_r
+    from radiative_truth import adding_doubling, h_function, single_scattering_r
 
     mus = (1.0, 0.5, float(np.sin(np.radians(15.0))))
     cases = []
     for mu0 in mus[::2] if quick else mus:
         for layers in ((16, 4) if quick else (32, 16, 8, 4)):
             cases.append(("single scattering g=0, tau 8, albedo 1e-3 (R rel.)", 8.0, layers, 1e-3, 0.0, mu0,
-                          single_scattering_r(1e-3, 0.0, 8.0, mu0), None))
+                          single_scattering_r(1e-3, 0.0, 8.0, mu0), None, False))
     for mu0 in mus[::2] if quick else mus:
         for layers in ((64, 16) if quick else (128, 64, 32, 16)):
             cases.append(("semi-infinite g=0, albedo 0.9 vs H-function (tau 32; R rel.)", 32.0, layers, 0.9, 0.0,
-                          mu0, 1.0 - h_function(0.9)(mu0) * np.sqrt(0.1), None))
+                          mu0, 1.0 - h_function(0.9)(mu0) * np.sqrt(0.1), None, False))
     if not quick:
         for mu0 in mus[:2]:
-            r_ad, t_ad = adding_doubling_iso(32.0, 0.99, mu0)
+            r_ad, t_ad = adding_doubling(32.0, 0.99, mu0)
             for layers in (128, 64, 32, 16):
                 cases.append(("isotropic slab tau 32, albedo 0.99 vs own adding-doubling (R; T rel.)", 32.0, layers,
-                              0.99, 0.0, mu0, r_ad, t_ad))
-    for tau, g, om, r_ad, t_ad in AD_G08[:1] if quick else AD_G08:
-        for layers in sorted({max(1, int(round(tau / vt))) for vt in ((2.0,) if quick else (2.0, 1.0, 0.5, 0.25))}):
-            cases.append((f"slab tau {tau:g} g 0.8 albedo {om:g}, facts.md adding-doubling (R; T rel.)", tau,
-                          layers, om, g, 1.0, r_ad, t_ad))
+                              0.99, 0.0, mu0, r_ad, t_ad, False))
+    for mu0 in mus[:1] if quick else mus[:2]:
+        for tau, om in G08[1:2] if quick else G08:
+            r_ad, t_ad = adding_doubling(tau, om, mu0, g=0.8)
+            for layers in sorted({max(1, int(round(tau / vt))) for vt in ((2.0,) if quick else (2.0, 1.0, 0.5, 0.25))}):
+                cases.append((f"slab tau {tau:g} g 0.8 albedo {om:g} vs own adding-doubling (R; T rel.)", tau,
+                              layers, om, 0.8, mu0, r_ad, t_ad, False))
+    for mu0 in mus[1:]:
+        for tau, layers in ((1.0, 1), (2.0, 1), (2.0, 2), (4.0, 2)) if not quick else ((2.0, 1),):
+            r_ad, t_ad = adding_doubling(tau, 1.0, mu0, g=0.8)
+            cases.append((f"cubic voxels: slab tau {tau:g} g 0.8 albedo 1 vs own adding-doubling (R; T rel.)", tau,
+                          layers, 1.0, 0.8, mu0, r_ad, t_ad, True))
     rows = []
-    for name, tau, layers, om, g, mu0, r_ref, t_ref in cases:
+    for name, tau, layers, om, g, mu0, r_ref, t_ref, cubic in cases:
         errs, secs = [], 0.0
         for prof in (False, True):
-            r, tr, sec = _slab(tau, layers, om, g, mu0, prof)
+            r, tr, sec = _slab(tau, layers, om, g, mu0, prof, cubic)
             e = f"{r / r_ref - 1:+.4f}"
             if t_ref is not None:
                 e += f"; {tr / t_ref - 1:+.4f}"
@@ -276,26 +354,40 @@ def main(argv=None):
     ap.add_argument("--views", type=int, default=120)
     ap.add_argument("--film", type=int, action="append", default=[],
                     help="only the film-resolution rows for an n x n x 3n/4 cloud (repeatable; writes docs)")
+    ap.add_argument("--film-cycles", action="store_true",
+                    help="with --film: Cycles path-traced references of each grid (cached in out/bench/scatter/filmN/) "
+                         "and Cycles raw/OIDN points in this run")
+    ap.add_argument("--film-ref-spp", type=int, default=1024,
+                    help="samples of the 640x480 Cycles reference (0: none; 1024 took 25 min on 2 shared cores)")
     args = ap.parse_args(argv)
     from report import md_table, write_section
 
     if args.film:
-        rows = [r for n in args.film for r in film(n)]
-        write_section("scatter-film", "Film resolution (issue 18): the test cloud sampled on finer grids, "
-                      "solve and 640x480 views (view_source + march_planes, 2 samples per voxel). "
-                      f"{os.cpu_count()} cores shared with other jobs; load = 1-minute load average "
-                      "before-after each row; CPU = this process's CPU seconds (all its threads).\n\n"
-                      + md_table(["step", "wall s", "CPU s", "load", "note"], rows),
-                      title="Multiple scattering at film resolution")
+        cyc = (args.film_ref_spp, 4096) if args.film_cycles else None
+        for n in args.film:  # a section per grid: grids can be rerun one at a time
+            rows = film(n, cycles=cyc)
+            write_section(f"scatter-film-{n}", "Film resolution (issue 18): the test cloud sampled on finer grids, "
+                          "solve and 640x480 views (view_source + march_planes, 2 samples per voxel). "
+                          f"{os.cpu_count()} cores shared with other jobs; load = 1-minute load average "
+                          "before-after each row; CPU = this process's CPU seconds (all its threads). "
+                          "Cycles: the same medium path traced (Principled Volume, 256 bounces), 2 threads; "
+                          "errors as in the Fig. 6 table above.\n\n"
+                          + md_table(["step", "wall s", "CPU s", "load", "note"], rows)
+                          + ("\n\nTest view: ours · Cycles reference · ours − reference (red: ours brighter, "
+                             f"full scale 25 %):\n\n![](images/scatter_vs_cycles_{n}.png)" if cyc else ""),
+                          title=f"Multiple scattering at film resolution: {n}x{n}x{3 * n // 4}")
         return 0
 
     load = f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores at the start"
     acc = [] if args.skip_accuracy else accuracy(args.quick)
     acc_md = [
         "Accuracy against voxel optical thickness (issue 18): homogeneous slabs periodic in x and y, "
-        "solved on 4 to 128 layers; relative error of R (and T) against independent truth (tests/core/light/radiative_truth.py, "
-        "shared with the tests: single scattering in closed form, Chandrasekhar's H-function iterated from its integral "
-        "equation, an isotropic adding-doubling) or facts.md's adding-doubling. 'even' = sources spread "
+        "solved on 1 to 128 layers of flat voxels (one column), and ('cubic voxels') on thin layers of 3x3 "
+        "columns of cubes as in a 3-D cloud; relative error of R (and T) against independent truth "
+        "(tests/core/light/radiative_truth.py, shared with the tests: single scattering in closed form, "
+        "Chandrasekhar's H-function iterated from its integral equation, an adding-doubling for "
+        "Henyey-Greenstein slabs; facts.md's g = 0.8 values are 0.1-0.3 % lower and lose that much "
+        "energy). 'even' = sources spread "
         "evenly in each voxel (`source_profile=False`: the solver before issue 18, except that the sun's "
         "first scattering now uses the real medium and the full HG), 'profiles' = the default. "
         "Seconds: one solve with profiles.",
