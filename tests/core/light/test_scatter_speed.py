@@ -32,6 +32,21 @@ def test_exp_only_helpers_match_expm1_and_tanh_forms():
     np.testing.assert_allclose(scatter._exp_source_escape(tau, np.float32(0.0)), scatter._phi(tau), rtol=1e-6)
 
 
+def test_fused_escape_and_centroid_match_their_float64_forms():
+    # the sweep's float32 _escape_centroid against _exp_source_escape and 0.5 + _offset in float64
+    tau, beta = np.meshgrid(np.concatenate([[0.0], np.geomspace(1e-4, 60.0, 60)]),
+                            np.concatenate([-np.geomspace(1e-5, 400.0, 80), [0.0], np.geomspace(1e-5, 400.0, 80)]))
+    esc, vs = scatter._escape_centroid(tau.astype(np.float32), beta.astype(np.float32))
+    assert esc.dtype == vs.dtype == np.float32
+    esc_ref = np.clip(scatter._exp_source_escape(tau, beta), 0.0, 1.0)
+    assert np.max(np.abs(esc - esc_ref) / np.maximum(esc_ref, 1e-30)) < 5e-6  # measured 1.8e-6
+    assert np.max(np.abs(vs - (0.5 + scatter._offset(beta)))) < 5e-7  # measured 1.6e-7
+    # every |beta| under 0.5: the series branch alone
+    small = np.abs(beta) < 0.5
+    _, vs_small = scatter._escape_centroid(tau[small].astype(np.float32), beta[small].astype(np.float32))
+    assert np.max(np.abs(vs_small - (0.5 + scatter._offset(beta[small])))) < 5e-7
+
+
 def shift_line(row, s, periodic, inflow):
     """``row`` moved by ``s`` cells: linear interpolation at ``c - s`` (outside: ``inflow``)."""
     n = len(row)
