@@ -910,7 +910,7 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
         prof = unshot_profile(nxt.sum(0, dtype=np.float64))
         if umom is not None:
             umom[:] = 0.0
-        rec, rsub = shoot_peaked(lambda bs: nxt[bs], wk, prof, k < real_orders,
+        rec, rsub = shoot_peaked(nxt.__getitem__, wk, prof, k < real_orders,
                                  nxt.reshape(NB, -1).sum(1, dtype=np.float64), merge_tol)
         peaked.append(rec)
         pweights.append(wk)
