@@ -186,20 +186,22 @@ def film(n, width=640, height=480, views=3, anchor=True, cycles=None):
                      f"{load0:.1f}-{os.getloadavg()[0]:.1f}", note))
         print(rows[-1], flush=True)
         if i == 0 and cycles and cycles[0]:
-            rows.append(_against_cycles(f"{width}x{height} view 0", img, sigma, cam, cycles[0], n))
+            rows.append(_against_cycles(f"{width}x{height} view 0", img, sigma, cam, cycles[0], n)[0])
     if cycles:
         rows += film_cycles(n, sigma, sol, cycles[1])
     return rows
 
 
-def _against_cycles(name, img, sigma, cam, spp, n):
-    """A row: ``img`` against the Cycles reference of this grid and camera (``spp``, cached)."""
+def _against_cycles(name, img, sigma, cam, spp, n, times=("", "", "")):
+    """A row (with ``times``: wall s, CPU s, load) for ``img`` against the Cycles reference of
+    this grid and camera (``spp``, cached), and that reference."""
     ref, noise, secs = reference(sigma, cam, spp, OUT / f"film{n}")
     e = errors(img, ref)
-    row = (f"{name} vs Cycles {spp} spp", "", "", "",
-           f"mean {e[0]:+.4f}, pixel {e[1]:.4f}, 4x4 {e[2]:.4f} (reference {secs:.0f} s, its own 4x4 noise {noise:.4f})")
+    row = (f"{name} vs Cycles {spp} spp", *times,
+           f"ours: mean {e[0]:+.4f}, pixel {e[1]:.4f}, 4x4 {e[2]:.4f} (reference {secs:.0f} s, its own 4x4 "
+           f"noise {noise:.4f})")
     print(row, flush=True)
-    return row
+    return row, ref
 
 
 def film_cycles(n, sigma, sol, spp, points=((False, 256), (True, 16), (True, 64))):
@@ -211,14 +213,10 @@ def film_cycles(n, sigma, sol, spp, points=((False, 256), (True, 16), (True, 64)
     load0 = os.getloadavg()[0]
     w, c = time.perf_counter(), time.process_time()
     img = scatter.march_planes(sigma, scatter.view_source(sol, cam.position), SIZE, cam, samples=2)
-    ws, cs = time.perf_counter() - w, time.process_time() - c
-    ref, noise, secs = reference(sigma, cam, spp, OUT / f"film{n}")
+    times = (f"{time.perf_counter() - w:.2f}", f"{time.process_time() - c:.2f}", f"{load0:.1f}-{os.getloadavg()[0]:.1f}")
+    row, ref = _against_cycles(f"{cam.width}x{cam.height} test view", img, sigma, cam, spp, n, times)
     picture(img, ref, f"scatter_vs_cycles_{n}.png")
-    e = errors(img, ref)
-    rows = [(f"{cam.width}x{cam.height} test view vs Cycles {spp} spp", f"{ws:.2f}", f"{cs:.2f}",
-             f"{load0:.1f}-{os.getloadavg()[0]:.1f}",
-             f"ours: mean {e[0]:+.4f}, pixel {e[1]:.4f}, 4x4 {e[2]:.4f} (reference {secs:.0f} s, its own 4x4 "
-             f"noise {noise:.4f})")]
+    rows = [row]
     for dn, k in points:
         load0 = os.getloadavg()[0]
         c = time.process_time()
@@ -239,9 +237,10 @@ def picture(ours, ref, name):
     import imageio.v3 as iio
 
     from nephele.core.files import atomic_write
+    from nephele.farm.cmd_scatter import tone_map
 
     hi = float(np.percentile(ref, 99.5)) or 1.0
-    tone = lambda a: np.repeat(((np.clip(a / hi, 0, 1) ** (1 / 2.2)) * 255 + 0.5).astype(np.uint8)[..., None], 3, -1)  # noqa: E731
+    tone = lambda a: np.repeat(tone_map(a, hi)[..., None], 3, -1)  # noqa: E731
     d = (ours - ref) / (0.25 * hi)
     diff = (np.stack([np.clip(d, 0, 1), np.zeros_like(d), np.clip(-d, 0, 1)], -1) * 255 + 0.5).astype(np.uint8)
     gap = np.full((ours.shape[0], 4, 3), 255, np.uint8)
