@@ -481,6 +481,7 @@ class _EdgeTables:
     table: np.ndarray  # (256, 5, 3) int32, per configuration: each triangle corner's edge slot offset from its cell's (axis 0) slot
     ntri: np.ndarray  # (256,)
     own: np.ndarray  # (3, E, E, E) the block owns this edge slot
+    kind: np.ndarray  # (3 E^3,) int8: 0 no such edge (x at i = B, ...), 1 owned, 2 owned by a neighbour
     face_slots: np.ndarray  # (F,) owned slots on a lower face (other blocks refer to them)
     face_index: np.ndarray  # (3 E^3,) slot -> index into face_slots, or -1
 
@@ -499,7 +500,9 @@ def _edge_tables():
     face_slots = np.flatnonzero(on_face.reshape(-1))
     face_index = np.full(3 * E**3, -1, np.int64)
     face_index[face_slots] = np.arange(len(face_slots))
-    return _EdgeTables(delta[table].astype(np.int32), ntri, own, face_slots, face_index)
+    exists = np.stack([i[0] < B, j[1] < B, k[2] < B])
+    kind = np.where(own, 1, np.where(exists, 2, 0)).astype(np.int8).reshape(-1)
+    return _EdgeTables(delta[table].astype(np.int32), ntri, own, kind, face_slots, face_index)
 
 
 _GHOSTS = []
@@ -546,14 +549,19 @@ def _march(values, blocks, grid, level, span, et):
         # A node of an inactive block: its sign is its block's class; the value is only a first guess.
         guess = np.where(nb == -2, _F32(2) * lvl, _F32(0))[:, None, None, None]
         ext[(slice(None),) + dst] = np.where((nb >= 0)[:, None, None, None], got, guess)
-    above = ext >= lvl
-
-    cut = np.zeros((n, 3, E, E, E), bool)
-    np.not_equal(above[..., :B], above[..., 1:], out=cut[:, 0, :, :, :B])
-    np.not_equal(above[:, :, :B], above[:, :, 1:], out=cut[:, 1, :, :B])
-    np.not_equal(above[:, :B], above[:, 1:], out=cut[:, 2, :B])
-    own = np.flatnonzero(cut & et.own)
-    ghost = np.flatnonzero(cut & ~et.own)
+    # Node signs in one flat run (padded): a neighbour along x, y, z is 1, E, E^2 further on, so
+    # the edge and cell tests are whole-run operations; where they pair nodes of different rows
+    # (x at i = B, ...) the edge does not exist (et.kind 0) or the cell is not read.
+    N = n * E**3
+    run = np.zeros(N + 1 + E + E * E, bool)
+    np.greater_equal(ext.reshape(-1), lvl, out=run[:N])
+    cut = np.empty((n, 3, E**3), bool)
+    for a, d in enumerate((1, E, E * E)):
+        np.not_equal(run[:N].reshape(n, E**3), run[d : N + d].reshape(n, E**3), out=cut[:, a])
+    at = np.flatnonzero(cut)
+    kind = et.kind[at % (3 * E**3)]
+    own = at[kind == 1]
+    ghost = at[kind == 2]
     lut = np.empty(n * 3 * E**3, np.int32)
     lut[own] = np.arange(len(own))
     lut[ghost] = -1 - np.arange(len(ghost))
@@ -606,11 +614,12 @@ def _march(values, blocks, grid, level, span, et):
         vnode = np.concatenate([node, dnode])
         ref_slot[dup] = n_owned + np.arange(len(dup))
 
-    bits = above.view(np.uint8)
-    bits = bits[..., :-1] | (bits[..., 1:] << 1)
-    bits = bits[:, :, :-1] | (bits[:, :, 1:] << 2)
-    cfg = (bits[:, :-1] | (bits[:, 1:] << 4)).reshape(-1)
-    cells = np.flatnonzero((cfg != 0) & (cfg != 255)).astype(np.int32)  # (n 8^3 < 2^31: int32 indices)
+    bits = run.view(np.uint8)
+    bits = bits[:-1] | (bits[1:] << 1)
+    bits = bits[:-E] | (bits[E:] << 2)
+    bits = bits[: -E * E] | (bits[E * E :] << 4)
+    cfg = bits[:N].reshape(n, E, E, E)[:, :B, :B, :B].reshape(-1)
+    cells = np.flatnonzero(cfg + np.uint8(1) > 1).astype(np.int32)  # not 0 or 255 (n 8^3 < 2^31: int32 indices)
     c = cfg[cells].astype(np.int32)
     counts = et.ntri[c]
     cb, rest = np.divmod(cells, B**3)
@@ -684,6 +693,7 @@ class _Refiner:
 
     BUDGET = 1 << 18  # (vertex, Gaussian) products per batch
     PAD = 1.2  # vertex counts of a batch's blocks within this factor: little padding
+    SMALL = BUDGET // 16  # bands with fewer products merge (per number of Gaussians): a batch costs ~1 ms however small
 
     def __init__(self, b, grid, blocks):
         self.b, self.blocks = b, blocks
@@ -701,15 +711,23 @@ class _Refiner:
         ub = blk[first]
         ng = self.count[ub]
         band = np.floor(np.log(nv) / np.log(self.PAD)).astype(np.int64)
-        by = np.lexsort((nv, band, ng))
-        cuts = np.flatnonzero(np.diff(ng[by]) | np.diff(band[by])) + 1
+        for merge in (True, False):
+            by = np.lexsort((nv, band, ng))
+            cuts = np.flatnonzero(np.diff(ng[by]) | np.diff(band[by])) + 1
+            if merge:
+                ends = np.r_[cuts, len(by)]
+                size = np.diff(np.r_[0, ends]) * nv[by[ends - 1]] * ng[by[ends - 1]]
+                small = np.repeat(size < self.SMALL, np.diff(np.r_[0, ends]))
+                band[by[small]] = -1
         out = []
         for grp in np.split(by, cuts):
-            per = max(1, self.BUDGET // max(int(nv[grp[-1]] * ng[grp[0]]), 1))
-            for lo in range(0, len(grp), per):
-                sel = grp[lo : lo + per]
-                vid = first[sel, None] + np.minimum(np.arange(nv[sel].max()), nv[sel, None] - 1)
+            lo = 0
+            while lo < len(grp):  # (ascending vertex counts: a batch's last block has the most)
+                padded = np.arange(1, len(grp) - lo + 1) * nv[grp[lo:]] * ng[grp[0]]
+                sel = grp[lo : lo + max(1, int(np.searchsorted(padded, self.BUDGET, side="right")))]
+                vid = first[sel, None] + np.minimum(np.arange(nv[sel[-1]]), nv[sel, None] - 1)
                 out.append((order[vid], nv[sel], ub[sel]))
+                lo += len(sel)
         return out
 
     def gather(self, ub):
@@ -779,7 +797,7 @@ def _project(refiner, grid, blk, axis, node, t, curv, a_above, level, tol, threa
     normal = np.empty((n + 1, 3), _F32)
     flat = np.empty(n + 1, bool)
     arg = np.empty(n + 1, np.int32)
-    bracket = np.empty((n, 2))  # (lo, hi) of the vertices left after the first evaluation
+    lo_left, hi_left = np.empty(n), np.empty(n)  # the bracket of the vertices left after the first evaluation
 
     def setup(vid, ub):
         ax = axis[vid]
@@ -816,7 +834,8 @@ def _project(refiner, grid, blk, axis, node, t, curv, a_above, level, tol, threa
         p = base
         p[np.arange(len(ids)), ax] += final * st
         pos[ids] = p
-        normal[ids] = g / -np.where(gn > 0, gn, 1.0)[:, None]
+        np.divide(g, np.where(gn > 0, gn, 1.0)[:, None], out=g)  # (g: the caller's temporary)
+        normal[ids] = np.negative(g, out=g)
         flat[ids] = gn <= 0
         arg[ids] = best
 
@@ -832,8 +851,9 @@ def _project(refiner, grid, blk, axis, node, t, curv, a_above, level, tol, threa
         best = np.take_along_axis(src, e.argmax(axis=-1), axis=1)
         write(np.where(valid, vid, n).reshape(-1), base.reshape(-1, 3), ax.reshape(-1), final.reshape(-1), st.reshape(-1),
               g.reshape(-1, 3), gn.reshape(-1), best.reshape(-1))
-        ids = vid[live]
-        t[ids], bracket[ids, 0], bracket[ids, 1] = new[live], lo[live], hi[live]
+        at = np.flatnonzero(live)
+        ids = vid.reshape(-1)[at]
+        t[ids], lo_left[ids], hi_left[ids] = new.reshape(-1)[at], lo.reshape(-1)[at], hi.reshape(-1)[at]
         return ids
 
     def rest(batch):
@@ -841,7 +861,7 @@ def _project(refiner, grid, blk, axis, node, t, curv, a_above, level, tol, threa
         src, coef, kern = refiner.gather(ub)
         valid = np.arange(vid.shape[1]) < nv[:, None]
         ax, base, u0, along, st, ab, tt, cv = setup(vid, ub)
-        lo, hi = bracket[vid, 0], bracket[vid, 1]
+        lo, hi = lo_left[vid], hi_left[vid]
         for it in range(1, NEWTON_STEPS + 1):
             f, g, gn, e = evaluate(u0, along, tt, st, coef, kern)
             live = np.zeros(vid.shape, bool)

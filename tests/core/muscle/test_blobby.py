@@ -335,3 +335,26 @@ def test_edge_guess_against_a_lone_gaussian():
     # The last node of a block with no active block beyond: the linear guess, no curvature.
     t, curv = _edge_guess(flat, at, axis, np.full(len(off), 7), beyond, level, t_lin)
     assert np.array_equal(t, t_lin) and np.isnan(curv).all()
+
+
+def test_refiner_batches_cover_every_vertex_once():
+    # Vertices go to the projection in padded batches of blocks with one number of Gaussians; small
+    # bands merge (few batches) but a batch stays within the budget unless it is a single block.
+    from nephele.core.muscle import blobby as bb
+
+    c, r, s, w = random_blobs(7, 30, 0, 8)
+    grid = bb._grid(0.5 / 4, None)
+    b = bb._blobs(c, r, s, w)
+    blocks = bb._find_blocks(b, grid, 0.3, 4.0, 5.0, 1)
+    refiner = bb._Refiner(b, grid, blocks)
+    rng = np.random.default_rng(0)
+    blk = np.sort(rng.integers(0, len(blocks.q), 20000))
+    for order in (np.arange(len(blk)), np.sort(rng.choice(len(blk), 300, replace=False))):
+        seen = []
+        for vid, nv, ub in refiner.batches(blk, order):
+            assert len(np.unique(refiner.count[ub])) == 1
+            assert vid.size * refiner.count[ub[0]] <= refiner.BUDGET or len(ub) == 1
+            valid = np.arange(vid.shape[1]) < nv[:, None]
+            assert np.all(blk[vid] == ub[:, None])  # padding repeats a vertex of the same block
+            seen.append(vid[valid])
+        assert np.array_equal(np.sort(np.concatenate(seen)), order)
