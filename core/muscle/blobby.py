@@ -788,16 +788,16 @@ def _project(refiner, grid, blk, axis, node, t, curv, a_above, level, tol, threa
     a quarter of it: then its normal and Gaussian come from the point the step started from.
 
     Every vertex is evaluated once, in batches of blocks (:meth:`_Refiner.batches`), and written;
-    the few still moving are batched again and iterate together, packed whenever fewer than half
-    still move, and written again when done (``t`` is updated in place).  Returns positions (float32), unit normals (float32,
-    from the analytic gradient), where the gradient vanished, and the most-contributing Gaussian.
+    the few still moving (with their edge parameters and brackets, in arrays of their own) are batched
+    again and iterate together, packed whenever fewer than half still move, and written again when
+    done.  Returns positions (float32), unit normals (float32, from the analytic gradient), where the
+    gradient vanished, and the most-contributing Gaussian.
     """
     n = len(t)
     pos = np.empty((n + 1, 3), _F32)  # row n: where padding is written
     normal = np.empty((n + 1, 3), _F32)
     flat = np.empty(n + 1, bool)
     arg = np.empty(n + 1, np.int32)
-    lo_left, hi_left = np.empty(n), np.empty(n)  # the bracket of the vertices left after the first evaluation
 
     def setup(vid, ub):
         ax = axis[vid]
@@ -805,7 +805,7 @@ def _project(refiner, grid, blk, axis, node, t, curv, a_above, level, tol, threa
         u0 = base - refiner.x0[ub][:, None, :]
         along = np.arange(0, u0.size, 3) + ax.reshape(-1)  # the edge's coordinate in (..., 3) rows
         # ab: f - level >= 0 at the lower node
-        return ax, base, u0, along, grid.h[ax], a_above[vid], t[vid], np.abs(curv[vid])
+        return ax, base, u0, along, grid.h[ax], a_above[vid], np.abs(curv[vid])
 
     def evaluate(u0, along, tt, st, coef, kern):
         u = u0.copy()
@@ -829,10 +829,8 @@ def _project(refiner, grid, blk, axis, node, t, curv, a_above, level, tol, threa
         settled = good & (2 * cv * (new - tt) ** 2 < slack) & (np.abs(new - tt) * st < SETTLE_STEP * tol)  # False for NaN
         return np.where(go & settled, new, tt), new, go & (new != tt) & ~settled, lo, hi
 
-    def write(ids, base, ax, final, st, g, gn, best):
+    def write(ids, p, g, gn, best):
         """Outputs of vertices ``ids`` (rows of the other arguments)."""
-        p = base
-        p[np.arange(len(ids)), ax] += final * st
         pos[ids] = p
         np.divide(g, np.where(gn > 0, gn, 1.0)[:, None], out=g)  # (g: the caller's temporary)
         normal[ids] = np.negative(g, out=g)
@@ -840,28 +838,29 @@ def _project(refiner, grid, blk, axis, node, t, curv, a_above, level, tol, threa
         arg[ids] = best
 
     def first(batch):
-        """Evaluate and write every vertex of the batch (its padding to row n); return those still moving."""
+        """Evaluate and write every vertex of the batch (its padding to row n); return those still moving
+        (their ids, next edge parameters and brackets)."""
         vid, nv, ub = batch
         src, coef, kern = refiner.gather(ub)
         valid = np.arange(vid.shape[1]) < nv[:, None]
-        ax, base, u0, along, st, ab, tt, cv = setup(vid, ub)
+        ax, base, u0, along, st, ab, cv = setup(vid, ub)
+        tt = t[vid]
         f, g, gn, e = evaluate(u0, along, tt, st, coef, kern)
         lo, hi = np.zeros(vid.shape), np.ones(vid.shape)
         final, new, live, lo, hi = step(f, g, gn, valid, tt, lo, hi, ab, cv, along, st)
         best = np.take_along_axis(src, e.argmax(axis=-1), axis=1)
-        write(np.where(valid, vid, n).reshape(-1), base.reshape(-1, 3), ax.reshape(-1), final.reshape(-1), st.reshape(-1),
-              g.reshape(-1, 3), gn.reshape(-1), best.reshape(-1))
+        base.reshape(-1)[along] += (final * st).reshape(-1)
+        write(np.where(valid, vid, n).reshape(-1), base.reshape(-1, 3), g.reshape(-1, 3), gn.reshape(-1), best.reshape(-1))
         at = np.flatnonzero(live)
-        ids = vid.reshape(-1)[at]
-        t[ids], lo_left[ids], hi_left[ids] = new.reshape(-1)[at], lo.reshape(-1)[at], hi.reshape(-1)[at]
-        return ids
+        return vid.reshape(-1)[at], new.reshape(-1)[at], lo.reshape(-1)[at], hi.reshape(-1)[at]
 
-    def rest(batch):
-        vid, nv, ub = batch
+    def rest(batch, left):
+        """Iterate the vertices ``left`` (ids, t, lo, hi) at the batch's positions into them until done."""
+        at, nv, ub = batch
+        vid, tt, lo, hi = (x[at] for x in left)
         src, coef, kern = refiner.gather(ub)
         valid = np.arange(vid.shape[1]) < nv[:, None]
-        ax, base, u0, along, st, ab, tt, cv = setup(vid, ub)
-        lo, hi = lo_left[vid], hi_left[vid]
+        ax, base, u0, along, st, ab, cv = setup(vid, ub)
         for it in range(1, NEWTON_STEPS + 1):
             f, g, gn, e = evaluate(u0, along, tt, st, coef, kern)
             live = np.zeros(vid.shape, bool)
@@ -870,8 +869,9 @@ def _project(refiner, grid, blk, axis, node, t, curv, a_above, level, tol, threa
                 final, new, live, lo, hi = step(f, g, gn, valid, tt, lo, hi, ab, cv, along, st)
             done = np.flatnonzero(valid & ~live)
             best = src[done // vid.shape[1], e.reshape(-1, e.shape[-1])[done].argmax(axis=1)]
-            write(vid.reshape(-1)[done], base.reshape(-1, 3)[done], ax.reshape(-1)[done], final.reshape(-1)[done],
-                  st.reshape(-1)[done], g.reshape(-1, 3)[done], gn.reshape(-1)[done], best)
+            p = base.reshape(-1, 3)[done]
+            p[np.arange(len(done)), ax.reshape(-1)[done]] += final.reshape(-1)[done] * st.reshape(-1)[done]
+            write(vid.reshape(-1)[done], p, g.reshape(-1, 3)[done], gn.reshape(-1)[done], best)
             if not live.any():
                 return
             tt = np.where(live, new, tt)
@@ -884,10 +884,11 @@ def _project(refiner, grid, blk, axis, node, t, curv, a_above, level, tol, threa
 
     order = np.argsort(blk, kind="stable")  # nearly sorted already: batches read and write short runs
     left = thread_map(first, refiner.batches(blk, order), threads)
-    left = np.concatenate(left) if left else np.zeros(0, np.int64)
-    if len(left):
-        left = left[np.argsort(blk[left], kind="stable")]
-        thread_map(rest, refiner.batches(blk, left), threads)
+    left = [np.concatenate(x) for x in zip(*left)]
+    if left and len(left[0]):
+        by = np.argsort(blk[left[0]], kind="stable")
+        left = [x[by] for x in left]
+        thread_map(lambda bt: rest(bt, left), refiner.batches(blk[left[0]], np.arange(len(by))), threads)
     return pos[:n], normal[:n], flat[:n], arg[:n]
 
 
