@@ -17,7 +17,8 @@ def test_scatter_command_writes_views_and_solution(tmp_path):
     meta = json.loads((out / "scatter.json").read_text())
     assert meta["converged"] and meta["views"] == 2
     sol = scatter.load_solution(out / "solution.npz")
-    assert sol.received.shape == (96, 6, 8, 8)
+    assert sol.sigma.shape == (6, 8, 8) and sol.received.shape == (96,) + sol.sigma[sol.box].shape
+    assert sol.grid("received").shape == (96, 6, 8, 8)
     img = np.load(out / "view_0001.npy")
     assert img.shape == (20, 24) and img.max() > 0 and np.all(np.isfinite(img))
     # the view is the film-speed plane march; the ray march of the same solution is the anchor
