@@ -279,11 +279,12 @@ class _Blocks:
 _PAIR_CHUNK = 1 << 18  # (block, Gaussian) candidates per step: temporaries of a few MB
 
 
-def _block_pairs(b, grid, cut_fine, threads):
+def _block_pairs(b, grid, cut, cut_fine, threads):
     """The block index (:class:`_Index`, over every candidate block) and, per run of Gaussians,
-    (key (p,), g (p,), near (p,), far (p,)) for blocks whose closed box may meet a Gaussian's
-    ``cut_fine`` ellipsoid; ``near`` and ``far`` bound the Mahalanobis distance over the block from
-    below and above (sphere bounds).  None if no block is a candidate."""
+    (key (p,), g (p,), on_grid (p,), upper (p,), lower (p,)) for blocks whose closed box may meet a
+    Gaussian's ``cut_fine`` ellipsoid: whether it meets the ``cut`` one too, and then bounds of the
+    Gaussian over the block from above and below (from sphere bounds of the Mahalanobis distance;
+    0 where not on the grid).  None if no block is a candidate."""
     size = grid.size
     e = cut_fine * b.half
     lo = np.ceil((b.c - e) / size).astype(np.int64) - 1
@@ -323,8 +324,13 @@ def _block_pairs(b, grid, cut_fine, threads):
         sq = np.sqrt(_quad(b.a[g], d))
         near = np.maximum(sq - ra[g], 0.0)  # lower bound of the distance over the block
         far = sq + ra[g]  # upper bound
-        keep = near <= cut_fine
-        return index.key(q[keep]), g[keep], near[keep], far[keep]
+        keep = np.flatnonzero(near <= cut_fine)
+        g, near, far = g[keep], near[keep], far[keep]
+        w = np.exp(b.lnw[g])
+        on_grid = near <= cut
+        upper = np.where(on_grid, w * np.exp(-0.5 * near**2), 0.0)
+        lower = np.where(on_grid, w * np.exp(-0.5 * far**2), 0.0)
+        return index.key(q[keep]), g, on_grid, upper, lower
 
     return index, thread_map(run, spans, threads)
 
@@ -358,13 +364,12 @@ class _Index:
 
 def _find_blocks(b, grid, level, cut, cut_fine, threads):
     """Classify blocks by bounds; return the active ones with their Gaussian lists, or None."""
-    index, parts = _block_pairs(b, grid, cut_fine, threads)
+    index, parts = _block_pairs(b, grid, cut, cut_fine, threads)
     key = np.concatenate([p[0] for p in parts]) if parts else np.zeros(0, np.int64)
     if len(key) == 0:
         return None
     g = np.concatenate([p[1] for p in parts])
-    near = np.concatenate([p[2] for p in parts])
-    far = np.concatenate([p[3] for p in parts])
+    on_grid = np.concatenate([p[2] for p in parts])
     dense = index.total <= 1 << 25
     if dense:
         slot, nslot = key, index.total
@@ -372,10 +377,8 @@ def _find_blocks(b, grid, level, cut, cut_fine, threads):
         ukeys, slot = np.unique(key, return_inverse=True)
         slot = slot.reshape(-1)
         nslot = len(ukeys)
-    w = np.exp(b.lnw[g])
-    on_grid = near <= cut
-    upper = np.bincount(slot, np.where(on_grid, w * np.exp(-0.5 * near**2), 0.0), nslot)
-    lower = np.bincount(slot, np.where(on_grid, w * np.exp(-0.5 * far**2), 0.0), nslot)
+    upper = np.bincount(slot, np.concatenate([p[3] for p in parts]), nslot)
+    lower = np.bincount(slot, np.concatenate([p[4] for p in parts]), nslot)
     cls = np.full(nslot, -1, np.int64)  # below
     cls[lower >= level] = -2  # above
     act = np.flatnonzero((upper >= level) & (lower < level))
@@ -892,9 +895,10 @@ def _project(refiner, grid, blk, axis, node, t, curv, a_above, level, tol, threa
     return pos[:n], normal[:n], flat[:n], arg[:n]
 
 
-def _assemble(parts, nslot):
+def _assemble(parts, nslot, threads):
     """Global vertex numbering: every chunk's own edges, then one representative per
-    duplicated edge; faces keep references (negative) resolved to (base vertex, shift)."""
+    duplicated edge; faces refer to vertices, or (negative) to references resolved to
+    (base vertex, shift) whose shift is not zero (periodic copies)."""
     owned = np.array([p.n_owned for p in parts])
     offs = np.concatenate([[0], np.cumsum(owned)])
     n_own = int(offs[-1])
@@ -915,13 +919,10 @@ def _assemble(parts, nslot):
 
     ntri = np.cumsum([0] + [len(p.faces) for p in parts])
     faces = np.empty((int(ntri[-1]), 3), np.int32)  # (the mesh's type: vertex counts stay far below 2^31)
-    ref_base, ref_shift = [], []
-    nref = 0
-    for ci, p in enumerate(parts):
-        out = faces[ntri[ci] : ntri[ci + 1]]
-        np.add(p.faces, int(offs[ci]), out=out)
-        np.subtract(p.faces, nref, out=out, where=p.faces < 0)
-        nref += len(p.ref_owner)
+    nref = np.cumsum([0] + [len(p.ref_owner) for p in parts])
+
+    def refer(ci):
+        p = parts[ci]
         act = p.ref_owner >= 0
         base = np.empty(len(act), np.int64)
         own = p.ref_owner[act]
@@ -930,12 +931,18 @@ def _assemble(parts, nslot):
         base[act] = np.where(face_key[at] == want, face_vid[at], -1)
         d = ~act
         base[d] = n_own + dup_index[dup_off[ci] + p.ref_slot[d] - p.n_owned]
-        ref_base.append(base)
-        ref_shift.append(p.ref_shift)
-    ref_base = np.concatenate(ref_base)
+        out = faces[ntri[ci] : ntri[ci + 1]]
+        np.add(p.faces, int(offs[ci]), out=out)
+        neg = np.flatnonzero(p.faces.reshape(-1) < 0)
+        r = -1 - p.faces.reshape(-1)[neg]
+        shifted = np.any(p.ref_shift != 0, axis=1)
+        out.reshape(-1)[neg] = np.where(shifted[r], -1 - (nref[ci] + r), base[r])
+        return base
+
+    ref_base = np.concatenate(thread_map(refer, range(len(parts)), threads))
     if np.any(ref_base < 0):
         raise AssertionError("blobby: a face refers to an edge its owner did not cut")
-    return verts, faces, ref_base, np.concatenate(ref_shift), rep_shift, n_own
+    return verts, faces, ref_base, np.concatenate([p.ref_shift for p in parts]), rep_shift, n_own
 
 
 def blobby_surface(
@@ -1018,7 +1025,7 @@ def blobby_surface(
     spans = _chunks(len(blocks.q), max(1, 512 * 512 // BLOCK**3))
     parts = thread_map(lambda sp: _march(values, blocks, grid, level, sp, et), spans, threads)
     del values
-    verts, faces, ref_base, ref_shift, rep_shift, n_own = _assemble(parts, len(et.face_slots))
+    verts, faces, ref_base, ref_shift, rep_shift, n_own = _assemble(parts, len(et.face_slots), threads)
 
     smin = float(s[w > 0].min())
     refiner = _Refiner(b, grid, blocks)
