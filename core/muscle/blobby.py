@@ -39,6 +39,7 @@ References
    molecules as contour surfaces of sums of Gaussian ellipsoids).
 """
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -1023,7 +1024,7 @@ def blobby_surface(
 
     et = _edge_tables()
     spans = _chunks(len(blocks.q), max(1, 512 * 512 // BLOCK**3))
-    parts = thread_map(lambda sp: _march(values, blocks, grid, level, sp, et), spans, threads)
+    parts = thread_map(functools.partial(_march, values, blocks, grid, level, et=et), spans, threads)
     del values
     verts, faces, ref_base, ref_shift, rep_shift, n_own = _assemble(parts, len(et.face_slots), threads)
 
