@@ -1001,8 +1001,10 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
     arrays = (1 + bool(source_profile)) * (1 + keep)
     area = max(sum(0 if r is None else (r[0].stop - r[0].start) * (r[1].stop - r[1].start)
                    for r in _layer_boxes(np.moveaxis(sigma, ax, 0))) for ax in range(3))
-    fits = arrays * NB * dirs.shape[1] * area <= 1 << 28
-    caches = [{} if fits else None for _ in groups]
+    def new_caches(ns):
+        return [{} if arrays * NB * ns * area <= 1 << 28 else None for _ in groups]
+
+    caches = new_caches(dirs.shape[1])
     tail = _Tail(received, total, exit_flux) if extrapolate else None
     beams = (dirs, wsub, M, caches)
     late = late_sub is None
@@ -1012,7 +1014,7 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
             late = True
             _, d1, w1, _ = _groups(periodic, late_sub)
             beams = (d1, w1, phase.phase_matrix(g_s, sub=phase_sub, transport_sub=late_sub),
-                     [{} if fits else {} for _ in groups])
+                     new_caches(d1.shape[1]))
             tail = _Tail(received, total, exit_flux) if extrapolate else None
         dirs_p, wsub_p, M_p, caches_p = beams
         if tail is not None:
