@@ -789,8 +789,9 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
         ``received`` changes by 1.7e-4 of the entered power (L1), small beside the 4x4
         sub-directions' own error (2.32e-3 against 8x8 sub-directions; 2.37e-3 merged).
         0.2 (default): 26 bins; on the 12x16x16 test cloud merged vs all 2.2e-4 (0.1: 1.3e-4,
-        0.3: 3.5e-4) beside all vs 8x8 2.8e-3; the 64x64x48 cloud against Cycles: mean
-        +1.48%, 4x4 2.01% at 0.1, 0.2 and 0.3.
+        0.3: 3.5e-4) beside all vs 8x8 2.8e-3; the 64x64x48 cloud against Cycles (with the
+        earlier bin matrix, :func:`.phase.phase_matrix`): mean +1.48-1.49%, 4x4 2.00-2.01%
+        at 0.1, 0.2 and 0.3.
         Merging the first order too (3.0e-4) puts the back-scatter off (slab single
         scattering R +0.57% -> +1.12%, tests/core/light/test_scatter_voxel_depth.py).
     late_sub, late_residual : once the unshot power has fallen to ``late_residual`` of the
@@ -798,8 +799,8 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
         instead of ``sub x sub`` (None: never).  Light that many orders old is smooth in
         space and angle, so the sub-directions' fight against ray effects buys little there,
         and 1x1 costs a quarter (its transmittances fit the cache at 128x128x96 too).
-        Fig. 6 cloud 64x64x48 against Cycles 4096 spp: mean +1.49% / 4x4 2.04% with 2x2
-        throughout, +1.48% / 2.01% with 1x1 from 0.1 (solve 14.1 -> 10.9 s CPU);
+        Fig. 6 cloud 64x64x48 against Cycles 4096 spp (earlier bin matrix): mean +1.49% /
+        4x4 2.04% with 2x2 throughout, +1.48% / 2.01% with 1x1 from 0.1 (solve 14.1 -> 10.9 s CPU);
         128x128x96: 87.7 -> 77.4 s CPU.  Thick slabs (tau 32 isotropic, tau 4-16 g 0.8)
         change R and T by at most 0.15% (rel.), T toward adding-doubling.
 
@@ -823,6 +824,8 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
     real_orders = min(int(real_orders), int(peaked_orders))
     if int(max_passes) < 1 or not tol > 0:
         raise DataError("max_passes must be >= 1 and tol > 0", field="tol")
+    if late_sub is not None and int(late_sub) < 1:
+        raise DataError(f"late_sub must be >= 1 or None, got {late_sub}", field="late_sub")
     f = g ** 4 if (delta_m and g > 0) else 0.0
     sig_s = sigma * (1.0 - albedo * f)
     alb_s = albedo * (1.0 - f) / (1.0 - albedo * f) if albedo * f < 1 else 0.0

@@ -128,6 +128,8 @@ def test_bad_input():
         scatter.solve(np.ones((3, 3, 3)), (1, 1, 1), sun_dir=(0, 0, 0))
     with pytest.raises(DataError):
         scatter.solve(np.ones((3, 3, 3)), (1, 0, 1))
+    with pytest.raises(DataError, match="late_sub"):
+        scatter.solve(np.ones((3, 3, 3)), (1, 1, 1), late_sub=0)
 
 
 def test_progress_steps():
