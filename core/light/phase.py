@@ -124,12 +124,10 @@ def bin_of(direction):
     return face * 16 + iu * 4 + iv
 
 
-def _delta_split(g):
-    """(f, g_rest, forward) of the delta-M split ``p = f delta + (1-f) HG(g_rest)``."""
-    f = g * g
-    if g >= 0:
-        return f, g / (1.0 + g), True
-    return f, g / (1.0 - g), False
+def _split_rest(g):
+    """``g_rest`` of the split ``p = g^2 delta + (1 - g^2) HG(g_rest)`` (same mean cosine; the
+    delta forward for g >= 0, backward otherwise)."""
+    return g / (1.0 + abs(g))
 
 
 def _antipode():
@@ -184,7 +182,7 @@ def _phase_matrix_cached(g, sub, delta, transport_sub):
 
         f = top_up(m)
         if np.any(f < 0):
-            m_split = _binned_hg(_delta_split(g)[1], sub)
+            m_split = _binned_hg(_split_rest(g), sub)
             m[:, f < 0] = m_split[:, f < 0]
             f = top_up(m)
         f = np.clip(f, 0.0, 1.0)
