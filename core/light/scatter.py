@@ -1186,8 +1186,9 @@ def _view_tables(sol):
     occ = np.flatnonzero(sig.reshape(-1) > 0)
     at = np.ravel_multi_index(tuple(i + o for i, o in zip(np.unravel_index(occ, sig.shape), sol.origin)),
                               sol.sigma.shape)
+    bz, by, bx = sol.box
     x, y, z = voxel_centres(sol.sigma.shape, sol.size)
-    pts = np.stack(np.broadcast_arrays(x, y, z), -1).reshape(-1, 3)[at]
+    pts = np.stack(np.broadcast_arrays(x[:, :, bx], y[:, by], z[bz]), -1).reshape(-1, 3)[occ]
     peaked = sol.received_peaked.reshape(len(sol.received_peaked), NB, -1)[:, :, occ]
     rest = sol.received.reshape(NB, -1)[:, occ] - peaked.sum(0)
     tables = (at, pts, sig.reshape(-1)[occ], sol.received_sun.reshape(-1)[occ], rest, peaked)
