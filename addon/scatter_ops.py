@@ -25,6 +25,7 @@ from ..core.light import scatter, scatter_task
 from ..fileio import dense_grids, write_vdb
 from .camera import camera_object, look_at
 from .panel import SubPanel
+from .render_device import use_device
 
 
 def add_camera(cam, name="Scatter camera"):
@@ -116,11 +117,12 @@ def scattering_material(albedo, g, name="Path-traced cloud"):
     return mat
 
 
-def cycles_settings(scene, samples, *, denoise=False, threads=None, bounces=256):
-    """Cycles for volumes: many volume bounces, no clamping, box pixel filter, CPU."""
+def cycles_settings(scene, samples, *, denoise=False, threads=None, bounces=256, device="CPU"):
+    """Cycles for volumes: many volume bounces, no clamping, box pixel filter, on ``device``
+    (:data:`~nephele.addon.render_device.DEVICES`: the CPU, or every GPU of a backend)."""
     scene.render.engine = "CYCLES"
     c = scene.cycles
-    c.device = "CPU"
+    use_device(scene, device)
     c.samples = int(samples)
     c.use_adaptive_sampling = False
     c.use_denoising = bool(denoise)

@@ -40,6 +40,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "benchmarks"))
 sys.path.insert(0, str(ROOT / "tests" / "core" / "light"))  # the independent truths the tests use
+from nephele.addon.render_device import DEVICES  # noqa: E402 (no bpy at import)
 OUT = ROOT / "out" / "bench" / "scatter"
 
 SIZE = (1.0, 1.0, 0.75)
@@ -72,7 +73,7 @@ def errors(img, ref):
     return mean, out[0], out[1]
 
 
-def cycles_render(sigma, cam, samples, *, denoise=False, seed=0, threads=2, tag="pt", vdb=None):
+def cycles_render(sigma, cam, samples, *, denoise=False, seed=0, threads=2, tag="pt", vdb=None, device="CPU"):
     import bpy
 
     from nephele.addon import scatter_ops as so
@@ -83,7 +84,7 @@ def cycles_render(sigma, cam, samples, *, denoise=False, seed=0, threads=2, tag=
     so.black_world()
     so.add_sun(SUN, 1.0)
     so.add_pathtraced_cloud(sigma, SIZE, albedo=ALBEDO, g=G, vdb_path=vdb or OUT / "cloud.vdb")
-    so.cycles_settings(sc, 1, denoise=denoise, threads=threads)
+    so.cycles_settings(sc, 1, denoise=denoise, threads=threads, device=device)
     sc.cycles.seed = seed
     sc.render.use_persistent_data = True  # keep the synced scene between frames, as for an animation
     t = time.perf_counter()
@@ -97,18 +98,20 @@ def cycles_render(sigma, cam, samples, *, denoise=False, seed=0, threads=2, tag=
     return img, time.perf_counter() - t, cold
 
 
-def reference(sigma, cam, spp, directory=None):
+def reference(sigma, cam, spp, directory=None, device="CPU"):
     """Two halves of ``spp`` samples each, cached in ``directory`` (default :data:`OUT`; one per
-    grid); returns (mean image, noise of the mean, seconds)."""
+    grid); returns (mean image, noise of the mean, seconds, where it was rendered).  ``device``:
+    where Cycles renders a missing one (a GPU backend gives the same estimate, other noise)."""
     directory = Path(directory or OUT)
     directory.mkdir(parents=True, exist_ok=True)
     path = directory / f"reference_{spp}_{cam.width}x{cam.height}.npz"
     if path.exists():
         z = np.load(path, allow_pickle=False)
-        return z["image"], float(z["noise"]), float(z["seconds"])
+        return z["image"], float(z["noise"]), float(z["seconds"]), str(z["device"]) if "device" in z else "CPU"
     halves, secs = [], 0.0
     for seed in (1, 2):
-        img, s, _ = cycles_render(sigma, cam, spp // 2, seed=seed, tag=f"ref{seed}", vdb=directory / "cloud.vdb")
+        img, s, _ = cycles_render(sigma, cam, spp // 2, seed=seed, tag=f"ref{seed}", vdb=directory / "cloud.vdb",
+                                  device=device)
         halves.append(img)
         secs += s
     ref = 0.5 * (halves[0] + halves[1])
@@ -117,8 +120,8 @@ def reference(sigma, cam, spp, directory=None):
     r = blocks(ref)
     m = r > 0.02 * r.max()
     noise = float(0.5 * np.abs(d)[m].mean() / r[m].mean())
-    np.savez(path, image=ref, noise=noise, seconds=secs)
-    return ref, noise, secs
+    np.savez(path, image=ref, noise=noise, seconds=secs, device=device)
+    return ref, noise, secs, device
 
 
 def ours(sigma, cam, n_views=120, repeat_views=5):
@@ -141,14 +144,15 @@ def ours(sigma, cam, n_views=120, repeat_views=5):
     return img, sol, t_solve, float(np.median(times))
 
 
-def film(n, width=640, height=480, views=3, anchor=True, cycles=None):
+def film(n, width=640, height=480, views=3, anchor=True, cycles=None, ref_device="CPU"):
     """Film resolution (issue 18): the test cloud on n x n x 3n/4 voxels (the same Perlin
     field sampled finer), one solve, then 640x480 views (source + plane march, 2 samples
     per voxel), wall and CPU seconds and the load; the ray march (:func:`render`, step
     0.4 voxel) of the first view as the anchor, with the difference of the two images.
     ``cycles = (spp_640, spp_test)``: also Cycles path-traced references of this grid
     (cached per grid): the first 640x480 view against ``spp_640`` samples, the 128x96 test
-    view against ``spp_test``, beside Cycles raw and OIDN-denoised points at the test view."""
+    view against ``spp_test``, beside Cycles raw and OIDN-denoised points at the test view;
+    missing references are rendered on ``ref_device``."""
     from nephele.core.volume import cloud_density
     from nephele.core.light import scatter
 
@@ -186,27 +190,29 @@ def film(n, width=640, height=480, views=3, anchor=True, cycles=None):
                      f"{load0:.1f}-{os.getloadavg()[0]:.1f}", note))
         print(rows[-1], flush=True)
         if i == 0 and cycles and cycles[0]:
-            rows.append(_against_cycles(f"{width}x{height} view 0", img, sigma, cam, cycles[0], n)[0])
+            rows.append(_against_cycles(f"{width}x{height} view 0", img, sigma, cam, cycles[0], n,
+                                        device=ref_device)[0])
     if cycles:
-        rows += film_cycles(n, sigma, sol, cycles[1])
+        rows += film_cycles(n, sigma, sol, cycles[1], device=ref_device)
     return rows
 
 
-def _against_cycles(name, img, sigma, cam, spp, n, times=("", "", "")):
+def _against_cycles(name, img, sigma, cam, spp, n, times=("", "", ""), device="CPU"):
     """A row (with ``times``: wall s, CPU s, load) for ``img`` against the Cycles reference of
-    this grid and camera (``spp``, cached), and that reference."""
-    ref, noise, secs = reference(sigma, cam, spp, OUT / f"film{n}")
+    this grid and camera (``spp``, cached; rendered on ``device`` when missing), and that reference."""
+    ref, noise, secs, where = reference(sigma, cam, spp, OUT / f"film{n}", device)
     e = errors(img, ref)
     row = (f"{name} vs Cycles {spp} spp", *times,
-           f"ours: mean {e[0]:+.4f}, pixel {e[1]:.4f}, 4x4 {e[2]:.4f} (reference {secs:.0f} s, its own 4x4 "
+           f"ours: mean {e[0]:+.4f}, pixel {e[1]:.4f}, 4x4 {e[2]:.4f} (reference {secs:.0f} s on {where}, its own 4x4 "
            f"noise {noise:.4f})")
     print(row, flush=True)
     return row, ref
 
 
-def film_cycles(n, sigma, sol, spp, points=((False, 256), (True, 16), (True, 64))):
+def film_cycles(n, sigma, sol, spp, points=((False, 256), (True, 16), (True, 64)), device="CPU"):
     """Rows: the 128x96 test view of ``sol`` against a Cycles reference of the same grid
-    (``spp``), and Cycles raw / OIDN points rendered in this run (warm frames)."""
+    (``spp``; rendered on ``device`` when missing), and Cycles raw / OIDN points rendered in
+    this run on the CPU (warm frames)."""
     from nephele.core.light import scatter
 
     _, cam = scene()
@@ -214,7 +220,7 @@ def film_cycles(n, sigma, sol, spp, points=((False, 256), (True, 16), (True, 64)
     w, c = time.perf_counter(), time.process_time()
     img = scatter.march_planes(sigma, scatter.view_source(sol, cam.position), SIZE, cam, samples=2)
     times = (f"{time.perf_counter() - w:.2f}", f"{time.process_time() - c:.2f}", f"{load0:.1f}-{os.getloadavg()[0]:.1f}")
-    row, ref = _against_cycles(f"{cam.width}x{cam.height} test view", img, sigma, cam, spp, n, times)
+    row, ref = _against_cycles(f"{cam.width}x{cam.height} test view", img, sigma, cam, spp, n, times, device)
     picture(img, ref, f"scatter_vs_cycles_{n}.png")
     rows = [row]
     for dn, k in points:
@@ -347,7 +353,11 @@ def main(argv=None):
     ap.add_argument("--ref-spp", type=int, default=1024)
     ap.add_argument("--quick", action="store_true",
                     help="a few accuracy cases, our solve and one Cycles point; prints, writes no docs")
-    ap.add_argument("--reference-only", action="store_true")
+    ap.add_argument("--reference-only", action="store_true",
+                    help="only render the missing references (with --film: each grid's 640x480 view 0 at "
+                         "--film-ref-spp and its test view at --film-test-spp)")
+    ap.add_argument("--ref-device", default="CPU", choices=DEVICES,
+                    help="where Cycles renders missing references: CPU, or every GPU of a backend (OPTIX, CUDA, ...)")
     ap.add_argument("--accuracy-only", action="store_true", help="only the voxel-depth table (writes docs)")
     ap.add_argument("--skip-accuracy", action="store_true", help="leave the voxel-depth table as it is")
     ap.add_argument("--views", type=int, default=120)
@@ -358,13 +368,27 @@ def main(argv=None):
                          "and Cycles raw/OIDN points in this run")
     ap.add_argument("--film-ref-spp", type=int, default=1024,
                     help="samples of the 640x480 Cycles reference (0: none; 1024 took 25 min on 2 shared cores)")
+    ap.add_argument("--film-test-spp", type=int, default=4096, help="samples of the 128x96 test view's reference")
     args = ap.parse_args(argv)
     from report import md_table, write_section
 
+    if args.film and args.reference_only:
+        from nephele.core.light import scatter
+        from nephele.core.volume import cloud_density
+
+        for n in args.film:
+            sigma = EXT * cloud_density.cloud_density(cloud_density.CloudParams(shape=(3 * n // 4, n, n), size=SIZE))
+            for spp, cam in ((args.film_ref_spp, scatter.orbit_camera(VIEW_ANGLE, SIZE, width=640, height=480)),
+                             (args.film_test_spp, scene()[1])):
+                if spp:
+                    _, noise, secs, where = reference(sigma, cam, spp, OUT / f"film{n}", args.ref_device)
+                    print(f"film {n}, {cam.width}x{cam.height}, {spp} spp: {secs:.0f} s on {where}, "
+                          f"own 4x4 noise {noise:.4f}", flush=True)
+        return 0
     if args.film:
-        cyc = (args.film_ref_spp, 4096) if args.film_cycles else None
+        cyc = (args.film_ref_spp, args.film_test_spp) if args.film_cycles else None
         for n in args.film:  # a section per grid: grids can be rerun one at a time
-            rows = film(n, cycles=cyc)
+            rows = film(n, cycles=cyc, ref_device=args.ref_device)
             write_section(f"scatter-film-{n}", "Film resolution (issue 18): the test cloud sampled on finer grids, "
                           "solve and 640x480 views (view_source + march_planes, 2 samples per voxel). "
                           f"{os.cpu_count()} cores shared with other jobs; load = 1-minute load average "
@@ -402,9 +426,9 @@ def main(argv=None):
     if args.quick:
         args.ref_spp, args.views = min(args.ref_spp, 16), min(args.views, 4)
     sigma, cam = scene()
-    ref, ref_noise, ref_secs = reference(sigma, cam, args.ref_spp)
+    ref, ref_noise, ref_secs, ref_where = reference(sigma, cam, args.ref_spp, device=args.ref_device)
     if args.reference_only:
-        print(f"reference {args.ref_spp} spp: {ref_secs:.0f} s, noise {ref_noise:.4f} (4x4)")
+        print(f"reference {args.ref_spp} spp: {ref_secs:.0f} s on {ref_where}, noise {ref_noise:.4f} (4x4)")
         return 0
 
     img, sol, t_solve, t_view = ours(sigma, cam, args.views)
@@ -439,7 +463,7 @@ def main(argv=None):
         "Cycles seconds are a warm frame (after a 1-spp first render that loads kernels; "
         "persistent data on), as in an animation rendered in one session.",
         "",
-        f"Reference: Cycles {args.ref_spp} spp ({ref_secs:.0f} s), own noise on 4x4 blocks "
+        f"Reference: Cycles {args.ref_spp} spp ({ref_secs:.0f} s on {ref_where}), own noise on 4x4 blocks "
         f"{ref_noise:.4f} (half the difference of two {args.ref_spp // 2}-spp halves).",
         "",
         md_table(["method", "spp", "seconds", "mean err", "pixel err", "4x4 err", "note"], rows),

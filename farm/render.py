@@ -21,13 +21,13 @@ import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from ..addon.render_device import DEVICES
 from ..core.errors import DataError
 from .cli import UsageError
 from .frames import FORMATS, TMP_DIR, InvalidFrame, check_image, chunks, format_frames, frame_name, parse_frames
 from .manifest import Manifest, classify, file_entry, views_entry
 
 ENGINES = ("CYCLES", "BLENDER_EEVEE", "BLENDER_WORKBENCH")
-DEVICES = ("CPU", "OPTIX", "CUDA", "HIP", "METAL", "ONEAPI")
 _BLEND_MAGIC = (b"BLENDER", b"\x28\xb5\x2f\xfd", b"\x1f\x8b")  # plain, zstd, gzip
 
 

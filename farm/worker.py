@@ -32,7 +32,6 @@ import importlib.util
 import json
 import os
 import signal
-import socket
 import sys
 import time
 import traceback
@@ -41,10 +40,10 @@ from pathlib import Path
 from distributed import get_worker
 from distributed.diagnostics.plugin import WorkerPlugin
 
+from ..addon.render_device import use_device
 from .frames import FORMATS, TMP_DIR, InvalidFrame, check_image, frame_name, sha256_file
 
 ENGINES = ("CYCLES", "BLENDER_EEVEE", "BLENDER_WORKBENCH")
-DEVICES = ("CPU", "OPTIX", "CUDA", "HIP", "METAL", "ONEAPI")
 THREAD_VARS = ("NEPHELE_THREADS", "SLURM_CPUS_PER_TASK", "NCPUS", "PBS_NUM_PPN")
 """Render threads come from the first of these set: ours, Slurm's allocation, PBS Pro's, Torque's."""
 _WORKBENCH_AA = ((1, "OFF"), (5, "5"), (8, "8"), (11, "11"), (16, "16"), (32, "32"))
@@ -166,7 +165,7 @@ def load_scene(spec):
         else:  # Workbench: the largest anti-aliasing level not above n samples
             scene.display.render_aa = [name for k, name in _WORKBENCH_AA if k <= n][-1]
     if r.engine == "CYCLES":
-        _set_device(scene, spec.get("device") or "CPU")
+        use_device(scene, spec.get("device") or "CPU")
         if spec.get("persistent"):
             r.use_persistent_data = True
     elif spec.get("device") not in (None, "CPU"):
@@ -185,33 +184,6 @@ def load_scene(spec):
     r.use_placeholder = False
     fit_dome(scene)
     return scene
-
-
-def _set_device(scene, device):
-    if device == "CPU":
-        scene.cycles.device = "CPU"
-        return
-    import bpy
-
-    from ..core.errors import DataError
-
-    prefs = bpy.context.preferences.addons["cycles"].preferences
-    try:
-        prefs.compute_device_type = device
-    except TypeError:
-        pass
-    prefs.refresh_devices()
-    found = [d for d in prefs.devices if d.type == device]
-    if not found:
-        have = sorted({d.type for d in prefs.devices})
-        raise DataError(
-            f"no {device} device on worker host {socket.gethostname()} (Cycles sees: {', '.join(have) or 'none'}); "
-            "use --device CPU or run on GPU nodes",
-            field="--device",
-        )
-    for d in prefs.devices:
-        d.use = d.type == device
-    scene.cycles.device = "GPU"
 
 
 def expected_size(scene):
