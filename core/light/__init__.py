@@ -21,6 +21,8 @@ from .scatter import (  # noqa: F401
     Solution,
     load_solution,
     orbit_camera,
+    panorama_radiance,
+    panorama_solid_angles,
     render,
     save_solution,
     slab_reflectance,

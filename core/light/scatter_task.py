@@ -6,19 +6,20 @@ from dataclasses import asdict
 from ..errors import DataError
 from ..pipeline.registry import planner, task
 from ..volume import cloud_density as cd
-from .scatter import solution_arrays, solve
+from .scatter import _plain, solution_arrays, solve
 
 _SOLVE_KEYS = ("albedo", "g", "sun_dir", "sun_irradiance", "sky_radiance", "tol", "max_passes")
 
 
 def task_params(cloud, extinction=40.0, **solve):
     """JSON parameters of the ``"scatter"`` task: a cloud (:class:`.cloud_density.CloudParams`),
-    its extinction per unit density and :func:`solve` keywords (``_SOLVE_KEYS``)."""
+    its extinction per unit density and :func:`solve` keywords (``_SOLVE_KEYS``; a per-bin
+    ``sky_radiance`` array becomes a list of its 96 values, so the cache key holds them all)."""
     bad = sorted(set(solve) - set(_SOLVE_KEYS))
     if bad:
         raise DataError(f"unknown scattering parameters {bad}", field="scatter")
     return json.loads(json.dumps({"cloud": asdict(cloud), "extinction": float(extinction), "solve": solve},
-                                 default=float))
+                                 default=_plain))
 
 
 @task("scatter")
