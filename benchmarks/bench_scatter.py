@@ -149,10 +149,10 @@ def film(n, width=640, height=480, views=3, anchor=True, cycles=None, ref_device
     field sampled finer), one solve, then 640x480 views (source + plane march, 2 samples
     per voxel), wall and CPU seconds and the load; the ray march (:func:`render`, step
     0.4 voxel) of the first view as the anchor, with the difference of the two images.
-    ``cycles = (spp_640, spp_test)``: also Cycles path-traced references of this grid
-    (cached per grid): the first 640x480 view against ``spp_640`` samples, the 128x96 test
-    view against ``spp_test``, beside Cycles raw and OIDN-denoised points at the test view;
-    missing references are rendered on ``ref_device``."""
+    ``cycles = (spps_640, spps_test)``: also Cycles path-traced references of this grid
+    (cached per grid): the first 640x480 view against one of each of ``spps_640`` samples,
+    the 128x96 test view against each of ``spps_test``, beside Cycles raw and OIDN-denoised
+    points at the test view; missing references are rendered on ``ref_device``."""
     from nephele.core.volume import cloud_density
     from nephele.core.light import scatter
 
@@ -189,8 +189,8 @@ def film(n, width=640, height=480, views=3, anchor=True, cycles=None, ref_device
         rows.append((f"{width}x{height} view {i}", f"{time.perf_counter() - w:.2f}", f"{time.process_time() - c:.2f}",
                      f"{load0:.1f}-{os.getloadavg()[0]:.1f}", note))
         print(rows[-1], flush=True)
-        if i == 0 and cycles and cycles[0]:
-            rows.append(_against_cycles(f"{width}x{height} view 0", img, sigma, cam, cycles[0], n,
+        for spp in filter(None, cycles[0] if i == 0 and cycles else ()):
+            rows.append(_against_cycles(f"{width}x{height} view 0", img, sigma, cam, spp, n,
                                         device=ref_device)[0])
     if cycles:
         rows += film_cycles(n, sigma, sol, cycles[1], device=ref_device)
@@ -209,10 +209,10 @@ def _against_cycles(name, img, sigma, cam, spp, n, times=("", "", ""), device="C
     return row, ref
 
 
-def film_cycles(n, sigma, sol, spp, points=((False, 256), (True, 16), (True, 64)), device="CPU"):
-    """Rows: the 128x96 test view of ``sol`` against a Cycles reference of the same grid
-    (``spp``; rendered on ``device`` when missing), and Cycles raw / OIDN points rendered in
-    this run on the CPU (warm frames)."""
+def film_cycles(n, sigma, sol, spps, points=((False, 256), (True, 16), (True, 64)), device="CPU"):
+    """Rows: the 128x96 test view of ``sol`` against Cycles references of the same grid
+    (one per ``spps``; rendered on ``device`` when missing), and Cycles raw / OIDN points
+    rendered in this run on the CPU (warm frames) against the last reference."""
     from nephele.core.light import scatter
 
     _, cam = scene()
@@ -220,9 +220,12 @@ def film_cycles(n, sigma, sol, spp, points=((False, 256), (True, 16), (True, 64)
     w, c = time.perf_counter(), time.process_time()
     img = scatter.march_planes(sigma, scatter.view_source(sol, cam.position), SIZE, cam, samples=2)
     times = (f"{time.perf_counter() - w:.2f}", f"{time.process_time() - c:.2f}", f"{load0:.1f}-{os.getloadavg()[0]:.1f}")
-    row, ref = _against_cycles(f"{cam.width}x{cam.height} test view", img, sigma, cam, spp, n, times, device)
+    rows = []
+    for spp in filter(None, spps):
+        row, ref = _against_cycles(f"{cam.width}x{cam.height} test view", img, sigma, cam, spp, n, times, device)
+        rows.append(row)
+        times = ("", "", "")
     picture(img, ref, f"scatter_vs_cycles_{n}.png")
-    rows = [row]
     for dn, k in points:
         load0 = os.getloadavg()[0]
         c = time.process_time()
@@ -366,9 +369,11 @@ def main(argv=None):
     ap.add_argument("--film-cycles", action="store_true",
                     help="with --film: Cycles path-traced references of each grid (cached in out/bench/scatter/filmN/) "
                          "and Cycles raw/OIDN points in this run")
-    ap.add_argument("--film-ref-spp", type=int, default=1024,
-                    help="samples of the 640x480 Cycles reference (0: none; 1024 took 25 min on 2 shared cores)")
-    ap.add_argument("--film-test-spp", type=int, default=4096, help="samples of the 128x96 test view's reference")
+    ap.add_argument("--film-ref-spp", type=int, nargs="+", default=[1024],
+                    help="samples of the 640x480 Cycles references, one row each (0: none; 1024 took 25 min on "
+                         "2 shared cores, 4096 20 s on an H200 with OptiX after a 6.5 min first kernel build)")
+    ap.add_argument("--film-test-spp", type=int, nargs="+", default=[4096],
+                    help="samples of the 128x96 test view's references (the last one also scores Cycles' points)")
     args = ap.parse_args(argv)
     from report import md_table, write_section
 
@@ -378,9 +383,9 @@ def main(argv=None):
 
         for n in args.film:
             sigma = EXT * cloud_density.cloud_density(cloud_density.CloudParams(shape=(3 * n // 4, n, n), size=SIZE))
-            for spp, cam in ((args.film_ref_spp, scatter.orbit_camera(VIEW_ANGLE, SIZE, width=640, height=480)),
-                             (args.film_test_spp, scene()[1])):
-                if spp:
+            for spps, cam in ((args.film_ref_spp, scatter.orbit_camera(VIEW_ANGLE, SIZE, width=640, height=480)),
+                              (args.film_test_spp, scene()[1])):
+                for spp in filter(None, spps):
                     _, noise, secs, where = reference(sigma, cam, spp, OUT / f"film{n}", args.ref_device)
                     print(f"film {n}, {cam.width}x{cam.height}, {spp} spp: {secs:.0f} s on {where}, "
                           f"own 4x4 noise {noise:.4f}", flush=True)
