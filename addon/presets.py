@@ -113,6 +113,7 @@ FIG6_DEFAULTS = {
     "grid": (24, 24, 18),
     "sun_irradiance": 7.0,
     "sky_radiance": 0.35,
+    "sky": "uniform",  # or "world": a Sky Texture world with the cloud's sun, baked into the bins
     "directory": None,  # None: the scattering panel's output folder
     "size": (300, 255),  # the paper's
     "samples": 32,
@@ -265,8 +266,11 @@ def fig6(scene, modal=False, **options):
     """Fig. 6, a cloud lit by multiple scattering with the camera looping around it, into ``scene``.
 
     Options (see :data:`FIG6_DEFAULTS`): ``frames`` (the orbit's length),
-    ``grid``, ``sun_irradiance``, ``sky_radiance``, ``directory`` (the VDBs),
-    ``size``, ``samples``.  ``modal``: the solve runs as the scattering
+    ``grid``, ``sun_irradiance``, ``sky_radiance``, ``sky`` (``"uniform"``: a blue
+    background, the cloud lit by a uniform sky of ``sky_radiance``; ``"world"``: a
+    Sky Texture world, :func:`.scatter_ops.add_sky_world`, with its sun where the
+    cloud's sun is, lighting the cloud through :func:`.scatter_ops.bake_world`),
+    ``directory`` (the VDBs), ``size``, ``samples``.  ``modal``: the solve runs as the scattering
     operator's modal job (progress, Esc) and the cloud appears when it ends
     (the returned ``"cloud"`` is then None).  Returns ``{"cloud": obj, "camera": camera}``.
     """
@@ -278,12 +282,20 @@ def fig6(scene, modal=False, **options):
     p.sky_radiance = o["sky_radiance"]
     if o["directory"]:
         p.directory = str(o["directory"])
-    world = bpy.data.worlds.new("Fig6 sky")
-    if world.node_tree is None:
-        world.use_nodes = True
-    bg = world.node_tree.nodes["Background"]
-    bg.inputs["Color"].default_value = (0.22, 0.36, 0.66, 1.0)
-    bg.inputs["Strength"].default_value = 1.0
+    if o["sky"] == "world":
+        from . import scatter_ops
+
+        p.sky = "WORLD"
+        world = scatter_ops.add_sky_world(p.sun_elevation, p.sun_azimuth, name="Fig6 sky")
+    elif o["sky"] == "uniform":
+        world = bpy.data.worlds.new("Fig6 sky")
+        if world.node_tree is None:
+            world.use_nodes = True
+        bg = world.node_tree.nodes["Background"]
+        bg.inputs["Color"].default_value = (0.22, 0.36, 0.66, 1.0)
+        bg.inputs["Strength"].default_value = 1.0
+    else:
+        raise ValueError(f"sky must be 'uniform' or 'world', got {o['sky']!r}")
     scene.world = world
     with bpy.context.temp_override(scene=scene):
         result = bpy.ops.nephele.add_scattering_cloud("INVOKE_DEFAULT" if modal else "EXEC_DEFAULT")

@@ -8,7 +8,8 @@ with ``density`` (extinction) and ``emission`` (in-scattered radiance toward
 that frame's camera, exact sun single scattering included) and loads them as a
 native volume sequence.  The material is Volume Absorption + Emission driven by
 those grids, so Cycles renders an emission-absorption volume: no scattering
-left to path trace.
+left to path trace.  The sky is none, uniform, or the scene's world baked into
+the 96 bins (:func:`bake_world`: Cycles renders the world alone as a panorama).
 
 :func:`add_pathtraced_cloud` builds the same medium for Cycles' own volume path
 tracing (the benchmark's reference).
@@ -142,19 +143,120 @@ def cycles_settings(scene, samples, *, denoise=False, threads=None, bounces=256,
         scene.render.threads = int(threads)
 
 
-def render_array(scene, path):
-    """Render the scene to an OpenEXR at ``path`` and return its luminance-free red channel
-    as float32 (height, width), row 0 at the top (all channels are equal for grey media)."""
+def render_rgba(scene, path):
+    """Render ``scene`` to an OpenEXR at ``path``; its float32 RGBA (height, width, 4), row 0 at the top."""
     scene.render.image_settings.file_format = "OPEN_EXR"
     scene.render.image_settings.color_depth = "32"
     scene.render.filepath = str(path)
-    bpy.ops.render.render(write_still=True)
+    bpy.ops.render.render(write_still=True, scene=scene.name)
     img = bpy.data.images.load(str(path), check_existing=False)
     w, h = img.size
     px = np.empty(w * h * 4, np.float32)
     img.pixels.foreach_get(px)
     bpy.data.images.remove(img)
-    return px.reshape(h, w, 4)[::-1, :, 0].copy()
+    return px.reshape(h, w, 4)[::-1].copy()
+
+
+def render_array(scene, path):
+    """Render the scene to an OpenEXR at ``path`` and return its luminance-free red channel
+    as float32 (height, width), row 0 at the top (all channels are equal for grey media)."""
+    return render_rgba(scene, path)[..., 0].copy()
+
+
+LUMINANCE = (0.2126, 0.7152, 0.0722)
+"""Rec. 709 luminance weights of linear RGB (Blender's default working space): the grey
+solve lights a grey cloud with the luminance of a coloured sky (each channel of a grey
+medium is lit by that channel alone, so the cloud's luminance is the luminance's solve)."""
+
+
+def luminance(rgba):
+    """Luminance (:data:`LUMINANCE`) of linear RGB(A) pixels (..., 3 or 4)."""
+    return np.asarray(rgba)[..., :3] @ np.asarray(LUMINANCE, np.float32)
+
+
+# Camera rotation that makes Cycles' equirectangular panorama (default ranges) look along +x at
+# its centre with +z up: the convention of :func:`..core.light.scatter.panorama_radiance`
+# (checked against a render of the world's direction in tests/addon/test_scatter_sky.py).
+PANORAMA_ROTATION = (math.pi / 2, 0.0, -math.pi / 2)
+
+
+def bake_world(world, center=(0.0, 0.0, 0.0), *, size=(256, 128), samples=64, sun_disc=False, threads=None):
+    """The light of ``world`` per direction bin: (96,) radiances for the solve's ``sky_radiance``.
+
+    Cycles renders the world alone (a temporary scene sharing ``world``, no objects) through an
+    equirectangular panoramic camera at ``center`` (world coordinates; a world's light does not
+    depend on it, but a later world might), ``size`` pixels, ``samples`` per pixel (box filter:
+    each pixel is the mean over its footprint; Sky Texture, no disc, against 256 samples: 64
+    within 0.5% in every bin, 16 within 2% in the darkest ground bins; 3.5 s on 2 cores), then :func:`..core.light.scatter.panorama_radiance` averages its
+    :func:`luminance` over the bins with exact solid angles.  The temporary scene, camera and
+    image go again.  A world held out of camera rays (ray visibility) is shown to the bake's
+    camera all the same: it still lights the cloud.
+
+    ``sun_disc``: keep the sun discs of the world's Sky Texture nodes.  Off by default: the
+    cloud's sun is a separate parallel beam (the sun lamp or the panel's sun, exact and sharp),
+    so a baked disc would light the cloud twice; the discs are switched off for the bake only.
+    Leave it on only when nothing else is the sun (the disc is then blurred over its bin).
+    """
+    import tempfile
+
+    if world is None:
+        raise ValueError("the scene has no world to bake: add one (World properties) or pick another sky")
+    tmp = bpy.data.scenes.new("Nephele sky bake")
+    cam_data = bpy.data.cameras.new("Nephele sky bake")
+    cam_data.type = "PANO"
+    cam_data.panorama_type = "EQUIRECTANGULAR"
+    cam = bpy.data.objects.new("Nephele sky bake", cam_data)
+    discs = [n for n in (world.node_tree.nodes if world.node_tree else ()) if n.bl_idname == "ShaderNodeTexSky"]
+    was = [n.sun_disc for n in discs]
+    seen = world.cycles_visibility.camera  # a world held out of camera rays still lights the cloud
+    try:
+        if not seen:
+            world.cycles_visibility.camera = True
+        tmp.world = world
+        tmp.collection.objects.link(cam)
+        tmp.camera = cam
+        cam.location = tuple(center)
+        cam.rotation_euler = PANORAMA_ROTATION
+        cycles_settings(tmp, samples, threads=threads, bounces=0)
+        tmp.render.film_transparent = False
+        tmp.render.resolution_x, tmp.render.resolution_y = (int(v) for v in size)
+        tmp.render.resolution_percentage = 100
+        for n in discs:
+            n.sun_disc = bool(sun_disc) and n.sun_disc
+        with tempfile.TemporaryDirectory(prefix="nephele_sky_") as d:
+            pano = render_rgba(tmp, Path(d) / "sky.exr")
+    finally:
+        if not seen:
+            world.cycles_visibility.camera = False
+        for n, w in zip(discs, was):
+            n.sun_disc = w
+        bpy.data.objects.remove(cam)
+        bpy.data.cameras.remove(cam_data)
+        bpy.data.scenes.remove(tmp)
+    return scatter.panorama_radiance(np.maximum(luminance(pano), 0.0))
+
+
+def add_sky_world(sun_elevation=38.0, sun_azimuth=-30.0, *, strength=0.08, sky_type="MULTIPLE_SCATTERING",
+                  sun_disc=True, name="Sky"):
+    """A world of Blender's Sky Texture (Nishita's model is ``"MULTIPLE_SCATTERING"`` or
+    ``"SINGLE_SCATTERING"`` since Blender 5; also ``"PREETHAM"``, ``"HOSEK_WILKIE"``) with its
+    sun at ``sun_elevation`` and ``sun_azimuth`` (degrees, azimuth from +x toward +y as in
+    :func:`sun_direction`; the node's rotation is measured from +y the other way:
+    ``sun_rotation = 90 - azimuth``).  ``strength`` scales the Background (0.08: the upper
+    hemisphere's mean luminance about 0.37 for the default sun at 38 degrees).  Returns the world."""
+    world = bpy.data.worlds.new(name)
+    if world.node_tree is None:
+        world.use_nodes = True
+    nt = world.node_tree
+    sky = nt.nodes.new("ShaderNodeTexSky")
+    sky.sky_type = sky_type
+    sky.sun_disc = bool(sun_disc)
+    sky.sun_elevation = math.radians(sun_elevation)
+    sky.sun_rotation = math.radians(90.0 - sun_azimuth)
+    bg = nt.nodes["Background"]
+    bg.inputs["Strength"].default_value = float(strength)
+    nt.links.new(sky.outputs["Color"], bg.inputs["Color"])
+    return world
 
 
 def add_pathtraced_cloud(sigma, size, *, albedo, g, vdb_path, name="Path-traced cloud"):
@@ -364,10 +466,14 @@ class ScatterJob:
             irradiance = lamp.data.energy
         self.directory = output_directory(props.directory)
         self.frames = list(range(self.scene.frame_start, self.scene.frame_end + 1))
+        sky = {"NONE": 0.0, "UNIFORM": props.sky_radiance}.get(props.sky)
+        if sky is None:  # the scene's world, rendered around the cloud's centre
+            centre = tuple(o + 0.5 * d for o, d in zip(self.origin, self.size))
+            sky = bake_world(context.scene.world, centre, sun_disc=irradiance == 0).tolist()
         # the same solve as the farm's "scatter" task (nephele precompute), cached under its key
         self.task = scatter_task.task_params(
             self.params, props.extinction, albedo=props.albedo, g=props.anisotropy, sun_dir=list(self.sun),
-            sun_irradiance=irradiance, sky_radiance=props.sky_radiance,
+            sun_irradiance=irradiance, sky_radiance=sky,
             tol=props.tolerance, max_passes=props.max_passes)
         self.gen = scatter.solve_steps(self.sigma, self.size, **self.task["solve"])
         self.solution = None
@@ -576,7 +682,17 @@ class NepheleScatterProps(bpy.types.PropertyGroup):
     sun_elevation: bpy.props.FloatProperty(name="Sun elevation", default=38.0, min=-90.0, max=90.0)
     sun_azimuth: bpy.props.FloatProperty(name="Sun azimuth", default=-30.0)
     sun_irradiance: bpy.props.FloatProperty(name="Sun irradiance", default=1.0, min=0.0)
-    sky_radiance: bpy.props.FloatProperty(name="Sky radiance", default=0.0, min=0.0)
+    sky: bpy.props.EnumProperty(
+        name="Sky", default="UNIFORM",
+        items=(("NONE", "None", "No skylight: the sun alone"),
+               ("UNIFORM", "Uniform", "A uniform sky above the cloud of the radiance below"),
+               ("WORLD", "Scene's world",
+                "The scene's world (e.g. a Sky Texture) rendered around the cloud and binned into the solve's "
+                "96 directions.  When a sun lights the cloud (the lamp or the sun irradiance here), the "
+                "world's Sky Texture sun discs are left out of the bake, so the sun does not count twice: "
+                "match the sky's sun to it (Sky Texture rotation = 90 degrees - azimuth)")))
+    sky_radiance: bpy.props.FloatProperty(name="Sky radiance", default=0.0, min=0.0,
+                                          description="Radiance of the uniform sky (light travelling downward)")
     tolerance: bpy.props.FloatProperty(name="Tolerance", default=1e-3, min=1e-8, max=0.5)
     max_passes: bpy.props.IntProperty(name="Max passes", default=100, min=1)
     use_scene_sun: bpy.props.BoolProperty(
@@ -615,7 +731,9 @@ class NEPHELE_PT_scatter(SubPanel, bpy.types.Panel):
         col.prop(p, "sun_elevation")
         col.prop(p, "sun_azimuth")
         col.prop(p, "sun_irradiance")
-        col.prop(p, "sky_radiance")
+        col.prop(p, "sky")
+        if p.sky == "UNIFORM":
+            col.prop(p, "sky_radiance")
         col.prop(p, "tolerance")
         col.prop(p, "max_passes")
         col.prop(p, "own_scene")

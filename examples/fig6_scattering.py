@@ -6,7 +6,15 @@ multiple scattering of sunlight and skylight with 96 direction bins (albedo
 extinction and the light scattered toward that frame's camera; Cycles then
 renders an emission-absorption volume, no path-traced scattering.
 
+``--sky uniform`` (default): a uniform sky of radiance 0.35 lights the cloud from
+above, the background is plain blue.  ``--sky world``: Blender's physical Sky
+Texture (the multiple-scattering Nishita model) with its sun where the cloud's
+sun is; Cycles renders that world alone as a panorama, binned into the 96
+directions, and that light (less the sun disc: the sun lights the cloud as its
+own parallel beam) enters the solve; the background is the same sky.
+
     .venv/bin/python examples/fig6_scattering.py --out out/fig6 --frames 1-4 --size 300x255
+    .venv/bin/python examples/fig6_scattering.py --out out/fig6_sky --frames 1 --sky world
     .venv/bin/python examples/fig6_scattering.py --save out/fig6.blend
 """
 
@@ -18,7 +26,7 @@ ROOT = Path(__file__).resolve().parent.parent
 
 
 def build(frames=120, grid=(24, 24, 18), sun_irradiance=7.0, sky_radiance=0.35, directory=None,
-          size=(300, 255), samples=32, **_):
+          size=(300, 255), samples=32, sky="uniform", **_):
     """Build the Fig. 6 scene into the current (empty) scene (:func:`nephele.addon.presets.fig6`); returns the cloud."""
     import bpy
 
@@ -28,7 +36,8 @@ def build(frames=120, grid=(24, 24, 18), sun_irradiance=7.0, sky_radiance=0.35, 
     if not hasattr(bpy.types.Scene, "nephele_scatter"):
         nephele.register()
     return presets.fig6(bpy.context.scene, frames=frames, grid=grid, sun_irradiance=sun_irradiance,
-                        sky_radiance=sky_radiance, directory=directory, size=size, samples=samples)["cloud"]
+                        sky_radiance=sky_radiance, directory=directory, size=size, samples=samples,
+                        sky=sky)["cloud"]
 
 
 def _frames(text):
@@ -45,6 +54,8 @@ def main(argv=None):
     ap.add_argument("--samples", type=int, default=32)
     ap.add_argument("--step", type=int, default=1, help="render every STEP-th frame")
     ap.add_argument("--grid", default="24x24x18")
+    ap.add_argument("--sky", choices=("uniform", "world"), default="uniform",
+                    help="uniform sky from above, or a Sky Texture world lighting the cloud")
     args = ap.parse_args(argv)
 
     import bpy
@@ -56,7 +67,7 @@ def main(argv=None):
     out = Path(args.out).resolve() if args.out else None
     directory = (out / "vdb") if out else None
     build(frames=max(120, last), grid=tuple(int(v) for v in args.grid.split("x")), size=(w, h),
-          samples=args.samples, directory=directory)
+          samples=args.samples, directory=directory, sky=args.sky)
     scene = bpy.context.scene
     if args.save:
         bpy.ops.wm.save_as_mainfile(filepath=str(Path(args.save).resolve()))
