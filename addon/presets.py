@@ -114,6 +114,7 @@ FIG6_DEFAULTS = {
     "sun_irradiance": 7.0,
     "sky_radiance": 0.35,
     "sky": "uniform",  # or "world": a Sky Texture world with the cloud's sun, baked into the bins
+    "camera_elevation": None,  # degrees; None: the paper's 15, or -20 under a world sky (seen against it)
     "directory": None,  # None: the scattering panel's output folder
     "size": (300, 255),  # the paper's
     "samples": 32,
@@ -270,7 +271,9 @@ def fig6(scene, modal=False, **options):
     background, the cloud lit by a uniform sky of ``sky_radiance``; ``"world"``: a
     Sky Texture world, :func:`.scatter_ops.add_sky_world`, with its sun where the
     cloud's sun is, lighting the cloud through :func:`.scatter_ops.bake_world`),
-    ``directory`` (the VDBs), ``size``, ``samples``.  ``modal``: the solve runs as the scattering
+    ``camera_elevation`` (degrees of the orbit above the cloud's centre; default 15, or -20
+    under a world sky so that the sky is behind the cloud), ``directory`` (the VDBs),
+    ``size``, ``samples``.  ``modal``: the solve runs as the scattering
     operator's modal job (progress, Esc) and the cloud appears when it ends
     (the returned ``"cloud"`` is then None).  Returns ``{"cloud": obj, "camera": camera}``.
     """
@@ -280,6 +283,8 @@ def fig6(scene, modal=False, **options):
     p.resolution = tuple(int(v) for v in o["grid"])
     p.sun_irradiance = o["sun_irradiance"]
     p.sky_radiance = o["sky_radiance"]
+    elevation = o["camera_elevation"]
+    p.orbit_elevation = (-20.0 if o["sky"] == "world" else 15.0) if elevation is None else float(elevation)
     if o["directory"]:
         p.directory = str(o["directory"])
     if o["sky"] == "world":
@@ -306,7 +311,9 @@ def fig6(scene, modal=False, **options):
     scene.cycles.samples = int(o["samples"])
     scene.cycles.use_denoising = True  # OIDN: the emission volume's sampling noise only
     scene.cycles.volume_bounces = 0  # the light is in the emission grid already
-    scene.view_settings.view_transform = "Standard"
+    # a physical sky is high dynamic range (bright horizon, sun-side glow): AgX rolls it off
+    # where Standard clips it to white
+    scene.view_settings.view_transform = "AgX" if o["sky"] == "world" else "Standard"
     scene.render.resolution_x, scene.render.resolution_y = (int(v) for v in o["size"])
     scene.render.resolution_percentage = 100
     return {"cloud": None if modal else bpy.data.objects["Scattering cloud"], "camera": scene.camera}

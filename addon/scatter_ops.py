@@ -53,14 +53,15 @@ def add_sun(sun_dir, irradiance, name="Sun"):
     return obj
 
 
-def black_world():
+def black_world(scene=None):
+    """A new black world, made ``scene``'s (default: the current scene's); returns it."""
     world = bpy.data.worlds.new("Scatter world")
     world.use_nodes = True
     bg = world.node_tree.nodes.get("Background")
     if bg is not None:
         bg.inputs["Color"].default_value = (0, 0, 0, 1)
         bg.inputs["Strength"].default_value = 0.0
-    bpy.context.scene.world = world
+    (scene or bpy.context.scene).world = world
     return world
 
 
@@ -408,18 +409,15 @@ def scene_sun(scene):
 
 
 def own_scene(context):
-    """A scene of the cloud's own (same frame range, black world), for the
-    "Own scene" option: its frames are stepped without the main scene's layers."""
+    """A scene of the cloud's own (same frame range; a black world, or this scene's world
+    when that world lights the cloud), for the "Own scene" option: its frames are stepped
+    without the main scene's layers."""
     scene = context.scene
-    new = bpy.data.scenes.get(SCENE_NAME)
-    if new is None:
-        new = bpy.data.scenes.new(SCENE_NAME)
-        world = bpy.data.worlds.new("Scatter world")
-        world.use_nodes = True
-        bg = world.node_tree.nodes.get("Background")
-        if bg is not None:
-            bg.inputs["Color"].default_value = (0, 0, 0, 1)
-        new.world = world
+    new = bpy.data.scenes.get(SCENE_NAME) or bpy.data.scenes.new(SCENE_NAME)
+    if scene.nephele_scatter.sky == "WORLD" and scene.world is not None:
+        new.world = scene.world  # the sky lighting the cloud is also seen behind it
+    elif new.world is None or new.world == scene.world:
+        black_world(new)
     new.frame_start, new.frame_end = scene.frame_start, scene.frame_end
     new.frame_current = scene.frame_current
     new.render.engine = "CYCLES"
@@ -483,8 +481,8 @@ class ScatterJob:
         if self.scene.camera is None and props.orbit_camera:
             c = tuple(o + 0.5 * d for o, d in zip(self.origin, self.size))
             r = 1.7 * max(self.size)
-            add_orbit_camera(c, r * math.cos(math.radians(15)), r * math.sin(math.radians(15)), self.frames,
-                             scene=self.scene)
+            e = math.radians(props.orbit_elevation)
+            add_orbit_camera(c, r * math.cos(e), r * math.sin(e), self.frames, scene=self.scene)
         if self.scene.camera is None:
             raise RuntimeError("the scene has no camera: add one or enable 'Orbit camera'")
 
@@ -704,6 +702,10 @@ class NepheleScatterProps(bpy.types.PropertyGroup):
                     "outside any globe)")
     orbit_camera: bpy.props.BoolProperty(name="Orbit camera", default=True,
                                          description="Add a camera looping around the cloud if the scene has none")
+    orbit_elevation: bpy.props.FloatProperty(
+        name="Orbit elevation", default=15.0, min=-80.0, max=80.0,
+        description="Degrees of the orbit camera above the cloud's centre (the paper's 15; below zero the "
+                    "cloud is seen from underneath, against the sky)")
     directory: bpy.props.StringProperty(name="Output", default=DEFAULT_DIRECTORY, subtype="DIR_PATH")
     progress: bpy.props.FloatProperty(name="Progress", default=0.0, min=0.0, max=1.0, subtype="FACTOR")
     status: bpy.props.StringProperty(name="Status", default="")
@@ -738,6 +740,9 @@ class NEPHELE_PT_scatter(SubPanel, bpy.types.Panel):
         col.prop(p, "max_passes")
         col.prop(p, "own_scene")
         col.prop(p, "orbit_camera")
+        sub = col.row()
+        sub.active = p.orbit_camera
+        sub.prop(p, "orbit_elevation")
         col.prop(p, "directory")
         col.operator(NEPHELE_OT_add_scattering_cloud.bl_idname)
         col.operator("nephele.paper_figure", text="Make the paper's figure", icon="IMAGE_DATA").figure = "FIG6"

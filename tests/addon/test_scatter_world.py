@@ -111,3 +111,27 @@ def test_sky_lit_cloud_against_cycles(empty_scene, tmp_path):
     ours = scatter.march_planes(sigma, scatter.view_source(sol, cam.position), SIZE, cam, samples=2)
     mean, block = _errors(ours, ref)
     assert abs(mean) < 0.035 and block < 0.07, (mean, block)
+
+
+def test_own_scene_shows_the_sky_that_lights_it(empty_scene, tmp_path, monkeypatch):
+    monkeypatch.setenv("NEPHELE_CACHE", str(tmp_path / "cache"))
+    scene = empty_scene
+    p = scene.nephele_scatter
+    p.resolution, p.directory, p.tolerance = (8, 8, 6), str(tmp_path / "scatter"), 1e-2
+    scene.frame_start, scene.frame_end = 1, 1
+    scene.world = so.add_sky_world(p.sun_elevation, p.sun_azimuth)
+    p.sky, p.own_scene, p.orbit_elevation = "WORLD", True, -20.0
+    assert bpy.ops.nephele.add_scattering_cloud() == {"FINISHED"}
+    own = bpy.data.scenes[so.SCENE_NAME]
+    assert own.world == scene.world  # the background is the sky the cloud was lit by
+    # the orbit camera looks up at the cloud from 20 degrees below its centre
+    origin = np.array(so.placement(own, tuple(p.size)))
+    centre = origin + 0.5 * np.array(p.size)
+    assert np.allclose(own.camera.parent.location, centre)  # the orbit's pivot
+    offset = np.array(own.camera.matrix_world.translation) - centre
+    assert np.degrees(np.arctan2(offset[2], np.hypot(*offset[:2]))) == pytest.approx(-20.0, abs=0.5)
+    p.sky = "UNIFORM"  # a uniform sky again: the cloud's scene gets its own black world back
+    with bpy.context.temp_override(scene=scene):
+        so.own_scene(bpy.context)
+    assert own.world != scene.world
+    assert tuple(own.world.node_tree.nodes["Background"].inputs["Color"].default_value)[:3] == (0.0, 0.0, 0.0)
