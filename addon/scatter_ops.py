@@ -23,6 +23,7 @@ import numpy as np
 
 from ..core.volume import cloud_density as cd
 from ..core.light import scatter, scatter_task
+from ..core.light.sky import panorama_radiance
 from ..fileio import dense_grids, write_vdb
 from .camera import camera_object, look_at
 from .panel import SubPanel
@@ -176,7 +177,7 @@ def luminance(rgba):
 
 
 # Camera rotation that makes Cycles' equirectangular panorama (default ranges) look along +x at
-# its centre with +z up: the convention of :func:`..core.light.scatter.panorama_radiance`
+# its centre with +z up: the convention of :func:`..core.light.sky.panorama_radiance`
 # (checked against a render of the world's direction in tests/addon/test_scatter_sky.py).
 PANORAMA_ROTATION = (math.pi / 2, 0.0, -math.pi / 2)
 
@@ -188,7 +189,7 @@ def bake_world(world, center=(0.0, 0.0, 0.0), *, size=(256, 128), samples=64, su
     equirectangular panoramic camera at ``center`` (world coordinates; a world's light does not
     depend on it, but a later world might), ``size`` pixels, ``samples`` per pixel (box filter:
     each pixel is the mean over its footprint; Sky Texture, no disc, against 256 samples: 64
-    within 0.5% in every bin, 16 within 2% in the darkest ground bins; 3.5 s on 2 cores), then :func:`..core.light.scatter.panorama_radiance` averages its
+    within 0.5% in every bin, 16 within 2% in the darkest ground bins; 3.5 s on 2 cores), then :func:`..core.light.sky.panorama_radiance` averages its
     :func:`luminance` over the bins with exact solid angles.  The temporary scene, camera and
     image go again.  A world held out of camera rays (ray visibility) is shown to the bake's
     camera all the same: it still lights the cloud.
@@ -234,7 +235,7 @@ def bake_world(world, center=(0.0, 0.0, 0.0), *, size=(256, 128), samples=64, su
         bpy.data.objects.remove(cam)
         bpy.data.cameras.remove(cam_data)
         bpy.data.scenes.remove(tmp)
-    return scatter.panorama_radiance(np.maximum(luminance(pano), 0.0))
+    return panorama_radiance(np.maximum(luminance(pano), 0.0))
 
 
 def add_sky_world(sun_elevation=38.0, sun_azimuth=-30.0, *, strength=0.08, sky_type="MULTIPLE_SCATTERING",

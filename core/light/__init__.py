@@ -21,8 +21,6 @@ from .scatter import (  # noqa: F401
     Solution,
     load_solution,
     orbit_camera,
-    panorama_radiance,
-    panorama_solid_angles,
     render,
     save_solution,
     slab_reflectance,
@@ -31,6 +29,10 @@ from .scatter import (  # noqa: F401
     solve,
     solve_steps,
     view_source,
+)
+from .sky import (  # noqa: F401
+    panorama_radiance,
+    panorama_solid_angles,
 )
 from .scatter_task import (  # noqa: F401
     plan_solve,

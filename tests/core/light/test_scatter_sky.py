@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from nephele.core.errors import DataError
-from nephele.core.light import phase, scatter, scatter_task
+from nephele.core.light import phase, scatter, scatter_task, sky
 from nephele.core.pipeline.cache import cache_key
 from nephele.core.volume import cloud_density as cd
 
@@ -77,16 +77,16 @@ def test_isotropic_sky_on_conservative_slab_is_in_equilibrium(g):
 
 
 def test_sky_array_round_trips_and_keys_the_cache(tmp_path):
-    sky = np.linspace(0.0, 1.0, 96)
-    sol = scatter.solve(_cloud(), (1.0, 1.0, 0.75), sun_irradiance=0.0, sky_radiance=sky, tol=1e-2)
+    per_bin = np.linspace(0.0, 1.0, 96)
+    sol = scatter.solve(_cloud(), (1.0, 1.0, 0.75), sun_irradiance=0.0, sky_radiance=per_bin, tol=1e-2)
     back = scatter.load_solution(scatter.save_solution(sol, tmp_path / "s.npz"))
-    np.testing.assert_array_equal(back.sky_radiance, sky)
+    np.testing.assert_array_equal(back.sky_radiance, per_bin)
     assert scatter.load_solution(scatter.save_solution(scatter.solve(_cloud(), (1.0, 1.0, 0.75), tol=1e-2),
                                                        tmp_path / "u.npz")).sky_radiance == 0.0
     cloud = cd.CloudParams(shape=(6, 8, 8))
-    params = scatter_task.task_params(cloud, sky_radiance=sky)
-    assert params["solve"]["sky_radiance"] == sky.tolist()  # JSON: all 96 values
-    other = sky.copy()
+    params = scatter_task.task_params(cloud, sky_radiance=per_bin)
+    assert params["solve"]["sky_radiance"] == per_bin.tolist()  # JSON: all 96 values
+    other = per_bin.copy()
     other[40] += 1e-9
     keys = {cache_key("scatter", p) for p in (params, scatter_task.task_params(cloud, sky_radiance=other),
                                              scatter_task.task_params(cloud, sky_radiance=0.5))}
@@ -94,11 +94,11 @@ def test_sky_array_round_trips_and_keys_the_cache(tmp_path):
     json.dumps(params)
 
 
-@pytest.mark.parametrize("sky", [np.ones(95), np.ones((96, 1)), np.r_[np.ones(95), np.nan],
+@pytest.mark.parametrize("bad", [np.ones(95), np.ones((96, 1)), np.r_[np.ones(95), np.nan],
                                  np.r_[np.ones(95), -1.0], np.r_[np.ones(95), np.inf], -0.5, np.nan])
-def test_bad_sky_raises(sky):
+def test_bad_sky_raises(bad):
     with pytest.raises(DataError, match="sky_radiance") as err:
-        scatter.solve(_cloud(), (1.0, 1.0, 0.75), sky_radiance=sky)
+        scatter.solve(_cloud(), (1.0, 1.0, 0.75), sky_radiance=bad)
     assert "\n" not in str(err.value)
 
 
@@ -116,12 +116,12 @@ def _toward(shape):
 @pytest.mark.parametrize("shape", [(128, 256), (64, 128), (37, 80)])
 def test_panorama_solid_angles_are_the_bins(shape):
     # measured: 8.6e-4 at every shape (the sub-cells are 512 rows whatever the panorama)
-    np.testing.assert_allclose(scatter.panorama_solid_angles(shape), OMEGA, rtol=1e-3)
-    assert scatter.panorama_solid_angles(shape).sum() == pytest.approx(4 * np.pi, rel=1e-12)
+    np.testing.assert_allclose(sky.panorama_solid_angles(shape), OMEGA, rtol=1e-3)
+    assert sky.panorama_solid_angles(shape).sum() == pytest.approx(4 * np.pi, rel=1e-12)
 
 
 def test_constant_panorama_gives_constant_bins():
-    np.testing.assert_allclose(scatter.panorama_radiance(np.full((64, 128), 0.7)), 0.7, rtol=1e-12)
+    np.testing.assert_allclose(sky.panorama_radiance(np.full((64, 128), 0.7)), 0.7, rtol=1e-12)
 
 
 @pytest.mark.parametrize("toward", [(0.3, 0.2, 0.93), (-0.9, 0.1, -0.2), (0.05, -0.8, 0.1), (0.2, 0.1, -0.95)])
@@ -131,7 +131,7 @@ def test_one_bright_pixel_lands_in_the_bin_its_light_travels_in(toward):
     r, c = np.unravel_index(np.argmax(d @ np.asarray(toward) / np.linalg.norm(toward)), shape)
     pano = np.zeros(shape)
     pano[r, c] = 1.0
-    out = scatter.panorama_radiance(pano)
+    out = sky.panorama_radiance(pano)
     b = phase.bin_of(-np.asarray(toward))
     assert np.flatnonzero(out).tolist() == [b]
     # the pixel's power spread over its bin: exact pixel solid angle over the bin's
@@ -143,11 +143,11 @@ def test_one_bright_pixel_lands_in_the_bin_its_light_travels_in(toward):
 def test_linear_panorama_gives_the_bins_mean_directions():
     # L = 1 + a . toward: its mean over a bin is 1 - a . (mean travel direction of the bin)
     a = np.array([0.3, -0.5, 0.8])
-    out = scatter.panorama_radiance(1.0 + _toward((128, 256)) @ a)
+    out = sky.panorama_radiance(1.0 + _toward((128, 256)) @ a)
     np.testing.assert_allclose(out, 1.0 - phase.mean_directions(16) @ a, atol=2e-3)
 
 
 @pytest.mark.parametrize("pano", [np.ones(10), np.ones((0, 4)), np.full((4, 8), np.nan), -np.ones((4, 8))])
 def test_bad_panorama_raises(pano):
     with pytest.raises(DataError, match="panorama"):
-        scatter.panorama_radiance(pano)
+        sky.panorama_radiance(pano)
