@@ -178,7 +178,7 @@ def luminance(rgba):
 
 # Camera rotation that makes Cycles' equirectangular panorama (default ranges) look along +x at
 # its centre with +z up: the convention of :func:`..core.light.sky.panorama_radiance`
-# (checked against a render of the world's direction in tests/addon/test_scatter_sky.py).
+# (checked against a render of the world's direction in tests/addon/test_scatter_world.py).
 PANORAMA_ROTATION = (math.pi / 2, 0.0, -math.pi / 2)
 
 
@@ -189,8 +189,9 @@ def bake_world(world, center=(0.0, 0.0, 0.0), *, size=(256, 128), samples=64, su
     equirectangular panoramic camera at ``center`` (world coordinates; a world's light does not
     depend on it, but a later world might), ``size`` pixels, ``samples`` per pixel (box filter:
     each pixel is the mean over its footprint; Sky Texture, no disc, against 256 samples: 64
-    within 0.5% in every bin, 16 within 2% in the darkest ground bins; 3.5 s on 2 cores), then :func:`..core.light.sky.panorama_radiance` averages its
-    :func:`luminance` over the bins with exact solid angles.  The temporary scene, camera and
+    within 0.5% in every bin, 16 within 2% in the darkest ground bins; 3.5 s on 2 cores),
+    then :func:`..core.light.sky.panorama_radiance` averages its :func:`luminance` over the
+    bins with exact solid angles.  The temporary scene, camera and
     image go again.  A world held out of camera rays (ray visibility) is shown to the bake's
     camera all the same: it still lights the cloud.
 
