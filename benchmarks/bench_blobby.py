@@ -14,6 +14,7 @@ The full run measures 100, 1,000 and 5,000 ellipsoids; the README's and docs' nu
 
 import argparse
 import os
+import resource
 import sys
 import time
 from pathlib import Path
@@ -159,7 +160,8 @@ def main():
     if args.actin_only:
         actin_table()
         return
-    # Beyond 5,000 the meshes pass 6M vertices: too much for the shared 2-core test machine.
+    # Beyond 5,000 the meshes pass 6M vertices: long for the shared 2-core test machine (pass
+    # --sizes for 20,000: 24M vertices, 4.7 GiB).
     sizes = args.sizes or ([100, 300] if args.quick else [100, 1000, 5000])
     sample = args.sample or (500 if args.quick else 5000)
     h = SIGMA[0] / 4
@@ -200,6 +202,7 @@ def main():
         elif args.metaballs:
             rows.append([n, "Blender metaballs (own falloff)", f"not run (--metaball-max {args.metaball_max})", "", "", "", "", ""])
     load1 = os.getloadavg()[0]
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20  # KiB on Linux
     ratios = "; ".join(f"{n}: {balls[n][0] / ours[n][0]:.1f}x wall, {balls[n][1] / ours[n][1]:.1f}x CPU"
                        for n in sizes if n in balls and n in ours)
     speed = (f" Ours (no box) against the metaballs in this run, seconds ratio: {ratios} (goal: 10x at 5,000 "
@@ -217,7 +220,9 @@ def main():
         "not the same and has no error column. CPU seconds: the process's (all threads, "
         "time.process_time; the metaballs' include building the elements); wall seconds grow with the "
         f"machine's load. Load average {load0:.1f} at the start, "
-        f"{load1:.1f} at the end, {os.cpu_count()} cores shared.{speed}\n\n"
+        f"{load1:.1f} at the end, {os.cpu_count()} cores shared.{speed} Peak memory of the run (resident, "
+        f"the largest mesh's): {peak:.1f} GiB at {max(sizes)} ellipsoids; it grows with the mesh, so 100,000 "
+        f"would need about {peak * 100000 / max(sizes):.0f} GiB at that rate (this machine has 24).\n\n"
         + md_table(["ellipsoids", "method", "seconds", "CPU seconds", "vertices", "triangles", "rms error", "max error"], rows)
     )
     write_section("blobby", body, title="Blobby surfaces (sums of Gaussian ellipsoids)")
