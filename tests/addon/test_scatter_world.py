@@ -63,14 +63,20 @@ def test_bake_leaves_the_sky_sun_disc_out_unless_asked(empty_scene):
     assert without[up].mean() > 3 * without[~up].mean()
 
 
-def test_operator_lights_the_cloud_with_the_world(empty_scene, tmp_path, monkeypatch):
+def _sky_world_scene(scene, tmp_path, monkeypatch):
+    """A one-frame 8x8x6 cloud set-up under a Sky Texture world; returns the panel's settings."""
     monkeypatch.setenv("NEPHELE_CACHE", str(tmp_path / "cache"))
-    scene = empty_scene
     p = scene.nephele_scatter
     p.resolution, p.directory, p.tolerance = (8, 8, 6), str(tmp_path / "scatter"), 1e-2
     scene.frame_start, scene.frame_end = 1, 1
     scene.world = so.add_sky_world(p.sun_elevation, p.sun_azimuth)
     p.sky = "WORLD"
+    return p
+
+
+def test_operator_lights_the_cloud_with_the_world(empty_scene, tmp_path, monkeypatch):
+    scene = empty_scene
+    p = _sky_world_scene(scene, tmp_path, monkeypatch)
     assert bpy.ops.nephele.add_scattering_cloud() == {"FINISHED"}
     sol = scatter.load_solution(tmp_path / "scatter" / "solution.npz")
     assert np.shape(sol.sky_radiance) == (96,)
@@ -122,13 +128,9 @@ def test_sky_lit_cloud_against_cycles(empty_scene, tmp_path, sun_irradiance):
 
 
 def test_own_scene_shows_the_sky_that_lights_it(empty_scene, tmp_path, monkeypatch):
-    monkeypatch.setenv("NEPHELE_CACHE", str(tmp_path / "cache"))
     scene = empty_scene
-    p = scene.nephele_scatter
-    p.resolution, p.directory, p.tolerance = (8, 8, 6), str(tmp_path / "scatter"), 1e-2
-    scene.frame_start, scene.frame_end = 1, 1
-    scene.world = so.add_sky_world(p.sun_elevation, p.sun_azimuth)
-    p.sky, p.own_scene, p.orbit_elevation = "WORLD", True, -20.0
+    p = _sky_world_scene(scene, tmp_path, monkeypatch)
+    p.own_scene, p.orbit_elevation = True, -20.0
     assert bpy.ops.nephele.add_scattering_cloud() == {"FINISHED"}
     own = bpy.data.scenes[so.SCENE_NAME]
     assert own.world == scene.world  # the background is the sky the cloud was lit by
