@@ -23,7 +23,7 @@ import numpy as np
 
 from ..core.volume import cloud_density as cd
 from ..core.light import scatter, scatter_task
-from ..core.light.sky import panorama_radiance
+from ..core.light.sky import luminance, panorama_radiance
 from ..fileio import dense_grids, write_vdb
 from .camera import camera_object, look_at
 from .panel import SubPanel
@@ -163,17 +163,6 @@ def render_array(scene, path):
     """Render the scene to an OpenEXR at ``path`` and return its luminance-free red channel
     as float32 (height, width), row 0 at the top (all channels are equal for grey media)."""
     return render_rgba(scene, path)[..., 0].copy()
-
-
-LUMINANCE = (0.2126, 0.7152, 0.0722)
-"""Rec. 709 luminance weights of linear RGB (Blender's default working space): the grey
-solve lights a grey cloud with the luminance of a coloured sky (each channel of a grey
-medium is lit by that channel alone, so the cloud's luminance is the luminance's solve)."""
-
-
-def luminance(rgba):
-    """Luminance (:data:`LUMINANCE`) of linear RGB(A) pixels (..., 3 or 4)."""
-    return np.asarray(rgba)[..., :3] @ np.asarray(LUMINANCE, np.float32)
 
 
 # Camera rotation that makes Cycles' equirectangular panorama (default ranges) look along +x at

@@ -7,6 +7,9 @@ no pickle) and renders ``--views`` cameras looping around the cloud, each as
 ``DIR/view_0001.npy`` (radiance).  ``--vdb`` also writes
 ``DIR/scatter_0001.vdb`` … with ``density`` and ``emission`` toward each view's
 camera, a volume sequence Blender renders as an emission-absorption medium.
+``--sky-map IMAGE`` lights the cloud with a sky from every direction: an
+equirectangular image (an HDRI, a rendered Blender world) binned into the 96
+directions.
 """
 
 import json
@@ -35,6 +38,11 @@ def add_arguments(p):
     p.add_argument("--sun-azimuth", type=float, default=-30.0, help="degrees from +x toward +y (default -30)")
     p.add_argument("--irradiance", type=float, default=1.0, help="sun irradiance (default 1)")
     p.add_argument("--sky", type=float, default=0.0, help="sky radiance from above (default 0)")
+    p.add_argument("--sky-map", metavar="IMAGE",
+                   help="a sky from every direction instead: an equirectangular image of radiance (EXR, HDR, ...) "
+                        "in Blender's environment layout (+x at the centre, +z up), its luminance binned into the "
+                        "96 directions")
+    p.add_argument("--sky-strength", type=float, default=1.0, help="scale of --sky-map (default 1)")
     p.add_argument("--tol", type=float, default=1e-3, help="stop when unshot < tol x entered power (default 1e-3)")
     p.add_argument("--max-passes", type=int, default=100, help="pass limit (default 100)")
     p.add_argument("--views", type=int, default=8, help="orbit views (default 8)")
@@ -65,6 +73,26 @@ def _floats(text, n, name):
     return v
 
 
+def sky_from_map(path, strength=1.0):
+    """The 96 per-bin radiances of an equirectangular sky image times ``strength``."""
+    from ..core.errors import DataError
+    from ..core.light.sky import luminance, panorama_radiance
+    from ..fileio import read_image
+
+    if not Path(path).is_file():
+        raise DataError("no such file", path=path, field="--sky-map")
+    px = read_image(path)
+    if px.shape[2] < 3:
+        px = np.repeat(px[..., :1], 3, axis=2)  # a grey image
+    h, w = px.shape[:2]
+    if w != 2 * h:
+        raise DataError(f"an equirectangular sky is twice as wide as high, got {w}x{h}", path=path, field="--sky-map")
+    lum = luminance(px)
+    if not np.all(np.isfinite(lum)) or lum.min() < 0:
+        raise DataError("the sky's radiance must be finite and >= 0", path=path, field="--sky-map")
+    return strength * panorama_radiance(lum)
+
+
 def tone_map(img, white):
     """Linear radiance to 8-bit sRGB-ish grey (gamma 2.2), ``white`` maps to 255."""
     return (np.clip(img / white, 0.0, 1.0) ** (1 / 2.2) * 255 + 0.5).astype(np.uint8)
@@ -81,6 +109,11 @@ def run(args):
         raise UsageError("--views must be >= 1")
     if not 0 <= args.albedo <= 1 or not -1 < args.g < 1:
         raise UsageError("--albedo must be in [0, 1] and --g in (-1, 1)")
+    if args.sky_map and args.sky:
+        raise UsageError("give --sky (uniform) or --sky-map, not both")
+    if args.sky_strength < 0:
+        raise UsageError("--sky-strength must be >= 0")
+    sky = sky_from_map(args.sky_map, args.sky_strength) if args.sky_map else args.sky
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     params = cd.CloudParams(shape=(nz, ny, nx), size=tuple(box), noise_amplitude=args.noise, seed=args.seed)
@@ -95,7 +128,7 @@ def run(args):
             say(f"pass {p.pass_index}: residual {p.residual:.3e}")
 
     sol = scatter.solve(sigma, box, progress=progress, albedo=args.albedo, g=args.g, sun_dir=sun,
-                        sun_irradiance=args.irradiance, sky_radiance=args.sky, tol=args.tol,
+                        sun_irradiance=args.irradiance, sky_radiance=sky, tol=args.tol,
                         max_passes=args.max_passes)
     t_solve = time.perf_counter() - t0
     scatter.save_solution(sol, out / "solution.npz")
@@ -128,7 +161,9 @@ def run(args):
     with atomic_write(out / "scatter.json") as tmp:
         tmp.write_text(json.dumps({
             "grid": [nx, ny, nz], "box": box, "extinction": args.extinction, "albedo": args.albedo, "g": args.g,
-            "sun_dir": sun, "irradiance": args.irradiance, "sky": args.sky, "report": sol.report,
+            "sun_dir": sun, "irradiance": args.irradiance, "sky": args.sky,
+            "sky_map": str(Path(args.sky_map).resolve()) if args.sky_map else None,
+            "sky_strength": args.sky_strength, "report": sol.report,
             "passes": sol.passes, "residual": sol.residual, "converged": sol.converged,
             "solve_seconds": t_solve, "view_seconds": times, "views": args.views, "size": [w, h]}, indent=1))
     print(f"{sol.report}; solve {t_solve:.1f} s, {args.views} views, median {np.median(times):.2f} s each -> {out}")

@@ -31,6 +31,7 @@ from .scatter import (  # noqa: F401
     view_source,
 )
 from .sky import (  # noqa: F401
+    luminance,
     panorama_radiance,
     panorama_solid_angles,
 )

@@ -11,6 +11,17 @@ import numpy as np
 from ..errors import DataError
 from . import phase
 
+LUMINANCE = (0.2126, 0.7152, 0.0722)
+"""Rec. 709 luminance weights of linear RGB (Blender's default working space): the grey
+solve lights a grey cloud with the luminance of a coloured sky (each channel of a grey
+medium is lit by that channel alone, so the cloud's luminance is the luminance's solve)."""
+
+
+def luminance(rgba):
+    """Luminance (:data:`LUMINANCE`) of linear RGB(A) pixels (..., 3 or 4)."""
+    return np.asarray(rgba)[..., :3] @ np.asarray(LUMINANCE, np.float32)
+
+
 # Azimuths of the meridians that bound bins (the side faces' edges and their quarter lines):
 # a pixel column is split there exactly, since a meridian cuts every row of a column alike.
 _MERIDIANS = np.mod(np.concatenate([k * np.pi / 2 + np.array([-np.pi / 4, -np.arctan(0.5), 0.0, np.arctan(0.5)])

@@ -35,3 +35,33 @@ def test_scatter_command_bad_values(tmp_path, capsys):
     assert cli.main(["scatter", "--out", str(tmp_path), "--grid", "8x8"]) == 2
     assert "--grid" in capsys.readouterr().err
     assert cli.main(["scatter", "--out", str(tmp_path), "--g", "1.0"]) == 2
+
+
+def test_scatter_command_sky_map(tmp_path):
+    from nephele import fileio
+
+    sky = tmp_path / "sky.exr"
+    fileio.write_image(sky, np.tile(np.float32([0.5, 0.25, 1.0]), (32, 64, 1)))
+    out = tmp_path / "s"
+    rc = cli.main(["scatter", "--out", str(out), "--grid", "8x8x6", "--views", "1", "--size", "24x20",
+                   "--tol", "1e-2", "--irradiance", "0", "--sky-map", str(sky), "--sky-strength", "2", "--quiet"])
+    assert rc == 0
+    sol = scatter.load_solution(out / "solution.npz")
+    lum = 0.2126 * 0.5 + 0.7152 * 0.25 + 0.0722 * 1.0  # Rec. 709, linear
+    np.testing.assert_allclose(sol.sky_radiance, 2 * lum, rtol=1e-6)  # a constant sky: every bin alike
+    assert json.loads((out / "scatter.json").read_text())["sky_map"] == str(sky.resolve())
+    assert np.load(out / "view_0001.npy").max() > 0
+
+
+def test_scatter_command_bad_sky_map(tmp_path, capsys):
+    from nephele import fileio
+
+    missing = tmp_path / "none.exr"
+    assert cli.main(["scatter", "--out", str(tmp_path / "a"), "--sky-map", str(missing)]) == 2
+    err = capsys.readouterr().err
+    assert "none.exr" in err and "--sky-map" in err and "Traceback" not in err
+    square = fileio.write_image(tmp_path / "square.exr", np.ones((32, 32, 3), np.float32))
+    assert cli.main(["scatter", "--out", str(tmp_path / "b"), "--sky-map", str(square)]) == 2
+    assert "twice as wide" in capsys.readouterr().err
+    assert cli.main(["scatter", "--out", str(tmp_path / "c"), "--sky", "0.3", "--sky-map", str(square)]) == 2
+    assert "not both" in capsys.readouterr().err

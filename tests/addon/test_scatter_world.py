@@ -7,7 +7,7 @@ import pytest
 bpy = pytest.importorskip("bpy")
 
 from nephele.addon import scatter_ops as so  # noqa: E402
-from nephele.core.light import phase, scatter  # noqa: E402
+from nephele.core.light import phase, scatter, sky  # noqa: E402
 from nephele.core.volume import cloud_density as cdm  # noqa: E402
 
 SIZE = (1.0, 1.0, 0.75)
@@ -117,11 +117,11 @@ def test_sky_lit_cloud_against_cycles(empty_scene, tmp_path, sun_irradiance):
         so.add_sun(sun, sun_irradiance)
     so.add_pathtraced_cloud(sigma, SIZE, albedo=0.99, g=0.8, vdb_path=tmp_path / "cloud.vdb")
     so.cycles_settings(scene, 128, threads=2)
-    ref = so.luminance(so.render_rgba(scene, tmp_path / "cycles.exr"))
+    ref = sky.luminance(so.render_rgba(scene, tmp_path / "cycles.exr"))
     assert ref[:2, :2].max() == 0.0  # the world is out of camera rays (the corners miss the cloud)
-    sky = so.bake_world(scene.world, (0.5, 0.5, 0.375), threads=2)
+    per_bin = so.bake_world(scene.world, (0.5, 0.5, 0.375), threads=2)
     sol = scatter.solve(sigma, SIZE, albedo=0.99, g=0.8, sun_dir=sun, sun_irradiance=sun_irradiance,
-                        sky_radiance=sky)
+                        sky_radiance=per_bin)
     ours = scatter.march_planes(sigma, scatter.view_source(sol, cam.position), SIZE, cam, samples=2)
     mean, block = _errors(ours, ref)
     assert abs(mean) < 0.035 and block < 0.07, (mean, block)
