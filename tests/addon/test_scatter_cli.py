@@ -65,3 +65,8 @@ def test_scatter_command_bad_sky_map(tmp_path, capsys):
     assert "twice as wide" in capsys.readouterr().err
     assert cli.main(["scatter", "--out", str(tmp_path / "c"), "--sky", "0.3", "--sky-map", str(square)]) == 2
     assert "not both" in capsys.readouterr().err
+    bad = np.ones((32, 64, 3), np.float32)
+    bad[3, 7] = (-1.0, 0.0, 0.0)
+    bad = fileio.write_image(tmp_path / "negative.exr", bad)
+    assert cli.main(["scatter", "--out", str(tmp_path / "d"), "--sky-map", str(bad)]) == 2
+    assert "finite and >= 0" in capsys.readouterr().err
