@@ -455,9 +455,9 @@ class ScatterJob:
             irradiance = lamp.data.energy
         self.directory = output_directory(props.directory)
         self.frames = list(range(self.scene.frame_start, self.scene.frame_end + 1))
+        centre = tuple(o + 0.5 * d for o, d in zip(self.origin, self.size))
         sky = {"NONE": 0.0, "UNIFORM": props.sky_radiance}.get(props.sky)
         if sky is None:  # the scene's world, rendered around the cloud's centre
-            centre = tuple(o + 0.5 * d for o, d in zip(self.origin, self.size))
             sky = bake_world(context.scene.world, centre, sun_disc=irradiance == 0).tolist()
         # the same solve as the farm's "scatter" task (nephele precompute), cached under its key
         self.task = scatter_task.task_params(
@@ -470,10 +470,9 @@ class ScatterJob:
         self.view_index = 0
         self.obj = None
         if self.scene.camera is None and props.orbit_camera:
-            c = tuple(o + 0.5 * d for o, d in zip(self.origin, self.size))
             r = 1.7 * max(self.size)
             e = math.radians(props.orbit_elevation)
-            add_orbit_camera(c, r * math.cos(e), r * math.sin(e), self.frames, scene=self.scene)
+            add_orbit_camera(centre, r * math.cos(e), r * math.sin(e), self.frames, scene=self.scene)
         if self.scene.camera is None:
             raise RuntimeError("the scene has no camera: add one or enable 'Orbit camera'")
 

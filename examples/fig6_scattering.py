@@ -11,7 +11,8 @@ above, the background is plain blue.  ``--sky world``: Blender's physical Sky
 Texture (the multiple-scattering Nishita model) with its sun where the cloud's
 sun is; Cycles renders that world alone as a panorama, binned into the 96
 directions, and that light (less the sun disc: the sun lights the cloud as its
-own parallel beam) enters the solve; the background is the same sky.
+own parallel beam) enters the solve; the camera orbits 20 degrees below the
+cloud, so the background is that sky (AgX view transform for its bright horizon).
 
     .venv/bin/python examples/fig6_scattering.py --out out/fig6 --frames 1-4 --size 300x255
     .venv/bin/python examples/fig6_scattering.py --out out/fig6_sky --frames 1 --sky world

@@ -1449,7 +1449,7 @@ _ARRAYS = ("sigma", "received", "total", "received_sun", "received_peaked", "pea
            "exit_flux")
 
 
-def _plain(value):
+def json_plain(value):
     """JSON form of NumPy values: arrays as lists (the per-bin sky), scalars as floats."""
     return value.tolist() if isinstance(value, np.ndarray) else float(value)
 
@@ -1457,7 +1457,7 @@ def _plain(value):
 def solution_arrays(sol):
     """A :class:`Solution` as a dict of plain arrays (metadata as a JSON string array)."""
     meta = {k: getattr(sol, k) for k in sol.__dataclass_fields__ if k not in _ARRAYS}
-    meta = json.loads(json.dumps(meta, default=_plain))
+    meta = json.loads(json.dumps(meta, default=json_plain))
     return {"meta": np.array(json.dumps(meta)), **{k: getattr(sol, k) for k in _ARRAYS}}
 
 

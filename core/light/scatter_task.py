@@ -6,7 +6,7 @@ from dataclasses import asdict
 from ..errors import DataError
 from ..pipeline.registry import planner, task
 from ..volume import cloud_density as cd
-from .scatter import _plain, solution_arrays, solve
+from .scatter import json_plain, solution_arrays, solve
 
 _SOLVE_KEYS = ("albedo", "g", "sun_dir", "sun_irradiance", "sky_radiance", "tol", "max_passes")
 
@@ -19,7 +19,7 @@ def task_params(cloud, extinction=40.0, **solve):
     if bad:
         raise DataError(f"unknown scattering parameters {bad}", field="scatter")
     return json.loads(json.dumps({"cloud": asdict(cloud), "extinction": float(extinction), "solve": solve},
-                                 default=_plain))
+                                 default=json_plain))
 
 
 @task("scatter")
