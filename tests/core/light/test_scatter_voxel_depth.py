@@ -130,14 +130,18 @@ AD_G08 = [(1.0, 1.0, 0.06000, 0.93926), (4.0, 1.0, 0.25444, 0.74406), (4.0, 0.99
 
 
 # Target (issue 18): 1% relative; reached for g = 0 (all cases above), not yet for g = 0.8.
-# Truth: the adding-doubling here (facts.md's values are 0.1-0.3% low).  Measured,
-# voxel tau 2 / 0.5: overhead sun R -1.3% (one layer of tau 1) .. +1.5% (tau 4, thin
-# voxels), T down to -1.9% (tau 16); sun at 60 degrees T -2.9% / -2.1% (tau 16,
-# albedo 0.99), R -1.4% .. +0.6%.  The rest is angular (96 bins for the forward-peaked
-# later orders; the same at thin voxels), not voxel depth.  A one-layer slab with the
-# sun at 60 degrees was R -15% while a single periodic cell's sideways source profile
-# was tracked (a sideways centroid means nothing there).
-@pytest.mark.parametrize("mu0,rel", [(1.0, 0.02), (0.5, 0.03)])
+# Truth: the adding-doubling here (facts.md's values are 0.1-0.3% low).  Measured
+# (2026-11-27, voxel tau 2 and 0.5): overhead sun within 1.3 % (worst R +1.29 %, tau 4
+# albedo 0.99 on thin voxels; tau 16 T -0.53 % / -0.32 %, tau 1 on one layer R -0.52 %);
+# sun at 60 degrees within 1.5 % (worst tau 16 T -1.43 % on voxel tau 2, -0.94 % on 0.5);
+# at 15 degrees within 2 % (tau 16 T -1.98 % / -1.39 %).  Before: 1.8 %, 2.5 % and 2.6 %
+# (tau 16 T): the bin matrix's mean cosine did not make up for the spread of the flux inside
+# its bins (diffusion eigenvalue +0.6 %, test_phase.py) and one voxel profile was shared by
+# all bins.  The rest is angular (96 bins; the same on thin voxels; 4x4 sub-directions or
+# first_sub 8 move the 15-degree T by < 0.2 %) and grows as the sun goes down.
+# A one-layer slab with the sun at 60 degrees was R -15% while a single periodic cell's
+# sideways source profile was tracked (a sideways centroid means nothing there).
+@pytest.mark.parametrize("mu0,rel", [(1.0, 0.014), (0.5, 0.015), (MU15, 0.021)])
 @pytest.mark.parametrize("vtau", [2.0, 0.5])
 @pytest.mark.parametrize("tau,omega", [(t, o) for t, o, _, _ in AD_G08])
 def test_forward_peaked_slab_against_adding_doubling(tau, omega, vtau, mu0, rel):
