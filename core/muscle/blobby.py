@@ -57,9 +57,12 @@ NEWTON_TOL = 2e-4
 """Newton stops when |f - level| / |grad f| < NEWTON_TOL * sigma_min."""
 
 NEWTON_STEPS = 12
-SETTLE_STEP = 2.0
+SETTLE_STEP = 10.0
 """A Newton step may end a vertex only if shorter than SETTLE_STEP * NEWTON_TOL * sigma_min (its
-normal is the gradient where the step starts: off by about the step over the surface's radius)."""
+normal is the gradient where the step starts: off by about the step over the surface's radius).
+Its position keeps NEWTON_TOL (the step's second-order error must be below it).  Bench scene of
+1,000 ellipsoids: normals within 0.31 deg of the exact gradient (2: 0.10 deg), positions the same,
+a tenth less time."""
 REFINE_EXTRA = 1.0
 """Vertices are projected onto the sum cut at (cutoff + REFINE_EXTRA) sigma."""
 
@@ -67,6 +70,8 @@ EXACT_RANGE = 12.0
 """The "exact" field counts every image within this many sigma (the rest is below 1e-31 w)."""
 
 _F32 = np.float32
+_REC = np.dtype((np.void, 32))
+"""Eight float32 (or int32) as one item: rows of a table copied by one fancy index."""
 _EXP_MAX = _F32(40.0)
 """Largest exponent of one of the three float32 factors (two of them multiply below exp(88.7), the overflow)."""
 
@@ -303,6 +308,8 @@ def _block_pairs(b, grid, cut, cut_fine, threads):
     # this Mahalanobis distance of its centre (the norm is convex, so a corner is farthest).
     diag = np.array([[1, 1, 1], [-1, 1, 1], [1, -1, 1], [1, 1, -1]]) * (size / 2)
     ra = np.sqrt(np.max([_quad(b.a, np.broadcast_to(dv, b.c.shape)) for dv in diag], axis=0))
+    amat = np.stack([b.a[:, [0, 3, 4]], b.a[:, [3, 1, 5]], b.a[:, [4, 5, 2]]], axis=1)
+    rmin = np.sqrt(np.linalg.eigvalsh(amat)[:, 0])
     ends = np.cumsum(tot)
     spans, start = [], 0
     while start < len(tot):
@@ -323,7 +330,8 @@ def _block_pairs(b, grid, cut, cut_fine, threads):
         q[:, 2] = lo[g, 2] + k // (cg[:, 0] * cg[:, 1])
         d = (q + 0.5) * size - b.c[g]
         sq = np.sqrt(_quad(b.a[g], d))
-        near = np.maximum(sq - ra[g], 0.0)  # lower bound of the distance over the block
+        gap = np.maximum(np.abs(d) - size / 2, 0.0)  # Euclidean offsets from the centre to the block
+        near = np.maximum(np.maximum(sq - ra[g], 0.0), rmin[g] * np.sqrt(np.einsum("ij,ij->i", gap, gap)))
         far = sq + ra[g]  # upper bound
         keep = np.flatnonzero(near <= cut_fine)
         g, near, far = g[keep], near[keep], far[keep]
@@ -473,6 +481,21 @@ def _node_values(b, grid, blocks, threads):
     return values
 
 
+def _crossed(values, blocks, level):
+    """The active blocks whose nodes, with the +1 layer read from their neighbours, are not all on one
+    side of the level (the others cut no edge); from each block's and its neighbours' extremes."""
+    na = len(blocks.q)
+    flat = values.reshape(na, -1)
+    lvl = _F32(level)
+    lo = np.append(flat.min(axis=1) >= lvl, [True, False])  # every node above; rows na, na + 1: inactive above, below
+    hi = np.append(flat.max(axis=1) < lvl, [False, True])  # every node below
+    nb = blocks.nbr[:, 1:]
+    nb = np.where(nb >= 0, nb, na + 2 + nb)  # -2 -> na, -1 -> na + 1
+    above = lo[:na] & lo[nb].all(axis=1)
+    below = hi[:na] & hi[nb].all(axis=1)
+    return np.flatnonzero(~(above | below))
+
+
 @dataclass
 class _EdgeTables:
     """Marching-cubes tables on a block's (BLOCK + 1)^3 extended nodes.
@@ -538,11 +561,10 @@ class _Chunk:
     face_vid: np.ndarray  # (s,) their local vertex ids
 
 
-def _march(values, blocks, grid, level, span, et):
-    """Marching cubes over blocks ``span``: owned edges get vertices, edges owned by a
+def _march(values, blocks, grid, level, bl, et):
+    """Marching cubes over blocks ``bl`` (ascending): owned edges get vertices, edges owned by a
     neighbour become references to its face slot (resolved once every chunk is done)."""
     B, E = BLOCK, BLOCK + 1
-    bl = np.arange(*span)
     n = len(bl)
     lvl = _F32(level)
     ext = np.empty((n, E, E, E), _F32)
@@ -692,17 +714,39 @@ class _Refiner:
     ``u`` from the block's first node: 10 coefficients, so a batch of blocks
     with the same number of Gaussians is one batched matrix product; a second
     one sums ``e_g [A_g, A_g r_g]``: the gradient (finished in float64, where
-    it cancels).  The coefficients are made per batch (:meth:`gather`).
+    it cancels).  The coefficients are made once per pair and gathered per batch (:meth:`gather`).
     """
 
     BUDGET = 1 << 18  # (vertex, Gaussian) products per batch
     PAD = 1.2  # vertex counts of a batch's blocks within this factor: little padding
     SMALL = BUDGET // 16  # bands with fewer products merge (per number of Gaussians): a batch costs ~1 ms however small
 
-    def __init__(self, b, grid, blocks):
-        self.b, self.blocks = b, blocks
+    def __init__(self, b, grid, blocks, threads):
+        self.blocks = blocks
         self.count = np.diff(blocks.fine_start)
         self.x0 = blocks.q * grid.size
+        # One row per (block, Gaussian) pair of the fine lists: the exponent's 10 coefficients, the
+        # kernel's 10 (A, A r, 1) and the Gaussian (int32 bits), so a batch gathers its pairs in one step.
+        self.rows = np.empty((len(blocks.fine_g), 21), _F32)
+        owner = np.repeat(np.arange(len(blocks.q)), self.count)
+
+        def fill(span):
+            lo, hi = span
+            g = blocks.fine_g[lo:hi]
+            rel = b.c[g] - self.x0[owner[lo:hi]]
+            a6 = b.a[g]
+            ar = _amul(a6, rel)
+            out = self.rows[lo:hi]
+            out[:, 0:3] = -0.5 * a6[:, 0:3]
+            out[:, 3:6] = -a6[:, 3:6]
+            out[:, 6:9] = ar
+            out[:, 9] = b.lnw[g] - 0.5 * np.einsum("ni,ni->n", rel, ar)
+            out[:, 10:16] = a6
+            out[:, 16:19] = ar
+            out[:, 19] = 1
+            out[:, 20].view(np.int32)[:] = b.src[g]
+
+        thread_map(fill, _chunks(len(blocks.fine_g), 1 << 18), threads)
 
     def batches(self, blk, order):
         """Vertices ``order`` (sorted by their block in ``blk``) in padded batches ``(vid (nbt, vmax),
@@ -736,24 +780,16 @@ class _Refiner:
 
     def gather(self, ub):
         """The blocks' Gaussians (nbt, G) (input indices) and their coefficients, ready for :meth:`evaluate`."""
-        g = self.blocks.fine_g[self.blocks.fine_start[ub][:, None] + np.arange(int(self.count[ub[0]]))]
-        b = self.b
-        rel = b.c[g] - self.x0[ub][:, None, :]
-        a6 = b.a[g]
-        ar = _amul(a6, rel)
-        coef = np.empty(g.shape + (10,), _F32)
-        coef[..., 0:3] = -0.5 * a6[..., 0:3]
-        coef[..., 3:6] = -a6[..., 3:6]
-        coef[..., 6:9] = ar
-        coef[..., 9] = b.lnw[g] - 0.5 * np.einsum("...i,...i", rel, ar)
-        kern = np.empty(g.shape + (9,), _F32)
-        kern[..., 0:6] = a6
-        kern[..., 6:9] = ar
-        return b.src[g], coef.transpose(0, 2, 1), kern
+        rows = self.rows[self.blocks.fine_start[ub][:, None] + np.arange(int(self.count[ub[0]]))]
+        # (a contiguous (nbt, 10, G) coefficient array: matmul is some 3x faster on it than on a transposed view)
+        return rows[..., 20].view(np.int32), np.ascontiguousarray(rows[..., 0:10].transpose(0, 2, 1)), rows[..., 10:20]
 
     @staticmethod
     def evaluate(u, coef, kern):
-        """f (nbt, vmax), grad (nbt, vmax, 3) float64 and the terms e (nbt, vmax, G) at offsets u."""
+        """f (nbt, vmax), grad (nbt, vmax, 3) and the terms e (nbt, vmax, G) at offsets u, float32.
+
+        The gradient ``sum_g e_g A_g (r_g - u)`` is ``m - M u`` from the sums ``sum_g e_g [A_g, A_g r_g]``,
+        which the float32 product already rounds: finishing it in float64 would not undo that."""
         feat = np.empty(u.shape[:2] + (10,), _F32)
         np.multiply(u, u, out=feat[..., 0:3])
         x, y, z = u[..., 0], u[..., 1], u[..., 2]
@@ -763,13 +799,13 @@ class _Refiner:
         feat[..., 6:9] = u
         feat[..., 9] = 1
         e = np.exp(feat @ coef)
-        m = (e @ kern).astype(np.float64)  # sum_g e_g [A_g, A_g r_g]
-        grad = np.empty(u.shape)  # sum_g e_g A_g (r_g - u), float64: it cancels
+        m = e @ kern  # sum_g e_g [A_g, A_g r_g, 1]
+        x, y, z = feat[..., 6], feat[..., 7], feat[..., 8]
+        grad = np.empty(u.shape, _F32)
         grad[..., 0] = m[..., 6] - (m[..., 0] * x + m[..., 3] * y + m[..., 4] * z)
         grad[..., 1] = m[..., 7] - (m[..., 3] * x + m[..., 1] * y + m[..., 5] * z)
         grad[..., 2] = m[..., 8] - (m[..., 4] * x + m[..., 5] * y + m[..., 2] * z)
-        f = e.reshape(-1, e.shape[-1]).sum(axis=1, dtype=np.float64).reshape(e.shape[:-1])  # 2-D: faster
-        return f, grad, e
+        return m[..., 9], grad, e
 
 
 def _compact(live, per_vertex, per_row):
@@ -798,10 +834,10 @@ def _project(refiner, grid, blk, axis, node, t, curv, a_above, level, tol, threa
     gradient vanished, and the most-contributing Gaussian.
     """
     n = len(t)
-    pos = np.empty((n + 1, 3), _F32)  # row n: where padding is written
-    normal = np.empty((n + 1, 3), _F32)
-    flat = np.empty(n + 1, bool)
-    arg = np.empty(n + 1, np.int32)
+    # Outputs as one record per vertex, position, normal, gradient vanished (0/1), Gaussian (int32
+    # bits): a batch writes its scattered vertices in one step.  Row n: where padding is written.
+    out = np.empty((n + 1, 8), _F32)
+    out_rec = out.view(_REC).reshape(-1)
 
     def setup(vid, ub):
         ax = axis[vid]
@@ -835,11 +871,12 @@ def _project(refiner, grid, blk, axis, node, t, curv, a_above, level, tol, threa
 
     def write(ids, p, g, gn, best):
         """Outputs of vertices ``ids`` (rows of the other arguments)."""
-        pos[ids] = p
-        np.divide(g, np.where(gn > 0, gn, 1.0)[:, None], out=g)  # (g: the caller's temporary)
-        normal[ids] = np.negative(g, out=g)
-        flat[ids] = gn <= 0
-        arg[ids] = best
+        rec = np.empty((len(ids), 8), _F32)
+        rec[:, 0:3] = p
+        np.divide(g, -np.where(gn > 0, gn, 1)[:, None], out=rec[:, 3:6])
+        rec[:, 6] = gn <= 0
+        rec[:, 7].view(np.int32)[:] = best
+        out_rec[ids] = rec.view(_REC).reshape(-1)
 
     def first(batch):
         """Evaluate and write every vertex of the batch (its padding to row n); return those still moving
@@ -893,7 +930,8 @@ def _project(refiner, grid, blk, axis, node, t, curv, a_above, level, tol, threa
         by = np.argsort(blk[left[0]], kind="stable")
         left = [x[by] for x in left]
         thread_map(lambda bt: rest(bt, left), refiner.batches(blk[left[0]], np.arange(len(by))), threads)
-    return pos[:n], normal[:n], flat[:n], arg[:n]
+    out = out[:n]
+    return out[:, 0:3].copy(), out[:, 3:6].copy(), out[:, 6] > 0, out[:, 7].view(np.int32).copy()
 
 
 def _assemble(parts, nslot, threads):
@@ -1023,13 +1061,15 @@ def blobby_surface(
     values = _node_values(b, grid, blocks, threads)
 
     et = _edge_tables()
-    spans = _chunks(len(blocks.q), max(1, 512 * 512 // BLOCK**3))
-    parts = thread_map(functools.partial(_march, values, blocks, grid, level, et=et), spans, threads)
+    crossed = _crossed(values, blocks, level)
+    per = max(1, 512 * 512 // BLOCK**3)
+    runs = [crossed[lo:hi] for lo, hi in _chunks(len(crossed), per)] or [crossed]
+    parts = thread_map(functools.partial(_march, values, blocks, grid, level, et=et), runs, threads)
     del values
     verts, faces, ref_base, ref_shift, rep_shift, n_own = _assemble(parts, len(et.face_slots), threads)
 
     smin = float(s[w > 0].min())
-    refiner = _Refiner(b, grid, blocks)
+    refiner = _Refiner(b, grid, blocks, threads)
     pos, normals, flat, arg = _project(refiner, grid, *verts, level, NEWTON_TOL * smin, threads)
     if grid.box is not None and len(rep_shift):
         # Representatives of duplicates were placed in their block's frame (a coordinate

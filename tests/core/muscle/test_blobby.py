@@ -346,7 +346,7 @@ def test_refiner_batches_cover_every_vertex_once():
     grid = bb._grid(0.5 / 4, None)
     b = bb._blobs(c, r, s, w)
     blocks = bb._find_blocks(b, grid, 0.3, 4.0, 5.0, 1)
-    refiner = bb._Refiner(b, grid, blocks)
+    refiner = bb._Refiner(b, grid, blocks, 1)
     rng = np.random.default_rng(0)
     blk = np.sort(rng.integers(0, len(blocks.q), 20000))
     for order in (np.arange(len(blk)), np.sort(rng.choice(len(blk), 300, replace=False))):
@@ -358,3 +358,29 @@ def test_refiner_batches_cover_every_vertex_once():
             assert np.all(blk[vid] == ub[:, None])  # padding repeats a vertex of the same block
             seen.append(vid[valid])
         assert np.array_equal(np.sort(np.concatenate(seen)), order)
+
+
+@pytest.mark.parametrize("box", [None, (7.0, 8.0, 6.0)])
+def test_blocks_left_out_of_the_march_cut_no_edge(box):
+    # The march skips active blocks whose nodes and +1 neighbours' lie on one side of the level
+    # (from block extremes); marched anyway, every one of them must give no vertex and no face.
+    from nephele.core.muscle import blobby as bb
+
+    c, r, s, w = random_blobs(3, 40, 0, 7)
+    level, h = 0.3, 0.5 / 4
+    grid = bb._grid(h, None if box is None else np.array(box))
+    b = bb._blobs(c, r, s, w)
+    if box is not None:
+        b = bb._images(b, np.array(box), 5.0)
+    blocks = bb._find_blocks(b, grid, level, 4.0, 5.0, 1)
+    values = bb._node_values(b, grid, blocks, 1)
+    kept = bb._crossed(values, blocks, level)
+    left = np.setdiff1d(np.arange(len(blocks.q)), kept)
+    assert 0 < len(left) < len(blocks.q)  # the case is exercised
+    part = bb._march(values, blocks, grid, level, left, bb._edge_tables())
+    assert len(part.t) == 0 and len(part.faces) == 0 and len(part.ref_owner) == 0
+    # An inactive neighbour counts by its class: below (-1) next to a block all above is a crossing.
+    values[0] = 2 * level
+    for cls, kept0 in ((-1, True), (-2, False)):
+        blocks.nbr[0, 1:] = cls
+        assert (0 in bb._crossed(values, blocks, level)) == kept0
