@@ -327,7 +327,7 @@ def accuracy(quick=False):
             for layers in (128, 64, 32, 16):
                 cases.append(("isotropic slab tau 32, albedo 0.99 vs own adding-doubling (R; T rel.)", 32.0, layers,
                               0.99, 0.0, mu0, r_ad, t_ad, False))
-    for mu0 in mus[:1] if quick else mus[:2]:
+    for mu0 in mus[:1] if quick else mus:
         for tau, om in G08[1:2] if quick else G08:
             r_ad, t_ad = adding_doubling(tau, om, mu0, g=0.8)
             for layers in sorted({max(1, int(round(tau / vt))) for vt in ((2.0,) if quick else (2.0, 1.0, 0.5, 0.25))}):
@@ -426,7 +426,8 @@ def main(argv=None):
         "energy). 'even' = sources spread "
         "evenly in each voxel (`source_profile=False`: the solver before issue 18, except that the sun's "
         "first scattering now uses the real medium and the full HG), 'profiles' = the default. "
-        "Seconds: one solve with profiles.",
+        "Seconds: one solve with profiles. The g = 0.8 slabs' target is 1 %: what is left there is angular "
+        "(96 bins; the same on thin voxels) and grows as the sun goes down (tau 16: T).",
         "",
         md_table(["case", "mu0", "layers", "voxel tau", "truth", "err even", "err profiles", "s"], acc),
         "",

@@ -15,12 +15,12 @@ The bin-to-bin matrix ``M[i, j]`` is the fraction of the flux scattered out
 of bin ``j`` (uniform over that bin) that goes into bin ``i``; every column
 sums to 1 exactly (energy conservation; absorption is the albedo's job).
 A forward lobe narrower than a bin (g = 0.8: half maximum at ~10 degrees, a
-bin is ~21 degrees wide) is integrated with the delta-M idea (Wiscombe 1977):
-``p = f delta + (1 - f) HG(g*)`` with ``f = g^2``, ``g* = g / (1 + g)``
-(``g* = g / (1 - g)`` and a backward delta for g < 0), which keeps the mean
-cosine ``g`` exactly and leaves a smooth remainder that 8x8 sub-squares
-integrate well.  The delta part keeps flux in its own bin (or sends it to
-the opposite bin).
+bin is ~21 degrees wide) is smeared by the bins toward lower mean cosines;
+with the delta-M idea (Wiscombe 1977) each column gets a delta part (flux
+kept in its own bin, or sent to the opposite bin for g < 0) sized so that
+the binned random walk diffuses as HG(g) does (:func:`phase_matrix`).  Where
+the bins cannot resolve the peak at all (|g| > ~0.95) the columns start from
+``p = g^2 delta + (1 - g^2) HG(g / (1 + |g|))`` instead of HG(g).
 
 References
 ----------

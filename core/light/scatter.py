@@ -807,9 +807,9 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
         real medium and are scattered on with the full HG(g) (at most ``peaked_orders``);
         delta-M applies after them.
     source_profile : sources inside a voxel follow where the light was caught (an
-        exponential profile; exact for the sun's first scattering) instead of being
-        spread evenly, so optically thick voxels (tau ~ 1-2) keep their accuracy.
-        False gives the even spread (for comparisons).
+        exponential profile, one per sweep group of bins; exact for the sun's first
+        scattering) instead of being spread evenly, so optically thick voxels (tau ~ 1-2)
+        keep their accuracy.  False gives the even spread (for comparisons).
     first_sub : sub-directions per bin side (a divisor of 48) carrying the sun's first
         scattering (weighted by the exact phase function within each bin) and its second
         (weighted by the first's interceptions scattered per sub-direction).
