@@ -326,22 +326,28 @@ def _sweep(sigma, h, dirs, wsub, emis, inflow, periodic, axis, cache=None, per_s
     blocks = [np.arange(s, min(s + per, g)) for s in range(0, g, per)]
     nthreads = max(1, min(int(threads or default_threads()), len(blocks)))
     mw = None if moments is None else np.asarray(moments, np.float32).reshape(-1, g)
-    moms = [None if mw is None else np.zeros((len(mw), 3, L, A, B), np.float32) for _ in range(nthreads)]
+    # per bin (blocks never share a bin, so the threads share it): the first moment along the
+    # sweep axis and (with profiles) the power its sources keep in their voxel, whose moment
+    # dlt * kept is added after the sweep; the bins go to the m sets once, by one product
+    slots = 2 if (em is not None and kap is not None) else 1
+    bmom = None if mw is None else np.zeros((g, slots, L, A, B), np.float32)
     geom = (h, comp, others, periodic, sign, L, A, B, _layer_boxes(sig))
 
     def work(t):
         for ib in range(t, len(blocks), nthreads):
             bs = blocks[ib]
             _sweep_block(sig, geom, dirs[bs], wsub[bs], None if em is None else em[bs], inflow[bs],
-                         kap, dlt, cache, ib, fresh, moms[t], None if mw is None else mw[:, bs], recv, total,
-                         exit_power, bs, per_sub)
+                         kap, cache, ib, fresh, None if mw is None else bmom[bs[0]:bs[-1] + 1], recv, total, exit_power, bs,
+                         per_sub)
 
     thread_map(work, range(nthreads), nthreads)
     mom = None
     if mw is not None:
-        mom = moms[0]
-        for m in moms[1:]:
-            mom += m
+        mom = np.zeros((len(mw), 3, L, A, B), np.float32)
+        flat = bmom.reshape(g, slots, -1)
+        mom[:, comp] = (mw @ flat[:, 0]).reshape((len(mw), L, A, B))
+        if slots == 2:
+            mom += dlt[None] * (mw @ flat[:, 1]).reshape((len(mw), 1, L, A, B))
         mom = np.moveaxis(mom, 2, axis + 2)
     return recv_grid, np.moveaxis(total, 1, axis + 1), exit_power, mom
 
@@ -358,11 +364,11 @@ def _layer_boxes(sig):
     return out
 
 
-def _sweep_block(sig, geom, dirs, wsub, em, inflow, kap, dlt, cache, ib, fresh, mom, mw, recv, total, exit_power,
+def _sweep_block(sig, geom, dirs, wsub, em, inflow, kap, cache, ib, fresh, mom, recv, total, exit_power,
                  bs, per_sub):
     """One block of bins of :func:`_sweep`, all layers; writes its bins of ``recv``, ``total``,
-    ``exit_power`` and adds its moments, weighted by ``mw`` (m, block bins), to ``mom`` (the
-    calling thread's own)."""
+    ``exit_power`` and its bins' moments (block bins, slots, ...) to ``mom``: the first moment
+    along the sweep axis and, with profiles, the power sources keep in their voxel."""
     h, comp, others, periodic, sign, L, A, B, rects = geom
     g, ns, _ = dirs.shape
     K = g * ns
@@ -378,9 +384,8 @@ def _sweep_block(sig, geom, dirs, wsub, em, inflow, kap, dlt, cache, ib, fresh, 
     w = wsub.reshape(g, ns, 1, 1)
     ell32 = ell.astype(np.float32)[:, None, None]
     f1 = np.float32(1)
-    if mom is not None:  # per beam: its bin's weight in each moment set, times its move along the axis
-        mwb = np.repeat(mw, ns, axis=1)
-        mwc = mwb * cross[:, comp][None]
+    if mom is not None:  # each beam's move along the axis per layer, by bin
+        cw = cross[:, comp].reshape(g, 1, ns)
     order = range(L) if sign > 0 else range(L - 1, -1, -1)
     for n, k in enumerate(order):
         if n:  # move to this layer: bilinear transverse shift, inflow outside the grid
@@ -441,10 +446,9 @@ def _sweep_block(sig, geom, dirs, wsub, em, inflow, kap, dlt, cache, ib, fresh, 
             # thin layers of cubic voxels a skewed profile (g 0.8, sun at 60 deg: R -15 %).
             dep = rb * offb
             if em is not None and kap is not None:
-                kept = (mwb @ re.reshape(K, -1)).reshape((-1, 1) + sh[1:])
-                mom[:, :, k, wa, wb] += dlt[None, :, k, wa, wb] * kept
+                mom[:, 1, k, wa, wb] += re.reshape((g, ns) + sh[1:]).sum(1)
                 dep = dep + re * shift
-            mom[:, comp, k, wa, wb] += (mwc @ dep.reshape(K, -1)).reshape((-1,) + sh[1:])
+            mom[:, 0, k, wa, wb] += (cw @ dep.reshape(g, ns, -1)).reshape((g,) + sh[1:])
         if per_sub:
             recv[bs, :, k, wa, wb] = r.reshape((g, ns) + sh[1:])
         else:
