@@ -171,6 +171,21 @@ def render_array(scene, path):
 PANORAMA_ROTATION = (math.pi / 2, 0.0, -math.pi / 2)
 
 
+def sky_texture_nodes(tree, _seen=None):
+    """The Sky Texture nodes of a node tree and of the node groups inside it (each group once)."""
+    seen = set() if _seen is None else _seen
+    if tree is None or tree.as_pointer() in seen:
+        return []
+    seen.add(tree.as_pointer())
+    found = []
+    for node in tree.nodes:
+        if node.bl_idname == "ShaderNodeTexSky":
+            found.append(node)
+        elif getattr(node, "node_tree", None) is not None:
+            found += sky_texture_nodes(node.node_tree, seen)
+    return found
+
+
 def bake_world(world, center=(0.0, 0.0, 0.0), *, size=(256, 128), samples=64, sun_disc=False, threads=None):
     """The light of ``world`` per direction bin: (96,) radiances for the solve's ``sky_radiance``.
 
@@ -184,7 +199,7 @@ def bake_world(world, center=(0.0, 0.0, 0.0), *, size=(256, 128), samples=64, su
     image go again.  A world held out of camera rays (ray visibility) is shown to the bake's
     camera all the same: it still lights the cloud.
 
-    ``sun_disc``: keep the sun discs of the world's Sky Texture nodes.  Off by default: the
+    ``sun_disc``: keep the sun discs of the world's Sky Texture nodes (node groups' too).  Off by default: the
     cloud's sun is a separate parallel beam (the sun lamp or the panel's sun, exact and sharp),
     so a baked disc would light the cloud twice; the discs are switched off for the bake only.
     Leave it on only when nothing else is the sun (the disc is then blurred over its bin).
@@ -198,7 +213,7 @@ def bake_world(world, center=(0.0, 0.0, 0.0), *, size=(256, 128), samples=64, su
     cam_data.type = "PANO"
     cam_data.panorama_type = "EQUIRECTANGULAR"
     cam = bpy.data.objects.new("Nephele sky bake", cam_data)
-    discs = [n for n in (world.node_tree.nodes if world.node_tree else ()) if n.bl_idname == "ShaderNodeTexSky"]
+    discs = sky_texture_nodes(world.node_tree)
     was = [n.sun_disc for n in discs]
     seen = world.cycles_visibility.camera  # a world held out of camera rays still lights the cloud
     try:

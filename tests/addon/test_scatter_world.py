@@ -145,3 +145,27 @@ def test_own_scene_shows_the_sky_that_lights_it(empty_scene, tmp_path, monkeypat
         so.own_scene(bpy.context)
     assert own.world != scene.world
     assert tuple(own.world.node_tree.nodes["Background"].inputs["Color"].default_value)[:3] == (0.0, 0.0, 0.0)
+
+
+def test_bake_finds_the_sun_disc_inside_a_node_group(empty_scene):
+    # A Sky Texture wrapped in a node group (as artists share skies) is a sun disc all the same.
+    world = so.add_sky_world(38.0, -30.0, sun_disc=True)
+    nt = world.node_tree
+    inner = nt.nodes["Sky Texture"]
+    grp = bpy.data.node_groups.new("Sky group", "ShaderNodeTree")
+    grp.interface.new_socket("Color", in_out="OUTPUT", socket_type="NodeSocketColor")
+    sky = grp.nodes.new("ShaderNodeTexSky")
+    for name in ("sky_type", "sun_disc", "sun_elevation", "sun_rotation"):
+        setattr(sky, name, getattr(inner, name))
+    grp.links.new(sky.outputs["Color"], grp.nodes.new("NodeGroupOutput").inputs["Color"])
+    nt.nodes.remove(inner)
+    node = nt.nodes.new("ShaderNodeGroup")
+    node.node_tree = grp
+    nt.links.new(node.outputs["Color"], nt.nodes["Background"].inputs["Color"])
+    assert so.sky_texture_nodes(nt) == [sky]
+    kw = dict(size=(128, 64), samples=16, threads=2)
+    without = so.bake_world(world, **kw)
+    with_disc = so.bake_world(world, sun_disc=True, **kw)
+    assert sky.sun_disc  # restored
+    sun_bin = phase.bin_of(-np.array(so.sun_direction(38.0, -30.0)))
+    assert with_disc[sun_bin] > 20 * without[sun_bin]
