@@ -282,10 +282,10 @@ def _sweep(sigma, h, dirs, wsub, emis, inflow, periodic, axis, cache=None, per_s
     (path length ``l``, optical depth ``tau``) ``u`` moves by ``c = l d / h``, so the
     source falls as ``exp(-beta v)``, ``beta = kappa . c``, and escapes with
     :func:`_exp_source_escape`; without a profile the uniform ``(1 - e^-tau)/tau``.
-    ``moments`` (m, g) or None: also return ``m`` first moments of the received power about
-    each voxel's centre (m, 3, nz, ny, nx; in voxel units, x y z), set ``s`` summing bin
-    ``b``'s moment times ``moments[s, b]`` (e.g. the share of what bin ``b`` catches that
-    is scattered into the bins of set ``s``): a beam
+    ``moments = (w, out, scale)`` or None: also add ``scale`` times ``m`` first moments of the
+    received power about each voxel's centre to ``out`` (m, 3, nz, ny, nx; in voxel units,
+    x y z), set ``s`` summing bin ``b``'s moment times ``w[s, b]`` (``w`` (m, g): e.g. the
+    share of what bin ``b`` catches that is scattered into the bins of set ``s``): a beam
     deposits ``exp(-tau v)``, centroid ``_offset(tau) c``; the power a source keeps in
     its own voxel sits downstream of the source's centroid (closed form below).
     With a ``cache``, the profile's escape fractions are kept too and reused unless ``fresh``
@@ -294,7 +294,7 @@ def _sweep(sigma, h, dirs, wsub, emis, inflow, periodic, axis, cache=None, per_s
     layer is transported only on the rectangle around its non-empty voxels, elsewhere the
     beams pass unchanged.
     Returns received (g, ...) (``per_sub``: (g, ns, ...) per sub-direction),
-    total (g, ...), the exit power (g,) through the far face and the moments (or None).
+    total (g, ...) and the exit power (g,) through the far face.
     """
     g, ns, _ = dirs.shape
     comp = 2 - axis  # xyz component along the sweep
@@ -325,31 +325,32 @@ def _sweep(sigma, h, dirs, wsub, emis, inflow, periodic, axis, cache=None, per_s
     per = max(1, _BLOCK // (ns * A * B))
     blocks = [np.arange(s, min(s + per, g)) for s in range(0, g, per)]
     nthreads = max(1, min(int(threads or default_threads()), len(blocks)))
-    mw = None if moments is None else np.asarray(moments, np.float32).reshape(-1, g)
-    # per bin (blocks never share a bin, so the threads share it): the first moment along the
-    # sweep axis and (with profiles) the power its sources keep in their voxel, whose moment
-    # dlt * kept is added after the sweep; the bins go to the m sets once, by one product
+    mw = None if moments is None else np.asarray(moments[0], np.float32).reshape(-1, g)
+    # per bin (blocks never share a bin, so the threads share it), in the grid's layout: the
+    # first moment along the sweep axis and (with profiles) the power its sources keep in their
+    # voxel, whose moment dlt * kept is added after the sweep; the bins go to the m sets once
     slots = 2 if (em is not None and kap is not None) else 1
-    bmom = None if mw is None else np.zeros((g, slots, L, A, B), np.float32)
+    bmom_grid = None if mw is None else np.zeros((g, slots) + sigma.shape, np.float32)
+    bmom = None if mw is None else np.moveaxis(bmom_grid, axis + 2, 2)
     geom = (h, comp, others, periodic, sign, L, A, B, _layer_boxes(sig))
 
     def work(t):
         for ib in range(t, len(blocks), nthreads):
             bs = blocks[ib]
+            bm = None if mw is None else bmom[bs[0]:bs[-1] + 1]  # a view: blocks are ranges of bins
             _sweep_block(sig, geom, dirs[bs], wsub[bs], None if em is None else em[bs], inflow[bs],
-                         kap, cache, ib, fresh, None if mw is None else bmom[bs[0]:bs[-1] + 1], recv, total, exit_power, bs,
-                         per_sub)
+                         kap, cache, ib, fresh, bm, recv, total, exit_power, bs, per_sub)
 
     thread_map(work, range(nthreads), nthreads)
-    mom = None
     if mw is not None:
-        mom = np.zeros((len(mw), 3, L, A, B), np.float32)
-        flat = bmom.reshape(g, slots, -1)
-        mom[:, comp] = (mw @ flat[:, 0]).reshape((len(mw), L, A, B))
+        out, scale = moments[1].reshape(len(mw), 3, -1), np.float32(moments[2])
+        out[:, comp] += scale * (mw @ bmom_grid[:, 0].reshape(g, -1))
         if slots == 2:
-            mom += dlt[None] * (mw @ flat[:, 1]).reshape((len(mw), 1, L, A, B))
-        mom = np.moveaxis(mom, 2, axis + 2)
-    return recv_grid, np.moveaxis(total, 1, axis + 1), exit_power, mom
+            kept = scale * (mw @ bmom_grid[:, 1].reshape(g, -1))
+            d = np.asarray(profile[1], np.float32).reshape(3, -1)
+            for c in range(3):
+                out[:, c] += d[c] * kept
+    return recv_grid, np.moveaxis(total, 1, axis + 1), exit_power
 
 
 def _layer_boxes(sig):
@@ -892,7 +893,7 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
     inflow = np.array([[sun_irradiance * abs(prop[c]) * area]])
 
     def sun_sweep(sig):
-        r, _, ex, _ = _sweep(sig, h, prop[None, None, :], np.ones((1, 1)), None, inflow, periodic, 2 - c)
+        r, _, ex = _sweep(sig, h, prop[None, None, :], np.ones((1, 1)), None, inflow, periodic, 2 - c)
         return r[0], float(ex[0])
 
     # The sun beam and its first scattering are exact (real medium, full HG(g)); only the
@@ -940,12 +941,13 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
         dlt = np.clip(umom[gi] / np.where(power > 0, power, np.inf), -0.49, 0.49).astype(np.float32)
         return _rate_of_offset(dlt), dlt
 
-    def set_weights(cols):
-        """(groups, k): the share of each of ``k`` scattering columns (96, k) going into each
-        sweep group's bins, or None without profiles."""
+    def moment_sets(cols, alb):
+        """:func:`_sweep`'s ``moments``: add albedo times what is caught to ``umom``, each of
+        ``k`` scattering columns (96, k) into each sweep group by the share it scatters into the
+        group's bins; None without profiles."""
         if umom is None:
             return None
-        return np.stack([cols[bs].sum(0) for _, bs in groups])
+        return np.stack([cols[bs].sum(0) for _, bs in groups]), umom, alb
 
     if source_profile:
         kap = np.zeros((3,) + shape, np.float32)
@@ -982,11 +984,9 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
                         cols = np.einsum("ibqk,bqk->ibq", m_k[:, bs][:, :, kids], share)
                     else:
                         bdirs, bw, cols = fdirs[bs], weights[bs], m_k[:, bs]
-                    mw = set_weights(np.einsum("iba,ba->ib", cols, bw))
-                    r, tot, ex, mom = _sweep(sig_k, h, bdirs, bw, emission(bs), np.zeros(bw.shape), periodic, axis,
-                                             per_sub=True, profile=prof(gi), moments=mw)
-                    if umom is not None:
-                        umom[:] += alb_k * mom
+                    sets = moment_sets(np.einsum("iba,ba->ib", cols, bw), alb_k)
+                    r, tot, ex = _sweep(sig_k, h, bdirs, bw, emission(bs), np.zeros(bw.shape), periodic, axis,
+                                        per_sub=True, profile=prof(gi), moments=sets)
                     rec[bs] = r.sum(1, dtype=np.float32)
                     caught = r.reshape(len(bs), ns, -1).sum(2, dtype=np.float64)
                     if merged:
@@ -1030,10 +1030,8 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
                 sky_in = sky_radiance * wabs[bs] * np.abs(dirs[bs][..., cc]) * area * down
             else:
                 sky_in = sky_radiance[bs][:, None] * wabs[bs] * np.abs(dirs[bs][..., cc]) * area
-            r, tot, ex, mom = _sweep(sig_s, h, dirs[bs], wsub[bs], None, sky_in, periodic, axis,
-                                     moments=set_weights(M[:, bs]))
-            if umom is not None:
-                umom[:] += alb_s * mom
+            r, tot, ex = _sweep(sig_s, h, dirs[bs], wsub[bs], None, sky_in, periodic, axis,
+                                moments=moment_sets(M[:, bs], alb_s))
             received[bs] += r.astype(np.float32)
             total[bs] += tot.astype(np.float32)
             exit_flux[bs] += ex
@@ -1085,17 +1083,17 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
         for gi, (axis, bs) in enumerate(groups):
             shot = unshot[bs].sum(0, dtype=np.float64)
             prof = unshot_profile(0, power) if shared else unshot_profile(gi, shot)
-            r, tot, ex, mom = _sweep(sig_s, h, dirs_p[bs], wsub_p[bs], unshot[bs], np.zeros(wsub_p[bs].shape),
-                                     periodic, axis, caches_p[gi], profile=prof,
-                                     moments=np.ones((1, len(bs))) if shared else set_weights(M_p[:, bs]),
-                                     fresh=refresh if keep else None)
-            unshot[bs] = 0.0
-            if shared:  # less what was shot, plus albedo times what was caught
+            # the unshot moments: less what is shot (all of this group's light), plus albedo times
+            # what is caught (added by the sweep)
+            if shared:
                 umom[0] -= prof[1] * shot
-                umom[0] += alb_s * mom[0]
-            elif umom is not None:  # this group's light is all shot; what it caught is unshot again
+            elif umom is not None:
                 umom[gi] = 0.0
-                umom[:] += alb_s * mom
+            sets = (np.ones((1, len(bs))), umom, alb_s) if shared else moment_sets(M_p[:, bs], alb_s)
+            r, tot, ex = _sweep(sig_s, h, dirs_p[bs], wsub_p[bs], unshot[bs], np.zeros(wsub_p[bs].shape),
+                                periodic, axis, caches_p[gi], profile=prof, moments=sets,
+                                fresh=refresh if keep else None)
+            unshot[bs] = 0.0
             received[bs] += r
             total[bs] += tot
             exit_flux[bs] += ex
