@@ -151,11 +151,12 @@ def test_forward_peaked_slab_against_adding_doubling(tau, omega, vtau, mu0, rel)
 
 
 # Cubic voxels (as in a 3-D cloud, unlike the flat voxels of the slabs above: there a
-# layer's beams move far sideways) in thin layers, oblique sun.  Measured: g = 0 within
-# 0.5 %, g = 0.8 within 1.5 %; before the moments were kept along the sweep axis only,
+# layer's beams move far sideways) in thin layers, oblique sun.  Measured (2026-11-27):
+# g = 0 within 0.44 %, g = 0.8 within 0.98 % (1.6 % before one voxel profile per sweep
+# group and the diffusion-matched bin matrix); before the moments were kept along the sweep axis only,
 # g = 0.8 was R -15 % / T +3.8 % (one layer of tau 1, sun at 60 degrees) and
 # R -22 % / T +23 % (tau 2, sun at 15 degrees).
-@pytest.mark.parametrize("g,rel", [(0.0, 0.01), (0.8, 0.02)])
+@pytest.mark.parametrize("g,rel", [(0.0, 0.005), (0.8, 0.011)])
 @pytest.mark.parametrize("mu0", [1.0, 0.5, MU15])
 @pytest.mark.parametrize("tau,layers", [(1.0, 1), (2.0, 1), (2.0, 2), (4.0, 2)])
 def test_cubic_voxels_in_thin_layers(tau, layers, mu0, g, rel):
