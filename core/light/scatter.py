@@ -313,10 +313,7 @@ def _sweep(sigma, h, dirs, wsub, emis, inflow, periodic, axis, cache=None, per_s
     total = np.zeros((g, L, A, B), np.float32)
     exit_power = np.zeros(g)
     em = None if emis is None else np.moveaxis(np.asarray(emis, np.float32), axis + 1, 1)
-    kap = dlt = None
-    if profile is not None:
-        kap = np.moveaxis(np.asarray(profile[0], np.float32), axis + 1, 1)
-        dlt = np.moveaxis(np.asarray(profile[1], np.float32), axis + 1, 1)
+    kap = None if profile is None else np.moveaxis(np.asarray(profile[0], np.float32), axis + 1, 1)
     inflow = np.asarray(inflow, dtype=np.float32).reshape(g, ns)
     wsub = np.asarray(wsub, dtype=np.float32).reshape(g, ns)
     # Beams are independent: blocks of bins, each swept through all layers, keep the
@@ -328,7 +325,7 @@ def _sweep(sigma, h, dirs, wsub, emis, inflow, periodic, axis, cache=None, per_s
     mw = None if moments is None else np.asarray(moments[0], np.float32).reshape(-1, g)
     # per bin (blocks never share a bin, so the threads share it), in the grid's layout: the
     # first moment along the sweep axis and (with profiles) the power its sources keep in their
-    # voxel, whose moment dlt * kept is added after the sweep; the bins go to the m sets once
+    # voxel, whose moment (profile[1] times it) is added after the sweep; the bins go to the sets once
     slots = 2 if (em is not None and kap is not None) else 1
     bmom_grid = None if mw is None else np.zeros((g, slots) + sigma.shape, np.float32)
     bmom = None if mw is None else np.moveaxis(bmom_grid, axis + 2, 2)
