@@ -70,8 +70,6 @@ EXACT_RANGE = 12.0
 """The "exact" field counts every image within this many sigma (the rest is below 1e-31 w)."""
 
 _F32 = np.float32
-_REC = np.dtype((np.void, 32))
-"""Eight float32 (or int32) as one item: rows of a table copied by one fancy index."""
 _EXP_MAX = _F32(40.0)
 """Largest exponent of one of the three float32 factors (two of them multiply below exp(88.7), the overflow)."""
 
@@ -713,40 +711,18 @@ class _Refiner:
     Per (block, Gaussian) pair the exponent is a quadratic in the point's offset
     ``u`` from the block's first node: 10 coefficients, so a batch of blocks
     with the same number of Gaussians is one batched matrix product; a second
-    one sums ``e_g [A_g, A_g r_g]``: the gradient (finished in float64, where
-    it cancels).  The coefficients are made once per pair and gathered per batch (:meth:`gather`).
+    one sums ``e_g [A_g, A_g r_g, 1]``: the gradient and the field.  The
+    coefficients are made per batch (:meth:`gather`).
     """
 
     BUDGET = 1 << 18  # (vertex, Gaussian) products per batch
     PAD = 1.2  # vertex counts of a batch's blocks within this factor: little padding
     SMALL = BUDGET // 16  # bands with fewer products merge (per number of Gaussians): a batch costs ~1 ms however small
 
-    def __init__(self, b, grid, blocks, threads):
-        self.blocks = blocks
+    def __init__(self, b, grid, blocks):
+        self.b, self.blocks = b, blocks
         self.count = np.diff(blocks.fine_start)
         self.x0 = blocks.q * grid.size
-        # One row per (block, Gaussian) pair of the fine lists: the exponent's 10 coefficients, the
-        # kernel's 10 (A, A r, 1) and the Gaussian (int32 bits), so a batch gathers its pairs in one step.
-        self.rows = np.empty((len(blocks.fine_g), 21), _F32)
-        owner = np.repeat(np.arange(len(blocks.q)), self.count)
-
-        def fill(span):
-            lo, hi = span
-            g = blocks.fine_g[lo:hi]
-            rel = b.c[g] - self.x0[owner[lo:hi]]
-            a6 = b.a[g]
-            ar = _amul(a6, rel)
-            out = self.rows[lo:hi]
-            out[:, 0:3] = -0.5 * a6[:, 0:3]
-            out[:, 3:6] = -a6[:, 3:6]
-            out[:, 6:9] = ar
-            out[:, 9] = b.lnw[g] - 0.5 * np.einsum("ni,ni->n", rel, ar)
-            out[:, 10:16] = a6
-            out[:, 16:19] = ar
-            out[:, 19] = 1
-            out[:, 20].view(np.int32)[:] = b.src[g]
-
-        thread_map(fill, _chunks(len(blocks.fine_g), 1 << 18), threads)
 
     def batches(self, blk, order):
         """Vertices ``order`` (sorted by their block in ``blk``) in padded batches ``(vid (nbt, vmax),
@@ -780,9 +756,22 @@ class _Refiner:
 
     def gather(self, ub):
         """The blocks' Gaussians (nbt, G) (input indices) and their coefficients, ready for :meth:`evaluate`."""
-        rows = self.rows[self.blocks.fine_start[ub][:, None] + np.arange(int(self.count[ub[0]]))]
-        # (a contiguous (nbt, 10, G) coefficient array: matmul is some 3x faster on it than on a transposed view)
-        return rows[..., 20].view(np.int32), np.ascontiguousarray(rows[..., 0:10].transpose(0, 2, 1)), rows[..., 10:20]
+        g = self.blocks.fine_g[self.blocks.fine_start[ub][:, None] + np.arange(int(self.count[ub[0]]))]
+        b = self.b
+        rel = b.c[g] - self.x0[ub][:, None, :]
+        a6 = b.a[g]
+        ar = _amul(a6, rel)
+        # (nbt, 10, G) contiguous: matmul is some 3x faster on it than on a transposed view.
+        coef = np.empty((len(ub), 10, g.shape[1]), _F32)
+        coef[:, 0:3] = -0.5 * a6[..., 0:3].transpose(0, 2, 1)
+        coef[:, 3:6] = -a6[..., 3:6].transpose(0, 2, 1)
+        coef[:, 6:9] = ar.transpose(0, 2, 1)
+        coef[:, 9] = b.lnw[g] - 0.5 * np.einsum("...i,...i", rel, ar)
+        kern = np.empty(g.shape + (10,), _F32)
+        kern[..., 0:6] = a6
+        kern[..., 6:9] = ar
+        kern[..., 9] = 1
+        return b.src[g], coef, kern
 
     @staticmethod
     def evaluate(u, coef, kern):
@@ -834,10 +823,10 @@ def _project(refiner, grid, blk, axis, node, t, curv, a_above, level, tol, threa
     gradient vanished, and the most-contributing Gaussian.
     """
     n = len(t)
-    # Outputs as one record per vertex, position, normal, gradient vanished (0/1), Gaussian (int32
-    # bits): a batch writes its scattered vertices in one step.  Row n: where padding is written.
-    out = np.empty((n + 1, 8), _F32)
-    out_rec = out.view(_REC).reshape(-1)
+    pos = np.empty((n + 1, 3), _F32)  # row n: where padding is written
+    normal = np.empty((n + 1, 3), _F32)
+    flat = np.empty(n + 1, bool)
+    arg = np.empty(n + 1, np.int32)
 
     def setup(vid, ub):
         ax = axis[vid]
@@ -847,8 +836,9 @@ def _project(refiner, grid, blk, axis, node, t, curv, a_above, level, tol, threa
         # ab: f - level >= 0 at the lower node
         return ax, base, u0, along, grid.h[ax], a_above[vid], np.abs(curv[vid])
 
-    def evaluate(u0, along, tt, st, coef, kern):
-        u = u0.copy()
+    def evaluate(u0, along, tt, st, coef, kern, keep=True):
+        """The field at offsets ``u0`` moved ``tt`` along the edges (``keep=False``: in place)."""
+        u = u0.copy() if keep else u0
         u.reshape(-1)[along] += (tt * st).reshape(-1)
         f, g, e = refiner.evaluate(u, coef, kern)
         return f, g, np.sqrt(np.einsum("...i,...i", g, g)), e
@@ -871,12 +861,11 @@ def _project(refiner, grid, blk, axis, node, t, curv, a_above, level, tol, threa
 
     def write(ids, p, g, gn, best):
         """Outputs of vertices ``ids`` (rows of the other arguments)."""
-        rec = np.empty((len(ids), 8), _F32)
-        rec[:, 0:3] = p
-        np.divide(g, -np.where(gn > 0, gn, 1)[:, None], out=rec[:, 3:6])
-        rec[:, 6] = gn <= 0
-        rec[:, 7].view(np.int32)[:] = best
-        out_rec[ids] = rec.view(_REC).reshape(-1)
+        pos[ids] = p
+        np.divide(g, np.where(gn > 0, gn, 1)[:, None], out=g)  # (g: the caller's temporary)
+        normal[ids] = np.negative(g, out=g)
+        flat[ids] = gn <= 0
+        arg[ids] = best
 
     def first(batch):
         """Evaluate and write every vertex of the batch (its padding to row n); return those still moving
@@ -886,7 +875,7 @@ def _project(refiner, grid, blk, axis, node, t, curv, a_above, level, tol, threa
         valid = np.arange(vid.shape[1]) < nv[:, None]
         ax, base, u0, along, st, ab, cv = setup(vid, ub)
         tt = t[vid]
-        f, g, gn, e = evaluate(u0, along, tt, st, coef, kern)
+        f, g, gn, e = evaluate(u0, along, tt, st, coef, kern, keep=False)
         lo, hi = np.zeros(vid.shape), np.ones(vid.shape)
         final, new, live, lo, hi = step(f, g, gn, valid, tt, lo, hi, ab, cv, along, st)
         best = np.take_along_axis(src, e.argmax(axis=-1), axis=1)
@@ -930,8 +919,7 @@ def _project(refiner, grid, blk, axis, node, t, curv, a_above, level, tol, threa
         by = np.argsort(blk[left[0]], kind="stable")
         left = [x[by] for x in left]
         thread_map(lambda bt: rest(bt, left), refiner.batches(blk[left[0]], np.arange(len(by))), threads)
-    out = out[:n]
-    return out[:, 0:3].copy(), out[:, 3:6].copy(), out[:, 6] > 0, out[:, 7].view(np.int32).copy()
+    return pos[:n], normal[:n], flat[:n], arg[:n]
 
 
 def _assemble(parts, nslot, threads):
@@ -1069,7 +1057,7 @@ def blobby_surface(
     verts, faces, ref_base, ref_shift, rep_shift, n_own = _assemble(parts, len(et.face_slots), threads)
 
     smin = float(s[w > 0].min())
-    refiner = _Refiner(b, grid, blocks, threads)
+    refiner = _Refiner(b, grid, blocks)
     pos, normals, flat, arg = _project(refiner, grid, *verts, level, NEWTON_TOL * smin, threads)
     if grid.box is not None and len(rep_shift):
         # Representatives of duplicates were placed in their block's frame (a coordinate

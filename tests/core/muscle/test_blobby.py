@@ -346,7 +346,7 @@ def test_refiner_batches_cover_every_vertex_once():
     grid = bb._grid(0.5 / 4, None)
     b = bb._blobs(c, r, s, w)
     blocks = bb._find_blocks(b, grid, 0.3, 4.0, 5.0, 1)
-    refiner = bb._Refiner(b, grid, blocks, 1)
+    refiner = bb._Refiner(b, grid, blocks)
     rng = np.random.default_rng(0)
     blk = np.sort(rng.integers(0, len(blocks.q), 20000))
     for order in (np.arange(len(blk)), np.sort(rng.choice(len(blk), 300, replace=False))):
