@@ -82,11 +82,11 @@ class _Blobs:
     c: np.ndarray  # (m, 3) centres
     a: np.ndarray  # (m, 6) inverse covariance xx yy zz xy xz yz
     lnw: np.ndarray  # (m,) log weight
-    smin: np.ndarray  # (m,) smallest sigma
+    smax: np.ndarray  # (m,) largest sigma: 1 / sqrt of A's smallest eigenvalue
     half: np.ndarray  # (m, 3) bounding-box half-widths at Mahalanobis radius 1
 
     def take(self, idx):
-        return _Blobs(*(x[idx] for x in (self.src, self.c, self.a, self.lnw, self.smin, self.half)))
+        return _Blobs(*(x[idx] for x in (self.src, self.c, self.a, self.lnw, self.smax, self.half)))
 
 
 def _check(centers, rotations, sigmas, weights):
@@ -125,7 +125,7 @@ def _blobs(c, r, s, w):
     a = np.einsum("nik,nk,njk->nij", r, 1.0 / s**2, r)
     cov = np.einsum("nik,nk->ni", r**2, s**2)
     a6 = np.stack([a[:, 0, 0], a[:, 1, 1], a[:, 2, 2], a[:, 0, 1], a[:, 0, 2], a[:, 1, 2]], axis=1)
-    return _Blobs(keep.astype(np.int64), c, a6, np.log(w), s.min(axis=1), np.sqrt(cov))
+    return _Blobs(keep.astype(np.int64), c, a6, np.log(w), s.max(axis=1), np.sqrt(cov))
 
 
 def _images(b, box, radius):
@@ -306,8 +306,6 @@ def _block_pairs(b, grid, cut, cut_fine, threads):
     # this Mahalanobis distance of its centre (the norm is convex, so a corner is farthest).
     diag = np.array([[1, 1, 1], [-1, 1, 1], [1, -1, 1], [1, 1, -1]]) * (size / 2)
     ra = np.sqrt(np.max([_quad(b.a, np.broadcast_to(dv, b.c.shape)) for dv in diag], axis=0))
-    amat = np.stack([b.a[:, [0, 3, 4]], b.a[:, [3, 1, 5]], b.a[:, [4, 5, 2]]], axis=1)
-    rmin = np.sqrt(np.linalg.eigvalsh(amat)[:, 0])
     ends = np.cumsum(tot)
     spans, start = [], 0
     while start < len(tot):
@@ -329,7 +327,7 @@ def _block_pairs(b, grid, cut, cut_fine, threads):
         d = (q + 0.5) * size - b.c[g]
         sq = np.sqrt(_quad(b.a[g], d))
         gap = np.maximum(np.abs(d) - size / 2, 0.0)  # Euclidean offsets from the centre to the block
-        near = np.maximum(np.maximum(sq - ra[g], 0.0), rmin[g] * np.sqrt(np.einsum("ij,ij->i", gap, gap)))
+        near = np.maximum(np.maximum(sq - ra[g], 0.0), np.sqrt(np.einsum("ij,ij->i", gap, gap)) / b.smax[g])
         far = sq + ra[g]  # upper bound
         keep = np.flatnonzero(near <= cut_fine)
         g, near, far = g[keep], near[keep], far[keep]
@@ -789,7 +787,7 @@ class _Refiner:
         feat[..., 9] = 1
         e = np.exp(feat @ coef)
         m = e @ kern  # sum_g e_g [A_g, A_g r_g, 1]
-        x, y, z = feat[..., 6], feat[..., 7], feat[..., 8]
+        x, y, z = feat[..., 6], feat[..., 7], feat[..., 8]  # (u in float32)
         grad = np.empty(u.shape, _F32)
         grad[..., 0] = m[..., 6] - (m[..., 0] * x + m[..., 3] * y + m[..., 4] * z)
         grad[..., 1] = m[..., 7] - (m[..., 3] * x + m[..., 1] * y + m[..., 5] * z)
