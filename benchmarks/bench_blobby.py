@@ -9,7 +9,8 @@ Writes docs/benchmarks.md, section ``blobby``.
         [--no-metaballs] [--metaball-max 1000]
 
 The full run measures 100, 1,000 and 5,000 ellipsoids; the README's and docs' numbers come from
-``--sizes 100 1000 2000 5000 --metaball-max 5000`` (the metaballs at 5,000 alone take some 10 minutes).
+``--sizes 100 1000 2000 5000 20000 --metaball-max 5000 --actin`` (12 minutes, 8 of them the
+metaballs at 5,000).
 """
 
 import argparse
@@ -161,7 +162,7 @@ def main():
         actin_table()
         return
     # Beyond 5,000 the meshes pass 6M vertices: long for the shared 2-core test machine (pass
-    # --sizes for 20,000: 24M vertices, 4.7 GiB).
+    # --sizes for 20,000: 24M vertices, 4.3 GiB for the mesher alone).
     sizes = args.sizes or ([100, 300] if args.quick else [100, 1000, 5000])
     sample = args.sample or (500 if args.quick else 5000)
     h = SIGMA[0] / 4
