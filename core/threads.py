@@ -23,3 +23,10 @@ def thread_map(fn, items, threads=None):
         return [fn(x) for x in items]
     with ThreadPoolExecutor(n) as pool:
         return list(pool.map(fn, items))
+
+
+def split_map(fn, n, threads=None, chunk=1 << 16):
+    """``fn(s)`` for the slices ``s`` of ``range(n)`` of ``chunk`` items, on threads: elementwise
+    work on whole grids that would otherwise run in one thread between parallel steps.
+    Returns the list of results."""
+    return thread_map(fn, [slice(s, min(s + chunk, n)) for s in range(0, n, chunk)], threads)

@@ -83,7 +83,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import phase
-from ..threads import default_threads, thread_map
+from ..threads import default_threads, split_map, thread_map
 from ..errors import DataError
 from ..files import atomic_write
 
@@ -341,14 +341,19 @@ def _sweep(sigma, h, dirs, wsub, emis, inflow, periodic, axis, cache=None, per_s
     thread_map(work, range(nthreads), nthreads)
     if mw is not None:
         out, scale = moments[1].reshape(len(mw), 3, -1), np.float32(moments[2])
-        # (einsum, not a BLAS product: OpenBLAS's threads would spin beside the solve's own
-        # afterwards; 64x64x48 on 2 threads 19.4 s CPU that way, 13.3 s so)
-        out[:, comp] += scale * np.einsum("sb,bn->sn", mw, bmom_grid[:, 0].reshape(g, -1))
-        if slots == 2:
-            kept = scale * np.einsum("sb,bn->sn", mw, bmom_grid[:, 1].reshape(g, -1))
-            d = np.asarray(profile[1], np.float32).reshape(3, -1)
-            for c in range(3):
-                out[:, c] += d[c] * kept
+        bm = bmom_grid.reshape(g, slots, -1)
+        d = None if slots == 1 else np.asarray(profile[1], np.float32).reshape(3, -1)
+
+        def add(s):
+            # (einsum, not a BLAS product: OpenBLAS's threads would spin beside the solve's own
+            # afterwards; 64x64x48 on 2 threads 19.4 s CPU that way, 13.3 s so)
+            out[:, comp, s] += scale * np.einsum("sb,bn->sn", mw, bm[:, 0, s])
+            if slots == 2:
+                kept = scale * np.einsum("sb,bn->sn", mw, bm[:, 1, s])
+                for c in range(3):
+                    out[:, c, s] += d[c, s] * kept
+
+        split_map(add, bm.shape[2], threads)
     return recv_grid, np.moveaxis(total, 1, axis + 1), exit_power
 
 
@@ -486,14 +491,21 @@ class _Tail:
         if self.spare is None:
             self.spare = np.empty_like(self.arrays[0])
         self.start[0], self.spare = self.spare, None
-        for buf, a in zip(self.start, self.arrays):
-            np.copyto(buf, a)
+        for buf, a in zip(self.start[:2], self.arrays[:2]):
+            fb, fa = buf.reshape(len(buf), -1), a.reshape(len(a), -1)
+            split_map(lambda s: np.copyto(fb[:, s], fa[:, s]), fa.shape[1])
+        np.copyto(self.start[2], self.arrays[2])
 
     def end(self):
         """After a pass: the bound on the extrapolated ``received``'s L1 error (inf until it has one)."""
         d = self.start[0]
-        np.subtract(self.arrays[0], d, out=d)  # this pass's increment, in place of the copy
-        power = float(d.sum(dtype=np.float64))
+        fd, fr = d.reshape(len(d), -1), self.arrays[0].reshape(len(d), -1)
+
+        def increment(s):  # this pass's increment, in place of the copy
+            np.subtract(fr[:, s], fd[:, s], out=fd[:, s])
+            return fd[:, s].sum(dtype=np.float64)
+
+        power = float(sum(split_map(increment, fd.shape[1])))
         factor, change = None, np.inf
         if self.last is not None and self.last[1] > 0 and 0 < power < self.last[1]:
             rho = power / self.last[1]
@@ -515,16 +527,16 @@ class _Tail:
 
 
 def _l1_combination(x, a, y, b):
-    """``sum |a x + b y|`` (float64) over two float32 arrays of one shape, bin by bin so the
-    temporaries stay small."""
-    buf, tmp = np.empty(x.shape[1:], np.float32), np.empty(x.shape[1:], np.float32)
-    total = 0.0
-    for xi, yi in zip(x, y):
-        np.multiply(xi, a, out=buf)
-        np.multiply(yi, b, out=tmp)
-        buf += tmp
-        total += float(np.abs(buf, out=buf).sum(dtype=np.float64))
-    return total
+    """``sum |a x + b y|`` (float64) over two float32 arrays of one shape, in voxel ranges on
+    threads so the temporaries stay small."""
+    fx, fy = x.reshape(len(x), -1), y.reshape(len(y), -1)
+
+    def part(s):
+        buf = fx[:, s] * a
+        buf += fy[:, s] * b
+        return float(np.abs(buf, out=buf).sum(dtype=np.float64))
+
+    return sum(split_map(part, fx.shape[1], chunk=1 << 11))
 
 
 @dataclass
@@ -683,6 +695,59 @@ def _occupied_box(sigma, periodic):
         box.append(slice(int(hit[0]), int(hit[-1]) + 1))
     box = tuple(box)
     return None if sigma[box].shape == sigma.shape else box
+
+
+def _shot_group(bs, unshot, received, total, r, tot, power, shot, albedo):
+    """After a sweep of bins ``bs``: their unshot light is shot, what they caught (``r``) and
+    carried (``tot``) is added to ``received`` and ``total``, and the unshot ``power`` per voxel
+    loses ``shot`` and gains albedo times ``r``; on threads, voxel ranges side by side (in one
+    thread these whole-grid steps took 5 % of the 128x128x96 solve)."""
+    bs = _as_slice(bs)
+    u, rec, tt = (a.reshape(NB, -1) for a in (unshot, received, total))
+    rr, to, pw, sh = r.reshape(len(r), -1), tot.reshape(len(tot), -1), power.reshape(-1), shot.reshape(-1)
+
+    def run(s):
+        u[bs, s] = 0.0
+        rec[bs, s] += rr[:, s]
+        tt[bs, s] += to[:, s]
+        pw[s] -= sh[s]
+        pw[s] += albedo * rr[:, s].sum(0, dtype=np.float64)
+
+    split_map(run, pw.size)
+
+
+def _caught_per_sub(bs, r, tot, rec, total):
+    """After a sweep of bins ``bs`` per sub-direction: ``rec[bs]`` = what each bin caught
+    (``r`` (k, ns, ...) summed over its sub-directions), ``total[bs] += tot``; returns the
+    power caught per bin and sub-direction (k, ns), float64.  On threads, voxel ranges side
+    by side."""
+    bs = _as_slice(bs)
+    fr, ft = r.reshape(r.shape[0], r.shape[1], -1), tot.reshape(len(tot), -1)
+    fo, fa = rec.reshape(len(rec), -1), total.reshape(len(total), -1)
+
+    def run(s):
+        fo[bs, s] = fr[:, :, s].sum(1, dtype=np.float32)
+        fa[bs, s] += ft[:, s]
+        return fr[:, :, s].sum(2, dtype=np.float64)
+
+    return np.sum(split_map(run, fr.shape[2]), axis=0)
+
+
+def _as_slice(bs):
+    """Bin indices ``bs`` as a slice where they are a run (a view instead of a gather)."""
+    return slice(int(bs[0]), int(bs[-1]) + 1) if len(bs) and np.all(np.diff(bs) == 1) else bs
+
+
+def _bin_sum(a, bs):
+    """``a[bs].sum(0)`` in float64 over bins ``bs`` of ``a`` (96, ...), on threads."""
+    flat, out = a.reshape(len(a), -1), np.empty(a.shape[1:], np.float64)
+    bs = bs if isinstance(bs, slice) else _as_slice(bs)
+
+    def run(s):
+        out.reshape(-1)[s] = flat[bs, s].sum(0, dtype=np.float64)
+
+    split_map(run, out.size)
+    return out
 
 
 def _scatter_into(unshot, m_cols, recv, albedo):
@@ -937,8 +1002,15 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
         """The profile of sweep group ``gi``'s unshot light, ``power`` its unshot power per voxel."""
         if umom is None:
             return None
-        dlt = np.clip(umom[gi] / np.where(power > 0, power, np.inf), -0.49, 0.49).astype(np.float32)
-        return _rate_of_offset(dlt), dlt
+        m, p = umom[gi].reshape(3, -1), power.reshape(-1)
+        dlt, kap = np.empty(m.shape, np.float32), np.empty(m.shape, np.float32)
+
+        def run(s):
+            dlt[:, s] = np.clip(m[:, s] / np.where(p[s] > 0, p[s], np.inf), -0.49, 0.49)
+            kap[:, s] = _rate_of_offset(dlt[:, s])
+
+        split_map(run, p.size)
+        return kap.reshape(umom[gi].shape), dlt.reshape(umom[gi].shape)
 
     def moment_sets(cols, alb):
         """:func:`_sweep`'s ``moments``: add albedo times what is caught to ``umom``, each of
@@ -986,16 +1058,15 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
                     sets = moment_sets(np.einsum("iba,ba->ib", cols, bw), alb_k)
                     r, tot, ex = _sweep(sig_k, h, bdirs, bw, emission(bs), np.zeros(bw.shape), periodic, axis,
                                         per_sub=True, profile=prof(gi), moments=sets)
-                    rec[bs] = r.sum(1, dtype=np.float32)
-                    caught = r.reshape(len(bs), ns, -1).sum(2, dtype=np.float64)
+                    caught = _caught_per_sub(bs, r, tot, rec, total)
                     if merged:
                         rsub[np.ix_(bs, kids.reshape(-1))] = (caught[:, :, None] * share).reshape(len(bs), -1)
                     else:
                         rsub[bs] = caught
-                    total[bs] += tot.astype(np.float32)
                     exit_flux[bs] += ex
                     _scatter_into(unshot, cols.reshape(NB, -1), r.reshape((-1,) + shape), alb_k)
-        received[:] += rec
+        fr, fo = received.reshape(NB, -1), rec.reshape(NB, -1)
+        split_map(lambda s: np.add(fr[:, s], fo[:, s], out=fr[:, s]), fr.shape[1])
         return rsub
 
     peaked = np.zeros((int(peaked_orders), NB) + shape, np.float32)
@@ -1009,7 +1080,7 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
                       1.0 / wk.shape[1])
         nxt = unshot.copy()
         unshot[:] = 0.0
-        prof = [unshot_profile(gi, nxt[bs].sum(0, dtype=np.float64)) for gi, (_, bs) in enumerate(groups)]
+        prof = [unshot_profile(gi, _bin_sum(nxt, bs)) for gi, (_, bs) in enumerate(groups)]
         if umom is not None:
             umom[:] = 0.0
         rsub = shoot_peaked(nxt.__getitem__, wk, prof.__getitem__, k < real_orders,
@@ -1040,7 +1111,7 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
     # unshot power per voxel (all bins), kept up to date group by group instead of summing
     # the 96 bins again (the phase matrix's columns sum to 1: a group adds albedo times
     # what it caught); summed afresh after each pass
-    power = unshot.sum(0, dtype=np.float64)
+    power = _bin_sum(unshot, slice(None))
     residual = float(power.sum()) / ref
     history.append(residual)
     yield Progress(0, len(groups), len(groups), residual)
@@ -1080,7 +1151,7 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
             tail.begin()
         refresh = passes <= 8 or passes % int(profile_every) == 0
         for gi, (axis, bs) in enumerate(groups):
-            shot = unshot[bs].sum(0, dtype=np.float64)
+            shot = _bin_sum(unshot, bs)
             prof = unshot_profile(0, power) if shared else unshot_profile(gi, shot)
             # the unshot moments: less what is shot (all of this group's light), plus albedo times
             # what is caught (added by the sweep)
@@ -1092,16 +1163,12 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
             r, tot, ex = _sweep(sig_s, h, dirs_p[bs], wsub_p[bs], unshot[bs], np.zeros(wsub_p[bs].shape),
                                 periodic, axis, caches_p[gi], profile=prof, moments=sets,
                                 fresh=refresh if keep else None)
-            unshot[bs] = 0.0
-            received[bs] += r
-            total[bs] += tot
             exit_flux[bs] += ex
+            _shot_group(bs, unshot, received, total, r, tot, power, shot, alb_s)
             _scatter_into(unshot, M_p[:, bs], r, alb_s)
-            power -= shot
-            power += alb_s * r.sum(0, dtype=np.float64)
             residual = float(power.sum()) / ref
             yield Progress(passes, gi + 1, len(groups), residual)
-        power = unshot.sum(0, dtype=np.float64)
+        power = _bin_sum(unshot, slice(None))
         residual = float(power.sum()) / ref
         history.append(residual)
         converged = residual <= tol
