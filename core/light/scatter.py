@@ -1480,6 +1480,65 @@ def _march_rays(planes, xs, nbp, lim, coef, start, end, first, block=4):
     return acc_all, tr_all
 
 
+def _sample_rects(occ, perm, xo, margin):
+    """Per sample at texel coordinate ``xo`` along ``c``: the open rectangle (alo, ahi, blo, bhi)
+    of positions (texel units, the (c, a, b) planes of :func:`march_planes`) whose bilinear
+    sees a non-empty voxel of the planes around it, grown by ``margin``."""
+    om = np.moveaxis(occ, *perm)
+    out = []
+    for rows in (om.any(axis=2), om.any(axis=1)):
+        n = rows.shape[1]
+        some = rows.any(1)
+        # texel p + 1 = voxel plane p; a position sees texels floor(x) and floor(x) + 1
+        lo = np.full(len(rows) + 3, np.inf)
+        hi = np.full(len(rows) + 3, -np.inf)
+        lo[1:-2][some] = np.argmax(rows, axis=1)[some] + 1 - 1
+        hi[1:-2][some] = n - np.argmax(rows[:, ::-1], axis=1)[some] + 1
+        p0 = np.floor(xo).astype(int)
+        fc = xo - p0
+        out.append(np.minimum(np.where(fc < 1, lo[p0], np.inf), np.where(fc > 0, lo[p0 + 1], np.inf)) - margin)
+        out.append(np.maximum(np.where(fc < 1, hi[p0], -np.inf), np.where(fc > 0, hi[p0 + 1], -np.inf)) + margin)
+    return np.array(out)
+
+
+def _tile_spans(camera, basis, o, h, axes, xo, rect, tile=16):
+    """Per pixel, the first and last sample (march order) where :func:`march_planes` may
+    see a non-zero texel: from the image's ``tile x tile`` pixel tiles.
+
+    A tile's rays are those through its rectangle of the image plane; on a plane across
+    ``c`` their positions fill the convex quadrilateral of its four corner rays (the map
+    is projective, and ``d_c`` keeps its sign over the tile), so a tile whose corners'
+    bounding box misses sample ``s``'s rectangle of non-zero texels ``rect`` (4, S)
+    (lo < a < hi, lo < b < hi, texel units) has only zero samples there.  Tiles with a
+    corner ray not going the way ``f`` goes along ``c`` keep every sample.
+    """
+    f, r, u = basis
+    c, ca, cb = axes
+    tn = np.tan(0.5 * camera.fov)
+    ex = np.r_[np.arange(0, camera.width, tile), camera.width]  # tile edges, in pixels
+    ey = np.r_[np.arange(0, camera.height, tile), camera.height]
+    px = (ex / camera.width * 2.0 - 1.0) * tn
+    py = (1.0 - ey / camera.height * 2.0) * tn * camera.height / camera.width
+    d = [f[k] + px[None, :] * r[k] + py[:, None] * u[k] for k in range(3)]
+    good = (np.abs(d[c]) > 1e-12) & (np.sign(d[c]) == np.sign(f[c]))
+    dc = np.where(good, d[c], 1.0)
+    act = np.ones((len(ey) - 1, len(ex) - 1, len(xo)), bool)
+    for a, lo, hi in ((ca, rect[0], rect[1]), (cb, rect[2], rect[3])):
+        ra = d[a] / dc
+        pos = ((o[a] - (0.5 * h[c] + o[c]) * ra) / h[a] + 0.5)[..., None] + (h[c] * ra / h[a])[..., None] * xo
+        act &= np.maximum(np.maximum(pos[:-1, :-1], pos[:-1, 1:]), np.maximum(pos[1:, :-1], pos[1:, 1:])) > lo
+        act &= np.minimum(np.minimum(pos[:-1, :-1], pos[:-1, 1:]), np.minimum(pos[1:, :-1], pos[1:, 1:])) < hi
+    bad = ~(good[:-1, :-1] & good[:-1, 1:] & good[1:, :-1] & good[1:, 1:])
+    act[bad] = True
+    some = act.any(2)
+    first = np.where(some, np.argmax(act, axis=2), len(xo))
+    last = np.where(some, len(xo) - 1 - np.argmax(act[..., ::-1], axis=2), -1)
+    # pixel (row, column) -> tile
+    ty = np.searchsorted(ey, np.arange(camera.height), "right") - 1
+    tx = np.searchsorted(ex, np.arange(camera.width), "right") - 1
+    return first[ty][:, tx].reshape(-1), last[ty][:, tx].reshape(-1)
+
+
 def march_planes(sigma, source, size, camera, *, samples=1, background=0.0, chunk=16384, threads=None):
     """Emission-absorption render by marching the grid's own planes (a film-speed :func:`render`).
 
@@ -1496,13 +1555,14 @@ def march_planes(sigma, source, size, camera, *, samples=1, background=0.0, chun
     ``c``, against :func:`render`'s default 0.4 of the smallest voxel side along the ray.
 
     Each ray is marched only over the samples where it is inside the box of non-empty
-    voxels grown by the interpolant's voxel (elsewhere its samples are exactly zero;
-    the 128x128x96 cloud's 640x480 view: 24% of the samples, against 56% for all the
-    planes of the rays that meet the box), the rays joining and leaving the march as
-    it passes their spans (:func:`_march_rays`), split in jobs of about ``chunk`` rays
-    in flight on ``threads`` threads (NumPy releases the GIL in its loops).  Rays that
-    miss the box see the background.  Positions along the rays are float64; the
-    bilinear weights, values and sums float32.
+    voxels grown by the interpolant's voxel and where its 16x16-pixel tile meets the
+    plane's rectangle of non-empty voxels (:func:`_tile_spans`): elsewhere its samples
+    are exactly zero (the 128x128x96 cloud's 640x480 view: 16.5% of the samples, 24%
+    with the box alone, against 56% for all the planes of the rays that meet the box).
+    The rays join and leave the march as it passes their spans (:func:`_march_rays`),
+    split in jobs of about ``chunk`` rays in flight on ``threads`` threads (NumPy
+    releases the GIL in its loops).  Rays that miss the box see the background.
+    Positions along the rays are float64; the bilinear weights, values and sums float32.
 
     Returns
     -------
@@ -1572,7 +1632,10 @@ def march_planes(sigma, source, size, camera, *, samples=1, background=0.0, chun
     lo = np.searchsorted(asc, np.minimum(xin, xout) - 0.5 / m, "left")
     hi = np.searchsorted(asc, np.maximum(xin, xout) + 0.5 / m, "right") - 1
     start, end = (lo, hi) if f[c] > 0 else (len(xo) - 1 - hi, len(xo) - 1 - lo)
-    start = np.maximum(start, front[0])
+    # and within the samples where the ray's pixel tile sees non-zero texels
+    tfirst, tlast = _tile_spans(camera, (f, r, u), o, h, (c, ca, cb), xo, _sample_rects(occ, perm, xo, margin=1e-6))
+    start = np.maximum(np.maximum(start, front[0]), tfirst[hit])
+    end = np.minimum(end, tlast[hit])
     live = np.flatnonzero(end >= start)
     live = live[np.argsort(start[live], kind="stable")]
     hit, start, end = hit[live], start[live], end[live]
