@@ -1286,8 +1286,9 @@ def view_source(sol, camera_position, chunk=1 << 14, threads=None):
     The view-independent parts (the non-empty voxels' received powers, gathered) are
     kept on ``sol`` after the first call and reused while its arrays are the same
     objects (arrays edited in place afterwards are not seen).  The sums over the bins
-    are float32 (the rows of ``pbar`` rounded to float32; ~1e-7 relative).  Voxels in
-    chunks of ``chunk`` on ``threads`` threads (default :func:`..threads.default_threads`).
+    are float32 of float32 rows of ``pbar`` (128x128x96 cloud: within 4e-7 of float64
+    sums per voxel).  Voxels in chunks of ``chunk`` on ``threads`` threads (default
+    :func:`..threads.default_threads`).
 
     Returns
     -------
@@ -1539,7 +1540,7 @@ def _tile_spans(camera, basis, o, h, axes, xo, rect, tile=16):
     return first[ty][:, tx].reshape(-1), last[ty][:, tx].reshape(-1)
 
 
-def march_planes(sigma, source, size, camera, *, samples=1, background=0.0, chunk=16384, threads=None):
+def march_planes(sigma, source, size, camera, *, samples=1, background=0.0, chunk=32768, threads=None):
     """Emission-absorption render by marching the grid's own planes (a film-speed :func:`render`).
 
     The rays meet the voxel-centre planes across the view's dominant axis ``c``
@@ -1561,8 +1562,10 @@ def march_planes(sigma, source, size, camera, *, samples=1, background=0.0, chun
     with the box alone, against 56% for all the planes of the rays that meet the box).
     The rays join and leave the march as it passes their spans (:func:`_march_rays`),
     split in jobs of about ``chunk`` rays in flight on ``threads`` threads (NumPy
-    releases the GIL in its loops).  Rays that miss the box see the background.
-    Positions along the rays are float64; the bilinear weights, values and sums float32.
+    releases the GIL in its loops; smaller jobs lose more to the GIL's hand-overs than
+    they gain in cache: 640x480 on 2 threads, 16384 rays 0.25 s, 32768 0.18-0.25 s).
+    Rays that miss the box see the background.  Positions along the rays are float64;
+    the bilinear weights, values and sums float32.
 
     Returns
     -------

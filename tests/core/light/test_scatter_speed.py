@@ -416,8 +416,8 @@ def test_view_source_matches_the_per_voxel_sums():
         ref += diffuse * np.einsum("nj,jn->n", phase.bin_phase_toward(w, sol.g), g - pk.sum(0))
         for k in range(2):
             fac = sol.albedo if k < sol.real_orders else diffuse
-            ref += fac * np.einsum("nj,jn->n", phase.bin_phase_toward(w, sol.g, res=48, sub=sub, weights=sol.peaked_weights[k]),
-                                    pk[k])
+            pb = phase.bin_phase_toward(w, sol.g, res=48, sub=sub, weights=sol.peaked_weights[k])
+            ref += fac * np.einsum("nj,jn->n", pb, pk[k])
         ref /= np.prod(np.asarray(sol.size) / np.asarray(sol.sigma.shape[::-1]))
         src = scatter.view_source(sol, pos).reshape(-1)
         np.testing.assert_allclose(src[occ], ref, rtol=2e-6, atol=1e-7 * ref.max())
