@@ -1246,19 +1246,21 @@ def _view_tables(sol):
     bz, by, bx = sol.box
     x, y, z = voxel_centres(sol.sigma.shape, sol.size)
     pts = np.stack(np.broadcast_arrays(x[:, :, bx], y[:, by], z[bz]), -1).reshape(-1, 3)[occ]
-    # gathered in blocks of voxels (a row gather from the (96, voxels) arrays' transposes
-    # was 2-10x slower)
+    # gathered in blocks of voxels, on threads (a row gather from the (96, voxels) arrays'
+    # transposes was 2-10x slower)
     orders = len(sol.received_peaked)
     peaked = np.empty((orders, len(occ), NB), np.float32)
     rest = np.empty((len(occ), NB), np.float32)
     pk_in = sol.received_peaked.reshape(orders, NB, -1)
     rec_in = sol.received.reshape(NB, -1)
-    for s in range(0, len(occ), 8192):
-        sl = slice(s, s + 8192)
+
+    def gather(sl):
         rest[sl] = rec_in[:, occ[sl]].T
         for k in range(orders):
             peaked[k, sl] = pk_in[k][:, occ[sl]].T
             rest[sl] -= peaked[k, sl]
+
+    thread_map(gather, [slice(s, s + 8192) for s in range(0, len(occ), 8192)])
     tables = (at, pts, sig.reshape(-1)[occ], sol.received_sun.reshape(-1)[occ], rest, peaked)
     sol._view_cache = (src, tables)
     return tables
@@ -1404,7 +1406,7 @@ def render(sigma, source, size, camera, *, step=0.4, background=0.0, chunk=8192)
     return img.reshape(camera.height, camera.width).astype(np.float32)
 
 
-def _march_rays(planes, xs, nbp, lim, coef, start, end, first, block=4):
+def _march_rays(planes, xs, nbp, lim, coef, start, end, first, block=8):
     """:func:`march_planes`' march of one set of rays, sorted by ``start``.
 
     ``planes[s]``: sample ``s``'s plane (flat complex64 ``sigma + i source``, rows of
