@@ -1589,23 +1589,32 @@ def march_planes(sigma, source, size, camera, *, samples=1, background=0.0, chun
     # border texel still has the bilinear's second texel
     perm = ([2 - c, 2 - ca, 2 - cb], [0, 1, 2])
     nc, na, nb = (sigma.shape[2 - x] + 2 for x in (c, ca, cb))
-    pad = np.zeros((nc, na + 1, nb + 1), np.complex64)
-    pad.real[1:-1, 1:-2, 1:-2] = np.moveaxis(sigma, *perm)
-    pad.imag[1:-1, 1:-2, 1:-2] = np.moveaxis(source, *perm)
     nbp = nb + 1
     full = np.zeros(nc + 1, bool)
     full[1:-2] = np.moveaxis(occ, *perm).any(axis=(1, 2))
+    sig_m, src_m = np.moveaxis(sigma, *perm), np.moveaxis(source, *perm)
+    near_planes = {}
+
+    def texels(p):  # texel plane p, flat; the last few kept (built one at a time: half the
+        if p not in near_planes:  # time of the whole padded volume's transposed copy)
+            if len(near_planes) > 2:
+                near_planes.pop(next(iter(near_planes)))
+            t = np.zeros((na + 1, nbp), np.complex64)
+            t.real[1:-2, 1:-2] = sig_m[p - 1]
+            t.imag[1:-2, 1:-2] = src_m[p - 1]
+            near_planes[p] = t.reshape(-1)
+        return near_planes[p]
+
     # sample positions along c in texel units: m per voxel, centred on the planes, over
     # the whole interpolant (the zero planes 0 and nc - 1 included)
     xs = [p + (j + 0.5) / m - 0.5 for p in range(nc) for j in range(m)]
     xs = [x for x in xs if 0 <= x <= nc - 1 and (full[int(np.floor(x))] or full[int(np.floor(x)) + 1])]
-    flat = pad.reshape(nc, -1)
     # each sample's plane, linear between the voxel planes around it (all-zero ones dropped)
     planes, xo = [], []
     for x in (xs if f[c] > 0 else xs[::-1]):
         p0 = int(np.floor(x))
         fc = np.float32(x - p0)
-        parts = [w * flat[p] for p, w in ((p0, 1 - fc), (p0 + 1, fc)) if w > 0 and full[p]]
+        parts = [w * texels(p) for p, w in ((p0, 1 - fc), (p0 + 1, fc)) if w > 0 and full[p]]
         if parts:
             pl = sum(parts[1:], parts[0])
             planes.append((pl, pl[1:], pl[nbp:], pl[nbp + 1:]))
