@@ -1226,11 +1226,21 @@ def _sun_view_escape(sol, w, sigma):
     return _exp_source_escape(tau, beta) / _phi(tau)
 
 
+_VIEW_BLOCK = 8192  # voxels per block of the view tables: 3 MB per (block, 96) float32 array
+
+
 def _view_tables(sol):
     """The non-empty voxels of ``sol`` (flat indices), their centres, extinction, direct-sun
-    power, binned power less its peaked parts (n, 96) and peaked parts (orders, n, 96), one
-    voxel's 96 bins contiguous (a view takes one row of phase table per voxel); kept on
-    ``sol`` while its arrays are the same objects."""
+    power, and in blocks of :data:`_VIEW_BLOCK` voxels the binned power less its peaked
+    parts (a list of (block, 96) arrays) and the peaked parts (a list of lists of one
+    (block, 96) array per order): one voxel's 96 bins contiguous, as a view takes one row
+    of phase table per voxel.  Kept on ``sol`` while its arrays are the same objects.
+
+    Blocks, not whole arrays: NumPy asks for transparent huge pages for arrays from 4 MB,
+    and with this machine's THP defrag setting (madvise: compaction on the page fault)
+    the 230 MB of the 128x128x96 cloud's tables took 0.63-0.71 s to fault in beside a
+    memory-hungry job, against 0.21-0.23 s in 4 kB pages (0.08-0.13 s when the pages
+    come back from the process's own freed memory)."""
     from ..volume.cloud_density import voxel_centres
 
     src = tuple(getattr(sol, k) for k in ("sigma", "received", "received_sun", "received_peaked"))
@@ -1241,27 +1251,24 @@ def _view_tables(sol):
     # ``occ``: flat indices in the solved box; ``at``: the same voxels in the whole grid.
     sig = sol.sigma[sol.box]
     occ = np.flatnonzero(sig.reshape(-1) > 0)
-    at = np.ravel_multi_index(tuple(i + o for i, o in zip(np.unravel_index(occ, sig.shape), sol.origin)),
-                              sol.sigma.shape)
-    bz, by, bx = sol.box
+    ijk = tuple(i + o for i, o in zip(np.unravel_index(occ, sig.shape), sol.origin))
+    at = np.ravel_multi_index(ijk, sol.sigma.shape)
     x, y, z = voxel_centres(sol.sigma.shape, sol.size)
-    pts = np.stack(np.broadcast_arrays(x[:, :, bx], y[:, by], z[bz]), -1).reshape(-1, 3)[occ]
-    # gathered in blocks of voxels, on threads (a row gather from the (96, voxels) arrays'
-    # transposes was 2-10x slower)
-    orders = len(sol.received_peaked)
-    peaked = np.empty((orders, len(occ), NB), np.float32)
-    rest = np.empty((len(occ), NB), np.float32)
-    pk_in = sol.received_peaked.reshape(orders, NB, -1)
+    pts = np.stack([x.reshape(-1)[ijk[2]], y.reshape(-1)[ijk[1]], z.reshape(-1)[ijk[0]]], -1)
+    # gathered on threads (a row gather from the (96, voxels) arrays' transposes was 2-10x slower)
+    pk_in = sol.received_peaked.reshape(len(sol.received_peaked), NB, -1)
     rec_in = sol.received.reshape(NB, -1)
 
     def gather(sl):
-        rest[sl] = rec_in[:, occ[sl]].T
-        for k in range(orders):
-            peaked[k, sl] = pk_in[k][:, occ[sl]].T
-            rest[sl] -= peaked[k, sl]
+        peaked = [np.ascontiguousarray(p[:, occ[sl]].T) for p in pk_in]
+        rest = np.ascontiguousarray(rec_in[:, occ[sl]].T)
+        for p in peaked:
+            rest -= p
+        return rest, peaked
 
-    thread_map(gather, [slice(s, s + 8192) for s in range(0, len(occ), 8192)])
-    tables = (at, pts, sig.reshape(-1)[occ], sol.received_sun.reshape(-1)[occ], rest, peaked)
+    blocks = thread_map(gather, [slice(s, s + _VIEW_BLOCK) for s in range(0, len(occ), _VIEW_BLOCK)])
+    tables = (at, pts, sig.reshape(-1)[occ], sol.received_sun.reshape(-1)[occ], [b[0] for b in blocks],
+              [b[1] for b in blocks])
     sol._view_cache = (src, tables)
     return tables
 
@@ -1273,7 +1280,7 @@ def _compact_cells(cells, n):
     return np.flatnonzero(used), (np.cumsum(used) - 1)[cells]
 
 
-def view_source(sol, camera_position, chunk=1 << 14, threads=None):
+def view_source(sol, camera_position, threads=None):
     """In-scattered radiance per unit length toward ``camera_position`` at every voxel.
 
     ``S = albedo R_sun p(sun . w) / V + albedo / (1 - albedo f) sum_j R_j pbar_j(w) / V``
@@ -1289,7 +1296,7 @@ def view_source(sol, camera_position, chunk=1 << 14, threads=None):
     kept on ``sol`` after the first call and reused while its arrays are the same
     objects (arrays edited in place afterwards are not seen).  The sums over the bins
     are float32 of float32 rows of ``pbar`` (128x128x96 cloud: within 4e-7 of float64
-    sums per voxel).  Voxels in chunks of ``chunk`` on ``threads`` threads (default
+    sums per voxel).  The tables' blocks of voxels on ``threads`` threads (default
     :func:`..threads.default_threads`).
 
     Returns
@@ -1321,19 +1328,20 @@ def view_source(sol, camera_position, chunk=1 << 14, threads=None):
     # of the peaked parts) scattered by albedo, those in the scaled medium by ``diffuse``
     tabs = [(diffuse * phase._bin_table(sol.g, 24, 6, None).rows(c24)).astype(np.float32)]
     tabs += [((sol.albedo if k < sol.real_orders else diffuse)
-              * phase._bin_table(sol.g, 48, sub, fw[k]).rows(c48)).astype(np.float32) for k in range(len(peaked))]
+              * phase._bin_table(sol.g, 48, sub, fw[k]).rows(c48)).astype(np.float32)
+             for k in range(len(sol.received_peaked))]
 
-    def run(sl):
+    def run(b):
+        sl = slice(b * _VIEW_BLOCK, (b + 1) * _VIEW_BLOCK)
         o = sol.albedo * r_sun[sl] * phase.hg(w[sl] @ prop, sol.g)
         o *= _sun_view_escape(sol, w[sl], sig_occ[sl])
-        acc = np.einsum("nj,nj->n", tabs[0].take(k24[sl], axis=0), rest[sl])
-        for k in range(len(peaked)):
-            acc += np.einsum("nj,nj->n", tabs[k + 1].take(k48[sl], axis=0), peaked[k, sl])
+        acc = np.einsum("nj,nj->n", tabs[0].take(k24[sl], axis=0), rest[b])
+        for k, pk in enumerate(peaked[b]):
+            acc += np.einsum("nj,nj->n", tabs[k + 1].take(k48[sl], axis=0), pk)
         return o + acc
 
-    chunks = [slice(s, s + chunk) for s in range(0, len(pts), chunk)]
     src = np.zeros(sol.sigma.size, np.float32)
-    src[occ] = np.concatenate(thread_map(run, chunks, threads) or [np.zeros(0)]) / vol
+    src[occ] = np.concatenate(thread_map(run, range(len(rest)), threads) or [np.zeros(0)]) / vol
     return src.reshape(shape)
 
 
