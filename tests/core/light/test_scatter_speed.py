@@ -376,11 +376,16 @@ def march_all_planes(sigma, source, size, cam, samples, background):
     return img.reshape(cam.height, cam.width)
 
 
-def test_march_planes_spans_give_the_all_planes_march():
-    # each ray marched only over its span inside the non-empty box, joining and leaving the
-    # march in blocks, positions as coefficients: the same image as marching every plane
-    # (float32 round-off: measured up to 5e-7 of the brightest pixel); eyes outside and inside the
-    # box, marches along +c and -c, in few jobs and in many (chunk=64)
+@pytest.mark.parametrize("tile", [16, 4])
+def test_march_planes_spans_give_the_all_planes_march(monkeypatch, tile):
+    # each ray marched only over its span inside the non-empty box and its pixel tile's
+    # planes, joining and leaving the march in blocks, positions as coefficients: the same
+    # image as marching every plane (float32 round-off: measured up to 5e-7 of the brightest
+    # pixel); eyes outside and inside the box, marches along +c and -c, a 130-degree view
+    # (tiles with corner rays going backwards along c), in few jobs and in many (chunk=64)
+    import functools
+
+    monkeypatch.setattr(scatter, "_tile_spans", functools.partial(scatter._tile_spans, tile=tile))
     sig = np.zeros((20, 26, 24))
     sig[4:16, 6:22, 5:21] = small_cloud((12, 16, 16), 20.0)
     sig[9:11, 12:14, 3:6] = 7.0  # a detached blob
@@ -389,6 +394,7 @@ def test_march_planes_spans_give_the_all_planes_march():
     cams = [scatter.orbit_camera(a, size, elevation=e, width=40, height=30) for a, e in ((0.6, 0.26), (3.5, -0.5))]
     cams += [scatter.Camera((0.5, 0.6, 0.4), (0.9, 0.2, 0.3), np.radians(70.0), 40, 30),
              scatter.Camera((0.45, 0.55, 0.45), (0.4, 0.9, 0.2), np.radians(50.0), 40, 30),
+             scatter.Camera((0.5, 0.6, 0.4), (0.9, 0.2, 0.3), np.radians(130.0), 40, 30),
              scatter.Camera((0.5, 0.55, 2.5), (0.5, 0.55, 0.4), np.radians(30.0), 40, 30, up=(0.0, 1.0, 0.0))]
     for cam in cams:
         for samples, bg in ((1, 0.0), (2, 0.4)):
