@@ -30,6 +30,7 @@ W. J. Wiscombe, "The delta-M method", J. Atmos. Sci. 34 (1977) 1408-1422.
 N. Max, R. Crawfis, "Advances in Scientific Visualization" ("Cloud rendering").
 """
 
+import threading
 from functools import lru_cache
 
 import numpy as np
@@ -313,42 +314,60 @@ def sub_sub_phase_matrix(g, sub=4, k=2):
     return _sub_sub_cached(g, int(sub), int(k))
 
 
+class _ViewTable:
+    """The cube map of :func:`bin_phase_toward` for one ``(g, res, sub, weights)``, its rows
+    (one per cell, flat index ``(face * res + iu) * res + iv``) computed on first use: a view
+    of a cloud looks up a few hundred of the ``6 res^2`` cells (whole maps, res 24 and two
+    at res 48, were 1.2 s of a 128x128x96 cloud's first view).  Thread-safe."""
+
+    def __init__(self, g, res, sub, weights):
+        # p_bar_j(w) = sum_a u_ja p(d_ja . w), with u_ja the solid-angle share of sub-square a
+        # of bin j (flux spread evenly over the bin) or the given weights (a known
+        # distribution inside each bin).
+        _, omega, dirs, w = bins(sub)
+        u = w / omega[:, None] if weights is None else np.frombuffer(weights).reshape(NBINS, -1)
+        self.g, self.res, self.per_bin = g, res, dirs.shape[1]
+        self.u, self.dirs = u.reshape(-1), dirs.reshape(-1, 3)
+        edges = np.linspace(-1.0, 1.0, res + 1)
+        self.mid = 0.5 * (edges[:-1] + edges[1:])
+        self.table = np.empty((6 * res * res, NBINS))
+        self.done = np.zeros(6 * res * res, bool)
+        self.lock = threading.Lock()
+
+    def rows(self, cells):
+        """``table[cells]`` (len(cells), 96) float64, filling the rows not yet computed."""
+        cells = np.asarray(cells, np.intp)
+        with self.lock:
+            todo = np.flatnonzero(np.bincount(cells[~self.done[cells]], minlength=len(self.done)))
+            face, rest = np.divmod(todo, self.res * self.res)
+            for f in np.unique(face):
+                sel = todo[face == f]
+                iu, iv = np.divmod(rest[face == f], self.res)
+                d = _face_dirs(int(f), self.mid[iu], self.mid[iv])
+                p = hg(d @ self.dirs.T, self.g) * self.u[None, :]
+                self.table[sel] = p.reshape(-1, NBINS, self.per_bin).sum(2)
+            self.done[todo] = True
+        return self.table[cells]
+
+
 @lru_cache(maxsize=8)
 def _view_table(g, res, sub, weights=None):
-    # Cube map of res x res directions per face: p_bar_j(w) = sum_a u_ja p(d_ja . w), with
-    # u_ja the solid-angle share of sub-square a of bin j (flux spread evenly over the bin)
-    # or the given weights (a known distribution inside each bin).
-    _, omega, dirs, w = bins(sub)
-    u = w / omega[:, None] if weights is None else np.frombuffer(weights).reshape(NBINS, -1)
-    edges = np.linspace(-1.0, 1.0, res + 1)
-    mid = 0.5 * (edges[:-1] + edges[1:])
-    uu, vv = np.meshgrid(mid, mid, indexing="ij")
-    table = np.empty((6, res, res, NBINS))
-    flat_d = dirs.reshape(-1, 3)
-    for f in range(6):
-        d = _face_dirs(f, uu, vv).reshape(-1, 3)
-        p = hg(d @ flat_d.T, g) * u.reshape(-1)[None, :]
-        table[f] = p.reshape(-1, NBINS, dirs.shape[1]).sum(2).reshape(res, res, NBINS)
-    table.setflags(write=False)
-    return table
+    return _ViewTable(g, res, sub, weights)
 
 
-def bin_phase_toward(directions, g, res=24, sub=6, weights=None):
-    """``p_bar[n, j]``: HG averaged over incoming bin ``j``, toward each outgoing direction.
-
-    Per steradian: the radiance scattered toward ``directions[n]`` by flux
-    spread uniformly over bin ``j``, or with ``weights`` (96, sub*sub) (rows
-    summing to 1) distributed over the sub-squares of :func:`bins` ``(sub)``.
-    Looked up in a cube map of ``res x res`` directions per face (nearest),
-    computed once per ``g`` (and weights).
-    """
-    d = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
+def _bin_table(g, res, sub, weights):
+    """The (lazily filled) :class:`_ViewTable` of :func:`bin_phase_toward`'s arguments."""
     if weights is not None:
         weights = np.ascontiguousarray(weights, dtype=np.float64)
         if weights.shape != (NBINS, int(sub) ** 2):
             raise ValueError(f"bin_phase_toward: weights must have shape (96, {int(sub) ** 2})")
         weights = weights.tobytes()
-    table = _view_table(float(g), int(res), int(sub), weights)
+    return _view_table(float(g), int(res), int(sub), weights)
+
+
+def _cube_cells(directions, res):
+    """The cube-map cell (face, iu, iv) of each of ``directions`` (n, 3), ``res x res`` per face."""
+    d = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
     axis = np.argmax(np.abs(d), axis=1)
     comp = d[np.arange(len(d)), axis]
     face = 2 * axis + (comp < 0)
@@ -358,4 +377,18 @@ def bin_phase_toward(directions, g, res=24, sub=6, weights=None):
     v = d[np.arange(len(d)), va] / np.abs(comp)
     iu = np.clip(np.floor((u + 1) * 0.5 * res).astype(int), 0, res - 1)
     iv = np.clip(np.floor((v + 1) * 0.5 * res).astype(int), 0, res - 1)
-    return table[face, iu, iv]
+    return face, iu, iv
+
+
+def bin_phase_toward(directions, g, res=24, sub=6, weights=None):
+    """``p_bar[n, j]``: HG averaged over incoming bin ``j``, toward each outgoing direction.
+
+    Per steradian: the radiance scattered toward ``directions[n]`` by flux
+    spread uniformly over bin ``j``, or with ``weights`` (96, sub*sub) (rows
+    summing to 1) distributed over the sub-squares of :func:`bins` ``(sub)``.
+    Looked up in a cube map of ``res x res`` directions per face (nearest),
+    each cell computed once per ``g`` (and weights), when first looked up.
+    """
+    table = _bin_table(g, res, sub, weights)
+    face, iu, iv = _cube_cells(directions, res)
+    return table.rows((face * res + iu) * res + iv)
