@@ -450,3 +450,15 @@ def test_bin_phase_toward_rows_filled_on_demand_equal_the_whole_map():
     face, iu, iv = phase._cube_cells(d, res)
     np.testing.assert_allclose(got, whole[face, iu, iv], rtol=1e-13, atol=0)
     np.testing.assert_array_equal(got[:50], first)
+
+
+def test_scratch_arrays_come_back_zeroed_on_kept_memory():
+    s = scatter._Scratch()
+    a = s.zeros("recv", (3, 4))
+    a += 5.0
+    b = s.zeros("recv", (2, 5))
+    assert b.dtype == np.float32 and b.shape == (2, 5)
+    assert np.all(b == 0) and np.shares_memory(a, b)
+    c = s.zeros("recv", (10, 10))  # larger than kept: fresh memory, kept from now on
+    assert np.all(c == 0) and np.shares_memory(c, s.zeros("recv", (7,)))
+    assert not np.shares_memory(s.zeros("total", (3, 4)), c)
