@@ -550,7 +550,7 @@ class _Chunk:
 
     blk: np.ndarray  # (v,) active block of each vertex (refinement uses its Gaussians)
     axis: np.ndarray  # (v,) edge axis 0..2 (x, y, z)
-    node: np.ndarray  # (v, 3) lower node (global integer, x y z)
+    node: np.ndarray  # (v, 3) uint8 lower node (x y z) within the block ``blk``: 0 .. BLOCK
     t: np.ndarray  # (v,) initial edge parameter
     curv: np.ndarray  # (v,) d^2 f / dt^2 along the edge (t: the edge parameter), estimated from node values, or NaN
     a_above: np.ndarray  # (v,) lower node above the level
@@ -613,7 +613,6 @@ def _march(values, blocks, grid, level, bl, et, loc=None):
     vj, vi = np.divmod(rest, E)
     vijk = np.stack([vi, vj, vk], axis=1)
     vcoord = vijk[np.arange(len(vax)), vax]
-    node = blocks.q[bl[vb]] * B + vijk
 
     # Ghost edges: owned by a neighbour (refer to its face store) or, if it is inactive, by nobody.
     gb, rest = np.divmod(ghost, 3 * E**3)
@@ -631,10 +630,11 @@ def _march(values, blocks, grid, level, bl, et, loc=None):
     n_owned = len(own)
     dup_key = np.zeros(0, np.int64)
     dup_shift = np.zeros((0, 3), np.int64)
-    vblk, vaxis, vnode = bl[vb], vax, node
+    vblk, vaxis, vnode = bl[vb], vax, vijk
     if len(dup):
         # A vertex of our own, merged with its twins from other blocks by key at the end.
-        dnode = blocks.q[bl[gb[dup]]] * B + np.stack([gi[dup], gj[dup], gk[dup]], axis=1)
+        dlocal = np.stack([gi[dup], gj[dup], gk[dup]], axis=1)
+        dnode = blocks.q[bl[gb[dup]]] * B + dlocal
         wrapped = dnode if grid.box is None else dnode % (B * grid.nb)
         dup_key = _edge_key(wrapped, gax[dup], blocks)
         dup_shift = shift[dup]
@@ -643,7 +643,7 @@ def _march(values, blocks, grid, level, bl, et, loc=None):
         vz = np.concatenate([vz, flat[dflat + np.array([1, E, E * E])[gax[dup]]]])
         vblk = np.concatenate([vblk, bl[gb[dup]]])
         vaxis = np.concatenate([vax, gax[dup]])
-        vnode = np.concatenate([node, dnode])
+        vnode = np.concatenate([vijk, dlocal])
         ref_slot[dup] = n_owned + np.arange(len(dup))
 
     bits = run.view(np.uint8)
@@ -671,7 +671,7 @@ def _march(values, blocks, grid, level, bl, et, loc=None):
     t[:n_owned] = t_own
     curv = np.concatenate([curv, np.full(len(t) - n_owned, np.nan)]).astype(_F32)
     return _Chunk(
-        vblk.astype(np.int32), vaxis.astype(np.int8), vnode.astype(np.int32), t, curv, va >= lvl, faces,
+        vblk.astype(np.int32), vaxis.astype(np.int8), vnode.astype(np.uint8), t, curv, va >= lvl, faces,
         np.where(owner < 0, -1, owner).astype(np.int32), ref_slot.astype(np.int32), shift.astype(np.int8), n_owned, dup_key,
         dup_shift, face_key, on_face.astype(np.int32),
     )
@@ -839,7 +839,7 @@ def _project(refiner, grid, blk, axis, node, t, curv, a_above, level, tol, threa
 
     def setup(vid, ub):
         ax = axis[vid]
-        base = grid.coords(node[vid])
+        base = grid.coords(refiner.blocks.q[blk[vid]] * BLOCK + node[vid])
         u0 = base - refiner.x0[ub][:, None, :]
         along = np.arange(0, u0.size, 3) + ax.reshape(-1)  # the edge's coordinate in (..., 3) rows
         # ab: f - level >= 0 at the lower node
