@@ -922,6 +922,8 @@ def _project(refiner, grid, blk, axis, node, t, curv, a_above, level, tol, threa
                 valid = live
 
     order = np.argsort(blk, kind="stable")  # nearly sorted already: batches read and write short runs
+    if n < 2**31:  # (the batches' padded vertex ids, all made at once: half the memory)
+        order = order.astype(np.int32)
     left = thread_map(first, refiner.batches(blk, order), threads)
     left = [np.concatenate(x) for x in zip(*left)]
     if left and len(left[0]):
