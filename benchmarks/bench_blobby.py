@@ -11,8 +11,8 @@ Writes docs/benchmarks.md, section ``blobby``.
 The full run measures 100, 1,000 and 5,000 ellipsoids; the README's and docs' numbers come from
 ``--sizes 100 1000 2000 5000 20000 --metaball-max 5000 --actin`` (12 minutes, 8 of them the
 metaballs at 5,000).  ``--sizes 100000 --no-metaballs --no-actin --threads 2`` (120M vertices per
-mesh, no dense anchor at that size) ran in 7.7 minutes at a peak of 13.1 GiB resident (2026-11-28,
-load 2.5-2.9): each mesh but its vertices is dropped before its error, and they before the next mesh.
+mesh, no dense anchor at that size) ran in 5.8 minutes at a peak of 11.2 GiB resident (2026-11-28,
+load 0.8-1.4): each mesh but its vertices is dropped before its error, and they before the next mesh.
 """
 
 import argparse
@@ -178,7 +178,7 @@ def main():
         actin_table()
         return
     # Beyond 5,000 the meshes pass 6M vertices: long for the shared 2-core test machine (pass --sizes
-    # for 20,000: 24M vertices, 2.6 GiB peak for the mesher; 100,000: 120M vertices, see the docstring).
+    # for 20,000: 24M vertices, 2.2 GiB peak for the mesher; 100,000: 120M vertices, see the docstring).
     sizes = args.sizes or ([100, 300] if args.quick else [100, 1000, 5000])
     sample = args.sample or (500 if args.quick else 5000)
     h = SIGMA[0] / 4

@@ -19,7 +19,8 @@ meshes ``f = level`` in four steps, all whole-array NumPy:
    of :func:`~nephele.core.surface.contour.isosurface`).  Every node belongs to one
    block and every block reads it from there, so neighbouring blocks agree on
    every corner and every grid edge has one vertex: closed blobs are
-   watertight.
+   watertight.  Steps 2 and 3 run :data:`MARCH_BATCH` active blocks at a time
+   (memory: 100,000 bench ellipsoids, 120M vertices, mesh in 11 GiB at the peak).
 4. Each vertex slides along its grid edge onto the level set of the sum cut at
    ``cutoff + 1`` sigma (safeguarded Newton steps on the analytic derivative);
    marching cubes alone leaves about 0.02 sigma at spacing sigma/4.  Normals
