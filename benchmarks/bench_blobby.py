@@ -10,7 +10,9 @@ Writes docs/benchmarks.md, section ``blobby``.
 
 The full run measures 100, 1,000 and 5,000 ellipsoids; the README's and docs' numbers come from
 ``--sizes 100 1000 2000 5000 20000 --metaball-max 5000 --actin`` (12 minutes, 8 of them the
-metaballs at 5,000).
+metaballs at 5,000).  ``--sizes 100000 --no-metaballs --no-actin --threads 2`` (120M vertices per
+mesh, no dense anchor at that size) ran in 5.8 minutes at a peak of 11.2 GiB resident (2026-11-28,
+load 0.8-1.4): each mesh but its vertices is dropped before its error, and they before the next mesh.
 """
 
 import argparse
@@ -143,6 +145,20 @@ def timed_cpu(fn):
     return time.perf_counter() - t, time.process_time() - c, out
 
 
+def peak_rss(fn):
+    """The result of ``fn()`` and the process's peak resident memory (GiB) while it ran: Linux's VmHWM,
+    reset first through /proc/self/clear_refs (None where that is not available)."""
+    try:
+        with open("/proc/self/clear_refs", "w") as f:
+            f.write("5")
+    except OSError:
+        return fn(), None
+    out = fn()
+    with open("/proc/self/status") as f:
+        hwm = next(int(line.split()[1]) for line in f if line.startswith("VmHWM"))
+    return out, hwm / 2**20
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true", help="smoke run: 100 and 300 ellipsoids, 500 error samples")
@@ -161,25 +177,32 @@ def main():
     if args.actin_only:
         actin_table()
         return
-    # Beyond 5,000 the meshes pass 6M vertices: long for the shared 2-core test machine (pass
-    # --sizes for 20,000: 24M vertices, 4.3 GiB for the mesher alone).
+    # Beyond 5,000 the meshes pass 6M vertices: long for the shared 2-core test machine (pass --sizes
+    # for 20,000: 24M vertices, 2.2 GiB peak for the mesher; 100,000: 120M vertices, see the docstring).
     sizes = args.sizes or ([100, 300] if args.quick else [100, 1000, 5000])
     sample = args.sample or (500 if args.quick else 5000)
     h = SIGMA[0] / 4
     rng = np.random.default_rng(1)
     load0 = os.getloadavg()[0]
     rows = []
-    ours, balls = {}, {}
+    ours, balls, peaks = {}, {}, {}
     for n in sizes:
         blobs, side = scene(n)
         for box in (None, np.full(3, side)):
-            t, cpu, mesh = timed_cpu(lambda: blobby_surface(*blobs, LEVEL, h, box=box, cutoff=CUTOFF, threads=args.threads))
-            emax, erms = error(mesh.vertices, blobs, box, sample, rng)
+            (t, cpu, mesh), peak = peak_rss(
+                lambda: timed_cpu(lambda: blobby_surface(*blobs, LEVEL, h, box=box, cutoff=CUTOFF, threads=args.threads)))
+            nv, nf = len(mesh.vertices), len(mesh.faces)
+            vertices = mesh.vertices
+            mesh = None  # (only the vertices are checked; the next mesh is made without this one)
+            emax, erms = error(vertices, blobs, box, sample, rng)
+            del vertices
             kind = "ours, periodic box" if box is not None else "ours"
             if box is None:
                 ours[n] = (t, cpu)
-            rows.append([n, kind, t, cpu, len(mesh.vertices), len(mesh.faces), erms, emax])
-            print(rows[-1], flush=True)
+            if peak is not None:
+                peaks[n, kind] = peak
+            rows.append([n, kind, t, cpu, nv, nf, erms, emax])
+            print(rows[-1], f"peak RSS {peak:.2f} GiB" if peak is not None else "", flush=True)
         nodes = float(np.ceil((side + 2 * CUTOFF * SIGMA[1]) / h) + 1) ** 3
         if nodes <= DENSE_LIMIT:
             t, cpu, (v, f) = timed_cpu(lambda: dense_anchor(*blobs, h))
@@ -208,6 +231,13 @@ def main():
                        for n in sizes if n in balls and n in ours)
     speed = (f" Ours (no box) against the metaballs in this run, seconds ratio: {ratios} (goal: 10x at 5,000 "
              "ellipsoids, in 2 s)." if ratios else "")
+    mem = ""
+    if peaks:
+        big = max(sizes)
+        mem = (f" Peak resident memory of the process while ours meshed {big} ellipsoids (its mesh included, "
+               "the scene and the run's earlier arrays too): "
+               + " and ".join(f"{v:.1f} GiB {'in the periodic box' if 'box' in k else 'without box'}"
+                            for (n, k), v in peaks.items() if n == big) + ".")
     body = (
         f"Random Gaussian ellipsoids (sigmas {SIGMA[0]}-{SIGMA[1]} per axis, random rotations, weights 1-2, "
         f"level {LEVEL}, one per {VOLUME_PER_BLOB:g} volume units), spacing sigma_min/4 = {h}, cutoff {CUTOFF} sigma, "
@@ -221,9 +251,8 @@ def main():
         "not the same and has no error column. CPU seconds: the process's (all threads, "
         "time.process_time; the metaballs' include building the elements); wall seconds grow with the "
         f"machine's load. Load average {load0:.1f} at the start, "
-        f"{load1:.1f} at the end, {os.cpu_count()} cores shared.{speed} Peak memory of the run (resident, "
-        f"the largest mesh's): {peak:.1f} GiB at {max(sizes)} ellipsoids; it grows with the mesh, so 100,000 "
-        f"would need about {peak * 100000 / max(sizes):.0f} GiB at that rate (this machine has 24).\n\n"
+        f"{load1:.1f} at the end, {os.cpu_count()} cores shared.{speed}{mem} Peak memory of the whole run "
+        f"(resident): {peak:.1f} GiB; this machine has 24.\n\n"
         + md_table(["ellipsoids", "method", "seconds", "CPU seconds", "vertices", "triangles", "rms error", "max error"], rows)
     )
     write_section("blobby", body, title="Blobby surfaces (sums of Gaussian ellipsoids)")

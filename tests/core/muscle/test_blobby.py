@@ -384,3 +384,41 @@ def test_blocks_left_out_of_the_march_cut_no_edge(box):
     for cls, kept0 in ((-1, True), (-2, False)):
         blocks.nbr[0, 1:] = cls
         assert (0 in bb._crossed(values, blocks, level)) == kept0
+
+
+@pytest.mark.parametrize("box", [None, (9.0, 8.0, 7.0)])
+def test_march_batches_give_the_unbatched_mesh(box, monkeypatch):
+    # Node values and the march run MARCH_BATCH active blocks at a time (memory), each batch with its
+    # +1 neighbours' values made again: the mesh must be the one-batch mesh, bit for bit. A seam vertex
+    # between batches lost or made twice would change the vertex count and break the closed checks.
+    from nephele.core.muscle import blobby as bb
+
+    c, r, s, w = random_blobs(6, 40, 0, 9)
+    level, h = 0.3, 0.5 / 4
+    box = None if box is None else np.array(box)
+    attrs = {"id": np.arange(len(c)) * 10 + 1}
+    whole = blobby_surface(c, r, s, w, level, h, box=box, attributes=attrs, threads=2)
+    grid = bb._grid(h, box)
+    b = bb._blobs(c, r, s, w)
+    if box is not None:
+        b = bb._images(b, box, 5.0)
+    blocks = bb._find_blocks(b, grid, level, 4.0, 5.0, 1)
+    assert len(blocks.q) < bb.MARCH_BATCH  # (one batch above)
+    # A block's values are the same bits made in any subset of blocks.
+    full = bb._node_values(b, grid, blocks, 2)
+    some = np.sort(np.random.default_rng(0).choice(len(blocks.q), len(blocks.q) // 3, replace=False))
+    assert np.array_equal(bb._node_values(b, grid, blocks, 2, some), full[some])
+    for batch in (len(blocks.q) // 3 + 1, 97):
+        monkeypatch.setattr(bb, "MARCH_BATCH", batch)
+        split = blobby_surface(c, r, s, w, level, h, box=box, attributes=attrs, threads=2)
+        assert len(split.vertices) == len(whole.vertices) > 1000
+        for name in ("vertices", "faces", "normals"):
+            a, e = getattr(split, name), getattr(whole, name)
+            assert a.dtype == e.dtype and np.array_equal(a, e), name
+        for name in ("blob", "id"):
+            assert np.array_equal(split.attributes[name], whole.attributes[name]), name
+    if box is None:
+        closed_checks(split, spheres=False, outward=False)
+    else:
+        seam_checks(split, box)
+        closed_checks(periodic_weld(split, box), spheres=False, outward=False)
