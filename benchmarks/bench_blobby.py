@@ -9,10 +9,10 @@ Writes docs/benchmarks.md, section ``blobby``.
         [--no-metaballs] [--metaball-max 1000]
 
 The full run measures 100, 1,000 and 5,000 ellipsoids; the README's and docs' numbers come from
-``--sizes 100 1000 2000 5000 20000 --metaball-max 5000 --actin`` (12 minutes, 8 of them the
-metaballs at 5,000).  ``--sizes 100000 --no-metaballs --no-actin --threads 2`` (120M vertices per
-mesh, no dense anchor at that size) ran in 5.8 minutes at a peak of 11.2 GiB resident (2026-11-28,
-load 0.8-1.4): each mesh but its vertices is dropped before its error, and they before the next mesh.
+``--sizes 100 1000 2000 5000 20000 100000 --metaball-max 5000 --actin`` (18 minutes, 8 of them the
+metaballs at 5,000, 5 the two 100,000 meshes of 120M vertices; no dense anchor past 5,000; peak
+12.1 GiB resident, 2026-11-28): each mesh but its vertices is dropped before its error, and they
+before the next mesh.
 """
 
 import argparse
