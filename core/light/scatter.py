@@ -720,7 +720,7 @@ def _shot_group(bs, unshot, received, total, r, tot, power, shot, albedo):
     """After a sweep of bins ``bs``: their unshot light is shot, what they caught (``r``) and
     carried (``tot``) is added to ``received`` and ``total``, and the unshot ``power`` per voxel
     loses ``shot`` and gains albedo times ``r``; on threads, voxel ranges side by side (in one
-    thread these whole-grid steps took 5 % of the 128x128x96 solve)."""
+    thread these whole-grid steps took 2.6 s, about 3 %, of a line-profiled 128x128x96 solve)."""
     bs = _as_slice(bs)
     u, rec, tt = (a.reshape(NB, -1) for a in (unshot, received, total))
     rr, to, pw, sh = r.reshape(len(r), -1), tot.reshape(len(tot), -1), power.reshape(-1), shot.reshape(-1)
