@@ -1593,10 +1593,11 @@ def _sample_rects(occ, perm, xo, margin):
     for rows in (om.any(axis=2), om.any(axis=1)):
         n = rows.shape[1]
         some = rows.any(1)
-        # texel p + 1 = voxel plane p; a position sees texels floor(x) and floor(x) + 1
+        # texel p + 1 = voxel plane p; a position sees texels floor(x) and floor(x) + 1, so the
+        # first non-empty voxel's texel (argmax + 1) is seen from one texel below it
         lo = np.full(len(rows) + 3, np.inf)
         hi = np.full(len(rows) + 3, -np.inf)
-        lo[1:-2][some] = np.argmax(rows, axis=1)[some] + 1 - 1
+        lo[1:-2][some] = np.argmax(rows, axis=1)[some]
         hi[1:-2][some] = n - np.argmax(rows[:, ::-1], axis=1)[some] + 1
         p0 = np.floor(xo).astype(int)
         fc = xo - p0
