@@ -1,9 +1,10 @@
 """Blender side of the multiple-scattering cloud (Fig. 6).
 
 "Add scattering cloud" builds the droplet density (:mod:`..core.cloud_density`),
-runs the binned shooting solve (96 bins, or ``6 n^2`` with "Bins per face" ``n``) (:mod:`..core.scatter`) as a modal operator that
-advances one group of bins per timer tick (progress in the status bar and the
-panel; the interface stays live; Esc cancels), then writes one VDB per frame
+runs the binned shooting solve (:mod:`..core.scatter`: 96 bins, or ``6 n^2`` with
+"Bins per face" ``n``) as a modal operator that advances one group of bins per
+timer tick (progress in the status bar and the panel; the interface stays live;
+Esc cancels), then writes one VDB per frame
 with ``density`` (extinction) and ``emission`` (in-scattered radiance toward
 that frame's camera, exact sun single scattering included) and loads them as a
 native volume sequence.  The material is Volume Absorption + Emission driven by

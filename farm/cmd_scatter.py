@@ -1,9 +1,9 @@
 """``nephele scatter --out DIR``: the Fig. 6 cloud's multiple-scattering solve, then views.
 
 Builds the droplet density (Perlin noise on three ellipsoids), runs the binned
-shooting solve once (96 bins, ``6 n^2`` with ``--bins-per-face n``) (``DIR/solution.npz``: the total and received flux per bin,
-no pickle) and renders ``--views`` cameras looping around the cloud, each as
-``DIR/view_0001.png`` (tone-mapped, one exposure for all views) and
+shooting solve once (96 bins, ``6 n^2`` with ``--bins-per-face n``; ``DIR/solution.npz``:
+the total and received flux per bin, no pickle) and renders ``--views`` cameras
+looping around the cloud, each as ``DIR/view_0001.png`` (tone-mapped, one exposure for all views) and
 ``DIR/view_0001.npy`` (radiance).  ``--vdb`` also writes
 ``DIR/scatter_0001.vdb`` … with ``density`` and ``emission`` toward each view's
 camera, a volume sequence Blender renders as an emission-absorption medium.

@@ -879,9 +879,10 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
     sun_irradiance : sun power per unit area perpendicular to its rays.
     sky_radiance : the sky: a number, the constant radiance of light travelling downward
         (a uniform upper hemisphere), or an array (6 n^2,) (``n = bins_per_face``): the
-        radiance of light travelling in each bin of :mod:`.phase` (arriving from minus its direction), any direction, e.g.
-        :func:`.sky.panorama_radiance` of a rendered world (same ``bins_per_face``).  Either enters through the box's
-        boundary and is received like scattered light (binned, not sharp like the sun).
+        radiance of light travelling in each bin of :mod:`.phase` (arriving from minus its
+        direction), any direction, e.g. :func:`.sky.panorama_radiance` of a rendered world
+        (same ``bins_per_face``).  Either enters through the box's boundary and is received
+        like scattered light (binned, not sharp like the sun).
     tol : stop when unshot power <= tol * entered power, or (``extrapolate``) when the
         bound on the extrapolated tail's error (albedo times the L1 error of ``received``,
         :class:`_Tail`) is <= tol * entered power.
