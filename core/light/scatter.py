@@ -948,8 +948,9 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
         change R and T by at most 0.15% (rel.), T toward adding-doubling.
     bins_per_face : direction bins per cube-face side, an even integer from 2 to 8
         (:func:`.phase.bins`): ``6 n^2`` bins, 4 (default) the paper's 96.  Finer bins
-        resolve a forward peak better at ``(n / 4)^2`` times the memory and about that
-        much more time per pass.  g 0.8 slabs (tau 1-16, albedo 0.99-1) against
+        resolve a forward peak better at about ``(n / 4)^2`` times the memory and more
+        time (Fig. 6 cloud 64x64x48, 216 bins: solve 22.1 s wall instead of 8.3 s, peak
+        memory 1.22 GB instead of 0.56 GB, 2 cores).  g 0.8 slabs (tau 1-16, albedo 0.99-1) against
         adding-doubling on voxel tau 0.5 with ``peaked_orders=4``, suns at 90, 30 and
         15 deg: worst R or T error 1.03 % with 96 bins (T, tau 16, sun at 15 deg), 0.80 %
         with 216 (that case -0.68 %); tau 4 on 8 layers, sun overhead, default
