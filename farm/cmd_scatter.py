@@ -1,14 +1,14 @@
 """``nephele scatter --out DIR``: the Fig. 6 cloud's multiple-scattering solve, then views.
 
-Builds the droplet density (Perlin noise on three ellipsoids), runs the 96-bin
-shooting solve once (``DIR/solution.npz``: the total and received flux per bin,
-no pickle) and renders ``--views`` cameras looping around the cloud, each as
-``DIR/view_0001.png`` (tone-mapped, one exposure for all views) and
+Builds the droplet density (Perlin noise on three ellipsoids), runs the binned
+shooting solve once (96 bins, ``6 n^2`` with ``--bins-per-face n``; ``DIR/solution.npz``:
+the total and received flux per bin, no pickle) and renders ``--views`` cameras
+looping around the cloud, each as ``DIR/view_0001.png`` (tone-mapped, one exposure for all views) and
 ``DIR/view_0001.npy`` (radiance).  ``--vdb`` also writes
 ``DIR/scatter_0001.vdb`` … with ``density`` and ``emission`` toward each view's
 camera, a volume sequence Blender renders as an emission-absorption medium.
 ``--sky-map IMAGE`` lights the cloud with a sky from every direction: an
-equirectangular image (an HDRI, a rendered Blender world) binned into the 96
+equirectangular image (an HDRI, a rendered Blender world) binned into the solve's
 directions.
 """
 
@@ -41,10 +41,13 @@ def add_arguments(p):
     p.add_argument("--sky-map", metavar="IMAGE",
                    help="a sky from every direction instead: an equirectangular image of radiance (EXR, HDR, ...) "
                         "in Blender's environment layout (+x at the centre, +z up), its luminance binned into the "
-                        "96 directions")
+                        "solve's direction bins")
     p.add_argument("--sky-strength", type=float, default=1.0, help="scale of --sky-map (default 1)")
     p.add_argument("--tol", type=float, default=1e-3, help="stop when unshot < tol x entered power (default 1e-3)")
     p.add_argument("--max-passes", type=int, default=100, help="pass limit (default 100)")
+    p.add_argument("--bins-per-face", type=int, default=4, metavar="N",
+                   help="direction bins per cube-face side, even, 2 to 8: 6 N^2 bins (default 4: the paper's 96; "
+                        "6: 216, closer to exact for the sharp forward peak, 2.7x the solve time, 2.2x the memory)")
     p.add_argument("--views", type=int, default=8, help="orbit views (default 8)")
     p.add_argument("--size", default="300x255", metavar="WxH", help="image size (default 300x255, the paper's)")
     p.add_argument("--distance", type=float, default=1.7, help="camera distance from the box centre (default 1.7)")
@@ -73,8 +76,9 @@ def _floats(text, n, name):
     return v
 
 
-def sky_from_map(path, strength=1.0):
-    """The 96 per-bin radiances of an equirectangular sky image times ``strength``."""
+def sky_from_map(path, strength=1.0, bins_per_face=4):
+    """The ``6 n^2`` per-bin radiances (``n = bins_per_face``) of an equirectangular sky image
+    times ``strength``."""
     from ..core.errors import DataError
     from ..core.light.sky import luminance, panorama_radiance
     from ..fileio import read_image
@@ -90,7 +94,7 @@ def sky_from_map(path, strength=1.0):
     lum = luminance(px)
     if not np.all(np.isfinite(lum)) or lum.min() < 0:
         raise DataError("the sky's radiance must be finite and >= 0", path=path, field="--sky-map")
-    return strength * panorama_radiance(lum)
+    return strength * panorama_radiance(lum, bins_per_face=bins_per_face)
 
 
 def tone_map(img, white):
@@ -113,7 +117,9 @@ def run(args):
         raise UsageError("give --sky (uniform) or --sky-map, not both")
     if args.sky_strength < 0:
         raise UsageError("--sky-strength must be >= 0")
-    sky = sky_from_map(args.sky_map, args.sky_strength) if args.sky_map else args.sky
+    if args.bins_per_face not in (2, 4, 6, 8):
+        raise UsageError(f"--bins-per-face must be 2, 4, 6 or 8, got {args.bins_per_face}")
+    sky = sky_from_map(args.sky_map, args.sky_strength, args.bins_per_face) if args.sky_map else args.sky
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     params = cd.CloudParams(shape=(nz, ny, nx), size=tuple(box), noise_amplitude=args.noise, seed=args.seed)
@@ -129,7 +135,7 @@ def run(args):
 
     sol = scatter.solve(sigma, box, progress=progress, albedo=args.albedo, g=args.g, sun_dir=sun,
                         sun_irradiance=args.irradiance, sky_radiance=sky, tol=args.tol,
-                        max_passes=args.max_passes)
+                        max_passes=args.max_passes, bins_per_face=args.bins_per_face)
     t_solve = time.perf_counter() - t0
     scatter.save_solution(sol, out / "solution.npz")
     say(f"solve {nx}x{ny}x{nz}: {t_solve:.1f} s, {sol.report}")
@@ -163,7 +169,7 @@ def run(args):
             "grid": [nx, ny, nz], "box": box, "extinction": args.extinction, "albedo": args.albedo, "g": args.g,
             "sun_dir": sun, "irradiance": args.irradiance, "sky": args.sky,
             "sky_map": str(Path(args.sky_map).resolve()) if args.sky_map else None,
-            "sky_strength": args.sky_strength, "report": sol.report,
+            "sky_strength": args.sky_strength, "bins_per_face": args.bins_per_face, "report": sol.report,
             "passes": sol.passes, "residual": sol.residual, "converged": sol.converged,
             "solve_seconds": t_solve, "view_seconds": times, "views": args.views, "size": [w, h]}, indent=1))
     print(f"{sol.report}; solve {t_solve:.1f} s, {args.views} views, median {np.median(times):.2f} s each -> {out}")

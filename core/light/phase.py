@@ -1,8 +1,9 @@
-"""Henyey-Greenstein scattering on the 96 direction bins of Fig. 6.
+"""Henyey-Greenstein scattering on the direction bins of Fig. 6.
 
-A direction cube centred at a voxel has each face divided 4x4; each of the
-96 bins holds the directions whose rays pass through one square.  Bin ``b``
-is ``face * 16 + iu * 4 + iv`` with faces ``+x, -x, +y, -y, +z, -z`` and
+A direction cube centred at a voxel has each face divided ``n x n`` (``per_face``,
+an even number; Max & Crawfis used 4x4, 96 bins, the default); each of the
+``6 n^2`` bins holds the directions whose rays pass through one square.  Bin ``b``
+is ``(face * n + iu) * n + iv`` with faces ``+x, -x, +y, -y, +z, -z`` and
 ``(u, v)`` the face coordinates along the two other axes in cyclic order
 (x face: (y, z); y face: (z, x); z face: (x, y)).  Directions are the
 directions light *travels*.
@@ -35,8 +36,13 @@ from functools import lru_cache
 
 import numpy as np
 
-NBINS = 96
 N_PER_FACE = 4
+"""The default bins per cube-face side (Max & Crawfis' 96 bins); :func:`bins` etc. take ``per_face``."""
+NBINS = 6 * N_PER_FACE ** 2
+PER_FACE_RANGE = (2, 8)
+"""Allowed ``per_face``: even (the cube's face-centre lines, the horizon among them, are bin
+edges, so a bin's directions never straddle a periodic slab's layers), at most 8 (384 bins:
+:func:`sub_sub_phase_matrix` is then 0.3 GB)."""
 # (axis of the face normal, sign, u axis, v axis)
 FACES = ((0, 1, 1, 2), (0, -1, 1, 2), (1, 1, 2, 0), (1, -1, 2, 0), (2, 1, 0, 1), (2, -1, 0, 1))
 
@@ -73,9 +79,31 @@ def _face_dirs(face, u, v):
     return d / np.linalg.norm(d, axis=-1, keepdims=True)
 
 
-@lru_cache(maxsize=8)
-def bins(sub=8):
-    """The 96 bins: ``(centroids (96,3), solid_angles (96,), dirs (96,sub*sub,3), weights (96,sub*sub))``.
+def check_per_face(per_face):
+    """``per_face`` as an int: even, in :data:`PER_FACE_RANGE` (ValueError otherwise)."""
+    n = int(per_face)
+    lo, hi = PER_FACE_RANGE
+    if n != per_face or not lo <= n <= hi or n % 2:
+        raise ValueError(f"bins per face must be an even integer from {lo} to {hi}, got {per_face}")
+    return n
+
+
+def nbins(per_face=N_PER_FACE):
+    """The number of bins, ``6 per_face^2``."""
+    return 6 * check_per_face(per_face) ** 2
+
+
+def per_face_of(nb):
+    """``per_face`` of a layout of ``nb`` bins (ValueError if ``nb`` is no ``6 n^2``)."""
+    n = int(round(np.sqrt(nb / 6.0)))
+    if nb != 6 * n * n:
+        raise ValueError(f"{nb} is not a number of direction bins (6 n^2)")
+    return check_per_face(n)
+
+
+def bins(sub=8, per_face=N_PER_FACE):
+    """The ``6 n^2`` bins (``n = per_face``): ``(centroids (nb,3), solid_angles (nb,),
+    dirs (nb,sub*sub,3), weights (nb,sub*sub))``.
 
     ``dirs``/``weights`` are sub-square centres and their exact solid angles
     (``weights.sum(1) == solid_angles``); centroids are the solid-angle-weighted
@@ -84,15 +112,21 @@ def bins(sub=8):
     sub = int(sub)
     if sub < 1:
         raise ValueError("bins: sub must be >= 1")
-    n = N_PER_FACE * sub
+    return _bins_cached(sub, check_per_face(per_face))
+
+
+@lru_cache(maxsize=16)
+def _bins_cached(sub, per_face):
+    n = per_face * sub
+    nb = 6 * per_face ** 2
     edges = np.linspace(-1.0, 1.0, n + 1)
     mid = 0.5 * (edges[:-1] + edges[1:])
-    dirs = np.empty((NBINS, sub * sub, 3))
-    w = np.empty((NBINS, sub * sub))
+    dirs = np.empty((nb, sub * sub, 3))
+    w = np.empty((nb, sub * sub))
     for f in range(6):
-        for iu in range(N_PER_FACE):
-            for iv in range(N_PER_FACE):
-                b = f * 16 + iu * 4 + iv
+        for iu in range(per_face):
+            for iv in range(per_face):
+                b = (f * per_face + iu) * per_face + iv
                 su = slice(iu * sub, (iu + 1) * sub)
                 sv = slice(iv * sub, (iv + 1) * sub)
                 uu, vv = np.meshgrid(mid[su], mid[sv], indexing="ij")
@@ -108,8 +142,9 @@ def bins(sub=8):
     return cen, omega, dirs, w
 
 
-def bin_of(direction):
-    """Index of the bin holding each direction (``(..., 3)`` array, need not be unit)."""
+def bin_of(direction, per_face=N_PER_FACE):
+    """Index of the bin (of :func:`bins` ``(per_face=per_face)``) holding each direction
+    (``(..., 3)`` array, need not be unit)."""
     d = np.asarray(direction, dtype=np.float64)
     axis = np.argmax(np.abs(d), axis=-1)
     comp = np.take_along_axis(d, axis[..., None], -1)[..., 0]
@@ -120,9 +155,10 @@ def bin_of(direction):
     va = np.array([f[3] for f in FACES])[face]
     u = np.take_along_axis(d, ua[..., None], -1)[..., 0] / np.abs(comp)
     v = np.take_along_axis(d, va[..., None], -1)[..., 0] / np.abs(comp)
-    iu = np.clip(np.floor((u + 1) * 2).astype(int), 0, 3)
-    iv = np.clip(np.floor((v + 1) * 2).astype(int), 0, 3)
-    return face * 16 + iu * 4 + iv
+    n = check_per_face(per_face)
+    iu = np.clip(np.floor((u + 1) * (0.5 * n)).astype(int), 0, n - 1)
+    iv = np.clip(np.floor((v + 1) * (0.5 * n)).astype(int), 0, n - 1)
+    return (face * n + iu) * n + iv
 
 
 def _split_rest(g):
@@ -131,36 +167,38 @@ def _split_rest(g):
     return g / (1.0 + abs(g))
 
 
-def _antipode():
-    cen = bins(1)[0]
-    return bin_of(-cen)
+def _antipode(per_face=N_PER_FACE):
+    cen = bins(1, per_face)[0]
+    return bin_of(-cen, per_face)
 
 
-def mean_directions(sub):
+def mean_directions(sub, per_face=N_PER_FACE):
     """Solid-angle-weighted mean direction of each bin on ``sub x sub`` sub-squares
     (not normalised: its length < 1 says how much the bin spreads)."""
-    _, omega, dirs, w = bins(sub)
+    _, omega, dirs, w = bins(sub, per_face)
     return (dirs * (w / omega[:, None])[..., None]).sum(1)
 
 
-def _binned_hg(g, sub):
-    """HG(g) integrated bin to bin on ``sub x sub`` sub-directions (96, 96), columns summing to 1."""
-    _, omega, dirs, w = bins(sub)
+def _binned_hg(g, sub, per_face=N_PER_FACE):
+    """HG(g) integrated bin to bin on ``sub x sub`` sub-directions (nb, nb), columns summing to 1."""
+    _, omega, dirs, w = bins(sub, per_face)
     flat_d = dirs.reshape(-1, 3)
     flat_w = w.reshape(-1)
-    m = np.zeros((NBINS, NBINS))
-    for j in range(NBINS):
+    nb = len(omega)
+    m = np.zeros((nb, nb))
+    for j in range(nb):
         # p(d_a . d_b) w_b for incoming sub-direction a of bin j, every outgoing b
         pw = hg(dirs[j] @ flat_d.T, g) * flat_w[None, :]
         pw /= pw.sum(1, keepdims=True)  # exact conservation for each incoming direction
-        frac = pw.reshape(len(dirs[j]), NBINS, -1).sum(2)  # (a, i)
+        frac = pw.reshape(len(dirs[j]), nb, -1).sum(2)  # (a, i)
         m[:, j] = (w[j] @ frac) / omega[j]
     return m / m.sum(0, keepdims=True)
 
 
 @lru_cache(maxsize=16)
-def _phase_matrix_cached(g, sub, delta, transport_sub):
-    m = _binned_hg(g, sub)
+def _phase_matrix_cached(g, sub, delta, transport_sub, per_face):
+    m = _binned_hg(g, sub, per_face)
+    nb = len(m)
     if delta:
         # Weight of the delta part per column so that flux spread uniformly over
         # bin j (mean direction c_j over the sweep's sub-directions, |c_j| < 1)
@@ -181,31 +219,31 @@ def _phase_matrix_cached(g, sub, delta, transport_sub):
         # tau 16 T -2.0 % instead of -1.5 % and the Fig. 6 cloud +1.5 % against Cycles instead of
         # +0.5 %.  Only where the bins cannot resolve HG's peak (|g| > ~0.95: binned mean cosine
         # above g) that split is kept, as it leaves room for the delta part.
-        tgt = np.arange(NBINS) if g >= 0 else _antipode()
-        c = mean_directions(transport_sub)
+        tgt = np.arange(nb) if g >= 0 else _antipode(per_face)
+        c = mean_directions(transport_sub, per_face)
         cos = c @ c.T
         c2 = np.diagonal(cos)
         need = g * c2 / (c2 + g * (1.0 - c2))
 
         def top_up(m):
             a = (m * cos).sum(0)
-            return (need - a) / (cos[tgt, np.arange(NBINS)] - a)
+            return (need - a) / (cos[tgt, np.arange(nb)] - a)
 
         f = top_up(m)
         if np.any(f < 0):
-            m_split = _binned_hg(_split_rest(g), sub)
+            m_split = _binned_hg(_split_rest(g), sub, per_face)
             m[:, f < 0] = m_split[:, f < 0]
             f = top_up(m)
         f = np.clip(f, 0.0, 1.0)
         m *= 1.0 - f[None, :]
-        m[tgt, np.arange(NBINS)] += f
+        m[tgt, np.arange(nb)] += f
         m /= m.sum(0, keepdims=True)
     m.setflags(write=False)
     return m
 
 
-def phase_matrix(g, sub=6, delta=True, transport_sub=2):
-    """The 96x96 bin-to-bin scattering matrix ``M[i, j]`` (columns sum to 1).
+def phase_matrix(g, sub=6, delta=True, transport_sub=2, per_face=N_PER_FACE):
+    """The (nb, nb) bin-to-bin scattering matrix ``M[i, j]`` (columns sum to 1), ``nb = 6 per_face^2``.
 
     Parameters
     ----------
@@ -222,6 +260,7 @@ def phase_matrix(g, sub=6, delta=True, transport_sub=2):
         walk on those directions diffuses as HG(g) does (moment matching: the
         mean cosine bin to bin is ``g`` on one direction per bin, a little more
         on several, whose spreading inside the bin loses correlation).
+    per_face : bins per cube-face side (:func:`bins`).
 
     References
     ----------
@@ -230,10 +269,10 @@ def phase_matrix(g, sub=6, delta=True, transport_sub=2):
     g = float(g)
     if not -1.0 < g < 1.0:
         raise ValueError(f"phase_matrix: g must be in (-1, 1), got {g}")
-    return _phase_matrix_cached(g, int(sub), bool(delta), int(transport_sub))
+    return _phase_matrix_cached(g, int(sub), bool(delta), int(transport_sub), check_per_face(per_face))
 
 
-def direct_fractions(direction, g, sub=48, into_sub=None):
+def direct_fractions(direction, g, sub=48, into_sub=None, per_face=N_PER_FACE):
     """Fractions of flux scattered from one exact direction into each bin.
 
     ``q_i = integral over bin i of p(direction . w) dw``, integrated on
@@ -241,14 +280,14 @@ def direct_fractions(direction, g, sub=48, into_sub=None):
     the sun's first scattering (its direction is known exactly, so no bin
     averaging is needed).  With ``into_sub`` (a divisor of ``sub``) the
     fractions are returned per sub-square of :func:`bins` ``(into_sub)``,
-    shape ``(96, into_sub**2)``, so a forward lobe narrower than a bin keeps
-    its shape inside the bin.
+    shape ``(nb, into_sub**2)``, so a forward lobe narrower than a bin keeps
+    its shape inside the bin.  Bins of :func:`bins` ``(per_face=per_face)``.
     """
     d = np.asarray(direction, dtype=np.float64)
     n = np.linalg.norm(d)
     if d.shape != (3,) or not np.isfinite(n) or n == 0:
         raise ValueError(f"direct_fractions: need a non-zero 3-vector, got {direction}")
-    _, _, dirs, w = bins(sub)
+    _, _, dirs, w = bins(sub, per_face)
     q = hg(dirs @ (d / n), g) * w
     q /= q.sum()
     if into_sub is None:
@@ -256,24 +295,25 @@ def direct_fractions(direction, g, sub=48, into_sub=None):
     k = sub // int(into_sub)
     if k * int(into_sub) != sub:
         raise ValueError("direct_fractions: into_sub must divide sub")
-    return q.reshape(NBINS, into_sub, k, into_sub, k).sum((2, 4)).reshape(NBINS, -1)
+    return q.reshape(len(w), into_sub, k, into_sub, k).sum((2, 4)).reshape(len(w), -1)
 
 
 @lru_cache(maxsize=8)
-def _sub_phase_matrix_cached(g, sub, out_sub):
-    _, _, dirs, _ = bins(sub)
-    _, _, od, ow = bins(out_sub)
+def _sub_phase_matrix_cached(g, sub, out_sub, per_face):
+    _, _, dirs, _ = bins(sub, per_face)
+    _, _, od, ow = bins(out_sub, per_face)
     flat_d = od.reshape(-1, 3)
-    m = np.empty((NBINS, NBINS, dirs.shape[1]))
-    for j in range(NBINS):
+    nb = len(dirs)
+    m = np.empty((nb, nb, dirs.shape[1]))
+    for j in range(nb):
         q = hg(dirs[j] @ flat_d.T, g) * ow.reshape(-1)[None, :]
         q /= q.sum(1, keepdims=True)
-        m[:, j, :] = q.reshape(dirs.shape[1], NBINS, -1).sum(2).T
+        m[:, j, :] = q.reshape(dirs.shape[1], nb, -1).sum(2).T
     m.setflags(write=False)
     return m
 
 
-def sub_phase_matrix(g, sub=4, out_sub=8):
+def sub_phase_matrix(g, sub=4, out_sub=8, per_face=N_PER_FACE):
     """``m[i, j, a]``: fraction of flux travelling along sub-direction ``a`` of bin ``j``
     (the centres of :func:`bins` ``(sub)``) that HG scatters into bin ``i``.
 
@@ -281,61 +321,64 @@ def sub_phase_matrix(g, sub=4, out_sub=8):
     normalised per incoming direction (``m.sum(0) == 1``).  For flux whose
     distribution inside its bin is known (the sun's first scattering), this
     replaces :func:`phase_matrix`, which assumes flux spread evenly over the bin.
+    Bins of :func:`bins` ``(per_face=per_face)``.
     """
     g = float(g)
     if not -1.0 < g < 1.0:
         raise ValueError(f"sub_phase_matrix: g must be in (-1, 1), got {g}")
-    return _sub_phase_matrix_cached(g, int(sub), int(out_sub))
+    return _sub_phase_matrix_cached(g, int(sub), int(out_sub), check_per_face(per_face))
 
 
 @lru_cache(maxsize=4)
-def _sub_sub_cached(g, sub, k):
-    _, _, dirs, _ = bins(sub)
-    _, _, od, ow = bins(sub * k)
+def _sub_sub_cached(g, sub, k, per_face):
+    _, _, dirs, _ = bins(sub, per_face)
+    _, _, od, ow = bins(sub * k, per_face)
     flat_d = od.reshape(-1, 3)
     ns = sub * sub
-    m = np.empty((NBINS, ns, NBINS, ns))
-    for j in range(NBINS):
+    nb = len(dirs)
+    m = np.empty((nb, ns, nb, ns))
+    for j in range(nb):
         q = hg(dirs[j] @ flat_d.T, g) * ow.reshape(-1)[None, :]
         q /= q.sum(1, keepdims=True)
-        q = q.reshape(ns, NBINS, sub, k, sub, k).sum((3, 5)).reshape(ns, NBINS, ns)
+        q = q.reshape(ns, nb, sub, k, sub, k).sum((3, 5)).reshape(ns, nb, ns)
         m[:, :, j, :] = q.transpose(1, 2, 0)
     m.setflags(write=False)
     return m
 
 
-def sub_sub_phase_matrix(g, sub=4, k=2):
+def sub_sub_phase_matrix(g, sub=4, k=2, per_face=N_PER_FACE):
     """``m[i, b, j, a]``: fraction of flux along sub-direction ``a`` of bin ``j`` that HG
-    scatters into sub-square ``b`` of bin ``i`` (:func:`bins` ``(sub)``), integrated on
-    ``k x k`` finer squares each and normalised per incoming direction."""
+    scatters into sub-square ``b`` of bin ``i`` (:func:`bins` ``(sub, per_face)``), integrated
+    on ``k x k`` finer squares each and normalised per incoming direction."""
     g = float(g)
     if not -1.0 < g < 1.0:
         raise ValueError(f"sub_sub_phase_matrix: g must be in (-1, 1), got {g}")
-    return _sub_sub_cached(g, int(sub), int(k))
+    return _sub_sub_cached(g, int(sub), int(k), check_per_face(per_face))
 
 
 class _ViewTable:
-    """The cube map of :func:`bin_phase_toward` for one ``(g, res, sub, weights)``, its rows
+    """The cube map of :func:`bin_phase_toward` for one ``(g, res, sub, weights, per_face)``, its rows
     (one per cell, flat index ``(face * res + iu) * res + iv``) computed on first use: a view
     of a cloud looks up a few hundred of the ``6 res^2`` cells (whole maps, res 24 and two
     at res 48, were 1.2 s of a 128x128x96 cloud's first view).  Thread-safe."""
 
-    def __init__(self, g, res, sub, weights):
+    def __init__(self, g, res, sub, weights, per_face):
         # p_bar_j(w) = sum_a u_ja p(d_ja . w), with u_ja the solid-angle share of sub-square a
         # of bin j (flux spread evenly over the bin) or the given weights (a known
         # distribution inside each bin).
-        _, omega, dirs, w = bins(sub)
-        u = w / omega[:, None] if weights is None else np.frombuffer(weights).reshape(NBINS, -1)
+        _, omega, dirs, w = bins(sub, per_face)
+        self.nb = len(omega)
+        u = w / omega[:, None] if weights is None else np.frombuffer(weights).reshape(self.nb, -1)
         self.g, self.res, self.per_bin = g, res, dirs.shape[1]
         self.u, self.dirs = u.reshape(-1), dirs.reshape(-1, 3)
         edges = np.linspace(-1.0, 1.0, res + 1)
         self.mid = 0.5 * (edges[:-1] + edges[1:])
-        self.table = np.empty((6 * res * res, NBINS))
+        self.table = np.empty((6 * res * res, self.nb))
         self.done = np.zeros(6 * res * res, bool)
         self.lock = threading.Lock()
 
     def rows(self, cells):
-        """``table[cells]`` (len(cells), 96) float64, filling the rows not yet computed."""
+        """``table[cells]`` (len(cells), nb) float64, filling the rows not yet computed."""
         cells = np.asarray(cells, np.intp)
         with self.lock:
             todo = np.flatnonzero(np.bincount(cells[~self.done[cells]], minlength=len(self.done)))
@@ -345,24 +388,26 @@ class _ViewTable:
                 iu, iv = np.divmod(rest[face == f], self.res)
                 d = _face_dirs(int(f), self.mid[iu], self.mid[iv])
                 p = hg(d @ self.dirs.T, self.g) * self.u[None, :]
-                self.table[sel] = p.reshape(-1, NBINS, self.per_bin).sum(2)
+                self.table[sel] = p.reshape(-1, self.nb, self.per_bin).sum(2)
             self.done[todo] = True
         return self.table[cells]
 
 
 @lru_cache(maxsize=8)
-def _view_table(g, res, sub, weights=None):
-    return _ViewTable(g, res, sub, weights)
+def _view_table(g, res, sub, weights=None, per_face=N_PER_FACE):
+    return _ViewTable(g, res, sub, weights, per_face)
 
 
-def _bin_table(g, res, sub, weights):
+def _bin_table(g, res, sub, weights, per_face=N_PER_FACE):
     """The (lazily filled) :class:`_ViewTable` of :func:`bin_phase_toward`'s arguments."""
+    per_face = check_per_face(per_face)
     if weights is not None:
         weights = np.ascontiguousarray(weights, dtype=np.float64)
-        if weights.shape != (NBINS, int(sub) ** 2):
-            raise ValueError(f"bin_phase_toward: weights must have shape (96, {int(sub) ** 2})")
+        nb = 6 * per_face ** 2
+        if weights.shape != (nb, int(sub) ** 2):
+            raise ValueError(f"bin_phase_toward: weights must have shape ({nb}, {int(sub) ** 2})")
         weights = weights.tobytes()
-    return _view_table(float(g), int(res), int(sub), weights)
+    return _view_table(float(g), int(res), int(sub), weights, per_face)
 
 
 def _cube_cells(directions, res):
@@ -380,15 +425,15 @@ def _cube_cells(directions, res):
     return face, iu, iv
 
 
-def bin_phase_toward(directions, g, res=24, sub=6, weights=None):
+def bin_phase_toward(directions, g, res=24, sub=6, weights=None, per_face=N_PER_FACE):
     """``p_bar[n, j]``: HG averaged over incoming bin ``j``, toward each outgoing direction.
 
     Per steradian: the radiance scattered toward ``directions[n]`` by flux
-    spread uniformly over bin ``j``, or with ``weights`` (96, sub*sub) (rows
-    summing to 1) distributed over the sub-squares of :func:`bins` ``(sub)``.
+    spread uniformly over bin ``j``, or with ``weights`` (nb, sub*sub) (rows
+    summing to 1) distributed over the sub-squares of :func:`bins` ``(sub, per_face)``.
     Looked up in a cube map of ``res x res`` directions per face (nearest),
     each cell computed once per ``g`` (and weights), when first looked up.
     """
-    table = _bin_table(g, res, sub, weights)
+    table = _bin_table(g, res, sub, weights, per_face)
     face, iu, iv = _cube_cells(directions, res)
     return table.rows((face * res + iu) * res + iv)

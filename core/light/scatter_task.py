@@ -6,18 +6,22 @@ from dataclasses import asdict
 from ..errors import DataError
 from ..pipeline.registry import planner, task
 from ..volume import cloud_density as cd
+from .phase import N_PER_FACE
 from .scatter import json_plain, solution_arrays, solve
 
-_SOLVE_KEYS = ("albedo", "g", "sun_dir", "sun_irradiance", "sky_radiance", "tol", "max_passes")
+_SOLVE_KEYS = ("albedo", "g", "sun_dir", "sun_irradiance", "sky_radiance", "tol", "max_passes", "bins_per_face")
 
 
 def task_params(cloud, extinction=40.0, **solve):
     """JSON parameters of the ``"scatter"`` task: a cloud (:class:`.cloud_density.CloudParams`),
     its extinction per unit density and :func:`solve` keywords (``_SOLVE_KEYS``; a per-bin
-    ``sky_radiance`` array becomes a list of its 96 values, so the cache key holds them all)."""
+    ``sky_radiance`` array becomes a list of its ``6 n^2`` values, so the cache key holds them
+    all; the default ``bins_per_face`` is left out, so default solves keep their earlier keys)."""
     bad = sorted(set(solve) - set(_SOLVE_KEYS))
     if bad:
         raise DataError(f"unknown scattering parameters {bad}", field="scatter")
+    if solve.get("bins_per_face", N_PER_FACE) == N_PER_FACE:
+        solve = {k: v for k, v in solve.items() if k != "bins_per_face"}
     return json.loads(json.dumps({"cloud": asdict(cloud), "extinction": float(extinction), "solve": solve},
                                  default=json_plain))
 

@@ -70,3 +70,17 @@ def test_scatter_command_bad_sky_map(tmp_path, capsys):
     bad = fileio.write_image(tmp_path / "negative.exr", bad)
     assert cli.main(["scatter", "--out", str(tmp_path / "d"), "--sky-map", str(bad)]) == 2
     assert "finite and >= 0" in capsys.readouterr().err
+
+
+def test_scatter_command_finer_bins(tmp_path, capsys):
+    out = tmp_path / "s"
+    rc = cli.main(["scatter", "--out", str(out), "--grid", "8x8x6", "--views", "1", "--size", "24x20",
+                   "--tol", "1e-2", "--bins-per-face", "6", "--quiet"])
+    assert rc == 0
+    sol = scatter.load_solution(out / "solution.npz")
+    assert sol.bins_per_face == 6 and sol.received.shape[0] == 216
+    assert json.loads((out / "scatter.json").read_text())["bins_per_face"] == 6
+    assert np.load(out / "view_0001.npy").max() > 0
+    for bad in ("5", "10", "0"):
+        assert cli.main(["scatter", "--out", str(tmp_path / "b"), "--bins-per-face", bad]) == 2
+        assert "--bins-per-face" in capsys.readouterr().err

@@ -78,6 +78,18 @@ def test_job_runs_in_small_steps(empty_scene, tmp_path):
     assert "passes" in job.status
 
 
+def test_operator_solves_on_finer_bins(empty_scene, tmp_path, monkeypatch):
+    monkeypatch.setenv("NEPHELE_CACHE", str(tmp_path / "cache"))
+    p = _setup(empty_scene, tmp_path, frames=1)
+    p.bins_per_face = 6
+    assert bpy.ops.nephele.add_scattering_cloud() == {"FINISHED"}
+    sol = scatter.load_solution(tmp_path / "scatter" / "solution.npz")
+    assert sol.bins_per_face == 6 and sol.received.shape[0] == 216
+    p.bins_per_face = 5  # odd: refused before any work
+    with pytest.raises(RuntimeError, match="even"):
+        bpy.ops.nephele.add_scattering_cloud()
+
+
 @pytest.mark.slow
 def test_cycles_renders_the_emission_volume_like_the_core(empty_scene, tmp_path):
     """Cycles' emission-absorption render of the written grids = the core's ray march."""

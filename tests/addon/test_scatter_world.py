@@ -48,6 +48,14 @@ def test_bake_follows_the_panorama_convention_and_cleans_up(empty_scene):
     assert not world.cycles_visibility.camera
 
 
+def test_bake_on_finer_bins(empty_scene):
+    # the linear world of the test above, on the 216 bins of bins_per_face 6
+    a = np.array([0.3, -0.5, 0.4])
+    out = so.bake_world(_linear_world(a), size=(128, 64), samples=16, threads=2, bins_per_face=6)
+    assert out.shape == (216,)
+    np.testing.assert_allclose(out, 1.0 - phase.mean_directions(16, 6) @ a, atol=2e-3)
+
+
 def test_bake_leaves_the_sky_sun_disc_out_unless_asked(empty_scene):
     world = so.add_sky_world(38.0, -30.0, sun_disc=True)
     kw = dict(size=(128, 64), samples=16, threads=2)
