@@ -819,6 +819,13 @@ def _compact(live, per_vertex, per_row):
     return valid, [a[sb, sv] for a in per_vertex], [a[bi[first]] for a in per_row]
 
 
+def _rows(a):
+    """A contiguous (n, k) array as (n,) opaque k-item records: NumPy gathers and scatters those by
+    index with one copy per record, some 2-3x faster than rows of a 2-D array (6M rows of 3 float32,
+    scattered: 29 ms against 62; uint8 rows gathered: 191 ms against 660)."""
+    return a.view(np.dtype((np.void, a.shape[1] * a.itemsize))).reshape(len(a))
+
+
 def _project(refiner, grid, blk, axis, node, t, curv, a_above, level, tol, threads):
     """Slide vertices along their edges onto f = level: Newton steps, bisection when one leaves the bracket.
 
@@ -837,10 +844,12 @@ def _project(refiner, grid, blk, axis, node, t, curv, a_above, level, tol, threa
     normal = np.empty((n + 1, 3), _F32)
     flat = np.empty(n + 1, bool)
     arg = np.empty(n + 1, np.int32)
+    pos_rows, normal_rows, node_rows = _rows(pos), _rows(normal), _rows(np.ascontiguousarray(node))
 
     def setup(vid, ub):
         ax = axis[vid]
-        base = grid.coords(refiner.blocks.q[blk[vid]] * BLOCK + node[vid])
+        # (a row of vid holds vertices of block ub only: its coordinates broadcast, not gathered per vertex)
+        base = grid.coords(refiner.blocks.q[ub][:, None, :] * BLOCK + node_rows[vid].view(np.uint8).reshape(vid.shape + (3,)))
         u0 = base - refiner.x0[ub][:, None, :]
         along = np.arange(0, u0.size, 3) + ax.reshape(-1)  # the edge's coordinate in (..., 3) rows
         # ab: f - level >= 0 at the lower node
@@ -871,9 +880,9 @@ def _project(refiner, grid, blk, axis, node, t, curv, a_above, level, tol, threa
 
     def write(ids, p, g, gn, best):
         """Outputs of vertices ``ids`` (rows of the other arguments)."""
-        pos[ids] = p
-        np.divide(g, np.where(gn > 0, gn, 1)[:, None], out=g)  # (g: the caller's temporary)
-        normal[ids] = np.negative(g, out=g)
+        pos_rows[ids] = _rows(p.astype(_F32))
+        np.divide(g, np.where(gn > 0, gn, 1)[:, None], out=g)  # (g: the caller's temporary, contiguous)
+        normal_rows[ids] = _rows(np.negative(g, out=g))
         flat[ids] = gn <= 0
         arg[ids] = best
 
