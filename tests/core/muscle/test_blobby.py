@@ -422,3 +422,16 @@ def test_march_batches_give_the_unbatched_mesh(box, monkeypatch):
     else:
         seam_checks(split, box)
         closed_checks(periodic_weld(split, box), spheres=False, outward=False)
+
+
+@pytest.mark.parametrize("top", [1, 300, 1 << 16, (1 << 16) + 1, 5_000_000, 1 << 32, (1 << 32) + 5])
+def test_argsort_small_is_numpys_stable_argsort(top):
+    # Block indices are sorted by 16-bit radix passes: the same permutation as NumPy's stable sort,
+    # ties (one block's Gaussians) kept in their order, for every range (one pass, two, or fallback).
+    from nephele.core.muscle import blobby as bb
+
+    rng = np.random.default_rng(top % 1000)
+    x = rng.integers(0, top, 20000)
+    x[:50] = top - 1  # the largest value, tied
+    x[50:100] = 0
+    assert np.array_equal(bb._argsort_small(x, top), np.argsort(x, kind="stable"))
