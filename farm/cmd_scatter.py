@@ -103,8 +103,10 @@ def tone_map(img, white):
 
 
 def run(args):
-    from ..core.volume import cloud_density as cd
+    from ..core.errors import DataError
     from ..core.light import scatter
+    from ..core.light.phase import check_per_face
+    from ..core.volume import cloud_density as cd
 
     nx, ny, nz = _ints(args.grid, 3, "--grid")
     box = _floats(args.box, 3, "--box")
@@ -117,8 +119,10 @@ def run(args):
         raise UsageError("give --sky (uniform) or --sky-map, not both")
     if args.sky_strength < 0:
         raise UsageError("--sky-strength must be >= 0")
-    if args.bins_per_face not in (2, 4, 6, 8):
-        raise UsageError(f"--bins-per-face must be 2, 4, 6 or 8, got {args.bins_per_face}")
+    try:
+        check_per_face(args.bins_per_face)
+    except DataError as exc:
+        raise UsageError(f"--bins-per-face: {exc.problem}") from None
     sky = sky_from_map(args.sky_map, args.sky_strength, args.bins_per_face) if args.sky_map else args.sky
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

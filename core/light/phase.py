@@ -36,6 +36,8 @@ from functools import lru_cache
 
 import numpy as np
 
+from ..errors import DataError
+
 N_PER_FACE = 4
 """The default bins per cube-face side (Max & Crawfis' 96 bins); :func:`bins` etc. take ``per_face``."""
 NBINS = 6 * N_PER_FACE ** 2
@@ -80,17 +82,15 @@ def _face_dirs(face, u, v):
 
 
 def check_per_face(per_face):
-    """``per_face`` as an int: even, in :data:`PER_FACE_RANGE` (ValueError otherwise)."""
-    n = int(per_face)
+    """``per_face`` as an int: an even integer in :data:`PER_FACE_RANGE` (a one-line
+    :class:`~nephele.core.errors.DataError`, a ValueError, otherwise)."""
     lo, hi = PER_FACE_RANGE
-    if n != per_face or not lo <= n <= hi or n % 2:
-        raise ValueError(f"bins per face must be an even integer from {lo} to {hi}, got {per_face}")
-    return n
-
-
-def nbins(per_face=N_PER_FACE):
-    """The number of bins, ``6 per_face^2``."""
-    return 6 * check_per_face(per_face) ** 2
+    if isinstance(per_face, bool) or not isinstance(per_face, (int, np.integer)):
+        raise DataError(f"bins_per_face must be an integer, got {per_face!r}", field="bins_per_face")
+    if not lo <= per_face <= hi or per_face % 2:
+        raise DataError(f"bins per face must be an even integer from {lo} to {hi}, got {per_face}",
+                        field="bins_per_face")
+    return int(per_face)
 
 
 def per_face_of(nb):

@@ -669,16 +669,6 @@ def _groups(periodic, sub, per_face=phase.N_PER_FACE):
     return groups, dirs, w / omega[:, None], w
 
 
-def _check_per_face(bins_per_face):
-    """``bins_per_face`` as an int (:func:`.phase.check_per_face`), a DataError if bad."""
-    if isinstance(bins_per_face, bool) or not isinstance(bins_per_face, (int, np.integer)):
-        raise DataError(f"bins_per_face must be an integer, got {bins_per_face!r}", field="bins_per_face")
-    try:
-        return phase.check_per_face(bins_per_face)
-    except ValueError as exc:
-        raise DataError(str(exc), field="bins_per_face") from None
-
-
 def _check_inputs(sigma, size, albedo, g, sun_dir, sun_irradiance, sky_radiance, per_face):
     sigma = np.asarray(sigma)
     if sigma.ndim != 3 or min(sigma.shape) < 1:
@@ -961,7 +951,7 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
     Max & Crawfis, "Cloud rendering"; Max 1994; Cohen et al. 1988; Wiscombe 1977;
     Nakajima & Tanaka, JQSRT 40 (1988) 51-69 (exact single scattering with delta-M).
     """
-    per_face = _check_per_face(bins_per_face)
+    per_face = phase.check_per_face(bins_per_face)
     nb = 6 * per_face ** 2
     sigma, size, sun, sky_radiance = _check_inputs(sigma, size, albedo, g, sun_dir, sun_irradiance, sky_radiance,
                                                    per_face)

@@ -60,7 +60,7 @@ def panorama_radiance(pano, sub=None, bins_per_face=phase.N_PER_FACE):
         raise DataError(f"a panorama must be a 2-D array, got shape {pano.shape}", field="panorama")
     if not np.all(np.isfinite(pano)) or np.any(pano < 0):
         raise DataError("panorama radiance must be finite and >= 0", field="panorama")
-    n = _per_face(bins_per_face)
+    n = phase.check_per_face(bins_per_face)
     idx, rows, cols, omega = _panorama_cells(*pano.shape, int(sub or -(-1024 // pano.shape[0])), n)
     power = np.bincount(idx, (omega * pano[rows[:, None], cols[None, :]]).ravel(), 6 * n * n)
     return power / np.bincount(idx, np.broadcast_to(omega, (len(rows), len(cols))).ravel(), 6 * n * n)
@@ -70,17 +70,9 @@ def panorama_solid_angles(shape, sub=None, bins_per_face=phase.N_PER_FACE):
     """Solid angle per bin that :func:`panorama_radiance` sums from a panorama of ``shape``
     (the bins' exact solid angles, up to the sub-cells' resolution)."""
     h, w = shape
-    n = _per_face(bins_per_face)
+    n = phase.check_per_face(bins_per_face)
     idx, rows, cols, omega = _panorama_cells(h, w, int(sub or -(-1024 // h)), n)
     return np.bincount(idx, np.broadcast_to(omega, (len(rows), len(cols))).ravel(), 6 * n * n)
-
-
-def _per_face(bins_per_face):
-    """``bins_per_face`` checked (:func:`.phase.check_per_face`), a DataError if bad."""
-    try:
-        return phase.check_per_face(bins_per_face)
-    except (TypeError, ValueError) as exc:
-        raise DataError(str(exc), field="bins_per_face") from None
 
 
 def _panorama_cells(h, w, sub, per_face):
