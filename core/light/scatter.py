@@ -690,7 +690,7 @@ def _check_inputs(sigma, size, albedo, g, sun_dir, sun_irradiance, sky_radiance,
     return sigma.astype(np.float64), size, s / np.linalg.norm(s), _check_sky(sky_radiance, 6 * per_face ** 2)
 
 
-def _check_sky(sky_radiance, nb=NB):
+def _check_sky(sky_radiance, nb):
     """The sky as a float (uniform, travelling downward) or a read-only (nb,) float64 array."""
     if np.ndim(sky_radiance) == 0:
         if not (np.isfinite(sky_radiance) and sky_radiance >= 0):
