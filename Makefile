@@ -39,22 +39,38 @@ $(BPY50)/.stamp: requirements-blender311.txt
 	$(BPY50)/bin/pip install -q -r requirements-blender311.txt
 	touch $@
 
-demo: $(VENV)/.stamp
+# The compiled kernels (native/) as a wheel, installed into both test Pythons; where it is not
+# installed (platforms it is not built for) their NumPy twins run.
+NATIVE_SRC := $(wildcard native/src/*.c native/src/*.h) native/nephele_native/__init__.py native/build.py
+build/native/.stamp: $(NATIVE_SRC)
+	rm -rf build/native/dist
+	$(PY313) native/build.py --wheel build/native/dist
+	touch $@
+
+$(VENV)/.native: $(VENV)/.stamp build/native/.stamp
+	$(VENV)/bin/pip install -q --force-reinstall --no-deps build/native/dist/*.whl
+	touch $@
+
+$(VENV311)/.native: $(VENV311)/.stamp build/native/.stamp
+	$(VENV311)/bin/pip install -q --force-reinstall --no-deps build/native/dist/*.whl
+	touch $@
+
+demo: $(VENV)/.stamp $(VENV)/.native
 	$(VENV)/bin/nephele demo --out out/demo
 
 test: test-main test-core311 test-extension test-slurm test-bench
 
-test-main: $(VENV)/.stamp
+test-main: $(VENV)/.stamp $(VENV)/.native
 	$(VENV)/bin/python -m pytest --ignore=tests/extension --ignore=tests/farm/slurm $(PYTEST_ARGS)
 
 # Core only (no bpy, no farm): the numpy 1.26 / Python 3.11 that Blender 4.2-5.0 ship. The slow cases
 # (thick scattering slabs, big blobby grids) run once, in test-main, to keep CI within its budget.
-test-core311: $(VENV311)/.stamp
+test-core311: $(VENV311)/.stamp $(VENV311)/.native
 	$(VENV311)/bin/python -m pytest -m "not bpy and not slow" --ignore=tests/farm --ignore=tests/addon --ignore=tests/extension $(PYTEST_ARGS)
 
 # Build the linux-x64 zips (wheels cached in build/wheels), install each into its Blender-only
 # Python through Blender's extension API and drive the whole sidebar workflow there.
-test-extension: $(VENV)/.stamp $(BPY52)/.stamp $(BPY50)/.stamp
+test-extension: $(VENV)/.stamp $(VENV)/.native $(BPY52)/.stamp $(BPY50)/.stamp
 	NEPHELE_REQUIRE_BLENDER_PYTHONS=1 NEPHELE_BLENDER_PYTHONS=$(CURDIR)/$(BPY52)/bin/python:$(CURDIR)/$(BPY50)/bin/python \
 	  $(VENV)/bin/python -m pytest tests/extension $(PYTEST_ARGS)
 
@@ -65,17 +81,17 @@ test-slurm: $(VENV)/.stamp
 
 # Every benchmark's --quick mode as a smoke test, so none can rot; a quick run prints its table and
 # leaves docs/benchmarks.md alone (benchmarks/report.py).
-test-bench: $(VENV)/.stamp
+test-bench: $(VENV)/.stamp $(VENV)/.native
 	@mkdir -p build
 	@for b in benchmarks/bench_*.py; do \
 	  echo "$$b --quick"; \
 	  $(VENV)/bin/python $$b --quick > build/bench-quick.log 2>&1 || { tail -40 build/bench-quick.log; exit 1; }; \
 	done
 
-bench: $(VENV)/.stamp
+bench: $(VENV)/.stamp $(VENV)/.native
 	for b in benchmarks/bench_*.py; do $(VENV)/bin/python $$b || exit 1; done
 
-extension: $(VENV)/.stamp
+extension: $(VENV)/.stamp build/native/.stamp
 	$(VENV)/bin/nephele build-extension --out dist
 
 clean:

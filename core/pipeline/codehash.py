@@ -3,7 +3,8 @@
 A task's result depends on its own module and on every module of the core package
 it imports, transitively.  :func:`code_stamp` follows the relative imports of a
 source file through the files of its package (on disk, so a copy of the package
-hashes its own files) and hashes every file reached, once per process.
+hashes its own files) and hashes every file reached, once per process.  Code that calls the compiled kernels
+(imports :mod:`..native`) also hashes which kernels this process runs.
 """
 
 import ast
@@ -12,6 +13,7 @@ from functools import lru_cache
 from pathlib import Path
 
 _CORE = Path(__file__).resolve().parent.parent  # nephele/core
+_NATIVE = _CORE / "native.py"
 
 
 def _module_file(base, parts):
@@ -67,6 +69,11 @@ def code_stamp(path, root=None):
     if not path.is_relative_to(root):  # a task registered outside the package: its own folder
         root = path.parent
     h = hashlib.sha256()
-    for f in dependencies(path, root):
+    deps = dependencies(path, root)
+    for f in deps:
         h.update(str(f.relative_to(root)).encode() + b"\0" + f.read_bytes() + b"\0")
+    if _NATIVE in deps:
+        from .. import native
+
+        h.update(b"native\0" + native.identity().encode())
     return h.hexdigest()[:16]
