@@ -18,7 +18,10 @@ sub-folder per (Python, platform) stamped with what it holds; a complete
 sub-folder is reused without the network, and ``--offline`` refuses to fetch.
 Only the extension's parts (``__init__.py``, ``blender_manifest.toml``,
 ``addon/``, ``core/``, ``README.md``, licence files) are staged, so nothing
-local leaks in; the manifest's ``[build]`` excludes still apply.  The builder
+local leaks in; the manifest's ``[build]`` excludes still apply.  The zip for
+the platform this runs on also gets the compiled kernels (``native/``, built
+here from source as the ``nephele_native`` wheel); other platforms' zips run
+the kernels' NumPy twins.  The builder
 is ``blender_ext.py`` from the ``bpy`` wheel, or ``blender --command
 extension`` when ``--blender`` is given.
 """
@@ -207,6 +210,24 @@ def fetch_wheels(target, platform, cache, offline=False, root=ROOT):
     return wheels
 
 
+def host_platform():
+    """The Blender platform name of this machine, or None if no kernels are built for it."""
+    import platform
+
+    return "linux-x64" if sys.platform.startswith("linux") and platform.machine() in ("x86_64", "AMD64") else None
+
+
+def native_wheel(dest, root=ROOT):
+    """Build the compiled kernels' wheel into ``dest`` (from ``root/native``); returns its path."""
+    spec = importlib.util.spec_from_file_location("nephele_native_build", root / "native" / "build.py")
+    build = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(build)
+    try:
+        return build.wheel(dest)
+    except (OSError, subprocess.CalledProcessError) as e:
+        raise UsageError(f"building the compiled kernels (native/) failed: {e}") from None
+
+
 def write_manifest(path, target, platforms, wheels):
     """Set ``platforms``, ``wheels`` and the Blender version range in a staged manifest."""
     text = path.read_text()
@@ -240,6 +261,8 @@ def build_target(target, platforms, out, cmd, cache, offline=False, root=ROOT):
                 if w.name not in names:
                     shutil.copy2(w, src / "wheels" / w.name)
                     names.add(w.name)
+            if platform == host_platform():
+                native_wheel(src / "wheels", root)
         wheels = sorted((src / "wheels").glob("*.whl"))
         write_manifest(src / "blender_manifest.toml", target, platforms, wheels)
         build_dir = Path(tmp) / "out"

@@ -135,7 +135,7 @@ def test_zip_contents(dist, py):
     assert "addon/contour_ops.py" in names and "core/resources/relief_1deg.npz" in names
     wheels, manifest = _manifest_wheels(z)
     assert sorted(wheels) == sorted(n for n in names if n.startswith("wheels/"))
-    assert {be.wheel_name(w) for w in wheels} >= {"scipy", "xarray", "netcdf4", "pandas", "cftime"}
+    assert {be.wheel_name(w) for w in wheels} >= {"scipy", "xarray", "netcdf4", "pandas", "cftime", "nephele-native"}
     assert not {be.wheel_name(w) for w in wheels} & be.BLENDER_SHIPS  # numpy comes with Blender
     abi = be.TARGETS[py].abi
     for w in wheels:

@@ -32,7 +32,8 @@ WINDOW_ONLY = {"watch_jobs"}
 
 resources = Path(os.environ["BLENDER_USER_RESOURCES"])
 # The environment must really lack what the extension bundles, or the test proves nothing.
-absent = {m: importlib.util.find_spec(m) is None for m in ("scipy", "xarray", "netCDF4", "pandas", "cftime", "nephele")}
+absent = {m: importlib.util.find_spec(m) is None
+          for m in ("scipy", "xarray", "netCDF4", "pandas", "cftime", "nephele", "nephele_native")}
 assert all(absent.values()), f"the Blender-only Python already has {[m for m, a in absent.items() if not a]}"
 
 import bpy  # noqa: E402
@@ -51,8 +52,10 @@ import netCDF4  # noqa: E402
 import scipy.ndimage  # noqa: E402
 import xarray  # noqa: E402
 
+import nephele_native  # noqa: E402  (the compiled kernels: linux-x64 zips carry them)
+
 # The bundled wheels, from the extension's own site-packages.
-for mod in (scipy, xarray, netCDF4):
+for mod in (scipy, xarray, netCDF4, nephele_native):
     assert Path(mod.__file__).resolve().is_relative_to(resources.resolve()), mod.__file__
 
 ops = bpy.ops.nephele
@@ -149,6 +152,8 @@ assert pixels.std() > 0.02 and pixels.max() > 0.1, "the rendered frame is blank"
 
 # The muscle film (its own world and lattice), small: one box, a coarse grid.
 step("add_muscle_film", lambda: ops.add_muscle_film(frames=2, spacing=1.5, tiles=(1, 1, 1), camera=False))
+# its meshes were made by the compiled kernels, not their NumPy twins
+assert importlib.import_module(MODULE + ".core.native").identity() == nephele_native.BUILD_ID
 active("")
 
 # A panel's "Make the paper's figure" preset, into a scene of its own (it replaces the scene's objects;
