@@ -27,6 +27,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from report import md_table, write_section  # noqa: E402
 
+from nephele.core import native  # noqa: E402
 from nephele.core.muscle import blobby_surface, level_distance  # noqa: E402
 
 SIGMA = (0.5, 1.0)  # per-axis sigmas drawn in this range: sigma_min = 0.5
@@ -159,6 +160,16 @@ def peak_rss(fn):
     return out, hwm / 2**20
 
 
+def numpy_twins(fn):
+    """``fn()`` with the compiled kernels switched off (what platforms without the wheel run)."""
+    kept = native._module
+    native._module = lambda: None
+    try:
+        return fn()
+    finally:
+        native._module = kept
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true", help="smoke run: 100 and 300 ellipsoids, 500 error samples")
@@ -169,6 +180,8 @@ def main():
     ap.add_argument("--metaball-max", type=int, default=1000,
                     help="largest scene given to the metaballs (they grow about as n^2 on the 2-core test machine: "
                          "18-21 CPU s at 1000, 74-89 at 2000, 508 at 5000)")
+    ap.add_argument("--numpy-max", type=int, default=5000,
+                    help="largest scene also meshed by the kernels' NumPy twins (when the compiled ones are installed)")
     ap.add_argument("--sample", type=int, default=None, help="vertices checked against the exact sum")
     ap.add_argument("--actin", action=argparse.BooleanOptionalAction, default=None,
                     help="also fit 1-8 ellipsoids to the actin subunit (default: not with --quick)")
@@ -184,6 +197,7 @@ def main():
     h = SIGMA[0] / 4
     rng = np.random.default_rng(1)
     load0 = os.getloadavg()[0]
+    compiled = native.identity() != "numpy"
     rows = []
     ours, balls, peaks = {}, {}, {}
     for n in sizes:
@@ -203,6 +217,13 @@ def main():
                 peaks[n, kind] = peak
             rows.append([n, kind, t, cpu, nv, nf, erms, emax])
             print(rows[-1], f"peak RSS {peak:.2f} GiB" if peak is not None else "", flush=True)
+            if box is None and compiled and n <= args.numpy_max:
+                t, cpu, mesh = numpy_twins(lambda: timed_cpu(
+                    lambda: blobby_surface(*blobs, LEVEL, h, cutoff=CUTOFF, threads=args.threads)))
+                emax, erms = error(mesh.vertices, blobs, None, sample, rng)
+                rows.append([n, "ours, NumPy kernels (no wheel)", t, cpu, len(mesh.vertices), len(mesh.faces), erms, emax])
+                mesh = None
+                print(rows[-1], flush=True)
         nodes = float(np.ceil((side + 2 * CUTOFF * SIGMA[1]) / h) + 1) ** 3
         if nodes <= DENSE_LIMIT:
             t, cpu, (v, f) = timed_cpu(lambda: dense_anchor(*blobs, h))
@@ -238,10 +259,14 @@ def main():
                "the scene and the run's earlier arrays too): "
                + " and ".join(f"{v:.1f} GiB {'in the periodic box' if 'box' in k else 'without box'}"
                             for (n, k), v in peaks.items() if n == big) + ".")
+    kernels = (f"Ours ran the compiled kernels (nephele_native {native.identity()}); the rows 'NumPy kernels' "
+               "are the same code with them switched off, as on a platform without the wheel." if compiled else
+               "Ours ran the NumPy kernels (no nephele_native wheel installed).")
     body = (
         f"Random Gaussian ellipsoids (sigmas {SIGMA[0]}-{SIGMA[1]} per axis, random rotations, weights 1-2, "
         f"level {LEVEL}, one per {VOLUME_PER_BLOB:g} volume units), spacing sigma_min/4 = {h}, cutoff {CUTOFF} sigma, "
-        f"threads {args.threads or 'default'}. Error: first-order distance |f - level| / |grad f| of {sample} sampled "
+        f"threads {args.threads or 'default'}. {kernels}"
+        f" Error: first-order distance |f - level| / |grad f| of {sample} sampled "
         "vertices to the exact uncut sum (every periodic image), in sigma_min; the goal is 0.01. "
         "The anchor evaluates the same cut sum on a dense grid with NumPy (one sub-box per Gaussian) and "
         "contours it with skimage.measure.marching_cubes at the same spacing (and at half of it, "
