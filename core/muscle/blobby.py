@@ -40,11 +40,13 @@ References
    molecules as contour surfaces of sums of Gaussian ellipsoids).
 """
 
+import ctypes
 import functools
 from dataclasses import dataclass
 
 import numpy as np
 
+from .. import native
 from ..surface import _mc_tables as tables
 from ..surface.contour import EDGE_MARGIN
 from ..errors import DataError
@@ -438,6 +440,9 @@ def _node_values(b, grid, blocks, threads, act=None):
     operation is elementwise per (block, Gaussian) pair, summed in the block's own Gaussian order."""
     B = BLOCK
     act = np.arange(len(blocks.q)) if act is None else act
+    kernel = native.kernel("blobby_node_values", None, [ctypes.c_int64] + [ctypes.c_void_p] * 10)
+    if kernel is not None:
+        return _node_values_c(kernel, b, grid, blocks, threads, act)
     na = len(act)
     count = np.diff(blocks.grid_start)[act]
     perm = np.argsort(-count, kind="stable")  # most Gaussians first: rank r's blocks are a prefix
@@ -491,6 +496,22 @@ def _node_values(b, grid, blocks, threads, act=None):
         values[bl] = np.moveaxis(acc, 3, 0)
 
     thread_map(run, _chunks(na, max(1, 4096 * 64 // B**3)), threads)
+    return values
+
+
+def _c_arrays(*arrays):
+    """The arrays as C-contiguous int64 or float64 (copies where needed) and their addresses."""
+    held = [np.ascontiguousarray(x, np.int64 if x.dtype.kind in "iub" else np.float64) for x in arrays]
+    return held, [x.ctypes.data for x in held]
+
+
+def _node_values_c(kernel, b, grid, blocks, threads, act):
+    """:func:`_node_values` by the compiled kernel (native/src/blobby_nodes.c), runs of blocks on threads."""
+    values = np.empty((len(act), BLOCK, BLOCK, BLOCK), _F32)
+    held, ptrs = _c_arrays(act.astype(np.int64), blocks.grid_start, blocks.grid_g, blocks.q, b.c, b.a, b.lnw, grid.h, grid.size)
+    step = 1024  # blocks per call: a few ms, shared out to the threads as they come free
+    thread_map(lambda lo: kernel(min(step, len(act) - lo), ptrs[0] + 8 * lo, *ptrs[1:], values[lo:].ctypes.data),
+               range(0, len(act), step), threads)
     return values
 
 

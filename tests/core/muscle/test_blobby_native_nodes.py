@@ -1,0 +1,102 @@
+"""The blobby mesher's compiled kernels (native/src/blobby_nodes.c) against their NumPy twins."""
+
+import numpy as np
+import pytest
+
+from nephele.core import native
+from nephele.core.muscle import blobby as bb
+from nephele.core.muscle import level_distance
+
+pytestmark = pytest.mark.skipif(native.identity() == "numpy", reason="no compiled kernels")
+
+LEVEL, H = 0.3, 0.125
+
+
+def rotations(rng, n):
+    q, rr = np.linalg.qr(rng.normal(size=(n, 3, 3)))
+    q = q * np.sign(np.diagonal(rr, axis1=1, axis2=2))[:, None, :]
+    q[np.linalg.det(q) < 0, :, 0] *= -1
+    return q
+
+
+def scene(seed, n, side):
+    rng = np.random.default_rng(seed)
+    return rng.uniform(0, side, (n, 3)), rotations(rng, n), rng.uniform(0.4, 1.2, (n, 3)), rng.uniform(0.6, 1.4, n)
+
+
+def thin(seed):
+    """A 20:1 Gaussian along a random axis."""
+    rot = rotations(np.random.default_rng(seed), 1)
+    return np.array([[1.0, 2.0, 3.0]]), rot, np.array([[4.0, 0.2, 0.2]]), np.array([1.0])
+
+
+def sheared():
+    """A Gaussian thin along (1, 0, -1): its x-z table reaches exp(100), its node values do not."""
+    s2 = np.sqrt(0.5)
+    rot = np.array([[[s2, 0, s2], [0, 1, 0], [-s2, 0, s2]]])
+    return np.array([[0.4, 0.5, 0.45]]), rot, np.array([[0.06, 1.0, 1.0]]), np.array([1.5])
+
+
+def setup(c, r, s, w, h=H, box=None):
+    box = None if box is None else np.array(box)
+    b = bb._blobs(*bb._check(c, r, s, w))
+    if box is not None:
+        b = bb._images(b, box, 5.0)
+    grid = bb._grid(h, box)
+    return b, grid, bb._find_blocks(b, grid, LEVEL, 4.0, 5.0, 1)
+
+
+def numpy_path(monkeypatch):
+    monkeypatch.setattr(native, "_module", lambda: None)
+
+
+CASES = {
+    "plain": (scene(1, 300, 14.0), H, None),
+    "periodic": (scene(2, 300, 13.0), H, (13.0, 12.0, 14.0)),
+    "thin": (thin(3), 0.05, None),
+    "sheared": (sheared(), H, None),
+}
+
+
+@pytest.mark.parametrize("case", list(CASES))
+def test_node_values_match_numpy(case, monkeypatch):
+    blobs, h, box = CASES[case]
+    b, grid, blocks = setup(*blobs, h=h, box=box)
+    if case == "sheared":  # the large-exponent case is exercised: -u_x u_z a_xz > 40 at a block corner
+        assert (-(7 * h) ** 2 * b.a[:, 4]).max() > 2 * bb._EXP_MAX
+    got = bb._node_values(b, grid, blocks, 2)
+    numpy_path(monkeypatch)
+    want = bb._node_values(b, grid, blocks, 2)
+    assert got.shape == want.shape and got.dtype == want.dtype == np.float32
+    # Same float32 operations but the exp (libm's against NumPy's): a few ulps.
+    assert np.all(np.abs(got.astype(float) - want) <= 2e-6 * want + 1e-37)
+    assert np.mean(got == want) > 0.2
+    assert (want >= LEVEL).any() and (want < LEVEL).any()
+
+
+def test_node_values_same_bits_in_any_subset():
+    b, grid, blocks = setup(*scene(4, 300, 14.0))
+    full = bb._node_values(b, grid, blocks, 2)
+    rng = np.random.default_rng(0)
+    for some in (rng.permutation(len(blocks.q))[: len(blocks.q) // 3], np.arange(len(blocks.q))[::-5], np.array([7])):
+        assert np.array_equal(bb._node_values(b, grid, blocks, 2, some), full[some])
+        assert np.array_equal(bb._node_values(b, grid, blocks, 1, some), full[some])
+
+
+def watertight(mesh):
+    f = mesh.faces.astype(np.int64)
+    directed = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    assert len(np.unique(directed, axis=0)) == len(directed)  # consistent winding
+    _, cnt = np.unique(np.sort(directed, axis=1), axis=0, return_counts=True)
+    assert np.all(cnt == 2)
+
+
+@pytest.mark.parametrize("native_on", [True, False])
+def test_whole_mesh_both_paths(native_on, monkeypatch):
+    if not native_on:
+        numpy_path(monkeypatch)
+    c, r, s, w = scene(5, 300, 14.0)
+    mesh = bb.blobby_surface(c, r, s, w, LEVEL, H, threads=2)
+    assert len(mesh.vertices) > 10000
+    watertight(mesh)
+    assert level_distance(mesh.vertices, c, r, s, w, LEVEL).max() < 0.01 * s.min()
