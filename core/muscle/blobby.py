@@ -603,6 +603,9 @@ def _march(values, blocks, grid, level, bl, et, loc=None):
     """Marching cubes over blocks ``bl`` (ascending): owned edges get vertices, edges owned by a
     neighbour become references to its face slot (resolved once every chunk is done).  ``values``
     row ``loc[q]`` holds block q (default: row q)."""
+    count = native.kernel("blobby_march_count", None, [ctypes.c_int64, ctypes.c_double, ctypes.c_void_p, ctypes.c_void_p])
+    if count is not None and len(bl):
+        return _march_c(count, values, blocks, grid, level, bl, et, loc)
     B, E = BLOCK, BLOCK + 1
     n = len(bl)
     lvl = _F32(level)
@@ -709,6 +712,34 @@ def _march(values, blocks, grid, level, bl, et, loc=None):
         np.where(owner < 0, -1, owner).astype(np.int32), ref_slot.astype(np.int32), shift.astype(np.int8), n_owned, dup_key,
         dup_shift, face_key, on_face.astype(np.int32),
     )
+
+
+_CHUNK_FIELDS = (  # the _Chunk arrays the march kernel writes (in struct march_out's order): dtype, row shape, size
+    ("blk", np.int32, (), "v"), ("axis", np.int8, (), "v"), ("node", np.uint8, (3,), "v"), ("t", np.float64, (), "v"),
+    ("curv", _F32, (), "v"), ("a_above", np.bool_, (), "v"), ("faces", np.int32, (3,), "tri"),
+    ("ref_owner", np.int32, (), "ghost"), ("ref_slot", np.int32, (), "ghost"), ("ref_shift", np.int8, (3,), "ghost"),
+    ("dup_key", np.int64, (), "dup"), ("dup_shift", np.int64, (3,), "dup"), ("face_key", np.int64, (), "face"),
+    ("face_vid", np.int32, (), "face"),
+)
+
+
+def _march_c(count, values, blocks, grid, level, bl, et, loc):
+    """:func:`_march` by the compiled kernel (native/src/blobby_march.c): one pass counts, the next writes."""
+    emit = native.kernel("blobby_march_emit", None, [ctypes.c_int64, ctypes.c_double, ctypes.c_double, ctypes.c_int64]
+                         + [ctypes.c_void_p] * 3)
+    ext = np.empty((len(bl), (BLOCK + 1) ** 3), _F32)  # scratch: the blocks' extended nodes
+    held = [x if x is None else np.ascontiguousarray(x) for x in (  # struct march_in, in its order (int64 but values, table, kind)
+        bl.astype(np.int64), values, None if loc is None else loc.astype(np.int64), blocks.nbr, blocks.q,
+        None if grid.box is None else grid.nb.astype(np.int64), blocks.node_lo, blocks.node_dims, et.table, et.ntri,
+        et.kind, et.face_index, ext)]
+    march_in = (ctypes.c_void_p * len(held))(*(x if x is None else x.ctypes.data for x in held))
+    n = np.zeros(5, np.int64)  # owned vertices, ghost edges, duplicates, triangles, face vertices
+    count(len(bl), level, march_in, n.ctypes.data)
+    size = {"v": n[0] + n[2], "ghost": n[1], "dup": n[2], "tri": n[3], "face": n[4]}
+    out = {name: np.empty((int(size[k]),) + shape, dt) for name, dt, shape, k in _CHUNK_FIELDS}
+    march_out = (ctypes.c_void_p * len(out))(*(x.ctypes.data for x in out.values()))
+    emit(len(bl), level, EDGE_MARGIN, len(et.face_slots), march_in, n.ctypes.data, march_out)
+    return _Chunk(n_owned=int(n[0]), **out)
 
 
 def _edge_guess(flat, at, axis, coord, beyond_real, level, t):

@@ -1,5 +1,7 @@
 """The blobby mesher's compiled kernels (native/src/blobby_nodes.c) against their NumPy twins."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -51,8 +53,8 @@ def numpy_path(monkeypatch):
 
 
 CASES = {
-    "plain": (scene(1, 300, 14.0), H, None),
-    "periodic": (scene(2, 300, 13.0), H, (13.0, 12.0, 14.0)),
+    "plain": (scene(1, 300, 20.0), H, None),
+    "periodic": (scene(2, 300, 20.0), H, (20.0, 21.0, 19.0)),
     "thin": (thin(3), 0.05, None),
     "sheared": (sheared(), H, None),
 }
@@ -75,7 +77,7 @@ def test_node_values_match_numpy(case, monkeypatch):
 
 
 def test_node_values_same_bits_in_any_subset():
-    b, grid, blocks = setup(*scene(4, 300, 14.0))
+    b, grid, blocks = setup(*scene(4, 300, 20.0))
     full = bb._node_values(b, grid, blocks, 2)
     rng = np.random.default_rng(0)
     for some in (rng.permutation(len(blocks.q))[: len(blocks.q) // 3], np.arange(len(blocks.q))[::-5], np.array([7])):
@@ -95,8 +97,49 @@ def watertight(mesh):
 def test_whole_mesh_both_paths(native_on, monkeypatch):
     if not native_on:
         numpy_path(monkeypatch)
-    c, r, s, w = scene(5, 300, 14.0)
+    c, r, s, w = scene(5, 150, 15.0)
     mesh = bb.blobby_surface(c, r, s, w, LEVEL, H, threads=2)
     assert len(mesh.vertices) > 10000
     watertight(mesh)
     assert level_distance(mesh.vertices, c, r, s, w, LEVEL).max() < 0.01 * s.min()
+
+
+def chunks_equal(a, e):
+    for f in dataclasses.fields(bb._Chunk):
+        x, y = getattr(a, f.name), getattr(e, f.name)
+        if isinstance(y, np.ndarray):
+            assert x.dtype == y.dtype and x.shape == y.shape, f.name
+            assert np.array_equal(x, y, equal_nan=x.dtype.kind == "f"), f.name
+        else:
+            assert x == y, f.name
+
+
+@pytest.mark.parametrize("box", [None, (15.0, 16.0, 14.0)])
+@pytest.mark.parametrize("batched", [False, True])
+def test_march_chunks_match_numpy(box, batched, monkeypatch):
+    # Same node values in, the same chunks out, field by field: owned and duplicate vertices,
+    # references across blocks and the periodic seam, triangles.
+    b, grid, blocks = setup(*scene(6, 150, 15.0), box=box)
+    et = bb._edge_tables()
+    values, loc, need = bb._node_values(b, grid, blocks, 2), None, np.arange(len(blocks.q))
+    if batched:  # values of a subset (one batch and its +1 neighbours), rows found through loc
+        sel = np.arange(len(blocks.q) // 2)
+        nb = blocks.nbr[sel, 1:]
+        need = np.union1d(sel, nb[nb >= 0])
+        loc = np.full(len(blocks.q), -1, np.int64)
+        loc[need] = np.arange(len(need))
+        values = values[need]
+    # Some neighbours made inactive (below or above): their +1 layers are guesses and edges they would own
+    # become duplicate vertices.
+    rng = np.random.default_rng(1)
+    cut_off = rng.random(blocks.nbr.shape) < 0.02
+    cut_off[:, 0] = False
+    blocks.nbr[cut_off] = rng.choice([-1, -2], cut_off.sum())
+    crossed = bb._crossed(values, blocks, LEVEL, None if loc is None else np.arange(len(blocks.q) // 2), loc)
+    runs = [crossed[i : i + 97] for i in range(0, len(crossed), 97)] + [crossed[:0]]
+    got = [bb._march(values, blocks, grid, LEVEL, r, et, loc=loc) for r in runs]
+    numpy_path(monkeypatch)
+    want = [bb._march(values, blocks, grid, LEVEL, r, et, loc=loc) for r in runs]
+    assert sum(c.n_owned for c in want) > 50000 and sum(len(c.dup_key) for c in want) > 100
+    for a, e in zip(got, want):
+        chunks_equal(a, e)
