@@ -317,8 +317,19 @@ def _block_pairs(b, grid, cut, cut_fine, threads):
         spans.append((start, stop))
         start = stop
 
+    kernel = native.kernel("blobby_block_pairs", ctypes.c_int64, [ctypes.c_int64] * 2 + [ctypes.c_void_p] * 8
+                           + [ctypes.c_double] * 2 + [ctypes.c_void_p] * 2 + [ctypes.c_int64] + [ctypes.c_void_p] * 5)
+    if kernel is not None:
+        held, ptrs = _c_arrays(lo, cnt, b.c, b.a, b.lnw, b.smax, ra, size)
+        held2, ptrs2 = _c_arrays(index.lo, index.dims)
+
     def run(span):
         start, stop = span
+        if kernel is not None:
+            m = int(tot[start:stop].sum())
+            out = (np.empty(m, np.int64), np.empty(m, np.int64), np.empty(m, np.bool_), np.empty(m), np.empty(m))
+            n = kernel(start, stop, *ptrs, cut, cut_fine, *ptrs2, index.box, *(x.ctypes.data for x in out))
+            return tuple(x[:n] for x in out)
         t = tot[start:stop]
         g = np.repeat(np.arange(start, stop), t)
         k = np.arange(t.sum()) - np.repeat(np.cumsum(t) - t, t)

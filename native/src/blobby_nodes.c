@@ -134,3 +134,54 @@ void blobby_node_values(int64_t n, const int64_t *act, const int64_t *grid_start
         }
     }
 }
+
+/* The block search (_block_pairs): for Gaussians g0 .. g1 - 1, every block of its candidate
+ * box lo[g] .. lo[g] + cnt[g] - 1 (z, y, x order) whose closed box may meet the Gaussian's
+ * cut_fine ellipsoid: its index key, the Gaussian, whether it meets the cut ellipsoid too
+ * (on_grid), and then bounds of the Gaussian over the block from above and below (else 0).
+ * ra[g]: the largest A-norm of a block's half-diagonals.  The arithmetic is the NumPy twin's.
+ * Returns the number of pairs written. */
+int64_t blobby_block_pairs(int64_t g0, int64_t g1, const int64_t *lo, const int64_t *cnt, const double *c,
+                           const double *a6, const double *lnw, const double *smax, const double *ra, const double *size,
+                           double cut, double cut_fine, const int64_t *index_lo, const int64_t *index_dims,
+                           int64_t periodic, int64_t *key, int64_t *gout, uint8_t *on_grid, double *upper,
+                           double *lower)
+{
+    int64_t n = 0;
+    for (int64_t g = g0; g < g1; g++) {
+        const int64_t *l = lo + 3 * g, *ct = cnt + 3 * g;
+        const double *a = a6 + 6 * g;
+        double w = exp(lnw[g]);
+        for (int64_t z = 0; z < ct[2]; z++)
+            for (int64_t y = 0; y < ct[1]; y++)
+                for (int64_t x = 0; x < ct[0]; x++) {
+                    int64_t q[3] = {l[0] + x, l[1] + y, l[2] + z};
+                    double d[3], gap[3];
+                    for (int k = 0; k < 3; k++) {
+                        d[k] = ((double)q[k] + 0.5) * size[k] - c[3 * g + k];
+                        gap[k] = fmax(fabs(d[k]) - size[k] / 2, 0.0);
+                    }
+                    double sq = sqrt(a[0] * d[0] * d[0] + a[1] * d[1] * d[1] + a[2] * d[2] * d[2] +
+                                     2 * (a[3] * d[0] * d[1] + a[4] * d[0] * d[2] + a[5] * d[1] * d[2]));
+                    double gn = sqrt(gap[0] * gap[0] + gap[1] * gap[1] + gap[2] * gap[2]);
+                    double near = fmax(fmax(sq - ra[g], 0.0), gn / smax[g]);
+                    if (!(near <= cut_fine))
+                        continue;
+                    double far = sq + ra[g];
+                    int on = near <= cut;
+                    int64_t r[3];
+                    for (int k = 0; k < 3; k++) {
+                        r[k] = q[k] - index_lo[k];
+                        if (periodic)
+                            r[k] = (r[k] % index_dims[k] + index_dims[k]) % index_dims[k];
+                    }
+                    key[n] = (r[2] * index_dims[1] + r[1]) * index_dims[0] + r[0];
+                    gout[n] = g;
+                    on_grid[n] = (uint8_t)on;
+                    upper[n] = on ? w * exp(-0.5 * (near * near)) : 0.0;
+                    lower[n] = on ? w * exp(-0.5 * (far * far)) : 0.0;
+                    n++;
+                }
+    }
+    return n;
+}
