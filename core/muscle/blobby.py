@@ -405,16 +405,8 @@ def _find_blocks(b, grid, level, cut, cut_fine, threads):
         return None
     cls[act] = np.arange(len(act))
 
-    ai = cls[slot]
-    sel = np.flatnonzero(ai >= 0)
-    order = sel[_argsort_small(ai[sel], len(act))]  # by block, then Gaussian
-    ai_sorted = ai[order]
-    fine_start = np.searchsorted(ai_sorted, np.arange(len(act) + 1))
-    fine_g = g[order]
-    grid_sel = on_grid[order]
-    grid_g = fine_g[grid_sel]
-    grid_start = np.searchsorted(ai_sorted[grid_sel], np.arange(len(act) + 1))
-    act_q = index.block(key[order[fine_start[:-1]]])
+    fine_start, fine_g, grid_start, grid_g, first = _group_pairs(slot, cls, g, on_grid, len(act))
+    act_q = index.block(key[first])
 
     # Neighbours at offsets (dx, dy, dz) in {0, 1}^3.
     nbr = np.empty((len(act), 8), np.int64)
@@ -427,6 +419,41 @@ def _find_blocks(b, grid, level, cut, cut_fine, threads):
             pos = np.minimum(np.searchsorted(ukeys, k), len(ukeys) - 1)
             nbr[:, code] = np.where(ukeys[pos] == k, cls[pos], -1)
     return _Blocks(act_q, nbr, grid_start, grid_g, fine_start, fine_g, index.lo * BLOCK, index.dims * BLOCK)
+
+
+def _group_pairs(slot, cls, g, on_grid, na):
+    """The pairs' Gaussians ``g`` listed by active block ``cls[slot]`` (the others dropped), in pair
+    order: (fine_start, fine_g, grid_start, grid_g (on-grid pairs only), first pair of each block)."""
+    count = native.kernel("blobby_group_count", None, [ctypes.c_int64] + [ctypes.c_void_p] * 3 + [ctypes.c_int64]
+                          + [ctypes.c_void_p] * 2)
+    if count is not None:
+        return _group_pairs_c(count, slot, cls, g, on_grid, na)
+    ai = cls[slot]
+    sel = np.flatnonzero(ai >= 0)
+    order = sel[_argsort_small(ai[sel], na)]  # by block, then Gaussian
+    ai_sorted = ai[order]
+    fine_start = np.searchsorted(ai_sorted, np.arange(na + 1))
+    fine_g = g[order]
+    grid_sel = on_grid[order]
+    grid_g = fine_g[grid_sel]
+    grid_start = np.searchsorted(ai_sorted[grid_sel], np.arange(na + 1))
+    return fine_start, fine_g, grid_start, grid_g, order[fine_start[:-1]]
+
+
+def _group_pairs_c(count, slot, cls, g, on_grid, na):
+    """:func:`_group_pairs` by the compiled kernels (a counting sort, native/src/blobby_nodes.c)."""
+    fill = native.kernel("blobby_group_fill", None, [ctypes.c_int64] + [ctypes.c_void_p] * 4 + [ctypes.c_int64]
+                         + [ctypes.c_void_p] * 6)
+    held = [np.ascontiguousarray(slot, np.int64), np.ascontiguousarray(cls, np.int64), np.ascontiguousarray(on_grid, np.bool_),
+            np.ascontiguousarray(g, np.int64)]
+    slot_p, cls_p, on_p, g_p = (x.ctypes.data for x in held)
+    fine_start, grid_start = np.empty(na + 1, np.int64), np.empty(na + 1, np.int64)
+    count(len(slot), slot_p, cls_p, on_p, na, fine_start.ctypes.data, grid_start.ctypes.data)
+    fine_g, grid_g = np.empty(fine_start[-1], np.int64), np.empty(grid_start[-1], np.int64)
+    first, cursor = np.empty(na, np.int64), np.empty(2 * na, np.int64)
+    fill(len(slot), slot_p, cls_p, on_p, g_p, na, fine_start.ctypes.data, grid_start.ctypes.data, fine_g.ctypes.data,
+         grid_g.ctypes.data, first.ctypes.data, cursor.ctypes.data)
+    return fine_start, fine_g, grid_start, grid_g, first
 
 
 def _argsort_small(x, top):

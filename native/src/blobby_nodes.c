@@ -185,3 +185,48 @@ int64_t blobby_block_pairs(int64_t g0, int64_t g1, const int64_t *lo, const int6
     }
     return n;
 }
+
+/* Grouping the kept pairs by active block (_find_blocks), pair p's block being a = cls[slot[p]]
+ * (< 0: not active).  Counting: fine_start and grid_start (na + 1) of the lists of every pair
+ * and of the on-grid ones. */
+void blobby_group_count(int64_t npairs, const int64_t *slot, const int64_t *cls, const uint8_t *on_grid, int64_t na,
+                        int64_t *fine_start, int64_t *grid_start)
+{
+    for (int64_t a = 0; a <= na; a++)
+        fine_start[a] = grid_start[a] = 0;
+    for (int64_t p = 0; p < npairs; p++) {
+        int64_t a = cls[slot[p]];
+        if (a >= 0) {
+            fine_start[a + 1]++;
+            grid_start[a + 1] += on_grid[p];
+        }
+    }
+    for (int64_t a = 0; a < na; a++) {
+        fine_start[a + 1] += fine_start[a];
+        grid_start[a + 1] += grid_start[a];
+    }
+}
+
+/* Filling, in pair order (a stable sort by block): the Gaussians g of each block's pairs into
+ * fine_g and of its on-grid ones into grid_g, and first[a] the block's first pair.  cursor:
+ * scratch of 2 na. */
+void blobby_group_fill(int64_t npairs, const int64_t *slot, const int64_t *cls, const uint8_t *on_grid, const int64_t *g,
+                       int64_t na, const int64_t *fine_start, const int64_t *grid_start, int64_t *fine_g,
+                       int64_t *grid_g, int64_t *first, int64_t *cursor)
+{
+    int64_t *fc = cursor, *gc = cursor + na;
+    for (int64_t a = 0; a < na; a++) {
+        fc[a] = fine_start[a];
+        gc[a] = grid_start[a];
+    }
+    for (int64_t p = 0; p < npairs; p++) {
+        int64_t a = cls[slot[p]];
+        if (a < 0)
+            continue;
+        if (fc[a] == fine_start[a])
+            first[a] = p;
+        fine_g[fc[a]++] = g[p];
+        if (on_grid[p])
+            grid_g[gc[a]++] = g[p];
+    }
+}

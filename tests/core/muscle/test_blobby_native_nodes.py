@@ -145,11 +145,13 @@ def test_march_chunks_match_numpy(box, batched, monkeypatch):
         chunks_equal(a, e)
 
 
-@pytest.mark.parametrize("box", [None, (20.0, 21.0, 19.0)])
-def test_block_search_matches_numpy(box, monkeypatch):
+@pytest.mark.parametrize("box,far", [(None, False), ((20.0, 21.0, 19.0), False), (None, True)])
+def test_block_search_matches_numpy(box, far, monkeypatch):
     # The same (block, Gaussian) bounds, the same active blocks and lists (ties at the level aside,
     # which random scenes do not hit: the bounds differ at most by the exp's last bit).
     c, r, s, w = scene(7, 300, 20.0)
+    if far:  # a blob 500 blocks away: the block index is sorted keys, not a dense table
+        c[0] = 500.0
     got = setup(c, r, s, w, box=box)[2]
     numpy_path(monkeypatch)
     want = setup(c, r, s, w, box=box)[2]
