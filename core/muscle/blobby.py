@@ -320,15 +320,15 @@ def _block_pairs(b, grid, cut, cut_fine, threads):
     kernel = native.kernel("blobby_block_pairs", ctypes.c_int64, [ctypes.c_int64] * 2 + [ctypes.c_void_p] * 8
                            + [ctypes.c_double] * 2 + [ctypes.c_void_p] * 2 + [ctypes.c_int64] + [ctypes.c_void_p] * 5)
     if kernel is not None:
-        held, ptrs = _c_arrays(lo, cnt, b.c, b.a, b.lnw, b.smax, ra, size)
-        held2, ptrs2 = _c_arrays(index.lo, index.dims)
+        arrays = _c_arrays(lo, cnt, b.c, b.a, b.lnw, b.smax, ra, size, index.lo, index.dims)
 
     def run(span):
         start, stop = span
         if kernel is not None:
             m = int(tot[start:stop].sum())
             out = (np.empty(m, np.int64), np.empty(m, np.int64), np.empty(m, np.bool_), np.empty(m), np.empty(m))
-            n = kernel(start, stop, *ptrs, cut, cut_fine, *ptrs2, index.box, *(x.ctypes.data for x in out))
+            ptrs = [x.ctypes.data for x in arrays + list(out)]
+            n = kernel(start, stop, *ptrs[:8], cut, cut_fine, *ptrs[8:10], index.box, *ptrs[10:])
             return tuple(x[:n] for x in out)
         t = tot[start:stop]
         g = np.repeat(np.arange(start, stop), t)
@@ -444,8 +444,7 @@ def _group_pairs_c(count, slot, cls, g, on_grid, na):
     """:func:`_group_pairs` by the compiled kernels (a counting sort, native/src/blobby_nodes.c)."""
     fill = native.kernel("blobby_group_fill", None, [ctypes.c_int64] + [ctypes.c_void_p] * 4 + [ctypes.c_int64]
                          + [ctypes.c_void_p] * 6)
-    held = [np.ascontiguousarray(slot, np.int64), np.ascontiguousarray(cls, np.int64), np.ascontiguousarray(on_grid, np.bool_),
-            np.ascontiguousarray(g, np.int64)]
+    held = [*_c_arrays(slot, cls), np.ascontiguousarray(on_grid, np.bool_), *_c_arrays(g)]
     slot_p, cls_p, on_p, g_p = (x.ctypes.data for x in held)
     fine_start, grid_start = np.empty(na + 1, np.int64), np.empty(na + 1, np.int64)
     count(len(slot), slot_p, cls_p, on_p, na, fine_start.ctypes.data, grid_start.ctypes.data)
@@ -538,18 +537,21 @@ def _node_values(b, grid, blocks, threads, act=None):
 
 
 def _c_arrays(*arrays):
-    """The arrays as C-contiguous int64 or float64 (copies where needed) and their addresses."""
-    held = [np.ascontiguousarray(x, np.int64 if x.dtype.kind in "iub" else np.float64) for x in arrays]
-    return held, [x.ctypes.data for x in held]
+    """The arrays as C-contiguous int64 or float64 (copies where needed), for the compiled kernels."""
+    return [np.ascontiguousarray(x, np.int64 if x.dtype.kind in "iub" else np.float64) for x in arrays]
 
 
 def _node_values_c(kernel, b, grid, blocks, threads, act):
     """:func:`_node_values` by the compiled kernel (native/src/blobby_nodes.c), runs of blocks on threads."""
     values = np.empty((len(act), BLOCK, BLOCK, BLOCK), _F32)
-    held, ptrs = _c_arrays(act.astype(np.int64), blocks.grid_start, blocks.grid_g, blocks.q, b.c, b.a, b.lnw, grid.h, grid.size)
+    act, *arrays = _c_arrays(act, blocks.grid_start, blocks.grid_g, blocks.q, b.c, b.a, b.lnw, grid.h, grid.size)
+    ptrs = [x.ctypes.data for x in arrays]
     step = 1024  # blocks per call: a few ms, shared out to the threads as they come free
-    thread_map(lambda lo: kernel(min(step, len(act) - lo), ptrs[0] + 8 * lo, *ptrs[1:], values[lo:].ctypes.data),
-               range(0, len(act), step), threads)
+
+    def run(lo):
+        kernel(min(step, len(act) - lo), act[lo:].ctypes.data, *ptrs, values[lo:].ctypes.data)
+
+    thread_map(run, range(0, len(act), step), threads)
     return values
 
 
@@ -766,7 +768,8 @@ def _march_c(count, values, blocks, grid, level, bl, et, loc):
     emit = native.kernel("blobby_march_emit", None, [ctypes.c_int64, ctypes.c_double, ctypes.c_double, ctypes.c_int64]
                          + [ctypes.c_void_p] * 3)
     ext = np.empty((len(bl), (BLOCK + 1) ** 3), _F32)  # scratch: the blocks' extended nodes
-    held = [x if x is None else np.ascontiguousarray(x) for x in (  # struct march_in, in its order (int64 but values, table, kind)
+    # struct march_in, in its order (int64 but values, table and kind)
+    held = [x if x is None else np.ascontiguousarray(x) for x in (
         bl.astype(np.int64), values, None if loc is None else loc.astype(np.int64), blocks.nbr, blocks.q,
         None if grid.box is None else grid.nb.astype(np.int64), blocks.node_lo, blocks.node_dims, et.table, et.ntri,
         et.kind, et.face_index, ext)]

@@ -95,8 +95,9 @@ static double linear_t(double level, float va, float vz, double margin)
 /* _edge_guess for one vertex: one Newton step on the cubic (or quadratic) through the node
  * values along the edge; *curv its second derivative there, or NaN where not usable. */
 static double edge_guess(const float *ext, int at, int axis, int coord, int beyond_real, double level, double t,
-                         float margin, float *curv)
+                         double margin, float *curv)
 {
+    float lo = (float)margin, hi = (float)(1 - margin);
     int s = STRIDE[axis];
     int up1 = (coord + 1 < B) | beyond_real;
     int has_m = coord >= 1;
@@ -110,7 +111,7 @@ static double edge_guess(const float *ext, int at, int axis, int coord, int beyo
     float t0 = (float)t;
     float dp = c1 + t0 * (2 * c2 + 3 * t0 * c3);
     float t1 = t0 - (c0 + t0 * (c1 + t0 * (c2 + t0 * c3))) / dp;
-    t1 = t1 < margin ? margin : (t1 > 1 - margin ? 1 - margin : t1);
+    t1 = t1 < lo ? lo : (t1 > hi ? hi : t1);
     ok &= dp * (f1 - f0) > 0;
     *curv = ok ? 2 * c2 + 6 * t1 * c3 : NAN;
     return ok ? t1 : t;
@@ -184,7 +185,7 @@ static void owned_vertex(const struct march_in *in, struct march_out *out, int64
     put_vertex(out, v, blk, axis, ijk, ext, p, (float)level);
     int beyond = in->nbr[8 * blk + (1 << axis)] >= 0;
     double t = linear_t(level, ext[p], ext[p + d], margin);
-    out->t[v] = edge_guess(ext, p, axis, ijk[axis], beyond, level, t, (float)margin, &out->curv[v]);
+    out->t[v] = edge_guess(ext, p, axis, ijk[axis], beyond, level, t, margin, &out->curv[v]);
 }
 
 /* A ghost edge (reference r): its owner's face slot, or (owner inactive) a duplicate vertex of

@@ -135,6 +135,7 @@ def test_march_chunks_match_numpy(box, batched, monkeypatch):
     cut_off = rng.random(blocks.nbr.shape) < 0.02
     cut_off[:, 0] = False
     blocks.nbr[cut_off] = rng.choice([-1, -2], cut_off.sum())
+    values.reshape(-1)[rng.random(values.size) < 0.01] = LEVEL  # nodes at the level: edge parameters at the margins
     crossed = bb._crossed(values, blocks, LEVEL, None if loc is None else np.arange(len(blocks.q) // 2), loc)
     runs = [crossed[i : i + 97] for i in range(0, len(crossed), 97)] + [crossed[:0]]
     got = [bb._march(values, blocks, grid, LEVEL, r, et, loc=loc) for r in runs]
