@@ -12,8 +12,13 @@
 #include <math.h>
 #include <stdint.h>
 
-/* libm's vector variants (glibc's libmvec): the vectorizer calls them for whole registers. */
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+/* libm's vector variants (glibc's libmvec, x86-64): the vectorizer calls them for whole registers. */
 float expf(float) __attribute__((simd("notinbranch")));
+#define CLONES __attribute__((target_clones("avx2", "default")))
+#else
+#define CLONES
+#endif
 
 #define B 8
 #define B2 (B * B)
@@ -112,7 +117,7 @@ static inline __attribute__((always_inline)) void add_gaussian(float *restrict a
  * Gaussians grid_g[grid_start[q] .. grid_start[q + 1]].  q: (na, 3) block coordinates,
  * c (m, 3), a6 (m, 6) inverse covariances (xx yy zz xy xz yz), lnw (m,) log weights,
  * h the node spacing and size the block size per axis. */
-__attribute__((target_clones("avx2", "default")))
+CLONES
 void blobby_node_values(int64_t n, const int64_t *act, const int64_t *grid_start, const int64_t *grid_g,
                         const int64_t *q, const double *c, const double *a6, const double *lnw,
                         const double *h, const double *size, float *out)
