@@ -11,6 +11,7 @@
 
 #include <math.h>
 #include <stdint.h>
+#include <string.h>
 
 #if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
 /* libm's vector variants (glibc's libmvec, x86-64): the vectorizer calls them for whole registers. */
@@ -82,6 +83,9 @@ static inline __attribute__((always_inline)) int tables(const double *c, const d
     return big;
 }
 
+/* A row of B floats, one register (two without AVX): the vectorizer would split it. */
+typedef float row8 __attribute__((vector_size(B * sizeof(float))));
+
 /* acc = (first ? 0 : acc) + the Gaussian's values from its exponent tables e (eji, eki, ekj). */
 static inline __attribute__((always_inline)) void add_gaussian(float *restrict acc, float *restrict e, int big, int first)
 {
@@ -100,17 +104,19 @@ static inline __attribute__((always_inline)) void add_gaussian(float *restrict a
     }
     for (int n = 0; n < 3 * B2; n++)
         e[n] = expf(e[n]);
-    for (int k = 0; k < B; k++)
+    for (int k = 0; k < B; k++) {
+        row8 tki, tji, p, sum;
+        memcpy(&tki, eki + k * B, sizeof tki);
         for (int j = 0; j < B; j++) {
-            float *row = acc + (k * B + j) * B;
-            float s = ekj[k * B + j];
-            if (first)
-                for (int i = 0; i < B; i++)
-                    row[i] = s * eki[k * B + i] * eji[j * B + i];
-            else
-                for (int i = 0; i < B; i++)
-                    row[i] += s * eki[k * B + i] * eji[j * B + i];
+            memcpy(&tji, eji + j * B, sizeof tji);
+            p = ekj[k * B + j] * tki * tji;
+            if (!first) {
+                memcpy(&sum, acc + (k * B + j) * B, sizeof sum);
+                p += sum;
+            }
+            memcpy(acc + (k * B + j) * B, &p, sizeof p);
         }
+    }
 }
 
 /* out[b] (B^3 floats, (k, j, i) order) for the n blocks act[b]: the sum over the block's
