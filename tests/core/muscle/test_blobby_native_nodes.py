@@ -1,4 +1,5 @@
-"""The blobby mesher's compiled kernels (native/src/blobby_nodes.c) against their NumPy twins."""
+"""The blobby mesher's compiled kernels (native/src/blobby_nodes.c: node values and block search;
+native/src/blobby_march.c: marching cubes) against their NumPy twins, and the mesh by either path."""
 
 import dataclasses
 
@@ -121,7 +122,7 @@ def test_march_chunks_match_numpy(box, batched, monkeypatch):
     # references across blocks and the periodic seam, triangles.
     b, grid, blocks = setup(*scene(6, 150, 15.0), box=box)
     et = bb._edge_tables()
-    values, loc, need = bb._node_values(b, grid, blocks, 2), None, np.arange(len(blocks.q))
+    values, loc = bb._node_values(b, grid, blocks, 2), None
     if batched:  # values of a subset (one batch and its +1 neighbours), rows found through loc
         sel = np.arange(len(blocks.q) // 2)
         nb = blocks.nbr[sel, 1:]
