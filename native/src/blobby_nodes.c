@@ -7,6 +7,9 @@
  * operation (float64 tables rounded to float32, float32 products, summed in the block's
  * Gaussian order), so the two differ only in their float32 exp.  A block's values depend
  * on nothing but its own list: the same bits whichever blocks are asked for.
+ *
+ * Also the block search that makes those lists (_block_pairs's bounds per (block, Gaussian)
+ * pair, and _find_blocks's grouping of the pairs by active block).
  */
 
 #include <math.h>
