@@ -40,11 +40,13 @@ References
    molecules as contour surfaces of sums of Gaussian ellipsoids).
 """
 
+import ctypes
 import functools
 from dataclasses import dataclass
 
 import numpy as np
 
+from .. import native
 from ..surface import _mc_tables as tables
 from ..surface.contour import EDGE_MARGIN
 from ..errors import DataError
@@ -315,8 +317,19 @@ def _block_pairs(b, grid, cut, cut_fine, threads):
         spans.append((start, stop))
         start = stop
 
+    kernel = native.kernel("blobby_block_pairs", ctypes.c_int64, [ctypes.c_int64] * 2 + [ctypes.c_void_p] * 8
+                           + [ctypes.c_double] * 2 + [ctypes.c_void_p] * 2 + [ctypes.c_int64] + [ctypes.c_void_p] * 5)
+    if kernel is not None:
+        arrays = _c_arrays(lo, cnt, b.c, b.a, b.lnw, b.smax, ra, size, index.lo, index.dims)
+
     def run(span):
         start, stop = span
+        if kernel is not None:
+            m = int(tot[start:stop].sum())
+            out = (np.empty(m, np.int64), np.empty(m, np.int64), np.empty(m, np.bool_), np.empty(m), np.empty(m))
+            ptrs = [x.ctypes.data for x in arrays + list(out)]
+            n = kernel(start, stop, *ptrs[:8], cut, cut_fine, *ptrs[8:10], index.box, *ptrs[10:])
+            return tuple(x[:n] for x in out)
         t = tot[start:stop]
         g = np.repeat(np.arange(start, stop), t)
         k = np.arange(t.sum()) - np.repeat(np.cumsum(t) - t, t)
@@ -392,16 +405,8 @@ def _find_blocks(b, grid, level, cut, cut_fine, threads):
         return None
     cls[act] = np.arange(len(act))
 
-    ai = cls[slot]
-    sel = np.flatnonzero(ai >= 0)
-    order = sel[_argsort_small(ai[sel], len(act))]  # by block, then Gaussian
-    ai_sorted = ai[order]
-    fine_start = np.searchsorted(ai_sorted, np.arange(len(act) + 1))
-    fine_g = g[order]
-    grid_sel = on_grid[order]
-    grid_g = fine_g[grid_sel]
-    grid_start = np.searchsorted(ai_sorted[grid_sel], np.arange(len(act) + 1))
-    act_q = index.block(key[order[fine_start[:-1]]])
+    fine_start, fine_g, grid_start, grid_g, first = _group_pairs(slot, cls, g, on_grid, len(act))
+    act_q = index.block(key[first])
 
     # Neighbours at offsets (dx, dy, dz) in {0, 1}^3.
     nbr = np.empty((len(act), 8), np.int64)
@@ -414,6 +419,40 @@ def _find_blocks(b, grid, level, cut, cut_fine, threads):
             pos = np.minimum(np.searchsorted(ukeys, k), len(ukeys) - 1)
             nbr[:, code] = np.where(ukeys[pos] == k, cls[pos], -1)
     return _Blocks(act_q, nbr, grid_start, grid_g, fine_start, fine_g, index.lo * BLOCK, index.dims * BLOCK)
+
+
+def _group_pairs(slot, cls, g, on_grid, na):
+    """The pairs' Gaussians ``g`` listed by active block ``cls[slot]`` (the others dropped), in pair
+    order: (fine_start, fine_g, grid_start, grid_g (on-grid pairs only), first pair of each block)."""
+    count = native.kernel("blobby_group_count", None, [ctypes.c_int64] + [ctypes.c_void_p] * 3 + [ctypes.c_int64]
+                          + [ctypes.c_void_p] * 2)
+    if count is not None:
+        return _group_pairs_c(count, slot, cls, g, on_grid, na)
+    ai = cls[slot]
+    sel = np.flatnonzero(ai >= 0)
+    order = sel[_argsort_small(ai[sel], na)]  # by block, then Gaussian
+    ai_sorted = ai[order]
+    fine_start = np.searchsorted(ai_sorted, np.arange(na + 1))
+    fine_g = g[order]
+    grid_sel = on_grid[order]
+    grid_g = fine_g[grid_sel]
+    grid_start = np.searchsorted(ai_sorted[grid_sel], np.arange(na + 1))
+    return fine_start, fine_g, grid_start, grid_g, order[fine_start[:-1]]
+
+
+def _group_pairs_c(count, slot, cls, g, on_grid, na):
+    """:func:`_group_pairs` by the compiled kernels (a counting sort, native/src/blobby_nodes.c)."""
+    fill = native.kernel("blobby_group_fill", None, [ctypes.c_int64] + [ctypes.c_void_p] * 4 + [ctypes.c_int64]
+                         + [ctypes.c_void_p] * 6)
+    held = [*_c_arrays(slot, cls), np.ascontiguousarray(on_grid, np.bool_), *_c_arrays(g)]
+    slot_p, cls_p, on_p, g_p = (x.ctypes.data for x in held)
+    fine_start, grid_start = np.empty(na + 1, np.int64), np.empty(na + 1, np.int64)
+    count(len(slot), slot_p, cls_p, on_p, na, fine_start.ctypes.data, grid_start.ctypes.data)
+    fine_g, grid_g = np.empty(fine_start[-1], np.int64), np.empty(grid_start[-1], np.int64)
+    first, cursor = np.empty(na, np.int64), np.empty(2 * na, np.int64)
+    fill(len(slot), slot_p, cls_p, on_p, g_p, na, fine_start.ctypes.data, grid_start.ctypes.data, fine_g.ctypes.data,
+         grid_g.ctypes.data, first.ctypes.data, cursor.ctypes.data)
+    return fine_start, fine_g, grid_start, grid_g, first
 
 
 def _argsort_small(x, top):
@@ -438,6 +477,9 @@ def _node_values(b, grid, blocks, threads, act=None):
     operation is elementwise per (block, Gaussian) pair, summed in the block's own Gaussian order."""
     B = BLOCK
     act = np.arange(len(blocks.q)) if act is None else act
+    kernel = native.kernel("blobby_node_values", None, [ctypes.c_int64] + [ctypes.c_void_p] * 10)
+    if kernel is not None:
+        return _node_values_c(kernel, b, grid, blocks, threads, act)
     na = len(act)
     count = np.diff(blocks.grid_start)[act]
     perm = np.argsort(-count, kind="stable")  # most Gaussians first: rank r's blocks are a prefix
@@ -491,6 +533,25 @@ def _node_values(b, grid, blocks, threads, act=None):
         values[bl] = np.moveaxis(acc, 3, 0)
 
     thread_map(run, _chunks(na, max(1, 4096 * 64 // B**3)), threads)
+    return values
+
+
+def _c_arrays(*arrays):
+    """The arrays as C-contiguous int64 or float64 (copies where needed), for the compiled kernels."""
+    return [np.ascontiguousarray(x, np.int64 if x.dtype.kind in "iub" else np.float64) for x in arrays]
+
+
+def _node_values_c(kernel, b, grid, blocks, threads, act):
+    """:func:`_node_values` by the compiled kernel (native/src/blobby_nodes.c), runs of blocks on threads."""
+    values = np.empty((len(act), BLOCK, BLOCK, BLOCK), _F32)
+    act, *arrays = _c_arrays(act, blocks.grid_start, blocks.grid_g, blocks.q, b.c, b.a, b.lnw, grid.h, grid.size)
+    ptrs = [x.ctypes.data for x in arrays]
+    step = 1024  # blocks per call: a few ms, shared out to the threads as they come free
+
+    def run(lo):
+        kernel(min(step, len(act) - lo), act[lo:].ctypes.data, *ptrs, values[lo:].ctypes.data)
+
+    thread_map(run, range(0, len(act), step), threads)
     return values
 
 
@@ -582,6 +643,9 @@ def _march(values, blocks, grid, level, bl, et, loc=None):
     """Marching cubes over blocks ``bl`` (ascending): owned edges get vertices, edges owned by a
     neighbour become references to its face slot (resolved once every chunk is done).  ``values``
     row ``loc[q]`` holds block q (default: row q)."""
+    count = native.kernel("blobby_march_count", None, [ctypes.c_int64, ctypes.c_double, ctypes.c_void_p, ctypes.c_void_p])
+    if count is not None and len(bl):
+        return _march_c(count, values, blocks, grid, level, bl, et, loc)
     B, E = BLOCK, BLOCK + 1
     n = len(bl)
     lvl = _F32(level)
@@ -688,6 +752,35 @@ def _march(values, blocks, grid, level, bl, et, loc=None):
         np.where(owner < 0, -1, owner).astype(np.int32), ref_slot.astype(np.int32), shift.astype(np.int8), n_owned, dup_key,
         dup_shift, face_key, on_face.astype(np.int32),
     )
+
+
+_CHUNK_FIELDS = (  # the _Chunk arrays the march kernel writes (in struct march_out's order): dtype, row shape, size
+    ("blk", np.int32, (), "v"), ("axis", np.int8, (), "v"), ("node", np.uint8, (3,), "v"), ("t", np.float64, (), "v"),
+    ("curv", _F32, (), "v"), ("a_above", np.bool_, (), "v"), ("faces", np.int32, (3,), "tri"),
+    ("ref_owner", np.int32, (), "ghost"), ("ref_slot", np.int32, (), "ghost"), ("ref_shift", np.int8, (3,), "ghost"),
+    ("dup_key", np.int64, (), "dup"), ("dup_shift", np.int64, (3,), "dup"), ("face_key", np.int64, (), "face"),
+    ("face_vid", np.int32, (), "face"),
+)
+
+
+def _march_c(count, values, blocks, grid, level, bl, et, loc):
+    """:func:`_march` by the compiled kernel (native/src/blobby_march.c): one pass counts, the next writes."""
+    emit = native.kernel("blobby_march_emit", None, [ctypes.c_int64, ctypes.c_double, ctypes.c_double, ctypes.c_int64]
+                         + [ctypes.c_void_p] * 3)
+    ext = np.empty((len(bl), (BLOCK + 1) ** 3), _F32)  # scratch: the blocks' extended nodes
+    # struct march_in, in its order (int64 but values, table and kind)
+    held = [x if x is None else np.ascontiguousarray(x) for x in (
+        bl.astype(np.int64), values, None if loc is None else loc.astype(np.int64), blocks.nbr, blocks.q,
+        None if grid.box is None else grid.nb.astype(np.int64), blocks.node_lo, blocks.node_dims, et.table, et.ntri,
+        et.kind, et.face_index, ext)]
+    march_in = (ctypes.c_void_p * len(held))(*(x if x is None else x.ctypes.data for x in held))
+    n = np.zeros(5, np.int64)  # owned vertices, ghost edges, duplicates, triangles, face vertices
+    count(len(bl), level, march_in, n.ctypes.data)
+    size = {"v": n[0] + n[2], "ghost": n[1], "dup": n[2], "tri": n[3], "face": n[4]}
+    out = {name: np.empty((int(size[k]),) + shape, dt) for name, dt, shape, k in _CHUNK_FIELDS}
+    march_out = (ctypes.c_void_p * len(out))(*(x.ctypes.data for x in out.values()))
+    emit(len(bl), level, EDGE_MARGIN, len(et.face_slots), march_in, n.ctypes.data, march_out)
+    return _Chunk(n_owned=int(n[0]), **out)
 
 
 def _edge_guess(flat, at, axis, coord, beyond_real, level, t):
