@@ -963,14 +963,14 @@ def _project(refiner, grid, blk, axis, node, t, curv, a_above, level, tol, threa
 
 def _project_kernel():
     """native/src/blobby_project.c's ``blobby_project`` with its argument types, or None."""
-    a = {k: np.ctypeslib.ndpointer(k, flags="C_CONTIGUOUS") for k in (np.int64, np.int32, np.int8, np.uint8, np.bool_,
-                                                                       np.float64, np.float32)}
-    i64, f64 = ctypes.c_int64, ctypes.c_double
+    i8, u8, b8, i32, i64, f32, f64 = (np.ctypeslib.ndpointer(k, flags="C_CONTIGUOUS")
+                                      for k in (np.int8, np.uint8, np.bool_, np.int32, np.int64, np.float32, np.float64))
+    n, x = ctypes.c_int64, ctypes.c_double
     return native.kernel("blobby_project", ctypes.c_int, [
-        i64, a[np.int64], a[np.int32], a[np.int8], a[np.uint8], a[np.float64], a[np.float32], a[np.bool_],  # vertices
-        a[np.int64], a[np.int64], a[np.int64], a[np.float64], a[np.float64], a[np.float64], a[np.int64], i64,  # blocks, Gaussians
-        a[np.float64], a[np.float64], a[np.int64], i64, f64, f64, f64, f64, i64,  # grid, rules
-        a[np.float32], a[np.float32], a[np.bool_], a[np.int32]])  # outputs
+        n, i64, i32, i8, u8, f64, f32, b8,  # vertices
+        i64, i64, i64, f64, f64, f64, i64, n,  # blocks, Gaussians
+        f64, f64, i64, n, x, x, x, x, n,  # grid, rules
+        f32, f32, b8, i32])  # outputs
 
 
 _PROJECT_CHUNK = 1 << 15
@@ -983,11 +983,13 @@ def _project_c(kernel, refiner, grid, blk, axis, node, t, curv, a_above, level, 
     b, blocks, n = refiner.b, refiner.blocks, len(t)
     order = np.argsort(blk, kind="stable").astype(np.int64, copy=False)
     c = np.ascontiguousarray
+    periodic = grid.box is not None
     args = (c(blk, np.int32), c(axis, np.int8), c(node, np.uint8), c(t, np.float64), c(curv, _F32), c(a_above, bool),
             c(blocks.q, np.int64), c(blocks.fine_start, np.int64), c(blocks.fine_g, np.int64), c(b.c, np.float64),
-            c(b.a, np.float64), c(b.lnw, np.float64), c(b.src, np.int64), int(refiner.count.max()), c(grid.h, np.float64),
-            np.zeros(3) if grid.box is None else c(grid.box, np.float64),
-            np.full(3, np.iinfo(np.int64).max) if grid.box is None else c(BLOCK * grid.nb, np.int64),  # periodic: the node at exactly L
+            c(b.a, np.float64), c(b.lnw, np.float64), c(b.src, np.int64), int(refiner.count.max()),
+            c(grid.h, np.float64), c(grid.box, np.float64) if periodic else np.zeros(3),
+            # per axis the node lying at exactly L (periodic), else none
+            c(BLOCK * grid.nb, np.int64) if periodic else np.full(3, np.iinfo(np.int64).max),
             BLOCK, level, tol, SETTLE_STEP, EDGE_MARGIN, NEWTON_STEPS)
     out = (np.empty((n, 3), _F32), np.empty((n, 3), _F32), np.empty(n, bool), np.empty(n, np.int32))
 

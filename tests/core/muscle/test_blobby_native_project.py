@@ -48,6 +48,7 @@ def scenes():
     c, r, s, w = random_blobs(2, 20, 7)
     c[0] = [0.05, 7.9, 3.0]  # straddles two faces
     touch = np.sqrt(2 * np.log(2))  # its surface touches x = 0
+    lone = (np.array([[touch, 3.0, 3.0]]), np.eye(3)[None], np.ones((1, 3)), np.ones(1))
     fade = list(random_blobs(3, 6, 6))
     fade[3][0] = 1e-300
     rot = rotations(np.random.default_rng(4), 1)
@@ -55,9 +56,10 @@ def scenes():
     return {
         "random": (random_blobs(1, 25, 8), 0.3, 0.125, None),
         "periodic": ((c, r, s, w), 0.3, 0.125, np.array([7.0, 8.0, 6.0])),
-        "touching face": ((np.array([[touch, 3.0, 3.0]]), np.eye(3)[None], np.ones((1, 3)), np.ones(1)), 0.5, 0.25, np.array([6.0, 6.0, 6.0])),
+        "touching face": (lone, 0.5, 0.25, np.array([6.0, 6.0, 6.0])),
         "vanishing weight": (tuple(fade), 0.3, 0.15, None),
-        "anisotropy 20:1": ((np.array([[1.0, 2.0, 3.0]]), rot, np.array([[4.0, 0.2, 0.2]]), np.ones(1)), 0.5, 0.05, None),
+        "anisotropy 20:1": ((np.array([[1.0, 2.0, 3.0]]), rot, np.array([[4.0, 0.2, 0.2]]), np.ones(1)), 0.5, 0.05,
+                            None),
         "300": (many, 0.3, 0.125, None),
         "300 periodic": (many, 0.3, 0.125, np.array([20.0, 20.0, 20.0])),
     }
