@@ -21,7 +21,7 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 VERSION = "0.1.0"
 CC = "cc"
-FLAGS = ["-O3", "-std=c11", "-fPIC", "-shared", "-fno-math-errno", "-Wall", "-Werror"]
+FLAGS = ["-O3", "-std=c11", "-fPIC", "-shared", "-fno-math-errno", "-Wall", "-Werror", "-Wno-psabi"]
 LIB = "libnephele_kernels.so"
 
 

@@ -942,8 +942,12 @@ def _project(refiner, grid, blk, axis, node, t, curv, a_above, level, tol, threa
     the few still moving (with their edge parameters and brackets, in arrays of their own) are batched
     again and iterate together, packed whenever fewer than half still move, and written again when
     done.  Returns positions (float32), unit normals (float32, from the analytic gradient), where the
-    gradient vanished, and the most-contributing Gaussian.
+    gradient vanished, and the most-contributing Gaussian.  The compiled kernel, where installed, does
+    the same per vertex in float64 (:func:`_project_c`).
     """
+    kernel = _project_kernel()
+    if kernel is not None:
+        return _project_c(kernel, refiner, grid, blk, axis, node, t, curv, a_above, level, tol, threads)
     n = len(t)
     pos = np.empty((n + 1, 3), _F32)  # row n: where padding is written
     normal = np.empty((n + 1, 3), _F32)
@@ -1046,6 +1050,46 @@ def _project(refiner, grid, blk, axis, node, t, curv, a_above, level, tol, threa
         left = [x[by] for x in left]
         thread_map(lambda bt: rest(bt, left), refiner.batches(blk[left[0]], np.arange(len(by))), threads)
     return pos[:n], normal[:n], flat[:n], arg[:n]
+
+
+def _project_kernel():
+    """native/src/blobby_project.c's ``blobby_project`` with its argument types, or None."""
+    i8, u8, b8, i32, i64, f32, f64 = (np.ctypeslib.ndpointer(k, flags="C_CONTIGUOUS")
+                                      for k in (np.int8, np.uint8, np.bool_, np.int32, np.int64, np.float32, np.float64))
+    n, x = ctypes.c_int64, ctypes.c_double
+    return native.kernel("blobby_project", ctypes.c_int, [
+        n, i64, i32, i8, u8, f64, f32, b8,  # vertices
+        i64, i64, i64, f64, f64, f64, i64, n,  # blocks, Gaussians
+        f64, f64, i64, n, x, x, x, x, n,  # grid, rules
+        f32, f32, b8, i32])  # outputs
+
+
+_PROJECT_CHUNK = 1 << 15
+"""Vertices per call of the compiled projection (a few ms), handed to the threads as they come free."""
+
+
+def _project_c(kernel, refiner, grid, blk, axis, node, t, curv, a_above, level, tol, threads):
+    """:func:`_project` by the compiled kernel: chunks of the vertices sorted by block (each call gathers a
+    block's Gaussians once) on threads."""
+    b, blocks, n = refiner.b, refiner.blocks, len(t)
+    order = np.argsort(blk, kind="stable").astype(np.int64, copy=False)
+    c = np.ascontiguousarray
+    periodic = grid.box is not None
+    args = (c(blk, np.int32), c(axis, np.int8), c(node, np.uint8), c(t, np.float64), c(curv, _F32), c(a_above, bool),
+            c(blocks.q, np.int64), c(blocks.fine_start, np.int64), c(blocks.fine_g, np.int64), c(b.c, np.float64),
+            c(b.a, np.float64), c(b.lnw, np.float64), c(b.src, np.int64), int(refiner.count.max()),
+            c(grid.h, np.float64), c(grid.box, np.float64) if periodic else np.zeros(3),
+            # per axis the node lying at exactly L (periodic), else none
+            c(BLOCK * grid.nb, np.int64) if periodic else np.full(3, np.iinfo(np.int64).max),
+            BLOCK, level, tol, SETTLE_STEP, EDGE_MARGIN, NEWTON_STEPS)
+    out = (np.empty((n, 3), _F32), np.empty((n, 3), _F32), np.empty(n, bool), np.empty(n, np.int32))
+
+    def run(span):
+        if kernel(span[1] - span[0], order[span[0] : span[1]], *args, *out):
+            raise MemoryError("blobby: no memory for a block's Gaussian columns")
+
+    thread_map(run, _chunks(n, _PROJECT_CHUNK), threads)
+    return out
 
 
 @functools.cache
