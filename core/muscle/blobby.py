@@ -5,7 +5,9 @@ The field is
     f(x) = sum_i w_i exp(-1/2 |S_i^-1 R_i^T (x - c_i)|^2)
 
 (Blinn's "blobby" model, the paper's molecules).  :func:`blobby_surface`
-meshes ``f = level`` in four steps, all whole-array NumPy:
+meshes ``f = level`` in four steps, each a compiled kernel (``native/src/blobby_*.c``,
+through :mod:`..native`) where the ``nephele_native`` wheel is installed, else whole-array
+NumPy (the kernels' twins, agreeing to the tolerances tests/core/muscle states):
 
 1. The grid is cut into blocks of :data:`BLOCK`\\ :sup:`3` nodes.  For every
    (block, Gaussian) pair whose ``cutoff`` ellipsoid reaches the block, the

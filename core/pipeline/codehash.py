@@ -9,6 +9,7 @@ hashes its own files) and hashes every file reached, once per process.  Code tha
 
 import ast
 import hashlib
+import importlib
 from functools import lru_cache
 from pathlib import Path
 
@@ -73,7 +74,7 @@ def code_stamp(path, root=None):
     for f in deps:
         h.update(str(f.relative_to(root)).encode() + b"\0" + f.read_bytes() + b"\0")
     if _NATIVE in deps:
-        from .. import native
-
+        # (imported by name: a ``from .. import`` here would make every task depend on it)
+        native = importlib.import_module(__package__.rsplit(".", 1)[0] + ".native")
         h.update(b"native\0" + native.identity().encode())
     return h.hexdigest()[:16]

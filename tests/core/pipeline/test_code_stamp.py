@@ -67,3 +67,18 @@ def test_cache_key_includes_the_code_stamp(monkeypatch):
     key = cache.cache_key("contour", {"a": 1})
     monkeypatch.setattr(registry, "code_stamp", lambda kind: "different")
     assert cache.cache_key("contour", {"a": 1}) != key
+
+
+def test_compiled_kernels_enter_the_key(monkeypatch):
+    # the film's meshes depend on which kernels ran (compiled or their NumPy twins, or another build)
+    from nephele.core import native
+
+    film, scatter = CORE / "muscle" / "film.py", CORE / "light" / "scatter_task.py"
+    stamps = {}
+    for ident in ("numpy", "0123456789abcdef"):
+        monkeypatch.setattr(native, "identity", lambda ident=ident: ident)
+        codehash.code_stamp.cache_clear()
+        stamps[ident] = (codehash.code_stamp(film), codehash.code_stamp(scatter))
+    codehash.code_stamp.cache_clear()
+    assert stamps["numpy"][0] != stamps["0123456789abcdef"][0]
+    assert stamps["numpy"][1] == stamps["0123456789abcdef"][1]  # no kernel behind the scattering
