@@ -6,6 +6,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+from blob_scenes import rotations
 from nephele.core import native
 from nephele.core.muscle import blobby as bb
 from nephele.core.muscle import level_distance
@@ -13,13 +14,6 @@ from nephele.core.muscle import level_distance
 pytestmark = pytest.mark.skipif(native.identity() == "numpy", reason="no compiled kernels")
 
 LEVEL, H = 0.3, 0.125
-
-
-def rotations(rng, n):
-    q, rr = np.linalg.qr(rng.normal(size=(n, 3, 3)))
-    q = q * np.sign(np.diagonal(rr, axis1=1, axis2=2))[:, None, :]
-    q[np.linalg.det(q) < 0, :, 0] *= -1
-    return q
 
 
 def scene(seed, n, side):

@@ -6,6 +6,7 @@ import ctypes
 import numpy as np
 import pytest
 
+from blob_scenes import rotations
 from nephele.core import native
 from nephele.core.muscle import blobby, blobby_field, blobby_surface, level_distance
 
@@ -29,13 +30,6 @@ def test_fastexp_against_numpy():
     out = np.empty_like(edge)
     fn(len(edge), edge, out)
     assert np.array_equal(out[:3], np.zeros(3)) and np.isnan(out[3]) and out[4] == 1.0
-
-
-def rotations(rng, n):
-    q, rr = np.linalg.qr(rng.normal(size=(n, 3, 3)))
-    q = q * np.sign(np.diagonal(rr, axis1=1, axis2=2))[:, None, :]
-    q[np.linalg.det(q) < 0, :, 0] *= -1
-    return q
 
 
 def random_blobs(seed, n, hi):
