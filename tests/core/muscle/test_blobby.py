@@ -8,6 +8,7 @@ import pytest
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
+from blob_scenes import rotations
 from nephele.core.errors import DataError
 from nephele.core.surface.mesh import Mesh, triangle_areas
 from nephele.core.muscle import blobby_field, blobby_surface
@@ -36,17 +37,10 @@ def distance(mesh, c, r, s, w, level, box=None):
     return np.abs(f - level) / np.linalg.norm(g, axis=1)
 
 
-def random_rotations(rng, n):
-    q, rr = np.linalg.qr(rng.normal(size=(n, 3, 3)))
-    q = q * np.sign(np.diagonal(rr, axis1=1, axis2=2))[:, None, :]
-    q[np.linalg.det(q) < 0, :, 0] *= -1
-    return q
-
-
 def random_blobs(seed, n, lo, hi, smin=0.5, smax=1.2):
     rng = np.random.default_rng(seed)
     c = rng.uniform(lo, hi, (n, 3))
-    return c, random_rotations(rng, n), rng.uniform(smin, smax, (n, 3)), rng.uniform(0.6, 1.4, n)
+    return c, rotations(rng, n), rng.uniform(smin, smax, (n, 3)), rng.uniform(0.6, 1.4, n)
 
 
 def closed_checks(mesh, components=None, spheres=True, outward=True):
@@ -222,7 +216,7 @@ def test_vanishing_weight():
 
 def test_anisotropy_20_to_1():
     rng = np.random.default_rng(4)
-    rot = random_rotations(rng, 1)
+    rot = rotations(rng, 1)
     c = np.array([[1.0, 2.0, 3.0]])
     s = np.array([[4.0, 0.2, 0.2]])
     w = np.array([1.0])
