@@ -292,18 +292,23 @@ def test_late_passes_on_one_direction_per_bin():
     assert l1(late, every) < 0.7 * l1(every, fine)
     assert l1(late, fine) < 0.4 * l1(one, fine)
     # switched before the first pass (late_residual 1) the passes are those of sub 1; only the
-    # weak bins of the second peaked order differ (merged on 2x2 quarters, not on one): 5.2e-4
+    # weak bins of the later peaked orders differ (merged on 2x2 quarters, not on one): with
+    # two peaked orders 5.2e-4 (with the default four, three orders merge: 1.7e-3)
+    kw["peaked_orders"] = 2
     first = scatter.solve(sig, (1, 1, 0.75), late_residual=1.0, **kw)
+    one = scatter.solve(sig, (1, 1, 0.75), sub=1, late_sub=None, **kw)
     assert l1(first, one) < 0.05 * l1(one, fine)
 
 
-def test_merged_peaked_bins_change_less_than_the_sub_directions_own_error():
-    # the weakest bins of the second peaked order swept on 2x2 merged quarters instead of 4x4
-    # sub-directions, against the same solve on 8x8 sub-directions (finer, not exact): measured
-    # with the default merge_tol 0.2 merged vs all 2.2e-4 of the entered power (L1 of received),
-    # all vs 8x8 2.77e-3, merged vs 8x8 2.81e-3 (12x16x16 cloud)
+# the weakest bins of the peaked orders after the first swept on 2x2 merged quarters instead of
+# 4x4 sub-directions, against the same solve on 8x8 sub-directions (finer, not exact): measured
+# with the default merge_tol 0.2, two peaked orders: merged vs all 2.1e-4 of the entered power
+# (L1 of received), all vs 8x8 2.75e-3, merged vs 8x8 2.79e-3; four (the default), three of them
+# merged: 4.2e-4, 3.60e-3, 3.81e-3 (12x16x16 cloud)
+@pytest.mark.parametrize("orders,share,worse", [(2, 0.1, 1.03), (4, 0.13, 1.07)])
+def test_merged_peaked_bins_change_less_than_the_sub_directions_own_error(orders, share, worse):
     sig = small_cloud((12, 16, 16), 20.0)
-    kw = dict(albedo=0.99, g=0.8, sun_dir=(0.6, -0.35, 0.55), tol=1e-3)
+    kw = dict(albedo=0.99, g=0.8, sun_dir=(0.6, -0.35, 0.55), tol=1e-3, peaked_orders=orders)
     fine = scatter.solve(sig, (1, 1, 0.75), merge_tol=0.0, first_sub=8, **kw)
     every = scatter.solve(sig, (1, 1, 0.75), merge_tol=0.0, **kw)
     merged = scatter.solve(sig, (1, 1, 0.75), **kw)
@@ -312,8 +317,8 @@ def test_merged_peaked_bins_change_less_than_the_sub_directions_own_error():
     def l1(a, b):
         return np.abs(a.received - b.received).sum(dtype=np.float64) / every.injected
 
-    assert l1(merged, every) < 0.1 * l1(every, fine)
-    assert l1(merged, fine) < 1.03 * l1(every, fine)
+    assert l1(merged, every) < share * l1(every, fine)
+    assert l1(merged, fine) < worse * l1(every, fine)
     # each merged quarter carries its sub-directions' weight at their weighted mean direction
     qs = phase.direct_fractions((0.0, 0.6, -0.8), 0.8, sub=48, into_sub=4)
     w = qs / qs.sum(1, keepdims=True)
@@ -415,12 +420,13 @@ def test_view_source_matches_the_per_voxel_sums():
         w = np.asarray(pos)[None] - pts
         w /= np.linalg.norm(w, axis=1, keepdims=True)
         g = sol.grid("received").reshape(96, -1)[:, occ]
-        pk = sol.grid("received_peaked").reshape(2, 96, -1)[:, :, occ]
+        orders = len(sol.received_peaked)
+        pk = sol.grid("received_peaked").reshape(orders, 96, -1)[:, :, occ]
         diffuse = sol.albedo / (1.0 - sol.albedo * sol.delta_f)
         sub = int(round(np.sqrt(sol.peaked_weights.shape[2])))
         ref = sol.albedo * r_sun * phase.hg(w @ -np.asarray(sol.sun_dir), sol.g) * scatter._sun_view_escape(sol, w, sig)
         ref += diffuse * np.einsum("nj,jn->n", phase.bin_phase_toward(w, sol.g), g - pk.sum(0))
-        for k in range(2):
+        for k in range(orders):
             fac = sol.albedo if k < sol.real_orders else diffuse
             pb = phase.bin_phase_toward(w, sol.g, res=48, sub=sub, weights=sol.peaked_weights[k])
             ref += fac * np.einsum("nj,jn->n", pb, pk[k])
