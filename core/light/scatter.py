@@ -1298,7 +1298,8 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
         if umom is not None:
             umom[:] = 0.0
         rsub = shoot_peaked(lambda bs: nxt[_as_slice(bs)], wk, prof.__getitem__, k < real_orders,
-                            nxt.reshape(nb, -1).sum(1, dtype=np.float64), merge_tol if k == 1 else merge_tol_later, peaked[k])
+                            nxt.reshape(nb, -1).sum(1, dtype=np.float64), merge_tol if k == 1 else merge_tol_later,
+                            peaked[k])
         pweights.append(wk)
         del nxt, prof
 
