@@ -436,9 +436,10 @@ def main(argv=None):
         "Seconds: one solve with profiles. The g = 0.8 slabs' target is 1 %. Their last three columns: "
         "the default without second moments (`second_moments=False`: one exponential per voxel and "
         "sweep group, as before, which leaves a voxel-depth part of up to 0.6 % on voxel tau 2), and "
-        "finer angles, 8x8 sub-directions for the peaked orders of sunlight (`first_sub=8`) or 216 bins "
-        "(`bins_per_face=6`): with second moments the error is the same on every voxel tau (within "
-        "0.2 %); what is left is angular and grows as the sun goes down (tau 16: T).",
+        "finer angles, 8x8 sub-directions for the peaked orders of sunlight (`first_sub=8`, the default "
+        "for a sun less than 30 degrees up, so the same there) or 216 bins (`bins_per_face=6`): with "
+        "second moments the error is the same on every voxel tau (within 0.2 %); what is left is "
+        "angular and grows as the sun goes down (tau 16: T).",
         "",
         md_table(["case", "mu0", "layers", "voxel tau", "truth", "err even", "err profiles", "s",
                   "err, no second moments", "err, first_sub 8", "err, 216 bins"], acc),

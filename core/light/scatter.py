@@ -925,6 +925,7 @@ MERGE_TOL = 0.2
 MERGE_TOL_FIRST = 0.01
 MERGE_TOL_LATER = 1.0
 PEAKED_ORDERS = 4
+LOW_SUN = 0.5  # sin of the sun's elevation below which its peaked orders take 8x8 sub-directions
 SECOND_MOMENTS_TAU = 0.5
 
 
@@ -963,7 +964,7 @@ def _merge_quarters(dirs, weights, ushare, kids):
 
 def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun_irradiance=1.0,
                 sky_radiance=0.0, tol=1e-3, max_passes=100, sub=2, periodic=(False, False, False),
-                delta_m=True, phase_sub=6, first_sub=4, source_profile=True, second_moments=None,
+                delta_m=True, phase_sub=6, first_sub=None, source_profile=True, second_moments=None,
                 peaked_orders=None, real_orders=1, profile_every=1, extrapolate=True, merge_tol=MERGE_TOL,
                 late_sub=1, late_residual=0.1, merge_tol_first=MERGE_TOL_FIRST, merge_tol_later=MERGE_TOL_LATER,
                 bins_per_face=phase.N_PER_FACE):
@@ -1031,9 +1032,9 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
         the thickest voxel's optical depth (delta-M scaled) reaches ``SECOND_MOMENTS_TAU``
         (0.5) and scattering is not isotropic.  g 0.8 slabs, voxel tau 2 against 0.5
         (the same settings otherwise): R and T then agree within 0.2 % (tau 1 on one
-        layer, sun at 60 deg: R -0.53 % against -0.50 %; tau 16 on 8 layers, sun at
-        15 deg: T -1.11 % against -0.95 %); without, tau 1 on one layer R -0.36 %, tau 16
-        T -1.57 %.  Isotropic scattering shares one profile between all groups, whose
+        layer, mu0 0.5: R -0.66 % against -0.63 %; tau 16 on 8 layers, sun 15 deg up:
+        T -0.91 % against -0.75 %); without, they differ by up to 0.3 % (that T: -1.05 %
+        against -0.75 %).  Isotropic scattering shares one profile between all groups, whose
         moments drift with the Gauss-Seidel order: with second moments the semi-infinite
         slab on voxel tau 2 went from R +0.4 % to -1.2 %, so they stay off there.  Cost:
         about a quarter more per pass (Fig. 6 cloud 64x64x48, whose voxels stay below
@@ -1042,9 +1043,13 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
     first_sub : sub-directions per bin side (a divisor of 48) carrying the sun's first
         scattering (weighted by the exact phase function within each bin) and the next
         peaked orders (weighted by the previous one's interceptions scattered per
-        sub-direction).  8 brings the g 0.8 slab tau 16, sun at 15 deg, voxel tau 2, from
-        T -1.11 % to -0.91 % (6: -0.96 %), at 4 (6: 2.25) times the cost of the first two
-        peaked orders.
+        sub-direction).  None (default): 8 for a sun less than 30 deg above (or below) the
+        x-y plane (``LOW_SUN``), else 4.  A low sun's forward lobe leaves the layers at a
+        grazing angle, where 4x4 cannot follow its shape: g 0.8 slabs, sun 15 deg up, voxel
+        tau 0.25-2, worst R or T error 1.11 % with 4 (tau 16 T on voxel tau 2), 0.91 % with 8
+        (6: 0.96 %); single scattering +2.4 % / +0.7 %.  8 costs 4 times 4 in the first two
+        peaked orders (the later ones are merged into quarters either way).  With the sun 30
+        deg up or higher 4 stays within 0.7 %.
     merge_tol_later : ``merge_tol`` of the third and later peaked orders, whose flux has spread
         over its bins: 1 (default) sweeps all their bins on merged quarters, so each costs
         about a pass (g 0.8 slabs within 0.1 % of 0.2; the 128x128x96 solve 60.4 s instead of
@@ -1103,6 +1108,8 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
         size = tuple(float(v) for v in h_full * np.array(sigma.shape[::-1]))
     if peaked_orders is None:
         peaked_orders = PEAKED_ORDERS if g != 0.0 else 1
+    if first_sub is None:
+        first_sub = 8 if abs(sun[2]) < LOW_SUN else 4
     if int(peaked_orders) < 1:
         raise DataError(f"peaked_orders must be >= 1, got {peaked_orders}", field="peaked_orders")
     real_orders = min(int(real_orders), int(peaked_orders))
@@ -1179,7 +1186,7 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
     # ``umom[s, 1]``: the second moments about the centre; with them a group's profile gets a
     # P2 term along each axis (:func:`_sweep`): a thick voxel's light scattered more than once
     # is caught away from its faces, more than any exponential with the same centroid puts
-    # it (slab g 0.8 tau 1 on one layer, sun at 60 deg: that exponential lets it escape
+    # it (slab g 0.8 tau 1 on one layer, mu0 0.5: that exponential lets it escape
     # +3.3 % upward and +3.1 % downward, with the P2 term +0.2 % and -0.2 %).
     if second_moments is None:
         second_moments = g_s != 0.0 and float(sig_s.max()) * float(h.max()) >= SECOND_MOMENTS_TAU

@@ -131,7 +131,7 @@ def slab_error(tau, layers, mu0, **kw):
 
 
 # Measured (2026-11-28), R and T errors on voxel tau 2 minus those on voxel tau 0.5: tau 4
-# overhead -0.04 / +0.01 %, tau 16 sun at 60 deg +0.00 / -0.04 %, at 15 deg +0.06 / -0.16 %;
+# overhead -0.04 / +0.01 %, tau 16 at mu0 0.5 +0.00 / -0.04 %, sun 15 deg up +0.06 / -0.16 %
 # without second moments +0.18 / +0.00 %, +0.22 / -0.21 %, +0.18 / -0.30 %.
 @pytest.mark.parametrize("tau,thick,thin,mu0", [(4.0, 2, 8, 1.0), (16.0, 8, 32, 0.5),
                                                 (16.0, 8, 32, float(np.sin(np.radians(15.0))))])
