@@ -1014,8 +1014,8 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
         binned; at least 1.  None (default): 4, or 1 for isotropic scattering (g = 0:
         scattered light fills its bins evenly; 2 put the semi-infinite slab on voxel tau 2
         at R +0.4 %, 4 at +0.8 %, 1 at +0.03 %).  g 0.8 slabs against adding-doubling (voxel
-        tau 0.5-2): overhead sun R +1.3 % with 2, +0.7 % with 4 (tau 4); sun at 15 deg
-        T -1.4 % / -1.1 % (tau 16).  Fig. 6 cloud 128x128x96: the peaked orders take 27 s
+        tau 0.5-2): overhead sun R +1.3 % with 2, +0.7 % with 4 (tau 4); sun 15 deg up (on
+        4x4 sub-directions) T -1.4 % / -1.1 % (tau 16).  Fig. 6 cloud 128x128x96: the peaked orders take 27 s
         instead of 20 s but the passes stop after 11 instead of 13, the solve as long
         (57.9 s against 58.5 s, one after the other); against Cycles 4096 spp (640x480) mean
         -0.00 % / 4x4 1.78 % instead of +0.16 % / 1.83 %.
@@ -1085,7 +1085,7 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
         resolve a forward peak better at about ``(n / 4)^2`` times the memory and more
         time (Fig. 6 cloud 64x64x48, 216 bins: solve 22.1 s wall instead of 8.3 s, peak
         memory 1.22 GB instead of 0.56 GB, 2 cores).  g 0.8 slabs against adding-doubling on
-        voxel tau 0.5 (2026-11-28): tau 16, sun at 15 deg, T -0.95 % with 96 bins, -0.56 % with
+        voxel tau 0.5 (2026-11-28): tau 16, sun 15 deg up, T -0.75 % with 96 bins, -0.47 % with
         216; tau 4 overhead R +0.72 % / +0.64 %.
 
     References
