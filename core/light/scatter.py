@@ -1216,8 +1216,8 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
             # - q / 2 >= 0 at the middle (no power: q = 0)
             q = f32(30) * (np.clip(m[1][:, s] * inv, 0.0, 0.25).astype(f32) - m2e)
             a = np.maximum(np.abs(kap), f32(1e-6))
-            h = np.minimum(f32(0.5) * a, f32(40))
-            q = np.clip(q, -a / np.expm1(np.minimum(a, f32(80))), h / np.sinh(h) * f32(2)) * (inv > 0)
+            half = np.minimum(f32(0.5) * a, f32(40))
+            q = np.clip(q, -a / np.expm1(np.minimum(a, f32(80))), half / np.sinh(half) * f32(2)) * (inv > 0)
             out[2][:, s], out[3][:, s] = m2e + q / f32(30), q
 
         split_map(run, p.size)
