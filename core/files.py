@@ -43,10 +43,13 @@ def atomic_write(path, *, fsync=True):
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.parent / f".{path.stem}.{uuid.uuid4().hex[:12]}.tmp{path.suffix}"
-    # O_EXCL: never someone else's file; mode 0o666 so the umask alone decides (not 0o600).
-    os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
-    mode = tmp.stat().st_mode & 0o777
+    made = False
     try:
+        # O_EXCL: never someone else's file; mode 0o666 so the umask alone decides (not 0o600).
+        # Inside the try: a Ctrl-C just after the open must not leave the file behind.
+        os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
+        made = True
+        mode = tmp.stat().st_mode & 0o777
         yield tmp
         if not tmp.is_file():
             raise FileNotFoundError(f"{path}: the writer removed its temporary file {tmp.name}")
@@ -55,8 +58,9 @@ def atomic_write(path, *, fsync=True):
         if fsync:
             _fsync(tmp, os.O_RDWR)  # Windows flushes only a handle open for writing
         os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
+    except BaseException as exc:
+        if made or not isinstance(exc, FileExistsError):  # (that one: the name was not ours)
+            tmp.unlink(missing_ok=True)
         raise
     if fsync and os.name == "posix":  # the rename itself; folders cannot be opened on Windows
         _fsync(path.parent, os.O_RDONLY)

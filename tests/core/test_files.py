@@ -89,3 +89,27 @@ def test_a_writer_that_removes_its_file_is_an_error(tmp_path):
         with atomic_write(p) as tmp:
             tmp.unlink()
     assert p.read_text() == "old"
+
+
+@pytest.mark.parametrize("when", ["open", "stat"])
+def test_an_interrupt_as_the_temporary_file_is_made_leaves_nothing(tmp_path, monkeypatch, when):
+    # Ctrl-C (KeyboardInterrupt) landing right after the temporary file was created, before the
+    # writer got it: the farm's SIGINT test once found a .manifest.*.tmp.json left this way
+    p = tmp_path / "a.json"
+    real = {"open": os.close, "stat": type(p).stat}
+
+    def interrupted(*a, **kw):
+        out = real[when](*a, **kw)
+        if when == "open" or a[0].name.startswith(".a."):  # the temporary file's stat
+            raise KeyboardInterrupt
+        return out
+
+    if when == "open":
+        monkeypatch.setattr(os, "close", interrupted)
+    else:
+        monkeypatch.setattr(type(p), "stat", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        with atomic_write(p) as tmp:
+            tmp.write_text("never")
+    monkeypatch.undo()
+    assert list(tmp_path.iterdir()) == []
