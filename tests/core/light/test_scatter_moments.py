@@ -13,17 +13,24 @@ _EDGES = np.unique(np.concatenate([[0.0, 1.0], 0.5 ** np.arange(1, 60), 1 - 0.5 
 _X, _WX = np.polynomial.legendre.leggauss(12)
 U = ((_EDGES[:-1, None] + _EDGES[1:, None]) / 2 + np.diff(_EDGES)[:, None] / 2 * _X[None]).ravel()
 W = (np.diff(_EDGES)[:, None] / 2 * _WX[None]).ravel()
-P2 = 6 * U * U - 6 * U + 1  # Legendre P2(2u - 1)
 
 
-def mean(f):
-    return np.sum(W * f)
+def p2(u):
+    return 6 * u * u - 6 * u + 1  # Legendre P2(2u - 1)
 
 
-def exp_profile(k):
-    """exp(-k u) on U, normalised to mean 1 (shifted so no exponential overflows)."""
-    e = np.exp(-k * (U - (1.0 if k < 0 else 0.0)))
-    return e / mean(e)
+P2 = p2(U)
+
+
+def mean(f, w=W):
+    return np.sum(w * f)
+
+
+def exp_profile(k, u=U, w=W):
+    """exp(-k u) on the nodes ``u`` (weights ``w``), normalised to mean 1 (shifted so no
+    exponential overflows)."""
+    e = np.exp(-k * (u - (1.0 if k < 0 else 0.0)))
+    return e / mean(e, w)
 
 
 @pytest.mark.parametrize("k", [0.0, 1e-3, 0.3, 0.499, 0.501, -0.7, 2.0, -9.0, 40.0, 300.0])
@@ -65,8 +72,7 @@ def kept_truth(tau, k, q, up):
     times tau e^(-tau (w - v)) (a running sum on 20000 equal steps)."""
     n, d = 20000, 1.0 / 20000
     u = (np.arange(n) + 0.5) * d
-    src = np.exp(-k * (u - (1.0 if k < 0 else 0.0)))
-    src = src / src.mean() + q * (6 * u * u - 6 * u + 1)
+    src = exp_profile(k, u, np.full(n, d)) + q * p2(u)
     v = u if up else 1 - u  # path coordinate of each point
     esc = np.mean(src * np.exp(-tau * (1 - v)))
     path_src = src if up else src[::-1]  # the source along the path
