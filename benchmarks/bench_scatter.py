@@ -321,6 +321,11 @@ def accuracy(quick=False):
         for layers in ((16, 4) if quick else (32, 16, 8, 4)):
             cases.append(("single scattering g=0, tau 8, albedo 1e-3 (R rel.)", 8.0, layers, 1e-3, 0.0, mu0,
                           single_scattering_r(1e-3, 0.0, 8.0, mu0), None, False))
+    # g 0.8 at albedo 1e-4: at 1e-3 its second order (shot as a peaked order) adds +0.11 %
+    for mu0 in mus[::2] if quick else mus:
+        for layers in ((4,) if quick else (16, 4)):
+            cases.append(("single scattering g=0.8, tau 8, albedo 1e-4 (R rel.)", 8.0, layers, 1e-4, 0.8, mu0,
+                          single_scattering_r(1e-4, 0.8, 8.0, mu0), None, False))
     for mu0 in mus[::2] if quick else mus:
         for layers in ((64, 16) if quick else (128, 64, 32, 16)):
             cases.append(("semi-infinite g=0, albedo 0.9 vs H-function (tau 32; R rel.)", 32.0, layers, 0.9, 0.0,

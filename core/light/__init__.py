@@ -7,6 +7,7 @@ from .phase import (  # noqa: F401
     bin_of,
     bin_phase_toward,
     bins,
+    direct_directions,
     direct_fractions,
     hg,
     mean_directions,

@@ -272,6 +272,26 @@ def phase_matrix(g, sub=6, delta=True, transport_sub=2, per_face=N_PER_FACE):
     return _phase_matrix_cached(g, int(sub), bool(delta), int(transport_sub), check_per_face(per_face))
 
 
+def _direct_weights(direction, g, sub, per_face, who):
+    """HG(g) about one exact direction times the solid angles of :func:`bins` ``(sub)``'s
+    sub-squares, normalised to sum to 1, and their directions."""
+    d = np.asarray(direction, dtype=np.float64)
+    n = np.linalg.norm(d)
+    if d.shape != (3,) or not np.isfinite(n) or n == 0:
+        raise ValueError(f"{who}: need a non-zero 3-vector, got {direction}")
+    _, _, dirs, w = bins(sub, per_face)
+    q = hg(dirs @ (d / n), g) * w
+    return q / q.sum(), dirs
+
+
+def _into(a, sub, into_sub, who):
+    """``a`` (nb, sub*sub, ...) as (nb, into_sub, k, into_sub, k, ...), ``k = sub // into_sub``."""
+    k = sub // int(into_sub)
+    if k * int(into_sub) != sub:
+        raise ValueError(f"{who}: into_sub must divide sub")
+    return a.reshape((len(a), into_sub, k, into_sub, k) + a.shape[2:])
+
+
 def direct_fractions(direction, g, sub=48, into_sub=None, per_face=N_PER_FACE):
     """Fractions of flux scattered from one exact direction into each bin.
 
@@ -283,19 +303,26 @@ def direct_fractions(direction, g, sub=48, into_sub=None, per_face=N_PER_FACE):
     shape ``(nb, into_sub**2)``, so a forward lobe narrower than a bin keeps
     its shape inside the bin.  Bins of :func:`bins` ``(per_face=per_face)``.
     """
-    d = np.asarray(direction, dtype=np.float64)
-    n = np.linalg.norm(d)
-    if d.shape != (3,) or not np.isfinite(n) or n == 0:
-        raise ValueError(f"direct_fractions: need a non-zero 3-vector, got {direction}")
-    _, _, dirs, w = bins(sub, per_face)
-    q = hg(dirs @ (d / n), g) * w
-    q /= q.sum()
+    q, _ = _direct_weights(direction, g, sub, per_face, "direct_fractions")
     if into_sub is None:
         return q.sum(1)
-    k = sub // int(into_sub)
-    if k * int(into_sub) != sub:
-        raise ValueError("direct_fractions: into_sub must divide sub")
-    return q.reshape(len(w), into_sub, k, into_sub, k).sum((2, 4)).reshape(len(w), -1)
+    return _into(q, sub, into_sub, "direct_fractions").sum((2, 4)).reshape(len(q), -1)
+
+
+def direct_directions(direction, g, into_sub, sub=48, per_face=N_PER_FACE):
+    """The mean direction, weighted by HG(g) about one exact direction, of each sub-square of
+    :func:`bins` ``(into_sub)`` (normalised; ``(nb, into_sub**2, 3)``), integrated on ``sub x
+    sub`` sub-squares per bin: the directions that carry :func:`direct_fractions`.
+
+    A sub-square's centre stands for all its directions; where the phase function or the
+    light's escape changes across it that is first-order wrong, its weighted mean direction
+    only second-order (a slab's once-scattered reflectance, g 0.8, 4x4 sub-squares: +0.47 %
+    from the centres overhead, +0.18 % from the means; sun 15 deg up +2.3 % / +0.9 %).
+    """
+    q, dirs = _direct_weights(direction, g, sub, per_face, "direct_directions")
+    qq = _into(q, sub, into_sub, "direct_directions")[..., None]
+    m = (_into(dirs, sub, into_sub, "direct_directions") * qq).sum((2, 4)).reshape(len(q), -1, 3)
+    return m / np.linalg.norm(m, axis=-1, keepdims=True)
 
 
 @lru_cache(maxsize=8)

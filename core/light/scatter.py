@@ -1041,13 +1041,15 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
         0.4 in the scaled medium, so the default leaves them off: 12.1 s instead of 9.7 s,
         the same picture to 1e-4).
     first_sub : sub-directions per bin side (a divisor of 48) carrying the sun's first
-        scattering (weighted by the exact phase function within each bin) and the next
-        peaked orders (weighted by the previous one's interceptions scattered per
-        sub-direction).  None (default): 8 for a sun less than 30 deg above (or below) the
+        scattering (weighted by the exact phase function within each bin, each along its
+        sub-square's phase-weighted mean direction, :func:`.phase.direct_directions`) and the
+        next peaked orders (weighted by the previous one's interceptions scattered per
+        sub-direction, along the sub-squares' centres).  None (default): 8 for a sun less than 30 deg above (or below) the
         x-y plane (``LOW_SUN``), else 4.  A low sun's forward lobe leaves the layers at a
         grazing angle, where 4x4 cannot follow its shape: g 0.8 slabs, sun 15 deg up, voxel
         tau 0.25-2, worst R or T error 1.11 % with 4 (tau 16 T on voxel tau 2), 0.91 % with 8
-        (6: 0.96 %); single scattering +2.4 % / +0.7 %.  8 costs 4 times 4 in the first two
+        (6: 0.96 %); single scattering (g 0.8) +0.96 % / +0.28 % (from the sub-squares' centres
+        +2.3 % / +0.6 %).  8 costs 4 times 4 in the first two
         peaked orders (the later ones are merged into quarters either way).  With the sun 30
         deg up or higher 4 stays within 0.7 %.
     merge_tol_later : ``merge_tol`` of the third and later peaked orders, whose flux has spread
@@ -1168,6 +1170,8 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
     qs = phase.direct_fractions(prop, g, sub=48, into_sub=first_sub, per_face=per_face)
     q = qs.sum(1)
     wq = np.where(q[:, None] > 1e-12, qs / np.maximum(q[:, None], 1e-300), 1.0 / qs.shape[1])
+    # ... each carried by its sub-square's phase-weighted mean direction (not its centre)
+    sun_dirs = phase.direct_directions(prop, g, first_sub, sub=48, per_face=per_face)
     fdirs = phase.bins(first_sub, per_face)[2]
     m_sub = phase.sub_phase_matrix(g_s, first_sub, per_face=per_face)  # (nb, nb, first_sub**2)
     m_real = phase.sub_phase_matrix(g, first_sub, per_face=per_face) if real_orders > 0 else None
@@ -1244,8 +1248,8 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
     kids = _quarters(first_sub, sub)
     ushare = phase.bins(first_sub, per_face)[3] / phase.bins(first_sub, per_face)[1][:, None]
 
-    def shoot_peaked(emission, weights, prof, real, flux, tol, rec):
-        """Shoot ``emission(bins)`` on the sub-directions with ``weights`` and the voxel
+    def shoot_peaked(emission, sdirs, weights, prof, real, flux, tol, rec):
+        """Shoot ``emission(bins)`` on the sub-directions ``sdirs`` with ``weights`` and the voxel
         source profile ``prof(group index)``; scatter per sub-direction.  ``real``: fly in the real
         medium and scatter with the full HG(g) (else the delta-M scaled medium).
         ``flux`` (nb,): the power of each bin; the weakest, holding ``tol`` of it, are swept
@@ -1264,10 +1268,10 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
                 for s in range(0, len(sel), step):
                     bs = sel[s:s + step]
                     if merged:
-                        bdirs, bw, share = _merge_quarters(fdirs[bs], weights[bs], ushare[bs], kids)
+                        bdirs, bw, share = _merge_quarters(sdirs[bs], weights[bs], ushare[bs], kids)
                         cols = np.einsum("ibqk,bqk->ibq", m_k[:, bs][:, :, kids], share)
                     else:
-                        bdirs, bw, cols = fdirs[bs], weights[bs], m_k[:, bs]
+                        bdirs, bw, cols = sdirs[bs], weights[bs], m_k[:, bs]
                     sets = moment_sets(np.einsum("iba,ba->ib", cols, bw), alb_k)
                     r, tot, ex = _sweep(sig_k, h, bdirs, bw, emission(bs), np.zeros(bw.shape), periodic, axis,
                                         per_sub=True, profile=prof(gi), moments=sets, scratch=scratch)
@@ -1291,7 +1295,7 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
         np.multiply((albedo * q[bs])[:, None], r_sun.reshape(1, -1), out=e.reshape(len(bs), -1))
         return e
 
-    rsub = shoot_peaked(sun_emission, wq, lambda gi: sun_profile, real_orders > 0, albedo * q * injected,
+    rsub = shoot_peaked(sun_emission, sun_dirs, wq, lambda gi: sun_profile, real_orders > 0, albedo * q * injected,
                         merge_tol_first, peaked[0])
     pweights = [wq]
     for k in range(1, int(peaked_orders)):
@@ -1304,7 +1308,7 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
         prof = [unshot_profile(gi, _bin_sum(nxt, bs)) for gi, (_, bs) in enumerate(groups)]
         if umom is not None:
             umom[:] = 0.0
-        rsub = shoot_peaked(lambda bs: nxt[_as_slice(bs)], wk, prof.__getitem__, k < real_orders,
+        rsub = shoot_peaked(lambda bs: nxt[_as_slice(bs)], fdirs, wk, prof.__getitem__, k < real_orders,
                             nxt.reshape(nb, -1).sum(1, dtype=np.float64), merge_tol if k == 1 else merge_tol_later,
                             peaked[k])
         pweights.append(wk)

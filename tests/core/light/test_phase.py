@@ -142,6 +142,29 @@ def test_direct_fractions_sun_on_bin_corner():
     np.testing.assert_allclose(qs.sum(1), phase.direct_fractions([0.3, -0.2, 0.9], 0.8), atol=1e-14)
 
 
+@pytest.mark.parametrize("g", [0.8, -0.5])
+@pytest.mark.parametrize("per_face,into_sub", [(4, 4), (2, 4), (4, 8)])
+def test_direct_directions_are_phase_weighted_means(g, per_face, into_sub):
+    d = np.array([0.3, -0.2, -0.9]) / np.linalg.norm([0.3, -0.2, -0.9])
+    m = phase.direct_directions(d, g, into_sub, per_face=per_face)
+    centres = phase.bins(into_sub, per_face)[2]
+    assert m.shape == centres.shape
+    np.testing.assert_allclose(np.linalg.norm(m, axis=-1), 1.0, atol=1e-14)
+    # each stays in its own sub-square (per_face 2 x 4: the cells of an 8 x 8 face grid)
+    if per_face * into_sub <= 8:
+        assert np.all(phase.bin_of(m, per_face * into_sub) == phase.bin_of(centres, per_face * into_sub))
+    assert np.all(phase.bin_of(m, per_face) == np.arange(len(m))[:, None])
+    # HG's mean cosine is g: the fractions carried along these directions give g d, up to the
+    # spread inside the sub-squares that normalising their means removes (~ their area)
+    q = phase.direct_fractions(d, g, into_sub=into_sub, per_face=per_face)
+    np.testing.assert_allclose((q[..., None] * m).sum((0, 1)), g * d, atol=1e-3 * (16 / (per_face * into_sub)) ** 2)
+    # isotropic: the solid-angle centroids; toward the peak (g > 0), or away, every one leans from them
+    m0 = phase.direct_directions(d, 0.0, into_sub, per_face=per_face)
+    q0 = phase.direct_fractions(d, 0.0, into_sub=into_sub, per_face=per_face)
+    np.testing.assert_allclose((q0[..., None] * m0).sum((0, 1)), 0.0, atol=1e-14)
+    assert np.all(np.sign(g) * (m @ d - m0 @ d) > 0)
+
+
 def test_bin_phase_toward_normalised():
     cen, omega, _, _ = phase.bins(8)
     d = np.random.default_rng(0).normal(size=(500, 3))

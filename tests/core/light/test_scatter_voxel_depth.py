@@ -60,17 +60,18 @@ def test_single_scattering_independent_of_voxel_depth(mu0, layers):
 
 # The sun's first scattering uses the full HG(0.8) (not the delta-M scaled one: that was
 # +9% on the tau=1 slab).  What is left is angular: each bin's first flight travels on
-# first_sub^2 sub-directions, and near-grazing exits of a low sun's forward lobe need
-# more of them.  Measured (voxel tau 2; the same at 0.5): first_sub=4 +0.57% overhead,
-# +1.2% at mu0 0.5, +2.4% at 15 deg; first_sub=8 +0.22% and +0.69%.  Asserted at those
-# levels: the 0.5% target is met for g=0.8 only overhead with first_sub=8.  (Measured again
-# 2026-11-28: first_sub=4 +0.64%, +1.25%, +2.40%; first_sub=8 +0.29% overhead, +0.71% at 15 deg.)
-@pytest.mark.parametrize("mu0,first_sub,rel", [(1.0, 4, 0.007), (0.5, 4, 0.014), (MU15, 4, 0.026),
-                                               pytest.param(MU15, 8, 0.008, marks=pytest.mark.slow),
-                                               pytest.param(1.0, 8, 0.005, marks=pytest.mark.slow)])
-def test_single_scattering_forward_peaked(mu0, first_sub, rel):
-    r, _ = slab(8.0, 4, 1e-3, 0.8, mu0, first_sub=first_sub)
-    assert r == pytest.approx(single_scattering_r(1e-3, 0.8, 8.0, mu0), rel=rel)
+# first_sub^2 sub-directions, each standing for its sub-square.  From the sub-squares'
+# centres (before 2026-11-28) first_sub=4 was +0.5% overhead, +1.1% at mu0 0.5 and +2.3%
+# at 15 deg (8: +0.6%); from their phase-weighted mean directions (phase.direct_directions,
+# now) +0.23%, +0.44% and +0.96% (8, the low sun's default: +0.28%), the same on voxel tau
+# 2 and 0.5.  Albedo 1e-4: at 1e-3 the solve's second order (shot as a peaked order for g
+# 0.8) adds +0.11% that the closed form does not have.
+@pytest.mark.parametrize("mu0,first_sub,rel", [(1.0, None, 0.005), (0.5, None, 0.005), (MU15, None, 0.005),
+                                               (np.sin(np.radians(25.0)), None, 0.005), (MU15, 4, 0.011)])
+@pytest.mark.parametrize("layers", [4, 16])
+def test_single_scattering_forward_peaked(mu0, first_sub, rel, layers):
+    r, _ = slab(8.0, layers, 1e-4, 0.8, mu0, first_sub=first_sub)
+    assert r == pytest.approx(single_scattering_r(1e-4, 0.8, 8.0, mu0), rel=rel)
 
 
 # Measured: before -0.0028 .. -0.177 (worst mu0 = 0.26, voxel tau 2); now |rel| <= 0.3%
@@ -133,10 +134,15 @@ AD_G08 = [(1.0, 1.0, 0.06000, 0.93926), (4.0, 1.0, 0.25444, 0.74406), (4.0, 0.99
 
 # Target (issue 18): 1% relative (mu0 = sin of the sun's elevation).
 # Truth: the adding-doubling here (facts.md's values are 0.1-0.3 % lower).  Measured
-# (2026-11-28, voxel tau 2, 1 and 0.5): overhead within 0.72 % (tau 4 albedo 0.99: R +0.69 to +0.72 %,
-# the same on every voxel tau), mu0 0.5 within 0.66 % (tau 16 T -0.66 %), sun 15
-# degrees up within 0.91 % (tau 16 T -0.91 % on voxel tau 2, -0.75 % on 0.5; with 4x4
-# sub-directions instead of the low sun's 8x8, -1.11 / -0.95 %).  Before the second moments,
+# (2026-11-28, voxel tau 2 and 0.5, the sun's first flight on its sub-squares' phase-weighted
+# mean directions): overhead within 0.67 % (tau 4 albedo 0.99: R +0.64 to +0.67 %), mu0 0.5
+# within 0.82 % (tau 1 R -0.82 / -0.78 %; tau 16 T -0.64 %), sun 15 degrees up within 0.89 %
+# (tau 16 T -0.89 % on voxel tau 2, -0.73 % on 0.5; with 4x4 sub-directions instead of the low
+# sun's 8x8, -1.11 / -0.95 %).  The tau 1 R at mu0 0.5 was -0.66 % from the sub-squares'
+# centres: their once-scattered light came out 1.1 % too bright (test_single_scattering_forward_
+# peaked), which hid part of a deficit of the delta-M scaled later orders (two or three peaked
+# orders in the real medium instead of one: -0.48 / -0.28 %, but tau 16 T at 15 deg -0.98 /
+# -1.00 %, so one stays).  Before the second moments,
 # the slab profile groups and four peaked orders: 1.3 %, 1.43 % and 1.98 %; before that
 # 1.8 %, 2.5 % and 2.6 % (tau 16 T): the bin matrix's
 # mean cosine did not make up for the spread of the flux inside its bins (diffusion
@@ -144,7 +150,7 @@ AD_G08 = [(1.0, 1.0, 0.06000, 0.93926), (4.0, 1.0, 0.25444, 0.74406), (4.0, 0.99
 # is angular (96 bins) and grows as the sun goes down.
 # A one-layer slab with the sun at 60 degrees was R -15% while a single periodic cell's
 # sideways source profile was tracked (a sideways centroid means nothing there).
-@pytest.mark.parametrize("mu0,rel", [(1.0, 0.008), (0.5, 0.0075), (MU15, 0.01)])
+@pytest.mark.parametrize("mu0,rel", [(1.0, 0.007), (0.5, 0.0085), (MU15, 0.0095)])
 @pytest.mark.parametrize("vtau", [2.0, 0.5])
 @pytest.mark.parametrize("tau,omega", [(t, o) for t, o, _, _ in AD_G08])
 def test_forward_peaked_slab_against_adding_doubling(tau, omega, vtau, mu0, rel):
