@@ -1044,14 +1044,14 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
         scattering (weighted by the exact phase function within each bin, each along its
         sub-square's phase-weighted mean direction, :func:`.phase.direct_directions`) and the
         next peaked orders (weighted by the previous one's interceptions scattered per
-        sub-direction, along the sub-squares' centres).  None (default): 8 for a sun less than 30 deg above (or below) the
-        x-y plane (``LOW_SUN``), else 4.  A low sun's forward lobe leaves the layers at a
-        grazing angle, where 4x4 cannot follow its shape: g 0.8 slabs, sun 15 deg up, voxel
-        tau 0.25-2, worst R or T error 1.11 % with 4 (tau 16 T on voxel tau 2), 0.91 % with 8
-        (6: 0.96 %); single scattering (g 0.8) +0.96 % / +0.28 % (from the sub-squares' centres
-        +2.3 % / +0.6 %).  8 costs 4 times 4 in the first two
-        peaked orders (the later ones are merged into quarters either way).  With the sun 30
-        deg up or higher 4 stays within 0.7 %.
+        sub-direction, along the sub-squares' centres).  None (default): 8 for a sun less
+        than 30 deg above (or below) the x-y plane (``LOW_SUN``), else 4.  A low sun's forward
+        lobe leaves the layers at a grazing angle, where 4x4 cannot follow its shape: g 0.8
+        slabs, sun 15 deg up, voxel tau 0.25-2, worst R or T error 1.05 % with 4 (tau 16 T on
+        voxel tau 2), 0.89 % with 8; single scattering (g 0.8) +0.96 % / +0.28 % (from the
+        sub-squares' centres +2.3 % / +0.6 %).  8 costs 4 times 4 in the first two peaked
+        orders (the later ones are merged into quarters either way).  With the sun 30 deg up
+        or higher 4 stays within 0.82 % (single scattering 0.45 %).
     merge_tol_later : ``merge_tol`` of the third and later peaked orders, whose flux has spread
         over its bins: 1 (default) sweeps all their bins on merged quarters, so each costs
         about a pass (g 0.8 slabs within 0.1 % of 0.2; the 128x128x96 solve 60.4 s instead of
