@@ -158,7 +158,8 @@ def test_direct_directions_are_phase_weighted_means(g, per_face, into_sub):
     # spread inside the sub-squares that normalising their means removes (~ their area)
     q = phase.direct_fractions(d, g, into_sub=into_sub, per_face=per_face)
     np.testing.assert_allclose((q[..., None] * m).sum((0, 1)), g * d, atol=1e-3 * (16 / (per_face * into_sub)) ** 2)
-    # isotropic: the solid-angle centroids; toward the peak (g > 0), or away, every one leans from them
+    # g = 0 gives the sub-squares' solid-angle centroids (over the sphere they average to nothing);
+    # each mean direction leans from its centroid toward d for g > 0, away from it for g < 0
     m0 = phase.direct_directions(d, 0.0, into_sub, per_face=per_face)
     q0 = phase.direct_fractions(d, 0.0, into_sub=into_sub, per_face=per_face)
     np.testing.assert_allclose((q0[..., None] * m0).sum((0, 1)), 0.0, atol=1e-14)
