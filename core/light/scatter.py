@@ -1170,9 +1170,10 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
     qs = phase.direct_fractions(prop, g, sub=48, into_sub=first_sub, per_face=per_face)
     q = qs.sum(1)
     wq = np.where(q[:, None] > 1e-12, qs / np.maximum(q[:, None], 1e-300), 1.0 / qs.shape[1])
-    # ... each carried by its sub-square's phase-weighted mean direction (not its centre)
+    # The sun's sub-directions: each sub-square's phase-weighted mean direction, not its centre
+    # (the centres, fdirs, carry the later orders, whose shape inside a sub-square is not known).
     sun_dirs = phase.direct_directions(prop, g, first_sub, sub=48, per_face=per_face)
-    fdirs = phase.bins(first_sub, per_face)[2]
+    _, f_omega, fdirs, f_w = phase.bins(first_sub, per_face)
     m_sub = phase.sub_phase_matrix(g_s, first_sub, per_face=per_face)  # (nb, nb, first_sub**2)
     m_real = phase.sub_phase_matrix(g, first_sub, per_face=per_face) if real_orders > 0 else None
 
@@ -1246,7 +1247,7 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
         sun_profile = None
 
     kids = _quarters(first_sub, sub)
-    ushare = phase.bins(first_sub, per_face)[3] / phase.bins(first_sub, per_face)[1][:, None]
+    ushare = f_w / f_omega[:, None]
 
     def shoot_peaked(emission, sdirs, weights, prof, real, flux, tol, rec):
         """Shoot ``emission(bins)`` on the sub-directions ``sdirs`` with ``weights`` and the voxel
