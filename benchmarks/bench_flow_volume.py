@@ -151,7 +151,7 @@ class VtkProbeVelocity:
 def part_fire(quick):
     from nephele.core.flowvol import UnstructuredVelocity
 
-    path = Path(__file__).resolve().parents[2] / "shared" / "data" / "flow" / "fire_ug.vtu"
+    path = Path(__file__).resolve().parents[1] / "tests" / "data" / "flow" / "fire_ug.vtu"
     if not path.is_file():
         return f"{path} not found: no fire timing."
     fire = UnstructuredVelocity(path)

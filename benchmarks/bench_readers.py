@@ -2,7 +2,7 @@
 the error against the same array read by plain xarray (the anchor, measured in the same run).
 
 Files: the CAM history file (NCAR hybrid levels), the NCL sample (non-CF time, kelvin labelled
-degC), the UM rotated-pole hybrid-height file, the ECHAM5 pressure-level file from shared/data,
+degC), the UM rotated-pole hybrid-height file, the ECHAM5 pressure-level file from tests/data,
 a Zarr store and a 3-level GRIB2 file written from them, and a projection-only Lambert conformal
 file (positions from the inverse projection).  Writes the section ``readers`` of
 docs/benchmarks.md; ``--quick`` runs one repeat and writes nothing.
@@ -27,7 +27,6 @@ from report import md_table, write_section  # noqa: E402
 from nephele.core.climate.readers import open_dataset  # noqa: E402
 
 DATA = ROOT / "tests" / "data"
-SHARED = ROOT.parent / "shared" / "data"
 
 
 def best(fn, repeat):
@@ -141,7 +140,7 @@ def main():
         ("NCL, time 'Month', K as degC", DATA / "ncl_nc4uvt_T.nc", "T", nc),
         ("UM rotated pole, hybrid height", DATA / "um_hybrid_height.nc", "air_potential_temperature", nc),
     ]
-    echam = SHARED / "climate" / "rectilinear_grid_3D.nc"
+    echam = DATA / "climate" / "rectilinear_grid_3D.nc"
     if echam.exists():
         cases.append(("ECHAM5 pressure levels", echam, "t", nc))
     with tempfile.TemporaryDirectory() as d:

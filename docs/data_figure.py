@@ -1,7 +1,7 @@
 """Draw docs/images/data.png for the README: the demo climate's clouds moving with its winds,
 and cloud fraction derived from the real GrADS sample (Sundqvist scheme).
 
-    .venv/bin/python docs/data_figure.py [--shared ../shared/data]
+    .venv/bin/python docs/data_figure.py [--shared tests/data]
 """
 
 import argparse
@@ -51,7 +51,7 @@ def panel(ax, grid, cloud, title, u=None, v=None, background=None):
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--shared", default=str(ROOT.parent / "shared" / "data"))
+    parser.add_argument("--shared", default=str(ROOT / "tests" / "data"))
     parser.add_argument("--out", default=str(ROOT / "docs" / "images" / "data.png"))
     args = parser.parse_args()
     demo = open_dataset("demo")

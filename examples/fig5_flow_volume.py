@@ -22,6 +22,7 @@ References
 """
 
 import sys
+from pathlib import Path
 
 import bpy
 
@@ -40,7 +41,7 @@ def build(**options):
 
 
 FIRE = {
-    "path": "/work/shared/data/flow/fire_ug.vtu",
+    "path": str(Path(__file__).resolve().parent.parent / "tests" / "data" / "flow" / "fire_ug.vtu"),
     "seconds": 1.0,
     "radius": 0.1,
     "above": 0.1,

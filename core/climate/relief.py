@@ -6,7 +6,7 @@ demo needs no download.  :func:`load_etopo` reads the full ETOPO ``.cdf``
 files (20' and 60') for users who want more detail, and :func:`write_relief`
 rebuilds the shipped file from ``etopo60.cdf``::
 
-    python -m nephele.core.climate.relief ../shared/data/terrain/etopo60.cdf core/resources/relief_1deg.npz
+    python -m nephele.core.climate.relief tests/data/terrain/etopo60.cdf core/resources/relief_1deg.npz
 
 References
 ----------

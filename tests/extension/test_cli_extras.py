@@ -12,7 +12,7 @@ import pytest
 from nephele.farm import cli
 
 ROOT = Path(__file__).resolve().parents[2]
-NETCDF = ROOT.parent / "shared" / "data" / "climate" / "rectilinear_grid_3D.nc"
+NETCDF = ROOT / "tests" / "data" / "climate" / "rectilinear_grid_3D.nc"
 BLENDER_ONLY = ROOT / "build" / "venv-bpy52" / "bin" / "python"  # numpy, no xarray/scipy
 
 
@@ -56,7 +56,7 @@ def test_help_speaks_to_users(capsys):
     assert "nephele[data]" in out and "nephele[farm]" in out
 
 
-@pytest.mark.skipif(not (BLENDER_ONLY.exists() and NETCDF.is_file()), reason="needs build/venv-bpy52 and ../shared/data")
+@pytest.mark.skipif(not BLENDER_ONLY.exists(), reason="no Blender-only Python (build/venv-bpy52): run make test-full")
 def test_in_a_python_without_xarray(tmp_path):
     (tmp_path / "nephele").symlink_to(ROOT, target_is_directory=True)
     env = {k: v for k, v in os.environ.items() if not k.startswith(("PYTHON", "VIRTUAL_ENV"))}

@@ -26,7 +26,7 @@ pytest.importorskip("bpy")  # the builder is the one inside the bpy wheel
 
 ROOT = Path(__file__).resolve().parents[2]
 WORKFLOW = Path(__file__).with_name("workflow.py")
-NETCDF = ROOT.parent / "shared" / "data" / "climate" / "rectilinear_grid_3D.nc"
+NETCDF = ROOT / "tests" / "data" / "climate" / "rectilinear_grid_3D.nc"
 DEFAULT_PYTHONS = {"3.13": ROOT / "build" / "venv-bpy52" / "bin" / "python",
                    "3.11": ROOT / "build" / "venv-bpy50" / "bin" / "python"}
 EXCLUDED_TOP = {"tests", "farm", "examples", "benchmarks", "docs", "build", "dist", "out", ".venv", ".venv311"}
@@ -78,9 +78,7 @@ def installed(request, dist, tmp_path_factory):
     tmp = tmp_path_factory.mktemp(f"blender{py}")
     env = {k: v for k, v in os.environ.items() if not k.startswith(("PYTHON", "VIRTUAL_ENV"))}
     env.update(BLENDER_USER_RESOURCES=str(tmp / "resources"), NEPHELE_CACHE=str(tmp / "cache"))
-    args = [str(PYTHONS[py]), str(WORKFLOW), str(zip_path), str(tmp / "out")]
-    if NETCDF.is_file():
-        args.append(str(NETCDF))
+    args = [str(PYTHONS[py]), str(WORKFLOW), str(zip_path), str(tmp / "out"), str(NETCDF)]
     res = subprocess.run(args, capture_output=True, text=True, timeout=900, env=env, cwd=tmp)
     out = res.stdout + res.stderr
     assert res.returncode == 0, out[-4000:]
@@ -100,8 +98,7 @@ def test_whole_workflow_finishes(installed):
                                       "add_scattering_cloud", "add_dome_camera", "render_dome_cube", "render",
                                       "add_globe_again"}
     assert all(v == ["FINISHED"] for v in result["results"].values()), result["results"]
-    if NETCDF.is_file():
-        assert result["results"]["import_netcdf"] == ["FINISHED"]
+    assert result["results"]["import_netcdf"] == ["FINISHED"]
 
 
 def test_disable_leaves_nothing_registered(installed):

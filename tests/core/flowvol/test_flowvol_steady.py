@@ -12,9 +12,7 @@ from nephele.core.flowvol.front import Streams, advance
 from mesh_checks import check_mesh
 from nephele.core.flowvol.unstructured import UnstructuredVelocity
 
-FIRE = Path("/work/shared/data/flow/fire_ug.vtu")
-_here = Path(__file__).resolve().parents[4] / "shared" / "data" / "flow" / "fire_ug.vtu"
-FIRE = _here if _here.is_file() else FIRE
+FIRE = Path(__file__).resolve().parents[2] / "data" / "flow" / "fire_ug.vtu"
 
 
 def abc(p, t, A=np.sqrt(3), B=np.sqrt(2), C=1.0):

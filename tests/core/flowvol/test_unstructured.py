@@ -11,10 +11,7 @@ from nephele.core.flowvol.tets import face_use_counts, signed_volumes
 from mesh_checks import check_mesh
 from nephele.core.flowvol.unstructured import UnstructuredVelocity, read_vtu
 
-FIRE = Path(__file__).resolve().parents[4] / "shared" / "data" / "flow" / "fire_ug.vtu"
-if not FIRE.is_file():
-    FIRE = Path("/work/shared/data/flow/fire_ug.vtu")
-pytestmark = pytest.mark.skipif(not FIRE.is_file(), reason="fire_ug.vtu not available")
+FIRE = Path(__file__).resolve().parents[2] / "data" / "flow" / "fire_ug.vtu"
 
 
 @pytest.fixture(scope="module")
