@@ -1,7 +1,12 @@
 # Two commands do everything on a fresh machine:
-#   make demo   renders the default demo film (embedded data, no downloads)
-#   make test   runs the whole test suite (Python 3.13 + bpy, the core on Python 3.11 + numpy 1.26, and
-#               the extension zip installed into Pythons holding only what Blender 5.2 and 5.0 ship)
+#   make demo   renders the demo film (embedded data, no downloads)
+#   make test   the quick tier: core, add-on, farm and CLI on small grids and renders, at most
+#               10 minutes on a fresh 2-core clone, its venv included
+# and one for CI (.ci/run):
+#   make test-full  everything: the slow hard cases, Python 3.11 + numpy 1.26, the zips in
+#               Blender-only Pythons, real Slurm, the benchmarks' smoke runs (docs/testing.md)
+# Every test target is strict (NEPHELE_STRICT=1): a test that would skip for something this
+# machine should have fails instead, saying what is missing (tests/conftest.py).
 PY313 ?= $(shell command -v python3.13 || pyenv which python3.13 2>/dev/null || echo python3)
 PY311 ?= $(shell command -v python3.11 || pyenv which python3.11 2>/dev/null || echo python3)
 VENV := .venv
@@ -10,8 +15,13 @@ VENV311 := .venv311
 BPY52 := build/venv-bpy52
 BPY50 := build/venv-bpy50
 PYTEST_ARGS ?=
+STRICT := NEPHELE_STRICT=1
+# Each tier runs under tests/budget.py: its time against its budget in seconds (it fails past 1.5
+# times that) and its ten slowest tests.
+TIERS := build/tiers
+BUDGET = $(VENV)/bin/python tests/budget.py
 
-.PHONY: demo test test-main test-core311 test-extension test-slurm test-bench bench extension clean
+.PHONY: demo test test-full test-main test-core311 test-extension test-slurm test-bench bench extension clean
 
 $(VENV)/.stamp: requirements.txt pyproject.toml
 	$(PY313) -m venv $(VENV)
@@ -58,35 +68,56 @@ $(VENV311)/.native: $(VENV311)/.stamp build/native/.stamp
 demo: $(VENV)/.stamp $(VENV)/.native
 	$(VENV)/bin/nephele demo --out out/demo
 
-test: test-main test-core311 test-extension test-slurm test-bench
+# The quick tier: everything but the slow hard cases, the extension zips and Slurm.
+test: $(VENV)/.stamp $(VENV)/.native
+	@mkdir -p $(TIERS)
+	$(STRICT) $(BUDGET) quick 480 --junit $(TIERS)/quick.xml -- $(VENV)/bin/python -m pytest -m "not slow" \
+	  --ignore=tests/extension --ignore=tests/farm/slurm --junitxml=$(TIERS)/quick.xml $(PYTEST_ARGS)
 
+# The full suite (CI): each tier once, then their times.
+test-full:
+	@mkdir -p $(TIERS) && rm -f $(TIERS)/times.tsv
+	$(MAKE) test-main test-core311 test-extension test-slurm test-bench
+	@$(VENV)/bin/python tests/budget.py --summary
+
+# Everything on Python 3.13 + bpy, the slow hard cases too (the zips and Slurm have tiers of their own).
 test-main: $(VENV)/.stamp $(VENV)/.native
-	$(VENV)/bin/python -m pytest --ignore=tests/extension --ignore=tests/farm/slurm $(PYTEST_ARGS)
+	@mkdir -p $(TIERS)
+	$(STRICT) $(BUDGET) main 900 --junit $(TIERS)/main.xml -- $(VENV)/bin/python -m pytest \
+	  --ignore=tests/extension --ignore=tests/farm/slurm --junitxml=$(TIERS)/main.xml $(PYTEST_ARGS)
 
-# Core only (no bpy, no farm): the numpy 1.26 / Python 3.11 that Blender 4.2-5.0 ship. The slow cases
-# (thick scattering slabs, big blobby grids) run once, in test-main, to keep CI within its budget.
-test-core311: $(VENV311)/.stamp $(VENV311)/.native
-	$(VENV311)/bin/python -m pytest -m "not bpy and not slow" --ignore=tests/farm --ignore=tests/addon --ignore=tests/extension $(PYTEST_ARGS)
+# The core (no bpy, no farm) on the numpy 1.26 / Python 3.11 that Blender 4.2-5.0 ship. This tier has
+# no bpy by design (NEPHELE_OPTIONAL); the slow hard cases run once, in test-main.
+test-core311: $(VENV)/.stamp $(VENV311)/.stamp $(VENV311)/.native
+	@mkdir -p $(TIERS)
+	$(STRICT) NEPHELE_OPTIONAL=bpy $(BUDGET) core311 420 --junit $(TIERS)/core311.xml -- \
+	  $(VENV311)/bin/python -m pytest -m "not bpy and not slow" --ignore=tests/farm --ignore=tests/addon \
+	  --ignore=tests/extension --junitxml=$(TIERS)/core311.xml $(PYTEST_ARGS)
 
 # Build the linux-x64 zips (wheels cached in build/wheels), install each into its Blender-only
 # Python through Blender's extension API and drive the whole sidebar workflow there.
 test-extension: $(VENV)/.stamp $(VENV)/.native $(BPY52)/.stamp $(BPY50)/.stamp
-	NEPHELE_REQUIRE_BLENDER_PYTHONS=1 NEPHELE_BLENDER_PYTHONS=$(CURDIR)/$(BPY52)/bin/python:$(CURDIR)/$(BPY50)/bin/python \
-	  $(VENV)/bin/python -m pytest tests/extension $(PYTEST_ARGS)
+	@mkdir -p $(TIERS)
+	$(STRICT) NEPHELE_REQUIRE_BLENDER_PYTHONS=1 \
+	  NEPHELE_BLENDER_PYTHONS=$(CURDIR)/$(BPY52)/bin/python:$(CURDIR)/$(BPY50)/bin/python \
+	  $(BUDGET) extension 240 --junit $(TIERS)/extension.xml -- $(VENV)/bin/python -m pytest tests/extension \
+	  --junitxml=$(TIERS)/extension.xml $(PYTEST_ARGS)
 
 # The farm on a real single-node Slurm cluster (slurmctld + slurmd + munged started by the tests;
-# slurm-wlm and munge are installed with apt-get when missing, which needs root).
+# slurm-wlm and munge are installed with apt-get when missing, which needs root), the slow
+# wall-time hand-over included.
 test-slurm: $(VENV)/.stamp
-	$(VENV)/bin/python -m pytest tests/farm/slurm -m "not slow" $(PYTEST_ARGS)
+	@mkdir -p $(TIERS)
+	$(STRICT) $(BUDGET) slurm 180 --junit $(TIERS)/slurm.xml -- $(VENV)/bin/python -m pytest tests/farm/slurm \
+	  --junitxml=$(TIERS)/slurm.xml $(PYTEST_ARGS)
 
 # Every benchmark's --quick mode as a smoke test, so none can rot; a quick run prints its table and
 # leaves docs/benchmarks.md alone (benchmarks/report.py).
 test-bench: $(VENV)/.stamp $(VENV)/.native
-	@mkdir -p build
-	@for b in benchmarks/bench_*.py; do \
-	  echo "$$b --quick"; \
+	@mkdir -p $(TIERS)
+	$(BUDGET) bench 180 -- sh -c 'for b in benchmarks/bench_*.py; do echo "$$b --quick"; \
 	  $(VENV)/bin/python $$b --quick > build/bench-quick.log 2>&1 || { tail -40 build/bench-quick.log; exit 1; }; \
-	done
+	done'
 
 bench: $(VENV)/.stamp $(VENV)/.native
 	for b in benchmarks/bench_*.py; do $(VENV)/bin/python $$b || exit 1; done

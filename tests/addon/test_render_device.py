@@ -28,6 +28,7 @@ def test_cpu_and_unknown(empty_scene):
         use_device(empty_scene, "TPU")
 
 
+@pytest.mark.gpu  # skips where the host has that GPU
 @pytest.mark.parametrize("kind", ["OPTIX", "CUDA"])
 def test_missing_backend_names_host_and_what_cycles_sees(empty_scene, kind):
     if _gpus(kind):
@@ -38,6 +39,7 @@ def test_missing_backend_names_host_and_what_cycles_sees(empty_scene, kind):
     assert empty_scene.cycles.device == "CPU"  # left as it was
 
 
+@pytest.mark.gpu
 def test_gpu_backend_enables_only_its_devices(empty_scene):
     kind = next((k for k in DEVICES[1:] if _gpus(k)), None)
     if kind is None:

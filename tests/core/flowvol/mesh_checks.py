@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+import trimesh
 
 from nephele.core.flowvol.tets import face_use_counts, signed_volumes
 
@@ -22,17 +23,7 @@ def check_mesh(fv, positive=False):
     # The divergence theorem on the surface gives the tets' volume back.
     v = fv.surface.vertices.astype(np.float64)[f]
     assert np.einsum("ij,ij->i", v[:, 0], np.cross(v[:, 1], v[:, 2])).sum() / 6 == pytest.approx(fv.volume, rel=1e-5)
-    trimesh = _trimesh()
-    if trimesh is not None:
-        m = trimesh.Trimesh(v.reshape(-1, 3), np.arange(3 * len(f)).reshape(-1, 3), process=False)
-        m.merge_vertices()
-        assert m.is_watertight and m.is_winding_consistent
+    m = trimesh.Trimesh(v.reshape(-1, 3), np.arange(3 * len(f)).reshape(-1, 3), process=False)
+    m.merge_vertices()
+    assert m.is_watertight and m.is_winding_consistent
     return vol
-
-
-def _trimesh():
-    try:
-        import trimesh
-    except ImportError:  # the numpy 1.26 environment has no trimesh; the edge check above still runs
-        return None
-    return trimesh

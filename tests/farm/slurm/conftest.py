@@ -1,8 +1,8 @@
 """A real single-node Slurm cluster (slurmctld + slurmd + munged) for the whole test session.
 
 It is installed with apt-get when missing (root on Debian) and started once
-(see :mod:`slurm_local`); the tests skip, with the reason, only where that is
-impossible.  ``SLURM_CONF`` points every Slurm command of the session
+(see :mod:`slurm_local`); where that is impossible the tests skip with the reason, or,
+in a strict run (CI, ``make test-full``), the session stops with that one line.  ``SLURM_CONF`` points every Slurm command of the session
 (dask-jobqueue's ``sbatch``/``scancel`` too) at it.  Each test's jobs are
 cancelled after it, so one test's leftovers never hold the next one's CPUs.
 """
@@ -19,7 +19,7 @@ from slurm_local import LocalSlurm, Unavailable  # noqa: E402
 
 
 @pytest.fixture(scope="session")
-def slurm(tmp_path_factory):
+def slurm(tmp_path_factory, strict):
     pytest.importorskip("bpy")
     pytest.importorskip("dask_jobqueue")
     cluster = LocalSlurm(tmp_path_factory.mktemp("slurm"))
@@ -28,6 +28,8 @@ def slurm(tmp_path_factory):
         try:
             cluster.start()
         except Unavailable as exc:
+            if strict:
+                pytest.exit(f"no Slurm cluster here: {exc}", returncode=1)
             pytest.skip(f"no Slurm cluster here: {exc}")
         os.environ["SLURM_CONF"] = str(cluster.conf)
         yield cluster
