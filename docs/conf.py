@@ -34,7 +34,7 @@ exclude_patterns = ["_build", "*.py", "_ext", "benchmarks.lock"]
 
 # MyST: heading anchors for links such as `benchmarks.md#...`, $math$, ::: fences.
 myst_heading_anchors = 3
-myst_enable_extensions = ["dollarmath", "colon_fence", "deflist"]
+myst_enable_extensions = ["dollarmath", "colon_fence", "deflist", "attrs_inline"]
 
 # autodoc / numpydoc: document what the docstrings say, in source order, without the type
 # hints repeated in the signature (the numpydoc Parameters sections carry them).
