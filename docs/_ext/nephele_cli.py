@@ -10,7 +10,7 @@ from docutils import nodes
 from sphinx.util.docutils import SphinxDirective
 
 
-def help_text(command=None, width=96):
+def help_text(command=None, width=76):
     """The help of ``nephele`` (``command=None``) or of one sub-command, wrapped at ``width``."""
     from nephele.farm.cli import build_parser
 
