@@ -45,8 +45,6 @@ autosummary_generate = False
 numpydoc_show_class_members = False
 numpydoc_class_members_toctree = False
 numpydoc_xref_param_type = False
-# Imports the API pages need but that are not installed where the docs build (none today):
-autodoc_mock_imports = []
 
 # No network: MathJax is loaded by the browser when a page with math is opened, never by the build.
 html_theme = "pydata_sphinx_theme"
