@@ -127,3 +127,9 @@ extension: $(VENV)/.stamp build/native/.stamp
 
 clean:
 	rm -rf $(VENV) $(VENV311) dist build out
+
+# The documentation site (docs/, Sphinx + PyData theme + numpydoc + MyST): offline, warnings are errors.
+.PHONY: docs
+docs: $(VENV)/.stamp
+	$(VENV)/bin/python -m sphinx -W --keep-going -b html -q docs build/docs/html
+	@echo "docs: build/docs/html/index.html"

@@ -2,7 +2,8 @@
 
 ``write_section("contour", markdown)`` replaces the text between
 ``<!-- BEGIN contour -->`` and ``<!-- END contour -->`` (appending the section
-the first time), stamped with the date and the machine, atomically and under a
+the first time), stamped with the date, the machine and its load when the section
+is written (the 1/5/15-minute load averages), atomically and under a
 file lock so that benchmarks may run side by side.  A quick run (``--quick`` on
 the command line, the smoke test of ``make test``) prints its section and
 leaves docs/benchmarks.md alone: its numbers are not the benchmark's.
@@ -45,6 +46,15 @@ def machine():
     return f"{cpu}, {os.cpu_count()} cores{mem}, Python {platform.python_version()}, numpy {numpy.__version__}"
 
 
+def load():
+    """The machine's load averages now, e.g. ``"load 1.52 / 1.31 / 0.98 (1/5/15 min)"``."""
+    try:
+        one, five, fifteen = os.getloadavg()
+    except OSError:  # not available on this platform
+        return "load not available"
+    return f"load {one:.2f} / {five:.2f} / {fifteen:.2f} (1/5/15 min)"
+
+
 def md_table(header, rows):
     """A markdown table from a header list and rows of values (floats get 4 significant digits)."""
 
@@ -68,7 +78,7 @@ def write_section(name, body, title=None, doc=DOC):
     stamp = datetime.datetime.now().strftime("%Y-%m-%d %H:%M")
     text = (
         f"<!-- BEGIN {name} -->\n## {title or name}\n\n"
-        f"_Run {stamp} on {machine()}._\n\n{body.strip()}\n<!-- END {name} -->"
+        f"_Run {stamp} on {machine()}; {load()} at writing._\n\n{body.strip()}\n<!-- END {name} -->"
     )
     if quick():
         print(text)
