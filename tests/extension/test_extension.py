@@ -21,7 +21,7 @@ import pytest
 from nephele.farm import cmd_build_extension as be
 from nephele.farm.cli import UsageError, main
 
-pytestmark = pytest.mark.bpy
+pytestmark = [pytest.mark.bpy, pytest.mark.timeout(1200)]  # building and installing two zips takes minutes
 pytest.importorskip("bpy")  # the builder is the one inside the bpy wheel
 
 ROOT = Path(__file__).resolve().parents[2]
