@@ -151,7 +151,7 @@ def pinned_requirements(target, root=ROOT):
     if not path.is_file():
         raise UsageError(f"{path}: missing (the wheel pins for Python {target.python} are read from it)")
     pins = {}
-    for line in path.read_text().splitlines():
+    for line in path.read_text(encoding="utf-8").splitlines():
         m = re.match(r"\s*([A-Za-z0-9_.-]+)\s*==\s*([^\s;#]+)", line)
         if m and m.group(1).lower() in {b.lower() for b in BUNDLED}:
             pins[m.group(1).lower()] = f"{m.group(1)}=={m.group(2)}"
@@ -238,7 +238,7 @@ def native_wheel(dest, platform="linux-x64", macos=None, root=ROOT):
 
 def write_manifest(path, target, platforms, wheels):
     """Set ``platforms``, ``wheels`` and the Blender version range in a staged manifest."""
-    text = path.read_text()
+    text = path.read_text(encoding="utf-8")  # (TOML is UTF-8; Windows' default is its code page)
     lines = [f'blender_version_min = "{target.blender_min}"']
     if target.blender_max:
         lines.append(f'blender_version_max = "{target.blender_max}"')
@@ -247,7 +247,7 @@ def write_manifest(path, target, platforms, wheels):
     new, n = re.subn(r'(?m)^blender_version_min\s*=.*$', lambda _m: "\n".join(lines), text)
     if n != 1 or re.search(r"(?m)^(platforms|wheels|blender_version_max)\s*=", text):
         raise UsageError(f"{path}: expected one blender_version_min and no platforms/wheels/blender_version_max")
-    path.write_text(new)
+    path.write_text(new, encoding="utf-8")
 
 
 def _check(cmd, what):

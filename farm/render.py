@@ -87,7 +87,7 @@ def check_scene(scene):
         return path, "blend"
     if path.suffix.lower() == ".py":
         try:
-            tree = ast.parse(path.read_text(), filename=str(path))
+            tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))  # (Python source: UTF-8)
         except (SyntaxError, UnicodeDecodeError) as exc:
             raise DataError(f"the example script does not parse: {exc}", path=path, field="SCENE") from None
         if not any(isinstance(n, ast.FunctionDef) and n.name == "build" for n in tree.body):
