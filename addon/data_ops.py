@@ -252,14 +252,20 @@ def _inside(path, root):
 def _repoint(old, new):
     """Volumes and images whose files lie under ``old`` now read them under ``new`` (absolute paths;
     a save with relative paths on stores them relative)."""
-    old_s = str(Path(old).resolve())
+    old = Path(old).resolve()
     for block in (*bpy.data.volumes, *bpy.data.images):
         fp = getattr(block, "filepath", "")
-        if not fp:
-            continue
-        ab = str(Path(bpy.path.abspath(fp)).resolve())
-        if ab == old_s or ab.startswith(old_s + os.sep):
-            block.filepath = str(Path(new) / os.path.relpath(ab, old_s))
+        if fp and (moved := rebased(Path(bpy.path.abspath(fp)).resolve(), old, Path(new))) is not None:
+            block.filepath = str(moved)
+
+
+def rebased(path, old, new):
+    """``path`` moved from under folder ``old`` to ``new``, or None when it lies elsewhere.  Compared
+    as the system does: a Windows path in another letter case is the same file."""
+    try:
+        return new / path.relative_to(old)
+    except ValueError:
+        return None
 
 
 def _link_or_copy(src, dst):
@@ -310,12 +316,17 @@ def adopt_files(blend_path):
     return done
 
 
+def same_file_name(a, b, path=os.path):
+    """Whether two paths name one file as the system compares names (Windows: in any letter case)."""
+    return path.normcase(path.abspath(a)) == path.normcase(path.abspath(b))
+
+
 def finish_save(filepath):
     """After the save: the session's originals go when ``filepath`` is now the edited
     file; after a "save copy" the layers point back where they were."""
     from . import frame
 
-    copy = os.path.abspath(bpy.data.filepath or "") != os.path.abspath(filepath)
+    copy = not same_file_name(bpy.data.filepath or "", filepath)
     for name, old_params, old, new, from_session in _PENDING:
         obj = bpy.data.objects.get(name)
         if copy:

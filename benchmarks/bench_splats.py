@@ -32,6 +32,7 @@ cases, prints only, does not write docs/benchmarks.md).
 import argparse
 import os
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -372,7 +373,7 @@ def blender_child(scene_kind, w, h, camera_only):
         scene.render.engine = "BLENDER_EEVEE"
         scene.eevee.taa_render_samples = 1
         scene.eevee.use_shadows = False  # llvmpipe: the shadow pass alone takes minutes
-    scene.render.filepath = str(Path(os.environ.get("TMPDIR", "/tmp")) / f"nephele_bench_splats_{scene_kind}_{w}.png")
+    scene.render.filepath = str(Path(tempfile.gettempdir()) / f"nephele_bench_splats_{scene_kind}_{w}.png")
     t0 = time.perf_counter()
     bpy.ops.render.render(write_still=True)
     render = time.perf_counter() - t0

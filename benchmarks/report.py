@@ -10,14 +10,13 @@ leaves docs/benchmarks.md alone: its numbers are not the benchmark's.
 """
 
 import datetime
-import fcntl
 import os
 import platform
 import re
 import sys
 from pathlib import Path
 
-from nephele.core.files import atomic_write
+from nephele.core.files import atomic_write, locked
 
 DOC = Path(__file__).resolve().parent.parent / "docs" / "benchmarks.md"
 HEADER = "# Benchmarks\n\nWritten by the scripts in `benchmarks/` (`make bench`). Each section says when and where it ran.\n"
@@ -86,8 +85,7 @@ def write_section(name, body, title=None, doc=DOC):
         return
     doc = Path(doc)
     doc.parent.mkdir(parents=True, exist_ok=True)
-    with open(doc.with_suffix(".lock"), "w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)
+    with locked(doc.with_suffix(".lock")):
         old = doc.read_text() if doc.exists() else HEADER
         pattern = re.compile(rf"<!-- BEGIN {re.escape(name)} -->.*?<!-- END {re.escape(name)} -->", re.S)
         new = pattern.sub(lambda m: text, old) if pattern.search(old) else old.rstrip() + "\n\n" + text + "\n"

@@ -11,8 +11,14 @@ users must read what one node wrote.
 
 import contextlib
 import os
+import time
 import uuid
 from pathlib import Path
+
+_WINDOWS = os.name == "nt"
+REPLACE_WAITS = (0.05, 0.1, 0.2, 0.4, 0.8, 1.6)
+"""Seconds between tries of a Windows rename onto a file another program holds open
+(a viewer, Blender reading a frame, a virus scanner): 3.15 s in all, then the error."""
 
 
 @contextlib.contextmanager
@@ -57,13 +63,77 @@ def atomic_write(path, *, fsync=True):
             os.chmod(tmp, mode)
         if fsync:
             _fsync(tmp, os.O_RDWR)  # Windows flushes only a handle open for writing
-        os.replace(tmp, path)
+        replace(tmp, path)
     except BaseException as exc:
         if made or not isinstance(exc, FileExistsError):  # (that one: the name was not ours)
             tmp.unlink(missing_ok=True)
         raise
     if fsync and os.name == "posix":  # the rename itself; folders cannot be opened on Windows
         _fsync(path.parent, os.O_RDONLY)
+
+
+def replace(src, dst):
+    """:func:`os.replace`, retried on Windows while another program holds ``dst`` open.
+
+    POSIX renames over an open file; Windows refuses (PermissionError) until every
+    handle on it is closed.  After :data:`REPLACE_WAITS` the error says which file
+    is held.
+    """
+    for wait in (*REPLACE_WAITS, None) if _WINDOWS else (None,):
+        try:
+            return os.replace(src, dst)
+        except PermissionError as exc:
+            if wait is None:
+                if _WINDOWS:
+                    raise PermissionError(exc.errno, f"{dst} is open in another program (Windows cannot replace an "
+                                          "open file); close it and try again", str(dst)) from None
+                raise
+            time.sleep(wait)
+
+
+@contextlib.contextmanager
+def locked(path, *, wait=True, remove=False):
+    """Hold an exclusive lock on the file ``path`` (made if missing) for the block.
+
+    ``fcntl.flock`` on POSIX, ``msvcrt.locking`` of its first byte on Windows; the
+    lock goes with the process, so a killed holder never leaves it taken.
+    ``wait=False``: :class:`BlockingIOError` at once when another process holds it.
+    ``remove``: delete the file when done (POSIX: while still holding it; Windows,
+    which deletes no open file: once released, unless another process has it open).
+    """
+    f = open(path, "a+b")
+    try:
+        if _WINDOWS:
+            import msvcrt
+
+            f.seek(0)
+            while True:  # LK_LOCK would give up after 10 s: wait as long as flock does
+                try:
+                    msvcrt.locking(f.fileno(), msvcrt.LK_NBLCK, 1)
+                    break
+                except OSError:
+                    if not wait:
+                        raise BlockingIOError(f"{path} is locked by another process") from None
+                    time.sleep(0.1)
+            try:
+                yield f
+            finally:
+                f.seek(0)
+                msvcrt.locking(f.fileno(), msvcrt.LK_UNLCK, 1)
+        else:
+            import fcntl
+
+            fcntl.flock(f, fcntl.LOCK_EX | (0 if wait else fcntl.LOCK_NB))  # BlockingIOError if held
+            try:
+                yield f
+            finally:
+                if remove:
+                    Path(path).unlink(missing_ok=True)
+    finally:
+        f.close()
+    if remove and _WINDOWS:
+        with contextlib.suppress(OSError):
+            Path(path).unlink(missing_ok=True)
 
 
 def _fsync(path, flags):
@@ -74,4 +144,4 @@ def _fsync(path, flags):
         os.close(fd)
 
 
-__all__ = ["atomic_write"]
+__all__ = ["atomic_write", "locked", "replace"]

@@ -16,7 +16,7 @@ def _module():
         return None
     try:
         import nephele_native
-    except ImportError:
+    except (ImportError, OSError):  # OSError: a library the loader refuses (another arch, a damaged file)
         return None
     return nephele_native
 

@@ -19,9 +19,11 @@ sub-folder is reused without the network, and ``--offline`` refuses to fetch.
 Only the extension's parts (``__init__.py``, ``blender_manifest.toml``,
 ``addon/``, ``core/``, ``README.md``, licence files) are staged, so nothing
 local leaks in; the manifest's ``[build]`` excludes still apply.  The zip for
-the platform this runs on also gets the compiled kernels (``native/``, built
-here from source as the ``nephele_native`` wheel); other platforms' zips run
-the kernels' NumPy twins.  The builder
+every platform carries the compiled kernels (``native/``, built here from
+source as that platform's ``nephele_native`` wheel: this machine's ``cc`` for
+Linux, ``zig cc`` from the ``ziglang`` package for Windows and macOS, the dylibs
+with the minimum macOS of the zip's other wheels), each read back and refused
+unless its format, architecture and imports are the platform's.  The builder
 is ``blender_ext.py`` from the ``bpy`` wheel, or ``blender --command
 extension`` when ``--blender`` is given.
 """
@@ -149,7 +151,7 @@ def pinned_requirements(target, root=ROOT):
     if not path.is_file():
         raise UsageError(f"{path}: missing (the wheel pins for Python {target.python} are read from it)")
     pins = {}
-    for line in path.read_text().splitlines():
+    for line in path.read_text(encoding="utf-8").splitlines():
         m = re.match(r"\s*([A-Za-z0-9_.-]+)\s*==\s*([^\s;#]+)", line)
         if m and m.group(1).lower() in {b.lower() for b in BUNDLED}:
             pins[m.group(1).lower()] = f"{m.group(1)}=={m.group(2)}"
@@ -164,6 +166,19 @@ def wheel_name(path):
     return re.sub(r"[-_.]+", "-", Path(path).name.split("-")[0]).lower()
 
 
+def _cache_folder(target, platform, cache):
+    return Path(cache) / f"{target.abi}-{platform}"
+
+
+def macos_minimum(target, platform, cache):
+    """The minimum macOS of ``platform``'s fetched wheels (``"14.0"`` for ``macosx_14_0_arm64``), the
+    version the zip's kernels are built for; None off macOS."""
+    if not platform.startswith("macos"):
+        return None
+    tags = (_cache_folder(target, platform, cache) / "tags.txt").read_text().split()
+    return ".".join(re.match(r"macosx_(\d+)_(\d+)_", tags[0]).groups())
+
+
 def fetch_wheels(target, platform, cache, offline=False, root=ROOT):
     """The wheels to bundle for ``target`` on ``platform``, downloaded into ``cache`` once.
 
@@ -176,7 +191,7 @@ def fetch_wheels(target, platform, cache, offline=False, root=ROOT):
     alternatives = PLATFORM_TAGS[platform]
     stamp_text = "\n".join(request + [" ".join(tags) for tags in alternatives]) + "\n"
     cache = Path(cache)
-    folder = cache / f"{target.abi}-{platform}"
+    folder = _cache_folder(target, platform, cache)
     stamp = folder / "request.txt"
     if not (stamp.is_file() and stamp.read_text() == stamp_text):
         if offline:
@@ -210,27 +225,20 @@ def fetch_wheels(target, platform, cache, offline=False, root=ROOT):
     return wheels
 
 
-def host_platform():
-    """The Blender platform name of this machine, or None if no kernels are built for it."""
-    import platform
-
-    return "linux-x64" if sys.platform.startswith("linux") and platform.machine() in ("x86_64", "AMD64") else None
-
-
-def native_wheel(dest, root=ROOT):
-    """Build the compiled kernels' wheel into ``dest`` (from ``root/native``); returns its path."""
+def native_wheel(dest, platform="linux-x64", macos=None, root=ROOT):
+    """Build the compiled kernels' wheel for ``platform`` into ``dest`` (from ``root/native``); returns its path."""
     spec = importlib.util.spec_from_file_location("nephele_native_build", root / "native" / "build.py")
     build = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(build)
     try:
-        return build.wheel(dest)
-    except (OSError, subprocess.CalledProcessError) as e:
-        raise UsageError(f"building the compiled kernels (native/) failed: {e}") from None
+        return build.wheel(dest, target=platform, macos=macos, toolchain=root / "build" / "toolchain")
+    except (OSError, subprocess.CalledProcessError, build.BuildError) as e:
+        raise UsageError(f"building the compiled kernels (native/) for {platform} failed: {e}") from None
 
 
 def write_manifest(path, target, platforms, wheels):
     """Set ``platforms``, ``wheels`` and the Blender version range in a staged manifest."""
-    text = path.read_text()
+    text = path.read_text(encoding="utf-8")  # (TOML is UTF-8; Windows' default is its code page)
     lines = [f'blender_version_min = "{target.blender_min}"']
     if target.blender_max:
         lines.append(f'blender_version_max = "{target.blender_max}"')
@@ -239,7 +247,7 @@ def write_manifest(path, target, platforms, wheels):
     new, n = re.subn(r'(?m)^blender_version_min\s*=.*$', lambda _m: "\n".join(lines), text)
     if n != 1 or re.search(r"(?m)^(platforms|wheels|blender_version_max)\s*=", text):
         raise UsageError(f"{path}: expected one blender_version_min and no platforms/wheels/blender_version_max")
-    path.write_text(new)
+    path.write_text(new, encoding="utf-8")
 
 
 def _check(cmd, what):
@@ -261,8 +269,8 @@ def build_target(target, platforms, out, cmd, cache, offline=False, root=ROOT):
                 if w.name not in names:
                     shutil.copy2(w, src / "wheels" / w.name)
                     names.add(w.name)
-            if platform == host_platform():
-                native_wheel(src / "wheels", root)
+            kernels = native_wheel(src / "wheels", platform, macos_minimum(target, platform, cache), root)
+            print(f"compiled kernels for {platform}: {kernels.name}", flush=True)
         wheels = sorted((src / "wheels").glob("*.whl"))
         write_manifest(src / "blender_manifest.toml", target, platforms, wheels)
         build_dir = Path(tmp) / "out"

@@ -10,7 +10,6 @@ retries failed frames up to a limit, and records everything in
 import ast
 import contextlib
 import datetime
-import fcntl
 import json
 import os
 import shutil
@@ -23,6 +22,7 @@ from pathlib import Path
 
 from ..addon.render_device import DEVICES
 from ..core.errors import DataError
+from ..core.files import locked
 from .cli import UsageError
 from .frames import FORMATS, TMP_DIR, InvalidFrame, check_image, chunks, format_frames, frame_name, parse_frames
 from .manifest import Manifest, classify, file_entry, views_entry
@@ -87,7 +87,7 @@ def check_scene(scene):
         return path, "blend"
     if path.suffix.lower() == ".py":
         try:
-            tree = ast.parse(path.read_text(), filename=str(path))
+            tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))  # (Python source: UTF-8)
         except (SyntaxError, UnicodeDecodeError) as exc:
             raise DataError(f"the example script does not parse: {exc}", path=path, field="SCENE") from None
         if not any(isinstance(n, ast.FunctionDef) and n.name == "build" for n in tree.body):
@@ -136,16 +136,12 @@ def _check_options(engine, samples, resolution, percentage, device, fmt, retries
 @contextlib.contextmanager
 def _lock(out):
     """One run per output directory at a time."""
-    path = out / ".nephele.lock"
-    with open(path, "w") as f:
+    with contextlib.ExitStack() as held:
         try:
-            fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
+            held.enter_context(locked(out / ".nephele.lock", wait=False, remove=True))
+        except BlockingIOError:
             raise DataError("another nephele render is writing this directory", path=out, field="--out") from None
-        try:
-            yield
-        finally:
-            path.unlink(missing_ok=True)
+        yield
 
 
 class Progress:

@@ -41,6 +41,7 @@ from distributed import get_worker
 from distributed.diagnostics.plugin import WorkerPlugin
 
 from ..addon.render_device import use_device
+from ..core.files import replace
 from .frames import FORMATS, TMP_DIR, InvalidFrame, check_image, frame_name, sha256_file
 
 ENGINES = ("CYCLES", "BLENDER_EEVEE", "BLENDER_WORKBENCH")
@@ -398,7 +399,7 @@ def render_one(scene, spec, frame, address):
             records.append(sha256_file(t))
         stats = []
         for t, name in zip(tmps, names):
-            os.replace(t, out / name)
+            replace(t, out / name)  # (Windows: retried while a viewer holds the old frame)
             stats.append((out / name).stat())
     except BaseException as exc:
         with open(log, "a") as f:

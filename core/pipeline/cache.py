@@ -20,6 +20,7 @@ from ..files import atomic_write
 from . import registry
 
 CACHE_VERSION = 1
+_WINDOWS = os.name == "nt"
 """Bump when the meaning of cached arrays changes; old entries are then ignored."""
 
 
@@ -113,6 +114,8 @@ def session_cache_dir(base=None, *, create=True):
 
 
 def _alive(pid):
+    if _WINDOWS:  # os.kill(pid, 0) there sends CTRL_C_EVENT (0), it does not ask
+        return _alive_windows(pid, _kernel32())
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
@@ -120,6 +123,31 @@ def _alive(pid):
     except (PermissionError, OSError):
         return True  # someone else's live process
     return True
+
+
+def _kernel32():
+    import ctypes
+
+    k = ctypes.WinDLL("kernel32", use_last_error=True)
+    k.OpenProcess.restype = ctypes.c_void_p
+    k.OpenProcess.argtypes = [ctypes.c_uint32, ctypes.c_int, ctypes.c_uint32]
+    k.GetExitCodeProcess.argtypes = [ctypes.c_void_p, ctypes.POINTER(ctypes.c_uint32)]
+    k.CloseHandle.argtypes = [ctypes.c_void_p]
+    return k
+
+
+def _alive_windows(pid, k):
+    """Whether process ``pid`` runs, asked of Windows (``k``: kernel32 with its types set)."""
+    import ctypes
+
+    handle = k.OpenProcess(0x1000, False, pid)  # PROCESS_QUERY_LIMITED_INFORMATION
+    if not handle:
+        return ctypes.get_last_error() == 5  # access denied: someone else's live process
+    try:
+        code = ctypes.c_uint32()
+        return bool(k.GetExitCodeProcess(handle, ctypes.byref(code))) and code.value == 259  # STILL_ACTIVE
+    finally:
+        k.CloseHandle(handle)
 
 
 def prune_sessions(base=None, max_age_days=7.0):
@@ -164,8 +192,11 @@ def tree_size(path):
 
 def available_memory():
     """Bytes of memory the machine can still give (``MemAvailable`` of ``/proc/meminfo``,
-    else free pages from ``os.sysconf``; None when neither is known).  Needs no psutil,
-    which Blender does not ship."""
+    Windows' ``GlobalMemoryStatusEx``, else free pages from ``os.sysconf``, else, on macOS,
+    its physical memory; None when none is known).  Needs no psutil, which Blender does
+    not ship."""
+    if _WINDOWS:
+        return _windows_available_memory()
     try:
         with open("/proc/meminfo") as f:
             for line in f:
@@ -173,10 +204,29 @@ def available_memory():
                     return int(line.split()[1]) * 1024
     except (OSError, ValueError, IndexError):
         pass
+    for pages in ("SC_AVPHYS_PAGES", "SC_PHYS_PAGES"):  # macOS has only the second: an upper bound
+        try:
+            return int(os.sysconf(pages)) * int(os.sysconf("SC_PAGE_SIZE"))
+        except (ValueError, OSError, AttributeError):
+            pass
+    return None
+
+
+def _windows_available_memory():
+    import ctypes
+
+    class Status(ctypes.Structure):  # MEMORYSTATUSEX
+        _fields_ = [("length", ctypes.c_uint32), ("load", ctypes.c_uint32), ("total", ctypes.c_uint64),
+                    ("avail", ctypes.c_uint64), ("total_page", ctypes.c_uint64), ("avail_page", ctypes.c_uint64),
+                    ("total_virtual", ctypes.c_uint64), ("avail_virtual", ctypes.c_uint64),
+                    ("avail_extended", ctypes.c_uint64)]
+
+    st = Status(length=ctypes.sizeof(Status))
     try:
-        return int(os.sysconf("SC_AVPHYS_PAGES")) * int(os.sysconf("SC_PAGE_SIZE"))
-    except (ValueError, OSError, AttributeError):
+        ok = ctypes.WinDLL("kernel32").GlobalMemoryStatusEx(ctypes.byref(st))
+    except (AttributeError, OSError):
         return None
+    return int(st.avail) if ok else None
 
 
 def check_memory(need, what, *, available=None, field=None):

@@ -16,6 +16,14 @@
 
 #include "fastexp.h"
 
+/* An AVX2 clone beside the baseline one, chosen at load time: GCC on x86-64 ELF (ifunc).  Zig's
+ * clang for Windows and macOS has no runtime for the choice (__cpu_model): baseline code there. */
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+#define CLONES __attribute__((target_clones("avx2", "default")))
+#else
+#define CLONES
+#endif
+
 enum { CX, CY, CZ, AXX, AYY, AZZ, AXY, AXZ, AYZ, LNW, NCOL };
 
 struct rules {
@@ -145,7 +153,7 @@ static inline void start(struct lane *L, int64_t v, const int64_t *qb, const str
 
 /* Project vertices vid[0..n) (sorted by block): see _project for the vertex arrays and outputs, and
  * _project_c for the rest.  Returns 0, or -1 when out of memory. */
-__attribute__((target_clones("avx2", "default"))) int blobby_project(
+CLONES int blobby_project(
     int64_t n, const int64_t *vid, const int32_t *blk, const int8_t *axis, const uint8_t *node, const double *t,
     const float *curv, const uint8_t *above, const int64_t *q, const int64_t *fine_start, const int64_t *fine_g,
     const double *gc, const double *ga, const double *lnw, const int64_t *src, int64_t gmax, const double *h,

@@ -1,0 +1,50 @@
+/* Generated preprocessor boilerplate for harness.c: NPH_NARGS counts up to 40 arguments, and
+ * NPH_MAPk(m, i, x1 .. xk) expands to m(x1, i), m(x2, i + 1), ..., m(xk, i + k - 1). */
+
+#ifndef NEPHELE_HARNESS_MAP_H
+#define NEPHELE_HARNESS_MAP_H
+
+#define NPH_NARGS(...) NPH_NTH(__VA_ARGS__, 40, 39, 38, 37, 36, 35, 34, 33, 32, 31, 30, 29, 28, 27, 26, 25, 24, 23, 22, 21, 20, 19, 18, 17, 16, 15, 14, 13, 12, 11, 10, 9, 8, 7, 6, 5, 4, 3, 2, 1, 0)
+#define NPH_NTH(_1, _2, _3, _4, _5, _6, _7, _8, _9, _10, _11, _12, _13, _14, _15, _16, _17, _18, _19, _20, _21, _22, _23, _24, _25, _26, _27, _28, _29, _30, _31, _32, _33, _34, _35, _36, _37, _38, _39, _40, n, ...) n
+#define NPH_MAP1(m, i, x) m(x, i)
+#define NPH_MAP2(m, i, x, ...) m(x, i), NPH_MAP1(m, i + 1, __VA_ARGS__)
+#define NPH_MAP3(m, i, x, ...) m(x, i), NPH_MAP2(m, i + 1, __VA_ARGS__)
+#define NPH_MAP4(m, i, x, ...) m(x, i), NPH_MAP3(m, i + 1, __VA_ARGS__)
+#define NPH_MAP5(m, i, x, ...) m(x, i), NPH_MAP4(m, i + 1, __VA_ARGS__)
+#define NPH_MAP6(m, i, x, ...) m(x, i), NPH_MAP5(m, i + 1, __VA_ARGS__)
+#define NPH_MAP7(m, i, x, ...) m(x, i), NPH_MAP6(m, i + 1, __VA_ARGS__)
+#define NPH_MAP8(m, i, x, ...) m(x, i), NPH_MAP7(m, i + 1, __VA_ARGS__)
+#define NPH_MAP9(m, i, x, ...) m(x, i), NPH_MAP8(m, i + 1, __VA_ARGS__)
+#define NPH_MAP10(m, i, x, ...) m(x, i), NPH_MAP9(m, i + 1, __VA_ARGS__)
+#define NPH_MAP11(m, i, x, ...) m(x, i), NPH_MAP10(m, i + 1, __VA_ARGS__)
+#define NPH_MAP12(m, i, x, ...) m(x, i), NPH_MAP11(m, i + 1, __VA_ARGS__)
+#define NPH_MAP13(m, i, x, ...) m(x, i), NPH_MAP12(m, i + 1, __VA_ARGS__)
+#define NPH_MAP14(m, i, x, ...) m(x, i), NPH_MAP13(m, i + 1, __VA_ARGS__)
+#define NPH_MAP15(m, i, x, ...) m(x, i), NPH_MAP14(m, i + 1, __VA_ARGS__)
+#define NPH_MAP16(m, i, x, ...) m(x, i), NPH_MAP15(m, i + 1, __VA_ARGS__)
+#define NPH_MAP17(m, i, x, ...) m(x, i), NPH_MAP16(m, i + 1, __VA_ARGS__)
+#define NPH_MAP18(m, i, x, ...) m(x, i), NPH_MAP17(m, i + 1, __VA_ARGS__)
+#define NPH_MAP19(m, i, x, ...) m(x, i), NPH_MAP18(m, i + 1, __VA_ARGS__)
+#define NPH_MAP20(m, i, x, ...) m(x, i), NPH_MAP19(m, i + 1, __VA_ARGS__)
+#define NPH_MAP21(m, i, x, ...) m(x, i), NPH_MAP20(m, i + 1, __VA_ARGS__)
+#define NPH_MAP22(m, i, x, ...) m(x, i), NPH_MAP21(m, i + 1, __VA_ARGS__)
+#define NPH_MAP23(m, i, x, ...) m(x, i), NPH_MAP22(m, i + 1, __VA_ARGS__)
+#define NPH_MAP24(m, i, x, ...) m(x, i), NPH_MAP23(m, i + 1, __VA_ARGS__)
+#define NPH_MAP25(m, i, x, ...) m(x, i), NPH_MAP24(m, i + 1, __VA_ARGS__)
+#define NPH_MAP26(m, i, x, ...) m(x, i), NPH_MAP25(m, i + 1, __VA_ARGS__)
+#define NPH_MAP27(m, i, x, ...) m(x, i), NPH_MAP26(m, i + 1, __VA_ARGS__)
+#define NPH_MAP28(m, i, x, ...) m(x, i), NPH_MAP27(m, i + 1, __VA_ARGS__)
+#define NPH_MAP29(m, i, x, ...) m(x, i), NPH_MAP28(m, i + 1, __VA_ARGS__)
+#define NPH_MAP30(m, i, x, ...) m(x, i), NPH_MAP29(m, i + 1, __VA_ARGS__)
+#define NPH_MAP31(m, i, x, ...) m(x, i), NPH_MAP30(m, i + 1, __VA_ARGS__)
+#define NPH_MAP32(m, i, x, ...) m(x, i), NPH_MAP31(m, i + 1, __VA_ARGS__)
+#define NPH_MAP33(m, i, x, ...) m(x, i), NPH_MAP32(m, i + 1, __VA_ARGS__)
+#define NPH_MAP34(m, i, x, ...) m(x, i), NPH_MAP33(m, i + 1, __VA_ARGS__)
+#define NPH_MAP35(m, i, x, ...) m(x, i), NPH_MAP34(m, i + 1, __VA_ARGS__)
+#define NPH_MAP36(m, i, x, ...) m(x, i), NPH_MAP35(m, i + 1, __VA_ARGS__)
+#define NPH_MAP37(m, i, x, ...) m(x, i), NPH_MAP36(m, i + 1, __VA_ARGS__)
+#define NPH_MAP38(m, i, x, ...) m(x, i), NPH_MAP37(m, i + 1, __VA_ARGS__)
+#define NPH_MAP39(m, i, x, ...) m(x, i), NPH_MAP38(m, i + 1, __VA_ARGS__)
+#define NPH_MAP40(m, i, x, ...) m(x, i), NPH_MAP39(m, i + 1, __VA_ARGS__)
+
+#endif

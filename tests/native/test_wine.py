@@ -1,0 +1,151 @@
+"""The Windows library, cross-built here, run under wine64 on the kernels' real inputs and compared
+with the Linux library's outputs (``-k wine``).
+
+Calls are recorded on Linux while the drivers below run the Python code that calls the kernels, then
+replayed by native/tests/harness.c, built against each library.  Adding a kernel: one ``KERNEL`` line
+in native/tests/kernels.def; if no driver below reaches it, a driver (a small call of its Python
+caller, ``DRIVERS``); if its results depend on libm (exp, log, pow...), an entry in ``TOLERANCE`` with
+the rtol its NumPy-twin test uses.  Everything else is compared bit for bit.
+"""
+
+import ctypes
+import re
+import subprocess
+
+import numpy as np
+import pytest
+
+from kernel_calls import Recorder, loaded, read_out, write_calls
+from nephele.core import native
+from nephele.core.muscle import blobby
+
+pytestmark = pytest.mark.slow
+
+# Runtime symbols the DLL exports beside the kernels (zig's MinGW start-up code).
+RUNTIME_EXPORTS = {"_CRT_INIT", "__mingw_module_is_dll", "atexit"}
+
+
+def _rotations(rng, n):
+    q, _ = np.linalg.qr(rng.normal(size=(n, 3, 3)))
+    return q
+
+
+def blobby_plain():
+    """Every mesher kernel: 40 random ellipsoids, one of them 20:1 (the large-exponent node values)."""
+    rng = np.random.default_rng(5)
+    c, s = rng.uniform(0, 6, (40, 3)), rng.uniform(0.4, 1.0, (40, 3))
+    s[0] = [4.0, 0.2, 0.2]
+    blobby.blobby_surface(c, _rotations(rng, 40), s, rng.uniform(0.6, 1.4, 40), 0.3, 0.2, threads=2)
+
+
+def blobby_periodic():
+    """The periodic paths: images, wrapped keys, nodes lying on the box."""
+    rng = np.random.default_rng(6)
+    c = rng.uniform(0, 5, (25, 3))
+    blobby.blobby_surface(c, _rotations(rng, 25), rng.uniform(0.4, 0.9, (25, 3)), rng.uniform(0.6, 1.4, 25), 0.3,
+                          0.25, box=(5.0, 5.5, 4.5), threads=1)
+
+
+def fastexp_edges():
+    """fastexp.h's exp (its test's kernel) on its range ends, NaN, infinities and subnormal results."""
+    fn = native.kernel("blobby_fastexp", None, [ctypes.c_int64] + [np.ctypeslib.ndpointer(np.float64, flags="C")] * 2)
+    x = np.concatenate([[-np.inf, -1000.0, -708.5, -708.0, -707.9, np.nan, 0.0, -0.0, 709.0, 709.5, 1e300, np.inf],
+                        np.linspace(-60, 5, 4001), np.random.default_rng(7).uniform(-708, 709, 4003)])
+    fn(len(x), x, np.empty_like(x))
+
+
+DRIVERS = (blobby_plain, blobby_periodic, fastexp_edges)
+
+# kernel -> (buffer dtype, rtol) where results go through libm (its float32 expf: glibc's vs the UCRT's),
+# the tolerance of the kernel's NumPy-twin test (tests/core/muscle/test_blobby_native_nodes.py).
+TOLERANCE = {"blobby_node_values": (np.float32, 2e-6)}
+
+
+@pytest.fixture(scope="module")
+def recorded(linux_lib, tmp_path_factory, monkeypatch_module):
+    """The drivers' kernel calls through the freshly built Linux library, and CALLS.bin."""
+    lib = loaded(linux_lib)
+    monkeypatch_module.setattr(native, "_module", lambda: lib)
+    rec = Recorder(native.kernel)
+    monkeypatch_module.setattr(native, "kernel", rec.kernel)
+    for drive in DRIVERS:
+        drive()
+    path = tmp_path_factory.mktemp("calls") / "calls.bin"
+    write_calls(rec.calls, path)
+    return rec.calls, path
+
+
+@pytest.fixture(scope="module")
+def monkeypatch_module():
+    mp = pytest.MonkeyPatch()
+    yield mp
+    mp.undo()
+
+
+def _entries(harness, cmd=(), env=None):
+    out = subprocess.run([*cmd, str(harness), "--list"], capture_output=True, text=True, check=True, env=env).stdout
+    return {ln.split(" ", 2)[0]: (ln.split(" ", 2)[1], tuple(ln.split(" ", 2)[2].split(", ")))
+            for ln in out.splitlines() if ln.strip()}
+
+
+def _linux_exports(lib):
+    out = subprocess.run(["nm", "-D", "--defined-only", str(lib)], capture_output=True, text=True, check=True).stdout
+    return {m.group(1) for m in re.finditer(r"(?m)^\S+ [Ti] (\w+)$", out)}
+
+
+def test_wine_every_exported_kernel_has_a_harness_entry(harnesses, linux_lib, windows_lib, build, recorded):
+    entries = _entries(harnesses[0])
+    kernels = _linux_exports(linux_lib)
+    assert kernels == set(entries), f"kernels.def lacks {sorted(kernels - set(entries))} / has extra {sorted(set(entries) - kernels)}"
+    dll = set(build.describe(windows_lib)["exports"])
+    assert dll - RUNTIME_EXPORTS == kernels, sorted(dll ^ kernels)
+    called = {c.name for c in recorded[0]}
+    assert called == kernels, f"no driver in test_wine.DRIVERS reaches {sorted(kernels - called)}"
+
+
+def test_wine_entries_match_the_python_types(harnesses, recorded):
+    entries = _entries(harnesses[0])
+    for c in recorded[0]:
+        assert entries[c.name] == (c.sig[0], c.sig[1]), (c.name, entries[c.name], c.sig)
+
+
+def test_wine_linux_harness_replays_the_calls_exactly(harnesses, recorded, tmp_path):
+    # The replay itself is faithful: the harness reproduces what the live calls from Python gave.
+    calls, path = recorded
+    subprocess.run([str(harnesses[0]), str(path), str(tmp_path / "out.bin")], check=True)
+    got = read_out(tmp_path / "out.bin")
+    assert len(got) == len(calls)
+    for c, (result, bufs) in zip(calls, got):
+        assert result == (c.result or 0), c.name
+        assert [b for i, b in enumerate(bufs) if i not in c.tables] == [b for i, b in enumerate(c.after)
+                                                                        if i not in c.tables], c.name
+
+
+def test_wine_windows_kernels_match_linux(harnesses, recorded, wine, tmp_path):
+    calls, path = recorded
+    subprocess.run([str(harnesses[0]), str(path), str(tmp_path / "linux.bin")], check=True)
+    cmd, env = wine
+    exe = harnesses[1]
+    # Relative paths from the exe's folder: wine maps the Unix working directory to a drive.
+    (exe.parent / "calls.bin").write_bytes(path.read_bytes())
+    res = subprocess.run([*cmd, exe.name, "calls.bin", "out.bin"], cwd=exe.parent, env=env, capture_output=True,
+                         text=True, timeout=600)
+    assert res.returncode == 0, res.stderr[-2000:]
+    linux, windows = read_out(tmp_path / "linux.bin"), read_out(exe.parent / "out.bin")
+    assert len(windows) == len(linux) == len(calls)
+    exact = close = written = 0
+    for c, (r_lin, b_lin), (r_win, b_win) in zip(calls, linux, windows):
+        assert r_win == r_lin, c.name
+        for i, (lin, win) in enumerate(zip(b_lin, b_win, strict=True)):
+            written += lin != c.before[i]  # outputs: what the call changed
+            if lin == win:
+                exact += 1
+                continue
+            assert c.name in TOLERANCE, f"{c.name}: buffer {i} differs between Windows and Linux"
+            dtype, rtol = TOLERANCE[c.name]
+            a, b = np.frombuffer(win, dtype).astype(float), np.frombuffer(lin, dtype).astype(float)
+            assert np.all(np.abs(a - b) <= rtol * np.abs(b) + 1e-37), (c.name, i, np.abs(a - b).max())
+            close += 1
+    print(f"{len(calls)} calls of {len({c.name for c in calls})} kernels: {written} output buffers, {exact} of "
+          f"all buffers bit-identical, {close} within tolerance")
+    assert written >= len(calls)  # every call wrote something, and it was compared
