@@ -292,6 +292,19 @@ def _parametric_coordinate(ds, zdim):
     return zvar
 
 
+def _open_netcdf(path):
+    """``xarray.open_dataset`` of a NetCDF file (times left as numbers), its failure as one line."""
+    import xarray as xr
+
+    try:
+        return xr.open_dataset(path, decode_times=False, mask_and_scale=True)
+    except Exception as exc:  # netCDF4/HDF5/scipy raise many types for a bad file
+        first = (str(exc).strip().splitlines() or [""])[0]
+        if "did not find a match" in first:
+            first = "the contents are not NetCDF 3 or NetCDF 4/HDF5"
+        raise DataError(f"cannot open as NetCDF ({type(exc).__name__}: {first})", path=path) from exc
+
+
 class NetCDFDataset(FileDataset):
     """A CF NetCDF file opened lazily; see the module docstring for what is understood."""
 
@@ -317,21 +330,34 @@ class NetCDFDataset(FileDataset):
         opened : xarray.Dataset, optional
             Another reader's CF view of the file (GRIB through cfgrib).
         """
-        import xarray as xr
-
-        self._p0, self._vertical_kind, notes = p0, vertical, []
-        self._notes = notes
-        if opened is not None:  # another reader's CF view of its file (GRIB through cfgrib)
-            ds = opened
+        self._p0, self._vertical_kind, self._notes = p0, vertical, []
+        self._ds = ds = opened if opened is not None else _open_netcdf(path)
+        lon_name, lat_name, projected, curvilinear, rotation = self._horizontal_axes(ds, path)
+        time_name, time_dim = self._time_axis(ds)
+        names, skipped = self._three_d_fields(ds, path, lon_name, lat_name, time_name, time_dim)
+        self._time_dim = time_dim
+        if curvilinear:
+            lon, lat, lon_index, lat_index, lon2d, lat2d = self._curvilinear(ds, path, lon_name, lat_name, projected, *self._lonlat_dims)
         else:
-            try:
-                ds = xr.open_dataset(path, decode_times=False, mask_and_scale=True)
-            except Exception as exc:  # netCDF4/HDF5/scipy raise many types for a bad file
-                first = (str(exc).strip().splitlines() or [""])[0]
-                if "did not find a match" in first:
-                    first = "the contents are not NetCDF 3 or NetCDF 4/HDF5"
-                raise DataError(f"cannot open as NetCDF ({type(exc).__name__}: {first})", path=path) from exc
-        self._ds = ds
+            lon, lat, lon_index, lat_index = tidy_lonlat(ds[lon_name].values, ds[lat_name].values, path, lon_name, lat_name)
+            lon2d = lat2d = None
+        times = self._times(ds, path, time_name, time_dim, time_units)
+        self._nt = times.size
+        heights, level_index, pressure, vertical = self._levels(ds, path, names, skipped, lat_index, lon_index, lat.size, lon.size)
+        grid = GlobeGrid(lon, lat, heights, rotation=rotation, lon2d=lon2d, lat2d=lat2d).validate(path)
+        self._planet_radius(radius, vertical)
+        fields = self._field_map(ds, path, names, skipped, variables)
+        super().__init__(path, grid, times, fields, (level_index, lat_index, lon_index), pressure=pressure, rh_crit=rh_crit,
+                         vertical=vertical, skipped=skipped, notes=self._notes, cache_steps=cache_steps)
+        if self._wrf and "T" in names and pressure is not None and "temperature" not in self.variables:
+            self.variables["temperature"] = Variable("temperature", "K", "from WRF T + 300 K and P + PB (Poisson's equation)")
+            self.derived["temperature"] = "WRF T (perturbation potential temperature) + 300 K, P + PB"
+            self.aliases.pop("temperature", None)
+
+    # ------------------------------------------------------------------ the steps of __init__
+    def _horizontal_axes(self, ds, path):
+        """``(lon name, lat name, projection axes or None, curvilinear?, rotation or None)``; sets the planet
+        radius the grid mapping states (None when it states none)."""
         projected = _projection_axes(ds)
         try:
             lon_name, lat_name = _find_axis(ds, path, "lon"), _find_axis(ds, path, "lat")
@@ -341,18 +367,27 @@ class NetCDFDataset(FileDataset):
             lon_name, lat_name = projected  # x/y and a grid mapping only: positions from the projection
         curvilinear = ds[lon_name].ndim != 1 or ds[lat_name].ndim != 1 or (lon_name, lat_name) == projected
         if curvilinear:
-            lon_dim, lat_dim = self._curvilinear_dims(ds, path, lon_name, lat_name, projected)
+            self._lonlat_dims = self._curvilinear_dims(ds, path, lon_name, lat_name, projected)
             rotation, self.earth_radius = self._mapping(ds, path, None)
         else:
-            lon_dim, lat_dim = ds[lon_name].dims[0], ds[lat_name].dims[0]
+            self._lonlat_dims = ds[lon_name].dims[0], ds[lat_name].dims[0]
             rotation, self.earth_radius = self._mapping(ds, path, lon_name)
+        return lon_name, lat_name, projected, curvilinear, rotation
+
+    @staticmethod
+    def _time_axis(ds):
+        """``(time coordinate or None, time dimension or None)``."""
         time_name = _find_time(ds)
         time_dim = ds[time_name].dims[0] if time_name and ds[time_name].ndim == 1 else None
         for dim in ("time", "Time"):  # a time dimension without a coordinate (WRF's 'Time'): numbered steps
             if time_dim is None and dim in ds.dims:
                 time_name, time_dim = None, dim
+        return time_name, time_dim
 
-        # 3-D fields: dims = {lat, lon, one level dim} plus time if the file has one.
+    def _three_d_fields(self, ds, path, lon_name, lat_name, time_name, time_dim):
+        """Names of the 3-D fields on the most common level dimension, and ``{name: why}`` of the rest;
+        sets :attr:`_dims` = (level, lat, lon) dimensions."""
+        lon_dim, lat_dim = self._lonlat_dims
         candidates, skipped = {}, {}
         # Cell bounds and grid mappings describe coordinates; they are not fields to list as skipped.
         described = {_attr(v, "bounds") for v in ds.variables.values()} | {_attr(v, "grid_mapping").split(":")[0].strip() for v in ds.data_vars.values()}
@@ -365,75 +400,76 @@ class NetCDFDataset(FileDataset):
             elif name not in (lon_name, lat_name, time_name):
                 skipped[name] = f"dimensions {var.dims} are not (time, level, lat, lon)"
         if not candidates:
-            raise DataError(
-                f"no 3-D field on (level, {lat_dim}, {lon_dim}) (variables: {', '.join(ds.data_vars) or 'none'})",
-                path=path,
-                field="variables",
-            )
+            raise DataError(f"no 3-D field on (level, {lat_dim}, {lon_dim}) (variables: {', '.join(ds.data_vars) or 'none'})",
+                            path=path, field="variables")
         dims = list(candidates.values())
         self._zdim = zdim = max(set(dims), key=dims.count)
         for name, d in candidates.items():
             if d != zdim:
                 skipped[name] = f"on levels {d!r}, not {zdim!r}"
-        names = [n for n, d in candidates.items() if d == zdim]
         self._dims = (zdim, lat_dim, lon_dim)
-        self._time_dim = time_dim
+        return [n for n, d in candidates.items() if d == zdim], skipped
 
-        lon2d = lat2d = None
-        if curvilinear:
-            lon, lat, lon_index, lat_index, lon2d, lat2d = self._curvilinear(ds, path, lon_name, lat_name, projected, lon_dim, lat_dim)
-        else:
-            lon, lat, lon_index, lat_index = tidy_lonlat(ds[lon_name].values, ds[lat_name].values, path, lon_name, lat_name)
+    def _times(self, ds, path, time_name, time_dim, time_units):
+        """The time axis (datetime64[s]): CF units (months too), step numbers, or one step."""
         if time_name is None and time_dim:
             times = step_times(ds.sizes[time_dim])
-            notes.append(f"time: dimension {time_dim!r} has no coordinate variable; the {times.size} step(s) are numbered 0..{times.size - 1}, one hour apart")
-        elif time_name:
-            tv = ds[time_name]
-            monthly = _month_times(tv.values, time_units or _attr(tv, "units"), tv.attrs.get("calendar"), path, time_name)
-            if monthly is not None:
-                times, note = monthly
-            elif time_units:  # the user's own units must be right: no falling back to step numbers
-                times, note = cf_times(tv.values, time_units, tv.attrs.get("calendar"), path, time_name), None
-            else:
-                times, note = cf_times_or_steps(tv.values, _attr(tv, "units"), tv.attrs.get("calendar"), path, time_name)
-            if note:
-                notes.append(note)
+            self._notes.append(f"time: dimension {time_dim!r} has no coordinate variable; the {times.size} step(s) are numbered 0..{times.size - 1}, one hour apart")
+            return times
+        if not time_name:
+            self._notes.append("time: the file has no time axis; one step")
+            return np.array(["1970-01-01T00:00:00"], dtype="datetime64[s]")
+        tv = ds[time_name]
+        monthly = _month_times(tv.values, time_units or _attr(tv, "units"), tv.attrs.get("calendar"), path, time_name)
+        if monthly is not None:
+            times, note = monthly
+        elif time_units:  # the user's own units must be right: no falling back to step numbers
+            times, note = cf_times(tv.values, time_units, tv.attrs.get("calendar"), path, time_name), None
         else:
-            times = np.array(["1970-01-01T00:00:00"], dtype="datetime64[s]")
-            notes.append("time: the file has no time axis; one step")
-        self._nt = times.size
+            times, note = cf_times_or_steps(tv.values, _attr(tv, "units"), tv.attrs.get("calendar"), path, time_name)
+        if note:
+            self._notes.append(note)
+        return times
 
+    def _levels(self, ds, path, names, skipped, lat_index, lon_index, nj, ni):
+        """``(heights, level index, pressure(t) or None, description)``: WRF eta levels or the CF vertical coordinate."""
+        zdim = self._zdim
         self._wrf = _is_wrf(ds, zdim) and self._vertical_kind is None
         self._stagger, self._alpha = {}, None
-        if self._wrf:
-            heights, level_index, pressure, vertical = self._wrf_levels(ds, path, zdim, lat_index, lon_index)
-            self._stagger, bad = _wrf_staggered(ds, self._dims, time_dim)
-            skipped.update(bad)
-            for name in self._stagger:
-                skipped.pop(name, None)
-                names.append(name)
-            if self._stagger:
-                notes.append(f"staggered: {', '.join(sorted(self._stagger))} read at the mass points (mean of the two neighbours)")
-            if {"U", "V"} <= set(self._stagger):
-                if "COSALPHA" in ds.variables and "SINALPHA" in ds.variables:
-                    self._alpha = tuple(self._wrf_plane(ds, n, lat_index, lon_index) for n in ("COSALPHA", "SINALPHA"))
-                    notes.append("wind: U, V turned from grid to earth axes with COSALPHA/SINALPHA")
-                else:
-                    notes.append("wind: U, V are along the grid's axes (the file has no COSALPHA/SINALPHA to turn them east/north)")
-        else:
-            heights, level_index, pressure, vertical = self._vertical(ds, path, zdim, names, lat_index, lon_index, lat.size, lon.size)
-        grid = GlobeGrid(lon, lat, heights, rotation=rotation, lon2d=lon2d, lat2d=lat2d).validate(path)
+        if not self._wrf:
+            return self._vertical(ds, path, zdim, names, lat_index, lon_index, nj, ni)
+        levels = self._wrf_levels(ds, path, zdim, lat_index, lon_index)
+        self._stagger, bad = _wrf_staggered(ds, self._dims, self._time_dim)
+        skipped.update(bad)
+        for name in self._stagger:
+            skipped.pop(name, None)
+            names.append(name)
+        if self._stagger:
+            self._notes.append(f"staggered: {', '.join(sorted(self._stagger))} read at the mass points (mean of the two neighbours)")
+        if {"U", "V"} <= set(self._stagger):
+            if "COSALPHA" in ds.variables and "SINALPHA" in ds.variables:
+                self._alpha = tuple(self._wrf_plane(ds, n, lat_index, lon_index) for n in ("COSALPHA", "SINALPHA"))
+                self._notes.append("wind: U, V turned from grid to earth axes with COSALPHA/SINALPHA")
+            else:
+                self._notes.append("wind: U, V are along the grid's axes (the file has no COSALPHA/SINALPHA to turn them east/north)")
+        return levels
+
+    def _planet_radius(self, radius, vertical):
+        """:attr:`earth_radius`: the ``radius=`` override, the grid mapping's, the model's convention, else the mean Earth."""
         if radius is not None:
             self.earth_radius = float(radius)
         elif self.earth_radius is None and "NCAR" in vertical:
             self.earth_radius = CAM_RADIUS
-            notes.append(f"radius: NCAR hybrid levels, so CAM's planet radius {CAM_RADIUS:g} m")
+            self._notes.append(f"radius: NCAR hybrid levels, so CAM's planet radius {CAM_RADIUS:g} m")
         elif self.earth_radius is None and self._wrf:
             self.earth_radius = WRF_RADIUS
-            notes.append(f"radius: WRF file, so WRF's planet radius {WRF_RADIUS:g} m")
+            self._notes.append(f"radius: WRF file, so WRF's planet radius {WRF_RADIUS:g} m")
         elif self.earth_radius is None:
             self.earth_radius = EARTH_RADIUS
 
+    def _field_map(self, ds, path, names, skipped, variables):
+        """``{standard name: (file name, units, long name)}`` of the 3-D fields (``variables=`` first, then
+        CF standard names and known names); a second file field for the same standard name is skipped."""
         chosen = {raw: std for std, raw in (variables or {}).items()}
         if self._wrf:  # WRF's T is the perturbation potential temperature (theta - 300 K), not air temperature
             for raw, std in (("T", "theta_perturbation"), ("CLDFRA", "cloud")):
@@ -452,25 +488,9 @@ class NetCDFDataset(FileDataset):
             if std in ("temperature", "rh", "cloud"):
                 units, note = plausible_units(std, units, self._raw(name, 0))
                 if note:
-                    notes.append(note)
+                    self._notes.append(note)
             fields[std], taken[std] = (name, units, _attr(ds[name], "long_name")), name
-        super().__init__(
-            path,
-            grid,
-            times,
-            fields,
-            (level_index, lat_index, lon_index),
-            pressure=pressure,
-            rh_crit=rh_crit,
-            vertical=vertical,
-            skipped=skipped,
-            notes=notes,
-            cache_steps=cache_steps,
-        )
-        if self._wrf and "T" in names and pressure is not None and "temperature" not in self.variables:
-            self.variables["temperature"] = Variable("temperature", "K", "from WRF T + 300 K and P + PB (Poisson's equation)")
-            self.derived["temperature"] = "WRF T (perturbation potential temperature) + 300 K, P + PB"
-            self.aliases.pop("temperature", None)
+        return fields
 
     def _read(self, name, t):
         if name in ("u", "v") and self._alpha is not None and self.file_names.get("u") == "U" and self.file_names.get("v") == "V":
