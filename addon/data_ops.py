@@ -20,6 +20,7 @@ from ..core.climate.grid import DEFAULT_EXAGGERATION
 from ..core.climate.readers import VERTICAL_CHOICES, check_overrides
 from ..core.errors import DataError
 from ..core.pipeline.cache import default_cache_dir, format_bytes, session_cache_dir, tree_size
+from ..core.pipeline.sources import open_with_overrides
 from .panel import SubPanel
 
 MIRROR_KEY = "nephele_settings"
@@ -173,24 +174,6 @@ def overrides(group, path=None):
         radius=group.read_earth_radius or None,
         variables=group.read_var_map,
     )
-
-
-def open_with_overrides(path, kw):
-    """``(dataset, source name)`` of ``path`` read with the overrides ``kw``, as ``nephele`` commands
-    do: the name is ``path?key=value&...&file=ID`` (the file's identity, so cached results of another
-    version of the file are not reused), registered for this session and openable by any process."""
-    from ..core.pipeline.sources import open_source, register_source
-
-    if not kw:
-        return open_source(path), path
-    import hashlib
-
-    from ..core.climate.readers import open_dataset, override_source
-    from ..core.pipeline.cache import source_stamp
-
-    ds = open_dataset(path, **kw)
-    file_id = hashlib.sha256(source_stamp(path).encode()).hexdigest()[:12]
-    return ds, register_source(f"{override_source(path, **kw)}&file={file_id}", ds)
 
 
 def frame_range_for(ds, cfg):
@@ -456,7 +439,7 @@ class NEPHELE_OT_import_dataset(bpy.types.Operator):
         group = getattr(context.scene, "nephele_data", None)
         try:
             if self.kind == "FILE" and group is not None:  # the panel's "File overrides"
-                ds, source = open_with_overrides(source, overrides(group, source))
+                ds, source = open_with_overrides(source, **overrides(group, source))
             else:
                 ds = dataset(source)
         except (DataError, OSError, ImportError) as exc:
