@@ -106,7 +106,8 @@ class Dataset(abc.ABC):
         same meaning (GRIB ``shortName``, CF standard name; any case)."""
         if name in self.variables:
             return name
-        return self.aliases.get(name) or self.aliases.get(str(name).lower(), name)
+        low = str(name).lower()
+        return self.aliases.get(name) or (low if low in self.variables else self.aliases.get(low, name))
 
     @property
     def hours(self):

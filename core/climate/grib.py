@@ -73,6 +73,7 @@ class GribDataset(FileDataset):
         rows = self._choose_member(path, rows, member)
         names, skipped = self._variables(path, rows)
         self._levels, times = self._axes(names)
+        self._valid = times
         self._names = names
         first = self._first_message(names)
         g = self._grid(path, first, next(iter(names)))
@@ -116,8 +117,9 @@ class GribDataset(FileDataset):
             return asked
         usable = {k: v for k, v in kinds.items() if v["3d"] and k not in ATMOSPHERE_SKIP}
         if not usable:
-            raise DataError(f"no 3-D field: no parameter on two or more levels of one kind (level types: {', '.join(sorted(kinds))})",
-                            path=path, field="variables")
+            damaged = "".join(f"; {n}" for n in self._notes if n.startswith("scan:"))
+            raise DataError(f"no 3-D field: no parameter on two or more levels of one kind (level types: {', '.join(sorted(kinds))})"
+                            + damaged, path=path, field="variables")
         return max(usable, key=lambda k: (usable[k]["3d"], k in _PREFER, -_PREFER.index(k) if k in _PREFER else 0, k))
 
     def _choose_member(self, path, rows, member):
@@ -262,7 +264,7 @@ class GribDataset(FileDataset):
     def single_level(self, short_name, t, level_types):
         """A 2-D field of the same member and valid time on one of ``level_types`` (file order), or None."""
         index = self._index
-        want = self.times[t]
+        want = self._valid[t]
         for g, info in enumerate(index.groups):
             if info["typeOfLevel"] not in level_types or info["grid"] != self._grid_id or index.short_name(g) != short_name:
                 continue

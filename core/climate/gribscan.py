@@ -299,13 +299,16 @@ def scan(path):
     eccodes = need_eccodes(path)
     rows, groups, keys_of, notes = [], [], {}, []
     with _LOCK, open(path, "rb") as f, _multi(eccodes, f):
-        last = None
+        last, damaged = None, []
         while True:
+            at = f.tell()
             try:
                 h = eccodes.codes_grib_new_from_file(f, headers_only=True)
-            except eccodes.CodesInternalError as exc:  # a message cut short or corrupted: keep what came before
-                notes.append(f"scan: stopped at a damaged message after {len(rows)} field(s) ({type(exc).__name__})")
-                break
+            except eccodes.CodesInternalError as exc:  # a message cut short or corrupted: skip it, keep the rest
+                damaged.append(f"{at} ({type(exc).__name__})")
+                if f.tell() <= at:
+                    break
+                continue
             if h is None:
                 break
             try:
@@ -323,8 +326,10 @@ def scan(path):
                 groups.append({**info, "first": len(rows)})
             row["group"] = g
             rows.append(row)
+    if damaged:
+        notes.append(f"scan: skipped {len(damaged)} damaged message(s) at byte {', '.join(damaged[:3])}" + (" ..." if len(damaged) > 3 else ""))
     if not rows:
-        why = notes[0].split("(")[-1].rstrip(")") if notes else "no GRIB message found: not GRIB"
+        why = f"no readable GRIB message; {notes[0][6:]}" if notes else "no GRIB message found: not GRIB"
         raise DataError(f"cannot open as GRIB ({why})", path=path)
     col = {k: np.array([r[k] for r in rows]) for k in ("offset", "field", "group", "level", "number")}
     arrays = {"offset": col["offset"].astype(np.int64), "field": col["field"].astype(np.int64), "group": col["group"].astype(np.int32),
