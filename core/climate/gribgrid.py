@@ -186,12 +186,15 @@ def _regular(index, i, k, path, field):
 
 def _rotated(index, i, k, path, field):
     """ECMWF's rotated grids: the axes in rotated coordinates; the grid's north pole is the antipode of
-    the southern pole the message states, and the angle of rotation turns the grid about it."""
+    the southern pole the message states.  A non-zero angle of rotation is refused: its sense differs
+    between tools (ecCodes shifts true longitudes by it), and products use 0."""
+    angle = float(k["angleOfRotationInDegrees"] or 0.0)
+    if angle != 0.0:
+        raise DataError(f"rotated grid with an angle of rotation of {angle:g} degrees is not read (only 0 is)", path=path, field=field)
     shape, transpose, lon, lat = _axes(index, i, k, path, field, unrotated=False)
     sp_lat, sp_lon = float(k["latitudeOfSouthernPoleInDegrees"]), float(k["longitudeOfSouthernPoleInDegrees"])
-    angle = float(k["angleOfRotationInDegrees"] or 0.0)
-    rotation = rotated_pole_matrix(sp_lon + 180.0, -sp_lat, -angle)
-    note = f"grid: rotated pole, southern pole at {sp_lat:g} N {sp_lon:g} E" + (f", rotated {angle:g} degrees" if angle else "")
+    rotation = rotated_pole_matrix(sp_lon + 180.0, -sp_lat, 0.0)
+    note = f"grid: rotated pole, southern pole at {sp_lat:g} N {sp_lon:g} E"
     return GribGrid("rotated", shape, lon=lon, lat=lat, rotation=rotation, transpose=transpose, notes=[note])
 
 
@@ -216,8 +219,12 @@ def _projected(index, i, k, path, field):
     shape, transpose = _scan_shape(k, path, field)
     lon, lat = (_as_2d(a, shape, transpose) for a in _positions(index, i, path, field))
     lon = np.mod(lon + 180.0, 360.0) - 180.0
-    note = f"grid: {k['gridType']} ({k['gridDefinitionDescription']}), positions from ecCodes"
-    return GribGrid("projected", shape, lon2d=lon, lat2d=lat, transpose=transpose, notes=[note])
+    notes = [f"grid: {k['gridType']} ({k['gridDefinitionDescription']}), positions from ecCodes"]
+    if k.get("iScansNegatively") or not k.get("jScansPositively"):
+        # WMO GRIB2 issue 55: decoders differ on whether the scanning flags turn projected grids; ecCodes steps +x, +y.
+        notes.append("grid: the message scans -x or -y; placed as ecCodes places it (+x, +y from the first point; "
+                     "wgrib2 would mirror it)")
+    return GribGrid("projected", shape, lon2d=lon, lat2d=lat, transpose=transpose, notes=notes)
 
 
 def _reduced_gaussian(index, i, k, path, field):
