@@ -253,14 +253,6 @@ class GribDataset(FileDataset):
                 out[k] = self._geometry.to_2d(self._index.values(int(i)))
         return out
 
-    def message_values(self, name, t, level):
-        """One level of one step of a variable (file order, 2-D), or None when the file lacks it."""
-        k = int(np.searchsorted(self._levels, level))
-        if name not in self._table or k >= self._levels.size or self._levels[k] != level:
-            return None
-        i = int(self._table[name][t, k])
-        return None if i < 0 else self._geometry.to_2d(self._index.values(i))
-
     def single_level(self, short_name, t, level_types):
         """A 2-D field of the same member and valid time on one of ``level_types`` (file order), or None."""
         index = self._index
@@ -272,7 +264,7 @@ class GribDataset(FileDataset):
             if self.member is not None:
                 rows = rows[index.number[rows] == self.member]
             if rows.size:
-                return self._geometry.to_2d(index.values(int(rows[np.argmax(index.ref[rows])])))
+                return self._geometry.to_2d(index.values(int(rows[np.argmax(index.ref[rows])])), np.float64)
         return None
 
     def close(self):

@@ -70,12 +70,13 @@ class GribGrid:
     notes: list = field(default_factory=list)
     _expand: tuple = None
 
-    def to_2d(self, values):
-        """``(rows, columns)`` float32 array of one message's values."""
-        v = np.asarray(values, dtype=np.float32)
+    def to_2d(self, values, dtype=np.float32):
+        """``(rows, columns)`` array of one message's values (float32: fields; float64: the surface pressure
+        and heights the levels are placed with)."""
+        v = np.asarray(values, dtype=dtype)
         if self.kind == "reduced_gg":
             i0, i1, w = self._expansion()
-            return (v[i0] * (1.0 - w) + v[i1] * w).astype(np.float32)
+            return (v[i0] * (1.0 - w) + v[i1] * w).astype(dtype)
         nj, ni = self.shape
         return v.reshape(ni, nj).T if self.transpose else v.reshape(nj, ni)
 
