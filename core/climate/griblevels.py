@@ -231,6 +231,10 @@ def _by_geopotential(ds, path, take):
                         "another kind with level_type=", path=path, field="level_type")
     name, scale = found
     z = ds._raw(name, 0)[take] * scale
+    holes = int((~np.isfinite(z)).any(axis=0).sum())
+    if holes:
+        raise DataError(f"cannot place {ds.level_type} levels: {name!r} is missing in {holes} column(s) (the levels do not "
+                        "exist everywhere); choose another kind with level_type=", path=path, field="level_type")
     level_index = _order(np.nanmean(z.reshape(z.shape[0], -1), axis=1), path, "level")
     pres = _field(ds, "pres")
     pressure = None
