@@ -10,7 +10,7 @@ import pytest
 from nephele.core.climate.readers import open_dataset
 from nephele.core.errors import DataError
 
-from gribfiles import field, isobaric, message, other_level, regular_ll, write
+from gribfiles import field, isobaric, other_level, regular_ll, write
 
 pytest.importorskip("eccodes")
 
