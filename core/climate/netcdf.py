@@ -60,6 +60,8 @@ References
 """
 
 import re
+import shutil
+from pathlib import Path
 
 import numpy as np
 
@@ -249,6 +251,82 @@ def _is_wrf(ds, zdim):
     return zdim == "bottom_top" and all(n in ds.variables and "bottom_top_stag" in ds[n].dims for n in ("PH", "PHB"))
 
 
+_MEMBER_DIMS = ("number", "realization", "member", "members", "ensemble", "ens", "member_id", "ensemble_member")
+_CELL_DIMS = {"ncells": "ICON", "cell": "ICON", "ncol": "CAM-SE", "nCells": "MPAS", "nMesh2_face": "UGRID", "nmesh2d_face": "UGRID",
+              "grid_cells": "unstructured"}
+
+
+def _member_dim(ds):
+    """The ensemble member dimension of the data variables (a known name, or a coordinate with standard_name realization)."""
+    dims = {d for v in ds.data_vars.values() for d in v.dims}
+    for name in dims:
+        if name.lower() in _MEMBER_DIMS or (name in ds.variables and _attr(ds[name], "standard_name").lower() == "realization"):
+            return name
+    return None
+
+
+def _refuse_unstructured(ds, path):
+    """One line for output on unstructured cells (ICON, MPAS, CAM-SE, UGRID): no latitude x longitude grid to read."""
+    found = None
+    for name, var in ds.variables.items():
+        if _attr(var, "cf_role") == "mesh_topology":
+            found = ("UGRID", name)
+        elif _attr(var, "CDI_grid_type").lower() == "unstructured":
+            found = ("ICON/CDI", next((d for d in var.dims if d in _CELL_DIMS or d.lower() in _CELL_DIMS), var.dims[-1]))
+    if found is None:
+        for dim in ds.dims:
+            if dim in _CELL_DIMS and any(dim in v.dims for v in ds.data_vars.values()):
+                found = (_CELL_DIMS[dim], dim)
+                break
+    if found is not None:
+        kind, dim = found
+        size = f"{ds.sizes[dim]} cells on dimension {dim!r}" if dim in ds.dims else f"mesh {dim!r}"
+        raise DataError(f"is on an unstructured grid ({kind}: {size}); Nephele reads latitude/longitude, rotated and projected "
+                        "grids: remap it first (e.g. 'cdo remapcon,r360x180')", path=path, field=dim)
+
+
+def _from_zip(path):
+    """The NetCDF inside a zip (the Copernicus Climate Data Store's ``data.zip``) with the most 3-D fields, unpacked
+    once into Nephele's cache (never beside the zip), and a note naming it and the others."""
+    import hashlib
+    import zipfile
+
+    from ..files import atomic_write
+    from ..pipeline.cache import default_cache_dir, source_stamp
+
+    try:
+        with zipfile.ZipFile(path) as z:
+            members = [m for m in z.infolist() if m.filename.lower().endswith((".nc", ".nc4", ".netcdf")) and not m.is_dir()]
+            if not members:
+                raise DataError(f"the zip holds no NetCDF file ({', '.join(z.namelist()[:5]) or 'nothing'})", path=path)
+            folder = default_cache_dir() / "zip" / hashlib.sha256(source_stamp(path).encode()).hexdigest()[:24]
+            unpacked = []
+            for m in members:
+                out = folder / Path(m.filename).name
+                if not out.is_file() or out.stat().st_size != m.file_size:
+                    with atomic_write(out, fsync=False) as tmp, z.open(m) as src, open(tmp, "wb") as dst:
+                        shutil.copyfileobj(src, dst, 1 << 20)
+                unpacked.append(out)
+    except zipfile.BadZipFile as exc:
+        raise DataError(f"cannot open as a zip of NetCDF files ({exc})", path=path) from None
+    except OSError as exc:
+        raise DataError(f"cannot unpack the zip into the cache ({exc.strerror or exc})", path=path) from None
+    best = max(unpacked, key=_three_d_count)
+    others = [p.name for p in unpacked if p != best]
+    note = f"zip: read {best.name}" + (f"; also in the zip: {', '.join(others)}" if others else "")
+    return best, note
+
+
+def _three_d_count(path):
+    """How many variables of a NetCDF file have three or more dimensions besides time (0 when it does not open)."""
+    try:
+        ds = _open_netcdf(path)
+    except DataError:
+        return -1
+    with ds:
+        return sum(len([d for d in v.dims if d not in ("time", "valid_time", "Time")]) >= 3 for v in ds.data_vars.values())
+
+
 def _open_netcdf(path):
     """``xarray.open_dataset`` of a NetCDF file (times left as numbers), its failure as one line."""
     import xarray as xr
@@ -265,7 +343,8 @@ def _open_netcdf(path):
 class NetCDFDataset(VerticalCoordinates, FileDataset):
     """A CF NetCDF file opened lazily; see the module docstring for what is understood."""
 
-    def __init__(self, path, *, rh_crit=RH_CRIT, vertical=None, p0=None, time_units=None, radius=None, variables=None, cache_steps=8, opened=None):
+    def __init__(self, path, *, rh_crit=RH_CRIT, vertical=None, p0=None, time_units=None, radius=None, variables=None, member=None,
+                 cache_steps=8, opened=None):
         """Open ``path``; the keywords override what a file gets wrong or leaves out.
 
         Parameters
@@ -284,11 +363,17 @@ class NetCDFDataset(VerticalCoordinates, FileDataset):
         variables : dict, optional
             Standard name → file variable (``{"temperature": "T2"}``) where
             the file's names or ``standard_name`` are not recognised.
+        member : int, optional
+            The ensemble member to read where fields have a member dimension
+            (ERA5's ``number``, CF ``realization``): its number, else the control
+            (0) or the first.
         opened : xarray.Dataset, optional
-            Another reader's CF view of the file (GRIB through cfgrib).
+            The file already opened by xarray (a Zarr store).
         """
         self._p0, self._vertical_kind, self._notes = p0, vertical, []
-        self._ds = ds = opened if opened is not None else _open_netcdf(path)
+        ds = opened if opened is not None else _open_netcdf(path)
+        _refuse_unstructured(ds, path)
+        self._ds = ds = self._choose_member(ds, path, member)
         lon_name, lat_name, projected, curvilinear, rotation = self._horizontal_axes(ds, path)
         time_name, time_dim = self._time_axis(ds)
         names, skipped = self._three_d_fields(ds, path, lon_name, lat_name, time_name, time_dim)
@@ -312,6 +397,26 @@ class NetCDFDataset(VerticalCoordinates, FileDataset):
             self.aliases.pop("temperature", None)
 
     # ------------------------------------------------------------------ the steps of __init__
+    def _choose_member(self, ds, path, member):
+        """``ds`` at one ensemble member (:attr:`members` lists them, :attr:`member` is the one read)."""
+        dim = _member_dim(ds)
+        self.members, self.member = [], None
+        if dim is None:
+            if member is not None:
+                raise DataError(f"member {member} asked for, but the file has no ensemble member dimension", path=path, field="member")
+            return ds
+        values = ds[dim].values if dim in ds.variables else np.arange(ds.sizes[dim])
+        numbered = np.issubdtype(np.asarray(values).dtype, np.integer)
+        self.members = [int(v) for v in values] if numbered else list(range(len(values)))
+        if member is None:
+            member = 0 if 0 in self.members else self.members[0]
+        elif int(member) not in self.members:
+            raise DataError(f"no member {member} (members: {', '.join(map(str, self.members))})", path=path, field="member")
+        self.member = int(member)
+        if not numbered:
+            self._notes.append(f"members: {dim!r} holds names; member={self.member} is {values[self.member]!s}")
+        return ds.isel({dim: self.members.index(self.member)})
+
     def _horizontal_axes(self, ds, path):
         """``(lon name, lat name, projection axes or None, curvilinear?, rotation or None)``; sets the planet
         radius the grid mapping states (None when it states none)."""
@@ -575,7 +680,17 @@ class NetCDFDataset(VerticalCoordinates, FileDataset):
 
 
 def open_netcdf(path, **kw):
-    """Open a CF NetCDF file as a lazy :class:`NetCDFDataset`."""
+    """Open a CF NetCDF file (or a ``.zip`` of them, as the Copernicus Climate Data Store delivers) as a lazy
+    :class:`NetCDFDataset`."""
+    if kw.pop("level_type", None) is not None:
+        raise DataError("level_type= chooses among the kinds of level of a GRIB file; a NetCDF file has one level "
+                        "coordinate per field", path=path, field="level_type")
+    if str(path).lower().endswith(".zip"):
+        inner, note = _from_zip(path)
+        ds = NetCDFDataset(inner, **kw)
+        ds.source = ds.path = str(path)
+        ds.notes.append(note)
+        return ds
     return NetCDFDataset(path, **kw)
 
 

@@ -64,6 +64,11 @@ def _parametric_coordinate(ds, zdim):
     return zvar
 
 
+def _surface_only(ds, name, dims):
+    """Whether ``name`` lies on the horizontal dimensions only (besides time)."""
+    return set(dims[1:]) <= set(ds[name].dims) and dims[0] not in ds[name].dims
+
+
 class VerticalCoordinates:
     """Reading a file's levels; the host class provides ``_ds``, ``_dims``, ``_time_dim``, ``_p0``,
     ``_vertical_kind``, ``_notes`` and ``_raw``."""
@@ -149,12 +154,62 @@ class VerticalCoordinates:
             level_index = self._level_order(z * scale, path, zdim)
             heights = (z * scale)[level_index]
             return np.broadcast_to(heights[:, None, None], (heights.size, nj, ni)), level_index, None, "height levels (flat)"
+        if std == "model_layers" or units in ("layer", "layers", "level", "levels"):
+            return self._model_layers(ds, path, zdim, take)
         raise DataError(
             f"cannot tell what the vertical coordinate is (standard_name {std or 'none'!r}, units {units or 'none'!r}); "
             "expected pressure, hybrid sigma-pressure, hybrid height or height (say which with vertical=...)",
             path=path,
             field=zdim,
         )
+
+    def _model_layers(self, ds, path, zdim, take):
+        """Levels numbered 1..n (GEOS/MERRA-2 ``lev`` in units ``layer``, 1 at the top): heights from the mid-layer
+        heights ``H``, else by the hypsometric equation from the layer thicknesses ``DELP`` (top at GEOS's 1 Pa),
+        ``T`` (and ``QV``) up from the surface (``PHIS`` / g), else from the standard atmosphere of ``PL``;
+        pressure ``PL``, else the middle of each ``DELP`` layer."""
+        dims = self._dims
+
+        def on_levels(name):
+            return name in ds.variables and [d for d in ds[name].dims if d != self._time_dim] == list(dims)
+
+        def field(name, t):
+            a = ds[name]
+            if self._time_dim in a.dims:
+                a = a.isel({self._time_dim: t})
+            return np.asarray(a.transpose(*dims).values, dtype=np.float64)[(slice(None), *take)]
+
+        have = {n for n in ("H", "PL", "DELP", "T", "QV") if on_levels(n)}
+        if not have & {"H", "PL", "DELP"}:
+            raise DataError(f"levels numbered 1..{ds.sizes[zdim]} (model layers) need mid-layer heights 'H', pressure 'PL' "
+                            "or thickness 'DELP' in the file (as MERRA-2/GEOS write them)", path=path, field=zdim)
+
+        def half_levels(t):  # top (1 Pa, GEOS's model top) down to the surface
+            delp = field("DELP", t)
+            return np.concatenate([np.ones((1,) + delp.shape[1:]), 1.0 + np.cumsum(delp, axis=0)])
+
+        if "PL" in have:
+            def pressure_file(t):
+                return field("PL", t)
+        elif "DELP" in have:
+            def pressure_file(t):
+                half = half_levels(t)
+                return 0.5 * (half[:-1] + half[1:])
+        else:
+            pressure_file = None
+        if "H" in have:
+            z, how = field("H", 0), "mid-layer heights 'H'"
+        elif "DELP" in have and "T" in have:
+            from .modellevels import hypsometric_heights
+
+            phis = field("PHIS", 0)[0] / G0 if "PHIS" in ds.variables and ds["PHIS"].ndim >= 2 and _surface_only(ds, "PHIS", dims) else 0.0
+            z = hypsometric_heights(half_levels(0), field("T", 0), field("QV", 0) if "QV" in have else None, phis)
+            how = "the hypsometric equation from DELP and T" + (" and QV" if "QV" in have else "")
+        else:
+            z, how = standard_height(pressure_file(0)), "the standard atmosphere of 'PL'"
+        level_index = self._level_order(z.reshape(z.shape[0], -1).mean(axis=1), path, zdim)
+        pressure = None if pressure_file is None else (lambda t: pressure_file(t)[level_index].astype(np.float32))
+        return z[level_index], level_index, pressure, f"model layers 1..{ds.sizes[zdim]} (terrain following), heights from {how}"
 
     def _reference_pressure(self, ds, name, path, field):
         """``P0`` in Pa: the ``p0=`` argument, the file's variable, else CAM's 100000 Pa with a note."""
