@@ -144,13 +144,14 @@ class GribDataset(FileDataset):
         for g in np.unique(index.group[rows]):
             c = index.concept(int(g))
             name = c["shortName"] if c["shortName"] not in (None, "unknown") else "param_" + "_".join(str(r) for r in index.groups[g]["raw"][1:4])
-            found.setdefault((name, c["stepType"]), []).append(int(g))
+            processing = index.groups[g]["raw"][5 if index.groups[g]["edition"] == 2 else 3]  # statistical processing
+            found.setdefault((name, processing), []).append(int(g))
         names, skipped, self._concept_of = {}, {}, {}
         plain = {}
-        for name, step in found:
+        for name, _ in found:
             plain[name] = plain.get(name, 0) + 1
-        for (name, step), groups in found.items():
-            label = name if plain[name] == 1 else f"{name}_{step}"
+        for (name, processing), groups in found.items():
+            label = name if plain[name] == 1 else f"{name}_{processing}"
             sel = rows[np.isin(index.group[rows], groups)]
             levels = np.unique(index.level[sel])
             self._concept_of[label] = index.concept(groups[0])

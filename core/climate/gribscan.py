@@ -39,7 +39,7 @@ import numpy as np
 
 from ..errors import DataError
 
-INDEX_VERSION = 1
+INDEX_VERSION = 2
 """Bump when what the index holds changes; older index files are then ignored."""
 
 _LOCK = threading.RLock()
@@ -48,8 +48,8 @@ _LOCK = threading.RLock()
 _KEYS_1 = ("centre", "table2Version", "indicatorOfParameter", "timeRangeIndicator")
 _KEYS_2 = ("centre", "discipline", "parameterCategory", "parameterNumber", "productDefinitionTemplateNumber",
            "typeOfStatisticalProcessing", "typeOfSecondFixedSurface")
-CONCEPTS = ("shortName", "name", "units", "cfName", "cfVarName", "paramId", "stepType")
-"""ecCodes' table look-ups made once per group of messages."""
+CONCEPTS = ("shortName", "name", "units", "cfName")
+"""ecCodes' table look-ups made once per group of messages (each costs milliseconds: only those Nephele uses)."""
 LEVEL_AXES = frozenset({"isobaricInhPa", "isobaricInPa", "hybrid", "sigma", "theta", "potentialVorticity", "heightAboveSea",
                         "generalVertical", "generalVerticalLayer", "hybridHeight", "hybridPressure", "snow", "soil"})
 """Kinds of level whose level value never changes a field's name (``2t`` versus ``t`` at 2 m does change it
@@ -209,7 +209,7 @@ class GribIndex:
             if have.get("shortName") == "unknown" and self.groups[g]["edition"] == 1 and raw[0] in ("kwbc", "7") \
                     and raw[1] in ("1", "2", "3") and int(raw[2]) in NCEP_GRIB1:
                 short, name = NCEP_GRIB1[int(raw[2])]
-                have.update(shortName=short, name=name, units="kg kg**-1", cfVarName=short)
+                have.update(shortName=short, name=name, units="kg kg**-1")
             self._dirty = True
         return have
 

@@ -154,7 +154,7 @@ class VerticalCoordinates:
             level_index = self._level_order(z * scale, path, zdim)
             heights = (z * scale)[level_index]
             return np.broadcast_to(heights[:, None, None], (heights.size, nj, ni)), level_index, None, "height levels (flat)"
-        if std == "model_layers" or units in ("layer", "layers", "level", "levels"):
+        if std == "model_layers" or units in ("layer", "layers") or (units in ("level", "levels") and self._layer_fields(ds)):
             return self._model_layers(ds, path, zdim, take)
         raise DataError(
             f"cannot tell what the vertical coordinate is (standard_name {std or 'none'!r}, units {units or 'none'!r}); "
@@ -170,16 +170,13 @@ class VerticalCoordinates:
         pressure ``PL``, else the middle of each ``DELP`` layer."""
         dims = self._dims
 
-        def on_levels(name):
-            return name in ds.variables and [d for d in ds[name].dims if d != self._time_dim] == list(dims)
-
         def field(name, t):
             a = ds[name]
             if self._time_dim in a.dims:
                 a = a.isel({self._time_dim: t})
             return np.asarray(a.transpose(*dims).values, dtype=np.float64)[(slice(None), *take)]
 
-        have = {n for n in ("H", "PL", "DELP", "T", "QV") if on_levels(n)}
+        have = self._layer_fields(ds, ("H", "PL", "DELP", "T", "QV"))
         if not have & {"H", "PL", "DELP"}:
             raise DataError(f"levels numbered 1..{ds.sizes[zdim]} (model layers) need mid-layer heights 'H', pressure 'PL' "
                             "or thickness 'DELP' in the file (as MERRA-2/GEOS write them)", path=path, field=zdim)
@@ -210,6 +207,10 @@ class VerticalCoordinates:
         level_index = self._level_order(z.reshape(z.shape[0], -1).mean(axis=1), path, zdim)
         pressure = None if pressure_file is None else (lambda t: pressure_file(t)[level_index].astype(np.float32))
         return z[level_index], level_index, pressure, f"model layers 1..{ds.sizes[zdim]} (terrain following), heights from {how}"
+
+    def _layer_fields(self, ds, names=("H", "PL", "DELP")):
+        """Those of ``names`` that are fields on the level dimension (GEOS's mid-layer heights, pressure, thickness)."""
+        return {n for n in names if n in ds.variables and [d for d in ds[n].dims if d != self._time_dim] == list(self._dims)}
 
     def _reference_pressure(self, ds, name, path, field):
         """``P0`` in Pa: the ``p0=`` argument, the file's variable, else CAM's 100000 Pa with a note."""
