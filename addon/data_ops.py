@@ -96,6 +96,24 @@ def dataset(source=None, scene=None):
     return open_source(source)
 
 
+def variable_search(self, context, edit_text):
+    """Field names for a panel's "Variable" box: the scene dataset's fields (cloud_water, cloud_ice, cloud, rh,
+    u, v, w... as the reader names them) with what they are; any of their other names (the file's own, a GRIB
+    shortName such as clwmr, a CF standard name) is also accepted when typed."""
+    try:
+        ds = dataset(scene=context.scene)
+    except Exception:  # noqa: BLE001 - no usable dataset: nothing to offer
+        return []
+    text = str(edit_text or "").lower()
+    out = []
+    for name, var in sorted(ds.variables.items()):
+        raw = getattr(ds, "file_names", {}).get(name, name)
+        about = var.long_name + (f" ('{raw}' in the file)" if raw != name else "")
+        if text in name.lower() or text in raw.lower():
+            out.append((name, about))
+    return out
+
+
 def _mirrored(key):
     """Getter and setter that keep a panel property in the mirror: one source of truth,
     also for files saved without the add-on."""
@@ -161,6 +179,15 @@ class NephelePropsData(bpy.types.PropertyGroup):
         description="Read the file's variable NAME as the standard field STD: STD=NAME, comma separated "
                     "(e.g. temperature=T2, rh=RH) (--var-map)",
     )
+    read_level_type: bpy.props.StringProperty(
+        name="GRIB level type",
+        description="The kind of level to read from a GRIB file, e.g. isobaricInhPa or hybrid; empty: the one with "
+                    "the most 3-D fields (--level-type)",
+    )
+    read_member: bpy.props.IntProperty(
+        name="Ensemble member", default=-1, min=-1,
+        description="The ensemble member to read; -1: the control (0) or the first (--member)",
+    )
 
 
 def overrides(group, path=None):
@@ -173,6 +200,8 @@ def overrides(group, path=None):
         time_units=group.read_time_units,
         radius=group.read_earth_radius or None,
         variables=group.read_var_map,
+        level_type=group.read_level_type or None,
+        member=None if group.read_member < 0 else group.read_member,
     )
 
 
@@ -424,7 +453,8 @@ class NEPHELE_OT_import_dataset(bpy.types.Operator):
         default="DEMO",
     )
     filepath: bpy.props.StringProperty(name="File", subtype="FILE_PATH")
-    filter_glob: bpy.props.StringProperty(default="*.nc;*.nc4;*.cdf;*.ctl", options={"HIDDEN"})
+    filter_glob: bpy.props.StringProperty(default="*.nc;*.nc4;*.cdf;*.zip;*.ctl;*.grib;*.grib1;*.grib2;*.grb;*.grb2",
+                                          options={"HIDDEN"})
     hours_per_frame: bpy.props.FloatProperty(name="Hours per frame", default=1.0, min=1e-3, max=8760.0)
     set_frame_range: bpy.props.BoolProperty(name="Set frame range", default=True)
 
@@ -484,6 +514,8 @@ class NEPHELE_PT_data(SubPanel, bpy.types.Panel):
             col.prop(group, "read_time_units")
             col.prop(group, "read_earth_radius")
             col.prop(group, "read_var_map")
+            col.prop(group, "read_level_type")
+            col.prop(group, "read_member")
         row = layout.row()
         row.operator(NEPHELE_OT_clear_cache.bl_idname, icon="TRASH")
         where = "beside the .blend" if bpy.data.filepath else "this session's folder (moved beside the .blend on save)"
