@@ -54,7 +54,7 @@ class GribDataset(FileDataset):
     level_type : str
         The kind of level read.
     level_types : dict
-        Every kind of level in the file → ``{"3d": [names], "2d": [names or counts]}``.
+        Every kind of level in the file → ``{"3d": 3-D variables, "fields": messages}``.
     members : list of int
         The ensemble members of the chosen kind of level (empty when the file has none).
     member : int or None
@@ -311,7 +311,14 @@ def open_grib(path, **kw):
                         field=given[0])
     for k in ("vertical", "p0", "time_units"):
         kw.pop(k, None)
-    return GribDataset(path, **kw)
+    from .gribscan import need_eccodes
+
+    eccodes = need_eccodes(path)
+    try:
+        return GribDataset(path, **kw)
+    except eccodes.CodesInternalError as exc:  # a message that scanned but will not open: one line, as everywhere
+        raise DataError(f"cannot read as GRIB ({type(exc).__name__}: {str(exc).strip().splitlines()[0] if str(exc).strip() else ''})",
+                        path=path) from None
 
 
 __all__ = ["GribDataset", "open_grib"]

@@ -99,7 +99,7 @@ def _datetime(dates, times):
     """datetime64[s] of ecCodes' ``YYYYMMDD`` dates and ``hhmm`` times."""
     out = np.empty(len(dates), dtype="datetime64[s]")
     pairs = np.stack([np.asarray(dates, np.int64), np.asarray(times, np.int64)], axis=1)
-    for (d, t), rows in zip(*_unique_rows(pairs)):
+    for (d, t), rows in zip(*_unique_rows(pairs), strict=True):
         out[rows] = np.datetime64(f"{d // 10000:04d}-{d // 100 % 100:02d}-{d % 100:02d}T{t // 100:02d}:{t % 100:02d}", "s")
     return out
 
@@ -171,15 +171,18 @@ class GribIndex:
         """The data values of message ``i`` (float64, NaN where the bitmap says missing), as stored."""
         eccodes = need_eccodes(self.path)
         with _LOCK:
-            h = self.handle(i)
+            h = None
             try:
+                h = self.handle(i)
                 v = eccodes.codes_get_values(h)
                 if eccodes.codes_get_long(h, "bitmapPresent"):
                     v = np.where(v == eccodes.codes_get_double(h, "missingValue"), np.nan, v)
-            except eccodes.CodesInternalError as exc:
-                raise DataError(f"cannot decode the message at byte {int(self.offset[i])} ({exc})", path=self.path) from None
+            except (eccodes.CodesInternalError, OSError) as exc:
+                raise DataError(f"cannot decode the message at byte {int(self.offset[i])} ({type(exc).__name__}: {exc})",
+                                path=self.path) from None
             finally:
-                eccodes.codes_release(h)
+                if h is not None:
+                    eccodes.codes_release(h)
         return v
 
     def get(self, i, keys, headers_only=True):
