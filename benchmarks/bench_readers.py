@@ -182,7 +182,7 @@ def big_grib(gb):
                  ("jDirectionIncrementInDegrees", 0.25), ("bitsPerValue", 16), ("dataDate", 20240601), ("dataTime", 0)):
         eccodes.codes_set(template, k, v)
     per_step = (len(BIG_VARS) * len(BIG_LEVELS) + 30) * (1440 * 721 * 2 + 200)
-    steps = max(1, int(round(gb * 1e9 / per_step)))
+    steps = max(1, int(np.ceil(gb * 1e9 / per_step)))  # at least gb
     tmp = path.with_suffix(".part")
     with open(tmp, "wb") as out:
         for step in range(steps):

@@ -36,7 +36,7 @@ References
 import numpy as np
 
 from ..errors import DataError
-from .grid import EARTH_RADIUS, GlobeGrid
+from .grid import EARTH_RADIUS, GlobeGrid, right_handed
 from .gridfile import FileDataset, standard_name, tidy_lonlat
 from .humidity import RH_CRIT
 
@@ -221,10 +221,8 @@ class GribDataset(FileDataset):
         if g.lon2d is None:
             lon, lat, lon_index, lat_index = tidy_lonlat(g.lon, g.lat, path, "longitude", "latitude")
             return lon, lat, lon_index, lat_index, None, None
-        from .netcdf import _right_handed
-
         nj, ni = g.shape
-        lat_index = np.arange(nj) if _right_handed(g.lon2d, g.lat2d) else np.arange(nj)[::-1]
+        lat_index = np.arange(nj) if right_handed(g.lon2d, g.lat2d) else np.arange(nj)[::-1]
         return (np.arange(ni, dtype=np.float64), np.arange(nj, dtype=np.float64), np.arange(ni), lat_index,
                 g.lon2d[lat_index], g.lat2d[lat_index])
 

@@ -81,6 +81,21 @@ def _isobaric(ds, path, take):
     p = ds._levels * ISOBARIC[ds.level_type]
     level_index = np.arange(p.size)[::-1]
     p = p[level_index]
+    key = f"heights_{ds.level_type}_{ds.member}_{ds._grid_id}"
+    if key in ds._index.extras:  # kept with the index (same file, same code): no field to decode
+        heights, source = ds._index.extras[key], str(ds._index.extras[key + "_about"])
+    else:
+        heights, source = _isobaric_heights(ds, p, level_index, take)
+        ds._index.keep(key, heights)
+        ds._index.keep(key + "_about", np.array(source))
+    nj, ni = ds._geometry.shape
+    p3 = np.broadcast_to(p[:, None, None], (p.size, nj, ni)).astype(np.float32)
+    return (np.broadcast_to(heights[:, None, None], (p.size, nj, ni)), level_index, lambda t: p3,
+            f"pressure levels, heights from the {source} (not terrain following)")
+
+
+def _isobaric_heights(ds, p, level_index, take):
+    """Heights of pressure levels: the mean geopotential height of each in the first step, else the standard atmosphere."""
     heights = standard_height(p)
     source = "standard atmosphere"
     found = _geopotential(ds)
@@ -97,11 +112,8 @@ def _isobaric(ds, path, take):
             if gaps:
                 source += f"; {gaps} level(s) without it from the standard atmosphere"
         else:
-            ds._notes.append(f"levels: the mean of {name!r} does not rise with the levels; heights from the standard atmosphere")
-    nj, ni = ds._geometry.shape
-    p3 = np.broadcast_to(p[:, None, None], (p.size, nj, ni)).astype(np.float32)
-    return (np.broadcast_to(heights[:, None, None], (p.size, nj, ni)), level_index, lambda t: p3,
-            f"pressure levels, heights from the {source} (not terrain following)")
+            source += f" (the mean of {name!r} does not rise with the levels)"
+    return heights, source
 
 
 def _surface_pressure(ds, t, take):

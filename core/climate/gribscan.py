@@ -90,9 +90,13 @@ def _multi(eccodes, f):
 
 
 def _stamp(path):
+    """``(resolved path, identity)``: the file's path, size and modification time, and the reader's code
+    (what the index keeps, level heights included, was made by this code from this file)."""
+    from ..pipeline.codehash import code_stamp
+
     p = Path(path).resolve()
     st = p.stat()
-    return p, f"{p}|{st.st_size}|{st.st_mtime_ns}|v{INDEX_VERSION}"
+    return p, f"{p}|{st.st_size}|{st.st_mtime_ns}|v{INDEX_VERSION}|{code_stamp(Path(__file__).with_name('grib.py'))}"
 
 
 def _datetime(dates, times):

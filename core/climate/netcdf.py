@@ -68,7 +68,7 @@ import numpy as np
 from ..errors import DataError
 from .dataset import Variable
 from .gridfile import FileDataset, cf_times, cf_times_or_steps, parse_iso, plausible_units, standard_name, step_times, tidy_lonlat
-from .grid import EARTH_RADIUS, GlobeGrid, rotated_pole_matrix
+from .grid import EARTH_RADIUS, GlobeGrid, right_handed, rotated_pole_matrix
 from .humidity import G0, RH_CRIT
 from .netcdflevels import CAM_P0, VERTICAL_KINDS, VerticalCoordinates, _attr  # noqa: F401  (CAM_P0, VERTICAL_KINDS: public here)
 from .projections import inverse
@@ -195,17 +195,6 @@ def projected_lonlat(mapping, x, y, path=None, field="grid_mapping"):
     """
     X, Y = np.meshgrid(np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64))
     return inverse(mapping, X, Y, path, field)
-
-
-def _right_handed(lon2d, lat2d):
-    """Whether grid i, grid j and up form a right-handed frame (east-ish, north-ish, up) at the centre."""
-    from .grid import lonlat_to_xyz
-
-    nj, ni = lon2d.shape
-    j, i = nj // 2, ni // 2
-    j0, i0 = min(j, nj - 2), min(i, ni - 2)
-    p = lonlat_to_xyz(lon2d[j0 : j0 + 2, i0 : i0 + 2], lat2d[j0 : j0 + 2, i0 : i0 + 2])
-    return float(np.dot(np.cross(p[0, 1] - p[0, 0], p[1, 0] - p[0, 0]), p[0, 0])) > 0.0
 
 
 WRF_T0 = 300.0
@@ -659,7 +648,7 @@ class NetCDFDataset(VerticalCoordinates, FileDataset):
         if not (np.all(np.isfinite(lon2d)) and np.all(np.isfinite(lat2d))):
             raise DataError("has NaN or infinite 2-D longitudes/latitudes (masked land points?)", path=path, field=lon_name)
         lon_index, lat_index = np.arange(lon2d.shape[1]), np.arange(lon2d.shape[0])
-        if not _right_handed(lon2d, lat2d):
+        if not right_handed(lon2d, lat2d):
             lat_index = lat_index[::-1]
         lon2d, lat2d = lon2d[lat_index], lat2d[lat_index]
         return np.arange(lon_index.size, dtype=np.float64), np.arange(lat_index.size, dtype=np.float64), lon_index, lat_index, lon2d, lat2d
