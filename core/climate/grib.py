@@ -246,10 +246,9 @@ class GribDataset(FileDataset):
         """Step ``t`` of variable ``name`` as ``(levels, rows, columns)`` in file order; NaN for missing levels."""
         table = self._table[name][t]
         nj, ni = self._geometry.shape
-        out = np.full((table.size, nj, ni), np.nan, dtype=np.float32)
+        out = np.empty((table.size, nj, ni), dtype=np.float32)
         for k, i in enumerate(table):
-            if i >= 0:
-                out[k] = self._geometry.to_2d(self._index.values(int(i)))
+            out[k] = self._geometry.to_2d(self._index.values(int(i))) if i >= 0 else np.nan
         return out
 
     def single_level(self, short_name, t, level_types):

@@ -172,7 +172,8 @@ class GribIndex:
         return h
 
     def values(self, i):
-        """The data values of message ``i`` (float64, NaN where the bitmap says missing), as stored."""
+        """The data values of message ``i`` (float64, NaN where the bitmap says missing), as stored.  (ecCodes'
+        float32 decoding is not implemented for every packing, IEEE among them.)"""
         eccodes = need_eccodes(self.path)
         with _LOCK:
             h = None
