@@ -63,10 +63,10 @@ hydrometeor mixing ratios of GFS GRIB1 files, which ecCodes calls ``unknown``.""
 
 
 def index_folder():
-    """``<cache>/grib-index``: where index files live (the cache policy of :func:`~nephele.core.pipeline.cache.default_cache_dir`)."""
-    from ..pipeline.cache import default_cache_dir
+    """``<cache>/grib-index``: where index files live (:func:`~nephele.core.climate.readers.cache_folder`)."""
+    from .readers import cache_folder
 
-    return default_cache_dir() / "grib-index"
+    return cache_folder("grib-index")
 
 
 def need_eccodes(path):

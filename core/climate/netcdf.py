@@ -281,14 +281,15 @@ def _from_zip(path):
     import zipfile
 
     from ..files import atomic_write
-    from ..pipeline.cache import default_cache_dir, source_stamp
+    from ..pipeline.cache import source_stamp
+    from .readers import cache_folder
 
     try:
         with zipfile.ZipFile(path) as z:
             members = [m for m in z.infolist() if m.filename.lower().endswith((".nc", ".nc4", ".netcdf")) and not m.is_dir()]
             if not members:
                 raise DataError(f"the zip holds no NetCDF file ({', '.join(z.namelist()[:5]) or 'nothing'})", path=path)
-            folder = default_cache_dir() / "zip" / hashlib.sha256(source_stamp(path).encode()).hexdigest()[:24]
+            folder = cache_folder("zip") / hashlib.sha256(source_stamp(path).encode()).hexdigest()[:24]
             unpacked = []
             for m in members:
                 out = folder / Path(m.filename).name
