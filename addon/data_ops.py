@@ -20,6 +20,7 @@ from ..core.climate.grid import DEFAULT_EXAGGERATION
 from ..core.climate.readers import VERTICAL_CHOICES, check_overrides
 from ..core.errors import DataError
 from ..core.pipeline.cache import default_cache_dir, format_bytes, session_cache_dir, tree_size
+from ..core.pipeline.sources import open_with_overrides
 from .panel import SubPanel
 
 MIRROR_KEY = "nephele_settings"
@@ -95,6 +96,24 @@ def dataset(source=None, scene=None):
     return open_source(source)
 
 
+def variable_search(self, context, edit_text):
+    """Field names for a panel's "Variable" box: the scene dataset's fields (cloud_water, cloud_ice, cloud, rh,
+    u, v, w... as the reader names them) with what they are; any of their other names (the file's own, a GRIB
+    shortName such as clwmr, a CF standard name) is also accepted when typed."""
+    try:
+        ds = dataset(scene=context.scene)
+    except Exception:  # noqa: BLE001 - no usable dataset: nothing to offer
+        return []
+    text = str(edit_text or "").lower()
+    out = []
+    for name, var in sorted(ds.variables.items()):
+        raw = getattr(ds, "file_names", {}).get(name, name)
+        about = var.long_name + (f" ('{raw}' in the file)" if raw != name else "")
+        if text in name.lower() or text in raw.lower():
+            out.append((name, about))
+    return out
+
+
 def _mirrored(key):
     """Getter and setter that keep a panel property in the mirror: one source of truth,
     also for files saved without the add-on."""
@@ -160,6 +179,15 @@ class NephelePropsData(bpy.types.PropertyGroup):
         description="Read the file's variable NAME as the standard field STD: STD=NAME, comma separated "
                     "(e.g. temperature=T2, rh=RH) (--var-map)",
     )
+    read_level_type: bpy.props.StringProperty(
+        name="GRIB level type",
+        description="The kind of level to read from a GRIB file, e.g. isobaricInhPa or hybrid; empty: the one with "
+                    "the most 3-D fields (--level-type)",
+    )
+    read_member: bpy.props.IntProperty(
+        name="Ensemble member", default=-1, min=-1,
+        description="The ensemble member to read; -1: the control (0) or the first (--member)",
+    )
 
 
 def overrides(group, path=None):
@@ -172,25 +200,9 @@ def overrides(group, path=None):
         time_units=group.read_time_units,
         radius=group.read_earth_radius or None,
         variables=group.read_var_map,
+        level_type=group.read_level_type or None,
+        member=None if group.read_member < 0 else group.read_member,
     )
-
-
-def open_with_overrides(path, kw):
-    """``(dataset, source name)`` of ``path`` read with the overrides ``kw``, as ``nephele`` commands
-    do: the name is ``path?key=value&...&file=ID`` (the file's identity, so cached results of another
-    version of the file are not reused), registered for this session and openable by any process."""
-    from ..core.pipeline.sources import open_source, register_source
-
-    if not kw:
-        return open_source(path), path
-    import hashlib
-
-    from ..core.climate.readers import open_dataset, override_source
-    from ..core.pipeline.cache import source_stamp
-
-    ds = open_dataset(path, **kw)
-    file_id = hashlib.sha256(source_stamp(path).encode()).hexdigest()[:12]
-    return ds, register_source(f"{override_source(path, **kw)}&file={file_id}", ds)
 
 
 def frame_range_for(ds, cfg):
@@ -452,7 +464,8 @@ class NEPHELE_OT_import_dataset(bpy.types.Operator):
         default="DEMO",
     )
     filepath: bpy.props.StringProperty(name="File", subtype="FILE_PATH")
-    filter_glob: bpy.props.StringProperty(default="*.nc;*.nc4;*.cdf;*.ctl", options={"HIDDEN"})
+    filter_glob: bpy.props.StringProperty(default="*.nc;*.nc4;*.cdf;*.zip;*.ctl;*.grib;*.grib1;*.grib2;*.grb;*.grb2",
+                                          options={"HIDDEN"})
     hours_per_frame: bpy.props.FloatProperty(name="Hours per frame", default=1.0, min=1e-3, max=8760.0)
     set_frame_range: bpy.props.BoolProperty(name="Set frame range", default=True)
 
@@ -467,7 +480,7 @@ class NEPHELE_OT_import_dataset(bpy.types.Operator):
         group = getattr(context.scene, "nephele_data", None)
         try:
             if self.kind == "FILE" and group is not None:  # the panel's "File overrides"
-                ds, source = open_with_overrides(source, overrides(group, source))
+                ds, source = open_with_overrides(source, **overrides(group, source))
             else:
                 ds = dataset(source)
         except (DataError, OSError, ImportError) as exc:
@@ -512,6 +525,8 @@ class NEPHELE_PT_data(SubPanel, bpy.types.Panel):
             col.prop(group, "read_time_units")
             col.prop(group, "read_earth_radius")
             col.prop(group, "read_var_map")
+            col.prop(group, "read_level_type")
+            col.prop(group, "read_member")
         row = layout.row()
         row.operator(NEPHELE_OT_clear_cache.bl_idname, icon="TRASH")
         where = "beside the .blend" if bpy.data.filepath else "this session's folder (moved beside the .blend on save)"

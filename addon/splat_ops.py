@@ -647,7 +647,8 @@ def render_settings(scene):
 
 
 class NephelePropsSplats(bpy.types.PropertyGroup):
-    var: bpy.props.StringProperty(name="Variable", default="cloud", description="Field behind the opacity")
+    var: bpy.props.StringProperty(name="Variable", default="cloud", description="Field behind the opacity",
+                                  search=data_ops.variable_search)
     threshold: bpy.props.FloatProperty(name="Threshold", default=0.3, min=0.0, max=1e6,
                                        description="Opacity is zero up to this value: no splat there")
     full: bpy.props.FloatProperty(name="Full at", default=1.0, min=0.0, max=1e6)

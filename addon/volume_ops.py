@@ -641,7 +641,8 @@ def uninstall():
 
 
 class NephelePropsVolume(bpy.types.PropertyGroup):
-    var: bpy.props.StringProperty(name="Variable", default="cloud", description="Field behind the opacity")
+    var: bpy.props.StringProperty(name="Variable", default="cloud", description="Field behind the opacity",
+                                  search=data_ops.variable_search)
     mode: bpy.props.EnumProperty(
         name="Mode", default=EXACT,
         items=[(EXACT, "Exact", "The material evaluates the curvilinear field at every sample from atlas images: "

@@ -9,8 +9,10 @@ HELP = "export the contour surface of a variable at one time step as .ply, .glb 
 
 
 def add_arguments(p):
-    p.add_argument("source", metavar="FILE", help='dataset: "demo", "demo:small", a NetCDF .nc or a GrADS .ctl file')
-    p.add_argument("--var", required=True, metavar="NAME", help="variable to contour (e.g. cloud)")
+    p.add_argument("source", metavar="FILE",
+                   help='dataset: "demo", "demo:small", a NetCDF .nc (or a .zip of them), a GRIB file, a Zarr store or a GrADS .ctl file')
+    p.add_argument("--var", required=True, metavar="NAME",
+                   help="variable to contour, by its standard, file or GRIB name (e.g. cloud, cloud_water, clwmr)")
     p.add_argument("--level", required=True, type=float, metavar="X", help="contour value (e.g. 0.15)")
     p.add_argument("--time", type=int, default=0, metavar="I", help="time step index (default 0; negative counts from the end)")
     p.add_argument("--exaggeration", type=float, metavar="E", help="vertical exaggeration of heights (default 30)")

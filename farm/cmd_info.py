@@ -1,6 +1,7 @@
 """``nephele info FILE``: what a dataset holds — grid, levels, variables, times."""
 
 import json
+import textwrap
 
 from .reader_options import add_reader_options, reader_kwargs
 
@@ -8,7 +9,8 @@ HELP = "describe a dataset: grid type, shape, longitudes/latitudes, levels, vari
 
 
 def add_arguments(p):
-    p.add_argument("source", metavar="FILE", help='dataset: "demo", "demo:small", a NetCDF .nc or a GrADS .ctl file')
+    p.add_argument("source", metavar="FILE",
+                   help='dataset: "demo", "demo:small", a NetCDF .nc (or a .zip of them), a GRIB file, a Zarr store or a GrADS .ctl file')
     p.add_argument("--json", action="store_true", help="print one JSON object instead of text")
     add_reader_options(p)
 
@@ -58,6 +60,12 @@ def describe(ds):
         },
         "notes": list(getattr(ds, "notes", ())),
     }
+    if getattr(ds, "level_types", None):  # GRIB: every kind of level, the one read first
+        info["level_type"] = ds.level_type
+        info["level_types"] = {k: dict(v) for k, v in sorted(ds.level_types.items(), key=lambda kv: (kv[0] != ds.level_type, -kv[1]["3d"], kv[0]))}
+    if getattr(ds, "members", None):
+        info["members"] = list(ds.members)
+        info["member"] = ds.member
     if g.curvilinear:
         info["grid"] += ", 2-D longitude/latitude (projected or curvilinear horizontal grid)"
     if g.rotation is not None or g.curvilinear:
@@ -124,6 +132,19 @@ def format_text(info):
         lines.append(f"    ({name}: not read, {why})")
     step = "" if t["step_hours"] is None else f", step {t['step_hours']:g} h" + ("" if t["regular"] else " (irregular)")
     lines.append(f"  times      {t['count']}: {t['first']} .. {t['last']}{step}")
+    if "members" in info:
+        m = info["members"]
+        lines.append(f"  members    {len(m)} ({', '.join(map(str, m)) if len(m) < 8 else f'{m[0]}..{m[-1]}'}), reading "
+                     + ("the control (0)" if info["member"] == 0 else str(info["member"])) + "; choose with --member")
+    if "level_types" in info:
+        kinds = info["level_types"]
+        read = kinds[info["level_type"]]
+        lines.append(f"  level type {info['level_type']} ({read['3d']} 3-D variables, {read['fields']} fields); "
+                     "choose another with --level-type:")
+        others = [f"{k} {v['3d']}" for k, v in kinds.items() if v["3d"] and k != info["level_type"]]
+        flat = [f"{k} ({v['fields']})" for k, v in kinds.items() if not v["3d"]]
+        lines += textwrap.wrap(", ".join(others) + " (3-D variables)", 100, initial_indent=" " * 13, subsequent_indent=" " * 13) if others else []
+        lines += textwrap.wrap("single-level only: " + ", ".join(flat), 100, initial_indent=" " * 13, subsequent_indent=" " * 13) if flat else []
     lines += [f"  note       {n}" for n in info["notes"]]
     return "\n".join(lines)
 

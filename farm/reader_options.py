@@ -1,7 +1,8 @@
 """Command-line options overriding what a data file gets wrong or leaves out.
 
 The same overrides as :func:`nephele.core.climate.readers.open_dataset` takes
-(``vertical=``, ``p0=``, ``time_units=``, ``radius=``, ``variables=``), shared
+(``vertical=``, ``p0=``, ``time_units=``, ``radius=``, ``variables=``, and the
+choices ``level_type=`` of a GRIB file and ensemble ``member=``), shared
 by ``info``, ``contour``, ``volume`` and ``advect`` (``--vertical-coord`` because
 ``advect --vertical`` chooses how points move vertically).  ``--earth-radius`` is the
 planet radius in metres (``--radius`` of the drawing commands is the globe's
@@ -15,7 +16,8 @@ VERTICAL_CHOICES = ("pressure_hpa", "pressure_pa", "height_m", "height_km", "nca
 
 
 def add_reader_options(p):
-    """Add ``--vertical``, ``--p0``, ``--time-units``, ``--earth-radius`` and ``--var-map`` to parser ``p``."""
+    """Add ``--vertical-coord``, ``--p0``, ``--time-units``, ``--earth-radius``, ``--var-map``, ``--level-type`` and
+    ``--member`` to parser ``p``."""
     g = p.add_argument_group("reading the file (override what it gets wrong or leaves out)")
     g.add_argument("--vertical-coord", dest="read_vertical", choices=VERTICAL_CHOICES, metavar="KIND",
                    help=f"what the level coordinate is when the file does not say ({', '.join(VERTICAL_CHOICES)})")
@@ -25,6 +27,10 @@ def add_reader_options(p):
                    help="planet radius in metres (default: the file's grid mapping or model convention, else 6371000)")
     g.add_argument("--var-map", action="append", default=[], metavar="STD=NAME",
                    help="read the file's variable NAME as the standard field STD (e.g. temperature=T2); repeatable")
+    g.add_argument("--level-type", metavar="KIND",
+                   help="GRIB: the kind of level to read, e.g. isobaricInhPa or hybrid (default: the one with the most "
+                        "3-D fields; 'nephele info' lists them)")
+    g.add_argument("--member", type=int, metavar="N", help="ensemble member to read (default: the control, 0, or the lowest)")
 
 
 def reader_kwargs(args):
@@ -50,33 +56,21 @@ def reader_kwargs(args):
         mapping[std.strip()] = raw.strip()
     if mapping:
         kw["variables"] = mapping
+    if getattr(args, "level_type", None):
+        kw["level_type"] = args.level_type
+    if getattr(args, "member", None) is not None:
+        if args.member < 0:
+            raise UsageError(f"--member must be >= 0 (0 is the control), got {args.member}")
+        kw["member"] = args.member
     return kw
 
 
 def open_with_overrides(args):
-    """The dataset of ``args.source`` opened with the overrides, and the source name the tasks use.
+    """The dataset of ``args.source`` opened with the overrides, and the source name the tasks use
+    (:func:`~nephele.core.pipeline.sources.open_with_overrides`)."""
+    from ..core.pipeline.sources import open_with_overrides
 
-    Without overrides the name is ``args.source`` (opened through the
-    per-process :func:`~nephele.core.pipeline.sources.open_source`).  With them
-    the dataset is registered under ``SOURCE?key=value&...`` plus the file's
-    path, size and modification time (hashed), so cached results of other overrides or of an
-    older file are never reused.
-    """
-    from ..core.pipeline.sources import open_source, register_source
-    from ..core.climate.readers import open_dataset
-
-    kw = reader_kwargs(args)
-    if not kw:
-        return open_source(args.source), args.source
-    import hashlib
-    from urllib.parse import urlencode
-
-    from ..core.pipeline.cache import source_stamp
-
-    ds = open_dataset(args.source, **kw)
-    flat = {k: (",".join(f"{s}:{r}" for s, r in sorted(v.items())) if isinstance(v, dict) else v) for k, v in sorted(kw.items())}
-    file_id = hashlib.sha256(source_stamp(args.source).encode()).hexdigest()[:12]
-    return ds, register_source(f"{args.source}?{urlencode(flat)}&file={file_id}", ds)
+    return open_with_overrides(args.source, **reader_kwargs(args))
 
 
 __all__ = ["add_reader_options", "open_with_overrides", "reader_kwargs"]

@@ -11,10 +11,15 @@ others under their own names):
 name            units   meaning
 =============== ======= =====================================
 ``cloud``       1       cloud fraction, 0..1
+``cloud_water`` kg/kg   cloud liquid water (mixing ratio or
+                        mass fraction: NCEP ``clwmr``, ECMWF
+                        ``clwc``, CMIP ``clw``, MERRA ``QL``)
+``cloud_ice``   kg/kg   cloud ice (``icmr``, ``ciwc``, ``cli``)
 ``temperature`` K       air temperature
 ``u``           m/s     eastward wind
 ``v``           m/s     northward wind
 ``w``           m/s     upward wind (zero when a file has none)
+``omega``       Pa/s    vertical velocity in pressure per time
 ``rh``          1       relative humidity, fraction
 ``q``           kg/kg   specific humidity
 ``pressure``    Pa      air pressure
@@ -94,11 +99,15 @@ class Dataset(abc.ABC):
         )
 
     def __contains__(self, name):
-        return name in self.variables or name in self.aliases
+        return self.resolve(name) in self.variables
 
     def resolve(self, name):
-        """The dataset's name for ``name``, which may be a standard name or the file's own name."""
-        return name if name in self.variables else self.aliases.get(name, name)
+        """The dataset's name for ``name``: a standard name, the file's own name, or another name of the
+        same meaning (GRIB ``shortName``, CF standard name; any case)."""
+        if name in self.variables:
+            return name
+        low = str(name).lower()
+        return self.aliases.get(name) or (low if low in self.variables else self.aliases.get(low, name))
 
     @property
     def hours(self):

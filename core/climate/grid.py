@@ -86,6 +86,20 @@ def rotated_pole_matrix(pole_lon, pole_lat, pole_grid_lon=0.0):
     return rz @ ry @ rz_o @ np.diag([-1.0, -1.0, 1.0])
 
 
+def right_handed(lon2d, lat2d):
+    """Whether grid i, grid j and up form a right-handed frame (east-ish, north-ish, up) at the centre."""
+    nj, ni = lon2d.shape
+    j, i = nj // 2, ni // 2
+    j0, i0 = min(j, nj - 2), min(i, ni - 2)
+    p = lonlat_to_xyz(lon2d[j0 : j0 + 2, i0 : i0 + 2], lat2d[j0 : j0 + 2, i0 : i0 + 2])
+    return float(np.dot(np.cross(p[0, 1] - p[0, 0], p[1, 0] - p[0, 0]), p[0, 0])) > 0.0
+
+
+def _distinct(a):
+    """``a`` with every broadcast axis (stride 0) cut to length 1: the same values, each once."""
+    return a[tuple(slice(0, 1) if stride == 0 and n > 1 else slice(None) for stride, n in zip(a.strides, a.shape, strict=True))]
+
+
 @dataclass(frozen=True, eq=False)
 class GlobeGrid:
     """A terrain-following longitude × latitude × level grid.
@@ -205,6 +219,7 @@ class GlobeGrid:
                 path=path,
                 field="height",
             )
+        height = _distinct(height)  # flat levels broadcast over the columns: check each value once
         if not np.all(np.isfinite(height)):
             raise DataError("has NaN or infinite level heights", path=path, field="height")
         if not np.all(np.diff(height, axis=0) > 0):

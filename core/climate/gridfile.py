@@ -29,30 +29,44 @@ from .dataset import Dataset, Variable
 from ..errors import DataError
 from .humidity import RH_CRIT, relative_humidity, sundqvist_cloud
 
-# Lower-case file names (CF, ECMWF/ERA, ECHAM, NCEP, GrADS) → standard name.
+# Lower-case file names (CF, ECMWF/ERA, ECHAM, NCEP, GrADS, CMIP, MERRA-2, WRF, CAM) → standard name.
 ALIASES = {
-    "cloud": ("cloud", "cc", "clc", "cl", "aclcac", "cldfrac", "cloud_fraction", "cloudiness", "cfrac"),
+    "cloud": ("cloud", "cc", "clc", "cl", "aclcac", "cldfrac", "cldfra", "cloud_fraction", "cloudiness", "cfrac", "tcc"),
+    "cloud_water": ("cloud_water", "clwmr", "clwc", "clw", "ql", "qcloud", "qc", "cldliq", "cloud_liquid_water"),
+    "cloud_ice": ("cloud_ice", "icmr", "ciwc", "cli", "qi", "qice", "cldice", "cloud_ice_water"),
     "temperature": ("t", "ta", "temp", "air", "temperature", "air_temperature", "tk"),
     "u": ("u", "ua", "uwnd", "u_wind", "uas3d", "eastward_wind"),
     "v": ("v", "va", "vwnd", "v_wind", "northward_wind"),
     "w": ("w", "wa", "upward_air_velocity"),
+    "omega": ("omega", "wap", "vvel"),
     "rh": ("rh", "hur", "rhum", "rhumidity", "relhum", "relative_humidity", "r"),
     "q": ("q", "hus", "shum", "qv", "specific_humidity"),
 }
 STANDARD_NAMES = {
     "cloud_area_fraction_in_atmosphere_layer": "cloud",
+    "mass_fraction_of_cloud_liquid_water_in_air": "cloud_water",
+    "cloud_liquid_water_mixing_ratio": "cloud_water",
+    "mass_fraction_of_cloud_ice_in_air": "cloud_ice",
+    "cloud_ice_mixing_ratio": "cloud_ice",
     "air_temperature": "temperature",
     "eastward_wind": "u",
     "northward_wind": "v",
     "upward_air_velocity": "w",
+    "lagrangian_tendency_of_air_pressure": "omega",
     "relative_humidity": "rh",
     "specific_humidity": "q",
 }
-UNITS = {"cloud": "1", "temperature": "K", "u": "m/s", "v": "m/s", "w": "m/s", "rh": "1", "q": "kg/kg", "pressure": "Pa"}
+UNITS = {"cloud": "1", "cloud_water": "kg/kg", "cloud_ice": "kg/kg", "temperature": "K", "u": "m/s", "v": "m/s", "w": "m/s",
+         "omega": "Pa/s", "rh": "1", "q": "kg/kg", "pressure": "Pa"}
+_PER_TIME_PRESSURE = ("pas-1", "pa/s", "pas**-1", "pa.s-1", "hpas-1", "hpa/s", "mb/s")
 
 
 def standard_name(name, attrs=None):
-    """Nephele's name for a file variable (its CF ``standard_name`` first, then known aliases), or the name itself."""
+    """Nephele's name for a file variable (its CF ``standard_name`` first, then known aliases), or the name itself.
+
+    A vertical velocity in pressure per time (``w`` in Pa/s, as in ECMWF and
+    NCEP files) is ``omega``, not the upward wind ``w``.
+    """
     attrs = attrs or {}
     std = str(attrs.get("standard_name", "")).strip().lower()
     if std in STANDARD_NAMES:
@@ -60,8 +74,15 @@ def standard_name(name, attrs=None):
     low = name.lower()
     for std_name, names in ALIASES.items():
         if low in names:
+            if std_name == "w" and str(attrs.get("units", "")).strip().lower().replace(" ", "") in _PER_TIME_PRESSURE:
+                return "omega"
             return std_name
     return name
+
+
+def meaning_aliases(std):
+    """Every name a field of standard name ``std`` answers to: its known file names and CF standard names."""
+    return tuple(ALIASES.get(std, ())) + tuple(cf for cf, s in STANDARD_NAMES.items() if s == std)
 
 
 def unit_conversion(std, units):
@@ -73,7 +94,7 @@ def unit_conversion(std, units):
         return 1.0, 0.0
     if std in ("rh", "cloud") and u in ("%", "percent"):
         return 0.01, 0.0
-    if std == "q" and u in ("g/kg", "gkg-1", "gkg**-1"):
+    if std in ("q", "cloud_water", "cloud_ice") and u in ("g/kg", "gkg-1", "gkg**-1"):
         return 0.001, 0.0
     if std == "pressure" and u in ("hpa", "mb", "mbar", "millibar", "millibars"):
         return 100.0, 0.0
@@ -187,6 +208,7 @@ class FileDataset(Dataset):
         self.notes = list(notes)
         self._fields = dict(fields)
         self._order = tuple(np.asarray(o) for o in order)
+        self._take = _take(self._order)
         self._pressure = pressure
         self.vertical = vertical
         self.skipped = dict(skipped or {})
@@ -212,7 +234,13 @@ class FileDataset(Dataset):
         nk = grid.shape[0]
         self.rh_crit = np.broadcast_to(np.asarray(rh_crit, dtype=np.float64), (nk,)).reshape(nk, 1, 1) if np.ndim(rh_crit) else float(rh_crit)
         super().__init__(grid, times, variables, path, cache_steps)
-        self.aliases = {raw: std for std, raw in self.file_names.items() if raw != std and raw not in self.variables}
+        # A file name that is another standard name (GRIB's w in Pa/s is omega) never stands for it: code asking
+        # for "w" means the upward wind in m/s.
+        self.aliases = {raw: std for std, raw in self.file_names.items() if raw != std and raw not in self.variables and raw not in UNITS}
+        for std in self.variables:  # by meaning: --var clwmr and --var cloud_water reach the same field in any file
+            for alias in meaning_aliases(std):
+                if alias not in self.variables:
+                    self.aliases.setdefault(alias, std)
 
     @abc.abstractmethod
     def _raw(self, name, t):
@@ -222,8 +250,7 @@ class FileDataset(Dataset):
         if name in self._fields:
             raw, units = self._fields[name][:2]
             a = np.asarray(self._raw(raw, t), dtype=np.float32)
-            lev, lat, lon = self._order
-            a = a[np.ix_(lev, lat, lon)]
+            a = a[self._take]
             scale, offset = unit_conversion(name, units)
             if scale != 1.0 or offset != 0.0:
                 a = a * np.float32(scale) + np.float32(offset)
@@ -239,6 +266,20 @@ class FileDataset(Dataset):
         if name == "cloud":
             return sundqvist_cloud(self.read("rh", t), self.rh_crit)
         raise DataError("no such variable", path=self.path, field=name)
+
+
+def _take(order):
+    """An index into ``(level, lat, lon)`` putting a file's array in Nephele's order: slices where each
+    order is a run up or down (a view, no copy: a 0.25 degree step is 150 MB), else ``np.ix_``."""
+    slices = []
+    for o in order:
+        if o.size and np.all(np.diff(o) == 1):
+            slices.append(slice(int(o[0]), int(o[-1]) + 1))
+        elif o.size and np.all(np.diff(o) == -1):
+            slices.append(slice(int(o[0]), None if o[-1] == 0 else int(o[-1]) - 1, -1))
+        else:
+            return np.ix_(*order)
+    return tuple(slices)
 
 
 def _fmt_crit(rh_crit):
@@ -304,4 +345,4 @@ def parse_iso(text, path, field):
     return np.datetime64(f"{y:04d}-{mo:02d}-{d:02d}T{hh:02d}:{mm:02d}:{ss:02d}", "s")
 
 
-__all__ = ["ALIASES", "FileDataset", "cf_times", "cf_times_or_steps", "plausible_units", "standard_name", "step_times", "tidy_lonlat"]
+__all__ = ["ALIASES", "FileDataset", "meaning_aliases", "cf_times", "cf_times_or_steps", "plausible_units", "standard_name", "step_times", "tidy_lonlat"]

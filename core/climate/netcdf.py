@@ -60,36 +60,23 @@ References
 """
 
 import re
+import shutil
+from pathlib import Path
 
 import numpy as np
 
 from ..errors import DataError
 from .dataset import Variable
-from .gridfile import FileDataset, cf_times, cf_times_or_steps, parse_iso, plausible_units, pressure_scale, standard_name, step_times, tidy_lonlat
-from .grid import EARTH_RADIUS, GlobeGrid, rotated_pole_matrix
-from .humidity import G0, RH_CRIT, standard_height
+from .gridfile import FileDataset, cf_times, cf_times_or_steps, parse_iso, plausible_units, standard_name, step_times, tidy_lonlat
+from .grid import EARTH_RADIUS, GlobeGrid, right_handed, rotated_pole_matrix
+from .humidity import G0, RH_CRIT
+from .netcdflevels import CAM_P0, VERTICAL_KINDS, VerticalCoordinates, _attr  # noqa: F401  (CAM_P0, VERTICAL_KINDS: public here)
 from .projections import inverse
 
 _LON_UNITS = ("degrees_east", "degree_east", "degree_e", "degrees_e", "degreee", "degreese")
 _LAT_UNITS = ("degrees_north", "degree_north", "degree_n", "degrees_n", "degreen", "degreesn")
-_HEIGHT_NAMES = ("zg", "z", "hgt", "geopotential_height", "gh", "geopot", "phi")
-_PARAMETRIC = ("atmosphere_hybrid_sigma_pressure_coordinate", "atmosphere_sigma_coordinate", "atmosphere_hybrid_height_coordinate")
-CAM_P0 = 100000.0
-"""CAM's reference pressure (Pa), used when a file names ``P0`` but does not store it."""
-VERTICAL_KINDS = {
-    "pressure_hpa": ("air_pressure", "hpa"),
-    "pressure_pa": ("air_pressure", "pa"),
-    "height_m": ("height", "m"),
-    "height_km": ("height", "km"),
-    "ncar_hybrid": ("", "hybrid_sigma_pressure"),
-}
-"""What ``vertical=`` may say the level coordinate is (standard name and units it stands for)."""
 CAM_RADIUS = 6371220.0
 """CAM's planet radius (m, ``rearth`` in CAM's shr_const_mod), used for files with NCAR hybrid levels."""
-
-
-def _attr(var, key):
-    return str(var.attrs.get(key, "")).strip()
 
 
 def _find_axis(ds, path, kind):
@@ -118,23 +105,6 @@ def _find_time(ds):
             if var.ndim == ndim and (_attr(var, "standard_name").lower() == "time" or _attr(var, "axis").upper() == "T" or " since " in _attr(var, "units")):
                 return name
     return "time" if "time" in ds.variables else None
-
-
-def _formula_terms(var, path, field):
-    text = _attr(var, "formula_terms")
-    terms = dict(re.findall(r"(\w+):\s*(\w+)", text))
-    if not terms:
-        raise DataError(f"has standard_name {_attr(var, 'standard_name')} but no formula_terms", path=path, field=field)
-    return terms
-
-
-def _values(ds, name, path, field):
-    if name not in ds.variables:
-        raise DataError(f"formula term variable {name!r} is missing", path=path, field=field)
-    a = np.asarray(ds[name].values, dtype=np.float64)
-    if np.isnan(a).any():
-        raise DataError(f"has NaN values in {name!r}", path=path, field=field)
-    return a
 
 
 def _grid_mapping(ds):
@@ -227,17 +197,6 @@ def projected_lonlat(mapping, x, y, path=None, field="grid_mapping"):
     return inverse(mapping, X, Y, path, field)
 
 
-def _right_handed(lon2d, lat2d):
-    """Whether grid i, grid j and up form a right-handed frame (east-ish, north-ish, up) at the centre."""
-    from .grid import lonlat_to_xyz
-
-    nj, ni = lon2d.shape
-    j, i = nj // 2, ni // 2
-    j0, i0 = min(j, nj - 2), min(i, ni - 2)
-    p = lonlat_to_xyz(lon2d[j0 : j0 + 2, i0 : i0 + 2], lat2d[j0 : j0 + 2, i0 : i0 + 2])
-    return float(np.dot(np.cross(p[0, 1] - p[0, 0], p[1, 0] - p[0, 0]), p[0, 0])) > 0.0
-
-
 WRF_T0 = 300.0
 """WRF's base potential temperature (K): its ``T`` is ``theta - 300 K``."""
 WRF_RCP = 2.0 / 7.0
@@ -281,21 +240,101 @@ def _is_wrf(ds, zdim):
     return zdim == "bottom_top" and all(n in ds.variables and "bottom_top_stag" in ds[n].dims for n in ("PH", "PHB"))
 
 
-def _parametric_coordinate(ds, zdim):
-    """The level coordinate, or an auxiliary coordinate along ``zdim`` carrying the parametric formula."""
-    zvar = ds[zdim]
-    if _attr(zvar, "standard_name").lower() in _PARAMETRIC or _attr(zvar, "formula_terms"):
-        return zvar
-    for var in ds.variables.values():
-        if var.dims == (zdim,) and _attr(var, "standard_name").lower() in _PARAMETRIC and _attr(var, "formula_terms"):
-            return var
-    return zvar
+_MEMBER_DIMS = ("number", "realization", "member", "members", "ensemble", "ens", "member_id", "ensemble_member")
+_CELL_DIMS = {"ncells": "ICON", "cell": "ICON", "ncol": "CAM-SE", "nCells": "MPAS", "nMesh2_face": "UGRID", "nmesh2d_face": "UGRID",
+              "grid_cells": "unstructured"}
 
 
-class NetCDFDataset(FileDataset):
+def _member_dim(ds):
+    """The ensemble member dimension of the data variables (a known name, or a coordinate with standard_name realization)."""
+    dims = {d for v in ds.data_vars.values() for d in v.dims}
+    for name in dims:
+        if name.lower() in _MEMBER_DIMS or (name in ds.variables and _attr(ds[name], "standard_name").lower() == "realization"):
+            return name
+    return None
+
+
+def _refuse_unstructured(ds, path):
+    """One line for output on unstructured cells (ICON, MPAS, CAM-SE, UGRID): no latitude x longitude grid to read."""
+    found = None
+    for name, var in ds.variables.items():
+        if _attr(var, "cf_role") == "mesh_topology":
+            found = ("UGRID", name)
+        elif _attr(var, "CDI_grid_type").lower() == "unstructured":
+            found = ("ICON/CDI", next((d for d in var.dims if d in _CELL_DIMS or d.lower() in _CELL_DIMS), var.dims[-1]))
+    if found is None:
+        for dim in ds.dims:
+            if dim in _CELL_DIMS and any(dim in v.dims for v in ds.data_vars.values()):
+                found = (_CELL_DIMS[dim], dim)
+                break
+    if found is not None:
+        kind, dim = found
+        size = f"{ds.sizes[dim]} cells on dimension {dim!r}" if dim in ds.dims else f"mesh {dim!r}"
+        raise DataError(f"is on an unstructured grid ({kind}: {size}); Nephele reads latitude/longitude, rotated and projected "
+                        "grids: remap it first (e.g. 'cdo remapcon,r360x180')", path=path, field=dim)
+
+
+def _from_zip(path):
+    """The NetCDF inside a zip (the Copernicus Climate Data Store's ``data.zip``) with the most 3-D fields, unpacked
+    once into Nephele's cache (never beside the zip), and a note naming it and the others."""
+    import hashlib
+    import zipfile
+
+    from ..files import atomic_write
+    from ..pipeline.cache import source_stamp
+    from .readers import cache_folder
+
+    try:
+        with zipfile.ZipFile(path) as z:
+            members = [m for m in z.infolist() if m.filename.lower().endswith((".nc", ".nc4", ".netcdf")) and not m.is_dir()]
+            if not members:
+                raise DataError(f"the zip holds no NetCDF file ({', '.join(z.namelist()[:5]) or 'nothing'})", path=path)
+            folder = cache_folder("zip") / hashlib.sha256(source_stamp(path).encode()).hexdigest()[:24]
+            unpacked = []
+            for m in members:
+                out = folder / Path(m.filename).name
+                if not out.is_file() or out.stat().st_size != m.file_size:
+                    with atomic_write(out, fsync=False) as tmp, z.open(m) as src, open(tmp, "wb") as dst:
+                        shutil.copyfileobj(src, dst, 1 << 20)
+                unpacked.append(out)
+    except zipfile.BadZipFile as exc:
+        raise DataError(f"cannot open as a zip of NetCDF files ({exc})", path=path) from None
+    except OSError as exc:
+        raise DataError(f"cannot unpack the zip into the cache ({exc.strerror or exc})", path=path) from None
+    best = max(unpacked, key=_three_d_count)
+    others = [p.name for p in unpacked if p != best]
+    note = f"zip: read {best.name}" + (f"; also in the zip: {', '.join(others)}" if others else "")
+    return best, note
+
+
+def _three_d_count(path):
+    """How many variables of a NetCDF file have three or more dimensions besides time (0 when it does not open)."""
+    try:
+        ds = _open_netcdf(path)
+    except DataError:
+        return -1
+    with ds:
+        return sum(len([d for d in v.dims if d not in ("time", "valid_time", "Time")]) >= 3 for v in ds.data_vars.values())
+
+
+def _open_netcdf(path):
+    """``xarray.open_dataset`` of a NetCDF file (times left as numbers), its failure as one line."""
+    import xarray as xr
+
+    try:
+        return xr.open_dataset(path, decode_times=False, mask_and_scale=True)
+    except Exception as exc:  # netCDF4/HDF5/scipy raise many types for a bad file
+        first = (str(exc).strip().splitlines() or [""])[0]
+        if "did not find a match" in first:
+            first = "the contents are not NetCDF 3 or NetCDF 4/HDF5"
+        raise DataError(f"cannot open as NetCDF ({type(exc).__name__}: {first})", path=path) from exc
+
+
+class NetCDFDataset(VerticalCoordinates, FileDataset):
     """A CF NetCDF file opened lazily; see the module docstring for what is understood."""
 
-    def __init__(self, path, *, rh_crit=RH_CRIT, vertical=None, p0=None, time_units=None, radius=None, variables=None, cache_steps=8, opened=None):
+    def __init__(self, path, *, rh_crit=RH_CRIT, vertical=None, p0=None, time_units=None, radius=None, variables=None, member=None,
+                 cache_steps=8, opened=None):
         """Open ``path``; the keywords override what a file gets wrong or leaves out.
 
         Parameters
@@ -314,24 +353,63 @@ class NetCDFDataset(FileDataset):
         variables : dict, optional
             Standard name → file variable (``{"temperature": "T2"}``) where
             the file's names or ``standard_name`` are not recognised.
+        member : int, optional
+            The ensemble member to read where fields have a member dimension
+            (ERA5's ``number``, CF ``realization``): its number, else the control
+            (0) or the first.
         opened : xarray.Dataset, optional
-            Another reader's CF view of the file (GRIB through cfgrib).
+            The file already opened by xarray (a Zarr store).
         """
-        import xarray as xr
-
-        self._p0, self._vertical_kind, notes = p0, vertical, []
-        self._notes = notes
-        if opened is not None:  # another reader's CF view of its file (GRIB through cfgrib)
-            ds = opened
+        self._p0, self._vertical_kind, self._notes = p0, vertical, []
+        ds = opened if opened is not None else _open_netcdf(path)
+        _refuse_unstructured(ds, path)
+        self._ds = ds = self._choose_member(ds, path, member)
+        lon_name, lat_name, projected, curvilinear, rotation = self._horizontal_axes(ds, path)
+        time_name, time_dim = self._time_axis(ds)
+        names, skipped = self._three_d_fields(ds, path, lon_name, lat_name, time_name, time_dim)
+        self._time_dim = time_dim
+        if curvilinear:
+            lon, lat, lon_index, lat_index, lon2d, lat2d = self._curvilinear(ds, path, lon_name, lat_name, projected, *self._lonlat_dims)
         else:
-            try:
-                ds = xr.open_dataset(path, decode_times=False, mask_and_scale=True)
-            except Exception as exc:  # netCDF4/HDF5/scipy raise many types for a bad file
-                first = (str(exc).strip().splitlines() or [""])[0]
-                if "did not find a match" in first:
-                    first = "the contents are not NetCDF 3 or NetCDF 4/HDF5"
-                raise DataError(f"cannot open as NetCDF ({type(exc).__name__}: {first})", path=path) from exc
-        self._ds = ds
+            lon, lat, lon_index, lat_index = tidy_lonlat(ds[lon_name].values, ds[lat_name].values, path, lon_name, lat_name)
+            lon2d = lat2d = None
+        times = self._times(ds, path, time_name, time_dim, time_units)
+        self._nt = times.size
+        heights, level_index, pressure, vertical = self._levels(ds, path, names, skipped, lat_index, lon_index, lat.size, lon.size)
+        grid = GlobeGrid(lon, lat, heights, rotation=rotation, lon2d=lon2d, lat2d=lat2d).validate(path)
+        self._planet_radius(radius, vertical)
+        fields = self._field_map(ds, path, names, skipped, variables)
+        super().__init__(path, grid, times, fields, (level_index, lat_index, lon_index), pressure=pressure, rh_crit=rh_crit,
+                         vertical=vertical, skipped=skipped, notes=self._notes, cache_steps=cache_steps)
+        if self._wrf and "T" in names and pressure is not None and "temperature" not in self.variables:
+            self.variables["temperature"] = Variable("temperature", "K", "from WRF T + 300 K and P + PB (Poisson's equation)")
+            self.derived["temperature"] = "WRF T (perturbation potential temperature) + 300 K, P + PB"
+            self.aliases.pop("temperature", None)
+
+    # ------------------------------------------------------------------ the steps of __init__
+    def _choose_member(self, ds, path, member):
+        """``ds`` at one ensemble member (:attr:`members` lists them, :attr:`member` is the one read)."""
+        dim = _member_dim(ds)
+        self.members, self.member = [], None
+        if dim is None:
+            if member is not None:
+                raise DataError(f"member {member} asked for, but the file has no ensemble member dimension", path=path, field="member")
+            return ds
+        values = ds[dim].values if dim in ds.variables else np.arange(ds.sizes[dim])
+        numbered = np.issubdtype(np.asarray(values).dtype, np.integer)
+        self.members = [int(v) for v in values] if numbered else list(range(len(values)))
+        if member is None:
+            member = 0 if 0 in self.members else self.members[0]
+        elif int(member) not in self.members:
+            raise DataError(f"no member {member} (members: {', '.join(map(str, self.members))})", path=path, field="member")
+        self.member = int(member)
+        if not numbered:
+            self._notes.append(f"members: {dim!r} holds names; member={self.member} is {values[self.member]!s}")
+        return ds.isel({dim: self.members.index(self.member)})
+
+    def _horizontal_axes(self, ds, path):
+        """``(lon name, lat name, projection axes or None, curvilinear?, rotation or None)``; sets the planet
+        radius the grid mapping states (None when it states none)."""
         projected = _projection_axes(ds)
         try:
             lon_name, lat_name = _find_axis(ds, path, "lon"), _find_axis(ds, path, "lat")
@@ -341,18 +419,27 @@ class NetCDFDataset(FileDataset):
             lon_name, lat_name = projected  # x/y and a grid mapping only: positions from the projection
         curvilinear = ds[lon_name].ndim != 1 or ds[lat_name].ndim != 1 or (lon_name, lat_name) == projected
         if curvilinear:
-            lon_dim, lat_dim = self._curvilinear_dims(ds, path, lon_name, lat_name, projected)
+            self._lonlat_dims = self._curvilinear_dims(ds, path, lon_name, lat_name, projected)
             rotation, self.earth_radius = self._mapping(ds, path, None)
         else:
-            lon_dim, lat_dim = ds[lon_name].dims[0], ds[lat_name].dims[0]
+            self._lonlat_dims = ds[lon_name].dims[0], ds[lat_name].dims[0]
             rotation, self.earth_radius = self._mapping(ds, path, lon_name)
+        return lon_name, lat_name, projected, curvilinear, rotation
+
+    @staticmethod
+    def _time_axis(ds):
+        """``(time coordinate or None, time dimension or None)``."""
         time_name = _find_time(ds)
         time_dim = ds[time_name].dims[0] if time_name and ds[time_name].ndim == 1 else None
         for dim in ("time", "Time"):  # a time dimension without a coordinate (WRF's 'Time'): numbered steps
             if time_dim is None and dim in ds.dims:
                 time_name, time_dim = None, dim
+        return time_name, time_dim
 
-        # 3-D fields: dims = {lat, lon, one level dim} plus time if the file has one.
+    def _three_d_fields(self, ds, path, lon_name, lat_name, time_name, time_dim):
+        """Names of the 3-D fields on the most common level dimension, and ``{name: why}`` of the rest;
+        sets :attr:`_dims` = (level, lat, lon) dimensions."""
+        lon_dim, lat_dim = self._lonlat_dims
         candidates, skipped = {}, {}
         # Cell bounds and grid mappings describe coordinates; they are not fields to list as skipped.
         described = {_attr(v, "bounds") for v in ds.variables.values()} | {_attr(v, "grid_mapping").split(":")[0].strip() for v in ds.data_vars.values()}
@@ -365,75 +452,76 @@ class NetCDFDataset(FileDataset):
             elif name not in (lon_name, lat_name, time_name):
                 skipped[name] = f"dimensions {var.dims} are not (time, level, lat, lon)"
         if not candidates:
-            raise DataError(
-                f"no 3-D field on (level, {lat_dim}, {lon_dim}) (variables: {', '.join(ds.data_vars) or 'none'})",
-                path=path,
-                field="variables",
-            )
+            raise DataError(f"no 3-D field on (level, {lat_dim}, {lon_dim}) (variables: {', '.join(ds.data_vars) or 'none'})",
+                            path=path, field="variables")
         dims = list(candidates.values())
         self._zdim = zdim = max(set(dims), key=dims.count)
         for name, d in candidates.items():
             if d != zdim:
                 skipped[name] = f"on levels {d!r}, not {zdim!r}"
-        names = [n for n, d in candidates.items() if d == zdim]
         self._dims = (zdim, lat_dim, lon_dim)
-        self._time_dim = time_dim
+        return [n for n, d in candidates.items() if d == zdim], skipped
 
-        lon2d = lat2d = None
-        if curvilinear:
-            lon, lat, lon_index, lat_index, lon2d, lat2d = self._curvilinear(ds, path, lon_name, lat_name, projected, lon_dim, lat_dim)
-        else:
-            lon, lat, lon_index, lat_index = tidy_lonlat(ds[lon_name].values, ds[lat_name].values, path, lon_name, lat_name)
+    def _times(self, ds, path, time_name, time_dim, time_units):
+        """The time axis (datetime64[s]): CF units (months too), step numbers, or one step."""
         if time_name is None and time_dim:
             times = step_times(ds.sizes[time_dim])
-            notes.append(f"time: dimension {time_dim!r} has no coordinate variable; the {times.size} step(s) are numbered 0..{times.size - 1}, one hour apart")
-        elif time_name:
-            tv = ds[time_name]
-            monthly = _month_times(tv.values, time_units or _attr(tv, "units"), tv.attrs.get("calendar"), path, time_name)
-            if monthly is not None:
-                times, note = monthly
-            elif time_units:  # the user's own units must be right: no falling back to step numbers
-                times, note = cf_times(tv.values, time_units, tv.attrs.get("calendar"), path, time_name), None
-            else:
-                times, note = cf_times_or_steps(tv.values, _attr(tv, "units"), tv.attrs.get("calendar"), path, time_name)
-            if note:
-                notes.append(note)
+            self._notes.append(f"time: dimension {time_dim!r} has no coordinate variable; the {times.size} step(s) are numbered 0..{times.size - 1}, one hour apart")
+            return times
+        if not time_name:
+            self._notes.append("time: the file has no time axis; one step")
+            return np.array(["1970-01-01T00:00:00"], dtype="datetime64[s]")
+        tv = ds[time_name]
+        monthly = _month_times(tv.values, time_units or _attr(tv, "units"), tv.attrs.get("calendar"), path, time_name)
+        if monthly is not None:
+            times, note = monthly
+        elif time_units:  # the user's own units must be right: no falling back to step numbers
+            times, note = cf_times(tv.values, time_units, tv.attrs.get("calendar"), path, time_name), None
         else:
-            times = np.array(["1970-01-01T00:00:00"], dtype="datetime64[s]")
-            notes.append("time: the file has no time axis; one step")
-        self._nt = times.size
+            times, note = cf_times_or_steps(tv.values, _attr(tv, "units"), tv.attrs.get("calendar"), path, time_name)
+        if note:
+            self._notes.append(note)
+        return times
 
+    def _levels(self, ds, path, names, skipped, lat_index, lon_index, nj, ni):
+        """``(heights, level index, pressure(t) or None, description)``: WRF eta levels or the CF vertical coordinate."""
+        zdim = self._zdim
         self._wrf = _is_wrf(ds, zdim) and self._vertical_kind is None
         self._stagger, self._alpha = {}, None
-        if self._wrf:
-            heights, level_index, pressure, vertical = self._wrf_levels(ds, path, zdim, lat_index, lon_index)
-            self._stagger, bad = _wrf_staggered(ds, self._dims, time_dim)
-            skipped.update(bad)
-            for name in self._stagger:
-                skipped.pop(name, None)
-                names.append(name)
-            if self._stagger:
-                notes.append(f"staggered: {', '.join(sorted(self._stagger))} read at the mass points (mean of the two neighbours)")
-            if {"U", "V"} <= set(self._stagger):
-                if "COSALPHA" in ds.variables and "SINALPHA" in ds.variables:
-                    self._alpha = tuple(self._wrf_plane(ds, n, lat_index, lon_index) for n in ("COSALPHA", "SINALPHA"))
-                    notes.append("wind: U, V turned from grid to earth axes with COSALPHA/SINALPHA")
-                else:
-                    notes.append("wind: U, V are along the grid's axes (the file has no COSALPHA/SINALPHA to turn them east/north)")
-        else:
-            heights, level_index, pressure, vertical = self._vertical(ds, path, zdim, names, lat_index, lon_index, lat.size, lon.size)
-        grid = GlobeGrid(lon, lat, heights, rotation=rotation, lon2d=lon2d, lat2d=lat2d).validate(path)
+        if not self._wrf:
+            return self._vertical(ds, path, zdim, names, lat_index, lon_index, nj, ni)
+        levels = self._wrf_levels(ds, path, zdim, lat_index, lon_index)
+        self._stagger, bad = _wrf_staggered(ds, self._dims, self._time_dim)
+        skipped.update(bad)
+        for name in self._stagger:
+            skipped.pop(name, None)
+            names.append(name)
+        if self._stagger:
+            self._notes.append(f"staggered: {', '.join(sorted(self._stagger))} read at the mass points (mean of the two neighbours)")
+        if {"U", "V"} <= set(self._stagger):
+            if "COSALPHA" in ds.variables and "SINALPHA" in ds.variables:
+                self._alpha = tuple(self._wrf_plane(ds, n, lat_index, lon_index) for n in ("COSALPHA", "SINALPHA"))
+                self._notes.append("wind: U, V turned from grid to earth axes with COSALPHA/SINALPHA")
+            else:
+                self._notes.append("wind: U, V are along the grid's axes (the file has no COSALPHA/SINALPHA to turn them east/north)")
+        return levels
+
+    def _planet_radius(self, radius, vertical):
+        """:attr:`earth_radius`: the ``radius=`` override, the grid mapping's, the model's convention, else the mean Earth."""
         if radius is not None:
             self.earth_radius = float(radius)
         elif self.earth_radius is None and "NCAR" in vertical:
             self.earth_radius = CAM_RADIUS
-            notes.append(f"radius: NCAR hybrid levels, so CAM's planet radius {CAM_RADIUS:g} m")
+            self._notes.append(f"radius: NCAR hybrid levels, so CAM's planet radius {CAM_RADIUS:g} m")
         elif self.earth_radius is None and self._wrf:
             self.earth_radius = WRF_RADIUS
-            notes.append(f"radius: WRF file, so WRF's planet radius {WRF_RADIUS:g} m")
+            self._notes.append(f"radius: WRF file, so WRF's planet radius {WRF_RADIUS:g} m")
         elif self.earth_radius is None:
             self.earth_radius = EARTH_RADIUS
 
+    def _field_map(self, ds, path, names, skipped, variables):
+        """``{standard name: (file name, units, long name)}`` of the 3-D fields (``variables=`` first, then
+        CF standard names and known names); a second file field for the same standard name is skipped."""
         chosen = {raw: std for std, raw in (variables or {}).items()}
         if self._wrf:  # WRF's T is the perturbation potential temperature (theta - 300 K), not air temperature
             for raw, std in (("T", "theta_perturbation"), ("CLDFRA", "cloud")):
@@ -452,25 +540,9 @@ class NetCDFDataset(FileDataset):
             if std in ("temperature", "rh", "cloud"):
                 units, note = plausible_units(std, units, self._raw(name, 0))
                 if note:
-                    notes.append(note)
+                    self._notes.append(note)
             fields[std], taken[std] = (name, units, _attr(ds[name], "long_name")), name
-        super().__init__(
-            path,
-            grid,
-            times,
-            fields,
-            (level_index, lat_index, lon_index),
-            pressure=pressure,
-            rh_crit=rh_crit,
-            vertical=vertical,
-            skipped=skipped,
-            notes=notes,
-            cache_steps=cache_steps,
-        )
-        if self._wrf and "T" in names and pressure is not None and "temperature" not in self.variables:
-            self.variables["temperature"] = Variable("temperature", "K", "from WRF T + 300 K and P + PB (Poisson's equation)")
-            self.derived["temperature"] = "WRF T (perturbation potential temperature) + 300 K, P + PB"
-            self.aliases.pop("temperature", None)
+        return fields
 
     def _read(self, name, t):
         if name in ("u", "v") and self._alpha is not None and self.file_names.get("u") == "U" and self.file_names.get("v") == "V":
@@ -577,160 +649,10 @@ class NetCDFDataset(FileDataset):
         if not (np.all(np.isfinite(lon2d)) and np.all(np.isfinite(lat2d))):
             raise DataError("has NaN or infinite 2-D longitudes/latitudes (masked land points?)", path=path, field=lon_name)
         lon_index, lat_index = np.arange(lon2d.shape[1]), np.arange(lon2d.shape[0])
-        if not _right_handed(lon2d, lat2d):
+        if not right_handed(lon2d, lat2d):
             lat_index = lat_index[::-1]
         lon2d, lat2d = lon2d[lat_index], lat2d[lat_index]
         return np.arange(lon_index.size, dtype=np.float64), np.arange(lat_index.size, dtype=np.float64), lon_index, lat_index, lon2d, lat2d
-
-    # ------------------------------------------------------------------ vertical
-    def _vertical(self, ds, path, zdim, names, lat_index, lon_index, nj, ni):
-        if zdim not in ds.variables:
-            raise DataError("level dimension has no coordinate variable", path=path, field=zdim)
-        zvar = _parametric_coordinate(ds, zdim)
-        z = np.asarray(zvar.values, dtype=np.float64)
-        if z.ndim != 1 or z.size < 2:
-            raise DataError(f"needs at least 2 levels, got {z.size}", path=path, field=zdim)
-        if not np.all(np.isfinite(z)):
-            raise DataError("has NaN level coordinates", path=path, field=zdim)
-        std = _attr(zvar, "standard_name").lower()
-        units = _attr(zvar, "units").lower()
-        if self._vertical_kind is not None:
-            if self._vertical_kind not in VERTICAL_KINDS:
-                raise DataError(f"vertical={self._vertical_kind!r} is not one of {', '.join(VERTICAL_KINDS)}", path=path, field=zdim)
-            std, units = VERTICAL_KINDS[self._vertical_kind]
-        take = np.ix_(lat_index, lon_index)
-
-        def surface(name, t):
-            a = ds[name]
-            if self._time_dim in a.dims:
-                a = a.isel({self._time_dim: t})
-            a = np.asarray(a.transpose(*self._dims[1:]).values, dtype=np.float64)
-            return a[take]
-
-        if not std and (units == "hybrid_sigma_pressure" or "A_var" in zvar.attrs):
-            return self._ncar_hybrid(ds, zvar, path, zdim, surface)
-        if std in ("atmosphere_hybrid_sigma_pressure_coordinate", "atmosphere_sigma_coordinate"):
-            terms = _formula_terms(zvar, path, zdim)
-            ps_name = terms.get("ps")
-            if not ps_name or ps_name not in ds.variables:
-                raise DataError(f"surface pressure {ps_name!r} from formula_terms is missing", path=path, field=zdim)
-            ps_scale = pressure_scale(_attr(ds[ps_name], "units") or "Pa", path, ps_name)
-            if std == "atmosphere_sigma_coordinate":
-                sigma = _values(ds, terms.get("sigma", zdim), path, zdim)
-                ptop = float(_values(ds, terms["ptop"], path, zdim)) * pressure_scale(_attr(ds[terms["ptop"]], "units") or "Pa", path, terms["ptop"]) if "ptop" in terms else 0.0
-                a_pa, b = ptop * (1.0 - sigma), sigma
-            else:
-                b = _values(ds, terms.get("b", ""), path, zdim)
-                if "ap" in terms:
-                    a_pa = _values(ds, terms["ap"], path, zdim) * pressure_scale(_attr(ds[terms["ap"]], "units") or "Pa", path, terms["ap"])
-                elif "a" in terms:
-                    p0 = self._reference_pressure(ds, terms.get("p0"), path, zdim)
-                    a_pa = _values(ds, terms["a"], path, zdim) * p0
-                else:
-                    raise DataError(f"formula_terms {terms} need 'ap' or 'a' and 'p0'", path=path, field=zdim)
-            return self._hybrid_pressure(a_pa, b, ps_name, ps_scale, surface, path, zdim)
-        if std == "atmosphere_hybrid_height_coordinate":
-            terms = _formula_terms(zvar, path, zdim)
-            a = _values(ds, terms.get("a", zdim), path, zdim)
-            b = _values(ds, terms.get("b", ""), path, zdim)
-            orog_name = terms.get("orog")
-            if not orog_name or orog_name not in ds.variables:
-                raise DataError(f"orography {orog_name!r} from formula_terms is missing", path=path, field=zdim)
-            level_index = self._level_order(a + b * 1000.0, path, zdim)
-            heights = a[level_index, None, None] + b[level_index, None, None] * surface(orog_name, 0)[None]
-            return heights, level_index, None, "hybrid height (terrain following)"
-        is_pressure = std in ("air_pressure", "pressure") or units in ("pa", "hpa", "mb", "mbar", "millibar", "millibars", "hectopascal", "hectopascals")
-        if is_pressure:
-            p = z * pressure_scale(units, path, zdim)
-            level_index = self._level_order(-p, path, zdim)
-            p = p[level_index]
-            heights = self._geopotential_heights(ds, path, names, level_index, take)
-            if heights is None:
-                heights = standard_height(p)
-                source = "standard atmosphere"
-            else:
-                source = "mean geopotential height"
-            p3 = np.broadcast_to(p[:, None, None], (p.size, nj, ni)).astype(np.float32)
-            return (
-                np.broadcast_to(heights[:, None, None], (p.size, nj, ni)),
-                level_index,
-                lambda t: p3,
-                f"pressure levels, heights from the {source} (not terrain following)",
-            )
-        if std in ("height", "altitude", "height_above_mean_sea_level") or units in ("m", "km", "meter", "meters", "metre", "metres"):
-            scale = 1000.0 if units == "km" else 1.0
-            if _attr(zvar, "positive").lower() == "down":
-                raise DataError("heights with positive='down' (depth) are not supported", path=path, field=zdim)
-            level_index = self._level_order(z * scale, path, zdim)
-            heights = (z * scale)[level_index]
-            return np.broadcast_to(heights[:, None, None], (heights.size, nj, ni)), level_index, None, "height levels (flat)"
-        raise DataError(
-            f"cannot tell what the vertical coordinate is (standard_name {std or 'none'!r}, units {units or 'none'!r}); "
-            "expected pressure, hybrid sigma-pressure, hybrid height or height (say which with vertical=...)",
-            path=path,
-            field=zdim,
-        )
-
-    def _reference_pressure(self, ds, name, path, field):
-        """``P0`` in Pa: the ``p0=`` argument, the file's variable, else CAM's 100000 Pa with a note."""
-        if self._p0 is not None:
-            return float(self._p0)
-        if name and name in ds.variables:
-            return float(_values(ds, name, path, field)) * pressure_scale(_attr(ds[name], "units") or "Pa", path, name)
-        self._notes.append(f"{field}: reference pressure {name or 'P0'!r} is not in the file; used CAM's P0 = {CAM_P0:g} Pa")
-        return CAM_P0
-
-    def _ncar_hybrid(self, ds, zvar, path, zdim, surface):
-        """NCAR/CAM hybrid sigma-pressure levels named by ``A_var``/``B_var``/``P0_var``/``PS_var`` (or CAM's names)."""
-        a_name = str(zvar.attrs.get("A_var", "hyam" if zdim != "ilev" else "hyai"))
-        b_name = str(zvar.attrs.get("B_var", "hybm" if zdim != "ilev" else "hybi"))
-        ps_name = str(zvar.attrs.get("PS_var", "PS"))
-        if ps_name not in ds.variables:
-            raise DataError(f"hybrid levels need surface pressure {ps_name!r}, which is not in the file", path=path, field=zdim)
-        p0 = self._reference_pressure(ds, str(zvar.attrs.get("P0_var", "P0")), path, zdim)
-        a_pa = _values(ds, a_name, path, zdim) * p0
-        b = _values(ds, b_name, path, zdim)
-        ps_scale = pressure_scale(_attr(ds[ps_name], "units") or "Pa", path, ps_name)
-        heights, level_index, pressure, _ = self._hybrid_pressure(a_pa, b, ps_name, ps_scale, surface, path, zdim)
-        return heights, level_index, pressure, "hybrid sigma-pressure (terrain following, NCAR A_var/B_var)"
-
-    def _hybrid_pressure(self, a_pa, b, ps_name, ps_scale, surface, path, zdim):
-        ref = a_pa + b * 101325.0
-        level_index = self._level_order(-ref, path, zdim)
-        a_pa, b = a_pa[level_index, None, None], b[level_index, None, None]
-
-        def pressure(t):
-            return (a_pa + b * surface(ps_name, t) * ps_scale).astype(np.float32)
-
-        return standard_height(pressure(0)), level_index, pressure, "hybrid sigma-pressure (terrain following)"
-
-    @staticmethod
-    def _level_order(upward, path, field):
-        """Indices putting levels bottom→top given a quantity that grows upward; non-monotonic → DataError."""
-        d = np.diff(upward)
-        if np.all(d > 0):
-            return np.arange(upward.size)
-        if np.all(d < 0):
-            return np.arange(upward.size)[::-1]
-        raise DataError("levels are not monotonic (non-monotonic levels)", path=path, field=field)
-
-    def _geopotential_heights(self, ds, path, names, level_index, take):
-        for name in names:
-            var = ds[name]
-            std = _attr(var, "standard_name").lower()
-            units = _attr(var, "units").lower().replace(" ", "")
-            if std == "geopotential_height" or (name.lower() in _HEIGHT_NAMES and units in ("m", "gpm", "meters", "metres")):
-                scale = 1.0
-            elif std == "geopotential" or (name.lower() in _HEIGHT_NAMES and units in ("m2s-2", "m**2s**-2", "m^2/s^2", "m2/s2")):
-                scale = 1.0 / G0
-            else:
-                continue
-            a = self._raw(name, 0)[level_index][(slice(None),) + take] * scale
-            with np.errstate(invalid="ignore"):
-                mean = np.nanmean(a.reshape(a.shape[0], -1), axis=1)
-            if np.all(np.isfinite(mean)) and np.all(np.diff(mean) > 0):
-                return mean
-        return None
 
     def _raw(self, name, t):
         var = self._ds[name]
@@ -748,7 +670,17 @@ class NetCDFDataset(FileDataset):
 
 
 def open_netcdf(path, **kw):
-    """Open a CF NetCDF file as a lazy :class:`NetCDFDataset`."""
+    """Open a CF NetCDF file (or a ``.zip`` of them, as the Copernicus Climate Data Store delivers) as a lazy
+    :class:`NetCDFDataset`."""
+    if kw.pop("level_type", None) is not None:
+        raise DataError("level_type= chooses among the kinds of level of a GRIB file; a NetCDF file has one level "
+                        "coordinate per field", path=path, field="level_type")
+    if str(path).lower().endswith(".zip"):
+        inner, note = _from_zip(path)
+        ds = NetCDFDataset(inner, **kw)
+        ds.source = ds.path = str(path)
+        ds.notes.append(note)
+        return ds
     return NetCDFDataset(path, **kw)
 
 

@@ -17,13 +17,22 @@ from ..errors import DataError
 from .synthetic import SIZES, demo_dataset
 
 GRIB_SUFFIXES = (".grib", ".grib1", ".grib2", ".grb", ".grb1", ".grb2")
-OVERRIDES = ("vertical", "p0", "time_units", "radius", "variables")
-"""Keywords of :func:`open_dataset` that override what a NetCDF, GRIB or Zarr file gets wrong or leaves out."""
+OVERRIDES = ("vertical", "p0", "time_units", "radius", "variables", "level_type", "member")
+"""Keywords of :func:`open_dataset` that override what a NetCDF, GRIB or Zarr file gets wrong or leaves out,
+or choose what to read from it (``level_type`` of a GRIB file, ensemble ``member``)."""
 OVERRIDE_FIELDS = {"vertical": "vertical coordinate", "p0": "P0", "time_units": "time units",
-                   "radius": "earth radius", "variables": "variable map"}
+                   "radius": "earth radius", "variables": "variable map", "level_type": "level type", "member": "member"}
 """How an override is named in messages (the Blender panel's labels)."""
 VERTICAL_CHOICES = ("pressure_hpa", "pressure_pa", "height_m", "height_km", "ncar_hybrid")
 """What ``vertical=`` may say (:data:`~nephele.core.climate.netcdf.VERTICAL_KINDS`, kept here without xarray)."""
+
+
+def cache_folder(name):
+    """``<cache>/<name>``: where the readers keep what they make from a file (GRIB indexes, unpacked zips), never
+    beside the user's data; the cache is :func:`~nephele.core.pipeline.cache.default_cache_dir`'s."""
+    from ..pipeline.cache import default_cache_dir
+
+    return default_cache_dir() / name
 
 
 def parse_var_map(text, path=None):
@@ -40,7 +49,7 @@ def parse_var_map(text, path=None):
     return mapping
 
 
-def check_overrides(path=None, *, vertical=None, p0=None, time_units=None, radius=None, variables=None):
+def check_overrides(path=None, *, vertical=None, p0=None, time_units=None, radius=None, variables=None, level_type=None, member=None):
     """The overrides given (not ``None``/empty), checked, as keywords of :func:`open_dataset`.
 
     Parameters
@@ -53,6 +62,10 @@ def check_overrides(path=None, *, vertical=None, p0=None, time_units=None, radiu
         (``"<unit> since <date>"``, months and years too), the planet radius in metres (1e5..1e9:
         a radius in km is the likely slip), ``{standard name: file variable}``
         or its text form for :func:`parse_var_map`.
+    level_type : str
+        The GRIB kind of level to read (ecCodes ``typeOfLevel``, e.g. ``"hybrid"``).
+    member : int
+        The ensemble member to read (>= 0).
 
     Raises
     ------
@@ -91,6 +104,18 @@ def check_overrides(path=None, *, vertical=None, p0=None, time_units=None, radiu
         variables = parse_var_map(variables, path)
     if variables:
         kw["variables"] = dict(variables)
+    if level_type is not None and str(level_type).strip():
+        if not str(level_type).strip().isidentifier():
+            raise bad("level_type", f"must be an ecCodes typeOfLevel such as isobaricInhPa or hybrid, got {level_type!r}")
+        kw["level_type"] = str(level_type).strip()
+    if member is not None and member != "":
+        try:
+            number = int(member)
+        except (TypeError, ValueError):
+            number = -1
+        if number < 0 or str(number) != str(member).strip():
+            raise bad("member", f"must be a whole number >= 0 (0 is the control), got {member!r}")
+        kw["member"] = number
     return kw
 
 
@@ -117,7 +142,9 @@ def split_source(text):
             continue
         if key not in OVERRIDES:
             raise DataError(f"unknown override {key!r} in the source name (known: {', '.join(OVERRIDES)})", path=base)
-        if key in ("p0", "radius"):
+        if key == "member":
+            pass  # check_overrides reads and checks the number
+        elif key in ("p0", "radius"):
             try:
                 value = float(value)
             except ValueError:
@@ -136,14 +163,16 @@ def open_dataset(source, **kw):
     source : str or os.PathLike
         ``"demo"`` (the synthetic 320×160×19 climate, 240 hourly steps),
         ``"demo:small"`` (64×32×8, 48 steps, for tests), a CF NetCDF file
-        (``.nc``, ``.nc4``, ``.cdf``), a GRIB file (``.grib``, ``.grib2``,
-        ``.grb``, ``.grb2``; needs cfgrib + ecCodes), a Zarr store
+        (``.nc``, ``.nc4``, ``.cdf``; or a ``.zip`` of them as the Copernicus
+        Climate Data Store delivers ERA5), a GRIB file (``.grib``, ``.grib2``,
+        ``.grb``, ``.grb2``; needs ecCodes), a Zarr store
         (``.zarr`` directory; needs zarr) or a GrADS descriptor (``.ctl``).
     **kw
         Passed to the reader: for the demo ``seed``; for NetCDF and GRIB the
         overrides of what a file gets wrong or leaves out, ``p0=`` (Pa,
         reference pressure of hybrid levels) and ``time_units=`` (CF units
-        such as ``"days since 1988-01-01"``); for GRIB also ``level_type=``.
+        such as ``"days since 1988-01-01"``); ``member=`` (ensemble member) for
+        NetCDF, Zarr and GRIB; for GRIB also ``level_type=``.
 
     Raises
     ------
@@ -170,7 +199,7 @@ def open_dataset(source, **kw):
         return demo_dataset(size, **kw)
     path = Path(source)
     suffix = path.suffix.lower()
-    if suffix in (".nc", ".nc4", ".cdf", ".netcdf"):
+    if suffix in (".nc", ".nc4", ".cdf", ".netcdf", ".zip"):
         if not path.is_file():
             raise DataError("file not found", path=path)
         from .netcdf import open_netcdf
@@ -198,7 +227,7 @@ def open_dataset(source, **kw):
         return open_grads(path, **kw)
     if not path.exists():
         raise DataError("file not found", path=path)
-    raise DataError(f"unknown format {suffix or '(no extension)'!r}: expected demo, .nc, .grib2, .zarr or .ctl", path=path)
+    raise DataError(f"unknown format {suffix or '(no extension)'!r}: expected demo, .nc, .zip (of NetCDF), .grib2, .zarr or .ctl", path=path)
 
 
-__all__ = ["OVERRIDES", "check_overrides", "open_dataset", "override_source", "parse_var_map", "split_source"]
+__all__ = ["OVERRIDES", "cache_folder", "check_overrides", "open_dataset", "override_source", "parse_var_map", "split_source"]

@@ -14,6 +14,7 @@ from .codehash import (  # noqa: F401
 from .sources import (  # noqa: F401
     frame_hours,
     open_source,
+    open_with_overrides,
     register_source,
 )
 from .registry import (  # noqa: F401

@@ -49,6 +49,28 @@ def open_source(source):
     return ds
 
 
+def open_with_overrides(source, **kw):
+    """``(dataset, source name)`` of ``source`` read with the reader overrides ``kw`` (see
+    :func:`~nephele.core.climate.readers.open_dataset`).
+
+    Without overrides: :func:`open_source` and ``source`` itself.  With them the
+    name is :func:`~nephele.core.climate.readers.override_source`'s
+    ``SOURCE?key=value&...`` plus ``&file=ID``, a hash of the file's path, size and
+    modification time, so that cached results of other overrides or of an older
+    file are never reused; the dataset is registered under it for this process,
+    and any other process (a farm worker, a saved scene) opens the name again.
+    """
+    if not kw:
+        return open_source(source), str(source)
+    import hashlib
+
+    from ..climate.readers import open_dataset, override_source
+
+    ds = open_dataset(source, **kw)
+    file_id = hashlib.sha256(source_stamp(source).encode()).hexdigest()[:12]
+    return ds, register_source(f"{override_source(source, **kw)}&file={file_id}", ds)
+
+
 def frame_hours(frame, frame_start=1, hours_per_frame=1.0, last_hour=None):
     """Model time (hours since the first step) shown at ``frame``, clamped to ``[0, last_hour]``."""
     if not hours_per_frame > 0:
@@ -60,4 +82,4 @@ def frame_hours(frame, frame_start=1, hours_per_frame=1.0, last_hour=None):
     return hours
 
 
-__all__ = ["frame_hours", "open_source", "register_source"]
+__all__ = ["frame_hours", "open_source", "open_with_overrides", "register_source"]

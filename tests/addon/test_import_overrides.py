@@ -134,4 +134,5 @@ def test_panel_draws_the_overrides_in_a_collapsible_section(empty_scene):
 
     data_ops.NEPHELE_PT_data.draw(type("Panel", (), {"layout": Layout()})(), bpy.context)
     assert panels == [("NEPHELE_PT_data_overrides", True)]
-    assert drawn[-5:] == ["read_vertical", "read_p0", "read_time_units", "read_earth_radius", "read_var_map"]
+    assert drawn[-7:] == ["read_vertical", "read_p0", "read_time_units", "read_earth_radius", "read_var_map", "read_level_type",
+                          "read_member"]

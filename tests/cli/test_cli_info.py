@@ -9,9 +9,9 @@ from pathlib import Path
 import pytest
 
 NEPHELE = Path(sys.executable).parent / "nephele"
-# Where cfgrib is not installed (the core-only Python 3.11), GRIB files are refused for that reason.
-GRIB_REFUSAL = ("x.grib: cannot open as GRIB" if importlib.util.find_spec("cfgrib")
-                else "x.grib: reading GRIB needs cfgrib and ecCodes")
+# Where ecCodes is not installed (GRIB is optional in the core-only Python 3.11), GRIB files are refused for that reason.
+GRIB_REFUSAL = ("x.grib: cannot open as GRIB" if importlib.util.find_spec("eccodes")
+                else "x.grib: reading GRIB needs ecCodes")
 
 
 def nephele(*args, cwd):
