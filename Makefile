@@ -65,11 +65,18 @@ $(VENV311)/.native: $(VENV311)/.stamp build/native/.stamp
 	$(VENV311)/bin/pip install -q --force-reinstall --no-deps build/native/dist/*.whl
 	touch $@
 
+# Real GRIB products (pygrib's and cfgrib's sample files, fetched once from PyPI and checked by sha256;
+# tests/data/fetch_grib_samples.py).
+GRIB_SAMPLES := build/grib-samples/.stamp
+$(GRIB_SAMPLES): tests/data/fetch_grib_samples.py $(VENV)/.stamp
+	$(VENV)/bin/python tests/data/fetch_grib_samples.py
+	touch $@
+
 demo: $(VENV)/.stamp $(VENV)/.native
 	$(VENV)/bin/nephele demo --out out/demo
 
 # The quick tier: everything but the slow hard cases, the extension zips and Slurm.
-test: $(VENV)/.stamp $(VENV)/.native
+test: $(VENV)/.stamp $(VENV)/.native $(GRIB_SAMPLES)
 	@mkdir -p $(TIERS)
 	$(STRICT) $(BUDGET) quick 480 --junit $(TIERS)/quick.xml -- $(VENV)/bin/python -m pytest -m "not slow" \
 	  --ignore=tests/extension --ignore=tests/farm/slurm --junitxml=$(TIERS)/quick.xml $(PYTEST_ARGS)
@@ -81,14 +88,14 @@ test-full:
 	@$(VENV)/bin/python tests/budget.py --summary
 
 # Everything on Python 3.13 + bpy, the slow hard cases too (the zips and Slurm have tiers of their own).
-test-main: $(VENV)/.stamp $(VENV)/.native
+test-main: $(VENV)/.stamp $(VENV)/.native $(GRIB_SAMPLES)
 	@mkdir -p $(TIERS)
 	$(STRICT) $(BUDGET) main 900 --junit $(TIERS)/main.xml -- $(VENV)/bin/python -m pytest \
 	  --ignore=tests/extension --ignore=tests/farm/slurm --junitxml=$(TIERS)/main.xml $(PYTEST_ARGS)
 
 # The core (no bpy, no farm) on the numpy 1.26 / Python 3.11 that Blender 4.2-5.0 ship. This tier has
 # no bpy by design (NEPHELE_OPTIONAL); the slow hard cases run once, in test-main.
-test-core311: $(VENV)/.stamp $(VENV311)/.stamp $(VENV311)/.native
+test-core311: $(VENV)/.stamp $(VENV311)/.stamp $(VENV311)/.native $(GRIB_SAMPLES)
 	@mkdir -p $(TIERS)
 	$(STRICT) NEPHELE_OPTIONAL=bpy $(BUDGET) core311 420 --junit $(TIERS)/core311.xml -- \
 	  $(VENV311)/bin/python -m pytest -m "not bpy and not slow" --ignore=tests/farm --ignore=tests/addon \
