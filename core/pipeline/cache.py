@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from ..files import atomic_write
+from ..memory import available_memory, check_memory, format_bytes  # noqa: F401  (their home before core.memory)
 from . import registry
 
 CACHE_VERSION = 1
@@ -160,48 +161,6 @@ def tree_size(path):
             except OSError:
                 pass
     return total, count
-
-
-def available_memory():
-    """Bytes of memory the machine can still give (``MemAvailable`` of ``/proc/meminfo``,
-    else free pages from ``os.sysconf``; None when neither is known).  Needs no psutil,
-    which Blender does not ship."""
-    try:
-        with open("/proc/meminfo") as f:
-            for line in f:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except (OSError, ValueError, IndexError):
-        pass
-    try:
-        return int(os.sysconf("SC_AVPHYS_PAGES")) * int(os.sysconf("SC_PAGE_SIZE"))
-    except (ValueError, OSError, AttributeError):
-        return None
-
-
-def check_memory(need, what, *, available=None, field=None):
-    """Raise :class:`~.errors.DataError` when ``need`` bytes exceed the memory available.
-
-    Called before any large allocation (bakes, resampling, scattering solves), so
-    an impossible request fails with one clear line instead of the machine
-    swapping or the process being killed.
-    """
-    from ..errors import DataError
-
-    have = available_memory() if available is None else available
-    if have is not None and need > have:
-        raise DataError(f"{what} needs about {format_bytes(need)} of memory, more than the "
-                        f"{format_bytes(have)} this machine has available", field=field)
-    return need
-
-
-def format_bytes(n):
-    """``1536`` → ``"1.5 KB"`` (decimal units, as file managers show)."""
-    n = float(n)
-    for unit in ("B", "KB", "MB", "GB", "TB"):
-        if abs(n) < 1000.0 or unit == "TB":
-            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
-        n /= 1000.0
 
 
 class Cache:
