@@ -133,10 +133,10 @@ def _parse_vtu(path, blob):
         elif fmt == "binary":
             data = _decode("".join((el.text or "").split()).encode(), False, header, compressed, order)
         elif fmt == "ascii":
-            return np.array((el.text or "").split(), dtype=dtype.newbyteorder("="))
+            data = None
         else:
             raise DataError(f"unknown data format {fmt!r}", path=str(path), field=el.get("Name"))
-        a = np.frombuffer(data, dtype=dtype)
+        a = np.array((el.text or "").split(), dtype=dtype.newbyteorder("=")) if data is None else np.frombuffer(data, dtype=dtype)
         c = int(el.get("NumberOfComponents", "1"))
         return a.reshape(-1, c) if c > 1 else a
 

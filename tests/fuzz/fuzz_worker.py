@@ -52,7 +52,23 @@ def _vtu(path):
     v.updraft()
 
 
-TARGETS = {"netcdf": _climate, "grib": _climate, "zarr": _climate, "grads": _climate, "relief": _relief, "pqr": _pqr,
+def _selftest(path):
+    """The harness's own check: a hang, a crash and an allocation over the limit, by the file's word."""
+    import os
+    import time
+
+    word = open(path).read()
+    if word == "spin":
+        t = time.process_time()
+        while time.process_time() - t < 60:
+            pass
+    elif word == "crash":
+        os.abort()
+    elif word == "allocate":
+        np.ones(3 << 30, dtype=np.uint8)
+
+
+TARGETS = {"selftest": _selftest, "netcdf": _climate, "grib": _climate, "zarr": _climate, "grads": _climate, "relief": _relief, "pqr": _pqr,
            "vtu": _vtu}
 
 

@@ -10,7 +10,8 @@ from its ops) or from a seeded ``random.Random`` (``make fuzz``).
 
 Each case runs in a worker process (:mod:`fuzz_worker`) whose data segment
 is limited to 2 GiB above its idle size and whose answer must come within
-10 s; the worker is restarted after a hang or a crash.  Only the project's
+10 s of its CPU time (so a loaded machine does not make hangs; 100 s of wall
+time for one blocked in I/O); the worker is restarted after a hang or a crash.  Only the project's
 ``DataError`` may escape a reader: anything else, a hang, a crash or a
 ``MemoryError`` is a finding.
 """
@@ -263,14 +264,29 @@ class Runner:
             raise RuntimeError(f"the fuzz worker did not start: {ready}")
         self.count = 0
 
+    def _cpu(self):
+        """CPU seconds the worker has used (Linux), or None: a case is timed by its own work, not by the load."""
+        try:
+            with open(f"/proc/{self.proc.pid}/stat") as f:
+                fields = f.read().rsplit(")", 1)[1].split()
+            return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+        except (OSError, ValueError, IndexError):
+            return None
+
     def _answer(self, timeout):
+        """The worker's next line; None when it used ``timeout`` CPU seconds (or ten times that in wall time) first."""
         import selectors
+        import time
 
         sel = selectors.DefaultSelector()
         sel.register(self.proc.stdout, selectors.EVENT_READ)
+        cpu0, wall0 = self._cpu(), time.monotonic()
         try:
-            if not sel.select(timeout):
-                return None
+            while not sel.select(0.25):
+                cpu = self._cpu()
+                used = cpu - cpu0 if cpu is not None and cpu0 is not None else time.monotonic() - wall0
+                if used > timeout or time.monotonic() - wall0 > 10 * timeout:
+                    return None
             line = self.proc.stdout.readline()
         finally:
             sel.close()
@@ -301,7 +317,7 @@ class Runner:
         except BrokenPipeError:
             out = {"status": "crash", "detail": f"worker exited with {self.proc.wait()}"}
         if out is None:
-            out = {"status": "hang", "detail": f"no answer within {self.timeout:g} s"}
+            out = {"status": "hang", "detail": f"no answer within {self.timeout:g} CPU seconds"}
         if out["status"] in ("hang", "crash"):
             self.stop()
         shutil.rmtree(folder, ignore_errors=True)
