@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..files import atomic_write
+from ..files import atomic_write, process_alive
 from ..memory import available_memory, check_memory, format_bytes  # noqa: F401  (their home before core.memory)
 from . import registry
 
@@ -113,16 +113,6 @@ def session_cache_dir(base=None, *, create=True):
     return path
 
 
-def _alive(pid):
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except (PermissionError, OSError):
-        return True  # someone else's live process
-    return True
-
-
 def prune_sessions(base=None, max_age_days=7.0):
     """Remove session folders (:func:`session_cache_dir`) whose process has ended and
     which are empty or untouched for ``max_age_days`` (kept that long because
@@ -138,7 +128,7 @@ def prune_sessions(base=None, max_age_days=7.0):
     gone = []
     for d in root.iterdir():
         pid, _, token = d.name.partition("-")
-        if not (pid.isdigit() and token) or int(pid) == os.getpid() or _alive(int(pid)):
+        if not (pid.isdigit() and token) or int(pid) == os.getpid() or process_alive(int(pid)):
             continue
         try:
             newest = max((p.stat().st_mtime for p in d.rglob("*")), default=d.stat().st_mtime)
