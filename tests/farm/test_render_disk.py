@@ -102,7 +102,7 @@ def test_two_renders_into_one_folder(tmp_path):
     assert first.returncode == 0, err1[-3000:]
     assert second.returncode == 2
     lines = error_lines(second.stderr)
-    assert len(lines) == 1 and f"{out}: field '--out': another nephele render (pid {first.pid} on " in lines[0], lines
+    assert len(lines) == 1 and f"{out}: another nephele render (pid {first.pid} on " in lines[0], lines
     manifest = json.loads((out / "manifest.json").read_text())
     assert sorted(map(int, manifest["frames"])) == list(range(1, 7))
     for f in range(1, 7):

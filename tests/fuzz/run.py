@@ -11,6 +11,7 @@ import json
 import random
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -24,6 +25,7 @@ def main(argv=None):
     ap.add_argument("--cases", type=int, default=10_000)
     ap.add_argument("--seed", type=int, default=None, help="random seed (default: from the clock, printed)")
     ap.add_argument("--out", default="build/fuzz", help="folder for the findings")
+    ap.add_argument("--jobs", type=int, default=1, help="worker processes at once (default 1)")
     ap.add_argument("--only", action="append", help="fuzz only these readers (netcdf, grib, zarr, grads, relief, pqr, vtu)")
     ap.add_argument("--data", action="append", default=None,
                     help="seed folders (default: tests/data and ../shared/data)")
@@ -39,21 +41,39 @@ def main(argv=None):
     with tempfile.TemporaryDirectory() as work:
         seeds = [s for s in build_seeds(dirs, work) if not args.only or s.target in args.only]
         print(f"fuzz: seed {seed}, {len(seeds)} seed files ({', '.join(sorted({s.target for s in seeds}))}), "
-              f"{args.cases} cases", flush=True)
-        runner = Runner()
-        try:
-            for i, (s, mutated, ops) in zip(range(args.cases), cases(seeds, rng)):
-                res = runner.run(s, mutated, ops)
-                counts[s.target][res["status"]] += 1
-                if res["status"] in BAD:
-                    findings += 1
-                    print(describe(s, mutated, ops, res), flush=True)
-                    (out / f"finding-{seed}-{i}.json").write_text(json.dumps(
-                        {"target": s.target, "seed": s.name, "mutated": mutated, "ops": ops, "result": res}, indent=1))
-                if (i + 1) % 1000 == 0:
-                    print(f"fuzz: {i + 1} cases, {findings} findings, {time.time() - t0:.0f} s", flush=True)
-        finally:
-            runner.close()
+              f"{args.cases} cases, {args.jobs} worker(s)", flush=True)
+        stream = zip(range(args.cases), cases(seeds, rng))
+        lock = threading.Lock()
+
+        def work_loop():
+            nonlocal findings
+            runner = Runner()
+            try:
+                while True:
+                    with lock:
+                        item = next(stream, None)
+                    if item is None:
+                        return
+                    i, (s, mutated, ops) = item
+                    res = runner.run(s, mutated, ops)
+                    with lock:
+                        counts[s.target][res["status"]] += 1
+                        done = sum(sum(c.values()) for c in counts.values())
+                        if res["status"] in BAD:
+                            findings += 1
+                            print(describe(s, mutated, ops, res), flush=True)
+                            (out / f"finding-{seed}-{i}.json").write_text(json.dumps(
+                                {"target": s.target, "seed": s.name, "mutated": mutated, "ops": ops, "result": res}, indent=1))
+                        if done % 1000 == 0:
+                            print(f"fuzz: {done} cases, {findings} findings, {time.time() - t0:.0f} s", flush=True)
+            finally:
+                runner.close()
+
+        threads = [threading.Thread(target=work_loop) for _ in range(args.jobs)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
     total = sum(sum(c.values()) for c in counts.values())
     for target in sorted(counts):
         c = counts[target]
