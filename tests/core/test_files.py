@@ -178,3 +178,16 @@ def test_lock_file_refuses_a_live_holder_and_takes_over_a_dead_one(tmp_path):
     with pytest.raises(DataError, match="pid 123 on another-host"):
         with lock_file(lock, "nephele render"):
             pass
+
+
+def test_a_writer_failing_without_an_errno_on_a_full_disk_is_a_disk_error(small_disk):
+    """OpenImageIO, OpenVDB and Blender report a full disk in their own words; with the disk (nearly) full
+    that is what the one line says, and nothing is left behind."""
+    from nephele.core.files import WriteError
+
+    disk = small_disk("64k")
+    with pytest.raises(WriteError, match=r"image.png: no space left on the disk \(.* free; the writer said: "
+                                         r"cannot write image: write failed\)"):
+        with atomic_write(disk / "image.png"):
+            raise RuntimeError("cannot write image: write failed")
+    assert list(disk.iterdir()) == []
