@@ -64,7 +64,8 @@ def check_setting(key, value):
 PROBLEMS = {}
 """One line per thing a panel shows where its value is edited: ``("dataset", source)`` a dataset that does
 not open, ``"settings"`` scene settings that could not be read, ``("tf", object name)`` a refused
-transfer-function edit.  Each is also printed once on the console."""
+transfer-function edit, ``"save"`` a layer's files that could not be copied beside the saved .blend (full
+disk).  Each is also printed once on the console."""
 
 
 def note_problem(key, problem):
@@ -357,10 +358,18 @@ def adopt_files(blend_path):
             if old_root is not None and _inside(old, old_root) else Path(old.name)
         new = new_root / rel
         if old.is_dir():
-            new.parent.mkdir(parents=True, exist_ok=True)
-            if new.exists():
-                shutil.rmtree(new)
-            shutil.copytree(old, new, copy_function=_link_or_copy)
+            try:
+                new.parent.mkdir(parents=True, exist_ok=True)
+                if new.exists():
+                    shutil.rmtree(new)
+                shutil.copytree(old, new, copy_function=_link_or_copy)
+            except OSError as exc:  # a full or read-only disk: no half copy; the layer keeps its folder
+                shutil.rmtree(new, ignore_errors=True)
+                from ..core.files import write_error
+
+                note_problem("save", f"{obj.name}: its files stay in {old}, not copied beside the .blend: "
+                                     f"{write_error(exc, new) or exc}")
+                continue
         _PENDING.append((obj.name, json.dumps(p), old, new, session is not None and _inside(old, session)))
         _repoint(old, new)
         # Stored relative to the file being written (bpy.data.filepath is still the old one).
@@ -548,6 +557,7 @@ class NEPHELE_PT_data(SubPanel, bpy.types.Panel):
             return
         col = layout.column()
         draw_problem(col, "settings")
+        draw_problem(col, "save")
         col.prop(group, "source")
         draw_problem(col, ("dataset", settings(context.scene)["source"]))
         col.prop(group, "hours_per_frame")

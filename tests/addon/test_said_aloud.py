@@ -120,3 +120,28 @@ def test_missing_kernels_show_in_the_main_panel(empty_scene, monkeypatch):
     assert "compiled kernels are not loaded (No module named 'nephele_native')" in labels
     monkeypatch.setitem(native._FALLBACK, "reason", None)
     assert "kernels" not in _draw(panel.NEPHELE_PT_main, empty_scene, None)
+
+
+def test_a_full_disk_while_saving_leaves_no_half_copy(empty_scene, tmp_path, small_disk):
+    from nephele.core.volume.transfer import TransferFunction
+
+    scene = empty_scene
+    scene.frame_start = scene.frame_end = 1
+    monkey_cache = tmp_path / "cache"
+    import os
+
+    os.environ["NEPHELE_CACHE"] = str(monkey_cache)
+    try:
+        obj, _ = volume_ops.add_volume_clouds("cloud", TransferFunction.ramp(0.3, 1.0), scene=scene, frames=(1, 1),
+                                              mode=volume_ops.EXACT)
+        folder = data_ops.layer_dir(layers.frame.params(obj))
+        (folder / "big.bin").write_bytes(b"x" * 300_000)  # more than the disk below holds
+        disk = small_disk("128k")
+        done = data_ops.adopt_files(str(disk / "scene.blend"))
+    finally:
+        os.environ.pop("NEPHELE_CACHE", None)
+    assert done == [] and data_ops.layer_dir(layers.frame.params(obj)) == folder  # still its own, whole folder
+    assert not [p for p in disk.rglob("*") if p.is_file()]  # no half copy
+    problem = data_ops.PROBLEMS["save"]
+    assert problem.startswith(f"{obj.name}: its files stay in {folder}") and "no space left on the disk" in problem
+    assert problem in _draw(data_ops.NEPHELE_PT_data, scene, None)
