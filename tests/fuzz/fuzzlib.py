@@ -18,7 +18,6 @@ time for one blocked in I/O); the worker is restarted after a hang or a crash.  
 
 import json
 import os
-import random
 import re
 import shutil
 import subprocess
