@@ -406,7 +406,7 @@ def _render(manifest, result, todo, reclassify, scene_path, kind, settings, out,
                     try:
                         if rest:
                             left = sum(len(c) for c in rest)
-                            _space_needed(out, manifest, result.rendered, views, left, force, required=True)
+                            _space_needed(out, manifest, result.rendered, views, left, force)
                             for c in rest:
                                 pending.add(submit(c))
                             rest = []
@@ -434,11 +434,11 @@ def _render(manifest, result, todo, reclassify, scene_path, kind, settings, out,
         result.failed.sort()
 
 
-def _space_needed(out, manifest, frames, views, count, force, required=False):
+def _space_needed(out, manifest, frames, views, count, force):
     """Check that ``count`` more frames fit on the disk of ``out``, sized from ``frames`` already there.
 
-    Returns False when none of ``frames`` can size them (and ``required`` is false); raises
-    :class:`~nephele.core.files.WriteError` when they will not fit (unless ``force``).
+    Returns False when none of ``frames`` can size them (none valid yet: they are then scheduled
+    unchecked); raises :class:`~nephele.core.files.WriteError` when they will not fit (unless ``force``).
     """
     sizes = []
     for f in list(frames)[-8:]:
