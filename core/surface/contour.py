@@ -57,6 +57,7 @@ BYTES_PER_CELL = {"cubes": 450, "tetra5": 900}
 """Peak memory of :func:`isosurface` per grid cell where every cell is crossed (random values; tracemalloc:
 cubes 438 and 445 B at 64k and 512k cells, tetra5 857 and 858 B at 27k and 125k cells)."""
 
+
 def regular_points(shape, spacing=(1.0, 1.0, 1.0), origin=(0.0, 0.0, 0.0), dtype=np.float32):
     """Vertex positions ``(nk, nj, ni, 3)`` of a regular grid.
 
