@@ -65,6 +65,14 @@ def build_parser():
 
 
 def main(argv=None):
+    """Run a command; returns its exit status."""
+    code = _main(argv)
+    if "nephele.core.climate.hdf5check" in sys.modules:  # a damaged NetCDF-4 header left a thread stuck in HDF5
+        sys.modules["nephele.core.climate.hdf5check"].end_now(code)
+    return code
+
+
+def _main(argv=None):
     parser = build_parser()
     args = parser.parse_args(argv)
     from ..core import native

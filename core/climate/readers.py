@@ -186,6 +186,14 @@ def _first_line(exc):
     return (str(exc).strip().splitlines() or [""])[0][:200]
 
 
+def _netcdf(path, **kw):
+    from .hdf5check import check_header
+    from .netcdf import open_netcdf
+
+    check_header(path)  # libhdf5 loops forever on some damaged headers: refuse them in seconds
+    return open_netcdf(path, **kw)
+
+
 def _grib(path, **kw):
     from .grib import open_grib
     from .gribcheck import check_grib
@@ -200,9 +208,7 @@ def _opener(path):
     if suffix in (".nc", ".nc4", ".cdf", ".netcdf"):
         if not path.is_file():
             raise DataError("file not found", path=path)
-        from .netcdf import open_netcdf
-
-        return open_netcdf, "NetCDF"
+        return _netcdf, "NetCDF"
     if suffix == ".zarr":
         if not path.exists():
             raise DataError("file not found", path=path)

@@ -7,8 +7,10 @@ swapping the machine.
 """
 
 import json
+import os
 import resource
 import sys
+import threading
 import traceback
 import warnings
 
@@ -110,7 +112,12 @@ def main():
             out = {"status": "memory", "detail": "".join(traceback.format_exc(limit=-6))[-2000:]}
         except Exception as exc:  # noqa: BLE001 - any other type escaping a reader is the finding
             out = {"status": "bug", "type": type(exc).__name__, "detail": "".join(traceback.format_exc(limit=-6))[-2000:]}
+        stuck = [t for t in threading.enumerate() if t.name == "nephele-hdf5-header"]
+        if stuck:
+            out["restart"] = True  # its reading thread spins on: a fresh worker for the next case
         print(json.dumps(out), flush=True)
+        if stuck:
+            os._exit(0)
 
 
 if __name__ == "__main__":

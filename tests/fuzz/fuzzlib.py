@@ -364,7 +364,7 @@ class Runner:
             out = {"status": "crash", "detail": f"worker exited with {self.proc.wait()}"}
         if out is None:
             out = {"status": "hang", "detail": f"no answer within {self.timeout:g} CPU seconds"}
-        if out["status"] in ("hang", "crash"):
+        if out["status"] in ("hang", "crash") or out.get("restart"):
             self.stop()
         shutil.rmtree(folder, ignore_errors=True)
         return out

@@ -278,3 +278,35 @@ def test_vtu_damaged_appended_data(shared_data, tmp_path, damage):
     with pytest.raises(DataError) as err:
         UnstructuredVelocity(path)
     one_line(err, "fire.vtu")
+
+
+def test_netcdf4_header_that_makes_hdf5_loop_forever_is_refused_in_seconds(tmp_path):
+    """Fuzz (long run): one byte of an HDF5 header (3479: 8 -> 50) made nc_open loop without end (> 150 s,
+    no error).  Now: one DataError line after the header watchdog's 8 s.  In a child process, whose
+    stuck reading thread ends with it."""
+    data = bytearray((DATA / "toa_brightness_stereographic.nc").read_bytes())
+    assert data[3479] == 8
+    data[3479] = 50
+    path = tmp_path / "loop.nc"
+    path.write_bytes(bytes(data))
+    code = textwrap.dedent(f"""
+        import time
+        from nephele.core.climate import open_dataset
+        from nephele.core.errors import DataError
+        t = time.perf_counter()
+        try:
+            open_dataset({str(path)!r})
+        except DataError as exc:
+            print("DataError:", exc)
+        print("seconds", round(time.perf_counter() - t, 1))
+    """)
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 1, out.stderr[-2000:]  # not -11 (SIGSEGV at exit)
+    assert f"DataError: {path}: the HDF5 library did not finish reading the file's header in 8 s" in out.stdout
+    from nephele.core.climate.hdf5check import check_header
+
+    check_header(DATA / "ncl_nc4uvt_T.nc")  # a whole NetCDF-4 header: at once
+    check_header(DATA / "cam_vinth2p.nc")  # NetCDF 3: not HDF5, not probed
+    cli = subprocess.run([sys.executable, "-m", "nephele.farm.cli", "info", str(path)], capture_output=True, text=True,
+                         timeout=300)
+    assert cli.returncode == 2 and cli.stderr.strip().splitlines()[-1].startswith(f"nephele info: error: {path}: the HDF5")
