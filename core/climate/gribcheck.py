@@ -37,7 +37,8 @@ def _next_message(f, pos, size):
 
 
 def _sections(f, path, n, start, end):
-    """Walk GRIB2 sections 1-7 of the message ``[start, end)``; the largest grid's number of points."""
+    """Walk GRIB2 sections 1-7 of the message ``[start, end)``; the most values a field claims (section 3's
+    number of data points, section 5's number of packed values)."""
     pos, points = start + 16, 0
     while True:
         f.seek(pos)
@@ -52,10 +53,11 @@ def _sections(f, path, n, start, end):
         if not 1 <= number <= 7 or length < 5 or pos + length > end - 4:
             raise DataError(f"cannot open as GRIB (message {n} at byte {start} is damaged: section {number} at byte {pos} "
                             f"claims {length} bytes, the message has {end - pos - 4} left)", path=path)
-        if number == 3:
-            body = f.read(5)
-            if len(body) == 5:
-                points = max(points, int.from_bytes(body[1:5], "big"))
+        if number in (3, 5):  # the grid's number of data points; the packed number of values (ecCodes decodes that many)
+            want = 5 if number == 3 else 4
+            body = f.read(want)
+            if len(body) == want:
+                points = max(points, int.from_bytes(body[-4:], "big"))
         pos += length
     raise DataError(f"cannot open as GRIB (message {n} at byte {start} has no end marker 7777)", path=path)
 
@@ -101,7 +103,7 @@ def check_grib(path):
     if n == 0:
         raise DataError("cannot open as GRIB (no GRIB message in the file)", path=path)
     # Decoding a field holds its values as float64, and cfgrib a copy.
-    check_memory(16 * points, f"a GRIB grid of {points:,} points", path=path, field="numberOfDataPoints",
+    check_memory(16 * points, f"a GRIB grid of {points:,} points", path=path, field="number of values",
                  hint="the file claims more points than this machine can hold (damaged?)")
     return n
 

@@ -68,6 +68,24 @@ def test_grib_grid_claiming_billions_of_points_is_refused_before_allocating(tmp_
     one_line(err, "huge.grib2", "4,000,000,000 points", "memory")
 
 
+def test_grib_packing_claiming_two_billion_values_is_refused_before_allocating(tmp_path):
+    """Fuzz (long run): section 5's number of packed values flipped to 2,147,484,332 made ecCodes ask numpy for
+    16 GiB (MemoryError) although the grid has 684 points."""
+    data = bytearray(_grib2(tmp_path))
+    pos = 16
+    while data[pos + 4] != 5:  # walk to section 5
+        pos += int.from_bytes(data[pos:pos + 4], "big")
+    assert int.from_bytes(data[pos + 5:pos + 9], "big") == 684
+    data[pos + 5:pos + 9] = (2_147_484_332).to_bytes(4, "big")
+    path = tmp_path / "values.grib2"
+    path.write_bytes(bytes(data))
+    from nephele.core.climate import open_dataset
+
+    with pytest.raises(DataError) as err:
+        open_dataset(path)
+    one_line(err, "values.grib2", "2,147,484,332 points", "memory")
+
+
 def test_whole_grib_messages_pass_the_walk(tmp_path):
     from nephele.core.climate.gribcheck import check_grib
 
