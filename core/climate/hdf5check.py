@@ -1,4 +1,10 @@
-"""A NetCDF-4 (HDF5) file's header read under a watchdog before the reader opens it.
+"""NetCDF headers checked before the C library reads them.
+
+A NetCDF 3 header (``CDF\x01``/``CDF\x02``) is walked in Python first
+(:func:`check_classic`): fuzzing found a header whose dimension count was
+flipped to 67 million, for which netCDF-C allocates gigabytes and, when that
+fails under a memory limit, crashes the process (SIGSEGV).  A NetCDF-4 (HDF5)
+file's header is read under a watchdog (:func:`check_header`).
 
 Fuzzing the readers found a one-byte change in the header of a NetCDF-4 file
 (``tests/data/toa_brightness_stereographic.nc``, byte 3479) that makes the HDF5
@@ -66,4 +72,33 @@ def end_now(status):
         os._exit(status)
 
 
-__all__ = ["check_header", "end_now"]
+def check_classic(path):
+    """Raise :class:`~nephele.core.errors.DataError` unless ``path``'s NetCDF 3 header (dimensions, attributes,
+    variables and where their data lie) reads whole in pure Python; other formats pass at once.
+
+    scipy's reader walks the header (never reading more than the file holds, see
+    :class:`~nephele.core.climate.relief._Bounded`) and maps the data without reading it: milliseconds.
+    """
+    import warnings
+
+    with open(path, "rb") as f:
+        if f.read(4) not in (b"CDF\x01", b"CDF\x02"):
+            return
+    try:
+        from scipy.io import netcdf_file
+    except ImportError:
+        return
+    from .relief import _Bounded
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # scipy warns when mapped arrays outlive the file: none are kept
+            with _Bounded(path, "r") as raw, netcdf_file(raw, "r", mmap=True) as nc:
+                nc.variables.clear()
+    except Exception as exc:  # noqa: BLE001 - any failure of the pure-Python walk is a damaged header
+        first = (str(exc).strip().splitlines() or [""])[0][:160]
+        raise DataError(f"cannot open as NetCDF (damaged NetCDF 3 header: {type(exc).__name__}: {first})",
+                        path=path) from None
+
+
+__all__ = ["check_classic", "check_header", "end_now"]

@@ -187,9 +187,10 @@ def _first_line(exc):
 
 
 def _netcdf(path, **kw):
-    from .hdf5check import check_header
+    from .hdf5check import check_classic, check_header
     from .netcdf import open_netcdf
 
+    check_classic(path)  # netCDF-C trusts a NetCDF 3 header's counts (and crashes when their memory fails)
     check_header(path)  # libhdf5 loops forever on some damaged headers: refuse them in seconds
     return open_netcdf(path, **kw)
 

@@ -328,3 +328,31 @@ def test_netcdf4_header_that_makes_hdf5_loop_forever_is_refused_in_seconds(tmp_p
     cli = subprocess.run([sys.executable, "-m", "nephele.farm.cli", "info", str(path)], capture_output=True, text=True,
                          timeout=300)
     assert cli.returncode == 2 and cli.stderr.strip().splitlines()[-1].startswith(f"nephele info: error: {path}: the HDF5")
+
+
+def test_netcdf3_header_claiming_67_million_dimensions_is_refused_in_python(shared_data, tmp_path):
+    """Fuzz (long run): a dimension count flipped to 0x04000003 made netCDF-C allocate gigabytes and, under
+    the fuzz worker's 2 GiB limit, crash (SIGSEGV).  The header is now walked in Python first."""
+    data = bytearray((shared_data / "climate" / "orog_mod1_rectilinear_grid_2D.nc").read_bytes())
+    assert data[:4] == b"CDF\x01" and data[8:12] == b"\x00\x00\x00\x0a"  # NC_DIMENSION list
+    data[12] |= 0x04
+    path = tmp_path / "dims.nc"
+    path.write_bytes(bytes(data))
+    code = textwrap.dedent(f"""
+        import resource
+        from nephele.core.climate import open_dataset
+        from nephele.core.errors import DataError
+        with open("/proc/self/status") as f:
+            used = next(int(ln.split()[1]) * 1024 for ln in f if ln.startswith("VmData:"))
+        resource.setrlimit(resource.RLIMIT_DATA, (used + (2 << 30), resource.RLIM_INFINITY))
+        try:
+            open_dataset({str(path)!r})
+        except DataError as exc:
+            print("DataError:", exc)
+    """)
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert f"DataError: {path}: cannot open as NetCDF (damaged NetCDF 3 header" in out.stdout
+    from nephele.core.climate.hdf5check import check_classic
+
+    check_classic(shared_data / "climate" / "rectilinear_grid_3D.nc")  # a whole header passes
