@@ -187,6 +187,8 @@ def _first_line(exc):
 
 
 def _netcdf(path, **kw):
+    import xarray  # noqa: F401  (a missing extra is said first: 'pip install nephele[data]')
+
     from .hdf5check import check_classic, check_header
     from .netcdf import open_netcdf
 
