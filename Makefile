@@ -140,3 +140,12 @@ clean:
 docs: $(VENV)/.stamp
 	$(VENV)/bin/python -m sphinx -W --keep-going -b html -q docs build/docs/html
 	@echo "docs: build/docs/html/index.html"
+
+# Long fuzz runs of every reader (NetCDF, GRIB, Zarr, GrADS, ETOPO, PQR, .vtu), outside CI: N mutated and
+# truncated real files, J worker processes; findings (any error but DataError, > 10 CPU s, > 2 GiB, a
+# crash) are saved under build/fuzz/ with the ops that made them.  The quick and full tiers run tests/fuzz.
+N ?= 100000
+J ?= 2
+.PHONY: fuzz
+fuzz: $(VENV)/.stamp
+	nice -n 10 $(VENV)/bin/python tests/fuzz/run.py --cases $(N) --jobs $(J) --out build/fuzz

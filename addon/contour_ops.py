@@ -190,10 +190,8 @@ _ENUM_ITEMS = {}  # Blender needs Python to keep dynamic enum strings alive
 
 
 def _variables(self, context):
-    try:
-        names = sorted(data_ops.dataset(scene=context.scene).variables)
-    except Exception:  # noqa: BLE001 - no usable dataset yet: offer the standard name
-        names = ["cloud"]
+    # A dataset that does not open still offers the standard name; why it does not open is in the panel.
+    names = list(data_ops.dataset_names(context.scene)) or ["cloud"]
     return _ENUM_ITEMS.setdefault(("var", tuple(names)), [(n, n, "") for n in names])
 
 
@@ -281,6 +279,7 @@ class NEPHELE_PT_contour(SubPanel, bpy.types.Panel):
         col.operator(NEPHELE_OT_add_contour.bl_idname, icon="MESH_ICOSPHERE")
         col.operator(NEPHELE_OT_update_contours.bl_idname, icon="FILE_REFRESH")
         col.operator("nephele.paper_figure", text="Make the paper's figure", icon="IMAGE_DATA").figure = "FIG1"
+        data_ops.draw_problem(self.layout, ("dataset", data_ops.settings(context.scene)["source"]))
         obj = context.active_object
         p = frame.params(obj) if obj is not None else {}
         if p.get("kind") == "contour" and hasattr(obj, "nephele_layer"):

@@ -11,6 +11,7 @@ volumes and textures line up.
 import json
 import os
 import shutil
+import sys
 from pathlib import Path
 
 import bpy
@@ -61,16 +62,73 @@ def check_setting(key, value):
     return v
 
 
+PROBLEMS = {}
+"""One line per thing a panel shows where its value is edited: ``("dataset", source)`` a dataset that does
+not open, ``"settings"`` scene settings that could not be read, ``("tf", object name)`` a refused
+transfer-function edit, ``"save"`` a layer's files that could not be copied beside the saved .blend (full
+disk).  Each is also printed once on the console."""
+
+
+def note_problem(key, problem):
+    """Remember ``problem`` (an exception or text; None clears it) for the panel showing ``key``."""
+    if problem is None:
+        PROBLEMS.pop(key, None)
+        return
+    text = (str(problem).strip().splitlines() or [type(problem).__name__])[0]
+    if PROBLEMS.get(key) != text:
+        print(f"Nephele: {text}", file=sys.stderr)
+    PROBLEMS[key] = text
+
+
+def draw_problem(layout, key):
+    """An error line in ``layout`` when ``key`` has a problem; True if it had."""
+    text = PROBLEMS.get(key)
+    if text:
+        layout.label(text=text, icon="ERROR")
+    return bool(text)
+
+
+def dataset_names(scene=None):
+    """The scene's dataset's variable names, or ``()`` when it does not open (the reason goes to the panels)."""
+    source = settings(scene)["source"]
+    try:
+        names = tuple(sorted(dataset(source).variables))
+    except Exception as exc:  # noqa: BLE001 - any failure to open is shown, not raised, in a panel's menu
+        note_problem(("dataset", source), exc)
+        return ()
+    note_problem(("dataset", source), None)
+    return names
+
+
 def settings(scene=None):
-    """The scene's Nephele settings as a dict (defaults for anything unset)."""
+    """The scene's Nephele settings as a dict (defaults for anything unset).
+
+    Settings that cannot be read (damaged text, a value out of bounds) are
+    reported (the Dataset panel, the console) and read as their defaults; the
+    stored text is kept in ``scene["nephele_settings_bad"]`` when a setting
+    is next changed.
+    """
     scene = scene or bpy.context.scene
     out = dict(DEFAULTS)
     raw = scene.get(MIRROR_KEY)
+    bad = []
     if raw:
         try:
-            out.update({k: v for k, v in json.loads(raw).items() if k in DEFAULTS})
-        except (TypeError, ValueError):
-            pass
+            stored = json.loads(raw)
+            if not isinstance(stored, dict):
+                raise ValueError(f"expected a JSON object, got {type(stored).__name__}")
+        except (TypeError, ValueError) as exc:
+            note_problem("settings", f"scene settings ({MIRROR_KEY}) cannot be read ({exc}); the defaults are used "
+                                     "until a setting is changed (the old text is then kept as nephele_settings_bad)")
+            return out
+        for k, v in stored.items():
+            if k not in DEFAULTS:
+                continue
+            try:
+                out[k] = check_setting(k, v)
+            except DataError as exc:
+                bad.append(f"{k} {exc.problem}")
+    note_problem("settings", f"scene settings out of range, defaults used: {'; '.join(bad)}" if bad else None)
     return out
 
 
@@ -83,6 +141,9 @@ def set_settings(scene=None, **values):
     cfg = settings(scene)
     # Checked before anything is stored: a bad value never reaches the layers.
     cfg.update({k: check_setting(k, v) for k, v in values.items()})
+    if PROBLEMS.get("settings") and scene.get(MIRROR_KEY):  # what is about to be reset stays readable
+        scene["nephele_settings_bad"] = str(scene[MIRROR_KEY])
+        note_problem("settings", None)
     scene[MIRROR_KEY] = json.dumps(cfg, sort_keys=True)
     return cfg
 
@@ -315,10 +376,18 @@ def adopt_files(blend_path):
             if old_root is not None and _inside(old, old_root) else Path(old.name)
         new = new_root / rel
         if old.is_dir():
-            new.parent.mkdir(parents=True, exist_ok=True)
-            if new.exists():
-                shutil.rmtree(new)
-            shutil.copytree(old, new, copy_function=_link_or_copy)
+            try:
+                new.parent.mkdir(parents=True, exist_ok=True)
+                if new.exists():
+                    shutil.rmtree(new)
+                shutil.copytree(old, new, copy_function=_link_or_copy)
+            except OSError as exc:  # a full or read-only disk: no half copy; the layer keeps its folder
+                shutil.rmtree(new, ignore_errors=True)
+                from ..core.files import write_error
+
+                note_problem("save", f"{obj.name}: its files stay in {old}, not copied beside the .blend: "
+                                     f"{write_error(exc, new) or exc}")
+                continue
         _PENDING.append((obj.name, json.dumps(p), old, new, session is not None and _inside(old, session)))
         _repoint(old, new)
         # Stored relative to the file being written (bpy.data.filepath is still the old one).
@@ -511,7 +580,10 @@ class NEPHELE_PT_data(SubPanel, bpy.types.Panel):
         if group is None:
             return
         col = layout.column()
+        draw_problem(col, "settings")
+        draw_problem(col, "save")
         col.prop(group, "source")
+        draw_problem(col, ("dataset", settings(context.scene)["source"]))
         col.prop(group, "hours_per_frame")
         col.prop(group, "frame_start")
         col.prop(group, "exaggeration")

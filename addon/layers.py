@@ -114,6 +114,8 @@ def range_line(stats, level=None):
     """``"data 0 … 0.98  ▁▂█▅▃▁▁▁"`` for the panel; says when ``level`` lies outside."""
     if stats is None:
         return "data range: not known yet", "NONE"
+    if stats.get("error"):
+        return f"data range: {stats['error']}", "ERROR"
     if not stats.get("finite"):
         return "no finite values at this time", "ERROR"
     text = f"data {stats['min']:.4g} … {stats['max']:.4g}  {histogram_hint(stats)}"
@@ -141,8 +143,8 @@ def range_for(source, var, hours):
     def work():
         try:
             _RANGES[key] = contour_ops.field_stats(*key)
-        except Exception:  # noqa: BLE001 - no range is a hint missing, not an error
-            _RANGES[key] = {"min": float("nan"), "max": float("nan"), "hist": [], "finite": 0.0}
+        except Exception as exc:  # noqa: BLE001 - shown in the panel instead of a range
+            _RANGES[key] = {"error": (str(exc).strip().splitlines() or [type(exc).__name__])[0]}
 
     t = threading.Thread(target=work, name="nephele-range", daemon=True)
     t.start()
@@ -163,10 +165,7 @@ _ITEMS = {}  # Blender needs Python to keep dynamic enum strings alive
 
 
 def _names(context):
-    try:
-        return tuple(sorted(data_ops.dataset(scene=context.scene).variables))
-    except Exception:  # noqa: BLE001 - no usable dataset: offer what the layer has
-        return ()
+    return data_ops.dataset_names(context.scene)  # () when it does not open: the panel says why
 
 
 def _var_items(self, context):
@@ -294,14 +293,20 @@ def _threshold_set(self, value):
     obj = self.id_data
     p = frame.params(obj)
     pts = [list(q) for q in p.get("tf", {}).get("points", [])]
-    if len(pts) < 2 or not value < pts[-1][0]:
+    if len(pts) < 2:
+        return
+    if not value < pts[-1][0]:
+        data_ops.note_problem(("tf", obj.name), f"threshold {value:g} not applied: it must lie below the transfer "
+                                                f"function's last point ({pts[-1][0]:g})")
         return
     shift = float(value) - pts[0][0]
     new = [[pts[0][0] + shift, pts[0][1]]] + [q for q in pts[1:] if q[0] > value]
     try:
         tf = TransferFunction.from_dict({"points": new})
-    except DataError:
+    except DataError as exc:
+        data_ops.note_problem(("tf", obj.name), f"threshold {value:g} not applied: {exc}")
         return
+    data_ops.note_problem(("tf", obj.name), None)
     if p.get("mode") == volume_ops.EXACT and volume_ops._within(tf, p.get("baked_tf", p["tf"])):
         p["tf"] = tf.to_dict()
         frame.set_params(obj, p)
@@ -478,10 +483,14 @@ class NEPHELE_PT_layers(SubPanel, bpy.types.Panel):
         elif kind == "volume":
             box.label(text=f"{p.get('var')}, {p.get('mode')} mode, frames {p.get('frames')}")
             box.prop(lay, "threshold")
+            data_ops.draw_problem(box, ("tf", obj.name))
             if p.get("source") and p.get("var"):
                 hours = _hours_shown(p, bpy.context.scene)
-                text, icon = range_line(range_for(p["source"], p["var"], hours), lay.threshold)
-                box.label(text=text.replace("above", "above the threshold"), icon=icon)
+                if hours is None:
+                    data_ops.draw_problem(box, ("dataset", p["source"]))
+                else:
+                    text, icon = range_line(range_for(p["source"], p["var"], hours), lay.threshold)
+                    box.label(text=text.replace("above", "above the threshold"), icon=icon)
             pts = p.get("tf", {}).get("points", [])
             box.label(text="transfer: " + ", ".join(f"{v:g}→{a:g}" for v, a in pts[:4]))
             if obj.get("nephele_needs_bake"):
@@ -491,12 +500,14 @@ class NEPHELE_PT_layers(SubPanel, bpy.types.Panel):
 
 
 def _hours_shown(p, scene):
-    """Model time of ``scene``'s frame for a layer with parameters ``p`` (0 when unknown)."""
+    """Model time of ``scene``'s frame for a layer with parameters ``p``; None when its dataset does not open
+    (the reason is noted for the panel)."""
     try:
         last = float(data_ops.dataset(p["source"]).hours[-1])
-        return frame_hours(scene.frame_current, p.get("frame_start", 1), p.get("hours_per_frame", 1.0), last)
-    except Exception:  # noqa: BLE001 - a hint for the panel only
-        return 0.0
+    except Exception as exc:  # noqa: BLE001 - shown in the panel instead of a model time of 0
+        data_ops.note_problem(("dataset", p["source"]), exc)
+        return None
+    return frame_hours(scene.frame_current, p.get("frame_start", 1), p.get("hours_per_frame", 1.0), last)
 
 
 def _legend(layout, p):

@@ -22,7 +22,12 @@ class NEPHELE_PT_main(SidebarTab, bpy.types.Panel):
     bl_idname = "NEPHELE_PT_main"
 
     def draw(self, context):
+        from ..core import native
+
         self.layout.label(text="Scientific fields into films")
+        native.identity()  # loads the kernels once, or notes why they did not
+        if native.notice():
+            self.layout.label(text=native.notice(), icon="ERROR")
 
 
 CLASSES = (NEPHELE_PT_main,)

@@ -134,12 +134,16 @@ def _write_exact(arrays, params, key, path, exr, cached, t0, frame):
             "seconds": time.perf_counter() - t0}
 
 
-def bake_sequence(obj_params, frames, directory, prefix="clouds", *, cache=None, progress=None, reuse=True):
+def bake_sequence(obj_params, frames, directory, prefix="clouds", *, cache=None, progress=None, reuse=True,
+                  force=False):
     """Resample and write one ``.vdb`` per frame of ``frames`` (ascending ints) with :func:`bake_frame`.
 
     File ``k`` (1-based) holds ``frames[k-1]``, so ``frames`` must be
     consecutive for Blender's sequence to line up.  ``progress(i, n, info)``
-    is called after each frame.
+    is called after each frame.  After the first frame, the frames left are
+    sized from it; when they will not fit on the disk a
+    :class:`~nephele.core.files.WriteError` says so before they are made
+    (``force``: go on).
 
     Returns the list of :func:`bake_frame` dicts.
     """
@@ -151,6 +155,12 @@ def bake_sequence(obj_params, frames, directory, prefix="clouds", *, cache=None,
     out = []
     for n, frame in enumerate(frames, start=1):
         out.append(bake_frame(obj_params, frame, n, directory, prefix, cache=cache, reuse=reuse))
+        if n == 1 and len(frames) > 1:
+            from ..core.files import check_space
+
+            each = Path(out[0]["path"]).stat().st_size
+            check_space(directory, each * (len(frames) - 1), f"the {len(frames) - 1} volume frames left "
+                                                             f"({each:,} bytes each, as the first)", force=force)
         if progress is not None:
             progress(n, len(frames), out[-1])
     return out

@@ -826,6 +826,10 @@ def draw_tf(layout, s):
         layout.prop(s, "threshold")
         layout.prop(s, "full")
         layout.prop(s, "opacity")
+    try:
+        panel_tf(s)
+    except (ValueError, TypeError) as exc:  # DataError is a ValueError: say why the edit is not applied
+        layout.label(text=f"Not applied: {exc}", icon="ERROR")
 
 
 class NEPHELE_PT_volume(SubPanel, bpy.types.Panel):

@@ -1,7 +1,9 @@
 """``nephele``: the command line.  Each sub-command is a plain module
 ``farm/cmd_<name>.py`` with ``HELP``, ``add_arguments(parser)`` and
 ``run(args) -> int``.  Bad input (a :class:`~nephele.core.errors.DataError`
-or :class:`UsageError`) prints one line and exits with code 2, no traceback.
+or :class:`UsageError`) and an output that cannot be written (a full disk, a
+read-only folder: :class:`~nephele.core.files.WriteError`) print one line
+and exit with code 2, no traceback.
 """
 
 import argparse
@@ -63,12 +65,32 @@ def build_parser():
 
 
 def main(argv=None):
+    """Run a command; returns its exit status."""
+    code = _main(argv)
+    if "nephele.core.climate.hdf5check" in sys.modules:  # a damaged NetCDF-4 header left a thread stuck in HDF5
+        sys.modules["nephele.core.climate.hdf5check"].end_now(code)
+    return code
+
+
+def _main(argv=None):
     parser = build_parser()
     args = parser.parse_args(argv)
+    from ..core import native
+
+    # A fallback is said aloud: once per run, where the user looks.
+    native.on_fallback(lambda text: print(f"nephele {args.command}: note: {text}", file=sys.stderr))
     try:
         return int(args._run(args) or 0)
     except (DataError, UsageError, FileNotFoundError) as exc:
         print(f"nephele {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:  # a full disk, a read-only or forbidden folder: where, and what to do
+        from ..core.files import write_error
+
+        problem = write_error(exc, exc.filename or "output")
+        if problem is None:
+            raise
+        print(f"nephele {args.command}: error: {problem}", file=sys.stderr)
         return 2
     except ModuleNotFoundError as exc:
         extra = EXTRAS.get((exc.name or "").split(".")[0])

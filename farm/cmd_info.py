@@ -9,8 +9,9 @@ HELP = "describe a dataset: grid type, shape, longitudes/latitudes, levels, vari
 
 
 def add_arguments(p):
-    p.add_argument("source", metavar="FILE",
+    p.add_argument("source", metavar="FILE", nargs="?",
                    help='dataset: "demo", "demo:small", a NetCDF .nc (or a .zip of them), a GRIB file, a Zarr store or a GrADS .ctl file')
+    p.add_argument("--version", action="store_true", help="print Nephele's version and which kernels run, and exit")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of text")
     add_reader_options(p)
 
@@ -149,8 +150,30 @@ def format_text(info):
     return "\n".join(lines)
 
 
+def version_text():
+    """Nephele's version and what runs its kernels (compiled, or the NumPy twins and why)."""
+    import platform
+    from importlib import metadata
+
+    from ..core import native
+
+    try:
+        version = metadata.version("nephele")
+    except metadata.PackageNotFoundError:
+        version = "(not installed: run from source)"
+    return "\n".join([f"nephele {version}", f"python {platform.python_version()} on {platform.system()} {platform.machine()}",
+                      f"kernels {native.status()}"])
+
+
 def run(args):
     from ..core.climate.readers import open_dataset
+    from .cli import UsageError
+
+    if args.version:
+        print(version_text())
+        return 0
+    if args.source is None:
+        raise UsageError("nephele info needs a FILE (or --version)")
 
     info = describe(open_dataset(args.source, **reader_kwargs(args)))
     print(json.dumps(info, indent=1) if args.json else format_text(info))

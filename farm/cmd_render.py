@@ -139,6 +139,8 @@ def add_arguments(p):
     f.add_argument("--verify", action="store_true", help="on resume, re-hash frames against the manifest")
     f.add_argument("--precompute", action="store_true", help="run the scene's core tasks into the cache first")
     f.add_argument("--cache", help="cache directory of an example script's scene (default: beside the script)")
+    f.add_argument("--force", action="store_true",
+                   help="go on when the frames left will not fit on the disk (estimated from the first frame)")
     f.add_argument("--quiet", action="store_true", help="no progress line")
     add_cluster_arguments(p)
 
@@ -153,6 +155,7 @@ def run(args):
         percentage=args.percentage, device=args.device, persistent=args.persistent_data, fmt=args.format,
         chunk=args.chunk, retries=args.retries, timeout=args.timeout, scene_options=parse_options(args.set),
         precompute=args.precompute, cache_dir=args.cache, overwrite=args.overwrite, verify=args.verify,
+        force=args.force,
     )
     if args.dry_run:
         return _dry_run(args, settings, kwargs)
@@ -182,7 +185,7 @@ def _dry_run(args, settings, kwargs):
                    settings["device"], settings["fmt"], settings["retries"], settings["timeout"],
                    settings["chunk"], kwargs["workers"], settings["scene_options"])
     out = check_out_dir(args.out)
-    manifest = Manifest.load(out)
+    manifest = Manifest.load(out, move_aside=False)
     done, todo = classify(manifest, frames, settings["fmt"], views=tuple(manifest.run.get("views") or ("",)))
     print(f"scene: {scene} ({kind})\nframes: {format_frames(frames)}\n"
           f"already valid: {format_frames(done) or 'none'}\nto render: {format_frames(todo) or 'none'}")

@@ -125,6 +125,9 @@ def run(args):
         raise UsageError(f"--bins-per-face: {exc.problem}") from None
     sky = sky_from_map(args.sky_map, args.sky_strength, args.bins_per_face) if args.sky_map else args.sky
     out = Path(args.out)
+    from ..core.light.scatter_task import check_solve_memory
+
+    check_solve_memory((nz, ny, nx), args.bins_per_face)  # before anything is allocated or written
     out.mkdir(parents=True, exist_ok=True)
     params = cd.CloudParams(shape=(nz, ny, nx), size=tuple(box), noise_amplitude=args.noise, seed=args.seed)
     sigma = args.extinction * cd.cloud_density(params)

@@ -43,6 +43,8 @@ def add_arguments(p):
     p.add_argument("--radius", type=float, default=1.0, help="sea-level radius in scene units (default 1)")
     p.add_argument("--steps", metavar="A-B", help="time steps to write, e.g. 0-23 (default: all)")
     p.add_argument("--prefix", default="clouds", help="file name prefix (default clouds)")
+    p.add_argument("--force", action="store_true",
+                   help="go on when the frames left will not fit on the disk (estimated from the first frame)")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     add_reader_options(p)
 
@@ -130,7 +132,7 @@ def run(args):
             print(f"[{i}/{n}] {Path(info['path']).name}: {info['hours']:g} h, {info['blocks']} blocks, "
                   f"{info['active_voxels']} active voxels ({info['seconds']:.2f} s)", file=sys.stderr)
 
-    infos = bake_sequence(params, range(1, last - first + 2), out, args.prefix, progress=progress)
+    infos = bake_sequence(params, range(1, last - first + 2), out, args.prefix, progress=progress, force=args.force)
     meta = dict(params, steps=[first, last], files=[Path(i["path"]).name for i in infos],
                 value_max=max(i["value_max"] for i in infos),
                 grids=["support"] if args.mode == "exact" else ["density"] + ([color_var] if color_var else []))

@@ -36,19 +36,55 @@ class Manifest:
         self.run = {}
         self.frames = {}
         self._saved = 0.0
+        self.warning = None
+        """What :meth:`load` had to do with a manifest it could not read (None when it read)."""
 
     @classmethod
-    def load(cls, out_dir):
-        """Read ``OUT/manifest.json``; a missing or unreadable one gives an empty manifest."""
+    def load(cls, out_dir, move_aside=True):
+        """Read ``OUT/manifest.json``; a missing one gives an empty manifest.
+
+        One that cannot be read (damaged, or another version) is moved aside (``move_aside``) as
+        ``manifest.json.bad-<UTC time>``, keeping its history, and
+        :attr:`warning` says so; the frames on disk are then checked and adopted
+        as :func:`classify` does for any frame the manifest does not list.
+        """
         m = cls(out_dir)
         try:
-            data = json.loads(m.path.read_text())
-            if data.get("version") == VERSION:
-                m.run = dict(data.get("run", {}))
-                m.frames = {str(k): dict(v) for k, v in data.get("frames", {}).items()}
-        except (OSError, ValueError, AttributeError):
-            pass
+            text = m.path.read_text()
+        except FileNotFoundError:
+            return m
+        except (OSError, UnicodeDecodeError) as exc:
+            problem = f"cannot be read ({exc})"
+        else:
+            problem = m._parse(text)
+        if problem and not move_aside:
+            m.warning = f"{m.path}: {problem}"
+        elif problem:
+            bad = m.path.with_name(f"{NAME}.bad-{time.strftime('%Y%m%dT%H%M%SZ', time.gmtime())}")
+            try:
+                os.replace(m.path, bad)
+                kept = f"moved aside as {bad.name}"
+            except OSError as exc:
+                kept = f"left in place ({exc.strerror or exc})"
+            m.warning = (f"{m.path}: {problem}; {kept}; the frames on disk are checked again and kept where whole")
         return m
+
+    def _parse(self, text):
+        """Fill from the manifest's text; the problem in words, or None when it reads."""
+        try:
+            data = json.loads(text)
+        except ValueError as exc:
+            return f"is not valid JSON ({exc})"
+        if not isinstance(data, dict) or data.get("version") != VERSION:
+            version = data.get("version") if isinstance(data, dict) else None
+            return f"has version {version!r}, this Nephele reads version {VERSION}"
+        try:
+            self.run = dict(data.get("run") or {})
+            self.frames = {str(int(k)): dict(v) for k, v in (data.get("frames") or {}).items()}
+        except (TypeError, ValueError, AttributeError) as exc:
+            self.run, self.frames = {}, {}
+            return f"has a damaged frame list ({exc})"
+        return None
 
     def entry(self, frame):
         return self.frames.get(str(frame))

@@ -22,10 +22,10 @@ from pathlib import Path
 
 from ..addon.render_device import DEVICES
 from ..core.errors import DataError
-from ..core.files import locked
+from ..core.files import WriteError, check_space, lock_file
 from .cli import UsageError
 from .frames import FORMATS, TMP_DIR, InvalidFrame, check_image, chunks, format_frames, frame_name, parse_frames
-from .manifest import Manifest, classify, file_entry, views_entry
+from .manifest import Manifest, classify, entry_files, file_entry, views_entry
 
 ENGINES = ("CYCLES", "BLENDER_EEVEE", "BLENDER_WORKBENCH")
 _BLEND_MAGIC = (b"BLENDER", b"\x28\xb5\x2f\xfd", b"\x1f\x8b")  # plain, zstd, gzip
@@ -133,17 +133,6 @@ def _check_options(engine, samples, resolution, percentage, device, fmt, retries
         raise UsageError(f"scene options must be JSON values: {exc}") from None
 
 
-@contextlib.contextmanager
-def _lock(out):
-    """One run per output directory at a time."""
-    with contextlib.ExitStack() as held:
-        try:
-            held.enter_context(locked(out / ".nephele.lock", wait=False, remove=True))
-        except BlockingIOError:
-            raise DataError("another nephele render is writing this directory", path=out, field="--out") from None
-        yield
-
-
 class Progress:
     """A progress line on stderr: frames done/failed, per-frame time, ETA.
 
@@ -205,7 +194,7 @@ def _clock(seconds):
 def render_sequence(scene, frames, out_dir, *, workers=None, engine=None, samples=None, resolution=None,
                     percentage=None, device=None, persistent=False, fmt="PNG", chunk=1, retries=2, timeout=None,
                     scheduler=None, security=None, jobqueue=None, jobs=1, progress=True,
-                    scene_options=None, precompute=False, cache_dir=None, overwrite=False, verify=False):
+                    scene_options=None, precompute=False, cache_dir=None, overwrite=False, verify=False, force=False):
     """Render ``frames`` of ``scene`` into ``out_dir`` on Dask; valid frames already there are kept.
 
     Parameters
@@ -254,6 +243,19 @@ def render_sequence(scene, frames, out_dir, *, workers=None, engine=None, sample
         Re-render every frame, valid or not.
     verify : bool
         On resume, re-hash every frame against the manifest's sha256 instead of trusting size and mtime.
+    force : bool
+        Go on when the frames left will not fit on the disk.  The space they need is estimated from the
+        frames already there, else from the first frame rendered (its files and log) times the count, and
+        checked before the other frames are scheduled.
+
+    A full disk, a read-only or otherwise unwritable output stops the run: no
+    more frames are scheduled, the frames already moved into place stay
+    (each is whole), and a :class:`~nephele.core.files.WriteError` names the
+    path and the problem.  Run the same call again after freeing space: only
+    the missing frames are rendered.  A second run into the same ``out_dir``
+    while one is writing it is refused (``OUT/.nephele.lock`` names the pid
+    and host holding it); a manifest that cannot be read is moved aside as
+    ``manifest.json.bad-<time>`` with a warning on stderr.
 
     A stereo (multi-view) scene writes ``frame_0001_L.png`` and
     ``frame_0001_R.png`` (Blender's view suffixes); a frame counts as done only
@@ -270,7 +272,9 @@ def render_sequence(scene, frames, out_dir, *, workers=None, engine=None, sample
     Raises
     ------
     DataError, UsageError
-        Bad input, before any worker starts.
+        Bad input, before any worker starts; another run writing ``out_dir``.
+    WriteError
+        The output cannot be written (full disk, read-only); raised after the run stops scheduling.
     """
     t_start = time.perf_counter()
     scene_path, kind = check_scene(scene)
@@ -282,8 +286,10 @@ def render_sequence(scene, frames, out_dir, *, workers=None, engine=None, sample
     _check_options(engine, samples, resolution, percentage, device, fmt, retries, timeout, chunk, workers, scene_options)
     out = check_out_dir(out_dir)
 
-    with _lock(out):
+    with lock_file(out / ".nephele.lock", "nephele render"):
         manifest = Manifest.load(out)
+        if manifest.warning:
+            print(f"nephele render: warning: {manifest.warning}", file=sys.stderr)
         views = tuple(manifest.run.get("views") or ("",))  # the previous run's, until a worker says
         if overwrite:
             done, todo = [], list(frame_list)
@@ -307,7 +313,7 @@ def render_sequence(scene, frames, out_dir, *, workers=None, engine=None, sample
             _render(manifest, result, todo, reclassify, scene_path, kind, settings, out, workers=workers, chunk=chunk,
                     retries=retries, timeout=timeout, scheduler=scheduler, security=security,
                     jobqueue=jobqueue, jobs=jobs, progress=progress, precompute=precompute,
-                    cache_dir=cache_dir, total=len(frame_list), already=len(done))
+                    cache_dir=cache_dir, total=len(frame_list), already=len(done), force=force)
         manifest.run.update(finished=_now(), failed=result.failed, seconds=round(time.perf_counter() - t_start, 3))
         manifest.save()
         result.manifest = manifest.to_dict()
@@ -320,7 +326,7 @@ def _now():
 
 
 def _render(manifest, result, todo, reclassify, scene_path, kind, settings, out, *, workers, chunk, retries, timeout,
-            scheduler, security, jobqueue, jobs, progress, precompute, cache_dir, total, already):
+            scheduler, security, jobqueue, jobs, progress, precompute, cache_dir, total, already, force=False):
     """Render ``todo`` on Dask into ``result``/``manifest``.
 
     ``reclassify(views)`` gives ``(done, todo)`` again when the loaded scene's
@@ -366,7 +372,12 @@ def _render(manifest, result, todo, reclassify, scene_path, kind, settings, out,
                 futures[fut] = frames
                 return fut
 
-            pending = as_completed([submit(c) for c in chunks(todo, chunk)] if todo else [])
+            parts = chunks(todo, chunk) if todo else []
+            # Without frames already there to size them, the first chunk renders alone: its files give the estimate.
+            sized = _space_needed(out, manifest, result.skipped, views, len(todo), force)
+            first, rest = (parts, []) if sized or len(parts) < 2 else (parts[:1], parts[1:])
+            pending = as_completed([submit(c) for c in first])
+            stop = None
             for fut in pending:
                 frames = futures.pop(fut)
                 try:
@@ -375,9 +386,13 @@ def _render(manifest, result, todo, reclassify, scene_path, kind, settings, out,
                     entries = {f: _after_lost_task(out, f, settings["format"], views, exc, since_ns) for f in frames}
                 retry = []
                 for f in frames:
-                    e = entries[f]
+                    e = entries.get(f)
+                    if e is None:  # not tried: its worker stopped the chunk at a full disk
+                        continue
                     e["attempts"] = attempts[f]
-                    if e["status"] == "ok":
+                    if e.get("disk"):  # the output cannot take more: stop scheduling, not fail frame after frame
+                        stop = stop or WriteError(e["disk"]["errno"], e["disk"]["path"], e["disk"]["problem"])
+                    elif e["status"] == "ok":
                         manifest.set(f, e)
                         result.rendered.append(f)
                         bar.update(f, e)
@@ -387,18 +402,61 @@ def _render(manifest, result, todo, reclassify, scene_path, kind, settings, out,
                         manifest.set(f, e)
                         result.failed.append(f)
                         bar.update(f, e)
+                if stop is None:
+                    try:
+                        if rest:
+                            left = sum(len(c) for c in rest)
+                            _space_needed(out, manifest, result.rendered, views, left, force)
+                            for c in rest:
+                                pending.add(submit(c))
+                            rest = []
+                        manifest.save(min_interval=0.5)
+                    except WriteError as exc:
+                        stop = exc
+                if stop is not None:
+                    client.cancel(list(futures))
+                    raise stop
                 for f in retry:
                     pending.add(submit([f]))
-                manifest.save(min_interval=0.5)
             if todo:
                 bar.update(None, None, final=True)
             with contextlib.suppress(Exception):
                 client.unregister_worker_plugin(name)
+    except BaseException:
+        with contextlib.suppress(OSError):  # a full disk may refuse this too: the frames on disk are adopted on resume
+            manifest.save()
+        raise
+    else:
+        manifest.save()
     finally:
         shutil.rmtree(out / TMP_DIR, ignore_errors=True)
         result.rendered.sort()
         result.failed.sort()
-        manifest.save()
+
+
+def _space_needed(out, manifest, frames, views, count, force):
+    """Check that ``count`` more frames fit on the disk of ``out``, sized from ``frames`` already there.
+
+    Returns False when none of ``frames`` can size them (none valid yet: they are then scheduled
+    unchecked); raises :class:`~nephele.core.files.WriteError` when they will not fit (unless ``force``).
+    """
+    sizes = []
+    for f in list(frames)[-8:]:
+        records = entry_files(manifest.entry(f), views)
+        if not records:
+            continue
+        log = (manifest.entry(f) or {}).get("log")
+        log_size = (out / log).stat().st_size if log and (out / log).is_file() else 0
+        sizes.append(sum(r.get("size") or 0 for _, r in records) + log_size + 400)  # + its manifest entry
+    if not sizes:
+        return False
+    each = max(sizes)
+    need = each * count
+    from ..core.memory import format_bytes
+
+    check_space(out, need, f"the {count} frame{'s' if count != 1 else ''} left ({format_bytes(each)} each, as "
+                           f"the last {len(sizes)} rendered)", force=force)
+    return True
 
 
 def _after_lost_task(out, frame, fmt, views, exc, since_ns):

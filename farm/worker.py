@@ -41,7 +41,7 @@ from distributed import get_worker
 from distributed.diagnostics.plugin import WorkerPlugin
 
 from ..addon.render_device import use_device
-from ..core.files import replace
+from ..core.files import replace, write_error
 from .frames import FORMATS, TMP_DIR, InvalidFrame, check_image, frame_name, sha256_file
 
 ENGINES = ("CYCLES", "BLENDER_EEVEE", "BLENDER_WORKBENCH")
@@ -51,6 +51,7 @@ _WORKBENCH_AA = ((1, "OFF"), (5, "5"), (8, "8"), (11, "11"), (16, "16"), (32, "3
 
 # Which run's scene this process's bpy holds (one bpy per process).
 _LOADED = {"token": None}
+_LAST_BYTES = {"n": 0}  # the files of this process's last frame, to tell a full disk from a writer's failure
 
 
 class FrameError(RuntimeError):
@@ -391,12 +392,13 @@ def render_one(scene, spec, frame, address):
             raise FrameError(f"a Python error during frame {frame}: {caught[0].strip().splitlines()[-1]}")
         size = expected_size(scene)
         records = []
-        for t, v in zip(tmps, views):
-            if not t.is_file():
-                raise FrameError(f"Blender wrote no file for frame {frame}" + (f" view {v}" if v else ""))
-            decode(t, size)
-            _fsync(t)
-            records.append(sha256_file(t))
+        with _logged(log):  # a decoder's own complaints (libpng on a cut file) go to the frame's log too
+            for t, v in zip(tmps, views):
+                if not t.is_file():
+                    raise FrameError(f"Blender wrote no file for frame {frame}" + (f" view {v}" if v else ""))
+                decode(t, size)
+                _fsync(t)
+                records.append(sha256_file(t))
         stats = []
         for t, name in zip(tmps, names):
             replace(t, out / name)  # (Windows: retried while a viewer holds the old frame)
@@ -409,6 +411,7 @@ def render_one(scene, spec, frame, address):
                 t.unlink()
         raise
     seconds = time.perf_counter() - t0
+    _LAST_BYTES["n"] = sum(st.st_size for st in stats)
     with open(log, "a") as f:
         f.write(f"nephele: frame {frame} ok in {seconds:.3f} s -> {', '.join(names)}\n")
     files = [{"file": n, "size": st.st_size, "mtime_ns": st.st_mtime_ns, "sha256": d}
@@ -437,13 +440,21 @@ def render_frames(name, frames, *needs):
         try:
             results[f] = render_one(scene, plugin.spec, f, plugin.address)
         except Exception as exc:
-            log = Path(plugin.spec["out_dir"]) / "logs" / f"{Path(frame_name(f, plugin.spec['fmt'])).stem}.log"
+            out = Path(plugin.spec["out_dir"])
+            log = out / "logs" / f"{Path(frame_name(f, plugin.spec['fmt'])).stem}.log"
             results[f] = {
                 "status": "failed",
                 "error": f"{type(exc).__name__}: {str(exc).strip().splitlines()[0] if str(exc).strip() else ''}",
                 "worker": plugin.address,
                 "log": str(log.relative_to(plugin.spec["out_dir"])),
             }
+            # Full or read-only: the client stops scheduling.  A writer failing without an errno (Blender) counts
+            # as a full disk when less than twice this worker's last frame is free.
+            disk = write_error(exc, getattr(exc, "filename", None) or out, low=2 * _LAST_BYTES["n"])
+            if disk is not None:
+                results[f]["disk"] = {"errno": disk.errno, "path": disk.path, "problem": disk.problem}
+                results[f]["error"] = str(disk)
+                break  # the rest of the chunk would fail the same way
     return results
 
 

@@ -94,3 +94,34 @@ def pytest_make_collect_report(collector):
     report = outcome.get_result()
     if STRICT and report.outcome == "skipped" and not _allowed(_reason(report)):
         _fail_skip(report, collector.nodeid)
+
+@pytest.fixture
+def small_disk(tmp_path):
+    """``small_disk(size)``: a folder on a tmpfs of ``size`` (e.g. ``"2m"``), unmounted afterwards.
+
+    Needs root (mount): without it the test skips with the reason, which a strict run
+    (CI, make) turns into a failure.
+    """
+    import os
+    import subprocess
+
+    mounted = []
+
+    def make(size, name="disk"):
+        where = tmp_path / name
+        where.mkdir()
+        if os.geteuid() != 0:
+            pytest.skip("mounting a small tmpfs for the disk-full tests needs root")  # fails when STRICT
+        run = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(where)], capture_output=True, text=True)
+        if run.returncode:
+            pytest.skip(f"cannot mount a tmpfs ({run.stderr.strip()})")  # fails when STRICT
+        mounted.append(where)
+        return where
+
+    def remount(where, options):
+        subprocess.run(["mount", "-o", f"remount,{options}", str(where)], check=True)
+
+    make.remount = remount
+    yield make
+    for where in reversed(mounted):
+        subprocess.run(["umount", "-l", str(where)], check=False)

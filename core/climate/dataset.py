@@ -138,7 +138,13 @@ class Dataset(abc.ABC):
             if key in self._cache:
                 self._cache.move_to_end(key)
                 return self._cache[key]
-            a = np.asarray(self._read(name, t), dtype=np.float32)
+            try:
+                a = np.asarray(self._read(name, t), dtype=np.float32)
+            except (DataError, MemoryError):
+                raise
+            except Exception as exc:  # a damaged file fails here, in its library's own types (HDF, ecCodes, zarr)
+                first = (str(exc).strip().splitlines() or [""])[0][:200]
+                raise DataError(f"cannot read step {t} ({type(exc).__name__}: {first})", path=self.source, field=name) from exc
             if a.shape != self.grid.shape:
                 raise DataError(f"step {t} has shape {a.shape}, grid is {self.grid.shape}", path=self.source, field=name)
             a.setflags(write=False)

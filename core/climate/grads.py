@@ -40,6 +40,22 @@ _STEP_SECONDS = {"mn": 60, "hr": 3600, "dy": 86400}
 _UNITS = {"u": "m/s", "v": "m/s", "w": "m/s", "temperature": "K", "q": "kg/kg", "z": "m", "hgt": "m", "rh": "1", "cloud": "1"}
 
 
+MAX_AXIS = 10**7
+"""Most values one axis may claim: a global grid at 4 m spacing has fewer; more is a damaged descriptor,
+refused before an axis of that length is allocated."""
+
+
+def _count(words, i, path, field, low=1):
+    """The whole number ``words[i]`` within ``low..MAX_AXIS``; DataError otherwise."""
+    try:
+        n = int(words[i])
+    except (IndexError, ValueError):
+        raise DataError(f"expected a whole number after {field.upper()}, got {' '.join(words)!r}", path=path, field=field) from None
+    if not low <= n <= MAX_AXIS:
+        raise DataError(f"claims {n} values; expected {low} to {MAX_AXIS:,}", path=path, field=field)
+    return n
+
+
 def _axis(words, n, path, field):
     """Coordinates from ``XDEF n LINEAR start step`` or ``... LEVELS v1 v2 ...``."""
     kind = words[0].lower() if words else ""
@@ -98,21 +114,25 @@ def parse_ctl(path):
             continue
         key = words[0].lower()
         if key == "dset":
+            if len(words) < 2:
+                raise DataError("DSET names no data file", path=path, field="dset")
             name = line.split(None, 1)[1].strip()
             ctl["dset"] = path.parent / name[1:].lstrip("/") if name.startswith("^") else Path(name)
         elif key == "undef":
-            ctl["undef"] = float(words[1])
+            try:
+                ctl["undef"] = float(words[1])
+            except (IndexError, ValueError):
+                raise DataError(f"cannot read {line.strip()!r}", path=path, field="undef") from None
         elif key == "title":
             ctl["title"] = line.split(None, 1)[1].strip() if len(words) > 1 else ""
         elif key == "options":
             ctl["options"].update(w.lower() for w in words[1:])
         elif key == "fileheader":
+            if len(words) < 2 or not words[1].isdigit():
+                raise DataError(f"expected a byte count, got {line.strip()!r}", path=path, field="fileheader")
             ctl["fileheader"] = int(words[1])
         elif key in ("xdef", "ydef", "zdef"):
-            try:
-                n = int(words[1])
-            except (IndexError, ValueError) as exc:
-                raise DataError(f"cannot read {line.strip()!r}", path=path, field=key) from exc
+            n = _count(words, 1, path, key)
             rest = words[2:]
             # LEVELS may continue on the next lines.
             if rest and rest[0].lower() == "levels":
@@ -125,12 +145,12 @@ def parse_ctl(path):
         elif key == "tdef":
             if len(words) < 5 or words[2].lower() != "linear":
                 raise DataError(f"expected 'TDEF n LINEAR start step', got {line.strip()!r}", path=path, field="tdef")
-            ctl["tdef"] = grads_times(int(words[1]), words[3], words[4], path)
+            ctl["tdef"] = grads_times(_count(words, 1, path, "tdef"), words[3], words[4], path)
         elif key == "vars":
-            count = int(words[1])
+            count = _count(words, 1, path, "vars")
             for _ in range(count):
                 vline = next(it, None)
-                if vline is None or vline.split()[0].lower() == "endvars":
+                if vline is None or not vline.split() or vline.split()[0].lower() == "endvars":
                     raise DataError(f"VARS says {count} variables but fewer are listed", path=path, field="vars")
                 v = vline.split()
                 try:

@@ -198,33 +198,65 @@ def open_dataset(source, **kw):
             raise DataError(f"the demo takes no file overrides ({', '.join(given)})", path=text)
         return demo_dataset(size, **kw)
     path = Path(source)
+    opener, kind = _opener(path)
+    if kind == "GrADS" and given:
+        raise DataError(f"GrADS files take no overrides ({', '.join(given)}); they apply to NetCDF, GRIB and Zarr", path=path)
+    try:
+        return opener(path, **kw)
+    except (DataError, MemoryError, ImportError):
+        raise
+    except Exception as exc:  # the readers' libraries raise many types for damaged bytes (netCDF4: "HDF error")
+        if isinstance(exc, TypeError) and "keyword argument" in str(exc):
+            raise  # the caller's slip, not the file's
+        raise DataError(f"cannot read as {kind} ({type(exc).__name__}: {_first_line(exc)})", path=path) from exc
+
+
+def _first_line(exc):
+    return (str(exc).strip().splitlines() or [""])[0][:200]
+
+
+def _netcdf(path, **kw):
+    import xarray  # noqa: F401  (a missing extra is said first: 'pip install nephele[data]')
+
+    from .hdf5check import check_classic, check_header
+    from .netcdf import open_netcdf
+
+    check_classic(path)  # netCDF-C trusts a NetCDF 3 header's counts (and crashes when their memory fails)
+    check_header(path)  # libhdf5 loops forever on some damaged headers: refuse them in seconds
+    return open_netcdf(path, **kw)
+
+
+def _grib(path, **kw):
+    from .grib import open_grib
+    from .gribcheck import check_grib
+
+    check_grib(path)  # ecCodes crashes on some damaged messages: refuse them first
+    return open_grib(path, **kw)
+
+
+def _opener(path):
+    """The reader of ``path`` by its suffix and the format's name; DataError when missing or unknown."""
     suffix = path.suffix.lower()
     if suffix in (".nc", ".nc4", ".cdf", ".netcdf", ".zip"):
         if not path.is_file():
             raise DataError("file not found", path=path)
-        from .netcdf import open_netcdf
-
-        return open_netcdf(path, **kw)
+        return _netcdf, "NetCDF"
     if suffix == ".zarr":
         if not path.exists():
             raise DataError("file not found", path=path)
         from .zarrstore import open_zarr_store
 
-        return open_zarr_store(path, **kw)
+        return open_zarr_store, "a Zarr store"
     if suffix in GRIB_SUFFIXES:
         if not path.is_file():
             raise DataError("file not found", path=path)
-        from .grib import open_grib
-
-        return open_grib(path, **kw)
+        return _grib, "GRIB"
     if suffix == ".ctl":
         if not path.is_file():
             raise DataError("file not found", path=path)
-        if given:
-            raise DataError(f"GrADS files take no overrides ({', '.join(given)}); they apply to NetCDF, GRIB and Zarr", path=path)
         from .grads import open_grads
 
-        return open_grads(path, **kw)
+        return open_grads, "GrADS"
     if not path.exists():
         raise DataError("file not found", path=path)
     raise DataError(f"unknown format {suffix or '(no extension)'!r}: expected demo, .nc, .zip (of NetCDF), .grib2, .zarr or .ctl", path=path)

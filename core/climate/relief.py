@@ -16,6 +16,8 @@ References
    as distributed with Ferret (``ferret-datasets``).
 """
 
+import io
+import os
 import sys
 from pathlib import Path
 
@@ -80,10 +82,26 @@ def load_etopo(path):
     if not path.is_file():
         raise DataError("file not found", path=path)
     try:
-        f = netcdf_file(path, "r", mmap=False)
-    except (OSError, TypeError, ValueError) as exc:
-        raise DataError(f"not a NetCDF 3 relief file ({exc})", path=path) from exc
-    with f:
+        return _read_etopo(netcdf_file, path)
+    except (DataError, MemoryError):
+        raise
+    except Exception as exc:  # scipy's reader raises many types (IndexError, KeyError...) for damaged bytes
+        first = (str(exc).strip().splitlines() or [""])[0][:200]
+        raise DataError(f"not a NetCDF 3 relief file ({type(exc).__name__}: {first})", path=path) from exc
+
+
+class _Bounded(io.FileIO):
+    """A file whose ``read(n)`` never asks for more than the bytes left: scipy's reader passes sizes from
+    the header to ``read``, which allocates that much first (a damaged header claiming terabytes)."""
+
+    def read(self, n=-1):
+        if n is not None and n > 0:
+            n = min(n, max(os.fstat(self.fileno()).st_size - self.tell(), 0))
+        return super().read(n)
+
+
+def _read_etopo(netcdf_file, path):
+    with _Bounded(path, "r") as raw, netcdf_file(raw, "r", mmap=False) as f:
         fields = [n for n, v in f.variables.items() if len(v.dimensions) == 2]
         if len(fields) != 1:
             raise DataError(f"expected one 2-D relief variable, found {fields}", path=path, field="elevation")

@@ -19,6 +19,7 @@ References
 """
 
 import base64
+import math
 import xml.etree.ElementTree as ET
 import zlib
 from pathlib import Path
@@ -26,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import DataError
+from ..memory import check_memory
 
 VTK_HEXAHEDRON = 12
 _DTYPES = {"Int8": "i1", "UInt8": "u1", "Int16": "i2", "UInt16": "u2", "Int32": "i4", "UInt32": "u4",
@@ -74,11 +76,25 @@ def read_vtu(path):
         ``points`` (n, 3) float64, ``connectivity``, ``offsets``, ``types``
         (int64) and ``point_data`` (name -> array, (n,) or (n, c)), each in
         the file's own dtype promoted to 64 bits.
+
+    Raises
+    ------
+    DataError
+        A missing or damaged file (bad XML, base64, zlib data or sizes).
     """
     path = Path(path)
     if not path.is_file():
         raise DataError("no such file", path=str(path))
-    blob = path.read_bytes()
+    try:
+        return _parse_vtu(path, path.read_bytes())
+    except (DataError, MemoryError):
+        raise
+    except (ValueError, KeyError, IndexError, TypeError, OverflowError, zlib.error) as exc:  # binascii.Error: a ValueError
+        first = (str(exc).strip().splitlines() or [""])[0][:200]
+        raise DataError(f"is damaged ({type(exc).__name__}: {first})", path=str(path)) from exc
+
+
+def _parse_vtu(path, blob):
     cut = blob.find(b"<AppendedData")
     appended = b""
     if cut >= 0:
@@ -117,10 +133,10 @@ def read_vtu(path):
         elif fmt == "binary":
             data = _decode("".join((el.text or "").split()).encode(), False, header, compressed, order)
         elif fmt == "ascii":
-            return np.array((el.text or "").split(), dtype=dtype.newbyteorder("="))
+            data = None
         else:
             raise DataError(f"unknown data format {fmt!r}", path=str(path), field=el.get("Name"))
-        a = np.frombuffer(data, dtype=dtype)
+        a = np.array((el.text or "").split(), dtype=dtype.newbyteorder("=")) if data is None else np.frombuffer(data, dtype=dtype)
         c = int(el.get("NumberOfComponents", "1"))
         return a.reshape(-1, c) if c > 1 else a
 
@@ -179,8 +195,14 @@ class UnstructuredVelocity:
         if arr is None or arr.ndim != 2 or arr.shape[1] != 3:
             raise DataError("is not a 3-component point array of the grid", path=self.path, field=field)
         self.points = grid["points"]
+        conn = grid["connectivity"]
+        if conn.size != 8 * len(types) or len(arr) != len(self.points) or (conn.size and not 0 <= conn.min() <= conn.max() < len(self.points)):
+            raise DataError(f"has {conn.size} corner indices for {len(types)} hexahedra and {len(self.points)} points "
+                            f"({len(arr)} vectors): they do not fit together", path=self.path)
+        if not np.isfinite(np.ptp(self.points, axis=0)).all():
+            raise DataError("has points that are not finite numbers", path=self.path)
         self.vectors = arr.astype(np.float64)
-        self.cells = grid["connectivity"].reshape(-1, 8)
+        self.cells = conn.reshape(-1, 8)
         self.bounds = np.stack([self.points.min(axis=0), self.points.max(axis=0)], axis=1)
         self._build_locator(float(bucket_cells))
 
@@ -221,9 +243,12 @@ class UnstructuredVelocity:
         h = np.maximum(np.median(chi - clo, axis=0) / bucket_cells, 1e-12 * max(ext, 1e-300))
         self.cell_size = float(np.median(chi - clo))  # a typical cell's extent: streamlines step about one cell
         self._edges = []
+        counts = [max(float(np.ceil(np.ptp(corners[..., ax]) / h[ax])), 1.0) for ax in range(3)]
+        check_memory(16 * math.prod(counts) + 8 * sum(counts), f"locating points in {len(self.cells):,} cells",
+                     path=self.path, hint="their corners spread over far more cell sizes than cells (a stray point?)")
         for ax in range(3):
             lattice = np.unique(corners[..., ax])
-            n = max(int(np.ceil((lattice[-1] - lattice[0]) / h[ax])), 1)
+            n = int(counts[ax])
             self._edges.append(lattice if len(lattice) - 1 <= 4 * n and len(lattice) > 1 else np.linspace(lattice[0], lattice[-1], n + 1))
         nb = np.array([len(e) - 1 for e in self._edges])
         self._nb = nb

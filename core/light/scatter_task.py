@@ -3,7 +3,10 @@
 import json
 from dataclasses import asdict
 
+import numpy as np
+
 from ..errors import DataError
+from ..memory import check_memory
 from ..pipeline.registry import planner, task
 from ..volume import cloud_density as cd
 from .phase import N_PER_FACE
@@ -26,6 +29,23 @@ def task_params(cloud, extinction=40.0, **solve):
                                  default=json_plain))
 
 
+SOLVE_BYTES_PER_CELL = 8000.0
+"""Peak memory of the scattering solve per grid cell at 4x4 bins per cube face (tracemalloc: 7.6 kB; the
+add-on's :data:`~nephele.addon.scatter_ops.BYTES_PER_CELL`); it grows with the bins, as (bins_per_face/4)^2."""
+
+
+def check_solve_memory(shape, bins_per_face=N_PER_FACE):
+    """Refuse (:class:`DataError`) a solve on grid ``shape`` that would not fit in memory.
+
+    The solver itself (:mod:`.scatter`) stays free of this check: its callers (this task, ``nephele
+    scatter``, the add-on's operator) make it before anything is allocated.
+    """
+    cells = int(np.prod(shape))
+    check_memory(SOLVE_BYTES_PER_CELL * (bins_per_face / 4) ** 2 * cells,
+                 f"the scattering solve on a {'x'.join(str(n) for n in shape[::-1])} grid",
+                 hint="lower the grid or the bins per face", field="grid")
+
+
 @task("scatter")
 def solve_task(params):
     """The ``"scatter"`` task: build the cloud of :func:`task_params` and solve it;
@@ -35,6 +55,7 @@ def solve_task(params):
                             for e in c.get("ellipsoids", ()))
     for k in ("shape", "size"):
         c[k] = tuple(c[k])
+    check_solve_memory(c["shape"], params["solve"].get("bins_per_face", N_PER_FACE))
     sigma = float(params["extinction"]) * cd.cloud_density(cd.CloudParams(**c))
     return solution_arrays(solve(sigma, c["size"], **params["solve"]))
 

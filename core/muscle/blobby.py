@@ -52,6 +52,7 @@ from .. import native
 from ..surface import _mc_tables as tables
 from ..surface.contour import EDGE_MARGIN
 from ..errors import DataError
+from ..memory import check_memory
 from ..surface.mesh import Mesh, vertex_normals
 from ..threads import default_threads, thread_map
 
@@ -1283,6 +1284,11 @@ def blobby_surface(
     if box is not None:
         b = _images(b, box, fine)
     grid = _grid(spacing, box)
+    # (block, Gaussian) pairs, each Gaussian reaching over its cut-off box; 80-230 bytes per pair at the peak
+    # (tracemalloc: 500-2,000 random ellipsoids, spacing 0.025-0.05 sigma-widths).
+    pairs = float(np.sum((2 * fine * s.max(axis=1) / (spacing * BLOCK) + 1) ** 3))
+    check_memory(256 * pairs, f"a blobby surface of {len(c):,} Gaussians at spacing {spacing:g}",
+                 hint="raise the spacing or mesh fewer Gaussians", field="spacing")
     blocks = _find_blocks(b, grid, level, cutoff, fine, threads)
     if blocks is None:
         return Mesh.empty(names)

@@ -142,7 +142,7 @@ def read_pqr(path):
     path = Path(path)
     xyz, rad, res, names = [], [], [], []
     try:
-        text = path.read_text()
+        text = path.read_bytes().decode("latin-1")  # any byte reads; a damaged record then fails on its line
     except OSError as err:
         raise DataError(f"cannot read: {err.strerror}", path=str(path)) from None
     for no, line in enumerate(text.splitlines(), 1):

@@ -16,7 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..files import atomic_write
+from ..files import atomic_write, process_alive
+from ..memory import available_memory, check_memory, format_bytes  # noqa: F401  (their home before core.memory)
 from . import registry
 
 CACHE_VERSION = 1
@@ -113,43 +114,6 @@ def session_cache_dir(base=None, *, create=True):
     return path
 
 
-def _alive(pid):
-    if _WINDOWS:  # os.kill(pid, 0) there sends CTRL_C_EVENT (0), it does not ask
-        return _alive_windows(pid, _kernel32())
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except (PermissionError, OSError):
-        return True  # someone else's live process
-    return True
-
-
-def _kernel32():
-    import ctypes
-
-    k = ctypes.WinDLL("kernel32", use_last_error=True)
-    k.OpenProcess.restype = ctypes.c_void_p
-    k.OpenProcess.argtypes = [ctypes.c_uint32, ctypes.c_int, ctypes.c_uint32]
-    k.GetExitCodeProcess.argtypes = [ctypes.c_void_p, ctypes.POINTER(ctypes.c_uint32)]
-    k.CloseHandle.argtypes = [ctypes.c_void_p]
-    return k
-
-
-def _alive_windows(pid, k):
-    """Whether process ``pid`` runs, asked of Windows (``k``: kernel32 with its types set)."""
-    import ctypes
-
-    handle = k.OpenProcess(0x1000, False, pid)  # PROCESS_QUERY_LIMITED_INFORMATION
-    if not handle:
-        return ctypes.get_last_error() == 5  # access denied: someone else's live process
-    try:
-        code = ctypes.c_uint32()
-        return bool(k.GetExitCodeProcess(handle, ctypes.byref(code))) and code.value == 259  # STILL_ACTIVE
-    finally:
-        k.CloseHandle(handle)
-
-
 def prune_sessions(base=None, max_age_days=7.0):
     """Remove session folders (:func:`session_cache_dir`) whose process has ended and
     which are empty or untouched for ``max_age_days`` (kept that long because
@@ -165,7 +129,7 @@ def prune_sessions(base=None, max_age_days=7.0):
     gone = []
     for d in root.iterdir():
         pid, _, token = d.name.partition("-")
-        if not (pid.isdigit() and token) or int(pid) == os.getpid() or _alive(int(pid)):
+        if not (pid.isdigit() and token) or int(pid) == os.getpid() or process_alive(int(pid)):
             continue
         try:
             newest = max((p.stat().st_mtime for p in d.rglob("*")), default=d.stat().st_mtime)
@@ -188,70 +152,6 @@ def tree_size(path):
             except OSError:
                 pass
     return total, count
-
-
-def available_memory():
-    """Bytes of memory the machine can still give (``MemAvailable`` of ``/proc/meminfo``,
-    Windows' ``GlobalMemoryStatusEx``, else free pages from ``os.sysconf``, else, on macOS,
-    its physical memory; None when none is known).  Needs no psutil, which Blender does
-    not ship."""
-    if _WINDOWS:
-        return _windows_available_memory()
-    try:
-        with open("/proc/meminfo") as f:
-            for line in f:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except (OSError, ValueError, IndexError):
-        pass
-    for pages in ("SC_AVPHYS_PAGES", "SC_PHYS_PAGES"):  # macOS has only the second: an upper bound
-        try:
-            return int(os.sysconf(pages)) * int(os.sysconf("SC_PAGE_SIZE"))
-        except (ValueError, OSError, AttributeError):
-            pass
-    return None
-
-
-def _windows_available_memory():
-    import ctypes
-
-    class Status(ctypes.Structure):  # MEMORYSTATUSEX
-        _fields_ = [("length", ctypes.c_uint32), ("load", ctypes.c_uint32), ("total", ctypes.c_uint64),
-                    ("avail", ctypes.c_uint64), ("total_page", ctypes.c_uint64), ("avail_page", ctypes.c_uint64),
-                    ("total_virtual", ctypes.c_uint64), ("avail_virtual", ctypes.c_uint64),
-                    ("avail_extended", ctypes.c_uint64)]
-
-    st = Status(length=ctypes.sizeof(Status))
-    try:
-        ok = ctypes.WinDLL("kernel32").GlobalMemoryStatusEx(ctypes.byref(st))
-    except (AttributeError, OSError):
-        return None
-    return int(st.avail) if ok else None
-
-
-def check_memory(need, what, *, available=None, field=None):
-    """Raise :class:`~.errors.DataError` when ``need`` bytes exceed the memory available.
-
-    Called before any large allocation (bakes, resampling, scattering solves), so
-    an impossible request fails with one clear line instead of the machine
-    swapping or the process being killed.
-    """
-    from ..errors import DataError
-
-    have = available_memory() if available is None else available
-    if have is not None and need > have:
-        raise DataError(f"{what} needs about {format_bytes(need)} of memory, more than the "
-                        f"{format_bytes(have)} this machine has available", field=field)
-    return need
-
-
-def format_bytes(n):
-    """``1536`` → ``"1.5 KB"`` (decimal units, as file managers show)."""
-    n = float(n)
-    for unit in ("B", "KB", "MB", "GB", "TB"):
-        if abs(n) < 1000.0 or unit == "TB":
-            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
-        n /= 1000.0
 
 
 class Cache:

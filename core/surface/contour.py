@@ -40,6 +40,7 @@ import numpy as np
 
 from . import _mc_tables as tables
 from ..errors import DataError
+from ..memory import check_memory
 from .mesh import Mesh, vertex_normals
 
 METHODS = ("cubes", "tetra5")
@@ -50,6 +51,11 @@ points.  Where a value equals the level (or lies within this margin of it)
 the vertex moves by at most 0.1 % of the edge; in exchange every vertex is
 distinct, so the topology is exactly that of the ``>=`` classification and no
 triangle has zero area."""
+
+
+BYTES_PER_CELL = {"cubes": 450, "tetra5": 900}
+"""Peak memory of :func:`isosurface` per grid cell where every cell is crossed (random values; tracemalloc:
+cubes 438 and 445 B at 64k and 512k cells, tetra5 857 and 858 B at 27k and 125k cells)."""
 
 
 def regular_points(shape, spacing=(1.0, 1.0, 1.0), origin=(0.0, 0.0, 0.0), dtype=np.float32):
@@ -141,6 +147,8 @@ def isosurface(points, values, level, *, periodic_lon=False, method="cubes", att
     level = float(level)
     if not np.isfinite(level):
         raise DataError(f"must be finite, got {level}", field="level")
+    check_memory(BYTES_PER_CELL[method] * values.size, f"contouring a {'x'.join(map(str, values.shape[::-1]))} grid "
+                 f"({method})", hint="contour a coarser grid or a part of it", field="values")
     attributes = dict(attributes or {})
     for name, a in attributes.items():
         if np.shape(a) != values.shape:

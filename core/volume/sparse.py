@@ -35,6 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import DataError
+from ..memory import check_memory
 from ..climate.columns import ColumnLocator
 from ..climate.grid import DEFAULT_EXAGGERATION, EARTH_RADIUS, globe_radius, height_from_radius, xyz_to_lonlat
 from ..threads import default_threads
@@ -770,6 +771,10 @@ def resample(
     boxed = blocks.shape[0]
     blocks = blocks[_near_candidates(field, table, blocks, sub, voxel_size)]
     n = blocks.shape[0]
+    # ~20 bytes per voxel of the candidate blocks at the peak (tracemalloc on demo:small, voxel 0.0027:
+    # 14.4 M block voxels, 284 MB; the add-on's BYTES_PER_VOXEL).
+    check_memory(20.0 * n * sub**3, f"resampling {n:,} blocks of {sub}^3 voxels (voxel size {voxel_size:g})",
+                 hint="raise the voxel size or lower the exaggeration", field="voxel_size")
     with_color = color_name is not None
 
     def run(start):

@@ -1,5 +1,6 @@
 """core/files.py: one atomic_write: all or nothing, an ordinary file's mode, no temporary left behind."""
 
+import errno
 import os
 import stat
 import subprocess
@@ -113,3 +114,80 @@ def test_an_interrupt_as_the_temporary_file_is_made_leaves_nothing(tmp_path, mon
             tmp.write_text("never")
     monkeypatch.undo()
     assert list(tmp_path.iterdir()) == []
+
+
+# --- a full disk, a read-only folder, a lock (issue 41) ---------------------------------------------
+
+
+def test_a_full_disk_is_one_line_naming_the_file_and_leaves_nothing(small_disk):
+    from nephele.core.files import WriteError
+
+    disk = small_disk("64k")
+    (disk / "keep.bin").write_bytes(b"x" * 1000)
+    with pytest.raises(WriteError) as err:
+        with atomic_write(disk / "big.bin") as tmp:
+            tmp.write_bytes(b"y" * 200_000)
+    text = str(err.value)
+    assert text.startswith(f"{disk / 'big.bin'}: no space left on the disk") and "\n" not in text
+    assert err.value.errno == errno.ENOSPC
+    assert sorted(p.name for p in disk.iterdir()) == ["keep.bin"]  # no temporary, no torn file
+
+
+def test_a_read_only_folder_is_one_line(small_disk):
+    from nephele.core.files import WriteError
+
+    disk = small_disk("64k")
+    small_disk.remount(disk, "ro")
+    with pytest.raises(WriteError) as err:
+        with atomic_write(disk / "a.txt") as tmp:
+            tmp.write_text("x")
+    assert str(err.value) == f"{disk / 'a.txt'}: the file system is read-only"
+
+
+def test_check_space(tmp_path):
+    from nephele.core.files import WriteError, check_space, free_bytes
+
+    free = free_bytes(tmp_path / "not" / "yet")
+    assert free == free_bytes(tmp_path) > 0
+    assert check_space(tmp_path, 1000, "a frame") == free
+    with pytest.raises(WriteError, match=r"40 frames need about .* free: free some space, or pass --force"):
+        check_space(tmp_path, 2 * free, "40 frames")
+    check_space(tmp_path, 2 * free, "40 frames", force=True)
+
+
+def test_lock_file_refuses_a_live_holder_and_takes_over_a_dead_one(tmp_path):
+    import socket
+    import subprocess
+    import sys
+
+    from nephele.core.errors import DataError
+    from nephele.core.files import lock_file
+
+    lock = tmp_path / ".nephele.lock"
+    with lock_file(lock, "nephele render"):
+        assert lock.read_text().split()[:2] == [str(os.getpid()), socket.gethostname()]
+        with pytest.raises(DataError, match=rf"another nephele render \(pid {os.getpid()} on .*remove .nephele.lock"):
+            with lock_file(lock, "nephele render"):
+                pass
+    assert not lock.exists()
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    lock.write_text(f"{dead.stdout.strip()} {socket.gethostname()} 2026-01-01T00:00:00+00:00\n")
+    with lock_file(lock, "nephele render"):  # its process has ended: stale, taken over
+        assert lock.read_text().split()[0] == str(os.getpid())
+    lock.write_text("123 another-host 2026-01-01T00:00:00+00:00\n")  # cannot be checked from here: refused
+    with pytest.raises(DataError, match="pid 123 on another-host"):
+        with lock_file(lock, "nephele render"):
+            pass
+
+
+def test_a_writer_failing_without_an_errno_on_a_full_disk_is_a_disk_error(small_disk):
+    """OpenImageIO, OpenVDB and Blender report a full disk in their own words; with the disk (nearly) full
+    that is what the one line says, and nothing is left behind."""
+    from nephele.core.files import WriteError
+
+    disk = small_disk("64k")
+    with pytest.raises(WriteError, match=r"image.png: no space left on the disk \(.* free; the writer said: "
+                                         r"cannot write image: write failed\)"):
+        with atomic_write(disk / "image.png"):
+            raise RuntimeError("cannot write image: write failed")
+    assert list(disk.iterdir()) == []

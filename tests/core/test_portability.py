@@ -11,7 +11,7 @@ import types
 
 import pytest
 
-from nephele.core import files
+from nephele.core import files, memory
 from nephele.core.files import atomic_write, locked
 from nephele.core.pipeline import cache
 
@@ -62,7 +62,7 @@ def test_rename_onto_a_file_held_open_for_good_fails_cleanly(windows, tmp_path):
     out = tmp_path / "frame.json"
     out.write_text("old")
     windows.held.add(str(out))
-    with pytest.raises(PermissionError, match="frame.json is open in another program"):
+    with pytest.raises(files.WriteError, match="frame.json: open in another program"):
         with atomic_write(out) as tmp:
             tmp.write_text("new")
     assert out.read_text() == "old" and [p.name for p in tmp_path.iterdir()] == ["frame.json"]
@@ -83,29 +83,30 @@ def test_posix_rename_is_not_retried(tmp_path, monkeypatch):
 
 
 @pytest.mark.parametrize("platform", ["posix", "windows"])
-def test_lock_excludes_and_is_removed(platform, request, tmp_path):
+def test_lock_excludes(platform, request, tmp_path):
     if platform == "windows":
         request.getfixturevalue("windows")
-    path = tmp_path / ".nephele.lock"
-    with locked(path, wait=False, remove=True):
+    path = tmp_path / "benchmarks.lock"
+    with locked(path, wait=False):
         with pytest.raises(BlockingIOError):
             with locked(path, wait=False):
                 pass
-    assert not path.exists()
-    with locked(path):  # free again; kept without remove
+    with locked(path):  # free again
         pass
-    assert path.exists()
 
 
-def test_farm_run_lock_on_windows(windows, tmp_path):
+def test_farm_run_lock_on_windows(windows, monkeypatch, tmp_path):
     from nephele.core.errors import DataError
 
-    render = pytest.importorskip("nephele.farm.render")
-    with render._lock(tmp_path):
-        with pytest.raises(DataError, match="another nephele render"):
-            with render._lock(tmp_path):
+    monkeypatch.setattr(files, "_alive_windows", lambda pid: pid == os.getpid())  # kernel32, as Windows answers
+    with files.lock_file(tmp_path / ".nephele.lock", "nephele render"):
+        with pytest.raises(DataError, match="another nephele render .pid %d" % os.getpid()):
+            with files.lock_file(tmp_path / ".nephele.lock", "nephele render"):
                 pass
     assert not (tmp_path / ".nephele.lock").exists()
+    (tmp_path / ".nephele.lock").write_text("999999 %s 2026-11-28T00:00:00+00:00" % __import__("socket").gethostname())
+    with files.lock_file(tmp_path / ".nephele.lock", "nephele render"):  # its process ended: taken over
+        pass
 
 
 class FakeKernel32:
@@ -139,12 +140,13 @@ def test_session_owner_asked_of_windows(monkeypatch, tmp_path):
         monkeypatch.setattr(ctypes, "set_last_error", lambda v: last.__setitem__(0, v), raising=False)
         monkeypatch.setattr(ctypes, "get_last_error", lambda: last[0], raising=False)
     k = FakeKernel32({10: 259, 11: 0}, denied={12})
-    assert cache._alive_windows(10, k) and not cache._alive_windows(11, k)  # running; exited (code 0)
-    assert cache._alive_windows(12, k) and not cache._alive_windows(13, k)  # another user's; no such pid
+    alive = files._alive_windows
+    assert alive(10, k) and not alive(11, k)  # running; exited (code 0)
+    assert alive(12, k) and not alive(13, k)  # another user's; no such pid
     assert not k.open  # every handle closed
     # prune_sessions on Windows: the ended session's folder goes, the running one's stays
-    monkeypatch.setattr(cache, "_WINDOWS", True)
-    monkeypatch.setattr(cache, "_kernel32", lambda: k)
+    monkeypatch.setattr(files, "_WINDOWS", True)
+    monkeypatch.setattr(files, "_alive_windows", lambda pid: alive(pid, k))
     for pid in (10, 11):
         (tmp_path / "sessions" / f"{pid}-abc").mkdir(parents=True)
     gone = cache.prune_sessions(tmp_path)
@@ -166,8 +168,8 @@ def test_memory_known_without_proc_and_avphys(monkeypatch):
         return real_sysconf(name)
 
     monkeypatch.setattr("builtins.open", no_proc)
-    monkeypatch.setattr(cache.os, "sysconf", sysconf)
-    assert cache.available_memory() == real_sysconf("SC_PHYS_PAGES") * real_sysconf("SC_PAGE_SIZE")
+    monkeypatch.setattr(memory.os, "sysconf", sysconf)
+    assert memory._machine() == real_sysconf("SC_PHYS_PAGES") * real_sysconf("SC_PAGE_SIZE")
 
 
 def test_no_posix_only_module_at_import():
