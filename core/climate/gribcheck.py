@@ -4,9 +4,10 @@ ecCodes trusts the lengths in a message: a GRIB2 section claiming more bytes
 than its message holds made cfgrib crash the whole process (a segmentation
 fault, found by the readers' fuzz test), and a grid claiming billions of
 points makes it allocate them.  :func:`check_grib` walks the messages with
-plain seeks (a few reads per message, no decoding): every message must end in
-``7777`` inside the file, every GRIB2 section must lie inside its message, and
-the points a grid claims must fit in memory (:func:`~nephele.core.memory.check_memory`).
+plain seeks (a few reads per message, no decoding): every GRIB2 section of a
+whole message must lie inside it, and the points a grid claims must fit in memory
+(:func:`~nephele.core.memory.check_memory`).  Messages cut short are left to the
+reader, which skips them with a note and reads the rest.
 
 References
 ----------
@@ -63,9 +64,13 @@ def _sections(f, path, n, start, end):
 
 
 def check_grib(path):
-    """Raise :class:`~nephele.core.errors.DataError` unless every message of ``path`` is whole.
+    """Raise :class:`~nephele.core.errors.DataError` when a whole message of ``path`` would crash ecCodes.
 
-    Returns the number of messages.
+    A message whose sections claim more bytes than it holds, or a grid of more
+    points than memory holds, refuses the file.  What ecCodes skips safely is
+    left to it (the reader skips it with a note): bytes that only spell
+    ``GRIB``, a message cut short by the end of the file or missing its ``7777``.
+    Returns the number of whole messages.
     """
     with open(path, "rb") as f:
         f.seek(0, 2)
@@ -75,34 +80,29 @@ def check_grib(path):
             start = _next_message(f, pos, size)
             if start is None:
                 break
-            n += 1
+            pos = start + 4  # unless this is a whole message: then past it
             f.seek(start)
             head = f.read(16)
-            if len(head) < 8:
-                raise DataError(f"cannot open as GRIB (message {n} at byte {start} is cut short)", path=path)
-            edition = head[7]
+            edition = head[7] if len(head) >= 8 else 0
             if edition == 1 and head[4] & 0x80:
                 break  # a GRIB1 message over 8 MB states its length in units of 120 bytes: ecCodes walks on
-            if edition == 2:
+            if edition == 2 and len(head) == 16:
                 length = int.from_bytes(head[8:16], "big")
             elif edition == 1:
                 length = int.from_bytes(head[4:7], "big")
             else:
-                raise DataError(f"cannot open as GRIB (message {n} at byte {start} has edition {edition}, not 1 or 2)", path=path)
+                continue  # not a message (or cut short before its length)
             end = start + length
             if length < 20 or end > size:
-                raise DataError(f"cannot open as GRIB (message {n} at byte {start} claims {length} bytes; "
-                                f"the file has {size - start} left: truncated?)", path=path)
+                continue  # cut short: ecCodes skips it
+            f.seek(end - 4)
+            if f.read(4) != b"7777":
+                continue
             if edition == 2:
-                points = max(points, _sections(f, path, n, start, end))
-            else:
-                f.seek(end - 4)
-                if f.read(4) != b"7777":
-                    raise DataError(f"cannot open as GRIB (message {n} at byte {start} has no end marker 7777)", path=path)
+                points = max(points, _sections(f, path, n + 1, start, end))
+            n += 1
             pos = end
-    if n == 0:
-        raise DataError("cannot open as GRIB (no GRIB message in the file)", path=path)
-    # Decoding a field holds its values as float64, and cfgrib a copy.
+    # Decoding a field holds its values as float64, and the reader a copy.
     check_memory(16 * points, f"a GRIB grid of {points:,} points", path=path, field="number of values",
                  hint="the file claims more points than this machine can hold (damaged?)")
     return n

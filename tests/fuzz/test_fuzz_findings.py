@@ -93,10 +93,8 @@ def test_whole_grib_messages_pass_the_walk(tmp_path):
     path.write_bytes(b"junk before" + _grib2(tmp_path))  # ecCodes skips bytes between messages, so does the walk
     assert check_grib(path) == 20
     assert check_grib(DATA / "polar_stereo.grib2") >= 1
-    path.write_bytes(_grib2(tmp_path)[:-3])
-    with pytest.raises(DataError) as err:
-        check_grib(path)
-    one_line(err, "cannot open as GRIB", "message 20")
+    path.write_bytes(_grib2(tmp_path)[:-3])  # the last message cut short: left to the reader, which skips it
+    assert check_grib(path) == 19
 
 
 def test_a_read_failing_in_the_library_is_a_data_error(tmp_path, monkeypatch):
