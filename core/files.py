@@ -56,17 +56,18 @@ def atomic_write(path, *, fsync=True):
         if tmp.stat().st_mode & 0o777 != mode:  # a writer that re-created the file
             os.chmod(tmp, mode)
         if fsync:
-            _fsync(tmp, os.O_RDWR)  # Windows flushes only a handle open for writing
+            fsync_path(tmp, os.O_RDWR)  # Windows flushes only a handle open for writing
         os.replace(tmp, path)
     except BaseException as exc:
         if made or not isinstance(exc, FileExistsError):  # (that one: the name was not ours)
             tmp.unlink(missing_ok=True)
         raise
     if fsync and os.name == "posix":  # the rename itself; folders cannot be opened on Windows
-        _fsync(path.parent, os.O_RDONLY)
+        fsync_path(path.parent)
 
 
-def _fsync(path, flags):
+def fsync_path(path, flags=os.O_RDONLY):
+    """Flush ``path`` (a file or, on POSIX, a folder) to disk."""
     fd = os.open(path, flags)
     try:
         os.fsync(fd)
@@ -74,4 +75,4 @@ def _fsync(path, flags):
         os.close(fd)
 
 
-__all__ = ["atomic_write"]
+__all__ = ["atomic_write", "fsync_path"]

@@ -1,14 +1,14 @@
 """``nephele``: the command line.  Each sub-command is a plain module
 ``farm/cmd_<name>.py`` with ``HELP``, ``add_arguments(parser)`` and
 ``run(args) -> int``.  Bad input (a :class:`~nephele.core.errors.DataError`
-or :class:`UsageError`) prints one line and exits with code 2, no traceback.
+or :class:`~nephele.core.errors.UsageError`) prints one line and exits with code 2, no traceback.
 """
 
 import argparse
 import importlib
 import sys
 
-from ..core.errors import DataError
+from ..core.errors import DataError, UsageError
 
 COMMANDS = (
     "info",
@@ -40,10 +40,6 @@ EXTRAS = {
     "bpy": "farm", "mathutils": "farm", "dask": "farm", "distributed": "farm", "dask_jobqueue": "farm",
     "imageio_ffmpeg": "farm", "psutil": "farm",
 }
-
-
-class UsageError(ValueError):
-    """A bad command-line value, found before any work starts."""
 
 
 def _load():

@@ -35,7 +35,7 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
-from .cli import UsageError
+from ..core.errors import UsageError
 
 HELP = "build the Blender extension zips (one per platform and Blender Python), wheels bundled"
 

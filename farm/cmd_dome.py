@@ -11,7 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .cli import UsageError
+from ..core.errors import UsageError
+from ..core.parse import parse_range, parse_size
 
 HELP = "remap cube faces or an equirect image to a domemaster or Omnimax frame (antialiased)"
 
@@ -30,29 +31,6 @@ def add_arguments(p):
     p.add_argument("--lens-shift", type=float, help="lens centre below frame centre, in frame heights")
     p.add_argument("--supersample", type=int, default=2, help="directions per pixel along each axis (default 2)")
     p.add_argument("--frames", metavar="A-B", help="frame range substituted for {frame} in SOURCE and --out")
-
-
-def _size(text):
-    if text is None:
-        return None, None
-    try:
-        w, h = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise UsageError(f"--size must look like 2048x1500, got {text!r}") from None
-    return w, h
-
-
-def _frames(text):
-    if text is None:
-        return [None]
-    try:
-        a, _, b = text.partition("-")
-        a, b = int(a), int(b or a)
-    except ValueError:
-        raise UsageError(f"--frames must look like 1-240, got {text!r}") from None
-    if b < a:
-        raise UsageError(f"--frames: end {b} before start {a}")
-    return list(range(a, b + 1))
 
 
 def load_source(source, kind, frame=None):
@@ -88,8 +66,11 @@ def run(args):
     from ..core.camera import dome
 
     kind = args.kind or ("cube" if "{face}" in args.source or Path(args.source).is_dir() else "equirect")
-    w, h = _size(args.size)
-    frames = _frames(args.frames)
+    w, h = (None, None) if args.size is None else parse_size(args.size, example="2048x1500")
+    frames = [None]
+    if args.frames is not None:
+        first, last = parse_range(args.frames)
+        frames = list(range(first, last + 1))
     if args.frames and ("{frame" not in args.out or "{frame" not in args.source):
         raise UsageError("--frames needs {frame} (e.g. {frame:04d}) in SOURCE and --out")
     cam = dome.dome_camera(args.preset, width=w, height=h, fov=args.fov, tilt=args.tilt, lens=args.lens,

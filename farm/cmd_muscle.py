@@ -12,7 +12,8 @@ prints the simulation's state counts per frame.
 import sys
 from pathlib import Path
 
-from .cli import UsageError
+from ..core.errors import UsageError
+from ..core.parse import parse_size
 from .cmd_render import add_cluster_arguments, cluster_kwargs
 
 HELP = "the muscle cross-bridge film (Fig. 7): render frames (Omnimax stereo with --dome) or export meshes"
@@ -50,12 +51,7 @@ def _check(args):
         raise UsageError(f"--spacing must be a positive number of nm, got {args.spacing}")
     if not args.samples >= 1:
         raise UsageError(f"--samples must be >= 1, got {args.samples}")
-    try:
-        w, h = (int(v) for v in args.size.lower().split("x"))
-    except ValueError:
-        raise UsageError(f"--size must look like 320x240, got {args.size!r}") from None
-    if w < 1 or h < 1:
-        raise UsageError(f"--size must be positive, got {args.size!r}")
+    w, h = parse_size(args.size, lo=1)
     if args.stereo and args.dome == "none":
         raise UsageError("--stereo needs --dome omnimax or domemaster")
     bad = [f for f in frames if not 1 <= f <= args.film_frames]

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .cli import UsageError
+from ..core.errors import UsageError
 
 HELP = "solve multiple scattering in a cloud (Fig. 6) and render orbit views (PNG, radiance, optional VDB)"
 

@@ -17,7 +17,8 @@ import sys
 from pathlib import Path
 
 from ..core.files import atomic_write
-from .cli import UsageError
+from ..core.errors import UsageError
+from ..core.parse import parse_range
 from .reader_options import add_reader_options, open_with_overrides
 
 HELP = "resample a variable into a sparse VDB volume sequence (one .vdb per time step) for Blender"
@@ -45,19 +46,6 @@ def add_arguments(p):
     p.add_argument("--prefix", default="clouds", help="file name prefix (default clouds)")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     add_reader_options(p)
-
-
-def _steps(text, nt):
-    if not text:
-        return 0, nt - 1
-    try:
-        a, _, b = text.partition("-")
-        first, last = int(a), int(b or a)
-    except ValueError:
-        raise UsageError(f"--steps must look like A-B, got {text!r}") from None
-    if not (0 <= first <= last < nt):
-        raise UsageError(f"--steps {text} is outside 0-{nt - 1}")
-    return first, last
 
 
 def run(args):
@@ -94,7 +82,8 @@ def run(args):
     if color_var and color_var != "altitude" and color_var not in ds:
         raise DataError(f"no such colour variable (available: altitude, {', '.join(sorted(ds.variables))})",
                         path=args.source, field=color_var)
-    first, last = _steps(args.steps, ds.times.size)
+    nt = ds.times.size
+    first, last = parse_range(args.steps, "--steps", lo=0, hi=nt - 1) if args.steps else (0, nt - 1)
     if not np.isfinite(ds.read(args.var, first)).any():  # cheap: the bake reads this step from the cache
         raise DataError(f"every value at time step {first} is missing (NaN): nothing to show", path=ds.source,
                         field=ds.resolve(args.var))

@@ -22,8 +22,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..addon.render_device import DEVICES
-from ..core.errors import DataError
-from .cli import UsageError
+from ..core.errors import DataError, UsageError
 from .frames import FORMATS, TMP_DIR, InvalidFrame, check_image, chunks, format_frames, frame_name, parse_frames
 from .manifest import Manifest, classify, file_entry, views_entry
 
