@@ -15,7 +15,7 @@ import bpy
 
 from ..core.pipeline.cache import default_cache_dir
 from . import data_ops, frame
-from .vdb import bake_frame
+from ..volume_files import bake_frame
 
 
 class BakeJob:

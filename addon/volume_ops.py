@@ -34,7 +34,7 @@ from ..core.volume.volume_atlas import DEFAULT_BELOW, DEFAULT_SUPPORT_SIZE, atla
 from . import data_ops, frame, materials, tf_ramp
 from .panel import SubPanel
 from .mesh import select_only
-from .vdb import bake_frame, bake_sequence, frame_path
+from ..volume_files import bake_frame, bake_sequence, frame_path
 
 KIND = "volume"
 OBJECT_NAME = "Nephele Clouds"
@@ -333,7 +333,7 @@ def add_volume_clouds(var="cloud", tf=None, *, source=None, color_var=ALTITUDE, 
     -------
     (bpy.types.Object, list of dict)
         The object and the per-frame bake summaries (see
-        :func:`~nephele.addon.vdb.bake_sequence`).
+        :func:`~nephele.volume_files.bake_sequence`).
     """
     scene = scene or bpy.context.scene
     cfg = data_ops.settings(scene)
@@ -394,7 +394,7 @@ def add_volume_clouds(var="cloud", tf=None, *, source=None, color_var=ALTITUDE, 
     # Content-addressed entries (the farm's precompute): safe to share, named by their keys.
     cache = default_cache_dir(bpy.data.filepath or None) if cache is None else cache
     if mode == EXACT:
-        from .volume_exact import write_exr
+        from ..volume_files import write_exr
 
         layout = atlas_layout(ds.grid, params["radius"], params["exaggeration"])
         write_exr(out_dir / f"{PREFIX}_heights.exr", layout.heights)

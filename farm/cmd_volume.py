@@ -7,7 +7,7 @@ In the exact mode (the default) each ``.vdb`` holds the support grid, an
 ``.exr`` of the same name the values atlas, and ``clouds_heights.exr`` the
 level heights (a curvilinear grid adds ``clouds_index.exr``, its column
 index map); ``sequence.json`` then carries the atlas ``layout`` the material
-needs (:mod:`nephele.addon.volume_exact`) and, for a rotated-pole grid, the
+needs (:mod:`nephele.volume_files`) and, for a rotated-pole grid, the
 ``rotation`` (3×3, rows) that turns the volume object into place.
 """
 
@@ -94,11 +94,11 @@ def run(args):
         "exaggeration": exaggeration, "radius": args.radius,
         "frame_start": 1 - first, "hours_per_frame": step_hours, "mode": args.mode,
     }
-    from ..addon.vdb import bake_sequence
+    from ..volume_files import bake_sequence
 
     out = Path(args.out)
     if args.mode == "exact":
-        from ..addon.volume_exact import write_exr
+        from ..volume_files import write_exr
         from ..core.volume.volume_atlas import DEFAULT_SUPPORT_SIZE, atlas_layout
 
         support = DEFAULT_SUPPORT_SIZE if args.support_size is None else args.support_size

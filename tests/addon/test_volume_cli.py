@@ -27,7 +27,7 @@ def test_writes_sequence_and_metadata(tmp_path, capsys):
 
 
 def test_exact_mode_writes_atlases_the_core_reproduces(tmp_path, capsys):
-    from nephele.addon.volume_exact import read_exr
+    from nephele.volume_files import read_exr
     from nephele.core.climate.readers import open_dataset
     from nephele.core.volume.transfer import TransferFunction
     from nephele.core.volume.volume_atlas import atlas_layout, exact_volume

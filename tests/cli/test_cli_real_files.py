@@ -150,7 +150,7 @@ def test_exact_volume_on_curvilinear_and_rotated_grids(tmp_path, capsys):
     # The exact mode places both: a 2-D lat/lon grid through its column index map, a rotated pole by the
     # rotation the volume object takes (refused before).
     pytest.importorskip("xarray")
-    from nephele.addon.volume_exact import read_exr
+    from nephele.volume_files import read_exr
     from nephele.core.climate.readers import open_dataset
     from nephele.core.volume.volume_atlas import atlas_layout
 
