@@ -151,10 +151,6 @@ def cloud_material(name="Nephele Advected Clouds", fractal=Fractal(), lo=0.08, h
     return mat
 
 
-def _plan(obj, params, scene, frame_number):
-    return contour_ops.plan(obj, params, scene, frame_number, kind=KIND, task_params=advect_task.advect_task_params)
-
-
 def _stream(tp):
     """The streamed strategy the task will use for ``tp`` (None for the full trace, which keeps no state)."""
     if tp["strategy"] == "full":
@@ -199,7 +195,7 @@ def _progress(args):
     return ""
 
 
-update_advected = frame.register_job(KIND, _plan, _compute, contour_ops.apply, _progress)
+update_advected = frame.register_job(KIND, contour_ops.plan, _compute, contour_ops.apply, _progress)
 """Synchronous updater: the contour and texture start coordinates of a frame."""
 
 

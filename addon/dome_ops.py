@@ -366,14 +366,14 @@ def render_dome_eevee(filepath, *, scene=None, face_size=None, supersample=None,
     camera = dome_from_params(p)
     n = int(face_size or p.get("face_size") or default_face_size(camera))
     ss = int(supersample or p.get("supersample") or 2)
-    from ..core.pipeline.cache import Cache, check_memory, default_cache_dir
+    from ..core.pipeline.cache import Cache, check_memory
 
     # The remap table (a face index and two coordinates, float64, per supersample) and the
     # six RGBA float faces, before they are allocated.
     check_memory(camera.width * camera.height * ss * ss * 24 + 6 * n * n * 16 * 2,
                  f"the cube-map dome frame {camera.width}x{camera.height} (cube face {n}, supersample {ss})",
                  field="width")
-    table = core_dome.stored_remap_table(camera, "cube", n, ss, Cache(default_cache_dir(bpy.data.filepath or None)))
+    table = core_dome.stored_remap_table(camera, "cube", n, ss, Cache(frame.results_dir()))
     filepath = Path(filepath)
     eyes = core_dome.stereo_eyes(p["separation"]) if p.get("stereo") else {"": np.zeros(3)}
     written = []

@@ -530,10 +530,12 @@ class ScatterJob:
                 except StopIteration as stop:
                     self.solution = stop.value
                     scatter.save_solution(self.solution, self.directory / "solution.npz")
-                    from ..core.pipeline.cache import Cache, default_cache_dir
+                    from ..core.pipeline.cache import Cache
+                    from ..core.pipeline.kinds import KINDS
+                    from .frame import results_dir
 
-                    Cache(default_cache_dir(bpy.data.filepath or None)).store(
-                        "scatter", self.task, scatter.solution_arrays(self.solution))
+                    (kind,) = KINDS[KIND].tasks  # stored where the farm's plan for this object looks
+                    Cache(results_dir()).store(kind, self.task, scatter.solution_arrays(self.solution))
             elif self.view_index < len(self.frames):
                 self._write_view(self.frames[self.view_index])
                 self.view_index += 1

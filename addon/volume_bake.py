@@ -13,7 +13,6 @@ import threading
 
 import bpy
 
-from ..core.pipeline.cache import default_cache_dir
 from . import data_ops, frame
 from ..volume_files import bake_frame
 
@@ -31,7 +30,7 @@ class BakeJob:
         self.frames = [cur] + [f for f in range(f0, f1 + 1) if f != cur]
         self.f0, self.prefix = f0, PREFIX
         self.directory = data_ops.layer_dir(self.params)
-        self.cache = default_cache_dir(bpy.data.filepath or None)
+        self.cache = frame.results_dir()
         self.infos, self.error = [], None
         self.cancelled = False
         self._thread = None

@@ -27,7 +27,7 @@ from mathutils import Matrix
 
 from ..core.errors import DataError
 from ..core.climate.grid import EARTH_RADIUS
-from ..core.pipeline.cache import check_memory, default_cache_dir, format_bytes
+from ..core.pipeline.cache import check_memory, format_bytes
 from ..core.volume.sparse import ALTITUDE, DEFAULT_EXTINCTION, DEFAULT_VOXEL_SIZE, EXACT, VOXELS
 from ..core.volume.transfer import ALTITUDE_COLORS, TEMPERATURE_COLORS, ColorMap, TransferFunction
 from ..core.volume.volume_atlas import DEFAULT_BELOW, DEFAULT_SUPPORT_SIZE, atlas_layout
@@ -321,7 +321,7 @@ def add_volume_clouds(var="cloud", tf=None, *, source=None, color_var=ALTITUDE, 
         workers then only converts cached arrays into .vdb files).
     cache : str or Cache, optional
         Resampled volumes to use instead of resampling (default: the
-        scene's cache, :func:`~nephele.core.pipeline.cache.default_cache_dir`).
+        scene's cache, :func:`.frame.results_dir`).
     mode : {"exact", "voxels"}
         ``"exact"`` (default): the material evaluates the curvilinear field
         at every sample from atlas images (:mod:`.volume_exact`), the
@@ -392,7 +392,7 @@ def add_volume_clouds(var="cloud", tf=None, *, source=None, color_var=ALTITUDE, 
                      below=below if mode == EXACT else 0.0)
     out_dir = volume_dir(name, directory)
     # Content-addressed entries (the farm's precompute): safe to share, named by their keys.
-    cache = default_cache_dir(bpy.data.filepath or None) if cache is None else cache
+    cache = frame.results_dir() if cache is None else cache
     if mode == EXACT:
         from ..volume_files import write_exr
 
@@ -452,7 +452,7 @@ def _write_frame(obj, params, scene, frame_number):
     f0, f1 = params["frames"]
     f = min(max(int(round(frame_number)), int(f0)), int(f1))
     bake_frame(params, f, f - int(f0) + 1, data_ops.layer_dir(params), PREFIX,
-               cache=default_cache_dir(bpy.data.filepath or None))
+               cache=frame.results_dir())
 
 
 def data_range(ds, var, params, f0, f1, samples=24):

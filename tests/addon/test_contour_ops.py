@@ -162,7 +162,7 @@ def test_saved_blend_renders_the_same_in_a_fresh_process(empty_scene, tmp_path, 
     scene.render.resolution_percentage = 100
     blend = tmp_path / "scene.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(blend))
-    cache = contour_ops.cache_dir()
+    cache = frame.results_dir()
     assert cache.parent == tmp_path
     v1 = mesh_arrays(obj.data)[0].copy()
     scene.frame_set(13)

@@ -10,7 +10,7 @@ from nephele.addon import contour_ops, data_ops, frame, layers  # noqa: E402
 
 @pytest.fixture
 def scene(empty_scene, tmp_path, monkeypatch):
-    monkeypatch.setattr(contour_ops, "cache_dir", lambda: tmp_path / "cache")
+    monkeypatch.setattr(frame, "results_dir", lambda: tmp_path / "cache")
     data_ops.set_settings(empty_scene, source="demo:small", hours_per_frame=1.0)
     empty_scene.frame_set(13)
     return empty_scene

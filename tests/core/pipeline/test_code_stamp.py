@@ -6,7 +6,7 @@ from pathlib import Path
 import pytest
 
 import nephele.core as core
-from nephele.core.pipeline import cache, codehash, registry
+from nephele.core.pipeline import cache, codehash, registry, tasks
 
 CORE = Path(core.__file__).resolve().parent
 
@@ -31,7 +31,7 @@ def copy_root(tmp_path_factory):
 
 @pytest.mark.parametrize("kind", sorted(KINDS))
 def test_registered_task_module_matches(kind):
-    registry.load_all()
+    tasks.load_all()
     assert Path(registry.TASKS[kind].__code__.co_filename).name == KINDS[kind][0]
     assert len(registry.code_stamp(kind)) == 16
 
