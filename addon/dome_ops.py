@@ -455,7 +455,7 @@ class NEPHELE_OT_add_dome_camera(bpy.types.Operator):
     bl_options = {"REGISTER", "UNDO"}
 
     preset: bpy.props.EnumProperty(name="Preset", items=_PRESET_ITEMS)
-    # No hard limits here: out-of-range values reach core.dome, which refuses them by name
+    # No hard limits here: out-of-range values reach core.camera.dome, which refuses them by name
     # (a clamp would silently render something else).
     tilt: bpy.props.FloatProperty(name="Dome tilt", default=25.0)
     fov: bpy.props.FloatProperty(name="Field of view", default=180.0)
