@@ -385,40 +385,12 @@ def render_splats(
     order = np.argsort(scr.key, kind="stable")  # front first
     counts = (scr.bbox[order, 1] - scr.bbox[order, 0] + 1) * (scr.bbox[order, 3] - scr.bbox[order, 2] + 1)
     ends = np.cumsum(counts)
-    if maps is not None:
-        levels = 6
-        layers = np.concatenate([_pyramid(m, levels) for m in maps])
-        mean = float(maps.mean())
-        n_maps, size = maps.shape[0], max(maps.shape[1:])
-        k = np.floor(n_maps * np.mod(scr.rate * float(hours), 1.0)).astype(np.int64) % n_maps
-        per_px = size * np.linalg.norm(scr.tex, ord=2, axis=(1, 2))  # texels per pixel, largest direction
-        level = np.clip(np.round(np.log2(np.maximum(per_px, 1.0))), 0, levels - 1).astype(np.int64)
-        layer = k * levels + level
+    streak = None if maps is None else _streak_layers(maps, scr, hours, streak_contrast)
     start = 0
     while start < order.size:
         stop = max(start + 1, int(np.searchsorted(ends, (ends[start - 1] if start else 0) + MAX_FRAGMENTS, side="right")))
-        batch = order[start:stop]
+        pix, tau, rgb = _batch_fragments(scr, order[start:stop], kernel, w, depth, streak, color_of)
         start = stop
-        s, col, row = _fragments(scr, batch, kernel.radius, w)
-        dx = col + 0.5 - scr.center[s, 0]
-        dy = row + 0.5 - scr.center[s, 1]
-        q = scr.conic[s]
-        rho2 = q[:, 0, 0] * dx * dx + 2.0 * q[:, 0, 1] * dx * dy + q[:, 1, 1] * dy * dy
-        inside = rho2 < kernel.radius**2
-        if depth is not None:
-            inside &= scr.key[s] <= depth[row * w + col]
-        s, dx, dy, rho2, col, row = s[inside], dx[inside], dy[inside], rho2[inside], col[inside], row[inside]
-        tau = scr.amplitude[s] * kernel.footprint_rho2(rho2)
-        if maps is not None:
-            t, off = scr.tex[s], scr.tex_offset[s]
-            a = t[:, 0, 0] * dx + t[:, 0, 1] * dy + off[:, 0]
-            b = t[:, 1, 0] * dx + t[:, 1, 1] * dy + off[:, 1]
-            tau = tau * ((1.0 - streak_contrast) + streak_contrast / mean * _lookup(layers, layer[s], a, b))
-        pix = (row * w + col).astype(np.int32)
-        # Stable sort by pixel keeps each pixel's fragments front to back.
-        o = np.argsort(pix, kind="stable")
-        pix, tau = pix[o], tau[o]
-        rgb = color_of[s[o]]
         cum = np.cumsum(tau)
         before = cum - tau
         first = np.concatenate([[True], pix[1:] != pix[:-1]]) if pix.size else np.zeros(0, bool)
@@ -432,6 +404,43 @@ def render_splats(
     out[..., :3] = color.reshape(h, w, 3)
     out[..., 3] = (1.0 - trans).reshape(h, w)
     return out
+
+
+def _streak_layers(maps, scr, hours, contrast):
+    """What the fragments need of the streak maps: the mip pyramids, each splat's layer (its map at
+    ``hours`` and its level of detail), the maps' mean and the contrast."""
+    levels = 6
+    layers = np.concatenate([_pyramid(m, levels) for m in maps])
+    n_maps, size = maps.shape[0], max(maps.shape[1:])
+    k = np.floor(n_maps * np.mod(scr.rate * float(hours), 1.0)).astype(np.int64) % n_maps
+    per_px = size * np.linalg.norm(scr.tex, ord=2, axis=(1, 2))  # texels per pixel, largest direction
+    level = np.clip(np.round(np.log2(np.maximum(per_px, 1.0))), 0, levels - 1).astype(np.int64)
+    return {"layers": layers, "layer": k * levels + level, "mean": float(maps.mean()), "contrast": contrast}
+
+
+def _batch_fragments(scr, batch, kernel, w, depth, streak, color_of):
+    """The fragments of splats ``batch`` inside their footprints (and in front of ``depth``), sorted by
+    pixel, each pixel's front to back: ``(pixel, optical depth, colour)``."""
+    s, col, row = _fragments(scr, batch, kernel.radius, w)
+    dx = col + 0.5 - scr.center[s, 0]
+    dy = row + 0.5 - scr.center[s, 1]
+    q = scr.conic[s]
+    rho2 = q[:, 0, 0] * dx * dx + 2.0 * q[:, 0, 1] * dx * dy + q[:, 1, 1] * dy * dy
+    inside = rho2 < kernel.radius**2
+    if depth is not None:
+        inside &= scr.key[s] <= depth[row * w + col]
+    s, dx, dy, rho2, col, row = s[inside], dx[inside], dy[inside], rho2[inside], col[inside], row[inside]
+    tau = scr.amplitude[s] * kernel.footprint_rho2(rho2)
+    if streak is not None:
+        t, off = scr.tex[s], scr.tex_offset[s]
+        a = t[:, 0, 0] * dx + t[:, 0, 1] * dy + off[:, 0]
+        b = t[:, 1, 0] * dx + t[:, 1, 1] * dy + off[:, 1]
+        c = streak["contrast"]
+        tau = tau * ((1.0 - c) + c / streak["mean"] * _lookup(streak["layers"], streak["layer"][s], a, b))
+    pix = (row * w + col).astype(np.int32)
+    # Stable sort by pixel keeps each pixel's fragments front to back.
+    o = np.argsort(pix, kind="stable")
+    return pix[o], tau[o], color_of[s[o]]
 
 
 def _check_streaks(streaks, hours, contrast):

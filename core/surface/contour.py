@@ -126,26 +126,7 @@ def isosurface(points, values, level, *, periodic_lon=False, method="cubes", att
     .. [1] W. E. Lorensen and H. E. Cline, "Marching cubes", SIGGRAPH 1987.
     .. [2] N. Max and R. Crawfis, "Advances in Scientific Visualization".
     """
-    points = np.asarray(points)
-    values = np.asarray(values)
-    if values.ndim != 3 or min(values.shape) < 2:
-        raise DataError(f"needs shape (nk, nj, ni) with every size >= 2, got {values.shape}", field="values")
-    if points.shape != values.shape + (3,):
-        raise DataError(f"shape {points.shape} does not match values {values.shape} + (3,)", field="points")
-    if not np.all(np.isfinite(points)):
-        raise DataError("has NaN or infinite positions", field="points")
-    if periodic_lon and values.shape[2] < 3:
-        raise DataError(f"a periodic ring needs at least 3 longitudes, got {values.shape[2]}", field="values")
-    if method not in METHODS:
-        raise DataError(f"unknown method {method!r}; use one of {', '.join(METHODS)}", field="method")
-    level = float(level)
-    if not np.isfinite(level):
-        raise DataError(f"must be finite, got {level}", field="level")
-    attributes = dict(attributes or {})
-    for name, a in attributes.items():
-        if np.shape(a) != values.shape:
-            raise DataError(f"shape {np.shape(a)} does not match values {values.shape}", field=name)
-
+    points, values, level, attributes = _check_inputs(points, values, level, periodic_lon, method, attributes)
     dtype = values.dtype if values.dtype in (np.float32, np.float64) else np.float64
     values = values.astype(dtype, copy=False)
     # The level in the values' precision: a float32 value that reads 0.15 is at the level 0.15.
@@ -173,6 +154,45 @@ def isosurface(points, values, level, *, periodic_lon=False, method="cubes", att
     if len(faces) == 0:
         return Mesh.empty(attributes)
 
+    vertices, attrs = _edge_vertices(points, values, level, attributes, a, b, faces, ncentre)
+    faces, keep = _weld(a, b, faces, values.shape, pole_rows, len(vertices), drop_unused=has_nan or ncentre > 0)
+    if len(faces) == 0:
+        return Mesh.empty(attributes)
+    if keep is not None:
+        vertices = vertices[keep]
+        attrs = {name: x[keep] for name, x in attrs.items()}
+    vertices = vertices.astype(np.float32)
+    attrs = {name: x.astype(np.float32) for name, x in attrs.items()}
+    return Mesh(vertices, faces, vertex_normals(vertices, faces), attrs)
+
+
+def _check_inputs(points, values, level, periodic_lon, method, attributes):
+    """:func:`isosurface`'s arguments as arrays, each bad one a :class:`DataError` naming it."""
+    points = np.asarray(points)
+    values = np.asarray(values)
+    if values.ndim != 3 or min(values.shape) < 2:
+        raise DataError(f"needs shape (nk, nj, ni) with every size >= 2, got {values.shape}", field="values")
+    if points.shape != values.shape + (3,):
+        raise DataError(f"shape {points.shape} does not match values {values.shape} + (3,)", field="points")
+    if not np.all(np.isfinite(points)):
+        raise DataError("has NaN or infinite positions", field="points")
+    if periodic_lon and values.shape[2] < 3:
+        raise DataError(f"a periodic ring needs at least 3 longitudes, got {values.shape[2]}", field="values")
+    if method not in METHODS:
+        raise DataError(f"unknown method {method!r}; use one of {', '.join(METHODS)}", field="method")
+    level = float(level)
+    if not np.isfinite(level):
+        raise DataError(f"must be finite, got {level}", field="level")
+    attributes = dict(attributes or {})
+    for name, a in attributes.items():
+        if np.shape(a) != values.shape:
+            raise DataError(f"shape {np.shape(a)} does not match values {values.shape}", field=name)
+    return points, values, level, attributes
+
+
+def _edge_vertices(points, values, level, attributes, a, b, faces, ncentre):
+    """Vertices (float64) and attributes interpolated on the cut edges ``(a, b)``, then the ``ncentre``
+    loop centres the cube cases' fans need (:func:`_with_centres`)."""
     vflat = values.reshape(-1)
     va = vflat[a].astype(np.float64)
     vb = vflat[b].astype(np.float64)
@@ -192,16 +212,7 @@ def isosurface(points, values, level, *, periodic_lon=False, method="cubes", att
     if ncentre:
         vertices = _with_centres(vertices, faces, ncentre)
         attrs = {name: _with_centres(x, faces, ncentre) for name, x in attrs.items()}
-
-    faces, keep = _weld(a, b, faces, values.shape, pole_rows, len(vertices), drop_unused=has_nan or ncentre > 0)
-    if len(faces) == 0:
-        return Mesh.empty(attributes)
-    if keep is not None:
-        vertices = vertices[keep]
-        attrs = {name: x[keep] for name, x in attrs.items()}
-    vertices = vertices.astype(np.float32)
-    attrs = {name: x.astype(np.float32) for name, x in attrs.items()}
-    return Mesh(vertices, faces, vertex_normals(vertices, faces), attrs)
+    return vertices, attrs
 
 
 def _with_centres(x, faces, ncentre):

@@ -13,9 +13,12 @@ from .exact_ray import (  # noqa: F401
     sphere_span,
     volume_optical_depth,
 )
+from .curvilinear import (  # noqa: F401
+    CurvilinearField,
+    LevelTable,
+)
 from .sparse import (  # noqa: F401
     ALTITUDE,
-    CurvilinearField,
     DEFAULT_EXTINCTION,
     DEFAULT_VOXEL_SIZE,
     EXACT,

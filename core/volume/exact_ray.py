@@ -12,7 +12,7 @@ with ``F`` the (piecewise-quadratic) antiderivative of ``τ`` — the segment
 split at every breakpoint, done in closed form.
 
 The reference caster samples the curvilinear field (trilinear in each cell,
-exactly as :class:`~nephele.core.volume.sparse.CurvilinearField` defines it) at
+exactly as :class:`~nephele.core.volume.curvilinear.CurvilinearField` defines it) at
 small steps along each ray, treats the scalar as linear between samples and
 integrates each piece exactly.  The only approximation is the scalar's
 linearity between samples (second order in the step); the threshold's kink,

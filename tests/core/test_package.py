@@ -75,4 +75,4 @@ def test_former_flat_names_warn_until_they_end():
     with pytest.warns(DeprecationWarning, match="ends in Nephele 0.2: use nephele.core.climate.grid"):
         assert core.grid is grid
     with pytest.raises(AttributeError):
-        core.no_such_name
+        _ = core.no_such_name

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from nephele.core.flow import advect, flows
+from nephele.core.flow import _grid_index, advect, flows
 from nephele.core.climate.grid import GlobeGrid, lonlat_to_xyz
 from nephele.core.climate.synthetic import demo_dataset
 
@@ -25,7 +25,7 @@ def random_points(n, rng, lat_max=90.0, lon=(-180.0, 180.0)):
 @pytest.mark.parametrize("periodic", [True, False])
 def test_padded_field_layout(periodic):
     g = sphere_grid(periodic=periodic)
-    ix = advect._GridIndex(g, pad=2)
+    ix = _grid_index._GridIndex(g, pad=2)
     nk, nj, ni = g.shape
     f = np.random.default_rng(0).normal(size=g.shape + (2,)).astype(np.float32)
     p = ix.padded(f)
@@ -46,7 +46,7 @@ def test_padded_field_layout(periodic):
 
 def test_stencils_reproduce_linear_fields_and_wrap_the_seam():
     g = sphere_grid(ni=32, nj=16, nk=4)
-    ix = advect._GridIndex(g, pad=2)
+    ix = _grid_index._GridIndex(g, pad=2)
     nk, nj, ni = g.shape
     k, j, i = np.meshgrid(np.arange(nk), np.arange(nj), np.arange(ni), indexing="ij")
     lin = (3.0 + 0.25 * i - 0.5 * j + 2.0 * k)[..., None]
@@ -70,7 +70,7 @@ def test_stencils_reproduce_linear_fields_and_wrap_the_seam():
 
 def test_stencils_cross_the_pole_and_propagate_nan():
     g = sphere_grid(ni=64, nj=32, nk=2)
-    ix = advect._GridIndex(g, pad=2)
+    ix = _grid_index._GridIndex(g, pad=2)
     f = advect.grid_vertices(g)[: 32 * 64, 0].reshape(g.shape[1:])  # x of the unit vector: smooth over the poles
     field = np.broadcast_to(f, g.shape)[..., None].astype(np.float32)
     rng = np.random.default_rng(2)
@@ -86,7 +86,7 @@ def test_stencils_cross_the_pole_and_propagate_nan():
 
 def test_one_gather_of_stacked_maps_equals_separate_gathers():
     g = sphere_grid(ni=32, nj=16, nk=4)
-    ix = advect._GridIndex(g, pad=2)
+    ix = _grid_index._GridIndex(g, pad=2)
     rng = np.random.default_rng(3)
     a, b = (rng.normal(size=g.shape + (4,)).astype(np.float32) for _ in range(2))
     fr = ix.fractional(random_points(1000, rng), rng.uniform(0, 3, 1000))
