@@ -11,7 +11,7 @@ BPY52 := build/venv-bpy52
 BPY50 := build/venv-bpy50
 PYTEST_ARGS ?=
 
-.PHONY: demo test test-main test-core311 test-extension test-slurm test-bench bench extension clean
+.PHONY: demo lint test test-main test-core311 test-extension test-slurm test-bench bench extension clean
 
 $(VENV)/.stamp: requirements.txt pyproject.toml
 	$(PY313) -m venv $(VENV)
@@ -59,6 +59,10 @@ demo: $(VENV)/.stamp $(VENV)/.native
 	$(VENV)/bin/nephele demo --out out/demo
 
 test: test-main test-core311 test-extension test-slurm test-bench
+
+# pyflakes, pycodestyle, isort and bugbear with the configuration in pyproject.toml.
+lint: $(VENV)/.stamp
+	$(VENV)/bin/ruff check .
 
 test-main: $(VENV)/.stamp $(VENV)/.native
 	$(VENV)/bin/python -m pytest --ignore=tests/extension --ignore=tests/farm/slurm $(PYTEST_ARGS)

@@ -100,7 +100,11 @@ def write_volume(path, volume, *, metadata=None):
     """
     grids = [block_grid(DENSITY, volume.blocks, volume.density, volume.block, volume.voxel_size)]
     if volume.color is not None and volume.color_name:
-        bg = float(volume.color[volume.density > 0].mean()) if volume.density.size and (volume.density > 0).any() else 0.0
+        bg = (
+            float(volume.color[volume.density > 0].mean())
+            if volume.density.size and (volume.density > 0).any()
+            else 0.0
+        )
         grids.append(block_grid(volume.color_name, volume.blocks, volume.color, volume.block, volume.voxel_size, bg))
     return write_vdb(path, grids, metadata or {})
 

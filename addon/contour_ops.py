@@ -89,11 +89,6 @@ def empty_message(obj):
             f"the data range is {st['min']:.4g} to {st['max']:.4g}")
 
 
-def plan(obj, params, scene, frame_number):
-    """Plan of a contour layer for :func:`nephele.addon.frame.register_job` (None when shown)."""
-    return frame.plan_task(obj, params, frame_number)
-
-
 def compute(args, job=None):
     """Worker side: the mesh arrays (cache or computed) and the field's range; no ``bpy``."""
     tp = args["tp"]
@@ -113,7 +108,7 @@ def apply(obj, args, result):
         obj["nephele_range"] = json.dumps(result["stats"])
 
 
-update_contour = frame.register_job("contour", plan, compute, apply)
+update_contour = frame.register_job("contour", frame.plan_task, compute, apply)
 """Synchronous updater ``(obj, params, scene, frame)`` (headless, renders, and the add dialog)."""
 
 

@@ -136,7 +136,7 @@ def shown_task(kind, task_params):
     return json.dumps(dict(task_params, code=code_stamp(kind)), sort_keys=True)
 
 
-def plan_task(obj, params, frame_number, shown_key=shown_task):
+def plan_task(obj, params, scene, frame_number, shown_key=shown_task):
     """The plan (see :class:`JobKind`) of a layer whose frame is one core task.
 
     The task comes from :func:`nephele.core.pipeline.tasks.plan`, as on the

@@ -29,7 +29,6 @@ def globe_scene(scene, o, *, sun_direction, haze=True, haze_mode="volume"):
     (None: :data:`nephele.core.climate.grid.DEFAULT_EXAGGERATION`).
     """
     from ..core.climate.grid import DEFAULT_EXAGGERATION
-
     from . import data_ops, globe_ops
 
     exaggeration = DEFAULT_EXAGGERATION if o["exaggeration"] is None else float(o["exaggeration"])

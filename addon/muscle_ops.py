@@ -24,10 +24,10 @@ import math
 import bpy
 import numpy as np
 
-from ..core.surface.mesh import Mesh
 from ..core.muscle import film
 from ..core.muscle import lattice as lat
 from ..core.pipeline.tasks import run_cached
+from ..core.surface.mesh import Mesh
 from . import frame, materials
 from .mesh import fill_mesh, new_object, select_only
 from .panel import SubPanel
@@ -61,7 +61,7 @@ def plan(obj, params, scene, frame_number):
 
     The first frame shown needs the whole simulation (tens of seconds): in the
     interface it runs on the worker thread like every other frame.  The film frame names the result."""
-    return frame.plan_task(obj, params, frame_number, lambda kind, tp: tp["frame"])
+    return frame.plan_task(obj, params, scene, frame_number, lambda kind, tp: tp["frame"])
 
 
 def compute(args, job=None):
@@ -151,7 +151,8 @@ def add_camera(scene, obj, cell, tiles):
     mid = (cell.thick_xy[0] + cell.thick_xy[1]) / 2
     local = np.array([mid[0], mid[1], 0.1 * cell.length]) + np.array([t // 2 for t in tiles]) * cell.box
     cam.location = tuple(SCALE * local + np.array(obj.location))
-    # Cameras look along their -z: turned to look up the fibre (+z), 25 degrees off its axis to see the filaments recede.
+    # Cameras look along their -z: turned to look up the fibre (+z), 25 degrees off its axis to see the
+    # filaments recede.
     cam.rotation_euler = (math.pi - math.radians(25), 0.0, math.radians(15))
     scene.collection.objects.link(cam)
     scene.camera = cam

@@ -31,15 +31,14 @@ References
 
 import zlib
 
+import bpy
 import numpy as np
 
-import bpy
-
-from ..core.surface.contour_task import frame_hours
 from ..core.errors import DataError
 from ..core.splats import default_tile, splat_kernel, splat_samples, streak_maps, streak_offsets
-from ..core.volume.transfer import TransferFunction
+from ..core.surface.contour_task import frame_hours
 from ..core.volume.sparse import DEFAULT_EXTINCTION
+from ..core.volume.transfer import TransferFunction
 from . import data_ops, frame
 from .mesh import select_only, set_point_attribute
 from .nodes import Nodes
@@ -563,7 +562,9 @@ def _bilinear_lookup(tree, image, u, v, name, loc):
                             interpolation="Closest") for i, uu in enumerate((u0, u1))] for j, vv in enumerate((v0, v1))]
 
     def lerp(a, b, f, yy):
-        return _sh_math(tree, "MULTIPLY_ADD", _sh_math(tree, "SUBTRACT", b, a, loc=(x + 700, yy)), f, a, loc=(x + 850, yy))
+        return _sh_math(
+            tree, "MULTIPLY_ADD", _sh_math(tree, "SUBTRACT", b, a, loc=(x + 700, yy)), f, a, loc=(x + 850, yy)
+        )
 
     return lerp(lerp(*reads[0], fu, y), lerp(*reads[1], fu, y - 150), fv, y - 75)
 

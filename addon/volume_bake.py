@@ -13,8 +13,8 @@ import threading
 
 import bpy
 
-from . import data_ops, frame
 from ..volume_files import bake_frame
+from . import data_ops, frame
 
 
 class BakeJob:
@@ -115,7 +115,9 @@ class NEPHELE_OT_bake_volume(bpy.types.Operator):
             return {"CANCELLED"}
         n, total = len(job.infos), len(job.frames)
         if n < total:
-            self.report({"WARNING"}, f"{job.name}: stopped after {n} of {total} frames; the rest are written when shown")
+            self.report(
+                {"WARNING"}, f"{job.name}: stopped after {n} of {total} frames; the rest are written when shown"
+            )
             return {"CANCELLED"}
         self.report({"INFO"}, f"{job.name}: {total} frames in {job.directory}")
         return {"FINISHED"}

@@ -120,7 +120,9 @@ def _index_nodes(g, position, index, image):
     """:meth:`IndexMap.lookup` as nodes: ``(column, row, front)`` sockets."""
     q = [g.vmath("DOT_PRODUCT", position, tuple(b)) for b in index["basis"]]
     front = g.math("GREATER_THAN", q[2], 0.0)
-    z = g.math("MULTIPLY_ADD", g.math("SUBTRACT", 1.0, front), 1.0, g.math("MULTIPLY", q[2], front))  # 1 behind the globe
+    z = g.math(
+        "MULTIPLY_ADD", g.math("SUBTRACT", 1.0, front), 1.0, g.math("MULTIPLY", q[2], front)
+    )  # 1 behind the globe
     (x0, y0), (x1, y1) = index["lo"], index["hi"]
     u = g.math("MULTIPLY_ADD", g.math("DIVIDE", q[0], z), 1.0 / (x1 - x0), -x0 / (x1 - x0))
     v = g.math("MULTIPLY_ADD", g.math("DIVIDE", q[1], z), 1.0 / (y1 - y0), -y0 / (y1 - y0))

@@ -19,19 +19,18 @@ References
 import math
 from pathlib import Path
 
-import numpy as np
-
 import bpy
+import numpy as np
 from mathutils import Matrix
 
-from ..core.errors import DataError
 from ..core.climate.grid import EARTH_RADIUS
+from ..core.errors import DataError
 from ..core.pipeline.cache import check_memory
 from ..core.volume.sparse import ALTITUDE, DEFAULT_EXTINCTION, DEFAULT_VOXEL_SIZE, EXACT, VOXELS
 from ..core.volume.transfer import ALTITUDE_COLORS, TEMPERATURE_COLORS, ColorMap, TransferFunction
 from ..core.volume.volume_atlas import DEFAULT_BELOW, DEFAULT_SUPPORT_SIZE, atlas_layout
-from . import data_ops, frame, materials
 from ..volume_files import bake_frame, bake_sequence, frame_path
+from . import data_ops, frame, materials
 
 KIND = "volume"
 OBJECT_NAME = "Nephele Clouds"
@@ -397,7 +396,9 @@ def _bake_params(cfg, source, var, tf, cmap, color_var, voxel_size, extinction, 
         "color_var": color_var or "",
         "voxel_size": float(voxel_size),
         "extinction": float(extinction),
-        "exaggeration": cfg["exaggeration"] if exaggeration is None else data_ops.check_setting("exaggeration", exaggeration),
+        "exaggeration": cfg["exaggeration"]
+        if exaggeration is None
+        else data_ops.check_setting("exaggeration", exaggeration),
         "radius": cfg["radius"] if radius is None else data_ops.check_setting("radius", radius),
         "frame_start": cfg["frame_start"],
         "hours_per_frame": cfg["hours_per_frame"],

@@ -9,15 +9,24 @@ import json
 import bpy
 
 from ..core.errors import DataError
+from ..core.pipeline.cache import format_bytes
 from ..core.volume.sparse import ALTITUDE, DEFAULT_EXTINCTION, DEFAULT_VOXEL_SIZE, EXACT, VOXELS
 from ..core.volume.transfer import ColorMap, TransferFunction
 from ..core.volume.volume_atlas import DEFAULT_SUPPORT_SIZE
-from ..core.pipeline.cache import format_bytes
 from . import data_ops, frame, tf_ramp
 from .mesh import select_only
 from .panel import SubPanel
-from .volume_ops import (_obj_params, _within, add_volume_clouds, bake_estimate, default_color_map, empty_message,
-                         look_warnings, refresh_material, volume_look)
+from .volume_ops import (
+    _obj_params,
+    _within,
+    add_volume_clouds,
+    bake_estimate,
+    default_color_map,
+    empty_message,
+    look_warnings,
+    refresh_material,
+    volume_look,
+)
 
 
 def _settings(scene):

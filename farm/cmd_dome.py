@@ -23,7 +23,9 @@ def add_arguments(p):
     p.add_argument("--out", required=True, help="output image (pattern with {frame} for sequences)")
     p.add_argument("--from", dest="kind", choices=("cube", "equirect"), default=None,
                    help="source kind (default: cube when SOURCE has {face} or is a folder, else equirect)")
-    p.add_argument("--preset", choices=("omnimax", "domemaster"), default="omnimax", help="dome frame (default omnimax)")
+    p.add_argument(
+        "--preset", choices=("omnimax", "domemaster"), default="omnimax", help="dome frame (default omnimax)"
+    )
     p.add_argument("--size", metavar="WxH", help="frame size (default 2048x1500 omnimax, 2048x2048 domemaster)")
     p.add_argument("--tilt", type=float, help="dome tilt in degrees (default 25 omnimax, 0 domemaster)")
     p.add_argument("--fov", type=float, help="field of view across the frame width, degrees (default 180)")
@@ -35,9 +37,9 @@ def add_arguments(p):
 
 def load_source(source, kind, frame=None):
     """(6, n, n, C) cube faces or (H, W, C) equirect pixels from files."""
-    from ..fileio import read_image
     from ..core.camera import dome
     from ..core.errors import DataError
+    from ..fileio import read_image
 
     if kind == "equirect":
         return read_image(_path(source.format(frame=frame) if frame is not None else source))
@@ -62,8 +64,8 @@ def _path(p):
 
 
 def run(args):
-    from ..fileio import write_image
     from ..core.camera import dome
+    from ..fileio import write_image
 
     kind = args.kind or ("cube" if "{face}" in args.source or Path(args.source).is_dir() else "equirect")
     w, h = (None, None) if args.size is None else parse_size(args.size, example="2048x1500")

@@ -29,7 +29,9 @@ def add_arguments(p):
     p.add_argument("--spacing", type=float, default=0.8, help="blobby grid spacing in nm (default 0.8; 0.5 fine)")
     p.add_argument("--size", metavar="WxH", default="320x240", help="frame size (default 320x240)")
     p.add_argument("--samples", type=int, default=8, help="Cycles samples (default 8)")
-    p.add_argument("--dome", choices=("none", "omnimax", "domemaster"), default="none", help="dome frame (default none)")
+    p.add_argument(
+        "--dome", choices=("none", "omnimax", "domemaster"), default="none", help="dome frame (default none)"
+    )
     p.add_argument("--stereo", action="store_true", help="left and right eyes (with --dome)")
     p.add_argument("--separation", type=float, default=0.006,
                    help="eye separation in scene units (1 = 100 nm; default 0.006)")
@@ -86,9 +88,9 @@ def run(args):
 def _core_only(args, frames, film):
     import numpy as np
 
-    from ..core.surface.mesh import Mesh
     from ..core.muscle import brownian as br
     from ..core.muscle import film as core_film
+    from ..core.surface.mesh import Mesh
 
     p = core_film.film_params(**film)
     cell, sim = core_film.simulate(p)
@@ -104,9 +106,12 @@ def _core_only(args, frames, film):
     for f in frames:
         a = core_film.frame_meshes(p, f - 1)
         nv = len(a["vertices"])
-        mesh = Mesh(np.concatenate([a["vertices"], a["cyl_vertices"]]), np.concatenate([a["faces"], a["cyl_faces"] + nv]),
-                    np.concatenate([a["normals"], a["cyl_normals"]]),
-                    {"molecule": np.concatenate([a["molecule"], a["cyl_molecule"]]).astype(np.float32)})
+        mesh = Mesh(
+            np.concatenate([a["vertices"], a["cyl_vertices"]]),
+            np.concatenate([a["faces"], a["cyl_faces"] + nv]),
+            np.concatenate([a["normals"], a["cyl_normals"]]),
+            {"molecule": np.concatenate([a["molecule"], a["cyl_molecule"]]).astype(np.float32)},
+        )
         path = mesh.save(out / f"frame_{f:04d}.{args.export}")
         print(path)
     return 0

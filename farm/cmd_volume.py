@@ -16,8 +16,8 @@ import os
 import sys
 from pathlib import Path
 
-from ..core.files import atomic_write
 from ..core.errors import UsageError
+from ..core.files import atomic_write
 from ..core.parse import parse_range
 from .reader_options import add_reader_options, open_with_overrides
 
@@ -37,7 +37,9 @@ def add_arguments(p):
     p.add_argument("--mode", choices=("exact", "voxels"), default="exact",
                    help="exact (default): atlas images for a shader that evaluates the curvilinear field, plus a "
                         "support VDB; voxels: the opacity resampled into a VDB")
-    p.add_argument("--voxel-size", type=float, metavar="S", help="voxel mode: scene units between voxels (default 0.0027)")
+    p.add_argument(
+        "--voxel-size", type=float, metavar="S", help="voxel mode: scene units between voxels (default 0.0027)"
+    )
     p.add_argument("--support-size", type=float, metavar="S",
                    help="exact mode: scene units between support voxels (default 0.01)")
     p.add_argument("--exaggeration", type=float, metavar="E", help="vertical exaggeration (default 30)")
@@ -51,10 +53,10 @@ def add_arguments(p):
 def run(args):
     import numpy as np
 
-    from ..core.errors import DataError
     from ..core.climate.grid import DEFAULT_EXAGGERATION
-    from ..core.volume.transfer import TransferFunction
+    from ..core.errors import DataError
     from ..core.volume.sparse import DEFAULT_VOXEL_SIZE
+    from ..core.volume.transfer import TransferFunction
 
     voxel = DEFAULT_VOXEL_SIZE if args.voxel_size is None else args.voxel_size
     exaggeration = DEFAULT_EXAGGERATION if args.exaggeration is None else args.exaggeration
@@ -98,8 +100,8 @@ def run(args):
 
     out = Path(args.out)
     if args.mode == "exact":
-        from ..volume_files import write_exr
         from ..core.volume.volume_atlas import DEFAULT_SUPPORT_SIZE, atlas_layout
+        from ..volume_files import write_exr
 
         support = DEFAULT_SUPPORT_SIZE if args.support_size is None else args.support_size
         if not (np.isfinite(support) and support > 0):

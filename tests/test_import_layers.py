@@ -119,7 +119,9 @@ def _edges(lazy_too=True):
 
 
 def test_the_tree_is_read():
-    assert len(MODULES) > 100 and {"nephele.core.pipeline.tasks", "nephele.addon.frame", "nephele.farm.cli"} <= set(MODULES)
+    assert len(MODULES) > 100 and {"nephele.core.pipeline.tasks", "nephele.addon.frame", "nephele.farm.cli"} <= set(
+        MODULES
+    )
     assert ("nephele.core.pipeline.cache", False) in IMPORTS["nephele.core.pipeline.tasks"]
 
 

@@ -112,7 +112,12 @@ class _GridIndex:
         fk = np.clip(s, 0.0, self.shape[0] - 1)
         if self.bounded and not clamp:
             eps = 1e-9
-            outside = (d < -eps) | (d > self.lon_axis[-1] + eps) | (lat < self.lat_axis[0] - eps) | (lat > self.lat_axis[-1] + eps)
+            outside = (
+                (d < -eps)
+                | (d > self.lon_axis[-1] + eps)
+                | (lat < self.lat_axis[0] - eps)
+                | (lat > self.lat_axis[-1] + eps)
+            )
             if outside.any():
                 fi[outside] = np.nan
         return fk, fj, fi
@@ -140,7 +145,9 @@ class _GridIndex:
         if self.bounded:
             outside = np.isnan(fi)
             if outside.any():
-                out = self._taps(f, fk, np.where(outside, float(self.pad), fj), np.where(outside, 0.0, fi), cubic, chunk)
+                out = self._taps(
+                    f, fk, np.where(outside, float(self.pad), fj), np.where(outside, 0.0, fi), cubic, chunk
+                )
                 out[outside] = 0.0
                 return out
         return self._taps(f, fk, fj, fi, cubic, chunk)
@@ -175,7 +182,9 @@ class _GridIndex:
         wk = [(1.0 - tk).astype(f32), np.asarray(tk, dtype=f32)]
         wj = [a.astype(f32) for a in (_catmull_rom(tj) if cubic else (1.0 - tj, tj))]
         wi = [a.astype(f32) for a in (_catmull_rom(ti) if cubic else (1.0 - ti, ti))]
-        block = 16 * chunk  # weights made a block at a time: one (taps, n) array would be tens of MB, page-faulted anew each call
+        block = (
+            16 * chunk
+        )  # weights made a block at a time: one (taps, n) array would be tens of MB, page-faulted anew each call
         w = np.empty((offs.size, min(block, n)), dtype=f32)
         for b0 in range(0, n, block):
             nb = min(block, n - b0)

@@ -140,7 +140,11 @@ class _StreamedMap:
         self.map = self.index.padded(np.zeros(strategy.grid.shape + (4 * copies,), dtype=np.float32))
         # Regional grids: 1 near vertices whose start is not the composition's to give (their air came from
         # outside and stopped at the edge); a foot point there is traced directly instead.
-        self.left = self.index.padded(np.zeros(strategy.grid.shape + (copies,), dtype=np.float32)) if self.index.bounded else None
+        self.left = (
+            self.index.padded(np.zeros(strategy.grid.shape + (copies,), dtype=np.float32))
+            if self.index.bounded
+            else None
+        )
         self.frames = [None] * copies
         self.starts = [None] * copies
         self.fallbacks = 0
@@ -183,8 +187,15 @@ class _StreamedMap:
             redo = asked & unsure
             if redo.any():
                 self.fallbacks += int(redo.sum())
-                sx[redo], sz[redo] = trace(st.wind, xyz[redo], s[redo], st.frame_hours[n], st.frame_hours[self.starts[c]],
-                                           vertices=need[redo], **st.opts)
+                sx[redo], sz[redo] = trace(
+                    st.wind,
+                    xyz[redo],
+                    s[redo],
+                    st.frame_hours[n],
+                    st.frame_hours[self.starts[c]],
+                    vertices=need[redo],
+                    **st.opts,
+                )
             if left is not None:  # started outside (stopped at the edge), or composed from such starts
                 flags[:, a] = np.isnan(self.index.fractional(sx, sz)[2]) | (unsure & ~redo)
             values[:, 4 * a : 4 * a + 3] = sx - xyz
@@ -220,7 +231,10 @@ class _StreamedMap:
         d = self.map.reshape(-1, self.map.shape[-1]).take(self.index.rows(index), axis=0).astype(np.float64)
         xyz, s = self.st._points(index)
         top = self.st.grid.shape[0] - 1
-        return [(_normalise(xyz + d[:, 4 * c : 4 * c + 3]), np.clip(s + d[:, 4 * c + 3], 0.0, top)) for c in range(len(self.frames))]
+        return [
+            (_normalise(xyz + d[:, 4 * c : 4 * c + 3]), np.clip(s + d[:, 4 * c + 3], 0.0, top))
+            for c in range(len(self.frames))
+        ]
 
     def at(self, n, index, starts):
         """The maps at frame ``n`` of the copies started at frames ``starts`` (streaming), for vertices ``index``."""

@@ -66,7 +66,9 @@ def trace(wind, xyz, s, t_from, t_to, *, method="rk4", dt_max=1.0, cfl=1.0, vert
     n = int(np.ceil(abs(span) / dt - 1e-9))
     h = span / n
     t = t_from
-    first = wind.vertex_velocity(t, vertices, xyz) if vertices is not None and hasattr(wind, "vertex_velocity") else None
+    first = (
+        wind.vertex_velocity(t, vertices, xyz) if vertices is not None and hasattr(wind, "vertex_velocity") else None
+    )
     for _ in range(n):
         xyz, s = _step(wind, method, t, h, xyz, s, top, first)
         t += h

@@ -81,7 +81,9 @@ class WindField:
         self._executor = None
         for name in ("u", "v"):
             if name not in dataset:
-                raise DataError("is needed to advect textures but the dataset has no such field", path=dataset.source, field=name)
+                raise DataError(
+                    "is needed to advect textures but the dataset has no such field", path=dataset.source, field=name
+                )
         self.dataset = dataset
         self.grid = grid = dataset.grid
         self.radius = float(radius or getattr(dataset, "earth_radius", None) or EARTH_RADIUS)
@@ -193,7 +195,9 @@ class WindField:
     def check_time(self, hours):
         lo, hi = self.time_range
         if not (np.isfinite(hours) and lo - 1e-9 <= hours <= hi + 1e-9):
-            raise DataError(f"time {hours:g} h is outside the data range {lo:g}..{hi:g} h", path=self.dataset.source, field="time")
+            raise DataError(
+                f"time {hours:g} h is outside the data range {lo:g}..{hi:g} h", path=self.dataset.source, field="time"
+            )
 
     def _field_at(self, hours, points):
         """The padded field at ``hours`` as ``[(weight, step field), ...]``.
@@ -223,13 +227,17 @@ class WindField:
     def velocity(self, hours, xyz, s):
         """``(dxyz/dt, ds/dt)`` per hour at unit vectors ``xyz`` (n, 3) and levels ``s`` (n,)."""
         fr = self.index.fractional(xyz, s)
-        return _tangent(sum(w * self.index.trilinear(f, *fr).astype(np.float64) for w, f in self._field_at(hours, len(xyz))), xyz)
+        return _tangent(
+            sum(w * self.index.trilinear(f, *fr).astype(np.float64) for w, f in self._field_at(hours, len(xyz))), xyz
+        )
 
     def vertex_velocity(self, hours, index, xyz):
         """:meth:`velocity` at the grid vertices ``index`` (flat), unit vectors ``xyz``: read, not interpolated."""
         rows = self.index.rows(index)
         parts = self._field_at(hours, len(rows))
-        return _tangent(sum(w * f.reshape(-1, f.shape[-1]).take(rows, axis=0).astype(np.float64) for w, f in parts), xyz)
+        return _tangent(
+            sum(w * f.reshape(-1, f.shape[-1]).take(rows, axis=0).astype(np.float64) for w, f in parts), xyz
+        )
 
     def max_speed(self, t0, t1):
         """Largest (unit-sphere speed per hour, level rate per hour) over the steps spanning ``t0..t1``."""
@@ -318,7 +326,11 @@ class AnalyticWind:
     def check_time(self, hours):
         lo, hi = self.time_range
         if not (np.isfinite(hours) and lo - 1e-9 <= hours <= hi + 1e-9):
-            raise DataError(f"time {hours:g} h is outside the data range {lo:g}..{hi:g} h", path=type(self.flow).__name__, field="time")
+            raise DataError(
+                f"time {hours:g} h is outside the data range {lo:g}..{hi:g} h",
+                path=type(self.flow).__name__,
+                field="time",
+            )
 
     def velocity(self, hours, xyz, s):
         lon, lat = _lonlat(xyz)

@@ -60,7 +60,9 @@ class _EdgeTables:
     whose lower node it owns (all coordinates below BLOCK).
     """
 
-    table: np.ndarray  # (256, 5, 3) int32, per configuration: each triangle corner's edge slot offset from its cell's (axis 0) slot
+    table: (
+        np.ndarray
+    )  # (256, 5, 3) int32, per configuration: each triangle corner's edge slot offset from its cell's (axis 0) slot
     ntri: np.ndarray  # (256,)
     own: np.ndarray  # (3, E, E, E) the block owns this edge slot
     kind: np.ndarray  # (3 E^3,) int8: 0 no such edge (x at i = B, ...), 1 owned, 2 owned by a neighbour

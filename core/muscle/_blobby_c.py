@@ -69,7 +69,8 @@ def _node_values_kernel():
 
 
 def _node_values_c(kernel, b, grid, blocks, threads, act):
-    """:func:`._blobby_numpy._node_values` by the compiled kernel (native/src/blobby_nodes.c), runs of blocks on threads."""
+    """:func:`._blobby_numpy._node_values` by the compiled kernel (native/src/blobby_nodes.c), runs of blocks
+    on threads."""
     values = np.empty((len(act), BLOCK, BLOCK, BLOCK), _F32)
     act, *arrays = _c_arrays(act, blocks.grid_start, blocks.grid_g, blocks.q, b.c, b.a, b.lnw, grid.h, grid.size)
     ptrs = [x.ctypes.data for x in arrays]
@@ -83,7 +84,9 @@ def _node_values_c(kernel, b, grid, blocks, threads, act):
 
 
 def _march_count_kernel():
-    return native.kernel("blobby_march_count", None, [ctypes.c_int64, ctypes.c_double, ctypes.c_void_p, ctypes.c_void_p])
+    return native.kernel(
+        "blobby_march_count", None, [ctypes.c_int64, ctypes.c_double, ctypes.c_void_p, ctypes.c_void_p]
+    )
 
 
 _CHUNK_FIELDS = (  # the _Chunk arrays the march kernel writes (in struct march_out's order): dtype, row shape, size
@@ -95,7 +98,8 @@ _CHUNK_FIELDS = (  # the _Chunk arrays the march kernel writes (in struct march_
 )
 
 def _march_c(count, values, blocks, grid, level, bl, et, loc):
-    """:func:`._blobby_numpy._march` by the compiled kernel (native/src/blobby_march.c): one pass counts, the next writes."""
+    """:func:`._blobby_numpy._march` by the compiled kernel (native/src/blobby_march.c): one pass counts, the
+    next writes."""
     emit = native.kernel("blobby_march_emit", None, [ctypes.c_int64, ctypes.c_double, ctypes.c_double, ctypes.c_int64]
                          + [ctypes.c_void_p] * 3)
     ext = np.empty((len(bl), (BLOCK + 1) ** 3), _F32)  # scratch: the blocks' extended nodes
@@ -115,8 +119,10 @@ def _march_c(count, values, blocks, grid, level, bl, et, loc):
 
 def _project_kernel():
     """native/src/blobby_project.c's ``blobby_project`` with its argument types, or None."""
-    i8, u8, b8, i32, i64, f32, f64 = (np.ctypeslib.ndpointer(k, flags="C_CONTIGUOUS")
-                                      for k in (np.int8, np.uint8, np.bool_, np.int32, np.int64, np.float32, np.float64))
+    i8, u8, b8, i32, i64, f32, f64 = (
+        np.ctypeslib.ndpointer(k, flags="C_CONTIGUOUS")
+        for k in (np.int8, np.uint8, np.bool_, np.int32, np.int64, np.float32, np.float64)
+    )
     n, x = ctypes.c_int64, ctypes.c_double
     return native.kernel("blobby_project", ctypes.c_int, [
         n, i64, i32, i8, u8, f64, f32, b8,  # vertices
@@ -128,8 +134,8 @@ _PROJECT_CHUNK = 1 << 15
 """Vertices per call of the compiled projection (a few ms), handed to the threads as they come free."""
 
 def _project_c(kernel, refiner, grid, blk, axis, node, t, curv, a_above, level, tol, threads):
-    """:func:`._blobby_numpy._project` by the compiled kernel: chunks of the vertices sorted by block (each call gathers a
-    block's Gaussians once) on threads."""
+    """:func:`._blobby_numpy._project` by the compiled kernel: chunks of the vertices sorted by block (each call
+    gathers a block's Gaussians once) on threads."""
     b, blocks, n = refiner.b, refiner.blocks, len(t)
     order = np.argsort(blk, kind="stable").astype(np.int64, copy=False)
     c = np.ascontiguousarray

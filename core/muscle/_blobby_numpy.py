@@ -179,7 +179,9 @@ def _march(values, blocks, grid, level, bl, et, loc=None):
     with np.errstate(divide="ignore", invalid="ignore"):
         t = (level - va64) / (vz.astype(np.float64) - va64)
     t = np.clip(np.where(np.isfinite(t), t, 0.5), EDGE_MARGIN, 1 - EDGE_MARGIN)
-    t_own, curv = _edge_guess(flat, vb * E**3 + rest_own, vax, vcoord, blocks.nbr[bl[vb], 1 << vax] >= 0, level, t[:n_owned])
+    t_own, curv = _edge_guess(
+        flat, vb * E**3 + rest_own, vax, vcoord, blocks.nbr[bl[vb], 1 << vax] >= 0, level, t[:n_owned]
+    )
     t[:n_owned] = t_own
     curv = np.concatenate([curv, np.full(len(t) - n_owned, np.nan)]).astype(_F32)
     return _Chunk(

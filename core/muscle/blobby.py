@@ -105,7 +105,9 @@ def _check(centers, rotations, sigmas, weights):
         err = np.abs(np.einsum("nki,nkj->nij", r, r) - np.eye(3)).max(axis=(1, 2))
         bad = np.flatnonzero(err > 1e-5)
         if len(bad):
-            raise DataError(f"rotation {bad[0]} is not orthonormal (|R^T R - I| = {err[bad[0]]:.2g})", field="rotations")
+            raise DataError(
+                f"rotation {bad[0]} is not orthonormal (|R^T R - I| = {err[bad[0]]:.2g})", field="rotations"
+            )
     return c, r, s, w
 
 def _blobs(c, r, s, w):

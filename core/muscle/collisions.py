@@ -54,7 +54,11 @@ def rigid_collision(v1, w1, v2, w2, inv_m1, inv_i1, inv_m2, inv_i2, r1, r2, norm
     v1, w1, v2, w2, r1, r2, n = (np.asarray(a, np.float64) for a in (v1, w1, v2, w2, r1, r2, normal))
     im1, ii1, im2, ii2 = (np.asarray(a, np.float64)[..., None] for a in (inv_m1, inv_i1, inv_m2, inv_i2))
     a1, a2 = np.cross(r1, n), np.cross(r2, n)
-    u = np.sum((v1 - v2) * n, -1, keepdims=True) + np.sum(w1 * a1, -1, keepdims=True) - np.sum(w2 * a2, -1, keepdims=True)
+    u = (
+        np.sum((v1 - v2) * n, -1, keepdims=True)
+        + np.sum(w1 * a1, -1, keepdims=True)
+        - np.sum(w2 * a2, -1, keepdims=True)
+    )
     k = im1 + im2 + ii1 * np.sum(a1 * a1, -1, keepdims=True) + ii2 * np.sum(a2 * a2, -1, keepdims=True)
     j = np.where(u < 0, -2 * u / np.where(k > 0, k, 1.0), 0.0)
     return v1 + im1 * j * n, w1 + ii1 * j * a1, v2 - im2 * j * n, w2 - ii2 * j * a2

@@ -105,7 +105,9 @@ class Params:
     def head_drag(self):
         """Rotational drag of a head about its hinge (its spheres, Stokes), pN nm us."""
         r = HEAD_SPHERE_RADIUS
-        return float(np.sum(translational_drag(r, self.viscosity) * HEAD_SPHERES**2) + 3 * rotational_drag(r, self.viscosity))
+        return float(
+            np.sum(translational_drag(r, self.viscosity) * HEAD_SPHERES**2) + 3 * rotational_drag(r, self.viscosity)
+        )
 
     @property
     def elbow_drag(self):
@@ -352,8 +354,15 @@ class CrossBridges:
             k = np.array(pick, np.int64)
             a, b = head[k], other[k]
             wall = b < 0
-            wa, wb = hinged_collision(w[a], np.where(wall[:, None, None], 0.0, w[b]), np.broadcast_to(inv_i, (len(k), 2)),
-                                      np.where(wall[:, None], 0.0, inv_i), arm[k], oarm[k], nrm[k])
+            wa, wb = hinged_collision(
+                w[a],
+                np.where(wall[:, None, None], 0.0, w[b]),
+                np.broadcast_to(inv_i, (len(k), 2)),
+                np.where(wall[:, None], 0.0, inv_i),
+                arm[k],
+                oarm[k],
+                nrm[k],
+            )
             hits += int(np.any(wa != w[a], axis=(1, 2)).sum())
             w[a] = wa
             w[b[~wall]] = wb[~wall]
@@ -503,7 +512,9 @@ class CrossBridges:
         self.time += p.dt
 
     def frame(self):
-        return Frame(self.R.copy(), self.states.copy(), self.sites.copy(), self.slide.copy(), self.time, self.R @ self.Q)
+        return Frame(
+            self.R.copy(), self.states.copy(), self.sites.copy(), self.slide.copy(), self.time, self.R @ self.Q
+        )
 
     def run(self, frames):
         """Simulate ``frames`` film frames; returns the list of :class:`Frame` (the first is the start)."""

@@ -127,7 +127,9 @@ def _check(splats, kernel, camera, width, height):
     if not isinstance(camera, Camera):
         raise DataError(f"needs a Camera, got {type(camera).__name__}", field="camera")
     if abs(kernel.radius - splats.radius) > 1e-12 * kernel.radius:
-        raise DataError(f"splats were built for cut-off {splats.radius}, the kernel's is {kernel.radius}", field="kernel")
+        raise DataError(
+            f"splats were built for cut-off {splats.radius}, the kernel's is {kernel.radius}", field="kernel"
+        )
     for name, v in (("width", width), ("height", height)):
         if int(v) != v or v < 1:
             raise DataError(f"must be an integer >= 1, got {v!r}", field=name)
@@ -151,7 +153,17 @@ def _streak_frame(wind, v, fallback):
     return ea, np.cross(v, ea), np.where(calm, 0.0, speed)
 
 
-def project_splats(splats, kernel, camera, width, height, *, extinction=DEFAULT_EXTINCTION, prefilter=DEFAULT_PREFILTER, streak_tile=None):
+def project_splats(
+    splats,
+    kernel,
+    camera,
+    width,
+    height,
+    *,
+    extinction=DEFAULT_EXTINCTION,
+    prefilter=DEFAULT_PREFILTER,
+    streak_tile=None,
+):
     """Screen-space footprints of the splats (see the module docstring).
 
     Splats behind the eye or straddling its plane (perspective; orthographic:
@@ -372,12 +384,16 @@ def render_splats(
     .. [2] N. Max and R. Crawfis, "Advances in Scientific Visualization", Fig. 3.
     """
     maps = _check_streaks(streaks, hours, streak_contrast)
-    scr = project_splats(splats, kernel, camera, width, height, extinction=extinction, prefilter=prefilter, streak_tile=streak_tile)
+    scr = project_splats(
+        splats, kernel, camera, width, height, extinction=extinction, prefilter=prefilter, streak_tile=streak_tile
+    )
     w, h = int(width), int(height)
     if depth is not None:
         depth = np.asarray(depth, dtype=np.float64)
         if depth.shape != (h, w) or np.isnan(depth).any():
-            raise DataError(f"needs a NaN-free (height, width) = {(h, w)} array, got shape {depth.shape}", field="depth")
+            raise DataError(
+                f"needs a NaN-free (height, width) = {(h, w)} array, got shape {depth.shape}", field="depth"
+            )
         depth = depth.ravel()
     color = np.zeros((h * w, 3))
     trans = np.ones(h * w)
@@ -388,7 +404,9 @@ def render_splats(
     streak = None if maps is None else _streak_layers(maps, scr, hours, streak_contrast)
     start = 0
     while start < order.size:
-        stop = max(start + 1, int(np.searchsorted(ends, (ends[start - 1] if start else 0) + MAX_FRAGMENTS, side="right")))
+        stop = max(
+            start + 1, int(np.searchsorted(ends, (ends[start - 1] if start else 0) + MAX_FRAGMENTS, side="right"))
+        )
         pix, tau, rgb = _batch_fragments(scr, order[start:stop], kernel, w, depth, streak, color_of)
         start = stop
         cum = np.cumsum(tau)
@@ -447,14 +465,24 @@ def _check_streaks(streaks, hours, contrast):
     if streaks is None:
         return None
     maps = np.asarray(streaks, dtype=np.float64)
-    if maps.ndim != 3 or maps.shape[0] < 1 or min(maps.shape[1:]) < 2 or not np.all(np.isfinite(maps)) or maps.mean() <= 0:
-        raise DataError(f"needs finite (n_maps, size, size) maps with a positive mean, got shape {maps.shape}", field="streaks")
+    if (
+        maps.ndim != 3
+        or maps.shape[0] < 1
+        or min(maps.shape[1:]) < 2
+        or not np.all(np.isfinite(maps))
+        or maps.mean() <= 0
+    ):
+        raise DataError(
+            f"needs finite (n_maps, size, size) maps with a positive mean, got shape {maps.shape}", field="streaks"
+        )
     if not (np.isfinite(hours) and 0 <= contrast <= 1):
         raise DataError(f"hours {hours!r} must be finite and the contrast {contrast!r} in [0, 1]", field="streaks")
     return maps
 
 
-def streak_factor(splats, index, xyz, camera, hours, streaks, streak_tile=None, streak_contrast=DEFAULT_STREAK_CONTRAST):
+def streak_factor(
+    splats, index, xyz, camera, hours, streaks, streak_tile=None, streak_contrast=DEFAULT_STREAK_CONTRAST
+):
     """The streak modulation of splat ``index[i]``'s optical depth at scene point ``xyz[i]`` (no minification blur).
 
     With ``v`` the unit vector from the point toward the viewer (orthographic:

@@ -38,8 +38,8 @@ from functools import lru_cache
 
 import numpy as np
 
-from . import _mc_tables as tables
 from ..errors import DataError
+from . import _mc_tables as tables
 from .mesh import Mesh, vertex_normals
 
 METHODS = ("cubes", "tetra5")
@@ -455,7 +455,9 @@ def _tetra(above, nan, periodic):
     stride = np.array([1, ni, nj * ni])
     low = np.minimum(c0, c1)
     span = np.abs(c1 - c0)
-    kind = np.select([span.sum(axis=1) == 1, span.sum(axis=1) == 2], [np.argmax(span, axis=1), 3 + np.argmin(span, axis=1)], 6)
+    kind = np.select(
+        [span.sum(axis=1) == 1, span.sum(axis=1) == 2], [np.argmax(span, axis=1), 3 + np.argmin(span, axis=1)], 6
+    )
     key = base[:, None] + (kind * nv + low @ stride).astype(idx)[local]
     if periodic:
         rows = np.flatnonzero(seam)

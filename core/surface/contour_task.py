@@ -14,11 +14,11 @@ References
 
 import numpy as np
 
-from ..pipeline.cache import source_stamp
-from ..pipeline.sources import frame_hours, open_source
-from ..errors import DataError
 from ..climate.grid import DEFAULT_EXAGGERATION
+from ..errors import DataError
+from ..pipeline.cache import source_stamp
 from ..pipeline.registry import planner, task
+from ..pipeline.sources import frame_hours, open_source
 
 ALTITUDE = "altitude"
 """Name of the per-vertex height attribute (metres above sea level) every contour mesh carries."""

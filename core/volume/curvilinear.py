@@ -73,8 +73,17 @@ class CurvilinearField:
             if np.any(np.diff(height, axis=0) <= 0):
                 raise DataError("levels are not strictly increasing upward", field="height")
             nk, nj, ni = grid.shape
-            return cls(0.0, np.arange(ni, dtype=np.float64), np.arange(nj, dtype=np.float64), height, vals, float(radius),
-                       float(exaggeration), None, ColumnLocator(grid.lon2d, grid.lat2d))
+            return cls(
+                0.0,
+                np.arange(ni, dtype=np.float64),
+                np.arange(nj, dtype=np.float64),
+                height,
+                vals,
+                float(radius),
+                float(exaggeration),
+                None,
+                ColumnLocator(grid.lon2d, grid.lat2d),
+            )
         if grid.periodic_lon:
             lon = np.append(lon, 360.0)
             height = np.concatenate([height, height[:, :, :1]], axis=2)
@@ -236,7 +245,12 @@ class CurvilinearField:
 
         def column_height(level):
             base = level * layer
-            return w[0] * hf[base + corners[0]] + w[1] * hf[base + corners[1]] + w[2] * hf[base + corners[2]] + w[3] * hf[base + corners[3]]
+            return (
+                w[0] * hf[base + corners[0]]
+                + w[1] * hf[base + corners[1]]
+                + w[2] * hf[base + corners[2]]
+                + w[3] * hf[base + corners[3]]
+            )
 
         # The level: bracketed by the column's height table, then a binary
         # search (heights increase upward in every column, so the bilinear
@@ -251,7 +265,12 @@ class CurvilinearField:
             base = mid * layer
             ww = [a[open_] for a in w]
             cc = [a[open_] for a in corners]
-            hm = ww[0] * hf[base + cc[0]] + ww[1] * hf[base + cc[1]] + ww[2] * hf[base + cc[2]] + ww[3] * hf[base + cc[3]]
+            hm = (
+                ww[0] * hf[base + cc[0]]
+                + ww[1] * hf[base + cc[1]]
+                + ww[2] * hf[base + cc[2]]
+                + ww[3] * hf[base + cc[3]]
+            )
             go = hm <= h_s[open_]
             lo[open_] = np.where(go, mid, lo[open_])
             hi[open_] = np.where(go, hi[open_], mid)
@@ -289,7 +308,9 @@ class CurvilinearField:
         col = flat % (nj * ni)
         hf = self.height.reshape(nk, -1)[0]
         fj, fi = f[:, 1], f[:, 2]
-        ground = ((1 - fj) * ((1 - fi) * hf[col] + fi * hf[col + 1]) + fj * ((1 - fi) * hf[col + ni] + fi * hf[col + ni + 1]))
+        ground = (1 - fj) * ((1 - fi) * hf[col] + fi * hf[col + 1]) + fj * (
+            (1 - fi) * hf[col + ni] + fi * hf[col + ni + 1]
+        )
         return ok & (h < ground)
 
     def sample(self, name, xyz):
@@ -356,8 +377,12 @@ class LevelTable:
     def __init__(self, field, levels=None, clamp_below=0.0, bins=32):
         nk, nj, ni = field.shape
         H = field.height
-        hmin = np.minimum(np.minimum(H[:, :-1, :-1], H[:, :-1, 1:]), np.minimum(H[:, 1:, :-1], H[:, 1:, 1:])).reshape(nk, -1)
-        hmax = np.maximum(np.maximum(H[:, :-1, :-1], H[:, :-1, 1:]), np.maximum(H[:, 1:, :-1], H[:, 1:, 1:])).reshape(nk, -1)
+        hmin = np.minimum(np.minimum(H[:, :-1, :-1], H[:, :-1, 1:]), np.minimum(H[:, 1:, :-1], H[:, 1:, 1:])).reshape(
+            nk, -1
+        )
+        hmax = np.maximum(np.maximum(H[:, :-1, :-1], H[:, :-1, 1:]), np.maximum(H[:, 1:, :-1], H[:, 1:, 1:])).reshape(
+            nk, -1
+        )
         ncol = hmin.shape[1]
         if levels is None:
             k0 = np.zeros(ncol, np.intp)

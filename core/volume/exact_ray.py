@@ -61,7 +61,9 @@ def segment_optical_depth(tf, s0, s1, length):
     scale = np.maximum(np.abs(s0), np.abs(s1)) + (tf.values[-1] - tf.values[0]) + 1.0
     flat = np.abs(ds) <= 1e-9 * scale
     with np.errstate(invalid="ignore", divide="ignore"):
-        mean = np.where(flat, tf(0.5 * (s0 + s1)), (tf.antiderivative(s1) - tf.antiderivative(s0)) / np.where(flat, 1.0, ds))
+        mean = np.where(
+            flat, tf(0.5 * (s0 + s1)), (tf.antiderivative(s1) - tf.antiderivative(s0)) / np.where(flat, 1.0, ds)
+        )
     out = length * mean
     return np.where(np.isnan(out), 0.0, out)
 

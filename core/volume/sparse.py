@@ -155,7 +155,11 @@ class SparseVolume:
                     pos = np.clip(np.searchsorted(skeys, k), 0, skeys.size - 1)
                     hit = skeys[pos] == k
                     v = np.where(hit, flat[order[pos], (loc[:, 0] * B + loc[:, 1]) * B + loc[:, 2]], 0.0)
-                    w = (f[:, 0] if dx else 1 - f[:, 0]) * (f[:, 1] if dy else 1 - f[:, 1]) * (f[:, 2] if dz else 1 - f[:, 2])
+                    w = (
+                        (f[:, 0] if dx else 1 - f[:, 0])
+                        * (f[:, 1] if dy else 1 - f[:, 1])
+                        * (f[:, 2] if dz else 1 - f[:, 2])
+                    )
                     out += w * v
         return out
 
@@ -213,7 +217,11 @@ def candidate_blocks(field, name, tf, voxel_size, block=8, *, pad=0.0, below=Non
                 np.minimum(bmin, p, out=bmin)
                 np.maximum(bmax, p, out=bmax)
     # Faces between corners are arcs: pad by the sagitta of the widest arc.
-    widest = field.columns.cell_degrees() if field.columns is not None else max(np.diff(field.lon).max(), np.diff(field.lat).max())
+    widest = (
+        field.columns.cell_degrees()
+        if field.columns is not None
+        else max(np.diff(field.lon).max(), np.diff(field.lat).max())
+    )
     dang = np.deg2rad(widest)
     rmax = field.radius_range()[1]
     pad = rmax * (1 - np.cos(dang / 2)) + 1e-9 + pad
@@ -291,7 +299,9 @@ def _near_candidates(field, table, blocks, sub, voxel_size):
     for dj in range(widest + 1):
         for di in range(widest + 1):
             m = testable & (dj <= wj) & (di <= wi)
-            cell = np.minimum(j0 + dj, field.lat.size - 2) * nci + (np.mod(i0 + di, nci) if periodic else np.minimum(i0 + di, nci - 1))
+            cell = np.minimum(j0 + dj, field.lat.size - 2) * nci + (
+                np.mod(i0 + di, nci) if periodic else np.minimum(i0 + di, nci - 1)
+            )
             hit |= m & (table.hlo[cell] <= h + dh) & (table.hhi[cell] >= h - dh)
     keep[testable] = hit[testable]
     return keep

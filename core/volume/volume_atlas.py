@@ -62,11 +62,11 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..errors import DataError
 from ..climate.grid import DEFAULT_EXAGGERATION, EARTH_RADIUS
-from .transfer import TransferFunction
+from ..errors import DataError
 from .curvilinear import CurvilinearField
 from .sparse import ALTITUDE, SparseVolume, candidate_blocks, height_scale, scalar_field
+from .transfer import TransferFunction
 
 PAD = 1
 """Padding rows above and below each tile."""
@@ -183,7 +183,8 @@ class IndexMap:
                 "size": [int(self.image.shape[1]), int(self.image.shape[0])]}
 
     def lookup(self, p):
-        """The shader's ``(i, j, front)`` of float32 points ``p`` (n, 3): ``front`` False on the far side of the globe."""
+        """The shader's ``(i, j, front)`` of float32 points ``p`` (n, 3): ``front`` False on the far side of
+        the globe."""
         q = p @ self.basis.T.astype(np.float32)
         front = q[:, 2] > np.float32(0.0)
         z = np.where(front, q[:, 2], np.float32(1.0))

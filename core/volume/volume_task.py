@@ -16,8 +16,8 @@ import numpy as np
 from ..climate.grid import DEFAULT_EXAGGERATION
 from ..errors import DataError
 from ..pipeline.cache import source_stamp
-from ..pipeline.sources import frame_hours, open_source
 from ..pipeline.registry import planner, task
+from ..pipeline.sources import frame_hours, open_source
 from .sparse import ALTITUDE, DEFAULT_VOXEL_SIZE, EXACT, VOXELS, resample
 from .transfer import TransferFunction
 from .volume_atlas import DEFAULT_BELOW, DEFAULT_SUPPORT_SIZE, exact_volume

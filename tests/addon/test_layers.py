@@ -199,8 +199,8 @@ def test_volume_threshold_edits_live_within_the_baked_support(scene, tmp_path):
 
 
 def test_empty_variable_is_a_warning(scene, capfd):
-    from nephele.core.pipeline.sources import open_source, register_source
     from nephele.core.climate.dataset import ArrayDataset
+    from nephele.core.pipeline.sources import open_source, register_source
 
     ds = open_source("demo:small")
     fields = {"cloud": np.full((2,) + ds.grid.shape, np.nan, np.float32),

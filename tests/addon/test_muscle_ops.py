@@ -11,7 +11,6 @@ bpy = pytest.importorskip("bpy")
 from nephele.addon import frame, muscle_ops  # noqa: E402
 from nephele.addon.mesh import point_attribute  # noqa: E402
 
-
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 
 

@@ -126,8 +126,7 @@ def test_replace_empties_the_scene_and_keep_adds():
 
 
 def test_every_figure_panel_has_its_preset_button():
-    from nephele.addon import (advect_ops, contour_ops, flowvol_ops, muscle_ops, scatter_ops, splat_ops,
-                               volume_panel)
+    from nephele.addon import advect_ops, contour_ops, flowvol_ops, muscle_ops, scatter_ops, splat_ops, volume_panel
 
     class Layout:
         """Records ``operator`` calls; every other layout call returns another recorder."""

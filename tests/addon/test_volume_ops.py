@@ -5,15 +5,16 @@ import pytest
 
 bpy = pytest.importorskip("bpy")
 
-from nephele.addon import data_ops, frame, volume_ops, volume_panel  # noqa: E402
-from nephele.fileio import read_grid  # noqa: E402
 from conftest import import_sheared_file  # noqa: E402
-from nephele.core.pipeline.sources import register_source  # noqa: E402
+
+from nephele.addon import data_ops, frame, volume_ops, volume_panel  # noqa: E402
 from nephele.core.climate.dataset import ArrayDataset, hourly  # noqa: E402
-from nephele.core.volume.exact_ray import opacity, reference_optical_depth  # noqa: E402
 from nephele.core.climate.grid import GlobeGrid, lonlat_to_xyz, rotated_pole_matrix, xyz_to_lonlat  # noqa: E402
-from nephele.core.volume.transfer import TransferFunction  # noqa: E402
+from nephele.core.pipeline.sources import register_source  # noqa: E402
+from nephele.core.volume.exact_ray import opacity, reference_optical_depth  # noqa: E402
 from nephele.core.volume.sparse import CurvilinearField  # noqa: E402
+from nephele.core.volume.transfer import TransferFunction  # noqa: E402
+from nephele.fileio import read_grid  # noqa: E402
 
 NI, NJ, NK, NT = 48, 24, 8, 3
 SOURCE = "test:volume-blob"

@@ -9,8 +9,8 @@ import pytest
 bpy = pytest.importorskip("bpy")
 
 from nephele.addon import data_ops, frame, volume_ops, volume_panel  # noqa: E402
-from nephele.core.pipeline.cache import check_memory  # noqa: E402
 from nephele.core.errors import DataError  # noqa: E402
+from nephele.core.pipeline.cache import check_memory  # noqa: E402
 from nephele.core.volume.transfer import TransferFunction  # noqa: E402
 
 

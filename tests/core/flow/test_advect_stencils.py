@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from nephele.core.flow import _grid_index, advect, flows
 from nephele.core.climate.grid import GlobeGrid, lonlat_to_xyz
 from nephele.core.climate.synthetic import demo_dataset
+from nephele.core.flow import _grid_index, advect, flows
 
 
 def sphere_grid(ni=16, nj=8, nk=3, periodic=True):
@@ -62,7 +62,9 @@ def test_stencils_reproduce_linear_fields_and_wrap_the_seam():
     lon_seam = rng.uniform(-6.0, 6.0, 200)
     lat_seam = rng.uniform(-60.0, 60.0, 200)
     r = 5
-    a = ix.cubic(ix.padded(smooth[..., None].astype(np.float32)), *ix.fractional(lonlat_to_xyz(lon_seam, lat_seam), np.ones(200)))
+    a = ix.cubic(
+        ix.padded(smooth[..., None].astype(np.float32)), *ix.fractional(lonlat_to_xyz(lon_seam, lat_seam), np.ones(200))
+    )
     b = ix.cubic(ix.padded(np.roll(smooth, r, axis=2)[..., None].astype(np.float32)),
                  *ix.fractional(lonlat_to_xyz(lon_seam + r * 360.0 / ni, lat_seam), np.ones(200)))
     np.testing.assert_allclose(a, b, atol=1e-5)
@@ -164,7 +166,9 @@ def test_dilate_across_the_poles():
     # without the option the mask grows exactly as before: a diamond of `cells` in lat/lon, one level
     plain = advect.dilate(mask, 3, periodic_lon=True)
     k, j, i = np.nonzero(plain)
-    assert plain.sum() == 3 * (7 + 5 + 3 + 1) and np.all(np.abs(j - 7) + np.minimum(np.abs(i - 2), 16 - np.abs(i - 2)) <= 3)
+    assert plain.sum() == 3 * (7 + 5 + 3 + 1) and np.all(
+        np.abs(j - 7) + np.minimum(np.abs(i - 2), 16 - np.abs(i - 2)) <= 3
+    )
 
 
 def test_wind_read_at_vertices_equals_the_interpolated_wind():

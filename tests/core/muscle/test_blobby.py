@@ -5,13 +5,13 @@ import itertools
 
 import numpy as np
 import pytest
+from blob_scenes import rotations
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from blob_scenes import rotations
 from nephele.core.errors import DataError
-from nephele.core.surface.mesh import Mesh, triangle_areas
 from nephele.core.muscle import blobby_field, blobby_surface
+from nephele.core.surface.mesh import Mesh, triangle_areas
 
 pytestmark = pytest.mark.filterwarnings("error::RuntimeWarning")  # no overflow in exp, no NaN
 
@@ -21,7 +21,11 @@ def exact(points, c, r, s, w, box=None, images=2):
     p = np.asarray(points, float)
     f = np.zeros(len(p))
     g = np.zeros((len(p), 3))
-    shifts = [np.zeros(3)] if box is None else [np.array(k) * box for k in itertools.product(range(-images, images + 1), repeat=3)]
+    shifts = (
+        [np.zeros(3)]
+        if box is None
+        else [np.array(k) * box for k in itertools.product(range(-images, images + 1), repeat=3)]
+    )
     for ci, ri, si, wi in zip(c, r, s, w):
         for sh in shifts:
             d = p - (ci + sh)

@@ -5,12 +5,11 @@ import dataclasses
 
 import numpy as np
 import pytest
-
 from blob_scenes import rotations
+
 from nephele.core import native
-from nephele.core.muscle import _blobby_base, _blobby_numpy
+from nephele.core.muscle import _blobby_base, _blobby_numpy, level_distance
 from nephele.core.muscle import blobby as bb
-from nephele.core.muscle import level_distance
 
 pytestmark = pytest.mark.skipif(native.identity() == "numpy", reason="no compiled kernels")
 

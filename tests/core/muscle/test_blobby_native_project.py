@@ -5,8 +5,8 @@ import ctypes
 
 import numpy as np
 import pytest
-
 from blob_scenes import rotations
+
 from nephele.core import native
 from nephele.core.muscle import _blobby_c, blobby, blobby_field, blobby_surface, level_distance
 
