@@ -124,7 +124,8 @@ def bake_frame(obj_params, frame, number, directory, prefix="clouds", *, cache=N
     the support grid and an ``.exr`` of the same name the values atlas
     (:func:`write_exr`, :func:`write_support`).
 
-    ``obj_params`` as for :func:`nephele.core.volume.volume_task.frame_params`.  The file
+    ``obj_params`` as for :func:`nephele.core.volume.volume_task.frame_params` (the task comes
+    from :func:`nephele.core.pipeline.tasks.plan`, as in Blender and on the farm).  The file
     records the cache key of its exact inputs; with ``reuse`` an existing
     file with that key is kept (one metadata read).  ``cache``: a
     :class:`~nephele.core.pipeline.cache.Cache` or directory holding resampled volumes,
@@ -138,13 +139,12 @@ def bake_frame(obj_params, frame, number, directory, prefix="clouds", *, cache=N
     import time
 
     from .core.pipeline.cache import Cache, cache_key
-    from .core.pipeline.tasks import run
+    from .core.pipeline.tasks import plan, run
     from .core.volume.sparse import EXACT, SparseVolume
-    from .core.volume.volume_task import frame_params
 
     t0 = time.perf_counter()
-    params = frame_params(obj_params, frame)
-    key = cache_key("volume", params)
+    (kind, params), = plan(dict(obj_params, kind="volume"), frame)
+    key = cache_key(kind, params)
     path = frame_path(directory, prefix, number)
     exact = params.get("mode") == EXACT
     if exact:
@@ -157,10 +157,10 @@ def bake_frame(obj_params, frame, number, directory, prefix="clouds", *, cache=N
                 "seconds": time.perf_counter() - t0, "reused": True, "cached": False}
     arrays = None
     if cache is not None:
-        arrays = (cache if isinstance(cache, Cache) else Cache(cache)).load("volume", params)
+        arrays = (cache if isinstance(cache, Cache) else Cache(cache)).load(kind, params)
     cached = arrays is not None
     if arrays is None:
-        arrays = run("volume", params)
+        arrays = run(kind, params)
     if exact:
         return _write_exact(arrays, params, key, path, exr, cached, t0, frame)
     vol = SparseVolume.from_arrays(arrays, color_name=params["color_var"] or None)

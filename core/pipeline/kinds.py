@@ -40,7 +40,7 @@ KINDS = {
 """Object kind -> :class:`ObjectKind` (task kinds, core module, add-on updater)."""
 
 TASK_MODULES = tuple(dict.fromkeys(k.module for k in KINDS.values() if k.module))
-"""The core modules that register tasks and planners (imported by :func:`.registry.load_all`)."""
+"""The core modules that register tasks and planners (imported by :func:`.tasks.load_all`)."""
 
 
 __all__ = ["KINDS", "ObjectKind", "TASK_MODULES"]
