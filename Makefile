@@ -21,7 +21,7 @@ STRICT := NEPHELE_STRICT=1
 TIERS := build/tiers
 BUDGET = $(VENV)/bin/python tests/budget.py
 
-.PHONY: demo test test-full test-main test-core311 test-extension test-slurm test-bench bench extension clean
+.PHONY: demo lint test test-full test-main test-core311 test-extension test-slurm test-bench bench extension clean
 
 $(VENV)/.stamp: requirements.txt pyproject.toml
 	$(PY313) -m venv $(VENV)
@@ -80,6 +80,10 @@ test: $(VENV)/.stamp $(VENV)/.native $(GRIB_SAMPLES)
 	@mkdir -p $(TIERS)
 	$(STRICT) $(BUDGET) quick 480 --junit $(TIERS)/quick.xml -- $(VENV)/bin/python -m pytest -m "not slow" \
 	  --ignore=tests/extension --ignore=tests/farm/slurm --junitxml=$(TIERS)/quick.xml $(PYTEST_ARGS)
+
+# pyflakes, pycodestyle, isort and bugbear with the configuration in pyproject.toml.
+lint: $(VENV)/.stamp
+	$(VENV)/bin/ruff check .
 
 # The full suite (CI): each tier once, then their times.
 test-full:

@@ -16,6 +16,7 @@ MODULES = (
     "contour_ops",
     "globe_ops",
     "volume_ops",
+    "volume_panel",
     "volume_bake",
     "advect_ops",
     "scatter_ops",

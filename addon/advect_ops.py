@@ -29,9 +29,11 @@ from .panel import SubPanel
 
 GROUP_NAME = "Nephele Poor-Man's Fractal"
 KIND = "advected_contour"
+FRACTAL = Fractal()
+"""The default texture (:class:`~nephele.core.texture.fractal.Fractal`'s defaults)."""
 
 
-def fractal_node_group(fractal=Fractal()):
+def fractal_node_group(fractal=FRACTAL):
     """The shader node group computing :func:`nephele.core.texture.fractal.texture_xyz`.
 
     Inputs ``Vector`` (start position, any length) and ``Altitude`` (m); output
@@ -64,7 +66,11 @@ def fractal_node_group(fractal=Fractal()):
     for i, (omega, big, c, a, b, d) in enumerate(terms(fractal)):
         px = n.math("SINE", n.math("MULTIPLY", lat, 0.5 * omega))  # perturbs X and Z
         py = n.math("SINE", n.math("MULTIPLY", lon, 0.5 * omega))  # perturbs Y
-        for axis, coord, freq, phase, pert in (("x", lon, omega, a, px), ("y", lat, omega, b, py), ("z", alt, big, d, px)):
+        for axis, coord, freq, phase, pert in (
+            ("x", lon, omega, a, px),
+            ("y", lat, omega, b, py),
+            ("z", alt, big, d, px),
+        ):
             arg = n.math("MULTIPLY_ADD", pert, half_pi, n.math("MULTIPLY_ADD", coord, freq, phase))
             wave = n.math("SINE", arg, loc=(200 * i - 600, {"x": 400, "y": 0, "z": -400}[axis]))
             if axis == "x":
@@ -86,7 +92,7 @@ def _attribute(tree, name, loc):
     return node
 
 
-def texture_nodes(tree, fractal=Fractal(), location=(-600, 0)):
+def texture_nodes(tree, fractal=FRACTAL, location=(-600, 0)):
     """Nodes giving ``Σ w_k T(start_k)`` over the copies ``a``, ``b`` from the mesh attributes; returns the socket."""
     group = fractal_node_group(fractal)
     x0, y0 = location
@@ -107,7 +113,7 @@ def texture_nodes(tree, fractal=Fractal(), location=(-600, 0)):
     return total
 
 
-def cloud_material(name="Nephele Advected Clouds", fractal=Fractal(), lo=0.08, hi=0.28, color=(0.9, 0.9, 0.92)):
+def cloud_material(name="Nephele Advected Clouds", fractal=FRACTAL, lo=0.08, hi=0.28, color=(0.9, 0.9, 0.92)):
     """Clouds whose opacity is the advected texture mapped from ``[lo, hi]`` to ``[0, 1]``; back faces transparent.
 
     As in the paper only front-facing contour polygons are drawn: EEVEE and
@@ -149,10 +155,6 @@ def cloud_material(name="Nephele Advected Clouds", fractal=Fractal(), lo=0.08, h
         mat.surface_render_method = "BLENDED"
     mat["nephele_advected"] = json.dumps({"fractal": fractal.as_dict(), "lo": lo, "hi": hi})
     return mat
-
-
-def _plan(obj, params, scene, frame_number):
-    return contour_ops.plan(obj, params, scene, frame_number, kind=KIND, task_params=advect_task.advect_task_params)
 
 
 def _stream(tp):
@@ -199,11 +201,11 @@ def _progress(args):
     return ""
 
 
-update_advected = frame.register_job(KIND, _plan, _compute, contour_ops.apply, _progress)
+update_advected = frame.register_job(KIND, frame.plan_task, _compute, contour_ops.apply, _progress)
 """Synchronous updater: the contour and texture start coordinates of a frame."""
 
 
-def add_advected_texture(obj, *, strategy="restart", period=24, integrator="rk4", vertical="auto", fractal=Fractal(),
+def add_advected_texture(obj, *, strategy="restart", period=24, integrator="rk4", vertical="auto", fractal=FRACTAL,
                          lo=0.08, hi=0.28, scene=None):
     """Give the contour object ``obj`` the advected cloud texture; returns ``obj``.
 

@@ -16,7 +16,7 @@ import bpy
 import numpy as np
 
 from ..core.pipeline import sources
-from ..core.pipeline.cache import Cache, default_cache_dir, source_stamp
+from ..core.pipeline.cache import source_stamp
 from ..core.pipeline.tasks import run_cached
 from ..core.surface import contour_task
 from ..core.surface.mesh import Mesh
@@ -30,11 +30,6 @@ COLOR_RANGES = {"altitude": (0.0, 12000.0), "temperature": (220.0, 300.0), "clou
 HIST_BINS = 8
 _STATS = OrderedDict()
 _STATS_LOCK = threading.Lock()  # filled by the frame worker, read by the main thread
-
-
-def cache_dir():
-    """Where contour meshes are cached: beside the saved .blend, else the user cache."""
-    return default_cache_dir(bpy.data.filepath or None)
 
 
 def layer_name(var, level, prefix="Contour"):
@@ -94,17 +89,6 @@ def empty_message(obj):
             f"the data range is {st['min']:.4g} to {st['max']:.4g}")
 
 
-def plan(obj, params, scene, frame_number, kind="contour", task_params=None):
-    """Plan of a contour layer for :func:`nephele.addon.frame.register_job` (None when shown)."""
-    tp = (task_params or contour_task.task_params)(params, frame_number)
-    key = json.dumps(tp, sort_keys=True)
-    if obj.get("nephele_shown") == key and len(obj.data.vertices):
-        return None
-    cache = cache_dir()
-    args = {"kind": "contour" if kind == "contour" else "advect_contour", "tp": tp, "cache": str(cache)}
-    return key, args, Cache(cache).file(args["kind"], tp).is_file()
-
-
 def compute(args, job=None):
     """Worker side: the mesh arrays (cache or computed) and the field's range; no ``bpy``."""
     tp = args["tp"]
@@ -124,7 +108,7 @@ def apply(obj, args, result):
         obj["nephele_range"] = json.dumps(result["stats"])
 
 
-update_contour = frame.register_job("contour", plan, compute, apply)
+update_contour = frame.register_job("contour", frame.plan_task, compute, apply)
 """Synchronous updater ``(obj, params, scene, frame)`` (headless, renders, and the add dialog)."""
 
 

@@ -20,7 +20,8 @@ from bpy.app.handlers import persistent
 from ..core.climate.grid import DEFAULT_EXAGGERATION
 from ..core.climate.readers import VERTICAL_CHOICES, check_overrides
 from ..core.errors import DataError
-from ..core.pipeline.cache import default_cache_dir, format_bytes, session_cache_dir, tree_size
+from ..core.memory import format_bytes
+from ..core.pipeline.cache import default_cache_dir, session_cache_dir, tree_size
 from ..core.pipeline.sources import open_with_overrides
 from .panel import SubPanel
 

@@ -366,14 +366,15 @@ def render_dome_eevee(filepath, *, scene=None, face_size=None, supersample=None,
     camera = dome_from_params(p)
     n = int(face_size or p.get("face_size") or default_face_size(camera))
     ss = int(supersample or p.get("supersample") or 2)
-    from ..core.pipeline.cache import Cache, check_memory, default_cache_dir
+    from ..core.memory import check_memory
+    from ..core.pipeline.cache import Cache
 
     # The remap table (a face index and two coordinates, float64, per supersample) and the
     # six RGBA float faces, before they are allocated.
     check_memory(camera.width * camera.height * ss * ss * 24 + 6 * n * n * 16 * 2,
                  f"the cube-map dome frame {camera.width}x{camera.height} (cube face {n}, supersample {ss})",
                  field="width")
-    table = core_dome.stored_remap_table(camera, "cube", n, ss, Cache(default_cache_dir(bpy.data.filepath or None)))
+    table = core_dome.stored_remap_table(camera, "cube", n, ss, Cache(frame.results_dir()))
     filepath = Path(filepath)
     eyes = core_dome.stereo_eyes(p["separation"]) if p.get("stereo") else {"": np.zeros(3)}
     written = []
@@ -455,7 +456,7 @@ class NEPHELE_OT_add_dome_camera(bpy.types.Operator):
     bl_options = {"REGISTER", "UNDO"}
 
     preset: bpy.props.EnumProperty(name="Preset", items=_PRESET_ITEMS)
-    # No hard limits here: out-of-range values reach core.dome, which refuses them by name
+    # No hard limits here: out-of-range values reach core.camera.dome, which refuses them by name
     # (a clamp would silently render something else).
     tilt: bpy.props.FloatProperty(name="Dome tilt", default=25.0)
     fov: bpy.props.FloatProperty(name="Field of view", default=180.0)

@@ -16,6 +16,11 @@ computes the newest request per object, and a ``bpy.app.timers`` poll applies
 finished results on the main thread, with progress in the status bar and Esc
 to cancel (:class:`NEPHELE_OT_watch_jobs`).  Headless (``bpy.app.background``)
 and while rendering every update stays synchronous, so renders are exact.
+
+Which module registers the updater of each kind, and which core tasks a kind
+needs, is the table of kinds :data:`nephele.core.pipeline.kinds.KINDS`; a kind
+whose frame is core tasks plans them with :func:`plan_task`, through
+:func:`nephele.core.pipeline.tasks.plan` as the farm does.
 """
 
 import json
@@ -25,6 +30,11 @@ from contextlib import contextmanager
 
 import bpy
 from bpy.app.handlers import persistent
+
+from ..core.pipeline import tasks
+from ..core.pipeline.cache import Cache, default_cache_dir
+from ..core.pipeline.kinds import KINDS
+from ..core.pipeline.registry import code_stamp
 
 UPDATERS = {}
 """``kind -> fn(obj, params: dict, scene, frame: float)``."""
@@ -36,8 +46,16 @@ POLL_S = 0.05
 """How often the timer looks for finished work (seconds)."""
 
 
+def _check_kind(kind):
+    row = KINDS.get(kind)
+    if row is None or not row.updater:
+        raise KeyError(f"no frame updater for object kind {kind!r} in the table of kinds "
+                       f"(nephele.core.pipeline.kinds.KINDS): add its row first")
+
+
 def register_updater(kind):
-    """Decorator: ``@register_updater("contour")`` on ``fn(obj, params, scene, frame)``."""
+    """Decorator: ``@register_updater("volume")`` on ``fn(obj, params, scene, frame)``."""
+    _check_kind(kind)
 
     def deco(fn):
         UPDATERS[kind] = fn
@@ -63,6 +81,7 @@ class JobKind:
 
 def register_job(kind, plan, compute, apply, progress=None):
     """Register ``kind`` as a background kind; also registers its synchronous updater."""
+    _check_kind(kind)
     JOBS[kind] = JobKind(plan, compute, apply, progress)
 
     def updater(obj, params, scene, frame_number):
@@ -89,10 +108,48 @@ def set_params(obj, value):
 
 
 def _load_updaters():
-    # Importing the feature modules (the one list, addon.MODULES) registers their updaters.
+    # Importing the feature modules (the one list, addon.MODULES) registers their updaters;
+    # each row of the table of kinds with an updater must then have one.
     from . import _modules
 
     _modules()
+    missing = sorted(k for k, row in KINDS.items() if row.updater and k not in UPDATERS)
+    if missing:
+        raise KeyError(f"no frame updater registered for object kinds {missing} (see KINDS)")
+
+
+def results_dir():
+    """Where task results are cached: beside the saved .blend, else ``$NEPHELE_CACHE`` or ``~/.cache/nephele``.
+
+    Entries are content-addressed (an entry's name is the key of its code,
+    data and parameters), so sharing the user folder between sessions is safe;
+    it is also where the farm's workers precompute a scene built by a script.
+    Files a layer links by name go in :func:`.data_ops.cache_dir` instead.
+    """
+    return default_cache_dir(bpy.data.filepath or None)
+
+
+def shown_task(kind, task_params):
+    """The ``nephele_shown`` key of a task result: its parameters and the stamp of its code
+    (:func:`nephele.core.pipeline.registry.code_stamp`, as in its cache key), so a .blend
+    saved by other code shows no mesh that code made."""
+    return json.dumps(dict(task_params, code=code_stamp(kind)), sort_keys=True)
+
+
+def plan_task(obj, params, scene, frame_number, shown_key=shown_task):
+    """The plan (see :class:`JobKind`) of a layer whose frame is one core task.
+
+    The task comes from :func:`nephele.core.pipeline.tasks.plan`, as on the
+    farm; ``args`` are ``kind``, ``tp`` (its parameters) and ``cache``
+    (:func:`results_dir`).  ``shown_key(kind, tp)`` names the result.  None
+    when ``obj`` already shows it.
+    """
+    (kind, tp), = tasks.plan(params, frame_number)
+    key = shown_key(kind, tp)
+    if obj.get("nephele_shown") == key and len(obj.data.vertices):
+        return None
+    cache = results_dir()
+    return key, {"kind": kind, "tp": tp, "cache": str(cache)}, Cache(cache).file(kind, tp).is_file()
 
 
 # ---------------------------------------------------------------- when to be synchronous

@@ -11,6 +11,8 @@ from pathlib import Path
 
 import bpy
 
+from ..core.parse import parse_range, parse_size
+
 
 def merge_options(defaults, options):
     """``defaults`` updated by ``options``; an unknown option is a TypeError naming the known ones."""
@@ -27,7 +29,6 @@ def globe_scene(scene, o, *, sun_direction, haze=True, haze_mode="volume"):
     (None: :data:`nephele.core.climate.grid.DEFAULT_EXAGGERATION`).
     """
     from ..core.climate.grid import DEFAULT_EXAGGERATION
-
     from . import data_ops, globe_ops
 
     exaggeration = DEFAULT_EXAGGERATION if o["exaggeration"] is None else float(o["exaggeration"])
@@ -55,18 +56,6 @@ def render_settings(scene, size, samples, engine="CYCLES"):
     render.film_transparent = False
 
 
-def parse_frames(text):
-    """``"A-B"`` or ``"A"`` → ``(A, B)``."""
-    a, _, b = text.partition("-")
-    return int(a), int(b or a)
-
-
-def parse_size(text):
-    """``"WxH"`` → ``(W, H)``."""
-    w, _, h = text.lower().partition("x")
-    return int(w), int(h)
-
-
 def argument_parser(description, defaults):
     """An ArgumentParser with the options every globe example takes:
     ``--out --save --frames --size --samples --source``."""
@@ -75,7 +64,7 @@ def argument_parser(description, defaults):
     ap = argparse.ArgumentParser(description=description)
     ap.add_argument("--out", help="render the frames into this directory (frame_####.png)")
     ap.add_argument("--save", help="save the scene to this .blend")
-    ap.add_argument("--frames", type=parse_frames, default=defaults["frames"], help=f"A-B (default {f0}-{f1})")
+    ap.add_argument("--frames", type=parse_range, default=defaults["frames"], help=f"A-B (default {f0}-{f1})")
     ap.add_argument("--size", type=parse_size, default=defaults["size"], help=f"WxH (default {w}x{h})")
     ap.add_argument("--samples", type=int, default=defaults["samples"])
     ap.add_argument("--source", default=defaults["source"], help='"demo", "demo:small", a .nc or a .ctl')

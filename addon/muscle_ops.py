@@ -24,12 +24,10 @@ import math
 import bpy
 import numpy as np
 
-from ..core.pipeline.cache import default_cache_dir
-from ..core.surface.mesh import Mesh
 from ..core.muscle import film
 from ..core.muscle import lattice as lat
-from ..core.pipeline.cache import Cache
-from ..core.pipeline.tasks import plan as task_plan, run_cached
+from ..core.pipeline.tasks import run_cached
+from ..core.surface.mesh import Mesh
 from . import frame, materials
 from .mesh import fill_mesh, new_object, select_only
 from .panel import SubPanel
@@ -49,10 +47,6 @@ COLOURS = [
 """Molecule colours (linear RGB) at ``molecule / 4``, in the spirit of the Expo '90 film's saturated palette."""
 
 
-def cache_dir():
-    return default_cache_dir(bpy.data.filepath or None)
-
-
 def frame_mesh(arrays):
     """One :class:`Mesh` of the blobby surface and the cylinders of a ``"muscle_frame"`` result (nm)."""
     nv = len(arrays["vertices"])
@@ -66,12 +60,8 @@ def plan(obj, params, scene, frame_number):
     """Plan of the film layer for :func:`nephele.addon.frame.register_job` (None when the frame is shown).
 
     The first frame shown needs the whole simulation (tens of seconds): in the
-    interface it runs on the worker thread like every other frame."""
-    (kind, tp), = task_plan(params, frame_number)
-    if obj.get("nephele_shown") == tp["frame"] and len(obj.data.vertices):
-        return None
-    cache = cache_dir()
-    return tp["frame"], {"kind": kind, "tp": tp, "cache": str(cache)}, Cache(cache).file(kind, tp).is_file()
+    interface it runs on the worker thread like every other frame.  The film frame names the result."""
+    return frame.plan_task(obj, params, scene, frame_number, lambda kind, tp: tp["frame"])
 
 
 def compute(args, job=None):
@@ -161,7 +151,8 @@ def add_camera(scene, obj, cell, tiles):
     mid = (cell.thick_xy[0] + cell.thick_xy[1]) / 2
     local = np.array([mid[0], mid[1], 0.1 * cell.length]) + np.array([t // 2 for t in tiles]) * cell.box
     cam.location = tuple(SCALE * local + np.array(obj.location))
-    # Cameras look along their -z: turned to look up the fibre (+z), 25 degrees off its axis to see the filaments recede.
+    # Cameras look along their -z: turned to look up the fibre (+z), 25 degrees off its axis to see the
+    # filaments recede.
     cam.rotation_euler = (math.pi - math.radians(25), 0.0, math.radians(15))
     scene.collection.objects.link(cam)
     scene.camera = cam

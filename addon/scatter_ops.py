@@ -1,7 +1,7 @@
 """Blender side of the multiple-scattering cloud (Fig. 6).
 
-"Add scattering cloud" builds the droplet density (:mod:`..core.cloud_density`),
-runs the binned shooting solve (:mod:`..core.scatter`: 96 bins, or ``6 n^2`` with
+"Add scattering cloud" builds the droplet density (:mod:`nephele.core.volume.cloud_density`),
+runs the binned shooting solve (:mod:`nephele.core.light.scatter`: 96 bins, or ``6 n^2`` with
 "Bins per face" ``n``) as a modal operator that advances one group of bins per
 timer tick (progress in the status bar and the panel; the interface stays live;
 Esc cancels), then writes one VDB per frame
@@ -32,7 +32,7 @@ from .render_device import use_device
 
 
 def add_camera(cam, name="Scatter camera"):
-    """A Blender camera matching :class:`..core.scatter.Camera` ``cam``."""
+    """A Blender camera matching :class:`nephele.core.light.scatter.Camera` ``cam``."""
     scene = bpy.context.scene
     obj = camera_object(scene, name, angle=cam.fov)
     obj.location = cam.position
@@ -290,7 +290,7 @@ def sun_direction(elevation_deg, azimuth_deg):
 
 
 def cloud_params(props):
-    """:class:`..core.cloud_density.CloudParams` from the panel's properties."""
+    """:class:`nephele.core.volume.cloud_density.CloudParams` from the panel's properties."""
     nx, ny, nz = props.resolution
     return cd.CloudParams(shape=(int(nz), int(ny), int(nx)), size=tuple(props.size),
                           noise_amplitude=props.noise_amplitude, noise_scale=props.noise_scale,
@@ -453,7 +453,7 @@ class ScatterJob:
     def __init__(self, context, props):
         from mathutils import Vector
 
-        from ..core.pipeline.cache import check_memory
+        from ..core.memory import check_memory
 
         self.params = cloud_params(props)
         check_memory(BYTES_PER_CELL * (props.bins_per_face / 4) ** 2 * math.prod(self.params.shape),
@@ -530,10 +530,12 @@ class ScatterJob:
                 except StopIteration as stop:
                     self.solution = stop.value
                     scatter.save_solution(self.solution, self.directory / "solution.npz")
-                    from ..core.pipeline.cache import Cache, default_cache_dir
+                    from ..core.pipeline.cache import Cache
+                    from ..core.pipeline.kinds import KINDS
+                    from .frame import results_dir
 
-                    Cache(default_cache_dir(bpy.data.filepath or None)).store(
-                        "scatter", self.task, scatter.solution_arrays(self.solution))
+                    (kind,) = KINDS[KIND].tasks  # stored where the farm's plan for this object looks
+                    Cache(results_dir()).store(kind, self.task, scatter.solution_arrays(self.solution))
             elif self.view_index < len(self.frames):
                 self._write_view(self.frames[self.view_index])
                 self.view_index += 1

@@ -31,17 +31,16 @@ References
 
 import zlib
 
+import bpy
 import numpy as np
 
-import bpy
-
-from ..core.surface.contour_task import frame_hours
 from ..core.errors import DataError
 from ..core.splats import default_tile, splat_kernel, splat_samples, streak_maps, streak_offsets
-from ..core.volume.transfer import TransferFunction
+from ..core.surface.contour_task import frame_hours
 from ..core.volume.sparse import DEFAULT_EXTINCTION
+from ..core.volume.transfer import TransferFunction
 from . import data_ops, frame
-from .mesh import point_attribute, select_only, set_point_attribute
+from .mesh import select_only, set_point_attribute
 from .nodes import Nodes
 from .panel import SubPanel
 
@@ -139,10 +138,33 @@ def splat_node_group(material):
     ng.interface.new_socket(name="Geometry", in_out="INPUT", socket_type="NodeSocketGeometry")
     ng.interface.new_socket(name="Geometry", in_out="OUTPUT", socket_type="NodeSocketGeometry")
     g = Nodes(ng)
-    gin = ng.nodes.new("NodeGroupInput")
-    gin.location = (-1400, 0)
-    gout = ng.nodes.new("NodeGroupOutput")
-    gout.location = (1000, 0)
+    cam = _camera_frame(ng)
+    theta, major, minor = _shadow_ellipse(ng, g, cam)
+    rel, along, across, k = _perspective(ng, g, cam, theta)
+    r_z = g.vmath("LENGTH", _shadow(ng, g, cam["ez"], -500), loc=(-400, -500))
+    scale = ng.nodes.new("ShaderNodeCombineXYZ")
+    scale.location = (900, -100)
+    _link(ng, g.math("MULTIPLY", g.math("MULTIPLY_ADD", r_z, along, major, loc=(700, 100)), k, loc=(800, 100)),
+          scale.inputs[0])
+    _link(ng, g.math("MULTIPLY", g.math("MULTIPLY_ADD", r_z, across, minor, loc=(700, -50)), k, loc=(800, -50)),
+          scale.inputs[1])
+    scale.inputs[2].default_value = 1.0
+    spin = ng.nodes.new("FunctionNodeAxisAngleToRotation")
+    spin.location = (200, -250)
+    spin.inputs["Axis"].default_value = (0.0, 0.0, 1.0)
+    _link(ng, theta, spin.inputs["Angle"])
+    turn = ng.nodes.new("FunctionNodeRotateRotation")
+    turn.location = (400, -250)
+    turn.rotation_space = "LOCAL"
+    _link(ng, cam["rot"], turn.inputs["Rotation"])
+    _link(ng, spin.outputs[0], turn.inputs["Rotate By"])
+    _sorted_quads(ng, g, g.vmath("DOT_PRODUCT", rel, cam["ez"], loc=(-400, 300)), turn.outputs[0], scale.outputs[0],
+                  material)
+    return ng
+
+
+def _camera_frame(ng):
+    """The active camera in the object's space: ``rot``, its ``location`` and axes ``ex``, ``ey``, ``ez``."""
     cam = ng.nodes.new("GeometryNodeInputActiveCamera")
     cam.location = (-1400, -300)
     info = ng.nodes.new("GeometryNodeObjectInfo")
@@ -158,21 +180,28 @@ def splat_node_group(material):
         _link(ng, rot, node.inputs["Rotation"])
         return node.outputs[0]
 
-    ex, ey, ez = cam_axis((1, 0, 0), -300), cam_axis((0, 1, 0), -450), cam_axis((0, 0, 1), -600)
+    return {"rot": rot, "location": info.outputs["Location"], "ex": cam_axis((1, 0, 0), -300),
+            "ey": cam_axis((0, 1, 0), -450), "ez": cam_axis((0, 0, 1), -600)}
 
-    def shadow(e, y):
-        """``axesᵀ e``: the ellipsoid's semi-axes projected on the view-plane direction ``e``."""
-        comps = [g.vmath("DOT_PRODUCT", _gn_attr(ng, AXES + str(k), loc=(-1000, y - 60 * k)), e,
-                         loc=(-800, y - 60 * k)) for k in range(3)]
-        comb = ng.nodes.new("ShaderNodeCombineXYZ")
-        comb.location = (-600, y)
-        for k in range(3):
-            _link(ng, comps[k], comb.inputs[k])
-        return comb.outputs[0]
 
-    # The shadow ellipse {P M u : |u| <= 1} has the 2x2 shape matrix C = (P M)(P M)ᵀ, P = [e_x e_y]ᵀ:
-    # its principal axes are at angle θ = atan2(2 c01, c00 - c11) / 2 from e_x, half-lengths √λ±.
-    a, b = shadow(ex, 0), shadow(ey, -250)
+def _shadow(ng, g, e, y):
+    """``axesᵀ e``: the ellipsoid's semi-axes projected on the view-plane direction ``e``."""
+    comps = [g.vmath("DOT_PRODUCT", _gn_attr(ng, AXES + str(k), loc=(-1000, y - 60 * k)), e,
+                     loc=(-800, y - 60 * k)) for k in range(3)]
+    comb = ng.nodes.new("ShaderNodeCombineXYZ")
+    comb.location = (-600, y)
+    for k in range(3):
+        _link(ng, comps[k], comb.inputs[k])
+    return comb.outputs[0]
+
+
+def _shadow_ellipse(ng, g, cam):
+    """The orthographic shadow's axis angle ``θ`` from ``e_x`` and its half-lengths ``√λ+``, ``√λ-``.
+
+    The shadow ellipse {P M u : |u| <= 1} has the 2x2 shape matrix C = (P M)(P M)ᵀ, P = [e_x e_y]ᵀ:
+    its principal axes are at angle θ = atan2(2 c01, c00 - c11) / 2 from e_x, half-lengths √λ±.
+    """
+    a, b = _shadow(ng, g, cam["ex"], 0), _shadow(ng, g, cam["ey"], -250)
     c00 = g.vmath("DOT_PRODUCT", a, a, loc=(-400, 100))
     c11 = g.vmath("DOT_PRODUCT", b, b, loc=(-400, 0))
     c01 = g.vmath("DOT_PRODUCT", a, b, loc=(-400, -100))
@@ -184,6 +213,16 @@ def splat_node_group(material):
     theta = g.math("MULTIPLY", g.math("ARCTAN2", g.math("MULTIPLY", c01, 2.0, loc=(-250, -150)),
                                       half_diff, loc=(-100, -150)), 0.5, loc=(50, -200))
     # ARCTAN2(y, x) = atan2(2 c01, (c00 - c11)/2 ... ) has the sign of atan2(2 c01, c00 - c11): same angle.
+    major = g.math("SQRT", g.math("ADD", mean, root, loc=(500, 100)), loc=(600, 100))
+    # max(., 0): λ₋ of a splat seen exactly edge-on is 0 up to rounding.
+    minor = g.math("SQRT", g.math("MAXIMUM", g.math("SUBTRACT", mean, root, loc=(500, -50)), 0.0, loc=(550, -50)),
+                   loc=(600, -50))
+    return theta, major, minor
+
+
+def _perspective(ng, g, cam, theta):
+    """The point's offset from the eye ``rel`` and how the quad grows under perspective:
+    ``(rel, along, across, k)`` (see below)."""
     # Under perspective the rays through a splat are not along the camera's z: a point d of the
     # ellipsoid is seen on the quad's plane (through the centre, parallel to the view plane) at
     # (d_xy + t d_z) depth / (depth - d_z), t = the centre's lateral offset / depth: the orthographic
@@ -191,54 +230,39 @@ def splat_node_group(material):
     # axis), scaled by at most k = depth / (depth - r).  So each half-length grows by r_z |t . axis|
     # and then by k: the quad holds every ray that meets the splat, for either kind of camera.
     # Splats reaching the eye's plane (depth <= r) get no quad, as the core renderer drops them.
+    ex, ey, ez = cam["ex"], cam["ey"], cam["ez"]
     pos = ng.nodes.new("GeometryNodeInputPosition")
     pos.location = (-800, 300)
-    rel = g.vmath("SUBTRACT", pos.outputs[0], info.outputs["Location"], loc=(-600, 300))
+    rel = g.vmath("SUBTRACT", pos.outputs[0], cam["location"], loc=(-600, 300))
     depth = g.math("MULTIPLY", g.vmath("DOT_PRODUCT", rel, ez, loc=(-400, 450)), -1.0, loc=(-250, 450))
     tx = g.math("DIVIDE", g.vmath("DOT_PRODUCT", rel, ex, loc=(-400, 550)), depth, loc=(-250, 550))
     ty = g.math("DIVIDE", g.vmath("DOT_PRODUCT", rel, ey, loc=(-400, 600)), depth, loc=(-250, 600))
     cos, sin = g.math("COSINE", theta, loc=(200, 550)), g.math("SINE", theta, loc=(200, 600))
-    along = g.math("ABSOLUTE", g.math("MULTIPLY_ADD", tx, cos, g.math("MULTIPLY", ty, sin, loc=(350, 600)), loc=(500, 550)),
-                   loc=(650, 550))
+    along = g.math("ABSOLUTE", g.math("MULTIPLY_ADD", tx, cos, g.math("MULTIPLY", ty, sin, loc=(350, 600)),
+                                      loc=(500, 550)), loc=(650, 550))
     across = g.math("ABSOLUTE", g.math("SUBTRACT", g.math("MULTIPLY", ty, cos, loc=(350, 650)),
                                        g.math("MULTIPLY", tx, sin, loc=(350, 700)), loc=(500, 650)), loc=(650, 650))
-    reach = g.math("MAXIMUM", g.math("MAXIMUM", *(g.vmath("LENGTH", _gn_attr(ng, AXES + str(k), loc=(-600, 650 + 60 * k)),
-                                                          loc=(-400, 650 + 60 * k)) for k in range(2)), loc=(-250, 700)),
+    lengths = (g.vmath("LENGTH", _gn_attr(ng, AXES + str(k), loc=(-600, 650 + 60 * k)), loc=(-400, 650 + 60 * k))
+               for k in range(2))
+    reach = g.math("MAXIMUM", g.math("MAXIMUM", *lengths, loc=(-250, 700)),
                    g.vmath("LENGTH", _gn_attr(ng, AXES + "2", loc=(-600, 770)), loc=(-400, 770)), loc=(-100, 700))
     gap = g.math("SUBTRACT", depth, reach, loc=(50, 650))
     k = g.math("MULTIPLY", g.math("DIVIDE", depth, g.math("MAXIMUM", gap, 1e-9, loc=(200, 650)), loc=(350, 650)),
                g.math("GREATER_THAN", gap, 1e-4, loc=(200, 750)), loc=(500, 650))
-    r_z = g.vmath("LENGTH", shadow(ez, -500), loc=(-400, -500))
-    scale = ng.nodes.new("ShaderNodeCombineXYZ")
-    scale.location = (900, -100)
-    major = g.math("SQRT", g.math("ADD", mean, root, loc=(500, 100)), loc=(600, 100))
-    # max(., 0): λ₋ of a splat seen exactly edge-on is 0 up to rounding.
-    minor = g.math("SQRT", g.math("MAXIMUM", g.math("SUBTRACT", mean, root, loc=(500, -50)), 0.0, loc=(550, -50)),
-                   loc=(600, -50))
-    _link(ng, g.math("MULTIPLY", g.math("MULTIPLY_ADD", r_z, along, major, loc=(700, 100)), k, loc=(800, 100)),
-          scale.inputs[0])
-    _link(ng, g.math("MULTIPLY", g.math("MULTIPLY_ADD", r_z, across, minor, loc=(700, -50)), k, loc=(800, -50)),
-          scale.inputs[1])
-    scale.inputs[2].default_value = 1.0
-    spin = ng.nodes.new("FunctionNodeAxisAngleToRotation")
-    spin.location = (200, -250)
-    spin.inputs["Axis"].default_value = (0.0, 0.0, 1.0)
-    _link(ng, theta, spin.inputs["Angle"])
-    turn = ng.nodes.new("FunctionNodeRotateRotation")
-    turn.location = (400, -250)
-    turn.rotation_space = "LOCAL"
-    _link(ng, rot, turn.inputs["Rotation"])
-    _link(ng, spin.outputs[0], turn.inputs["Rotate By"])
-    quad_rot = turn.outputs[0]
+    return rel, along, across, k
 
-    # Back to front: the key is the depth along the camera's view (its -z).
-    key = g.vmath("DOT_PRODUCT", rel, ez, loc=(-400, 300))  # -depth: farthest first
+
+def _sorted_quads(ng, g, key, quad_rot, scale, material):
+    """Points sorted by ``key`` (back to front), a quad instanced on each, realized, with ``material``."""
+    gin = ng.nodes.new("NodeGroupInput")
+    gin.location = (-1400, 0)
+    gout = ng.nodes.new("NodeGroupOutput")
+    gout.location = (1000, 0)
     sort = ng.nodes.new("GeometryNodeSortElements")
     sort.domain = "POINT"
     sort.location = (-200, 300)
     _link(ng, gin.outputs[0], sort.inputs["Geometry"])
-    _link(ng, key, sort.inputs["Sort Weight"])
-
+    _link(ng, key, sort.inputs["Sort Weight"])  # -depth along the camera's view (its -z): farthest first
     quad = ng.nodes.new("GeometryNodeMeshGrid")
     quad.location = (0, -300)
     quad.inputs["Size X"].default_value = 2.0
@@ -250,7 +274,7 @@ def splat_node_group(material):
     _link(ng, sort.outputs[0], inst.inputs["Points"])
     _link(ng, quad.outputs["Mesh"], inst.inputs["Instance"])
     _link(ng, quad_rot, inst.inputs["Rotation"])
-    _link(ng, scale.outputs[0], inst.inputs["Scale"])
+    _link(ng, scale, inst.inputs["Scale"])
     real = ng.nodes.new("GeometryNodeRealizeInstances")
     real.location = (500, 0)
     _link(ng, inst.outputs[0], real.inputs["Geometry"])
@@ -259,7 +283,6 @@ def splat_node_group(material):
     _link(ng, real.outputs[0], setmat.inputs["Geometry"])
     setmat.inputs["Material"].default_value = material
     _link(ng, setmat.outputs[0], gout.inputs[0])
-    return ng
 
 
 def add_modifier(obj, material):
@@ -539,7 +562,9 @@ def _bilinear_lookup(tree, image, u, v, name, loc):
                             interpolation="Closest") for i, uu in enumerate((u0, u1))] for j, vv in enumerate((v0, v1))]
 
     def lerp(a, b, f, yy):
-        return _sh_math(tree, "MULTIPLY_ADD", _sh_math(tree, "SUBTRACT", b, a, loc=(x + 700, yy)), f, a, loc=(x + 850, yy))
+        return _sh_math(
+            tree, "MULTIPLY_ADD", _sh_math(tree, "SUBTRACT", b, a, loc=(x + 700, yy)), f, a, loc=(x + 850, yy)
+        )
 
     return lerp(lerp(*reads[0], fu, y), lerp(*reads[1], fu, y - 150), fv, y - 75)
 

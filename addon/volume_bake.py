@@ -13,9 +13,8 @@ import threading
 
 import bpy
 
-from ..core.pipeline.cache import default_cache_dir
+from ..volume_files import bake_frame
 from . import data_ops, frame
-from .vdb import bake_frame
 
 
 class BakeJob:
@@ -31,7 +30,7 @@ class BakeJob:
         self.frames = [cur] + [f for f in range(f0, f1 + 1) if f != cur]
         self.f0, self.prefix = f0, PREFIX
         self.directory = data_ops.layer_dir(self.params)
-        self.cache = default_cache_dir(bpy.data.filepath or None)
+        self.cache = frame.results_dir()
         self.infos, self.error = [], None
         self.cancelled = False
         self._thread = None
@@ -116,7 +115,9 @@ class NEPHELE_OT_bake_volume(bpy.types.Operator):
             return {"CANCELLED"}
         n, total = len(job.infos), len(job.frames)
         if n < total:
-            self.report({"WARNING"}, f"{job.name}: stopped after {n} of {total} frames; the rest are written when shown")
+            self.report(
+                {"WARNING"}, f"{job.name}: stopped after {n} of {total} frames; the rest are written when shown"
+            )
             return {"CANCELLED"}
         self.report({"INFO"}, f"{job.name}: {total} frames in {job.directory}")
         return {"FINISHED"}

@@ -1,18 +1,10 @@
-"""Exact volume shading in Blender: atlas images, a support VDB and the node graph.
+"""Exact volume shading in Blender: the node graph that evaluates the atlases.
 
-:mod:`nephele.core.volume.volume_atlas` describes the program; this module writes
-its data where Blender loads it natively and builds the same program from
-shader nodes:
-
-* ``<prefix>_heights.exr`` — the heights atlas (one file, the grid is fixed);
-* ``<prefix>_0001.exr`` … — the values atlas per frame, an image sequence;
-* ``<prefix>_0001.vdb`` … — the ``support`` grid per frame (1 in the voxels
-  that may hold cloud), the volume object's sequence: it bounds where Cycles
-  looks and masks the density.
-
-Files are 32-bit float OpenEXR (OpenImageIO, bundled with Blender), written
-to a temporary name and renamed.  Image rows are stored top-down in EXR and
-bottom-up in Blender, so atlas row 0 is written last.
+:mod:`nephele.core.volume.volume_atlas` describes the program and
+:mod:`nephele.volume_files` writes its data where Blender loads it natively
+(the heights and values atlases as EXR images, the ``support`` grid per frame
+as the volume object's ``.vdb`` sequence: it bounds where Cycles looks and
+masks the density); this module builds the same program from shader nodes.
 
 References
 ----------
@@ -20,66 +12,10 @@ References
 """
 
 import math
-from pathlib import Path
-
-import numpy as np
 
 from ..core.volume.volume_atlas import INDEX_EDGE, PAD, VALID, tf_ramps
-from ..fileio import block_grid, oiio, write_image, write_vdb
+from ..volume_files import SUPPORT
 from .nodes import Nodes
-
-SUPPORT = "support"
-"""Name of the support grid."""
-
-
-def write_exr(path, img, metadata=None):
-    """Write an ``(h, w, 4)`` float32 atlas as a 32-bit float EXR (row 0 at the bottom, as Blender reads it)."""
-    return write_image(path, np.asarray(img, np.float32)[::-1], pixel_type="float", metadata=metadata,
-                       compression="zip")
-
-
-def read_exr(path):
-    """An atlas written by :func:`write_exr`, row 0 at the bottom, and its metadata."""
-    io = oiio()
-    inp = io.ImageInput.open(str(path))
-    if inp is None:
-        raise OSError(f"{path}: cannot read EXR: {io.geterror()}")
-    spec = inp.spec()
-    img = inp.read_image("float")
-    meta = {a.name: a.value for a in spec.extra_attribs}
-    inp.close()
-    return np.asarray(img, np.float32)[::-1], meta
-
-
-def exr_key(path):
-    """The ``nephele_key`` metadata of an EXR (None if absent or unreadable)."""
-    if not Path(path).is_file():
-        return None
-    try:
-        io = oiio()
-        inp = io.ImageInput.open(str(path))
-        if inp is None:
-            io.geterror()  # clear it: OpenImageIO complains at exit about unread errors
-            return None
-        key = inp.spec().get_string_attribute("nephele_key") or None
-        inp.close()
-        return key
-    except (OSError, RuntimeError):
-        return None
-
-
-def write_support(path, support, support_size, metadata=None):
-    """The ``support`` grid (1 in every voxel of ``support`` (n, 3)) as a ``.vdb``, atomically."""
-    B = 8
-    vox = np.asarray(support, np.int64).reshape(-1, 3)
-    blocks, inverse = np.unique(np.floor_divide(vox, B), axis=0, return_inverse=True)
-    data = np.zeros((blocks.shape[0], B, B, B), np.float32)
-    loc = vox - blocks[inverse.reshape(-1)] * B
-    data[inverse.reshape(-1), loc[:, 0], loc[:, 1], loc[:, 2]] = 1.0
-    return write_vdb(path, [block_grid(SUPPORT, blocks, data, B, support_size)], metadata or {})
-
-
-# ------------------------------------------------------------------ the node graph
 
 
 class _Nodes(Nodes):
@@ -184,7 +120,9 @@ def _index_nodes(g, position, index, image):
     """:meth:`IndexMap.lookup` as nodes: ``(column, row, front)`` sockets."""
     q = [g.vmath("DOT_PRODUCT", position, tuple(b)) for b in index["basis"]]
     front = g.math("GREATER_THAN", q[2], 0.0)
-    z = g.math("MULTIPLY_ADD", g.math("SUBTRACT", 1.0, front), 1.0, g.math("MULTIPLY", q[2], front))  # 1 behind the globe
+    z = g.math(
+        "MULTIPLY_ADD", g.math("SUBTRACT", 1.0, front), 1.0, g.math("MULTIPLY", q[2], front)
+    )  # 1 behind the globe
     (x0, y0), (x1, y1) = index["lo"], index["hi"]
     u = g.math("MULTIPLY_ADD", g.math("DIVIDE", q[0], z), 1.0 / (x1 - x0), -x0 / (x1 - x0))
     v = g.math("MULTIPLY_ADD", g.math("DIVIDE", q[1], z), 1.0 / (y1 - y0), -y0 / (y1 - y0))
@@ -206,4 +144,4 @@ def tf_nodes(tree, value, tf, location=(-600, 300)):
     return g.math("ADD", total, offset, label="transfer function") if offset else total
 
 
-__all__ = ["SUPPORT", "exr_key", "field_nodes", "read_exr", "tf_nodes", "write_exr", "write_support"]
+__all__ = ["field_nodes", "tf_nodes"]

@@ -3,15 +3,15 @@
 The code is grouped by domain (see ``docs/architecture.md``): :mod:`.climate`,
 :mod:`.surface`, :mod:`.volume`, :mod:`.flow`, :mod:`.light`, :mod:`.camera`,
 :mod:`.texture`, the task side :mod:`.pipeline`, and one package per figure
-(:mod:`.splats`, :mod:`.flowvol`, :mod:`.muscle`).  The main entry points and the modules by
-their former flat names (``nephele.core.grid``…) are attributes of this package,
-imported on first use so that ``import nephele.core.errors`` stays cheap.
+(:mod:`.splats`, :mod:`.flowvol`, :mod:`.muscle`).  The main entry points are attributes of
+this package, imported on first use so that ``import nephele.core.errors`` stays cheap.
 """
 
 import importlib
+import warnings
 
-# Former flat module name -> its module in the domain layout.
-_MODULES = {
+# Former flat module name -> its module in the domain layout; deprecated, removed in 0.2.
+_FORMER = {
     "grid": "climate.grid", "dataset": "climate.dataset", "readers": "climate.readers",
     "netcdf": "climate.netcdf", "grads": "climate.grads", "grib": "climate.grib",
     "zarrstore": "climate.zarrstore", "gridfile": "climate.gridfile", "synthetic": "climate.synthetic",
@@ -50,10 +50,12 @@ __all__ = sorted(_ENTRY_POINTS)
 def __getattr__(name):
     if name in _ENTRY_POINTS:
         return getattr(importlib.import_module(f".{_ENTRY_POINTS[name]}", __name__), name)
-    if name in _MODULES:
-        return importlib.import_module(f".{_MODULES[name]}", __name__)
+    if name in _FORMER:
+        warnings.warn(f"nephele.core.{name} is deprecated and ends in Nephele 0.2: "
+                      f"use nephele.core.{_FORMER[name]}", DeprecationWarning, stacklevel=2)
+        return importlib.import_module(f".{_FORMER[name]}", __name__)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def __dir__():
-    return sorted(set(globals()) | set(_ENTRY_POINTS) | set(_MODULES))
+    return sorted(set(globals()) | set(_ENTRY_POINTS))

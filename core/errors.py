@@ -25,3 +25,7 @@ class DataError(ValueError):
             parts.append(f"field '{field}'")
         prefix = ": ".join(parts)
         super().__init__(f"{prefix}: {problem}" if prefix else problem)
+
+
+class UsageError(ValueError):
+    """A bad command-line value, found before any work starts (the ``nephele`` CLI exits 2 with its line)."""

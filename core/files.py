@@ -140,7 +140,7 @@ def atomic_write(path, *, fsync=True):
         if tmp.stat().st_mode & 0o777 != mode:  # a writer that re-created the file
             os.chmod(tmp, mode)
         if fsync:
-            _fsync(tmp, os.O_RDWR)  # Windows flushes only a handle open for writing
+            fsync_path(tmp, os.O_RDWR)  # Windows flushes only a handle open for writing
         replace(tmp, path)
     except BaseException as exc:
         if made or not isinstance(exc, FileExistsError):  # (that one: the name was not ours)
@@ -152,7 +152,7 @@ def atomic_write(path, *, fsync=True):
                 raise problem from exc
         raise
     if fsync and os.name == "posix":  # the rename itself; folders cannot be opened on Windows
-        _fsync(path.parent, os.O_RDONLY)
+        fsync_path(path.parent)
 
 
 def replace(src, dst):
@@ -208,7 +208,8 @@ def locked(path, *, wait=True):
             yield f
 
 
-def _fsync(path, flags):
+def fsync_path(path, flags=os.O_RDONLY):
+    """Flush ``path`` (a file or, on POSIX, a folder) to disk."""
     fd = os.open(path, flags)
     try:
         os.fsync(fd)
@@ -300,4 +301,4 @@ def _alive_windows(pid, k=None):
 
 
 __all__ = ["DISK_ERRNOS", "WriteError", "atomic_write", "check_space", "free_bytes", "lock_file", "locked", "process_alive",
-           "replace", "write_error"]
+           "fsync_path", "replace", "write_error"]

@@ -31,7 +31,7 @@ from .errors import DataError
 _UNITS = {"": 1, "B": 1, "K": 1 << 10, "M": 1 << 20, "G": 1 << 30, "T": 1 << 40}
 
 
-def parse_size(text):
+def parse_bytes(text):
     """``"2G"`` → 2147483648 (binary units; a plain number is bytes); None for empty text."""
     text = str(text or "").strip().upper().removesuffix("IB").removesuffix("B")
     if not text:
@@ -142,7 +142,7 @@ def _rlimits():
 
 def available_memory():
     """Bytes this process can still allocate (the least of the limits in the module docstring), or None if unknown."""
-    known = [v for v in (_machine(), _cgroup(), _rlimits(), parse_size(os.environ.get("NEPHELE_MEMORY_LIMIT")))
+    known = [v for v in (_machine(), _cgroup(), _rlimits(), parse_bytes(os.environ.get("NEPHELE_MEMORY_LIMIT")))
              if v is not None]
     return min(known) if known else None
 
@@ -180,4 +180,4 @@ def check_memory(need, what, *, hint=None, available=None, path=None, field=None
     return need
 
 
-__all__ = ["available_memory", "check_memory", "format_bytes", "parse_size"]
+__all__ = ["available_memory", "check_memory", "format_bytes", "parse_bytes"]

@@ -158,11 +158,6 @@ def side_by_side(left_png, right_png, out_png, height=375, gap=12, cameras=None)
     return write_image(out_png, np.concatenate([tiles[0], sep, tiles[1]], axis=1))
 
 
-def _size(text):
-    w, _, h = text.lower().partition("x")
-    return int(w), int(h)
-
-
 def main(argv=None):
     argv = sys.argv[1:] if argv is None else argv
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])

@@ -41,11 +41,6 @@ def build(frames=120, grid=(24, 24, 18), sun_irradiance=7.0, sky_radiance=0.35, 
                         sky=sky)["cloud"]
 
 
-def _frames(text):
-    a, _, b = text.partition("-")
-    return int(a), int(b or a)
-
-
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", help="render frames into this directory")
@@ -63,8 +58,10 @@ def main(argv=None):
 
     sys.path.insert(0, str(ROOT.parent))
     bpy.ops.wm.read_factory_settings(use_empty=True)
-    w, h = (int(v) for v in args.size.lower().split("x"))
-    first, last = _frames(args.frames)
+    from nephele.core.parse import parse_range, parse_size
+
+    w, h = parse_size(args.size)
+    first, last = parse_range(args.frames)
     out = Path(args.out).resolve() if args.out else None
     directory = (out / "vdb") if out else None
     build(frames=max(120, last), grid=tuple(int(v) for v in args.grid.split("x")), size=(w, h),

@@ -10,7 +10,7 @@ import argparse
 import importlib
 import sys
 
-from ..core.errors import DataError
+from ..core.errors import DataError, UsageError
 
 COMMANDS = (
     "info",
@@ -42,10 +42,6 @@ EXTRAS = {
     "bpy": "farm", "mathutils": "farm", "dask": "farm", "distributed": "farm", "dask_jobqueue": "farm",
     "imageio_ffmpeg": "farm", "psutil": "farm",
 }
-
-
-class UsageError(ValueError):
-    """A bad command-line value, found before any work starts."""
 
 
 def _load():

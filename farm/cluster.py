@@ -25,7 +25,7 @@ import logging
 import os
 import sys
 
-from .cli import UsageError
+from ..core.errors import UsageError
 
 JOBQUEUE = ("slurm", "pbs")
 

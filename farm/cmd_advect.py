@@ -8,7 +8,8 @@ each frame under the same key the Blender object of kind
 
 import time
 
-from .cli import UsageError
+from ..core.errors import UsageError
+from ..core.parse import parse_range
 from .reader_options import add_reader_options, open_with_overrides
 
 HELP = "precompute the contour and texture start coordinates of an advected cloud texture for a frame range"
@@ -38,24 +39,12 @@ def add_arguments(p):
     add_reader_options(p)
 
 
-def _frames(text):
-    a, sep, b = text.partition("-")
-    try:
-        first, last = int(a), int(b if sep else a)
-    except ValueError:
-        raise UsageError(f"--frames must look like A-B, got {text!r}") from None
-    if last < first:
-        raise UsageError(f"--frames {text}: the last frame is before the first")
-    return first, last
-
-
 def run(args):
-    from ..core.flow import advect_task
-    from ..core.pipeline.cache import Cache, default_cache_dir
     from ..core.climate.grid import DEFAULT_EXAGGERATION
-    from ..core.pipeline.tasks import run_cached
+    from ..core.pipeline.cache import Cache, default_cache_dir
+    from ..core.pipeline.tasks import plan, run_cached
 
-    first, last = _frames(args.frames)
+    first, last = parse_range(args.frames)
     if args.strategy == "restart" and (args.period < 2 or args.period % 2):
         raise UsageError(f"--period must be an even number >= 2, got {args.period}")
     if not args.hours_per_frame > 0:
@@ -73,8 +62,8 @@ def run(args):
     total = 0.0
     for f in range(first, last + 1):
         t0 = time.perf_counter()
-        tp = advect_task.advect_task_params(obj_params, f)
-        out = run_cached("advect_contour", tp, cache)
+        (kind, tp), = plan(obj_params, f)
+        out = run_cached(kind, tp, cache)
         dt = time.perf_counter() - t0
         total += dt
         print(f"frame {f}: {len(out['vertices'])} vertices, model time {tp['hours']:g} h, {dt:.2f} s", flush=True)

@@ -2,7 +2,7 @@
 
 from pathlib import Path
 
-from .cli import UsageError
+from ..core.errors import UsageError
 from .reader_options import add_reader_options, reader_kwargs
 
 HELP = "export the contour surface of a variable at one time step as .ply, .glb or .obj"

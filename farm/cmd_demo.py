@@ -19,7 +19,8 @@ import threading
 import time
 from pathlib import Path
 
-from .cli import UsageError
+from ..core.errors import UsageError
+from ..core.parse import parse_size
 
 HELP = "render the Fig. 1 demo film (embedded data) to PNG frames and a contact sheet"
 
@@ -38,16 +39,6 @@ def add_arguments(p):
                    help="model hours per frame (default 6: 24 frames show six days)")
     p.add_argument("--haze", choices=("none", "shell", "volume"), default="none",
                    help="blue haze: none (default), a closed-form shell (cheap) or a volume (about 3x slower)")
-
-
-def _size(text):
-    try:
-        w, h = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise UsageError(f"--size must look like 320x240, got {text!r}") from None
-    if not (8 <= w <= 8192 and 8 <= h <= 8192):
-        raise UsageError(f"--size {text} is outside 8..8192 pixels")
-    return w, h
 
 
 class PeakMemory:
@@ -129,7 +120,7 @@ def run(args):
     from .post import contact_sheet
     from .render import render_sequence
 
-    size = _size(args.size)
+    size = parse_size(args.size, lo=8, hi=8192)
     if args.samples < 1:
         raise UsageError(f"--samples must be >= 1, got {args.samples}")
     if not args.hours_per_frame > 0:

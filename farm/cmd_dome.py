@@ -11,7 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .cli import UsageError
+from ..core.errors import UsageError
+from ..core.parse import parse_range, parse_size
 
 HELP = "remap cube faces or an equirect image to a domemaster or Omnimax frame (antialiased)"
 
@@ -22,7 +23,9 @@ def add_arguments(p):
     p.add_argument("--out", required=True, help="output image (pattern with {frame} for sequences)")
     p.add_argument("--from", dest="kind", choices=("cube", "equirect"), default=None,
                    help="source kind (default: cube when SOURCE has {face} or is a folder, else equirect)")
-    p.add_argument("--preset", choices=("omnimax", "domemaster"), default="omnimax", help="dome frame (default omnimax)")
+    p.add_argument(
+        "--preset", choices=("omnimax", "domemaster"), default="omnimax", help="dome frame (default omnimax)"
+    )
     p.add_argument("--size", metavar="WxH", help="frame size (default 2048x1500 omnimax, 2048x2048 domemaster)")
     p.add_argument("--tilt", type=float, help="dome tilt in degrees (default 25 omnimax, 0 domemaster)")
     p.add_argument("--fov", type=float, help="field of view across the frame width, degrees (default 180)")
@@ -32,34 +35,11 @@ def add_arguments(p):
     p.add_argument("--frames", metavar="A-B", help="frame range substituted for {frame} in SOURCE and --out")
 
 
-def _size(text):
-    if text is None:
-        return None, None
-    try:
-        w, h = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise UsageError(f"--size must look like 2048x1500, got {text!r}") from None
-    return w, h
-
-
-def _frames(text):
-    if text is None:
-        return [None]
-    try:
-        a, _, b = text.partition("-")
-        a, b = int(a), int(b or a)
-    except ValueError:
-        raise UsageError(f"--frames must look like 1-240, got {text!r}") from None
-    if b < a:
-        raise UsageError(f"--frames: end {b} before start {a}")
-    return list(range(a, b + 1))
-
-
 def load_source(source, kind, frame=None):
     """(6, n, n, C) cube faces or (H, W, C) equirect pixels from files."""
-    from ..fileio import read_image
     from ..core.camera import dome
     from ..core.errors import DataError
+    from ..fileio import read_image
 
     if kind == "equirect":
         return read_image(_path(source.format(frame=frame) if frame is not None else source))
@@ -84,12 +64,15 @@ def _path(p):
 
 
 def run(args):
-    from ..fileio import write_image
     from ..core.camera import dome
+    from ..fileio import write_image
 
     kind = args.kind or ("cube" if "{face}" in args.source or Path(args.source).is_dir() else "equirect")
-    w, h = _size(args.size)
-    frames = _frames(args.frames)
+    w, h = (None, None) if args.size is None else parse_size(args.size, example="2048x1500")
+    frames = [None]
+    if args.frames is not None:
+        first, last = parse_range(args.frames)
+        frames = list(range(first, last + 1))
     if args.frames and ("{frame" not in args.out or "{frame" not in args.source):
         raise UsageError("--frames needs {frame} (e.g. {frame:04d}) in SOURCE and --out")
     cam = dome.dome_camera(args.preset, width=w, height=h, fov=args.fov, tilt=args.tilt, lens=args.lens,

@@ -12,7 +12,8 @@ prints the simulation's state counts per frame.
 import sys
 from pathlib import Path
 
-from .cli import UsageError
+from ..core.errors import UsageError
+from ..core.parse import parse_size
 from .cmd_render import add_cluster_arguments, cluster_kwargs
 
 HELP = "the muscle cross-bridge film (Fig. 7): render frames (Omnimax stereo with --dome) or export meshes"
@@ -28,7 +29,9 @@ def add_arguments(p):
     p.add_argument("--spacing", type=float, default=0.8, help="blobby grid spacing in nm (default 0.8; 0.5 fine)")
     p.add_argument("--size", metavar="WxH", default="320x240", help="frame size (default 320x240)")
     p.add_argument("--samples", type=int, default=8, help="Cycles samples (default 8)")
-    p.add_argument("--dome", choices=("none", "omnimax", "domemaster"), default="none", help="dome frame (default none)")
+    p.add_argument(
+        "--dome", choices=("none", "omnimax", "domemaster"), default="none", help="dome frame (default none)"
+    )
     p.add_argument("--stereo", action="store_true", help="left and right eyes (with --dome)")
     p.add_argument("--separation", type=float, default=0.006,
                    help="eye separation in scene units (1 = 100 nm; default 0.006)")
@@ -50,12 +53,7 @@ def _check(args):
         raise UsageError(f"--spacing must be a positive number of nm, got {args.spacing}")
     if not args.samples >= 1:
         raise UsageError(f"--samples must be >= 1, got {args.samples}")
-    try:
-        w, h = (int(v) for v in args.size.lower().split("x"))
-    except ValueError:
-        raise UsageError(f"--size must look like 320x240, got {args.size!r}") from None
-    if w < 1 or h < 1:
-        raise UsageError(f"--size must be positive, got {args.size!r}")
+    w, h = parse_size(args.size, lo=1)
     if args.stereo and args.dome == "none":
         raise UsageError("--stereo needs --dome omnimax or domemaster")
     bad = [f for f in frames if not 1 <= f <= args.film_frames]
@@ -90,9 +88,9 @@ def run(args):
 def _core_only(args, frames, film):
     import numpy as np
 
-    from ..core.surface.mesh import Mesh
     from ..core.muscle import brownian as br
     from ..core.muscle import film as core_film
+    from ..core.surface.mesh import Mesh
 
     p = core_film.film_params(**film)
     cell, sim = core_film.simulate(p)
@@ -108,9 +106,12 @@ def _core_only(args, frames, film):
     for f in frames:
         a = core_film.frame_meshes(p, f - 1)
         nv = len(a["vertices"])
-        mesh = Mesh(np.concatenate([a["vertices"], a["cyl_vertices"]]), np.concatenate([a["faces"], a["cyl_faces"] + nv]),
-                    np.concatenate([a["normals"], a["cyl_normals"]]),
-                    {"molecule": np.concatenate([a["molecule"], a["cyl_molecule"]]).astype(np.float32)})
+        mesh = Mesh(
+            np.concatenate([a["vertices"], a["cyl_vertices"]]),
+            np.concatenate([a["faces"], a["cyl_faces"] + nv]),
+            np.concatenate([a["normals"], a["cyl_normals"]]),
+            {"molecule": np.concatenate([a["molecule"], a["cyl_molecule"]]).astype(np.float32)},
+        )
         path = mesh.save(out / f"frame_{f:04d}.{args.export}")
         print(path)
     return 0

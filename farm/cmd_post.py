@@ -3,8 +3,7 @@
 from pathlib import Path
 
 from ..core.camera.anaglyph import MODES as ANAGLYPH_MODES
-from ..core.errors import DataError
-from .cli import UsageError
+from ..core.errors import DataError, UsageError
 
 HELP = "post-process frames: contact-sheet, exr2png, stereo (side-by-side, anaglyph), movie (H.264 MP4)"
 

@@ -3,7 +3,8 @@
 import json
 import sys
 
-from .cli import UsageError
+from ..core.errors import UsageError
+from ..core.parse import parse_size
 
 HELP = "render frames of a .blend or example script on Dask (local, a scheduler, Slurm or PBS); resumes"
 
@@ -95,14 +96,6 @@ def print_job_script(jobqueue, security=None):
         cluster.close()
 
 
-def parse_resolution(text):
-    try:
-        w, h = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise UsageError(f"--resolution must be WxH, e.g. 1920x1080, got {text!r}") from None
-    return w, h
-
-
 def parse_options(items):
     """``KEY=VALUE`` pairs into a dict; values are JSON when they parse, else strings."""
     out = {}
@@ -151,7 +144,7 @@ def run(args):
     kwargs = cluster_kwargs(args)
     settings = dict(
         engine=args.engine, samples=args.samples,
-        resolution=parse_resolution(args.resolution) if args.resolution else None,
+        resolution=parse_size(args.resolution, "--resolution", example="1920x1080") if args.resolution else None,
         percentage=args.percentage, device=args.device, persistent=args.persistent_data, fmt=args.format,
         chunk=args.chunk, retries=args.retries, timeout=args.timeout, scene_options=parse_options(args.set),
         precompute=args.precompute, cache_dir=args.cache, overwrite=args.overwrite, verify=args.verify,

@@ -20,7 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .cli import UsageError
+from ..core.errors import UsageError
+from ..core.parse import parse_size
 
 HELP = "solve multiple scattering in a cloud (Fig. 6) and render orbit views (PNG, radiance, optional VDB)"
 
@@ -110,7 +111,7 @@ def run(args):
 
     nx, ny, nz = _ints(args.grid, 3, "--grid")
     box = _floats(args.box, 3, "--box")
-    w, h = _ints(args.size, 2, "--size")
+    w, h = parse_size(args.size, lo=1)
     if args.views < 1:
         raise UsageError("--views must be >= 1")
     if not 0 <= args.albedo <= 1 or not -1 < args.g < 1:

@@ -7,7 +7,7 @@ In the exact mode (the default) each ``.vdb`` holds the support grid, an
 ``.exr`` of the same name the values atlas, and ``clouds_heights.exr`` the
 level heights (a curvilinear grid adds ``clouds_index.exr``, its column
 index map); ``sequence.json`` then carries the atlas ``layout`` the material
-needs (:mod:`nephele.addon.volume_exact`) and, for a rotated-pole grid, the
+needs (:mod:`nephele.volume_files`) and, for a rotated-pole grid, the
 ``rotation`` (3×3, rows) that turns the volume object into place.
 """
 
@@ -16,8 +16,9 @@ import os
 import sys
 from pathlib import Path
 
+from ..core.errors import UsageError
 from ..core.files import atomic_write
-from .cli import UsageError
+from ..core.parse import parse_range
 from .reader_options import add_reader_options, open_with_overrides
 
 HELP = "resample a variable into a sparse VDB volume sequence (one .vdb per time step) for Blender"
@@ -36,7 +37,9 @@ def add_arguments(p):
     p.add_argument("--mode", choices=("exact", "voxels"), default="exact",
                    help="exact (default): atlas images for a shader that evaluates the curvilinear field, plus a "
                         "support VDB; voxels: the opacity resampled into a VDB")
-    p.add_argument("--voxel-size", type=float, metavar="S", help="voxel mode: scene units between voxels (default 0.0027)")
+    p.add_argument(
+        "--voxel-size", type=float, metavar="S", help="voxel mode: scene units between voxels (default 0.0027)"
+    )
     p.add_argument("--support-size", type=float, metavar="S",
                    help="exact mode: scene units between support voxels (default 0.01)")
     p.add_argument("--exaggeration", type=float, metavar="E", help="vertical exaggeration (default 30)")
@@ -49,26 +52,13 @@ def add_arguments(p):
     add_reader_options(p)
 
 
-def _steps(text, nt):
-    if not text:
-        return 0, nt - 1
-    try:
-        a, _, b = text.partition("-")
-        first, last = int(a), int(b or a)
-    except ValueError:
-        raise UsageError(f"--steps must look like A-B, got {text!r}") from None
-    if not (0 <= first <= last < nt):
-        raise UsageError(f"--steps {text} is outside 0-{nt - 1}")
-    return first, last
-
-
 def run(args):
     import numpy as np
 
-    from ..core.errors import DataError
     from ..core.climate.grid import DEFAULT_EXAGGERATION
-    from ..core.volume.transfer import TransferFunction
+    from ..core.errors import DataError
     from ..core.volume.sparse import DEFAULT_VOXEL_SIZE
+    from ..core.volume.transfer import TransferFunction
 
     voxel = DEFAULT_VOXEL_SIZE if args.voxel_size is None else args.voxel_size
     exaggeration = DEFAULT_EXAGGERATION if args.exaggeration is None else args.exaggeration
@@ -96,7 +86,8 @@ def run(args):
     if color_var and color_var != "altitude" and color_var not in ds:
         raise DataError(f"no such colour variable (available: altitude, {', '.join(sorted(ds.variables))})",
                         path=args.source, field=color_var)
-    first, last = _steps(args.steps, ds.times.size)
+    nt = ds.times.size
+    first, last = parse_range(args.steps, "--steps", lo=0, hi=nt - 1) if args.steps else (0, nt - 1)
     if not np.isfinite(ds.read(args.var, first)).any():  # cheap: the bake reads this step from the cache
         raise DataError(f"every value at time step {first} is missing (NaN): nothing to show", path=ds.source,
                         field=ds.resolve(args.var))
@@ -107,12 +98,12 @@ def run(args):
         "exaggeration": exaggeration, "radius": args.radius,
         "frame_start": 1 - first, "hours_per_frame": step_hours, "mode": args.mode,
     }
-    from ..addon.vdb import bake_sequence
+    from ..volume_files import bake_sequence
 
     out = Path(args.out)
     if args.mode == "exact":
-        from ..addon.volume_exact import write_exr
         from ..core.volume.volume_atlas import DEFAULT_SUPPORT_SIZE, atlas_layout
+        from ..volume_files import write_exr
 
         support = DEFAULT_SUPPORT_SIZE if args.support_size is None else args.support_size
         if not (np.isfinite(support) and support > 0):

@@ -23,7 +23,7 @@ import struct
 import zlib
 from pathlib import Path
 
-from .cli import UsageError
+from ..core.errors import UsageError
 
 FORMATS = {"PNG": ".png", "EXR": ".exr"}
 PREFIX = "frame_"

@@ -9,7 +9,7 @@ planet radius in metres (``--radius`` of the drawing commands is the globe's
 radius in scene units).
 """
 
-from .cli import UsageError
+from ..core.errors import UsageError
 
 VERTICAL_CHOICES = ("pressure_hpa", "pressure_pa", "height_m", "height_km", "ncar_hybrid")
 """Mirror of :data:`nephele.core.climate.netcdf.VERTICAL_KINDS` (kept here so ``--help`` needs no xarray)."""

@@ -21,9 +21,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..addon.render_device import DEVICES
-from ..core.errors import DataError
+from ..core.errors import DataError, UsageError
 from ..core.files import WriteError, check_space, lock_file
-from .cli import UsageError
 from .frames import FORMATS, TMP_DIR, InvalidFrame, check_image, chunks, format_frames, frame_name, parse_frames
 from .manifest import Manifest, classify, entry_files, file_entry, views_entry
 

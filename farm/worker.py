@@ -41,7 +41,7 @@ from distributed import get_worker
 from distributed.diagnostics.plugin import WorkerPlugin
 
 from ..addon.render_device import use_device
-from ..core.files import replace, write_error
+from ..core.files import fsync_path, replace, write_error
 from .frames import FORMATS, TMP_DIR, InvalidFrame, check_image, frame_name, sha256_file
 
 ENGINES = ("CYCLES", "BLENDER_EEVEE", "BLENDER_WORKBENCH")
@@ -275,14 +275,6 @@ def _watchdog(seconds, log_path):
             faulthandler.cancel_dump_traceback_later()
 
 
-def _fsync(path):
-    fd = os.open(path, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
 def output_views(scene, cube=None):
     """The file suffixes Blender writes each frame under: ``[""]``, or one per view (``["_L", "_R"]``).
 
@@ -397,7 +389,7 @@ def render_one(scene, spec, frame, address):
                 if not t.is_file():
                     raise FrameError(f"Blender wrote no file for frame {frame}" + (f" view {v}" if v else ""))
                 decode(t, size)
-                _fsync(t)
+                fsync_path(t)
                 records.append(sha256_file(t))
         stats = []
         for t, name in zip(tmps, names):

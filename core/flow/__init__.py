@@ -1,16 +1,16 @@
 """Flow: analytic and gridded winds, trajectories and the advection strategies."""
 
 from .advect import (  # noqa: F401
-    AnalyticWind,
     COPIES,
-    ComposedTrace,
-    Copy,
-    FullTrace,
-    RestartTrace,
     START,
     START_ALT,
     STRATEGIES,
     WEIGHT,
+    AnalyticWind,
+    ComposedTrace,
+    Copy,
+    FullTrace,
+    RestartTrace,
     WindField,
     active_vertices,
     dilate,

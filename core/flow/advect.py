@@ -5,13 +5,10 @@ but at the point B that, starting at time 0, reaches A at ``t`` [1]_.  Every
 grid vertex the scene needs is traced backwards through the hourly winds.
 
 Positions are unit vectors on the sphere plus a fractional level index ``s``
-(0 = lowest level).  Winds are turned into a Cartesian velocity on the unit
-sphere (per hour) and a level-index rate, interpolated trilinearly in
-(level, latitude, longitude) index and linearly in time.  Integrating in 3-D
-Cartesian coordinates and renormalising every stage keeps the poles regular;
-rows mirrored across each pole and periodic longitudes let points cross both.
-Vertical motion is clamped at the bottom and top levels.  The step is the
-smaller of ``dt_max`` and a CFL bound from the fastest wind of the interval.
+(0 = lowest level).  The parts: grid indices and their gathers
+(:mod:`._grid_index`: rows mirrored across each pole and periodic longitudes
+let points cross both), the winds (:mod:`.winds`), the integrators
+(:mod:`.integrators`, :func:`trace`) and, here, the strategies.
 
 On a curvilinear grid (2-D latitude/longitude: WRF, Lambert conformal, polar
 stereographic) points are located in the grid's columns each stage
@@ -39,660 +36,15 @@ References
    restarted periodically and cross-faded).
 """
 
-from collections import OrderedDict
 from dataclasses import dataclass
 
 import numpy as np
 from scipy import ndimage
 
-from ..errors import DataError
-from .flows import tangent_velocity
-from ..climate.columns import ColumnLocator
 from ..climate.grid import EARTH_RADIUS, lonlat_to_xyz, xyz_to_lonlat
-from ..threads import default_threads
-
-HOUR = 3600.0
-METHODS = ("euler", "rk2", "rk4")
-
-
-def _lonlat(xyz):
-    lon = np.rad2deg(np.arctan2(xyz[:, 1], xyz[:, 0]))
-    lat = np.rad2deg(np.arcsin(np.clip(xyz[:, 2], -1.0, 1.0)))
-    return lon, lat
-
-
-def _normalise(x):
-    return x / np.sqrt(_dot(x, x))[:, None]
-
-
-def _dot(a, b):
-    """Row-wise dot products of (n, 3) arrays."""
-    return a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1] + a[:, 2] * b[:, 2]
-
-
-class _GridIndex:
-    """Fractional (level, row, column) indices of points on a GlobeGrid, and fast gathers.
-
-    Fields are stored padded (:meth:`pad`): ``pad`` extra rows at each end, the
-    rows nearest the pole rolled half way round in longitude, so a point
-    between the last row and the pole (or beyond it) interpolates across the
-    pole; and one column before and two after (wrapped round a periodic grid,
-    repeated otherwise), so every stencil is a fixed set of flat offsets from
-    its first tap.
-    """
-
-    def __init__(self, grid, pad):
-        nk, nj, ni = grid.shape
-        self.shape = grid.shape
-        self.periodic = grid.periodic_lon
-        lon, lat = grid.lon, grid.lat
-        self.lon0 = lon[0]
-        self.pad = pad if (self.periodic and ni % 2 == 0) else 0
-        if self.periodic:
-            self.lon_axis = np.append(lon - lon[0], 360.0)
-        else:
-            self.lon_axis = lon - lon[0]
-            self.lon_centre = 0.5 * (lon[0] + lon[-1])
-        p = self.pad
-        south = [j + (lat[0] == -90.0) for j in range(p)]
-        north = [nj - 1 - j - (lat[-1] == 90.0) for j in range(p)]
-        self.south_rows, self.north_rows = south, north
-        self.lat_axis = np.concatenate([-180.0 - lat[south][::-1], lat, 180.0 - lat[north]])
-        self.njp = nj + 2 * p
-        self.nip = ni + 3
-        self.poles = p > 0
-        self.bounded = not self.periodic  # a regional grid: points beyond its edges are outside
-        self._lon_step = _uniform_step(self.lon_axis)
-        self._lat_step = _uniform_step(self.lat_axis)
-        self._offsets = {}
-
-    def padded(self, f, out=None):
-        """``f`` (nk, nj, ni, ...) with mirrored rows added at both poles and wrapped (or repeated) columns.
-
-        Written into ``out`` (a padded array, or a view of one) when given.
-        """
-        nk, nj, ni = self.shape
-        p = self.pad
-        if out is None:
-            out = np.empty((nk, nj + 2 * p, ni + 3) + f.shape[3:], dtype=f.dtype)
-        out[:, p : p + nj, 1 : ni + 1] = f
-        half = ni // 2
-        for r, j in enumerate(self.south_rows[::-1]):
-            out[:, r, 1 : ni + 1] = np.roll(f[:, j], half, axis=1)
-        for r, j in enumerate(self.north_rows):
-            out[:, p + nj + r, 1 : ni + 1] = np.roll(f[:, j], half, axis=1)
-        if self.periodic:
-            out[:, :, 0], out[:, :, ni + 1], out[:, :, ni + 2] = out[:, :, ni], out[:, :, 1], out[:, :, 2]
-        else:
-            out[:, :, 0], out[:, :, ni + 1], out[:, :, ni + 2] = out[:, :, 1], out[:, :, ni], out[:, :, ni]
-        return out
-
-    def rows(self, index):
-        """Flat (level, padded row, padded column) positions in a padded field of the grid vertices ``index``."""
-        k, j, i = np.unravel_index(np.asarray(index), self.shape)
-        return (k * self.njp + j + self.pad) * self.nip + i + 1
-
-    def fractional(self, xyz, s, clamp=False):
-        """Fractional indices ``(fk, fj, fi)`` of unit vectors ``xyz`` at level coordinate ``s``.
-
-        On a regional (non-periodic) grid ``fi`` is NaN for points beyond its
-        edges (more than 1e-9 degrees), or with ``clamp`` the nearest edge's index.
-        """
-        lon, lat = _lonlat(xyz)
-        if self.periodic:
-            d = np.mod(lon - self.lon0, 360.0)
-        else:
-            d = np.mod(lon - self.lon_centre + 180.0, 360.0) - 180.0 + self.lon_centre - self.lon0
-        fi = _axis_index(d, self.lon_axis, self._lon_step)
-        fj = _axis_index(lat, self.lat_axis, self._lat_step)
-        fk = np.clip(s, 0.0, self.shape[0] - 1)
-        if self.bounded and not clamp:
-            eps = 1e-9
-            outside = (d < -eps) | (d > self.lon_axis[-1] + eps) | (lat < self.lat_axis[0] - eps) | (lat > self.lat_axis[-1] + eps)
-            if outside.any():
-                fi[outside] = np.nan
-        return fk, fj, fi
-
-    def trilinear(self, f, fk, fj, fi):
-        """Trilinear interpolation of padded field ``f`` (nk, njp, nip, c) at fractional indices (float32)."""
-        return self._gather(f, fk, fj, fi, cubic=False)
-
-    def cubic(self, f, fk, fj, fi):
-        """Catmull-Rom bicubic in (row, column), linear in level (float32); NaN where a tap is NaN."""
-        return self._gather(f, fk, fj, fi, cubic=True)
-
-    def _offsets_of(self, cubic, dk):
-        """Flat offsets of a stencil's taps from its first tap (level-major, then row, then column)."""
-        key = (cubic, dk)
-        if key not in self._offsets:
-            nt = 4 if cubic else 2
-            plane = self.njp * self.nip
-            self._offsets[key] = (np.array([0, dk])[:, None, None] * plane + np.arange(nt)[None, :, None] * self.nip
-                                  + np.arange(nt)[None, None, :]).ravel()
-        return self._offsets[key]
-
-    def _gather(self, f, fk, fj, fi, cubic, chunk=2048):
-        """Interpolated ``f`` at the fractional indices; on a bounded grid 0 where ``fi`` is NaN (outside)."""
-        if self.bounded:
-            outside = np.isnan(fi)
-            if outside.any():
-                out = self._taps(f, fk, np.where(outside, float(self.pad), fj), np.where(outside, 0.0, fi), cubic, chunk)
-                out[outside] = 0.0
-                return out
-        return self._taps(f, fk, fj, fi, cubic, chunk)
-
-    def _taps(self, f, fk, fj, fi, cubic, chunk):
-        nk, njp, nip, c = f.shape
-        flat = f.reshape(-1, c)
-        n = fk.size
-        out = np.empty((n, c), dtype=np.result_type(f.dtype, np.float32))
-        ni = self.shape[2]
-        lo = 1 if cubic else 0
-        hi = 2 if cubic else 1
-        # Level taps k0 and k0 + dk with weights (1 - tk, tk).
-        if nk == 1:
-            k0, tk, dk = np.zeros(n, np.intp), np.zeros(n), 0  # both level taps on level 0, the second weighted 0
-        else:
-            k0 = np.minimum(fk.astype(np.intp), nk - 2)
-            tk, dk = fk - k0, 1
-        j0 = np.clip(fj.astype(np.intp), lo, njp - 1 - hi)
-        tj = fj - j0
-        i0 = np.floor(fi).astype(np.intp)
-        if self.periodic:
-            ti = fi - i0
-            i0 %= ni
-        else:
-            i0 = np.minimum(i0, ni - 2)
-            ti = fi - i0
-        base = (k0 * njp + j0 - lo) * nip + i0 + 1 - lo  # first tap: row j0 - lo, padded column i0 + 1 - lo
-        offs = self._offsets_of(cubic, dk)
-        # Tap weights (taps, n), level-major like the offsets: products of the per-axis weights.
-        f32 = np.float32
-        wk = [(1.0 - tk).astype(f32), np.asarray(tk, dtype=f32)]
-        wj = [a.astype(f32) for a in (_catmull_rom(tj) if cubic else (1.0 - tj, tj))]
-        wi = [a.astype(f32) for a in (_catmull_rom(ti) if cubic else (1.0 - ti, ti))]
-        block = 16 * chunk  # weights made a block at a time: one (taps, n) array would be tens of MB, page-faulted anew each call
-        w = np.empty((offs.size, min(block, n)), dtype=f32)
-        for b0 in range(0, n, block):
-            nb = min(block, n - b0)
-            t = 0
-            for a in wk:
-                for b in wj:
-                    ab = a[b0 : b0 + nb] * b[b0 : b0 + nb]
-                    for c_ in wi:
-                        np.multiply(ab, c_[b0 : b0 + nb], out=w[t, :nb])
-                        t += 1
-            wt = w[:, :nb].T
-            for a in range(0, nb, chunk):
-                sl = slice(b0 + a, b0 + min(a + chunk, nb))
-                g = flat.take(base[sl, None] + offs, axis=0)
-                out[sl] = np.matmul(wt[a : a + chunk, None, :], g)[:, 0]
-        return out
-
-
-class _ColumnIndex(_GridIndex):
-    """:class:`_GridIndex` of a curvilinear (2-D longitude/latitude, regional) grid.
-
-    Points are located with :class:`~nephele.core.climate.columns.ColumnLocator`
-    (bilinear cells in the gnomonic chart, Newton inversion), so every stencil
-    is the same fixed set of index-space taps as on a longitude/latitude grid.
-    Padded fields repeat the edge rows (two each side) and columns.  A point
-    outside the region has NaN indices, and the gathers give 0 there: the air
-    outside a regional grid is calm, so a trajectory that leaves the region
-    stops within one step of its edge.
-    """
-
-    def __init__(self, grid, path=None):
-        self.shape = grid.shape
-        nk, nj, ni = grid.shape
-        self.periodic = False
-        self.poles = False
-        self.bounded = True
-        self.pad = 2
-        self.njp, self.nip = nj + 2 * self.pad, ni + 3
-        self._offsets = {}
-        self.locator = ColumnLocator(grid.lon2d, grid.lat2d, path)
-
-    def padded(self, f, out=None):
-        nk, nj, ni = self.shape
-        p = self.pad
-        if out is None:
-            out = np.empty((nk, nj + 2 * p, ni + 3) + f.shape[3:], dtype=f.dtype)
-        out[:, p : p + nj, 1 : ni + 1] = f
-        out[:, :p, 1 : ni + 1] = f[:, :1]
-        out[:, p + nj :, 1 : ni + 1] = f[:, -1:]
-        out[:, :, 0], out[:, :, ni + 1], out[:, :, ni + 2] = out[:, :, 1], out[:, :, ni], out[:, :, ni]
-        return out
-
-    def fractional(self, xyz, s, clamp=False):
-        """Fractional ``(fk, fj, fi)`` (``fj`` in padded rows); NaN outside the region, or with
-        ``clamp`` the nearest column's indices there."""
-        fi, fj = self.locator(xyz)
-        outside = fi < 0
-        if outside.any():
-            if clamp:
-                ci, cj = self.locator.nearest(np.asarray(xyz)[outside])
-                fi[outside], fj[outside] = ci, cj
-            else:
-                fi[outside] = fj[outside] = np.nan
-        return np.clip(s, 0.0, self.shape[0] - 1), fj + self.pad, fi
-
-
-def grid_index(grid, pad=2, path=None):
-    """The :class:`_GridIndex` of ``grid``: longitude/latitude axes, or located columns on a curvilinear grid."""
-    return _ColumnIndex(grid, path) if grid.curvilinear else _GridIndex(grid, pad)
-
-
-def _column_spacing(grid):
-    """Smallest angle (radians) between neighbouring columns of a curvilinear grid."""
-    p = lonlat_to_xyz(grid.lon2d, grid.lat2d)
-    angles = []
-    for a, b in ((p[1:], p[:-1]), (p[:, 1:], p[:, :-1])):
-        angles.append(np.arctan2(np.linalg.norm(np.cross(a, b), axis=-1), np.sum(a * b, axis=-1)).min())
-    return float(min(angles))
-
-
-def _uniform_step(axis):
-    """The spacing of an evenly spaced axis, or None."""
-    d = np.diff(axis)
-    return float(d[0]) if d.size and np.all(np.abs(d - d[0]) <= 1e-9 * abs(d[0])) else None
-
-
-def _axis_index(x, axis, step):
-    """Fractional index of ``x`` on a monotonic ``axis`` (clamped to its ends), as np.interp gives it."""
-    if step is None:
-        return np.interp(x, axis, np.arange(axis.size, dtype=np.float64))
-    return np.clip((x - axis[0]) * (1.0 / step), 0.0, axis.size - 1.0)
-
-
-def _catmull_rom(t):
-    """Weights of taps -1, 0, 1, 2 of the Catmull-Rom cubic at fraction ``t``."""
-    t2 = t * t
-    t3 = t2 * t
-    return (-0.5 * t3 + t2 - 0.5 * t, 1.5 * t3 - 2.5 * t2 + 1.0, -1.5 * t3 + 2.0 * t2 + 0.5 * t, 0.5 * t3 - 0.5 * t2)
-
-
-class WindField:
-    """The winds of a :class:`~nephele.core.climate.dataset.Dataset` as a velocity field on the unit sphere.
-
-    ``velocity(hours, xyz, s)`` gives the Cartesian velocity of unit vectors
-    (per hour) and the rate of the level coordinate ``s`` (levels per hour):
-    ``ds/dt = (w - u ∂h/∂x - v ∂h/∂y) / (∂h/∂s)``, which follows the
-    terrain-following levels.  Space: trilinear in level/row/column index
-    (a curvilinear grid's columns located, its slopes by the chain rule through
-    the columns' positions); time: linear between steps.  ``u``, ``v`` are
-    eastward and northward on every grid (readers turn grid-relative winds).
-    Zero outside a regional grid (see the module notes).
-
-    Parameters
-    ----------
-    dataset : Dataset
-        Needs ``u`` and ``v`` (m/s); ``w`` (m/s) is optional.
-    nan : {"error", "zero"}
-        Missing winds raise :class:`DataError` naming the step, or count as calm.
-    vertical : {"auto", "w", "levels"}
-        ``"w"``: the level rate above; ``"levels"``: points keep their level
-        (``ds/dt = 0``), right when the data's ``w`` is just the lift of air
-        riding its terrain-following level (the demo's), whose finite-difference
-        reconstruction would otherwise add spurious vertical motion;
-        ``"auto"``: ``"levels"`` for a dataset whose ``levels_follow_air``
-        says so, else ``"w"``.
-    cache_steps : int
-        Hourly steps kept converted (float32, ``nk × (nj+4) × (ni+3) × 4``
-        values each: 16 MB on the 320×160×19 demo), least recently used dropped.  A
-        restart strategy with period ``P`` frames reads back up to ``P`` frames
-        of steps for its fallback traces: see :func:`steps_to_keep`.
-    read_ahead : bool, optional
-        After converting step ``t``, read and convert ``t + 1`` in a background
-        thread (a film needs one new step per frame; reading it overlaps the
-        tracing).  Default: when :func:`~nephele.core.threads.default_threads`
-        allows more than one thread.
-    radius : float, optional
-        Planet radius (m) turning winds into angular speed; default the
-        dataset's ``earth_radius`` (from the file), else
-        :data:`~nephele.core.climate.grid.EARTH_RADIUS`.
-    """
-
-    def __init__(self, dataset, nan="error", cache_steps=6, vertical="auto", read_ahead=None, radius=None):
-        if nan not in ("error", "zero"):
-            raise ValueError(f"nan must be 'error' or 'zero', got {nan!r}")
-        if vertical not in ("auto", "w", "levels"):
-            raise ValueError(f"vertical must be 'auto', 'w' or 'levels', got {vertical!r}")
-        if vertical == "auto":
-            vertical = "levels" if getattr(dataset, "levels_follow_air", False) else "w"
-        self.vertical = vertical
-        self._read_ahead = default_threads() > 1 if read_ahead is None else bool(read_ahead)
-        self._pending = {}
-        self._executor = None
-        for name in ("u", "v"):
-            if name not in dataset:
-                raise DataError("is needed to advect textures but the dataset has no such field", path=dataset.source, field=name)
-        self.dataset = dataset
-        self.grid = grid = dataset.grid
-        self.radius = float(radius or getattr(dataset, "earth_radius", None) or EARTH_RADIUS)
-        self.nan = nan
-        self.index = grid_index(grid, pad=2, path=dataset.source)
-        self.nk = grid.shape[0]
-        self.hours = dataset.hours
-        self.time_range = (float(self.hours[0]), float(self.hours[-1]))
-        self._steps = OrderedDict()
-        self._blends = OrderedDict()
-        self._cache_steps = cache_steps
-        self._speed = {}
-        self.min_spacing = _column_spacing(grid) if grid.curvilinear else float(np.deg2rad(np.min(np.diff(grid.lat))))
-        self._geometry()
-
-    def _geometry(self):
-        g = self.grid
-        nk, nj, ni = g.shape
-        # East and north unit vectors per column, scaled from m/s to unit-sphere radians per hour.
-        if g.curvilinear:
-            lam, phi = np.deg2rad(g.lon2d), np.deg2rad(g.lat2d)
-        else:
-            lam, phi = np.deg2rad(g.lon)[None, :], np.deg2rad(g.lat)[:, None]
-        sl, cl, sp, cp = np.sin(lam), np.cos(lam), np.sin(phi), np.cos(phi)
-        scale = HOUR / self.radius
-        self._east = [(a * scale).astype(np.float32) for a in np.broadcast_arrays(-sl, cl, 0.0 * phi)]
-        self._north = [(a * scale).astype(np.float32) for a in np.broadcast_arrays(-sp * cl, -sp * sl, cp + 0.0 * lam)]
-        h = g.height
-        dhds = np.gradient(h, axis=0) if nk > 1 else np.ones_like(h)
-        self._sdot_scale = (HOUR / dhds).astype(np.float32)
-        flat = np.all(h == h[:, :1, :1])
-        if flat:
-            self._dhdx = self._dhdy = None
-        elif g.curvilinear:
-            self._dhdx, self._dhdy = (a.astype(np.float32) for a in _curvilinear_slopes(g, h, self.radius))
-        else:
-            lam, phi = np.deg2rad(g.lon), np.deg2rad(g.lat)
-            if g.periodic_lon:
-                dl = np.deg2rad(np.mod(np.roll(g.lon, -1) - np.roll(g.lon, 1), 360.0))
-                dhdl = (np.roll(h, -1, axis=2) - np.roll(h, 1, axis=2)) / dl
-            else:
-                dhdl = np.gradient(h, lam, axis=2)
-            cos = np.cos(phi)[None, :, None]
-            self._dhdx = np.where(cos > 1e-9, dhdl / (self.radius * np.maximum(cos, 1e-9)), 0.0).astype(np.float32)
-            self._dhdy = (np.gradient(h, phi, axis=1) / self.radius).astype(np.float32)
-        self.height_field = self.index.padded(h[..., None].astype(np.float64))
-
-    def _read_wind(self, t):
-        """``u``, ``v`` (and ``w`` unless levels are kept) of step ``t``, float32, NaN checked."""
-        names = ("u", "v") if self.vertical == "levels" else ("u", "v", "w")
-        uvw = self.dataset.wind(t) if len(names) == 3 else (self.dataset.read("u", t), self.dataset.read("v", t))
-        out = []
-        for name, a in zip(names, uvw):
-            a = np.asarray(a, dtype=np.float32)
-            bad = ~np.isfinite(a)
-            if bad.any():
-                if self.nan == "error":
-                    raise DataError(
-                        f"has {int(bad.sum())} NaN/infinite values at time step {t} "
-                        "(pass nan='zero' to treat missing wind as calm air)",
-                        path=self.dataset.source,
-                        field=name,
-                    )
-                a = np.where(bad, np.float32(0.0), a)
-            out.append(a)
-        return out
-
-    def _step(self, t):
-        if t in self._steps:
-            self._steps.move_to_end(t)
-            return self._steps[t]
-        pending = self._pending.pop(t, None)
-        f, self._speed[t] = pending.result() if pending is not None else self._convert(t)
-        self._steps[t] = f
-        while len(self._steps) > self._cache_steps:
-            self._steps.popitem(last=False)
-        if self._read_ahead:
-            self._prefetch(t + 1)
-        return f
-
-    def _prefetch(self, t):
-        if t >= self.hours.size or t in self._steps or self._pending:
-            return
-        if self._executor is None:
-            from concurrent.futures import ThreadPoolExecutor
-
-            self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="nephele-wind")
-        self._pending[t] = self._executor.submit(self._convert, t)
-
-    def _convert(self, t):
-        """Step ``t`` read, checked and converted: ``(padded field, (speed, level rate))``.
-        Touches no state of its own, so it may run in the read-ahead thread."""
-        uvw = self._read_wind(t)
-        u, v = uvw[0], uvw[1]
-        f = np.empty(self.grid.shape + (4,), dtype=np.float32)
-        for c in range(3):
-            np.multiply(u, self._east[c], out=f[..., c])
-            f[..., c] += v * self._north[c]
-        if self.vertical == "levels":
-            f[..., 3] = 0.0
-        else:
-            w = uvw[2]
-            wz = w if self._dhdx is None else w - u * self._dhdx - v * self._dhdy
-            np.multiply(wz, self._sdot_scale, out=f[..., 3])
-        u64, v64 = u.astype(np.float64), v.astype(np.float64)
-        speed = (float(np.sqrt(np.max(u64 * u64 + v64 * v64))) * HOUR / self.radius, float(np.max(np.abs(f[..., 3]))))
-        return self.index.padded(f), speed
-
-    def check_time(self, hours):
-        lo, hi = self.time_range
-        if not (np.isfinite(hours) and lo - 1e-9 <= hours <= hi + 1e-9):
-            raise DataError(f"time {hours:g} h is outside the data range {lo:g}..{hi:g} h", path=self.dataset.source, field="time")
-
-    def _field_at(self, hours, points):
-        """The padded field at ``hours`` as ``[(weight, step field), ...]``.
-
-        Between steps, a set of ``points`` large enough to pay for it gets the
-        two steps blended once (a few recent blends are kept); a small one
-        (fallback traces) gets both steps, interpolated at its points and then
-        blended, instead of a grid-sized blend per time it visits.
-        """
-        key = round(float(hours), 9)
-        if key in self._blends:
-            return [(1.0, self._blends[key])]
-        i0, i1, w = self.dataset.locate_time(hours)
-        if w <= 0.0 or i0 == i1:
-            return [(1.0, self._step(i0))]
-        if w >= 1.0:
-            return [(1.0, self._step(i1))]
-        if points * 16 < np.prod(self.grid.shape):
-            return [(1.0 - w, self._step(i0)), (w, self._step(i1))]
-        f = self._step(i0) * np.float32(1.0 - w)
-        f += self._step(i1) * np.float32(w)
-        self._blends[key] = f
-        while len(self._blends) > 4:
-            self._blends.popitem(last=False)
-        return [(1.0, f)]
-
-    def velocity(self, hours, xyz, s):
-        """``(dxyz/dt, ds/dt)`` per hour at unit vectors ``xyz`` (n, 3) and levels ``s`` (n,)."""
-        fr = self.index.fractional(xyz, s)
-        return _tangent(sum(w * self.index.trilinear(f, *fr).astype(np.float64) for w, f in self._field_at(hours, len(xyz))), xyz)
-
-    def vertex_velocity(self, hours, index, xyz):
-        """:meth:`velocity` at the grid vertices ``index`` (flat), unit vectors ``xyz``: read, not interpolated."""
-        rows = self.index.rows(index)
-        parts = self._field_at(hours, len(rows))
-        return _tangent(sum(w * f.reshape(-1, f.shape[-1]).take(rows, axis=0).astype(np.float64) for w, f in parts), xyz)
-
-    def max_speed(self, t0, t1):
-        """Largest (unit-sphere speed per hour, level rate per hour) over the steps spanning ``t0..t1``."""
-        lo, hi = min(t0, t1), max(t0, t1)
-        i_lo = self.dataset.locate_time(lo)[0]
-        i_hi = self.dataset.locate_time(hi)[1]
-        sp, vr = 0.0, 0.0
-        for t in range(i_lo, i_hi + 1):
-            if t not in self._speed:
-                self._step(t)
-            a, b = self._speed[t]
-            sp, vr = max(sp, a), max(vr, b)
-        return sp, vr
-
-    def start_height(self, xyz, s):
-        """Height in metres of the points (the grid's level heights interpolated)."""
-        return self.index.trilinear(self.height_field, *self.index.fractional(xyz, s, clamp=True))[:, 0]
-
-
-def _curvilinear_slopes(grid, h, radius):
-    """East and north slopes ``(dh/dx, dh/dy)`` (nk, nj, ni) of level heights ``h`` on a curvilinear grid.
-
-    The chain rule through the columns' positions: with ``J`` the east/north
-    metres per column index (central differences of the unit vectors, one
-    sided at the edges), ``(dh/di, dh/dj) = Jᵀ (dh/dx, dh/dy)``.
-    """
-    p = lonlat_to_xyz(grid.lon2d, grid.lat2d)
-    lam, phi = np.deg2rad(grid.lon2d), np.deg2rad(grid.lat2d)
-    east = np.stack([-np.sin(lam), np.cos(lam), np.zeros_like(lam)], axis=-1)
-    north = np.stack([-np.sin(phi) * np.cos(lam), -np.sin(phi) * np.sin(lam), np.cos(phi)], axis=-1)
-    pi, pj = np.gradient(p, axis=1) * radius, np.gradient(p, axis=0) * radius
-    a, b = np.sum(east * pi, axis=-1), np.sum(east * pj, axis=-1)  # J = [[a, b], [c, d]]
-    c, d = np.sum(north * pi, axis=-1), np.sum(north * pj, axis=-1)
-    det = a * d - b * c
-    hi, hj = np.gradient(h, axis=2), np.gradient(h, axis=1)
-    # Solve [[a, c], [b, d]] (dh/dx, dh/dy) = (dh/di, dh/dj).
-    return (d * hi - c * hj) / det, (a * hj - b * hi) / det
-
-
-def _tangent(out, xyz):
-    """Split (n, 4) interpolated winds into the velocity tangent to the sphere at ``xyz`` and the level rate."""
-    v = out[:, :3]
-    v -= _dot(v, xyz)[:, None] * xyz
-    return v, out[:, 3]
-
-
-def steps_to_keep(grid, period_hours, budget_mb=512):
-    """Wind steps a :class:`WindField` should keep for a restart period of ``period_hours``.
-
-    The period's steps plus two (the next frame's), capped so they fit in
-    ``budget_mb`` megabytes; at least 6.  The bound depends on the grid and
-    the period, not on the film's length.
-    """
-    nk, nj, ni = grid.shape
-    step_mb = nk * (nj + 4) * (ni + 3) * 4 * 4 / 2**20
-    return int(max(6, min(np.ceil(period_hours) + 2, budget_mb // step_mb)))
-
-
-class AnalyticWind:
-    """A flow from :mod:`nephele.core.flow.flows` as a velocity field (no vertical motion).
-
-    Parameters
-    ----------
-    flow : object with ``wind(lon, lat, hours) -> (u, v)`` and ``period_hours``
-    nk : int
-        Number of levels of the level coordinate (stays constant).
-    hours : (float, float), optional
-        Time range (default ``0..period_hours``).
-    min_spacing : float
-        Grid spacing in radians used by the CFL bound.
-    radius : float, optional
-        Planet radius (m) turning the winds into angular speed; default the
-        flow's own ``radius`` (the one its winds were made with), else
-        :data:`~nephele.core.climate.grid.EARTH_RADIUS`.
-    """
-
-    def __init__(self, flow, nk=2, hours=None, min_spacing=np.deg2rad(1.125), radius=None):
-        self.flow = flow
-        self.radius = float(radius if radius is not None else getattr(flow, "radius", EARTH_RADIUS))
-        self.nk = nk
-        self.time_range = tuple(float(h) for h in (hours or (0.0, flow.period_hours)))
-        self.min_spacing = float(min_spacing)
-        lon, lat = np.meshgrid(np.arange(0, 360, 5.0), np.arange(-87.5, 90, 5.0))
-        self._lon, self._lat = lon.ravel(), lat.ravel()
-
-    def check_time(self, hours):
-        lo, hi = self.time_range
-        if not (np.isfinite(hours) and lo - 1e-9 <= hours <= hi + 1e-9):
-            raise DataError(f"time {hours:g} h is outside the data range {lo:g}..{hi:g} h", path=type(self.flow).__name__, field="time")
-
-    def velocity(self, hours, xyz, s):
-        lon, lat = _lonlat(xyz)
-        u, v = self.flow.wind(lon, lat, hours)
-        return tangent_velocity(lon, lat, u, v) * (HOUR / self.radius), np.zeros(len(xyz))
-
-    def max_speed(self, t0, t1):
-        sp = 0.0
-        for t in np.linspace(t0, t1, 5):
-            u, v = self.flow.wind(self._lon, self._lat, t)
-            sp = max(sp, float(np.sqrt(np.max(u * u + v * v))) * HOUR / self.radius)
-        return 1.05 * sp, 0.0
-
-
-def trace(wind, xyz, s, t_from, t_to, *, method="rk4", dt_max=1.0, cfl=1.0, vertices=None):
-    """Integrate points from time ``t_from`` to ``t_to`` (hours; backwards when ``t_to < t_from``).
-
-    Parameters
-    ----------
-    wind : WindField or AnalyticWind
-    xyz : (n, 3) array
-        Unit vectors (normalised here).
-    s : (n,) array
-        Level coordinates, clamped to ``0..nk-1``.
-    method : {"euler", "rk2", "rk4"}
-    dt_max : float
-        Largest step in hours.
-    cfl : float
-        Largest displacement per step, in grid spacings (horizontal) or levels.
-    vertices : (n,) int array, optional
-        Flat grid indices of the points when they are the grid's vertices (and
-        ``wind`` a :class:`WindField`): the first stage reads the wind at the
-        vertices instead of interpolating it there.
-
-    Returns
-    -------
-    xyz, s : arrays like the inputs, at ``t_to``.
-    """
-    if method not in METHODS:
-        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
-    if not dt_max > 0 or not cfl > 0:
-        raise ValueError("dt_max and cfl must be positive")
-    xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
-    s = np.asarray(s, dtype=np.float64).reshape(-1)
-    if len(s) != len(xyz):
-        raise ValueError(f"xyz has {len(xyz)} points but s has {len(s)}")
-    wind.check_time(t_from)
-    wind.check_time(t_to)
-    xyz = _normalise(xyz)
-    top = wind.nk - 1
-    s = np.clip(s, 0.0, top)
-    span = t_to - t_from
-    if span == 0 or len(xyz) == 0:
-        return xyz, s
-    sp, vr = wind.max_speed(t_from, t_to)
-    dt = dt_max
-    if sp > 0:
-        dt = min(dt, cfl * wind.min_spacing / sp)
-    if vr > 0:
-        dt = min(dt, cfl / vr)
-    n = int(np.ceil(abs(span) / dt - 1e-9))
-    h = span / n
-    t = t_from
-    first = wind.vertex_velocity(t, vertices, xyz) if vertices is not None and hasattr(wind, "vertex_velocity") else None
-    for _ in range(n):
-        xyz, s = _step(wind, method, t, h, xyz, s, top, first)
-        t += h
-        first = None
-    return xyz, s
-
-
-def _step(wind, method, t, h, x, s, top, first=None):
-    def stage(xb, sb, k, dk, a):
-        return _normalise(xb + a * k), np.clip(sb + a * dk, 0.0, top)
-
-    k1, d1 = wind.velocity(t, x, s) if first is None else first
-    if method == "euler":
-        return stage(x, s, k1, d1, h)
-    if method == "rk2":
-        x2, s2 = stage(x, s, k1, d1, h / 2)
-        k2, d2 = wind.velocity(t + h / 2, x2, s2)
-        return stage(x, s, k2, d2, h)
-    x2, s2 = stage(x, s, k1, d1, h / 2)
-    k2, d2 = wind.velocity(t + h / 2, x2, s2)
-    x3, s3 = stage(x, s, k2, d2, h / 2)
-    k3, d3 = wind.velocity(t + h / 2, x3, s3)
-    x4, s4 = stage(x, s, k3, d3, h)
-    k4, d4 = wind.velocity(t + h, x4, s4)
-    return stage(x, s, k1 + 2 * k2 + 2 * k3 + k4, d1 + 2 * d2 + 2 * d3 + d4, h / 6)
+from ._grid_index import _normalise, grid_index
+from .integrators import METHODS, trace
+from .winds import HOUR, AnalyticWind, WindField, steps_to_keep
 
 
 @dataclass
@@ -788,7 +140,11 @@ class _StreamedMap:
         self.map = self.index.padded(np.zeros(strategy.grid.shape + (4 * copies,), dtype=np.float32))
         # Regional grids: 1 near vertices whose start is not the composition's to give (their air came from
         # outside and stopped at the edge); a foot point there is traced directly instead.
-        self.left = self.index.padded(np.zeros(strategy.grid.shape + (copies,), dtype=np.float32)) if self.index.bounded else None
+        self.left = (
+            self.index.padded(np.zeros(strategy.grid.shape + (copies,), dtype=np.float32))
+            if self.index.bounded
+            else None
+        )
         self.frames = [None] * copies
         self.starts = [None] * copies
         self.fallbacks = 0
@@ -831,8 +187,15 @@ class _StreamedMap:
             redo = asked & unsure
             if redo.any():
                 self.fallbacks += int(redo.sum())
-                sx[redo], sz[redo] = trace(st.wind, xyz[redo], s[redo], st.frame_hours[n], st.frame_hours[self.starts[c]],
-                                           vertices=need[redo], **st.opts)
+                sx[redo], sz[redo] = trace(
+                    st.wind,
+                    xyz[redo],
+                    s[redo],
+                    st.frame_hours[n],
+                    st.frame_hours[self.starts[c]],
+                    vertices=need[redo],
+                    **st.opts,
+                )
             if left is not None:  # started outside (stopped at the edge), or composed from such starts
                 flags[:, a] = np.isnan(self.index.fractional(sx, sz)[2]) | (unsure & ~redo)
             values[:, 4 * a : 4 * a + 3] = sx - xyz
@@ -868,7 +231,10 @@ class _StreamedMap:
         d = self.map.reshape(-1, self.map.shape[-1]).take(self.index.rows(index), axis=0).astype(np.float64)
         xyz, s = self.st._points(index)
         top = self.st.grid.shape[0] - 1
-        return [(_normalise(xyz + d[:, 4 * c : 4 * c + 3]), np.clip(s + d[:, 4 * c + 3], 0.0, top)) for c in range(len(self.frames))]
+        return [
+            (_normalise(xyz + d[:, 4 * c : 4 * c + 3]), np.clip(s + d[:, 4 * c + 3], 0.0, top))
+            for c in range(len(self.frames))
+        ]
 
     def at(self, n, index, starts):
         """The maps at frame ``n`` of the copies started at frames ``starts`` (streaming), for vertices ``index``."""
@@ -1142,6 +508,8 @@ def great_circle_km(a, b, radius=EARTH_RADIUS):
 
 __all__ = [
     "COPIES",
+    "HOUR",
+    "METHODS",
     "START",
     "START_ALT",
     "WEIGHT",

@@ -6,8 +6,9 @@ The field is
 
 (Blinn's "blobby" model, the paper's molecules).  :func:`blobby_surface`
 meshes ``f = level`` in four steps, each a compiled kernel (``native/src/blobby_*.c``,
-through :mod:`..native`) where the ``nephele_native`` wheel is installed, else whole-array
-NumPy (the kernels' twins, agreeing to the tolerances tests/core/muscle states):
+called in :mod:`._blobby_c`) where the ``nephele_native`` wheel is installed, else whole-array
+NumPy (the kernels' twins, :mod:`._blobby_numpy`, agreeing to the tolerances tests/core/muscle
+states); what both share (the block size, the tables of a block) is in :mod:`._blobby_base`:
 
 1. The grid is cut into blocks of :data:`BLOCK`\\ :sup:`3` nodes.  For every
    (block, Gaussian) pair whose ``cutoff`` ellipsoid reaches the block, the
@@ -42,43 +43,29 @@ References
    molecules as contour surfaces of sums of Gaussian ellipsoids).
 """
 
-import ctypes
 import functools
 from dataclasses import dataclass
 
 import numpy as np
 
-from .. import native
-from ..surface import _mc_tables as tables
-from ..surface.contour import EDGE_MARGIN
 from ..errors import DataError
 from ..memory import check_memory
 from ..surface.mesh import Mesh, vertex_normals
 from ..threads import default_threads, thread_map
-
-BLOCK = 8
-"""Nodes per block edge: 8 nodes at spacing sigma/4 span 2 sigma."""
+from . import _blobby_c as _c
+from . import _blobby_numpy as _np
+from ._blobby_base import _F32, BLOCK, NEWTON_STEPS, SETTLE_STEP, _amul, _chunks, _edge_tables, _quad
+from ._blobby_c import _project_kernel
+from ._blobby_numpy import _Refiner
 
 NEWTON_TOL = 2e-4
 """Newton stops when |f - level| / |grad f| < NEWTON_TOL * sigma_min."""
 
-NEWTON_STEPS = 12
-SETTLE_STEP = 10.0
-"""A Newton step may end a vertex only if shorter than SETTLE_STEP * NEWTON_TOL * sigma_min (its
-normal is the gradient where the step starts: off by about the step over the surface's radius).
-Its position keeps NEWTON_TOL (the step's second-order error must be below it).  Bench scene of
-1,000 ellipsoids: normals within 0.31 deg of the exact gradient (2: 0.10 deg), positions the same,
-a tenth less time."""
 REFINE_EXTRA = 1.0
 """Vertices are projected onto the sum cut at (cutoff + REFINE_EXTRA) sigma."""
 
 EXACT_RANGE = 12.0
 """The "exact" field counts every image within this many sigma (the rest is below 1e-31 w)."""
-
-_F32 = np.float32
-_EXP_MAX = _F32(40.0)
-"""Largest exponent of one of the three float32 factors (two of them multiply below exp(88.7), the overflow)."""
-
 
 @dataclass
 class _Blobs:
@@ -93,7 +80,6 @@ class _Blobs:
 
     def take(self, idx):
         return _Blobs(*(x[idx] for x in (self.src, self.c, self.a, self.lnw, self.smax, self.half)))
-
 
 def _check(centers, rotations, sigmas, weights):
     c = np.asarray(centers, dtype=np.float64)
@@ -120,9 +106,10 @@ def _check(centers, rotations, sigmas, weights):
         err = np.abs(np.einsum("nki,nkj->nij", r, r) - np.eye(3)).max(axis=(1, 2))
         bad = np.flatnonzero(err > 1e-5)
         if len(bad):
-            raise DataError(f"rotation {bad[0]} is not orthonormal (|R^T R - I| = {err[bad[0]]:.2g})", field="rotations")
+            raise DataError(
+                f"rotation {bad[0]} is not orthonormal (|R^T R - I| = {err[bad[0]]:.2g})", field="rotations"
+            )
     return c, r, s, w
-
 
 def _blobs(c, r, s, w):
     keep = np.flatnonzero(w > 0)
@@ -132,7 +119,6 @@ def _blobs(c, r, s, w):
     cov = np.einsum("nik,nk->ni", r**2, s**2)
     a6 = np.stack([a[:, 0, 0], a[:, 1, 1], a[:, 2, 2], a[:, 0, 1], a[:, 0, 2], a[:, 1, 2]], axis=1)
     return _Blobs(keep.astype(np.int64), c, a6, np.log(w), s.max(axis=1), np.sqrt(cov))
-
 
 def _images(b, box, radius):
     """Every periodic image whose ``radius``-sigma box meets [0, L]: centres wrapped into the box first."""
@@ -153,27 +139,6 @@ def _images(b, box, radius):
     out = b.take(idx)
     out.c = c[idx] + shift * box
     return out
-
-
-def _quad(a6, d):
-    """d^T A d for rows of d (..., 3) and A in 6-component form."""
-    x, y, z = d[..., 0], d[..., 1], d[..., 2]
-    return a6[..., 0] * x * x + a6[..., 1] * y * y + a6[..., 2] * z * z + 2 * (
-        a6[..., 3] * x * y + a6[..., 4] * x * z + a6[..., 5] * y * z
-    )
-
-
-def _amul(a6, d):
-    """A d (..., 3)."""
-    x, y, z = d[..., 0], d[..., 1], d[..., 2]
-    return np.stack(
-        [
-            a6[..., 0] * x + a6[..., 3] * y + a6[..., 4] * z,
-            a6[..., 3] * x + a6[..., 1] * y + a6[..., 5] * z,
-            a6[..., 4] * x + a6[..., 5] * y + a6[..., 2] * z,
-        ],
-        axis=-1,
-    )
 
 
 # --- exact field ------------------------------------------------------------
@@ -221,7 +186,6 @@ def blobby_field(points, centers, rotations, sigmas, weights, *, box=None, gradi
             g[lo : lo + step] = -np.einsum("pm,pmi->pi", e, _amul(b.a, d))
     return (f, g) if gradient else f
 
-
 def level_distance(points, centers, rotations, sigmas, weights, level, *, box=None):
     """First-order distance ``|f - level| / |grad f|`` of ``points`` from the exact level set."""
     f, g = blobby_field(points, centers, rotations, sigmas, weights, box=box, gradient=True)
@@ -237,13 +201,11 @@ def _check_box(box):
         raise DataError(f"needs three positive lengths, got {box.tolist()}", field="box")
     return box
 
-
 def _positive(x, name):
     x = float(x)
     if not np.isfinite(x) or x <= 0:
         raise DataError(f"must be a positive number, got {x}", field=name)
     return x
-
 
 @dataclass
 class _Grid:
@@ -264,13 +226,11 @@ class _Grid:
             x = np.where(n == BLOCK * self.nb, self.box, x)
         return x
 
-
 def _grid(spacing, box):
     if box is None:
         return _Grid(np.full(3, spacing), None, None)
     nb = np.maximum(1, np.ceil(box / (BLOCK * spacing))).astype(np.int64)
     return _Grid(box / (BLOCK * nb), box, nb)
-
 
 @dataclass
 class _Blocks:
@@ -284,7 +244,6 @@ class _Blocks:
     fine_g: np.ndarray  # Gaussians within cutoff + REFINE_EXTRA, per block
     node_lo: np.ndarray  # (3,) lowest node of the block index's range
     node_dims: np.ndarray  # (3,) nodes in that range (edge keys)
-
 
 _PAIR_CHUNK = 1 << 18  # (block, Gaussian) candidates per step: temporaries of a few MB
 
@@ -320,40 +279,10 @@ def _block_pairs(b, grid, cut, cut_fine, threads):
         spans.append((start, stop))
         start = stop
 
-    kernel = native.kernel("blobby_block_pairs", ctypes.c_int64, [ctypes.c_int64] * 2 + [ctypes.c_void_p] * 8
-                           + [ctypes.c_double] * 2 + [ctypes.c_void_p] * 2 + [ctypes.c_int64] + [ctypes.c_void_p] * 5)
-    if kernel is not None:
-        arrays = _c_arrays(lo, cnt, b.c, b.a, b.lnw, b.smax, ra, size, index.lo, index.dims)
-
-    def run(span):
-        start, stop = span
-        if kernel is not None:
-            m = int(tot[start:stop].sum())
-            out = (np.empty(m, np.int64), np.empty(m, np.int64), np.empty(m, np.bool_), np.empty(m), np.empty(m))
-            ptrs = [x.ctypes.data for x in arrays + list(out)]
-            n = kernel(start, stop, *ptrs[:8], cut, cut_fine, *ptrs[8:10], index.box, *ptrs[10:])
-            return tuple(x[:n] for x in out)
-        t = tot[start:stop]
-        g = np.repeat(np.arange(start, stop), t)
-        k = np.arange(t.sum()) - np.repeat(np.cumsum(t) - t, t)
-        cg = cnt[g]
-        q = np.empty((len(g), 3), np.int64)
-        q[:, 0] = lo[g, 0] + k % cg[:, 0]
-        q[:, 1] = lo[g, 1] + (k // cg[:, 0]) % cg[:, 1]
-        q[:, 2] = lo[g, 2] + k // (cg[:, 0] * cg[:, 1])
-        d = (q + 0.5) * size - np.take(b.c, g, axis=0)
-        sq = np.sqrt(_quad(np.take(b.a, g, axis=0), d))
-        gap = np.maximum(np.abs(d) - size / 2, 0.0)  # Euclidean offsets from the centre to the block
-        near = np.maximum(np.maximum(sq - ra[g], 0.0), np.sqrt(np.einsum("ij,ij->i", gap, gap)) / b.smax[g])
-        far = sq + ra[g]  # upper bound
-        keep = np.flatnonzero(near <= cut_fine)
-        g, near, far = g[keep], near[keep], far[keep]
-        w = np.exp(b.lnw[g])
-        on_grid = near <= cut
-        upper = np.where(on_grid, w * np.exp(-0.5 * near**2), 0.0)
-        lower = np.where(on_grid, w * np.exp(-0.5 * far**2), 0.0)
-        return index.key(q[keep]), g, on_grid, upper, lower
-
+    if (kernel := _c._block_pairs_kernel()) is not None:
+        run = _c._block_pairs_c(kernel, b, lo, cnt, tot, ra, size, index, cut, cut_fine)
+    else:
+        run = functools.partial(_np._block_pairs_run, b, lo, cnt, tot, ra, size, index, cut, cut_fine)
     return index, thread_map(run, spans, threads)
 
 
@@ -382,7 +311,6 @@ class _Index:
     @property
     def total(self):
         return int(np.prod(self.dims))
-
 
 def _find_blocks(b, grid, level, cut, cut_fine, threads):
     """Classify blocks by bounds; return the active ones with their Gaussian lists, or None."""
@@ -427,135 +355,19 @@ def _find_blocks(b, grid, level, cut, cut_fine, threads):
 def _group_pairs(slot, cls, g, on_grid, na):
     """The pairs' Gaussians ``g`` listed by active block ``cls[slot]`` (the others dropped), in pair
     order: (fine_start, fine_g, grid_start, grid_g (on-grid pairs only), first pair of each block)."""
-    count = native.kernel("blobby_group_count", None, [ctypes.c_int64] + [ctypes.c_void_p] * 3 + [ctypes.c_int64]
-                          + [ctypes.c_void_p] * 2)
-    if count is not None:
-        return _group_pairs_c(count, slot, cls, g, on_grid, na)
-    ai = cls[slot]
-    sel = np.flatnonzero(ai >= 0)
-    order = sel[_argsort_small(ai[sel], na)]  # by block, then Gaussian
-    ai_sorted = ai[order]
-    fine_start = np.searchsorted(ai_sorted, np.arange(na + 1))
-    fine_g = g[order]
-    grid_sel = on_grid[order]
-    grid_g = fine_g[grid_sel]
-    grid_start = np.searchsorted(ai_sorted[grid_sel], np.arange(na + 1))
-    return fine_start, fine_g, grid_start, grid_g, order[fine_start[:-1]]
-
-
-def _group_pairs_c(count, slot, cls, g, on_grid, na):
-    """:func:`_group_pairs` by the compiled kernels (a counting sort, native/src/blobby_nodes.c)."""
-    fill = native.kernel("blobby_group_fill", None, [ctypes.c_int64] + [ctypes.c_void_p] * 4 + [ctypes.c_int64]
-                         + [ctypes.c_void_p] * 6)
-    held = [*_c_arrays(slot, cls), np.ascontiguousarray(on_grid, np.bool_), *_c_arrays(g)]
-    slot_p, cls_p, on_p, g_p = (x.ctypes.data for x in held)
-    fine_start, grid_start = np.empty(na + 1, np.int64), np.empty(na + 1, np.int64)
-    count(len(slot), slot_p, cls_p, on_p, na, fine_start.ctypes.data, grid_start.ctypes.data)
-    fine_g, grid_g = np.empty(fine_start[-1], np.int64), np.empty(grid_start[-1], np.int64)
-    first, cursor = np.empty(na, np.int64), np.empty(2 * na, np.int64)
-    fill(len(slot), slot_p, cls_p, on_p, g_p, na, fine_start.ctypes.data, grid_start.ctypes.data, fine_g.ctypes.data,
-         grid_g.ctypes.data, first.ctypes.data, cursor.ctypes.data)
-    return fine_start, fine_g, grid_start, grid_g, first
-
-
-def _argsort_small(x, top):
-    """``np.argsort(x, kind="stable")`` for integers ``0 <= x < top``: below 2^32, two stable passes on
-    16-bit digits, which NumPy sorts by radix (1.5M block indices, the bench's 5,000 ellipsoids:
-    36 ms against 104 ms of timsort on int64, a serial step)."""
-    if top > 1 << 32:
-        return np.argsort(x, kind="stable")
-    p = np.argsort((x & 0xFFFF).astype(np.uint16), kind="stable")
-    if top <= 1 << 16:
-        return p
-    return p[np.argsort((x[p] >> 16).astype(np.uint16), kind="stable")]
-
-
-def _chunks(n, size):
-    return [(lo, min(lo + size, n)) for lo in range(0, n, size)]
+    if (count := _c._group_count_kernel()) is not None:
+        return _c._group_pairs_c(count, slot, cls, g, on_grid, na)
+    return _np._group_pairs(slot, cls, g, on_grid, na)
 
 
 def _node_values(b, grid, blocks, threads, act=None):
     """Values of the active blocks ``act`` (default: all) at their own BLOCK^3 nodes, float32
     (len(act), B, B, B) in (k, j, i) order.  A block's values are the same bits in any subset: every
     operation is elementwise per (block, Gaussian) pair, summed in the block's own Gaussian order."""
-    B = BLOCK
     act = np.arange(len(blocks.q)) if act is None else act
-    kernel = native.kernel("blobby_node_values", None, [ctypes.c_int64] + [ctypes.c_void_p] * 10)
-    if kernel is not None:
-        return _node_values_c(kernel, b, grid, blocks, threads, act)
-    na = len(act)
-    count = np.diff(blocks.grid_start)[act]
-    perm = np.argsort(-count, kind="stable")  # most Gaussians first: rank r's blocks are a prefix
-    values = np.empty((na, B, B, B), _F32)  # (every block is written once)
-    u = [np.arange(B) * grid.h[a] for a in range(3)]
-    uu = [x * x for x in u]
-    uxy = (u[1][:, None] * u[0][None, :]).astype(_F32)[:, :, None]  # [j, i]
-    uxz = (u[2][:, None] * u[0][None, :]).astype(_F32)[:, :, None]  # [k, i]
-    uyz = (u[2][:, None] * u[1][None, :]).astype(_F32)[:, :, None]  # [k, j]
-
-    def run(span):
-        bl = perm[span[0] : span[1]]
-        cnt = count[bl]
-        gbl = act[bl]
-        # The chunk's (block, Gaussian) pairs rank by rank: rank r's pairs are those of blocks bl[:n_r].
-        rank, at = np.nonzero(np.arange(int(cnt[0]))[:, None] < cnt[None, :])
-        ends = np.cumsum(np.bincount(rank))
-        g = blocks.grid_g[blocks.grid_start[gbl[at]] + rank]
-        rel = np.take(b.c, g, axis=0) - np.take(blocks.q, gbl[at], axis=0) * grid.size
-        a6 = np.take(b.a, g, axis=0)
-        ar = _amul(a6, rel)
-        const = b.lnw[g] - 0.5 * np.einsum("ni,ni->n", rel, ar)
-        # exponent(k, j, i) = const + u.Ar - 1/2 u^T A u, split into (j,i), (k,i), (k,j) tables.
-        ai = (u[0][:, None] * ar[:, 0] - 0.5 * uu[0][:, None] * a6[:, 0]).astype(_F32)
-        bj = (u[1][:, None] * ar[:, 1] - 0.5 * uu[1][:, None] * a6[:, 1] + const).astype(_F32)
-        ck = (u[2][:, None] * ar[:, 2] - 0.5 * uu[2][:, None] * a6[:, 2]).astype(_F32)
-        a32 = a6.astype(_F32)
-        eji = bj[:, None, :] + ai[None, :, :] - uxy * a32[:, 3]
-        eki = -uxz * a32[:, 4]
-        ekj = ck[:, None, :] - uyz * a32[:, 5]
-        # The three factors' exponents may exceed float32's exp range although their sum (<= ln w) does
-        # not (strongly sheared Gaussians): such Gaussians take the exponent's sum and one exp.
-        big = (eji.max(axis=(0, 1)) > _EXP_MAX) | (eki.max(axis=(0, 1)) > _EXP_MAX) | (ekj.max(axis=(0, 1)) > _EXP_MAX)
-        clamp = (lambda e: np.minimum(e, _EXP_MAX)) if big.any() else (lambda e: e)
-        tji, tki, tkj = np.exp(clamp(eji)), np.exp(clamp(eki)), np.exp(clamp(ekj))
-        acc = np.empty((B, B, B, len(bl)), _F32)
-        prod = np.empty_like(acc)
-        lo = 0
-        for hi in ends:
-            n = hi - lo
-            p = prod[..., :n] if lo else acc  # rank 0 (every block of the chunk) is the first term
-            np.multiply(tkj[:, :, None, lo:hi], tki[:, None, :, lo:hi], out=p)
-            np.multiply(p, tji[None, :, :, lo:hi], out=p)
-            sel = np.flatnonzero(big[lo:hi])
-            if len(sel):
-                s = lo + sel
-                p[..., sel] = np.exp(ekj[:, :, None, s] + eki[:, None, :, s] + eji[None, :, :, s])
-            if lo:
-                np.add(acc[..., :n], p, out=acc[..., :n])
-            lo = hi
-        values[bl] = np.moveaxis(acc, 3, 0)
-
-    thread_map(run, _chunks(na, max(1, 4096 * 64 // B**3)), threads)
-    return values
-
-
-def _c_arrays(*arrays):
-    """The arrays as C-contiguous int64 or float64 (copies where needed), for the compiled kernels."""
-    return [np.ascontiguousarray(x, np.int64 if x.dtype.kind in "iub" else np.float64) for x in arrays]
-
-
-def _node_values_c(kernel, b, grid, blocks, threads, act):
-    """:func:`_node_values` by the compiled kernel (native/src/blobby_nodes.c), runs of blocks on threads."""
-    values = np.empty((len(act), BLOCK, BLOCK, BLOCK), _F32)
-    act, *arrays = _c_arrays(act, blocks.grid_start, blocks.grid_g, blocks.q, b.c, b.a, b.lnw, grid.h, grid.size)
-    ptrs = [x.ctypes.data for x in arrays]
-    step = 1024  # blocks per call: a few ms, shared out to the threads as they come free
-
-    def run(lo):
-        kernel(min(step, len(act) - lo), act[lo:].ctypes.data, *ptrs, values[lo:].ctypes.data)
-
-    thread_map(run, range(0, len(act), step), threads)
-    return values
+    if (kernel := _c._node_values_kernel()) is not None:
+        return _c._node_values_c(kernel, b, grid, blocks, threads, act)
+    return _np._node_values(b, grid, blocks, threads, act)
 
 
 def _crossed(values, blocks, level, sel=None, loc=None):
@@ -577,361 +389,13 @@ def _crossed(values, blocks, level, sel=None, loc=None):
     return sel[~(above | below)]
 
 
-@dataclass
-class _EdgeTables:
-    """Marching-cubes tables on a block's (BLOCK + 1)^3 extended nodes.
-
-    Edge slots are numbered ``((axis * E + k) * E + j) * E + i`` with
-    ``E = BLOCK + 1``, (k, j, i) the edge's lower node; a block owns the edges
-    whose lower node it owns (all coordinates below BLOCK).
-    """
-
-    table: np.ndarray  # (256, 5, 3) int32, per configuration: each triangle corner's edge slot offset from its cell's (axis 0) slot
-    ntri: np.ndarray  # (256,)
-    own: np.ndarray  # (3, E, E, E) the block owns this edge slot
-    kind: np.ndarray  # (3 E^3,) int8: 0 no such edge (x at i = B, ...), 1 owned, 2 owned by a neighbour
-    face_slots: np.ndarray  # (F,) owned slots on a lower face (other blocks refer to them)
-    face_index: np.ndarray  # (3 E^3,) slot -> index into face_slots, or -1
-
-
-def _edge_tables():
-    B, E = BLOCK, BLOCK + 1
-    table, ntri = tables.cube_table()
-    pairs = np.array(tables.PAIRS)
-    lower = tables.CORNERS[pairs[:, 0]]  # (di, dj, dk)
-    axis = np.argmax(tables.CORNERS[pairs[:, 1]] - lower, axis=1)
-    delta = axis * E**3 + lower[:, 2] * E * E + lower[:, 1] * E + lower[:, 0]
-    ax, k, j, i = np.meshgrid(np.arange(3), np.arange(E), np.arange(E), np.arange(E), indexing="ij")
-    own = (k < B) & (j < B) & (i < B)
-    # An edge other blocks refer to lies on a lower face: a coordinate across it is 0.
-    on_face = own & (((k == 0) & (ax != 2)) | ((j == 0) & (ax != 1)) | ((i == 0) & (ax != 0)))
-    face_slots = np.flatnonzero(on_face.reshape(-1))
-    face_index = np.full(3 * E**3, -1, np.int64)
-    face_index[face_slots] = np.arange(len(face_slots))
-    exists = np.stack([i[0] < B, j[1] < B, k[2] < B])
-    kind = np.where(own, 1, np.where(exists, 2, 0)).astype(np.int8).reshape(-1)
-    return _EdgeTables(delta[table].astype(np.int32), ntri, own, kind, face_slots, face_index)
-
-
-_GHOSTS = []
-for _code in range(1, 8):
-    _o = ((_code >> 2) & 1, (_code >> 1) & 1, _code & 1)  # (dz, dy, dx)
-    _dst = tuple(slice(BLOCK, BLOCK + 1) if d else slice(0, BLOCK) for d in _o)
-    _src = tuple(slice(0, 1) if d else slice(0, BLOCK) for d in _o)
-    _GHOSTS.append((_code, _dst, _src))
-
-
-@dataclass
-class _Chunk:
-    """Marching-cubes output of a run of blocks, vertex ids local to the chunk."""
-
-    blk: np.ndarray  # (v,) active block of each vertex (refinement uses its Gaussians)
-    axis: np.ndarray  # (v,) edge axis 0..2 (x, y, z)
-    node: np.ndarray  # (v, 3) uint8 lower node (x y z) within the block ``blk``: 0 .. BLOCK
-    t: np.ndarray  # (v,) initial edge parameter
-    curv: np.ndarray  # (v,) d^2 f / dt^2 along the edge (t: the edge parameter), estimated from node values, or NaN
-    a_above: np.ndarray  # (v,) lower node above the level
-    faces: np.ndarray  # (T, 3) >= 0: local vertex; < 0: -(1 + reference)
-    ref_owner: np.ndarray  # (r,) int32 active block owning the edge, or -1 (duplicate vertex in this chunk)
-    ref_slot: np.ndarray  # (r,) int32 the owner's face slot (index into face_slots), or the local duplicate vertex
-    ref_shift: np.ndarray  # (r, 3) int8 periodic shift in box lengths (0 or 1)
-    n_owned: int
-    dup_key: np.ndarray  # (d,) wrapped global edge key of duplicate vertices (local ids n_owned..)
-    dup_shift: np.ndarray  # (d, 3)
-    face_key: np.ndarray  # (s,) ascending block * len(face_slots) + face slot of owned vertices other blocks may use
-    face_vid: np.ndarray  # (s,) int32 their local vertex ids
-
-
 def _march(values, blocks, grid, level, bl, et, loc=None):
     """Marching cubes over blocks ``bl`` (ascending): owned edges get vertices, edges owned by a
     neighbour become references to its face slot (resolved once every chunk is done).  ``values``
     row ``loc[q]`` holds block q (default: row q)."""
-    count = native.kernel("blobby_march_count", None, [ctypes.c_int64, ctypes.c_double, ctypes.c_void_p, ctypes.c_void_p])
-    if count is not None and len(bl):
-        return _march_c(count, values, blocks, grid, level, bl, et, loc)
-    B, E = BLOCK, BLOCK + 1
-    n = len(bl)
-    lvl = _F32(level)
-    row = (lambda q: q) if loc is None else (lambda q: loc[q])
-    ext = np.empty((n, E, E, E), _F32)
-    ext[:, :B, :B, :B] = np.take(values, row(bl), axis=0)
-    for code, dst, src in _GHOSTS:
-        nb = blocks.nbr[bl, code]
-        got = values[(row(np.maximum(nb, 0)),) + src]
-        # A node of an inactive block: its sign is its block's class; the value is only a first guess.
-        guess = np.where(nb == -2, _F32(2) * lvl, _F32(0))[:, None, None, None]
-        ext[(slice(None),) + dst] = np.where((nb >= 0)[:, None, None, None], got, guess)
-    # Node signs in one flat run (padded): a neighbour along x, y, z is 1, E, E^2 further on, so
-    # the edge and cell tests are whole-run operations; where they pair nodes of different rows
-    # (x at i = B, ...) the edge does not exist (et.kind 0) or the cell is not read.
-    N = n * E**3
-    run = np.zeros(N + 1 + E + E * E, bool)
-    np.greater_equal(ext.reshape(-1), lvl, out=run[:N])
-    cut = np.empty((n, 3, E**3), bool)
-    for a, d in enumerate((1, E, E * E)):
-        np.not_equal(run[:N].reshape(n, E**3), run[d : N + d].reshape(n, E**3), out=cut[:, a])
-    at = np.flatnonzero(cut)
-    kind = et.kind[at % (3 * E**3)]
-    own = at[kind == 1]
-    ghost = at[kind == 2]
-    lut = np.empty(n * 3 * E**3, np.int32)
-    lut[own] = np.arange(len(own))
-    lut[ghost] = -1 - np.arange(len(ghost))
-    # Owned vertices on a lower face, by (block, face slot): ascending, since own is.
-    fi = et.face_index[own % (3 * E**3)]
-    on_face = np.flatnonzero(fi >= 0)
-    face_key = bl[own[on_face] // (3 * E**3)] * len(et.face_slots) + fi[on_face]
-
-    # Own vertices: edge ends read from the extended block.
-    vb, rest = np.divmod(own, 3 * E**3)
-    vax, rest_own = np.divmod(rest, E**3)
-    rest = rest_own
-    flat = ext.reshape(-1)
-    va = flat[vb * E**3 + rest]
-    vz = flat[vb * E**3 + rest + np.array([1, E, E * E])[vax]]
-    vk, rest = np.divmod(rest, E * E)
-    vj, vi = np.divmod(rest, E)
-    vijk = np.stack([vi, vj, vk], axis=1)
-    vcoord = vijk[np.arange(len(vax)), vax]
-
-    # Ghost edges: owned by a neighbour (refer to its face store) or, if it is inactive, by nobody.
-    gb, rest = np.divmod(ghost, 3 * E**3)
-    gax, rest = np.divmod(rest, E**3)
-    gk, rest = np.divmod(rest, E * E)
-    gj, gi = np.divmod(rest, E)
-    code = 4 * (gk == B) + 2 * (gj == B) + (gi == B)
-    owner = blocks.nbr[bl[gb], code]
-    ref_slot = et.face_index[((gax * E + gk % B) * E + gj % B) * E + gi % B]
-    shift = np.zeros((len(ghost), 3), np.int64)
-    if grid.box is not None:
-        off = np.stack([gi == B, gj == B, gk == B], axis=1)
-        shift = (blocks.q[bl[gb]] + off >= grid.nb).astype(np.int64)
-    dup = np.flatnonzero(owner < 0)
-    n_owned = len(own)
-    dup_key = np.zeros(0, np.int64)
-    dup_shift = np.zeros((0, 3), np.int64)
-    vblk, vaxis, vnode = bl[vb], vax, vijk
-    if len(dup):
-        # A vertex of our own, merged with its twins from other blocks by key at the end.
-        dlocal = np.stack([gi[dup], gj[dup], gk[dup]], axis=1)
-        dnode = blocks.q[bl[gb[dup]]] * B + dlocal
-        wrapped = dnode if grid.box is None else dnode % (B * grid.nb)
-        dup_key = _edge_key(wrapped, gax[dup], blocks)
-        dup_shift = shift[dup]
-        dflat = gb[dup] * E**3 + (gk[dup] * E + gj[dup]) * E + gi[dup]
-        va = np.concatenate([va, flat[dflat]])
-        vz = np.concatenate([vz, flat[dflat + np.array([1, E, E * E])[gax[dup]]]])
-        vblk = np.concatenate([vblk, bl[gb[dup]]])
-        vaxis = np.concatenate([vax, gax[dup]])
-        vnode = np.concatenate([vijk, dlocal])
-        ref_slot[dup] = n_owned + np.arange(len(dup))
-
-    bits = run.view(np.uint8)
-    bits = bits[:-1] | (bits[1:] << 1)
-    bits = bits[:-E] | (bits[E:] << 2)
-    bits = bits[: -E * E] | (bits[E * E :] << 4)
-    cfg = bits[:N].reshape(n, E, E, E)[:, :B, :B, :B].reshape(-1)
-    cells = np.flatnonzero(cfg + np.uint8(1) > 1).astype(np.int32)  # not 0 or 255 (n 8^3 < 2^31: int32 indices)
-    c = cfg[cells].astype(np.int32)
-    counts = et.ntri[c]
-    cb, rest = np.divmod(cells, B**3)
-    ck, rest = np.divmod(rest, B * B)
-    cj, ci = np.divmod(rest, B)
-    # Triangle j of a cell of configuration c is row 5 c + j of the table.
-    row = np.arange(int(counts.sum())) + np.repeat(5 * c - (np.cumsum(counts) - counts), counts)
-    idx = np.take(et.table.reshape(-1, 3), row, axis=0)  # (np.take: 3x faster on rows than indexing)
-    idx += np.repeat(cb * 3 * E**3 + (ck * E + cj) * E + ci, counts)[:, None]
-    faces = np.take(lut, idx)
-
-    va64 = va.astype(np.float64)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = (level - va64) / (vz.astype(np.float64) - va64)
-    t = np.clip(np.where(np.isfinite(t), t, 0.5), EDGE_MARGIN, 1 - EDGE_MARGIN)
-    t_own, curv = _edge_guess(flat, vb * E**3 + rest_own, vax, vcoord, blocks.nbr[bl[vb], 1 << vax] >= 0, level, t[:n_owned])
-    t[:n_owned] = t_own
-    curv = np.concatenate([curv, np.full(len(t) - n_owned, np.nan)]).astype(_F32)
-    return _Chunk(
-        vblk.astype(np.int32), vaxis.astype(np.int8), vnode.astype(np.uint8), t, curv, va >= lvl, faces,
-        np.where(owner < 0, -1, owner).astype(np.int32), ref_slot.astype(np.int32), shift.astype(np.int8), n_owned, dup_key,
-        dup_shift, face_key, on_face.astype(np.int32),
-    )
-
-
-_CHUNK_FIELDS = (  # the _Chunk arrays the march kernel writes (in struct march_out's order): dtype, row shape, size
-    ("blk", np.int32, (), "v"), ("axis", np.int8, (), "v"), ("node", np.uint8, (3,), "v"), ("t", np.float64, (), "v"),
-    ("curv", _F32, (), "v"), ("a_above", np.bool_, (), "v"), ("faces", np.int32, (3,), "tri"),
-    ("ref_owner", np.int32, (), "ghost"), ("ref_slot", np.int32, (), "ghost"), ("ref_shift", np.int8, (3,), "ghost"),
-    ("dup_key", np.int64, (), "dup"), ("dup_shift", np.int64, (3,), "dup"), ("face_key", np.int64, (), "face"),
-    ("face_vid", np.int32, (), "face"),
-)
-
-
-def _march_c(count, values, blocks, grid, level, bl, et, loc):
-    """:func:`_march` by the compiled kernel (native/src/blobby_march.c): one pass counts, the next writes."""
-    emit = native.kernel("blobby_march_emit", None, [ctypes.c_int64, ctypes.c_double, ctypes.c_double, ctypes.c_int64]
-                         + [ctypes.c_void_p] * 3)
-    ext = np.empty((len(bl), (BLOCK + 1) ** 3), _F32)  # scratch: the blocks' extended nodes
-    # struct march_in, in its order (int64 but values, table and kind)
-    held = [x if x is None else np.ascontiguousarray(x) for x in (
-        bl.astype(np.int64), values, None if loc is None else loc.astype(np.int64), blocks.nbr, blocks.q,
-        None if grid.box is None else grid.nb.astype(np.int64), blocks.node_lo, blocks.node_dims, et.table, et.ntri,
-        et.kind, et.face_index, ext)]
-    march_in = (ctypes.c_void_p * len(held))(*(x if x is None else x.ctypes.data for x in held))
-    n = np.zeros(5, np.int64)  # owned vertices, ghost edges, duplicates, triangles, face vertices
-    count(len(bl), level, march_in, n.ctypes.data)
-    size = {"v": n[0] + n[2], "ghost": n[1], "dup": n[2], "tri": n[3], "face": n[4]}
-    out = {name: np.empty((int(size[k]),) + shape, dt) for name, dt, shape, k in _CHUNK_FIELDS}
-    march_out = (ctypes.c_void_p * len(out))(*(x.ctypes.data for x in out.values()))
-    emit(len(bl), level, EDGE_MARGIN, len(et.face_slots), march_in, n.ctypes.data, march_out)
-    return _Chunk(n_owned=int(n[0]), **out)
-
-
-def _edge_guess(flat, at, axis, coord, beyond_real, level, t):
-    """A vertex's edge parameter from the cubic (or, at a block's edge, quadratic) through the node values
-    along its edge, and that polynomial's second derivative d^2 f / dt^2 there (NaN where the
-    nodes needed are not all computed).  ``at``: the lower node's index in ``flat``; ``coord`` its
-    coordinate along the edge within the block; ``beyond_real``: the next block along the edge is active."""
-    B, E = BLOCK, BLOCK + 1
-    stride = np.array([1, E, E * E])[axis]
-    up1 = (coord + 1 < B) | beyond_real
-    has_m = coord >= 1
-    has_p2 = (coord + 2 < B) | ((coord + 2 == B) & beyond_real)
-    ok = up1 & (has_m | has_p2)
-    fm = flat[np.where(has_m, at - stride, at)]
-    f0 = flat[at]
-    f1 = flat[at + stride]
-    f2 = flat[np.where(has_p2, at + 2 * stride, at)]
-    # p(t) = c0 + c1 t + c2 t^2 + c3 t^3 through nodes -1, 0, 1, 2 (or the three of them there are), float32.
-    c0 = f0 - _F32(level)
-    c2 = np.where(has_m, _F32(0.5) * (fm + f1) - f0, _F32(0.5) * (f0 + f2) - f1)
-    c3 = np.where(has_m & has_p2, (f2 - fm) / _F32(6) + _F32(0.5) * (f0 - f1), _F32(0))
-    c1 = f1 - f0 - c2 - c3
-    # One Newton step on p from the linear guess: its error (~0.1 edge) drops to ~1e-3, below what
-    # the projection's first Newton step needs to settle.
-    t0 = t.astype(_F32)
-    dp = c1 + t0 * (2 * c2 + 3 * t0 * c3)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t1 = np.clip(t0 - (c0 + t0 * (c1 + t0 * (c2 + t0 * c3))) / dp, _F32(EDGE_MARGIN), _F32(1 - EDGE_MARGIN))
-    ok &= dp * (f1 - f0) > 0  # p rises where the field does (NaN: False)
-    return np.where(ok, t1, t), np.where(ok, 2 * c2 + 6 * t1 * c3, np.nan)
-
-
-def _edge_key(node, axis, blocks):
-    """One integer per grid edge (axis, node), nodes numbered over the block index's range."""
-    n = node - blocks.node_lo
-    dims = blocks.node_dims
-    return ((axis * dims[2] + n[:, 2]) * dims[1] + n[:, 1]) * dims[0] + n[:, 0]
-
-
-class _Refiner:
-    """Field, gradient and most-contributing Gaussian at points, from a block's Gaussian list.
-
-    Per (block, Gaussian) pair the exponent is a quadratic in the point's offset
-    ``u`` from the block's first node: 10 coefficients, so a batch of blocks
-    with the same number of Gaussians is one batched matrix product; a second
-    one sums ``e_g [A_g, A_g r_g, 1]``: the gradient and the field.  The
-    coefficients are made per batch (:meth:`gather`).
-    """
-
-    BUDGET = 1 << 18  # (vertex, Gaussian) products per batch
-    PAD = 1.2  # vertex counts of a batch's blocks within this factor: little padding
-    SMALL = BUDGET // 16  # bands with fewer products merge (per number of Gaussians): a batch costs ~1 ms however small
-
-    def __init__(self, b, grid, blocks):
-        self.b, self.blocks = b, blocks
-        self.count = np.diff(blocks.fine_start)
-        self.x0 = blocks.q * grid.size
-
-    def batches(self, blk, order):
-        """Vertices ``order`` (sorted by their block in ``blk``) in padded batches ``(vid (nbt, vmax),
-        nv (nbt,), ub (nbt,))`` of blocks with the same number of Gaussians and similar vertex counts."""
-        if len(order) == 0:
-            return []
-        blk = blk[order]
-        first = np.flatnonzero(np.r_[True, blk[1:] != blk[:-1]])
-        nv = np.diff(np.r_[first, len(blk)])
-        ub = blk[first]
-        ng = self.count[ub]
-        band = np.floor(np.log(nv) / np.log(self.PAD)).astype(np.int64)
-        for merge in (True, False):
-            by = np.lexsort((nv, band, ng))
-            cuts = np.flatnonzero(np.diff(ng[by]) | np.diff(band[by])) + 1
-            if merge:
-                ends = np.r_[cuts, len(by)]
-                size = np.diff(np.r_[0, ends]) * nv[by[ends - 1]] * ng[by[ends - 1]]
-                small = np.repeat(size < self.SMALL, np.diff(np.r_[0, ends]))
-                band[by[small]] = -1
-        out = []
-        for grp in np.split(by, cuts):
-            lo = 0
-            while lo < len(grp):  # (ascending vertex counts: a batch's last block has the most)
-                padded = np.arange(1, len(grp) - lo + 1) * nv[grp[lo:]] * ng[grp[0]]
-                sel = grp[lo : lo + max(1, int(np.searchsorted(padded, self.BUDGET, side="right")))]
-                vid = first[sel, None] + np.minimum(np.arange(nv[sel[-1]]), nv[sel, None] - 1)
-                out.append((order[vid], nv[sel], ub[sel]))
-                lo += len(sel)
-        return out
-
-    def gather(self, ub):
-        """The blocks' Gaussians (nbt, G) (input indices) and their coefficients, ready for :meth:`evaluate`."""
-        g = self.blocks.fine_g[self.blocks.fine_start[ub][:, None] + np.arange(int(self.count[ub[0]]))]
-        b = self.b
-        rel = np.take(b.c, g, axis=0) - self.x0[ub][:, None, :]
-        a6 = np.take(b.a, g, axis=0)
-        ar = _amul(a6, rel)
-        # (nbt, 10, G) contiguous: matmul is some 3x faster on it than on a transposed view.
-        coef = np.empty((len(ub), 10, g.shape[1]), _F32)
-        coef[:, 0:3] = -0.5 * a6[..., 0:3].transpose(0, 2, 1)
-        coef[:, 3:6] = -a6[..., 3:6].transpose(0, 2, 1)
-        coef[:, 6:9] = ar.transpose(0, 2, 1)
-        coef[:, 9] = b.lnw[g] - 0.5 * np.einsum("...i,...i", rel, ar)
-        kern = np.empty(g.shape + (10,), _F32)
-        kern[..., 0:6] = a6
-        kern[..., 6:9] = ar
-        kern[..., 9] = 1
-        return b.src[g], coef, kern
-
-    @staticmethod
-    def evaluate(u, coef, kern):
-        """f (nbt, vmax), grad (nbt, vmax, 3) and the terms e (nbt, vmax, G) at offsets u, float32.
-
-        The gradient ``sum_g e_g A_g (r_g - u)`` is ``m - M u`` from the sums ``sum_g e_g [A_g, A_g r_g]``,
-        which the float32 product already rounds: finishing it in float64 would not undo that."""
-        feat = np.empty(u.shape[:2] + (10,), _F32)
-        np.multiply(u, u, out=feat[..., 0:3])
-        x, y, z = u[..., 0], u[..., 1], u[..., 2]
-        np.multiply(x, y, out=feat[..., 3])
-        np.multiply(x, z, out=feat[..., 4])
-        np.multiply(y, z, out=feat[..., 5])
-        feat[..., 6:9] = u
-        feat[..., 9] = 1
-        e = np.exp(feat @ coef)
-        m = e @ kern  # sum_g e_g [A_g, A_g r_g, 1]
-        x, y, z = feat[..., 6], feat[..., 7], feat[..., 8]  # (u in float32)
-        grad = np.empty(u.shape, _F32)
-        grad[..., 0] = m[..., 6] - (m[..., 0] * x + m[..., 3] * y + m[..., 4] * z)
-        grad[..., 1] = m[..., 7] - (m[..., 3] * x + m[..., 1] * y + m[..., 5] * z)
-        grad[..., 2] = m[..., 8] - (m[..., 4] * x + m[..., 5] * y + m[..., 2] * z)
-        return m[..., 9], grad, e
-
-
-def _compact(live, per_vertex, per_row):
-    """The live entries of a padded (rows, vmax) layout, packed to the front of their rows
-    (padding repeats a row's first live entry); rows without any are dropped."""
-    bi, vi = np.nonzero(live)
-    first = np.flatnonzero(np.r_[True, bi[1:] != bi[:-1]])
-    cnt = np.diff(np.r_[first, len(bi)])
-    src = first[:, None] + np.minimum(np.arange(cnt.max()), cnt[:, None] - 1)
-    sb, sv = bi[src], vi[src]
-    valid = np.arange(src.shape[1]) < cnt[:, None]
-    return valid, [a[sb, sv] for a in per_vertex], [a[bi[first]] for a in per_row]
-
-
-def _rows(a):
-    """A contiguous (n, k) array as (n,) opaque k-item records: NumPy scatters those by index with one
-    copy per record, some 2x faster than rows of a 2-D array (6M rows of 3 float32: 29 ms against 62).
-    (Gathers: ``np.take(a, idx, axis=0)`` is as fast: 1.5M rows of 3 float64, 9 ms against 32.)"""
-    return a.view(np.dtype((np.void, a.shape[1] * a.itemsize))).reshape(len(a))
+    if len(bl) and (count := _c._march_count_kernel()) is not None:
+        return _c._march_c(count, values, blocks, grid, level, bl, et, loc)
+    return _np._march(values, blocks, grid, level, bl, et, loc)
 
 
 def _project(refiner, grid, blk, axis, node, t, curv, a_above, level, tol, threads):
@@ -950,149 +414,8 @@ def _project(refiner, grid, blk, axis, node, t, curv, a_above, level, tol, threa
     """
     kernel = _project_kernel()
     if kernel is not None:
-        return _project_c(kernel, refiner, grid, blk, axis, node, t, curv, a_above, level, tol, threads)
-    n = len(t)
-    pos = np.empty((n + 1, 3), _F32)  # row n: where padding is written
-    normal = np.empty((n + 1, 3), _F32)
-    flat = np.empty(n + 1, bool)
-    arg = np.empty(n + 1, np.int32)
-    pos_rows, normal_rows = _rows(pos), _rows(normal)
-
-    def setup(vid, ub):
-        ax = axis[vid]
-        # (a row of vid holds vertices of block ub only: its coordinates broadcast, not gathered per vertex)
-        base = grid.coords(refiner.blocks.q[ub][:, None, :] * BLOCK + np.take(node, vid, axis=0))
-        u0 = base - refiner.x0[ub][:, None, :]
-        along = np.arange(0, u0.size, 3) + ax.reshape(-1)  # the edge's coordinate in (..., 3) rows
-        # ab: f - level >= 0 at the lower node
-        return ax, base, u0, along, grid.h[ax], a_above[vid], np.abs(curv[vid])
-
-    def evaluate(u0, along, tt, st, coef, kern, keep=True):
-        """The field at offsets ``u0`` moved ``tt`` along the edges (``keep=False``: in place)."""
-        u = u0.copy() if keep else u0
-        u.reshape(-1)[along] += (tt * st).reshape(-1)
-        f, g, e = refiner.evaluate(u, coef, kern)
-        return f, g, np.sqrt(np.einsum("...i,...i", g, g)), e
-
-    def step(f, g, gn, valid, tt, lo, hi, ab, cv, along, st):
-        """Newton (or bisection) along the edge: (the position to write, the next one, still moving, lo, hi)."""
-        diff = f - level
-        slack = tol * np.maximum(gn, 1e-300)
-        go = valid & (np.abs(diff) >= slack)
-        side = (diff > 0) == ab  # still on the lower node's side
-        lo = np.where(go & side, tt, lo)
-        hi = np.where(go & ~side, tt, hi)
-        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-            new = tt - diff / (g.reshape(-1)[along].reshape(tt.shape) * st)
-        good = (new > lo) & (new < hi)  # False for NaN
-        new = np.clip(np.where(good, new, 0.5 * (lo + hi)), EDGE_MARGIN, 1 - EDGE_MARGIN)
-        # (and a short one: the normal comes from where the step starts)
-        settled = good & (2 * cv * (new - tt) ** 2 < slack) & (np.abs(new - tt) * st < SETTLE_STEP * tol)  # False for NaN
-        return np.where(go & settled, new, tt), new, go & (new != tt) & ~settled, lo, hi
-
-    def write(ids, p, g, gn, best):
-        """Outputs of vertices ``ids`` (rows of the other arguments)."""
-        pos_rows[ids] = _rows(p.astype(_F32))
-        np.divide(g, np.where(gn > 0, gn, 1)[:, None], out=g)  # (g: the caller's temporary, contiguous)
-        normal_rows[ids] = _rows(np.negative(g, out=g))
-        flat[ids] = gn <= 0
-        arg[ids] = best
-
-    def first(batch):
-        """Evaluate and write every vertex of the batch (its padding to row n); return those still moving
-        (their ids, next edge parameters and brackets)."""
-        vid, nv, ub = batch
-        src, coef, kern = refiner.gather(ub)
-        valid = np.arange(vid.shape[1]) < nv[:, None]
-        ax, base, u0, along, st, ab, cv = setup(vid, ub)
-        tt = t[vid]
-        f, g, gn, e = evaluate(u0, along, tt, st, coef, kern, keep=False)
-        lo, hi = np.zeros(vid.shape), np.ones(vid.shape)
-        final, new, live, lo, hi = step(f, g, gn, valid, tt, lo, hi, ab, cv, along, st)
-        best = np.take_along_axis(src, e.argmax(axis=-1), axis=1)
-        base.reshape(-1)[along] += (final * st).reshape(-1)
-        write(np.where(valid, vid, n).reshape(-1), base.reshape(-1, 3), g.reshape(-1, 3), gn.reshape(-1), best.reshape(-1))
-        at = np.flatnonzero(live)
-        return vid.reshape(-1)[at], new.reshape(-1)[at], lo.reshape(-1)[at], hi.reshape(-1)[at]
-
-    def rest(batch, left):
-        """Iterate the vertices ``left`` (ids, t, lo, hi) at the batch's positions into them until done."""
-        at, nv, ub = batch
-        vid, tt, lo, hi = (x[at] for x in left)
-        src, coef, kern = refiner.gather(ub)
-        valid = np.arange(vid.shape[1]) < nv[:, None]
-        ax, base, u0, along, st, ab, cv = setup(vid, ub)
-        for it in range(1, NEWTON_STEPS + 1):
-            f, g, gn, e = evaluate(u0, along, tt, st, coef, kern)
-            live = np.zeros(vid.shape, bool)
-            final = tt
-            if it < NEWTON_STEPS:
-                final, new, live, lo, hi = step(f, g, gn, valid, tt, lo, hi, ab, cv, along, st)
-            done = np.flatnonzero(valid & ~live)
-            best = src[done // vid.shape[1], e.reshape(-1, e.shape[-1])[done].argmax(axis=1)]
-            p = base.reshape(-1, 3)[done]
-            p[np.arange(len(done)), ax.reshape(-1)[done]] += final.reshape(-1)[done] * st.reshape(-1)[done]
-            write(vid.reshape(-1)[done], p, g.reshape(-1, 3)[done], gn.reshape(-1)[done], best)
-            if not live.any():
-                return
-            tt = np.where(live, new, tt)
-            if 2 * np.count_nonzero(live) < live.size:
-                valid, (vid, ax, base, u0, st, ab, tt, cv, lo, hi), (src, coef, kern) = _compact(
-                    live, (vid, ax, base, u0, st, ab, tt, cv, lo, hi), (src, coef, kern))
-                along = np.arange(0, u0.size, 3) + ax.reshape(-1)
-            else:
-                valid = live
-
-    order = np.argsort(blk, kind="stable")  # nearly sorted already: batches read and write short runs
-    if n < 2**31:  # (the batches' padded vertex ids, all made at once: half the memory)
-        order = order.astype(np.int32)
-    left = thread_map(first, refiner.batches(blk, order), threads)
-    left = [np.concatenate(x) for x in zip(*left)]
-    if left and len(left[0]):
-        by = np.argsort(blk[left[0]], kind="stable")
-        left = [x[by] for x in left]
-        thread_map(lambda bt: rest(bt, left), refiner.batches(blk[left[0]], np.arange(len(by))), threads)
-    return pos[:n], normal[:n], flat[:n], arg[:n]
-
-
-def _project_kernel():
-    """native/src/blobby_project.c's ``blobby_project`` with its argument types, or None."""
-    i8, u8, b8, i32, i64, f32, f64 = (np.ctypeslib.ndpointer(k, flags="C_CONTIGUOUS")
-                                      for k in (np.int8, np.uint8, np.bool_, np.int32, np.int64, np.float32, np.float64))
-    n, x = ctypes.c_int64, ctypes.c_double
-    return native.kernel("blobby_project", ctypes.c_int, [
-        n, i64, i32, i8, u8, f64, f32, b8,  # vertices
-        i64, i64, i64, f64, f64, f64, i64, n,  # blocks, Gaussians
-        f64, f64, i64, n, x, x, x, x, n,  # grid, rules
-        f32, f32, b8, i32])  # outputs
-
-
-_PROJECT_CHUNK = 1 << 15
-"""Vertices per call of the compiled projection (a few ms), handed to the threads as they come free."""
-
-
-def _project_c(kernel, refiner, grid, blk, axis, node, t, curv, a_above, level, tol, threads):
-    """:func:`_project` by the compiled kernel: chunks of the vertices sorted by block (each call gathers a
-    block's Gaussians once) on threads."""
-    b, blocks, n = refiner.b, refiner.blocks, len(t)
-    order = np.argsort(blk, kind="stable").astype(np.int64, copy=False)
-    c = np.ascontiguousarray
-    periodic = grid.box is not None
-    args = (c(blk, np.int32), c(axis, np.int8), c(node, np.uint8), c(t, np.float64), c(curv, _F32), c(a_above, bool),
-            c(blocks.q, np.int64), c(blocks.fine_start, np.int64), c(blocks.fine_g, np.int64), c(b.c, np.float64),
-            c(b.a, np.float64), c(b.lnw, np.float64), c(b.src, np.int64), int(refiner.count.max()),
-            c(grid.h, np.float64), c(grid.box, np.float64) if periodic else np.zeros(3),
-            # per axis the node lying at exactly L (periodic), else none
-            c(BLOCK * grid.nb, np.int64) if periodic else np.full(3, np.iinfo(np.int64).max),
-            BLOCK, level, tol, SETTLE_STEP, EDGE_MARGIN, NEWTON_STEPS)
-    out = (np.empty((n, 3), _F32), np.empty((n, 3), _F32), np.empty(n, bool), np.empty(n, np.int32))
-
-    def run(span):
-        if kernel(span[1] - span[0], order[span[0] : span[1]], *args, *out):
-            raise MemoryError("blobby: no memory for a block's Gaussian columns")
-
-    thread_map(run, _chunks(n, _PROJECT_CHUNK), threads)
-    return out
+        return _c._project_c(kernel, refiner, grid, blk, axis, node, t, curv, a_above, level, tol, threads)
+    return _np._project(refiner, grid, blk, axis, node, t, curv, a_above, level, tol, threads)
 
 
 @functools.cache
@@ -1104,7 +427,6 @@ def _malloc_trim():
     except (OSError, AttributeError, TypeError):  # not glibc (Windows: CDLL(None) is a TypeError)
         return None
 
-
 def _release(big=True):
     """Hand freed heap pages back to the system (glibc's ``malloc_trim``; elsewhere nothing) if ``big``.
     The march's chunk-sized arrays live in malloc's heaps, not in pages of their own: freed while the
@@ -1115,11 +437,9 @@ def _release(big=True):
     if trim is not None:
         trim(0)
 
-
 MARCH_BATCH = 1 << 17
 """Active blocks whose node values are held at once (256 MiB): the march runs batch by batch, each
 batch's values made for its blocks and their +1 neighbours (a layer of blocks made twice)."""
-
 
 def _march_batches(b, grid, blocks, level, threads):
     """Node values and marching cubes, :data:`MARCH_BATCH` active blocks at a time (in key order: slabs
@@ -1147,7 +467,6 @@ def _march_batches(b, grid, blocks, level, threads):
     if not parts:
         parts = [_march(np.zeros((0, BLOCK, BLOCK, BLOCK), _F32), blocks, grid, level, np.zeros(0, np.int64), et)]
     return parts
-
 
 def _assemble(parts, nslot, threads, big=False):
     """Global vertex numbering: every chunk's own edges, then one representative per
@@ -1212,7 +531,6 @@ def _assemble(parts, nslot, threads, big=False):
         raise AssertionError("blobby: a face refers to an edge its owner did not cut")
     return verts, faces, ref_base, np.concatenate([p.ref_shift for p in parts]), rep_shift, n_own
 
-
 def blobby_surface(
     centers, rotations, sigmas, weights, level, spacing, *, box=None, cutoff=4.0, attributes=None, threads=None
 ):
@@ -1265,13 +583,9 @@ def blobby_surface(
     .. [3] N. Max and R. Crawfis, "Advances in Scientific Visualization".
     """
     c, r, s, w = _check(centers, rotations, sigmas, weights)
-    level = _positive(level, "level")
-    spacing = _positive(spacing, "spacing")
-    cutoff = _positive(cutoff, "cutoff")
-    attributes = {str(k): np.asarray(v) for k, v in dict(attributes or {}).items()}
-    for name, a in attributes.items():
-        if a.shape[:1] != (len(c),):
-            raise DataError(f"needs one value per Gaussian ({len(c)}), got shape {a.shape}", field=name)
+    level, spacing, cutoff = (_positive(x, name) for x, name in ((level, "level"), (spacing, "spacing"),
+                                                                 (cutoff, "cutoff")))
+    attributes = _check_attributes(attributes, len(c))
     names = ["blob", *attributes]
     if box is not None:
         box = _check_box(box)
@@ -1308,7 +622,29 @@ def blobby_surface(
         # across the seam exactly L): move them to the box's own frame (exactly 0).
         pos[n_own:] -= (rep_shift * grid.box).astype(_F32)  # (float32: L - L is exactly 0)
 
-    # Periodic copies of seam vertices, one per (vertex, shift).
+    pos, normals, flat, arg, final = _periodic_copies(pos, normals, flat, arg, ref_base, ref_shift, grid)
+    neg = faces < 0
+    faces[neg] = final[-1 - faces[neg]]
+
+    vertices = pos
+    if flat.any():
+        normals[flat] = vertex_normals(vertices, faces)[flat]
+    attrs = {"blob": arg.astype(np.int32, copy=False)}
+    attrs.update({k: v[arg] for k, v in attributes.items()})
+    return Mesh(vertices, faces, normals, attrs)
+
+
+def _check_attributes(attributes, n):
+    """Per-Gaussian ``attributes`` as arrays of ``n`` rows (a :class:`DataError` naming the one that is not)."""
+    attributes = {str(k): np.asarray(v) for k, v in dict(attributes or {}).items()}
+    for name, a in attributes.items():
+        if a.shape[:1] != (n,):
+            raise DataError(f"needs one value per Gaussian ({n}), got shape {a.shape}", field=name)
+    return attributes
+
+
+def _periodic_copies(pos, normals, flat, arg, ref_base, ref_shift, grid):
+    """Periodic copies of seam vertices, one per (vertex, shift), appended; and every reference's final vertex."""
     final = ref_base.copy()
     moved = np.flatnonzero(np.any(ref_shift != 0, axis=1))
     if len(moved):
@@ -1320,13 +656,8 @@ def blobby_surface(
         normals = np.concatenate([normals, normals[src]])
         flat = np.concatenate([flat, flat[src]])
         arg = np.concatenate([arg, arg[src]])
-    neg = faces < 0
-    faces[neg] = final[-1 - faces[neg]]
+    return pos, normals, flat, arg, final
 
-    vertices = pos
-    if flat.any():
-        normals[flat] = vertex_normals(vertices, faces)[flat]
-    attrs = {"blob": arg.astype(np.int32, copy=False)}
-    attrs.update({k: v[arg] for k, v in attributes.items()})
-    return Mesh(vertices, faces, normals, attrs)
 
+__all__ = ["BLOCK", "EXACT_RANGE", "MARCH_BATCH", "NEWTON_STEPS", "NEWTON_TOL", "REFINE_EXTRA", "SETTLE_STEP",
+           "blobby_field", "blobby_surface", "level_distance"]

@@ -17,7 +17,6 @@ from pathlib import Path
 import numpy as np
 
 from ..files import atomic_write, process_alive
-from ..memory import available_memory, check_memory, format_bytes  # noqa: F401  (their home before core.memory)
 from . import registry
 
 CACHE_VERSION = 1

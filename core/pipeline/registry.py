@@ -9,20 +9,24 @@ A feature registers
   a scene object stores (``obj["nephele"]``, see :mod:`nephele.addon.frame`)
   and a frame number, the tasks that frame needs.
 
+Which module registers what is the table of object kinds, :data:`.kinds.KINDS`.
+
 The cache (:mod:`.cache`) keys entries with :func:`code_stamp`; running tasks
-(:mod:`.tasks`) uses both, so neither imports the other's user.
+(:mod:`.tasks`) uses both, so neither imports the other's user.  Nothing here
+imports a task module (:func:`.tasks.load_all` does): the modules that register
+import this one, never the other way round.
 """
 
-import importlib
 import sys
+from pathlib import Path
 
 from .codehash import code_stamp as _file_stamp
+from .kinds import KINDS
+
+_CORE = Path(__file__).resolve().parent.parent
 
 TASKS = {}
 PLANNERS = {}
-
-# The one list of core modules (under nephele.core) that register tasks when imported (a missing one is an error).
-TASK_MODULES = ("surface.contour_task", "volume.volume_task", "flow.advect_task", "light.scatter_task", "muscle.film")
 
 
 def task(kind):
@@ -37,12 +41,16 @@ def task(kind):
 
 def code_stamp(kind):
     """Hash of the code task ``kind`` depends on (its module and every core module it
-    imports, transitively; :mod:`.codehash`), part of its cache key; ``""`` for a kind
-    no module registers (e.g. a test's own cache entries)."""
-    if kind not in TASKS:
-        load_all()
-    fn = TASKS.get(kind)
-    mod = sys.modules.get(getattr(fn, "__module__", None) or "")
+    imports, transitively; :mod:`.codehash`), part of its cache key.
+
+    The module is the one the table of kinds names for ``kind`` (read from disk,
+    not imported), else the module of a task registered outside the table (e.g.
+    a test's own); ``""`` for a kind nothing registers.
+    """
+    for row in KINDS.values():
+        if kind in row.tasks:
+            return _file_stamp(_CORE.joinpath(*row.module.split(".")).with_suffix(".py"))
+    mod = sys.modules.get(getattr(TASKS.get(kind), "__module__", None) or "")
     path = getattr(mod, "__file__", None)
     return _file_stamp(path) if path else ""
 
@@ -56,8 +64,3 @@ def planner(kind):
 
     return deco
 
-
-def load_all():
-    """Import the core modules that register tasks."""
-    for name in TASK_MODULES:
-        importlib.import_module(f"..{name}", __package__)

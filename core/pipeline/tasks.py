@@ -1,13 +1,23 @@
 """Running per-frame tasks, with or without the cache, and planning what a frame needs.
 
-Tasks and planners are registered in :mod:`.registry`.  The Blender updater
-calls :func:`run_cached` (load or compute and store); the farm calls
-:func:`plan` for every object and frame and runs the tasks on Dask workers
-before rendering.
+Tasks and planners are registered in :mod:`.registry`, by the modules the
+table of object kinds (:data:`.kinds.KINDS`) names.  Both sides plan through
+:func:`plan`: the add-on's updaters for the frame shown (then
+:func:`run_cached`: load, or compute and store), the farm for every object
+and frame, running the tasks on Dask workers before rendering.
 """
 
+import importlib
+
 from .cache import Cache
-from .registry import PLANNERS, TASKS, load_all
+from .kinds import KINDS, TASK_MODULES
+from .registry import PLANNERS, TASKS
+
+
+def load_all():
+    """Import the core modules that register tasks (:data:`.kinds.TASK_MODULES`; a missing one is an error)."""
+    for name in TASK_MODULES:
+        importlib.import_module(f"..{name}", __package__)
 
 
 def _lookup(kind):
@@ -42,9 +52,19 @@ def run_cached(kind, params, cache=None):
 
 
 def plan(obj_params, frame):
-    """The ``(kind, task_params)`` list a scene object with ``obj_params`` needs at ``frame``."""
-    kind = obj_params.get("kind")
-    if kind not in PLANNERS:
-        load_all()
-    fn = PLANNERS.get(kind)
-    return [] if fn is None else list(fn(obj_params, frame))
+    """The ``(kind, task_params)`` list a scene object with ``obj_params`` needs at ``frame``.
+
+    Empty for an object kind without tasks (or one this version does not know);
+    a task kind its row of :data:`.kinds.KINDS` does not list is an error.
+    """
+    row = KINDS.get(obj_params.get("kind"))
+    if row is None or not row.tasks:
+        return []
+    if obj_params["kind"] not in PLANNERS:
+        importlib.import_module(f"..{row.module}", __package__)
+    out = list(PLANNERS[obj_params["kind"]](obj_params, frame))
+    stray = sorted({kind for kind, _ in out} - set(row.tasks))
+    if stray:
+        raise KeyError(f"the planner of {obj_params['kind']!r} returned task kinds {stray}, "
+                       f"not in its row of KINDS {row.tasks}")
+    return out

@@ -128,7 +128,9 @@ def _check(splats, kernel, camera, width, height):
     if not isinstance(camera, Camera):
         raise DataError(f"needs a Camera, got {type(camera).__name__}", field="camera")
     if abs(kernel.radius - splats.radius) > 1e-12 * kernel.radius:
-        raise DataError(f"splats were built for cut-off {splats.radius}, the kernel's is {kernel.radius}", field="kernel")
+        raise DataError(
+            f"splats were built for cut-off {splats.radius}, the kernel's is {kernel.radius}", field="kernel"
+        )
     for name, v in (("width", width), ("height", height)):
         if int(v) != v or v < 1:
             raise DataError(f"must be an integer >= 1, got {v!r}", field=name)
@@ -152,7 +154,17 @@ def _streak_frame(wind, v, fallback):
     return ea, np.cross(v, ea), np.where(calm, 0.0, speed)
 
 
-def project_splats(splats, kernel, camera, width, height, *, extinction=DEFAULT_EXTINCTION, prefilter=DEFAULT_PREFILTER, streak_tile=None):
+def project_splats(
+    splats,
+    kernel,
+    camera,
+    width,
+    height,
+    *,
+    extinction=DEFAULT_EXTINCTION,
+    prefilter=DEFAULT_PREFILTER,
+    streak_tile=None,
+):
     """Screen-space footprints of the splats (see the module docstring).
 
     Splats behind the eye or straddling its plane (perspective; orthographic:
@@ -378,12 +390,16 @@ def render_splats(
     check_memory(120 * int(width) * int(height) + 400 * len(splats.color) + 190 * MAX_FRAGMENTS,
                  f"splatting {len(splats.color):,} splats into {int(width)}x{int(height)} pixels",
                  hint="render a smaller image or fewer splats", field="splats")
-    scr = project_splats(splats, kernel, camera, width, height, extinction=extinction, prefilter=prefilter, streak_tile=streak_tile)
+    scr = project_splats(
+        splats, kernel, camera, width, height, extinction=extinction, prefilter=prefilter, streak_tile=streak_tile
+    )
     w, h = int(width), int(height)
     if depth is not None:
         depth = np.asarray(depth, dtype=np.float64)
         if depth.shape != (h, w) or np.isnan(depth).any():
-            raise DataError(f"needs a NaN-free (height, width) = {(h, w)} array, got shape {depth.shape}", field="depth")
+            raise DataError(
+                f"needs a NaN-free (height, width) = {(h, w)} array, got shape {depth.shape}", field="depth"
+            )
         depth = depth.ravel()
     color = np.zeros((h * w, 3))
     trans = np.ones(h * w)
@@ -391,40 +407,14 @@ def render_splats(
     order = np.argsort(scr.key, kind="stable")  # front first
     counts = (scr.bbox[order, 1] - scr.bbox[order, 0] + 1) * (scr.bbox[order, 3] - scr.bbox[order, 2] + 1)
     ends = np.cumsum(counts)
-    if maps is not None:
-        levels = 6
-        layers = np.concatenate([_pyramid(m, levels) for m in maps])
-        mean = float(maps.mean())
-        n_maps, size = maps.shape[0], max(maps.shape[1:])
-        k = np.floor(n_maps * np.mod(scr.rate * float(hours), 1.0)).astype(np.int64) % n_maps
-        per_px = size * np.linalg.norm(scr.tex, ord=2, axis=(1, 2))  # texels per pixel, largest direction
-        level = np.clip(np.round(np.log2(np.maximum(per_px, 1.0))), 0, levels - 1).astype(np.int64)
-        layer = k * levels + level
+    streak = None if maps is None else _streak_layers(maps, scr, hours, streak_contrast)
     start = 0
     while start < order.size:
-        stop = max(start + 1, int(np.searchsorted(ends, (ends[start - 1] if start else 0) + MAX_FRAGMENTS, side="right")))
-        batch = order[start:stop]
+        stop = max(
+            start + 1, int(np.searchsorted(ends, (ends[start - 1] if start else 0) + MAX_FRAGMENTS, side="right"))
+        )
+        pix, tau, rgb = _batch_fragments(scr, order[start:stop], kernel, w, depth, streak, color_of)
         start = stop
-        s, col, row = _fragments(scr, batch, kernel.radius, w)
-        dx = col + 0.5 - scr.center[s, 0]
-        dy = row + 0.5 - scr.center[s, 1]
-        q = scr.conic[s]
-        rho2 = q[:, 0, 0] * dx * dx + 2.0 * q[:, 0, 1] * dx * dy + q[:, 1, 1] * dy * dy
-        inside = rho2 < kernel.radius**2
-        if depth is not None:
-            inside &= scr.key[s] <= depth[row * w + col]
-        s, dx, dy, rho2, col, row = s[inside], dx[inside], dy[inside], rho2[inside], col[inside], row[inside]
-        tau = scr.amplitude[s] * kernel.footprint_rho2(rho2)
-        if maps is not None:
-            t, off = scr.tex[s], scr.tex_offset[s]
-            a = t[:, 0, 0] * dx + t[:, 0, 1] * dy + off[:, 0]
-            b = t[:, 1, 0] * dx + t[:, 1, 1] * dy + off[:, 1]
-            tau = tau * ((1.0 - streak_contrast) + streak_contrast / mean * _lookup(layers, layer[s], a, b))
-        pix = (row * w + col).astype(np.int32)
-        # Stable sort by pixel keeps each pixel's fragments front to back.
-        o = np.argsort(pix, kind="stable")
-        pix, tau = pix[o], tau[o]
-        rgb = color_of[s[o]]
         cum = np.cumsum(tau)
         before = cum - tau
         first = np.concatenate([[True], pix[1:] != pix[:-1]]) if pix.size else np.zeros(0, bool)
@@ -440,18 +430,65 @@ def render_splats(
     return out
 
 
+def _streak_layers(maps, scr, hours, contrast):
+    """What the fragments need of the streak maps: the mip pyramids, each splat's layer (its map at
+    ``hours`` and its level of detail), the maps' mean and the contrast."""
+    levels = 6
+    layers = np.concatenate([_pyramid(m, levels) for m in maps])
+    n_maps, size = maps.shape[0], max(maps.shape[1:])
+    k = np.floor(n_maps * np.mod(scr.rate * float(hours), 1.0)).astype(np.int64) % n_maps
+    per_px = size * np.linalg.norm(scr.tex, ord=2, axis=(1, 2))  # texels per pixel, largest direction
+    level = np.clip(np.round(np.log2(np.maximum(per_px, 1.0))), 0, levels - 1).astype(np.int64)
+    return {"layers": layers, "layer": k * levels + level, "mean": float(maps.mean()), "contrast": contrast}
+
+
+def _batch_fragments(scr, batch, kernel, w, depth, streak, color_of):
+    """The fragments of splats ``batch`` inside their footprints (and in front of ``depth``), sorted by
+    pixel, each pixel's front to back: ``(pixel, optical depth, colour)``."""
+    s, col, row = _fragments(scr, batch, kernel.radius, w)
+    dx = col + 0.5 - scr.center[s, 0]
+    dy = row + 0.5 - scr.center[s, 1]
+    q = scr.conic[s]
+    rho2 = q[:, 0, 0] * dx * dx + 2.0 * q[:, 0, 1] * dx * dy + q[:, 1, 1] * dy * dy
+    inside = rho2 < kernel.radius**2
+    if depth is not None:
+        inside &= scr.key[s] <= depth[row * w + col]
+    s, dx, dy, rho2, col, row = s[inside], dx[inside], dy[inside], rho2[inside], col[inside], row[inside]
+    tau = scr.amplitude[s] * kernel.footprint_rho2(rho2)
+    if streak is not None:
+        t, off = scr.tex[s], scr.tex_offset[s]
+        a = t[:, 0, 0] * dx + t[:, 0, 1] * dy + off[:, 0]
+        b = t[:, 1, 0] * dx + t[:, 1, 1] * dy + off[:, 1]
+        c = streak["contrast"]
+        tau = tau * ((1.0 - c) + c / streak["mean"] * _lookup(streak["layers"], streak["layer"][s], a, b))
+    pix = (row * w + col).astype(np.int32)
+    # Stable sort by pixel keeps each pixel's fragments front to back.
+    o = np.argsort(pix, kind="stable")
+    return pix[o], tau[o], color_of[s[o]]
+
+
 def _check_streaks(streaks, hours, contrast):
     if streaks is None:
         return None
     maps = np.asarray(streaks, dtype=np.float64)
-    if maps.ndim != 3 or maps.shape[0] < 1 or min(maps.shape[1:]) < 2 or not np.all(np.isfinite(maps)) or maps.mean() <= 0:
-        raise DataError(f"needs finite (n_maps, size, size) maps with a positive mean, got shape {maps.shape}", field="streaks")
+    if (
+        maps.ndim != 3
+        or maps.shape[0] < 1
+        or min(maps.shape[1:]) < 2
+        or not np.all(np.isfinite(maps))
+        or maps.mean() <= 0
+    ):
+        raise DataError(
+            f"needs finite (n_maps, size, size) maps with a positive mean, got shape {maps.shape}", field="streaks"
+        )
     if not (np.isfinite(hours) and 0 <= contrast <= 1):
         raise DataError(f"hours {hours!r} must be finite and the contrast {contrast!r} in [0, 1]", field="streaks")
     return maps
 
 
-def streak_factor(splats, index, xyz, camera, hours, streaks, streak_tile=None, streak_contrast=DEFAULT_STREAK_CONTRAST):
+def streak_factor(
+    splats, index, xyz, camera, hours, streaks, streak_tile=None, streak_contrast=DEFAULT_STREAK_CONTRAST
+):
     """The streak modulation of splat ``index[i]``'s optical depth at scene point ``xyz[i]`` (no minification blur).
 
     With ``v`` the unit vector from the point toward the viewer (orthographic:

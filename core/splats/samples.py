@@ -22,8 +22,8 @@ import numpy as np
 
 from ..climate.dataset import Dataset
 from ..climate.grid import DEFAULT_EXAGGERATION, EARTH_RADIUS, GlobeGrid
-from ..errors import DataError
 from ..climate.readers import open_dataset
+from ..errors import DataError
 from ..volume.transfer import ALTITUDE_COLORS, TEMPERATURE_COLORS, ColorMap, TransferFunction
 from .cells import cell_jacobians, principal_axes
 from .kernel import SplatKernel, splat_kernel
@@ -72,7 +72,13 @@ class Splats:
     index: np.ndarray = None
 
     def __post_init__(self):
-        for name, dtype in (("centers", np.float64), ("axes", np.float64), ("color", np.float32), ("opacity", np.float32), ("wind", np.float64)):
+        for name, dtype in (
+            ("centers", np.float64),
+            ("axes", np.float64),
+            ("color", np.float32),
+            ("opacity", np.float32),
+            ("wind", np.float64),
+        ):
             object.__setattr__(self, name, np.asarray(getattr(self, name), dtype=dtype))
         if self.index is not None:
             object.__setattr__(self, "index", np.asarray(self.index, dtype=np.int64))
@@ -141,7 +147,9 @@ def _wind(dataset, hour, grid, exaggeration, sel, centers, pick):
     w = pick(dataset.read_at("w", hour)) if "w" in dataset else np.zeros(n)
     bad = ~(np.isfinite(u) & np.isfinite(v) & np.isfinite(w))
     if bad.any():
-        raise DataError(f"{int(bad.sum())} splat samples have NaN wind at {hour:g} h", path=dataset.source, field="u/v/w")
+        raise DataError(
+            f"{int(bad.sum())} splat samples have NaN wind at {hour:g} h", path=dataset.source, field="u/v/w"
+        )
     if grid.curvilinear:  # east/north of each column's own true longitude and latitude
         lam, phi = np.deg2rad(grid.lon2d[sel[1], sel[2]]), np.deg2rad(grid.lat2d[sel[1], sel[2]])
     else:
@@ -167,11 +175,69 @@ def _layout(grid, heights, stride, exaggeration, kernel, path):
     step = np.diff(grid.lon)
     if not np.allclose(step, step[0], rtol=1e-6, atol=0.0):
         raise DataError("shells need evenly spaced longitudes (use vertical='native')", path=path, field="lon")
-    layout = GlobeGrid(grid.lon, grid.lat, np.broadcast_to(heights[:, None, None], (heights.size,) + grid.shape[1:]).copy(), rotation=grid.rotation)
+    layout = GlobeGrid(
+        grid.lon,
+        grid.lat,
+        np.broadcast_to(heights[:, None, None], (heights.size,) + grid.shape[1:]).copy(),
+        rotation=grid.rotation,
+    )
     points, jac = cell_jacobians(layout, exaggeration, stride)
     lat, h = grid.lat[::stride], heights[::stride]
     factors = shell_factors(lat, h, (grid.lon[1] - grid.lon[0]) * stride, exaggeration, kernel)[:, :, None]
     return points, jac, factors, widening(lat, h, kernel.radius)
+
+
+def _check_inputs(dataset, transfer, exaggeration, stride, threshold, kernel, vertical):
+    """:func:`splat_samples`'s arguments checked, each bad one a :class:`DataError` naming it:
+    ``(dataset, threshold, kernel)`` with their defaults filled in."""
+    if isinstance(dataset, (str, Path)):
+        dataset = open_dataset(dataset)
+    if not isinstance(dataset, Dataset):
+        raise DataError(f"needs a Dataset or a data source, got {type(dataset).__name__}", field="dataset")
+    if not isinstance(transfer, TransferFunction):
+        raise DataError(
+            f"needs a TransferFunction, got {type(transfer).__name__}", path=dataset.source, field="transfer function"
+        )
+    if not (np.isfinite(exaggeration) and exaggeration > 0):
+        raise DataError(f"must be positive, got {exaggeration!r}", path=dataset.source, field="exaggeration")
+    if int(stride) != stride or stride < 1:
+        raise DataError(f"must be an integer >= 1, got {stride!r}", path=dataset.source, field="stride")
+    threshold = 0.0 if threshold is None else float(threshold)
+    if not (np.isfinite(threshold) and threshold >= 0):
+        raise DataError(f"must be >= 0, got {threshold!r}", path=dataset.source, field="threshold")
+    kernel = splat_kernel() if kernel is None else kernel
+    if not isinstance(kernel, SplatKernel):
+        raise DataError(f"needs a SplatKernel, got {type(kernel).__name__}", field="kernel")
+    if vertical not in ("shells", "native"):
+        raise DataError(f"must be 'shells' or 'native', got {vertical!r}", path=dataset.source, field="vertical")
+    return dataset, threshold, kernel
+
+
+def _opaque_samples(dataset, var, hour, transfer, stride, threshold, kernel, exaggeration, vertical, shells):
+    """The samples whose opacity exceeds ``threshold``: ``(centres, axes, opacity, grid index of each,
+    shell heights or None, the shell sampler or None)``."""
+    grid = dataset.grid
+    values = dataset.read_at(var, float(hour))
+    if vertical == "shells":
+        heights = check_shells(shell_heights(grid) if shells is None else shells, dataset.source)
+        sampler = ShellSampler(grid, heights)
+        values = sampler(values)
+    else:
+        heights = None
+        values = np.asarray(values, dtype=np.float64)
+    opacity = np.nan_to_num(transfer(values[::stride, ::stride, ::stride]), nan=0.0)
+    points, jac, factors, lam = _layout(grid, heights, stride, exaggeration, kernel, dataset.source)
+    if factors is not None:
+        opacity = opacity * factors
+    sel_sub = np.nonzero(opacity > threshold)
+    opacity = opacity[sel_sub]
+    jac = jac[sel_sub]
+    if lam is not None:
+        jac = widen(jac, lam[0][sel_sub[1]], lam[1][sel_sub[0]])
+    centers = points[sel_sub]
+    axes = principal_axes(jac, kernel.radius)
+    sel = tuple(a * stride for a in sel_sub)
+    return centers, axes, opacity, sel, heights, (sampler if vertical == "shells" else None)
 
 
 def splat_samples(
@@ -241,46 +307,11 @@ def splat_samples(
     ----------
     .. [1] N. Max and R. Crawfis, "Advances in Scientific Visualization", Fig. 3.
     """
-    if isinstance(dataset, (str, Path)):
-        dataset = open_dataset(dataset)
-    if not isinstance(dataset, Dataset):
-        raise DataError(f"needs a Dataset or a data source, got {type(dataset).__name__}", field="dataset")
-    if not isinstance(transfer, TransferFunction):
-        raise DataError(f"needs a TransferFunction, got {type(transfer).__name__}", path=dataset.source, field="transfer function")
-    if not (np.isfinite(exaggeration) and exaggeration > 0):
-        raise DataError(f"must be positive, got {exaggeration!r}", path=dataset.source, field="exaggeration")
-    if int(stride) != stride or stride < 1:
-        raise DataError(f"must be an integer >= 1, got {stride!r}", path=dataset.source, field="stride")
-    threshold = 0.0 if threshold is None else float(threshold)
-    if not (np.isfinite(threshold) and threshold >= 0):
-        raise DataError(f"must be >= 0, got {threshold!r}", path=dataset.source, field="threshold")
-    kernel = splat_kernel() if kernel is None else kernel
-    if not isinstance(kernel, SplatKernel):
-        raise DataError(f"needs a SplatKernel, got {type(kernel).__name__}", field="kernel")
-    if vertical not in ("shells", "native"):
-        raise DataError(f"must be 'shells' or 'native', got {vertical!r}", path=dataset.source, field="vertical")
-    stride = int(stride)
+    dataset, threshold, kernel = _check_inputs(dataset, transfer, exaggeration, stride, threshold, kernel, vertical)
     grid = dataset.grid
-    values = dataset.read_at(var, float(hour))
-    if vertical == "shells":
-        heights = check_shells(shell_heights(grid) if shells is None else shells, dataset.source)
-        sampler = ShellSampler(grid, heights)
-        values = sampler(values)
-    else:
-        heights = None
-        values = np.asarray(values, dtype=np.float64)
-    opacity = np.nan_to_num(transfer(values[::stride, ::stride, ::stride]), nan=0.0)
-    points, jac, factors, lam = _layout(grid, heights, stride, exaggeration, kernel, dataset.source)
-    if factors is not None:
-        opacity = opacity * factors
-    sel_sub = np.nonzero(opacity > threshold)
-    opacity = opacity[sel_sub]
-    jac = jac[sel_sub]
-    if lam is not None:
-        jac = widen(jac, lam[0][sel_sub[1]], lam[1][sel_sub[0]])
-    centers = points[sel_sub]
-    axes = principal_axes(jac, kernel.radius)
-    sel = tuple(a * stride for a in sel_sub)
+    centers, axes, opacity, sel, heights, sampler = _opaque_samples(
+        dataset, var, hour, transfer, int(stride), threshold, kernel, exaggeration, vertical, shells
+    )
     if vertical == "shells":
         height = heights[sel[0]]
 

@@ -38,9 +38,9 @@ from functools import lru_cache
 
 import numpy as np
 
-from . import _mc_tables as tables
 from ..errors import DataError
 from ..memory import check_memory
+from . import _mc_tables as tables
 from .mesh import Mesh, vertex_normals
 
 METHODS = ("cubes", "tetra5")
@@ -132,28 +132,7 @@ def isosurface(points, values, level, *, periodic_lon=False, method="cubes", att
     .. [1] W. E. Lorensen and H. E. Cline, "Marching cubes", SIGGRAPH 1987.
     .. [2] N. Max and R. Crawfis, "Advances in Scientific Visualization".
     """
-    points = np.asarray(points)
-    values = np.asarray(values)
-    if values.ndim != 3 or min(values.shape) < 2:
-        raise DataError(f"needs shape (nk, nj, ni) with every size >= 2, got {values.shape}", field="values")
-    if points.shape != values.shape + (3,):
-        raise DataError(f"shape {points.shape} does not match values {values.shape} + (3,)", field="points")
-    if not np.all(np.isfinite(points)):
-        raise DataError("has NaN or infinite positions", field="points")
-    if periodic_lon and values.shape[2] < 3:
-        raise DataError(f"a periodic ring needs at least 3 longitudes, got {values.shape[2]}", field="values")
-    if method not in METHODS:
-        raise DataError(f"unknown method {method!r}; use one of {', '.join(METHODS)}", field="method")
-    level = float(level)
-    if not np.isfinite(level):
-        raise DataError(f"must be finite, got {level}", field="level")
-    check_memory(BYTES_PER_CELL[method] * values.size, f"contouring a {'x'.join(map(str, values.shape[::-1]))} grid "
-                 f"({method})", hint="contour a coarser grid or a part of it", field="values")
-    attributes = dict(attributes or {})
-    for name, a in attributes.items():
-        if np.shape(a) != values.shape:
-            raise DataError(f"shape {np.shape(a)} does not match values {values.shape}", field=name)
-
+    points, values, level, attributes = _check_inputs(points, values, level, periodic_lon, method, attributes)
     dtype = values.dtype if values.dtype in (np.float32, np.float64) else np.float64
     values = values.astype(dtype, copy=False)
     # The level in the values' precision: a float32 value that reads 0.15 is at the level 0.15.
@@ -181,6 +160,47 @@ def isosurface(points, values, level, *, periodic_lon=False, method="cubes", att
     if len(faces) == 0:
         return Mesh.empty(attributes)
 
+    vertices, attrs = _edge_vertices(points, values, level, attributes, a, b, faces, ncentre)
+    faces, keep = _weld(a, b, faces, values.shape, pole_rows, len(vertices), drop_unused=has_nan or ncentre > 0)
+    if len(faces) == 0:
+        return Mesh.empty(attributes)
+    if keep is not None:
+        vertices = vertices[keep]
+        attrs = {name: x[keep] for name, x in attrs.items()}
+    vertices = vertices.astype(np.float32)
+    attrs = {name: x.astype(np.float32) for name, x in attrs.items()}
+    return Mesh(vertices, faces, vertex_normals(vertices, faces), attrs)
+
+
+def _check_inputs(points, values, level, periodic_lon, method, attributes):
+    """:func:`isosurface`'s arguments as arrays, each bad one a :class:`DataError` naming it."""
+    points = np.asarray(points)
+    values = np.asarray(values)
+    if values.ndim != 3 or min(values.shape) < 2:
+        raise DataError(f"needs shape (nk, nj, ni) with every size >= 2, got {values.shape}", field="values")
+    if points.shape != values.shape + (3,):
+        raise DataError(f"shape {points.shape} does not match values {values.shape} + (3,)", field="points")
+    if not np.all(np.isfinite(points)):
+        raise DataError("has NaN or infinite positions", field="points")
+    if periodic_lon and values.shape[2] < 3:
+        raise DataError(f"a periodic ring needs at least 3 longitudes, got {values.shape[2]}", field="values")
+    if method not in METHODS:
+        raise DataError(f"unknown method {method!r}; use one of {', '.join(METHODS)}", field="method")
+    level = float(level)
+    if not np.isfinite(level):
+        raise DataError(f"must be finite, got {level}", field="level")
+    check_memory(BYTES_PER_CELL[method] * values.size, f"contouring a {'x'.join(map(str, values.shape[::-1]))} grid "
+                 f"({method})", hint="contour a coarser grid or a part of it", field="values")
+    attributes = dict(attributes or {})
+    for name, a in attributes.items():
+        if np.shape(a) != values.shape:
+            raise DataError(f"shape {np.shape(a)} does not match values {values.shape}", field=name)
+    return points, values, level, attributes
+
+
+def _edge_vertices(points, values, level, attributes, a, b, faces, ncentre):
+    """Vertices (float64) and attributes interpolated on the cut edges ``(a, b)``, then the ``ncentre``
+    loop centres the cube cases' fans need (:func:`_with_centres`)."""
     vflat = values.reshape(-1)
     va = vflat[a].astype(np.float64)
     vb = vflat[b].astype(np.float64)
@@ -200,16 +220,7 @@ def isosurface(points, values, level, *, periodic_lon=False, method="cubes", att
     if ncentre:
         vertices = _with_centres(vertices, faces, ncentre)
         attrs = {name: _with_centres(x, faces, ncentre) for name, x in attrs.items()}
-
-    faces, keep = _weld(a, b, faces, values.shape, pole_rows, len(vertices), drop_unused=has_nan or ncentre > 0)
-    if len(faces) == 0:
-        return Mesh.empty(attributes)
-    if keep is not None:
-        vertices = vertices[keep]
-        attrs = {name: x[keep] for name, x in attrs.items()}
-    vertices = vertices.astype(np.float32)
-    attrs = {name: x.astype(np.float32) for name, x in attrs.items()}
-    return Mesh(vertices, faces, vertex_normals(vertices, faces), attrs)
+    return vertices, attrs
 
 
 def _with_centres(x, faces, ncentre):
@@ -452,7 +463,9 @@ def _tetra(above, nan, periodic):
     stride = np.array([1, ni, nj * ni])
     low = np.minimum(c0, c1)
     span = np.abs(c1 - c0)
-    kind = np.select([span.sum(axis=1) == 1, span.sum(axis=1) == 2], [np.argmax(span, axis=1), 3 + np.argmin(span, axis=1)], 6)
+    kind = np.select(
+        [span.sum(axis=1) == 1, span.sum(axis=1) == 2], [np.argmax(span, axis=1), 3 + np.argmin(span, axis=1)], 6
+    )
     key = base[:, None] + (kind * nv + low @ stride).astype(idx)[local]
     if periodic:
         rows = np.flatnonzero(seam)

@@ -12,25 +12,16 @@ References
    (Fig. 1: contour surfaces of 15% cloudiness).
 """
 
-from functools import lru_cache
-
 import numpy as np
 
-from ..pipeline.cache import source_stamp
-from ..pipeline.codehash import code_stamp as file_stamp
-from ..pipeline.sources import frame_hours, open_source
-from ..errors import DataError
 from ..climate.grid import DEFAULT_EXAGGERATION
+from ..errors import DataError
+from ..pipeline.cache import source_stamp
 from ..pipeline.registry import planner, task
+from ..pipeline.sources import frame_hours, open_source
 
 ALTITUDE = "altitude"
 """Name of the per-vertex height attribute (metres above sea level) every contour mesh carries."""
-
-@lru_cache(maxsize=1)
-def code_stamp():
-    """Short hash of the code this task depends on (:mod:`..pipeline.codehash`), kept in its parameters."""
-    return file_stamp(__file__)
-
 
 def task_params(obj_params, frame):
     """The inputs of the contour mesh that an object with ``obj_params`` shows at ``frame``.
@@ -58,7 +49,6 @@ def task_params(obj_params, frame):
         "radius": float(obj_params.get("radius", 1.0)),
         "color_var": str(color_var),
         "method": str(obj_params.get("method", "cubes")),
-        "code": code_stamp(),
     }
 
 

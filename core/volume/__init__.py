@@ -1,9 +1,14 @@
-"""Volumes: sparse resampling of curvilinear fields, the exact-shading atlas, exact ray integration, transfer functions and cloud densities."""
+"""Volumes: sparse resampling of curvilinear fields, the exact-shading atlas, exact ray integration,
+transfer functions and cloud densities."""
 
 from .cloud_density import (  # noqa: F401
     CloudParams,
     Ellipsoid,
     voxel_centres,
+)
+from .curvilinear import (  # noqa: F401
+    CurvilinearField,
+    LevelTable,
 )
 from .exact_ray import (  # noqa: F401
     opacity,
@@ -15,26 +20,25 @@ from .exact_ray import (  # noqa: F401
 )
 from .sparse import (  # noqa: F401
     ALTITUDE,
-    CurvilinearField,
     DEFAULT_EXTINCTION,
     DEFAULT_VOXEL_SIZE,
     EXACT,
-    SparseVolume,
     VOXELS,
+    SparseVolume,
     candidate_blocks,
     height_scale,
     resample,
 )
 from .transfer import (  # noqa: F401
     ALTITUDE_COLORS,
-    ColorMap,
     TEMPERATURE_COLORS,
+    ColorMap,
     TransferFunction,
 )
 from .volume_atlas import (  # noqa: F401
-    AtlasLayout,
     DEFAULT_BELOW,
     DEFAULT_SUPPORT_SIZE,
+    AtlasLayout,
     ExactVolume,
     atlas_layout,
     axis_runs,

@@ -12,7 +12,7 @@ with ``F`` the (piecewise-quadratic) antiderivative of ``τ`` — the segment
 split at every breakpoint, done in closed form.
 
 The reference caster samples the curvilinear field (trilinear in each cell,
-exactly as :class:`~nephele.core.volume.sparse.CurvilinearField` defines it) at
+exactly as :class:`~nephele.core.volume.curvilinear.CurvilinearField` defines it) at
 small steps along each ray, treats the scalar as linear between samples and
 integrates each piece exactly.  The only approximation is the scalar's
 linearity between samples (second order in the step); the threshold's kink,
@@ -61,7 +61,9 @@ def segment_optical_depth(tf, s0, s1, length):
     scale = np.maximum(np.abs(s0), np.abs(s1)) + (tf.values[-1] - tf.values[0]) + 1.0
     flat = np.abs(ds) <= 1e-9 * scale
     with np.errstate(invalid="ignore", divide="ignore"):
-        mean = np.where(flat, tf(0.5 * (s0 + s1)), (tf.antiderivative(s1) - tf.antiderivative(s0)) / np.where(flat, 1.0, ds))
+        mean = np.where(
+            flat, tf(0.5 * (s0 + s1)), (tf.antiderivative(s1) - tf.antiderivative(s0)) / np.where(flat, 1.0, ds)
+        )
     out = length * mean
     return np.where(np.isnan(out), 0.0, out)
 

@@ -6,7 +6,7 @@ levels near the ground are apart, and rays grazing a layer whose cloudiness
 hovers at the transfer function's threshold come out tens of percent wrong
 (``docs/benchmarks.md``).  Here the renderer evaluates the curvilinear field
 itself at every volume sample, exactly as
-:class:`~nephele.core.volume.sparse.CurvilinearField` defines it:
+:class:`~nephele.core.volume.curvilinear.CurvilinearField` defines it:
 
 1. longitude, latitude and height from the sample's position (``atan2``);
 2. the fractional column index from piecewise-linear maps of the closed
@@ -40,7 +40,7 @@ carries a small error of its own (``docs/benchmarks.md``).
 
 Atlas layout: a tile per level (values) or per four levels (heights),
 stacked along the image's rows; a tile's rows are the closed latitude axis
-(pole rows included, see :class:`~nephele.core.volume.sparse.CurvilinearField`)
+(pole rows included, see :class:`~nephele.core.volume.curvilinear.CurvilinearField`)
 with one padding row above and below copying the edge rows, so bilinear
 lookups never bleed into the next tile; its columns are the longitudes, the
 seam closed by the texture's periodic (REPEAT) extension.  Values channels:
@@ -62,10 +62,11 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..errors import DataError
 from ..climate.grid import DEFAULT_EXAGGERATION, EARTH_RADIUS
+from ..errors import DataError
+from .curvilinear import CurvilinearField
+from .sparse import ALTITUDE, SparseVolume, candidate_blocks, height_scale, scalar_field
 from .transfer import TransferFunction
-from .sparse import ALTITUDE, CurvilinearField, SparseVolume, candidate_blocks, height_scale, scalar_field
 
 PAD = 1
 """Padding rows above and below each tile."""
@@ -182,7 +183,8 @@ class IndexMap:
                 "size": [int(self.image.shape[1]), int(self.image.shape[0])]}
 
     def lookup(self, p):
-        """The shader's ``(i, j, front)`` of float32 points ``p`` (n, 3): ``front`` False on the far side of the globe."""
+        """The shader's ``(i, j, front)`` of float32 points ``p`` (n, 3): ``front`` False on the far side of
+        the globe."""
         q = p @ self.basis.T.astype(np.float32)
         front = q[:, 2] > np.float32(0.0)
         z = np.where(front, q[:, 2], np.float32(1.0))

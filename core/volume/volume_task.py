@@ -11,16 +11,13 @@ References
 .. [1] N. Max and R. Crawfis, "Advances in Scientific Visualization", Fig. 2.
 """
 
-from functools import lru_cache
-
 import numpy as np
 
 from ..climate.grid import DEFAULT_EXAGGERATION
 from ..errors import DataError
 from ..pipeline.cache import source_stamp
-from ..pipeline.codehash import code_stamp as file_stamp
-from ..pipeline.sources import frame_hours, open_source
 from ..pipeline.registry import planner, task
+from ..pipeline.sources import frame_hours, open_source
 from .sparse import ALTITUDE, DEFAULT_VOXEL_SIZE, EXACT, VOXELS, resample
 from .transfer import TransferFunction
 from .volume_atlas import DEFAULT_BELOW, DEFAULT_SUPPORT_SIZE, exact_volume
@@ -54,7 +51,6 @@ def frame_params(obj_params, frame):
         "color_var": str(obj_params.get("color_var", ALTITUDE) or ""),
         "exaggeration": float(obj_params.get("exaggeration", DEFAULT_EXAGGERATION)),
         "radius": float(obj_params.get("radius", 1.0)),
-        "code": code_stamp(),
     }
     mode = str(obj_params.get("mode", VOXELS))
     if mode == EXACT:
@@ -66,13 +62,6 @@ def frame_params(obj_params, frame):
     else:
         raise DataError(f'must be "{EXACT}" or "{VOXELS}", got {mode!r}', field="mode")
     return out
-
-
-@lru_cache(maxsize=1)
-def code_stamp():
-    """Short hash of the resampling code, part of every cache key: a changed
-    algorithm never serves volumes cached (or .vdb files baked) by the old one."""
-    return file_stamp(__file__)
 
 
 @task("volume")
@@ -112,4 +101,4 @@ def plan_volume(obj_params, frame):
     return [("volume", frame_params(obj_params, frame))]
 
 
-__all__ = ["code_stamp", "frame_params", "plan_volume"]
+__all__ = ["frame_params", "plan_volume"]

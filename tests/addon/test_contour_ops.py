@@ -12,9 +12,9 @@ import pytest
 
 from nephele.addon import contour_ops, data_ops, frame, globe_ops
 from nephele.addon.mesh import mesh_arrays, point_attribute
-from nephele.core.pipeline import sources
 from nephele.core.climate.dataset import ArrayDataset, hourly
 from nephele.core.climate.grid import GlobeGrid, xyz_to_lonlat
+from nephele.core.pipeline import sources
 
 SPEED = 5.0  # degrees of longitude per hour
 
@@ -82,7 +82,7 @@ def test_hours_per_frame_and_interpolation(blob_source):
 
 def test_updater_skips_a_frame_already_shown(blob_source, monkeypatch):
     scene = bpy.context.scene
-    obj = contour_ops.add_contour("cloud", 0.5, scene=scene)
+    contour_ops.add_contour("cloud", 0.5, scene=scene)
     calls = []
     real = contour_ops.run_cached
     monkeypatch.setattr(contour_ops, "run_cached", lambda *a: calls.append(a) or real(*a))
@@ -162,7 +162,7 @@ def test_saved_blend_renders_the_same_in_a_fresh_process(empty_scene, tmp_path, 
     scene.render.resolution_percentage = 100
     blend = tmp_path / "scene.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(blend))
-    cache = contour_ops.cache_dir()
+    cache = frame.results_dir()
     assert cache.parent == tmp_path
     v1 = mesh_arrays(obj.data)[0].copy()
     scene.frame_set(13)
@@ -201,7 +201,9 @@ def test_real_files_through_the_operators(empty_scene, shared_data, tmp_path, mo
 
     # Inside the grid's shell (pressure levels can lie below sea level: 1000 hPa over a low),
     # less the sagitta of a straight grid edge between points on a sphere.
-    lo, hi = (globe_radius(h, 1.0, scene.nephele_data.exaggeration) for h in (ds.grid.height.min(), ds.grid.height.max()))
+    lo, hi = (
+        globe_radius(h, 1.0, scene.nephele_data.exaggeration) for h in (ds.grid.height.min(), ds.grid.height.max())
+    )
     step = np.deg2rad(max(np.diff(ds.grid.lon).max(), np.diff(ds.grid.lat).max()))
     assert r.min() >= lo * np.cos(step / 2) - 1e-5 and r.max() <= hi + 1e-5
 

@@ -10,7 +10,7 @@ from nephele.addon import contour_ops, data_ops, frame, layers  # noqa: E402
 
 @pytest.fixture
 def scene(empty_scene, tmp_path, monkeypatch):
-    monkeypatch.setattr(contour_ops, "cache_dir", lambda: tmp_path / "cache")
+    monkeypatch.setattr(frame, "results_dir", lambda: tmp_path / "cache")
     data_ops.set_settings(empty_scene, source="demo:small", hours_per_frame=1.0)
     empty_scene.frame_set(13)
     return empty_scene
@@ -199,8 +199,8 @@ def test_volume_threshold_edits_live_within_the_baked_support(scene, tmp_path):
 
 
 def test_empty_variable_is_a_warning(scene, capfd):
-    from nephele.core.pipeline.sources import open_source, register_source
     from nephele.core.climate.dataset import ArrayDataset
+    from nephele.core.pipeline.sources import open_source, register_source
 
     ds = open_source("demo:small")
     fields = {"cloud": np.full((2,) + ds.grid.shape, np.nan, np.float32),

@@ -11,7 +11,6 @@ bpy = pytest.importorskip("bpy")
 from nephele.addon import frame, muscle_ops  # noqa: E402
 from nephele.addon.mesh import point_attribute  # noqa: E402
 
-
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 
 
@@ -102,7 +101,7 @@ def test_adding_the_film_in_the_interface_does_not_wait_for_the_simulation(ops, 
     (forced headless with frame.force_background_jobs) it runs on the worker thread."""
     from nephele.core.muscle import film
 
-    monkeypatch.setattr(muscle_ops, "cache_dir", lambda: tmp_path / "cache")
+    monkeypatch.setattr(frame, "results_dir", lambda: tmp_path / "cache")
     film._SIMS.clear()
     scene = bpy.context.scene
     frame.force_background_jobs(True)
@@ -117,6 +116,6 @@ def test_adding_the_film_in_the_interface_does_not_wait_for_the_simulation(ops, 
         frame.cancel_all()
         frame.wait(120)
         frame.force_background_jobs(False)
-    monkeypatch.setattr(muscle_ops, "cache_dir", lambda: tmp_path / "cache_sync")  # computed again, here
+    monkeypatch.setattr(frame, "results_dir", lambda: tmp_path / "cache_sync")  # computed again, here
     obj = muscle_ops.add_muscle_film(frames=3, spacing=2.0, tiles=(1, 1, 1), scene=scene)
     np.testing.assert_array_equal(np.array([v.co[:] for v in obj.data.vertices]), background)

@@ -20,7 +20,7 @@ LAST = 241  # demo:small has 48 hourly steps: at 0.2 h per frame, frame 241 is h
 @pytest.fixture
 def advected(empty_scene, tmp_path, monkeypatch):
     """An advected contour of demo:small shown at frame 1, with its own empty cache."""
-    monkeypatch.setattr(contour_ops, "cache_dir", lambda: tmp_path / "cache")
+    monkeypatch.setattr(frame, "results_dir", lambda: tmp_path / "cache")
     scene = empty_scene
     data_ops.set_settings(scene, source="demo:small", hours_per_frame=0.2)
     scene.frame_start, scene.frame_end = 1, LAST
@@ -62,7 +62,7 @@ def test_jump_returns_at_once_and_completes_in_background(advected, tmp_path, mo
 
     # The same frame on the synchronous path (headless, renders), from nothing cached.
     frame.force_background_jobs(False)
-    monkeypatch.setattr(contour_ops, "cache_dir", lambda: tmp_path / "cache_sync")
+    monkeypatch.setattr(frame, "results_dir", lambda: tmp_path / "cache_sync")
     advect_task._STRATEGIES.clear()
     obj.pop("nephele_shown")
     frame.update_scene(scene)
@@ -100,8 +100,7 @@ def test_newest_frame_wins(advected):
     assert frame.wait(300)
     assert obj["nephele_hours"] == 47.0
     # ... and it is exactly the last frame: planning it again finds nothing to do.
-    assert contour_ops.plan(obj, frame.params(obj), scene, LAST, kind=advect_ops.KIND,
-                            task_params=advect_task.advect_task_params) is None
+    assert frame.JOBS[advect_ops.KIND].plan(obj, frame.params(obj), scene, LAST) is None
 
 
 def test_rendering_and_suspension(advected):
@@ -146,7 +145,7 @@ def test_disable_removes_handlers_and_timer(advected):
 
 
 def test_adding_a_layer_does_not_block_the_interface(empty_scene, tmp_path, monkeypatch, capfd):
-    monkeypatch.setattr(contour_ops, "cache_dir", lambda: tmp_path / "cache")
+    monkeypatch.setattr(frame, "results_dir", lambda: tmp_path / "cache")
     scene = empty_scene
     data_ops.set_settings(scene, source="demo:small", hours_per_frame=1.0)
     scene.frame_set(13)

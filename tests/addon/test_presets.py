@@ -126,8 +126,7 @@ def test_replace_empties_the_scene_and_keep_adds():
 
 
 def test_every_figure_panel_has_its_preset_button():
-    from nephele.addon import (advect_ops, contour_ops, flowvol_ops, muscle_ops, scatter_ops, splat_ops,
-                               volume_ops)
+    from nephele.addon import advect_ops, contour_ops, flowvol_ops, muscle_ops, scatter_ops, splat_ops, volume_panel
 
     class Layout:
         """Records ``operator`` calls; every other layout call returns another recorder."""
@@ -143,7 +142,7 @@ def test_every_figure_panel_has_its_preset_button():
         def __getattr__(self, name):
             return lambda *a, **kw: Layout(self.calls)
 
-    panels = {"FIG1": contour_ops.NEPHELE_PT_contour, "FIG2": volume_ops.NEPHELE_PT_volume,
+    panels = {"FIG1": contour_ops.NEPHELE_PT_contour, "FIG2": volume_panel.NEPHELE_PT_volume,
               "FIG3": splat_ops.NEPHELE_PT_splats, "FIG4": advect_ops.NEPHELE_PT_advect,
               "FIG5": flowvol_ops.NEPHELE_PT_flowvol, "FIG6": scatter_ops.NEPHELE_PT_scatter,
               "FIG7": muscle_ops.NEPHELE_PT_muscle}

@@ -7,10 +7,10 @@ import pytest
 bpy = pytest.importorskip("bpy")
 
 from nephele.addon import data_ops, frame, volume_bake, volume_ops  # noqa: E402
-from nephele.addon.vdb import file_key, frame_path  # noqa: E402
 from nephele.core.pipeline.cache import cache_key  # noqa: E402
 from nephele.core.volume.transfer import TransferFunction  # noqa: E402
 from nephele.core.volume.volume_task import frame_params  # noqa: E402
+from nephele.volume_files import file_key, frame_path  # noqa: E402
 
 
 @pytest.fixture

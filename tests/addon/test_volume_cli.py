@@ -7,8 +7,8 @@ import pytest
 
 pytest.importorskip("bpy")
 
-from nephele.fileio import read_grid  # noqa: E402
 from nephele.farm.cli import main  # noqa: E402
+from nephele.fileio import read_grid  # noqa: E402
 
 
 def test_writes_sequence_and_metadata(tmp_path, capsys):
@@ -27,10 +27,10 @@ def test_writes_sequence_and_metadata(tmp_path, capsys):
 
 
 def test_exact_mode_writes_atlases_the_core_reproduces(tmp_path, capsys):
-    from nephele.addon.volume_exact import read_exr
     from nephele.core.climate.readers import open_dataset
     from nephele.core.volume.transfer import TransferFunction
     from nephele.core.volume.volume_atlas import atlas_layout, exact_volume
+    from nephele.volume_files import read_exr
 
     out = tmp_path / "seq"
     rc = main(["volume", "demo:small", "--steps", "1-1", "--support-size", "0.03", "--out", str(out), "--quiet"])

@@ -5,15 +5,16 @@ import pytest
 
 bpy = pytest.importorskip("bpy")
 
-from nephele.addon import data_ops, frame, volume_ops  # noqa: E402
-from nephele.fileio import read_grid  # noqa: E402
 from conftest import import_sheared_file  # noqa: E402
-from nephele.core.pipeline.sources import register_source  # noqa: E402
+
+from nephele.addon import data_ops, frame, volume_ops, volume_panel  # noqa: E402
 from nephele.core.climate.dataset import ArrayDataset, hourly  # noqa: E402
-from nephele.core.volume.exact_ray import opacity, reference_optical_depth  # noqa: E402
 from nephele.core.climate.grid import GlobeGrid, lonlat_to_xyz, rotated_pole_matrix, xyz_to_lonlat  # noqa: E402
-from nephele.core.volume.transfer import TransferFunction  # noqa: E402
+from nephele.core.pipeline.sources import register_source  # noqa: E402
+from nephele.core.volume.exact_ray import opacity, reference_optical_depth  # noqa: E402
 from nephele.core.volume.sparse import CurvilinearField  # noqa: E402
+from nephele.core.volume.transfer import TransferFunction  # noqa: E402
+from nephele.fileio import read_grid  # noqa: E402
 
 NI, NJ, NK, NT = 48, 24, 8, 3
 SOURCE = "test:volume-blob"
@@ -119,9 +120,9 @@ def test_panel_edits_redrive_material_and_flag_rebake(scene, tmp_path):
     rng = obj.data.materials[0].node_tree.nodes["Nephele range"]
     assert rng.inputs["From Min"].default_value == pytest.approx(1000.0)
     assert rng.inputs["From Max"].default_value == pytest.approx(9000.0)
-    assert not volume_ops.stale(bpy.context)
+    assert not volume_panel.stale(bpy.context)
     s.threshold = 0.5
-    assert volume_ops.stale(bpy.context)
+    assert volume_panel.stale(bpy.context)
 
 
 def _camera_rays(scene, cam, su=0.5, sv=0.5):

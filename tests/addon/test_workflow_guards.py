@@ -8,9 +8,9 @@ import pytest
 
 bpy = pytest.importorskip("bpy")
 
-from nephele.addon import data_ops, frame, volume_ops  # noqa: E402
-from nephele.core.pipeline.cache import check_memory  # noqa: E402
+from nephele.addon import data_ops, frame, volume_ops, volume_panel  # noqa: E402
 from nephele.core.errors import DataError  # noqa: E402
+from nephele.core.memory import check_memory  # noqa: E402
 from nephele.core.volume.transfer import TransferFunction  # noqa: E402
 
 
@@ -87,15 +87,15 @@ def test_bake_defaults_to_the_current_frame_and_says_what_more_costs(demo, tmp_p
     s = demo.nephele_volume
     assert s.current_only  # the issue: the default baked all 240 frames (204 s, 498 MB)
     demo.frame_set(5)
-    assert volume_ops.bake_frames(bpy.context, s) == (5, 5)
+    assert volume_panel.bake_frames(bpy.context, s) == (5, 5)
     s.current_only = False
     s.frame_count = 10
-    assert volume_ops.bake_frames(bpy.context, s) == (5, 14)
-    frames, est = volume_ops.panel_estimate(bpy.context, s)
-    text = volume_ops.estimate_text(frames, est)
+    assert volume_panel.bake_frames(bpy.context, s) == (5, 14)
+    frames, est = volume_panel.panel_estimate(bpy.context, s)
+    text = volume_panel.estimate_text(frames, est)
     assert text.startswith("10 frames (5-14): about ") and "MB on disk" in text and "memory" in text
     s.frame_count = 100000  # clipped to the data's time span (48 hourly steps from frame 1)
-    assert volume_ops.bake_frames(bpy.context, s) == (5, 48)
+    assert volume_panel.bake_frames(bpy.context, s) == (5, 48)
 
 
 def test_bad_transfer_function_json_gets_a_clear_message(demo):

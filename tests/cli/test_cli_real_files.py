@@ -43,8 +43,18 @@ def test_info_rotated_pole_true_extent_radius_and_notes(capsys):
 
 
 def test_info_overrides_reach_the_reader(capsys):
-    rc, out, err = run(capsys, "info", NCL, "--json", "--time-units", "days since 2000-01-01", "--earth-radius", "6371220",
-                       "--var-map", "temperature=T")
+    rc, out, err = run(
+        capsys,
+        "info",
+        NCL,
+        "--json",
+        "--time-units",
+        "days since 2000-01-01",
+        "--earth-radius",
+        "6371220",
+        "--var-map",
+        "temperature=T",
+    )
     assert rc == 0, err
     info = json.loads(out)
     assert info["times"]["first"] == "2000-01-01T00:00:00"  # value 0 in days since 2000-01-01
@@ -55,13 +65,34 @@ def test_info_overrides_reach_the_reader(capsys):
 @pytest.mark.parametrize(
     "args, words",
     [
-        (["contour", CAM, "--var", "T", "--level", "1000", "-o", "x.ply"], ["cam_vinth2p.nc", "'temperature'", "level 1000", "187.092..309.265"]),
-        (["contour", CAM, "--var", "Q", "--level", "250", "-o", "x.ply"], ["cam_vinth2p.nc", "'Q'", "no such variable"]),
-        (["contour", CAM, "--var", "T", "--level", "250", "--time", "2", "-o", "x.ply"], ["cam_vinth2p.nc", "time index 2"]),
-        (["contour", NCL, "--var", "T", "--level", "250", "--time-units", "fortnights", "-o", "x.ply"], ["ncl_nc4uvt_T.nc", "'time'", "fortnights"]),
-        (["contour", NCL, "--var", "T", "--level", "250", "--var-map", "temperature=Q", "-o", "x.ply"], ["'Q'", "not a 3-D field"]),
-        (["contour", NCL, "--var", "T", "--level", "250", "--var-map", "temperature", "-o", "x.ply"], ["--var-map", "STD=NAME"]),
-        (["contour", UM, "--var", "air_potential_temperature", "--level", "250", "-o", "x.ply"], ["um_hybrid_height.nc", "outside the data range"]),
+        (
+            ["contour", CAM, "--var", "T", "--level", "1000", "-o", "x.ply"],
+            ["cam_vinth2p.nc", "'temperature'", "level 1000", "187.092..309.265"],
+        ),
+        (
+            ["contour", CAM, "--var", "Q", "--level", "250", "-o", "x.ply"],
+            ["cam_vinth2p.nc", "'Q'", "no such variable"],
+        ),
+        (
+            ["contour", CAM, "--var", "T", "--level", "250", "--time", "2", "-o", "x.ply"],
+            ["cam_vinth2p.nc", "time index 2"],
+        ),
+        (
+            ["contour", NCL, "--var", "T", "--level", "250", "--time-units", "fortnights", "-o", "x.ply"],
+            ["ncl_nc4uvt_T.nc", "'time'", "fortnights"],
+        ),
+        (
+            ["contour", NCL, "--var", "T", "--level", "250", "--var-map", "temperature=Q", "-o", "x.ply"],
+            ["'Q'", "not a 3-D field"],
+        ),
+        (
+            ["contour", NCL, "--var", "T", "--level", "250", "--var-map", "temperature", "-o", "x.ply"],
+            ["--var-map", "STD=NAME"],
+        ),
+        (
+            ["contour", UM, "--var", "air_potential_temperature", "--level", "250", "-o", "x.ply"],
+            ["um_hybrid_height.nc", "outside the data range"],
+        ),
         (["volume", CAM, "--var", "Q", "--out", "vol"], ["cam_vinth2p.nc", "'Q'", "no such variable"]),
         (["volume", CAM, "--var", "T", "--steps", "3-4", "--out", "vol"], ["--steps 3-4", "0-1"]),
         (["volume", NCL, "--var", "T", "--p0", "-3", "--out", "vol"], ["--p0"]),
@@ -140,7 +171,9 @@ def test_voxel_volume_on_a_curvilinear_grid(tmp_path, capsys):
     from nephele.core.volume.transfer import TransferFunction
 
     ds = open_dataset(tmp_path / "lcc.nc")
-    want = resample(ds.grid, ds.read("T", 0), TransferFunction.ramp(279.0, 281.0), voxel_size=0.002).stats["active_voxels"]
+    want = resample(ds.grid, ds.read("T", 0), TransferFunction.ramp(279.0, 281.0), voxel_size=0.002).stats[
+        "active_voxels"
+    ]
     grids, _ = openvdb().readAll(str(out / "clouds_0001.vdb"))
     density = next(g for g in grids if g.name == "density")
     assert want > 1000 and density.activeVoxelCount() == want
@@ -150,9 +183,9 @@ def test_exact_volume_on_curvilinear_and_rotated_grids(tmp_path, capsys):
     # The exact mode places both: a 2-D lat/lon grid through its column index map, a rotated pole by the
     # rotation the volume object takes (refused before).
     pytest.importorskip("xarray")
-    from nephele.addon.volume_exact import read_exr
     from nephele.core.climate.readers import open_dataset
     from nephele.core.volume.volume_atlas import atlas_layout
+    from nephele.volume_files import read_exr
 
     try:
         from nephele.fileio import openvdb
@@ -170,7 +203,9 @@ def test_exact_volume_on_curvilinear_and_rotated_grids(tmp_path, capsys):
     index, _ = read_exr(out / "clouds_index.exr")
     np.testing.assert_array_equal(index, atlas_layout(open_dataset(tmp_path / "lcc.nc").grid).index.image)
     out = tmp_path / "um"
-    rc, _, err = run(capsys, "volume", UM, "--var", "air_potential_temperature", "--steps", "0-0", "--out", out, "--quiet")
+    rc, _, err = run(
+        capsys, "volume", UM, "--var", "air_potential_temperature", "--steps", "0-0", "--out", out, "--quiet"
+    )
     assert rc == 0, err
     meta = json.loads((out / "sequence.json").read_text())
     np.testing.assert_array_equal(meta["rotation"], open_dataset(UM).grid.rotation)

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from nephele.core.errors import DataError
-from nephele.core.memory import available_memory, check_memory, format_bytes, parse_size
+from nephele.core.memory import available_memory, check_memory, format_bytes, parse_bytes
 
 
 def test_available_memory_is_the_least_of_the_limits(monkeypatch):
@@ -21,7 +21,7 @@ def test_available_memory_is_the_least_of_the_limits(monkeypatch):
     assert free is not None and free > 0
     monkeypatch.setenv("NEPHELE_MEMORY_LIMIT", "300M")
     assert available_memory() == min(free, 300 << 20)
-    assert parse_size("2G") == 2 << 30 and parse_size("512mb") == 512 << 20 and parse_size("1000") == 1000
+    assert parse_bytes("2G") == 2 << 30 and parse_bytes("512mb") == 512 << 20 and parse_bytes("1000") == 1000
     monkeypatch.setenv("NEPHELE_MEMORY_LIMIT", "lots")
     with pytest.raises(DataError, match="NEPHELE_MEMORY_LIMIT"):
         available_memory()

@@ -66,3 +66,13 @@ def test_manifest_fields():
     excludes = m["build"]["paths_exclude_pattern"]
     for required in ("__pycache__/", ".*", "/*.zip", "*.blend[1-9]", "/tests/", "/farm/", "/examples/"):
         assert required in excludes
+
+
+def test_former_flat_names_warn_until_they_end():
+    import nephele.core as core
+    from nephele.core.climate import grid
+
+    with pytest.warns(DeprecationWarning, match="ends in Nephele 0.2: use nephele.core.climate.grid"):
+        assert core.grid is grid
+    with pytest.raises(AttributeError):
+        _ = core.no_such_name

@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from nephele.core.flow import advect, flows
 from nephele.core.climate.grid import GlobeGrid, lonlat_to_xyz
 from nephele.core.climate.synthetic import demo_dataset
+from nephele.core.flow import _grid_index, advect, flows
 
 
 def sphere_grid(ni=16, nj=8, nk=3, periodic=True):
@@ -25,7 +25,7 @@ def random_points(n, rng, lat_max=90.0, lon=(-180.0, 180.0)):
 @pytest.mark.parametrize("periodic", [True, False])
 def test_padded_field_layout(periodic):
     g = sphere_grid(periodic=periodic)
-    ix = advect._GridIndex(g, pad=2)
+    ix = _grid_index._GridIndex(g, pad=2)
     nk, nj, ni = g.shape
     f = np.random.default_rng(0).normal(size=g.shape + (2,)).astype(np.float32)
     p = ix.padded(f)
@@ -46,7 +46,7 @@ def test_padded_field_layout(periodic):
 
 def test_stencils_reproduce_linear_fields_and_wrap_the_seam():
     g = sphere_grid(ni=32, nj=16, nk=4)
-    ix = advect._GridIndex(g, pad=2)
+    ix = _grid_index._GridIndex(g, pad=2)
     nk, nj, ni = g.shape
     k, j, i = np.meshgrid(np.arange(nk), np.arange(nj), np.arange(ni), indexing="ij")
     lin = (3.0 + 0.25 * i - 0.5 * j + 2.0 * k)[..., None]
@@ -62,7 +62,9 @@ def test_stencils_reproduce_linear_fields_and_wrap_the_seam():
     lon_seam = rng.uniform(-6.0, 6.0, 200)
     lat_seam = rng.uniform(-60.0, 60.0, 200)
     r = 5
-    a = ix.cubic(ix.padded(smooth[..., None].astype(np.float32)), *ix.fractional(lonlat_to_xyz(lon_seam, lat_seam), np.ones(200)))
+    a = ix.cubic(
+        ix.padded(smooth[..., None].astype(np.float32)), *ix.fractional(lonlat_to_xyz(lon_seam, lat_seam), np.ones(200))
+    )
     b = ix.cubic(ix.padded(np.roll(smooth, r, axis=2)[..., None].astype(np.float32)),
                  *ix.fractional(lonlat_to_xyz(lon_seam + r * 360.0 / ni, lat_seam), np.ones(200)))
     np.testing.assert_allclose(a, b, atol=1e-5)
@@ -70,7 +72,7 @@ def test_stencils_reproduce_linear_fields_and_wrap_the_seam():
 
 def test_stencils_cross_the_pole_and_propagate_nan():
     g = sphere_grid(ni=64, nj=32, nk=2)
-    ix = advect._GridIndex(g, pad=2)
+    ix = _grid_index._GridIndex(g, pad=2)
     f = advect.grid_vertices(g)[: 32 * 64, 0].reshape(g.shape[1:])  # x of the unit vector: smooth over the poles
     field = np.broadcast_to(f, g.shape)[..., None].astype(np.float32)
     rng = np.random.default_rng(2)
@@ -86,7 +88,7 @@ def test_stencils_cross_the_pole_and_propagate_nan():
 
 def test_one_gather_of_stacked_maps_equals_separate_gathers():
     g = sphere_grid(ni=32, nj=16, nk=4)
-    ix = advect._GridIndex(g, pad=2)
+    ix = _grid_index._GridIndex(g, pad=2)
     rng = np.random.default_rng(3)
     a, b = (rng.normal(size=g.shape + (4,)).astype(np.float32) for _ in range(2))
     fr = ix.fractional(random_points(1000, rng), rng.uniform(0, 3, 1000))
@@ -164,7 +166,9 @@ def test_dilate_across_the_poles():
     # without the option the mask grows exactly as before: a diamond of `cells` in lat/lon, one level
     plain = advect.dilate(mask, 3, periodic_lon=True)
     k, j, i = np.nonzero(plain)
-    assert plain.sum() == 3 * (7 + 5 + 3 + 1) and np.all(np.abs(j - 7) + np.minimum(np.abs(i - 2), 16 - np.abs(i - 2)) <= 3)
+    assert plain.sum() == 3 * (7 + 5 + 3 + 1) and np.all(
+        np.abs(j - 7) + np.minimum(np.abs(i - 2), 16 - np.abs(i - 2)) <= 3
+    )
 
 
 def test_wind_read_at_vertices_equals_the_interpolated_wind():

@@ -6,13 +6,13 @@ import itertools
 import numpy as np
 import pytest
 import trimesh
+from blob_scenes import rotations
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from blob_scenes import rotations
 from nephele.core.errors import DataError
-from nephele.core.surface.mesh import Mesh, triangle_areas
 from nephele.core.muscle import blobby_field, blobby_surface
+from nephele.core.surface.mesh import Mesh, triangle_areas
 
 pytestmark = pytest.mark.filterwarnings("error::RuntimeWarning")  # no overflow in exp, no NaN
 
@@ -22,7 +22,11 @@ def exact(points, c, r, s, w, box=None, images=2):
     p = np.asarray(points, float)
     f = np.zeros(len(p))
     g = np.zeros((len(p), 3))
-    shifts = [np.zeros(3)] if box is None else [np.array(k) * box for k in itertools.product(range(-images, images + 1), repeat=3)]
+    shifts = (
+        [np.zeros(3)]
+        if box is None
+        else [np.array(k) * box for k in itertools.product(range(-images, images + 1), repeat=3)]
+    )
     for ci, ri, si, wi in zip(c, r, s, w):
         for sh in shifts:
             d = p - (ci + sh)
@@ -304,7 +308,7 @@ def test_same_mesh_with_any_number_of_threads():
 def test_edge_guess_against_a_lone_gaussian():
     # The vertex's start on its edge: the cubic through the node values along the edge (quadratic at a
     # block's edge), against the closed-form root of w exp(-x^2/2) = level and its second derivative.
-    from nephele.core.muscle.blobby import EDGE_MARGIN, _edge_guess
+    from nephele.core.muscle._blobby_numpy import EDGE_MARGIN, _edge_guess
 
     w, level, h = 2.0, 0.5, 0.25
     root = np.sqrt(2 * np.log(w / level))
@@ -418,10 +422,10 @@ def test_march_batches_give_the_unbatched_mesh(box, monkeypatch):
 def test_argsort_small_is_numpys_stable_argsort(top):
     # Block indices are sorted by 16-bit radix passes: the same permutation as NumPy's stable sort,
     # ties (one block's Gaussians) kept in their order, for every range (one pass, two, or fallback).
-    from nephele.core.muscle import blobby as bb
+    from nephele.core.muscle import _blobby_numpy
 
     rng = np.random.default_rng(top % 1000)
     x = rng.integers(0, top, 20000)
     x[:50] = top - 1  # the largest value, tied
     x[50:100] = 0
-    assert np.array_equal(bb._argsort_small(x, top), np.argsort(x, kind="stable"))
+    assert np.array_equal(_blobby_numpy._argsort_small(x, top), np.argsort(x, kind="stable"))

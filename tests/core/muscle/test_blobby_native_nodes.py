@@ -5,11 +5,11 @@ import dataclasses
 
 import numpy as np
 import pytest
-
 from blob_scenes import rotations
+
 from nephele.core import native
+from nephele.core.muscle import _blobby_base, _blobby_numpy, level_distance
 from nephele.core.muscle import blobby as bb
-from nephele.core.muscle import level_distance
 
 pytestmark = pytest.mark.skipif(native.identity() == "numpy", reason="no compiled kernels")
 
@@ -60,7 +60,7 @@ def test_node_values_match_numpy(case, monkeypatch):
     blobs, h, box = CASES[case]
     b, grid, blocks = setup(*blobs, h=h, box=box)
     if case == "sheared":  # the large-exponent case is exercised: -u_x u_z a_xz > 40 at a block corner
-        assert (-(7 * h) ** 2 * b.a[:, 4]).max() > 2 * bb._EXP_MAX
+        assert (-(7 * h) ** 2 * b.a[:, 4]).max() > 2 * _blobby_numpy._EXP_MAX
     got = bb._node_values(b, grid, blocks, 2)
     numpy_path(monkeypatch)
     want = bb._node_values(b, grid, blocks, 2)
@@ -100,7 +100,7 @@ def test_whole_mesh_both_paths(native_on, monkeypatch):
 
 
 def chunks_equal(a, e):
-    for f in dataclasses.fields(bb._Chunk):
+    for f in dataclasses.fields(_blobby_base._Chunk):
         x, y = getattr(a, f.name), getattr(e, f.name)
         if isinstance(y, np.ndarray):
             assert x.dtype == y.dtype and x.shape == y.shape, f.name

@@ -5,10 +5,10 @@ import ctypes
 
 import numpy as np
 import pytest
-
 from blob_scenes import rotations
+
 from nephele.core import native
-from nephele.core.muscle import blobby, blobby_field, blobby_surface, level_distance
+from nephele.core.muscle import _blobby_c, blobby, blobby_field, blobby_surface, level_distance
 
 pytestmark = pytest.mark.filterwarnings("error::RuntimeWarning")
 
@@ -102,7 +102,7 @@ def test_any_chunks_give_the_same_bits(monkeypatch):
     # block's list in order all the same.
     (c, r, s, w), level, h, box = SCENES["periodic"]
     whole = blobby_surface(c, r, s, w, level, h, box=box)
-    monkeypatch.setattr(blobby, "_PROJECT_CHUNK", 7)
+    monkeypatch.setattr(_blobby_c, "_PROJECT_CHUNK", 7)
     for threads in (1, 3):
         cut = blobby_surface(c, r, s, w, level, h, box=box, threads=threads)
         assert np.array_equal(cut.vertices, whole.vertices)

@@ -6,20 +6,38 @@ from pathlib import Path
 import pytest
 
 import nephele.core as core
-from nephele.core.pipeline import cache, codehash, registry
+from nephele.core.pipeline import cache, codehash, registry, tasks
 
 CORE = Path(core.__file__).resolve().parent
 
 # Task kind -> (its module, the dependencies edited in a copy of the package).
 KINDS = {
-    "contour": ("contour_task.py", ["climate/grid.py", "climate/readers.py", "climate/synthetic.py", "surface/contour.py", "surface/mesh.py"]),
-    "volume": ("volume_task.py", ["climate/grid.py", "climate/readers.py", "volume/sparse.py", "volume/volume_atlas.py", "volume/transfer.py"]),
-    "advect_contour": ("advect_task.py", ["climate/grid.py", "climate/readers.py", "flow/advect.py", "flow/flows.py", "surface/contour.py"]),
-    "scatter": ("scatter_task.py", ["light/scatter.py", "light/phase.py", "volume/cloud_density.py", "texture/noise.py"]),
+    "contour": (
+        "contour_task.py",
+        ["climate/grid.py", "climate/readers.py", "climate/synthetic.py", "surface/contour.py", "surface/mesh.py"],
+    ),
+    "volume": (
+        "volume_task.py",
+        ["climate/grid.py", "climate/readers.py", "volume/sparse.py", "volume/volume_atlas.py", "volume/transfer.py"],
+    ),
+    "advect_contour": (
+        "advect_task.py",
+        ["climate/grid.py", "climate/readers.py", "flow/advect.py", "flow/flows.py", "surface/contour.py"],
+    ),
+    "scatter": (
+        "scatter_task.py",
+        ["light/scatter.py", "light/phase.py", "volume/cloud_density.py", "texture/noise.py"],
+    ),
     "muscle_frame": ("film.py", ["muscle/brownian.py", "muscle/lattice.py", "muscle/blobby.py", "muscle/molecules.py"]),
 }
 # Task kind -> the subpackage holding its module.
-HOME = {"contour": "surface", "volume": "volume", "advect_contour": "flow", "scatter": "light", "muscle_frame": "muscle"}
+HOME = {
+    "contour": "surface",
+    "volume": "volume",
+    "advect_contour": "flow",
+    "scatter": "light",
+    "muscle_frame": "muscle",
+}
 
 
 @pytest.fixture(scope="module")
@@ -31,7 +49,7 @@ def copy_root(tmp_path_factory):
 
 @pytest.mark.parametrize("kind", sorted(KINDS))
 def test_registered_task_module_matches(kind):
-    registry.load_all()
+    tasks.load_all()
     assert Path(registry.TASKS[kind].__code__.co_filename).name == KINDS[kind][0]
     assert len(registry.code_stamp(kind)) == 16
 
