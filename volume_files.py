@@ -213,7 +213,7 @@ def bake_sequence(obj_params, frames, directory, prefix="clouds", *, cache=None,
     for n, frame in enumerate(frames, start=1):
         out.append(bake_frame(obj_params, frame, n, directory, prefix, cache=cache, reuse=reuse))
         if n == 1 and len(frames) > 1:
-            from ..core.files import check_space
+            from .core.files import check_space
 
             each = Path(out[0]["path"]).stat().st_size
             check_space(directory, each * (len(frames) - 1), f"the {len(frames) - 1} volume frames left "

@@ -15,6 +15,7 @@ import errno
 import os
 import shutil
 import socket
+import sys
 import time
 import uuid
 from pathlib import Path
@@ -45,6 +46,33 @@ class WriteError(OSError):
 
     def __str__(self):
         return f"{self.path}: {self.problem}"
+
+
+def cache_root():
+    """Nephele's own cache folder: ``$NEPHELE_CACHE``, else the system's place for a user's caches
+    (``%LOCALAPPDATA%\\nephele\\cache`` on Windows, ``~/Library/Caches/nephele`` on macOS,
+    ``$XDG_CACHE_HOME/nephele`` or ``~/.cache/nephele`` elsewhere)."""
+    env = os.environ.get("NEPHELE_CACHE")
+    if env:
+        return Path(env)
+    if _WINDOWS and os.environ.get("LOCALAPPDATA"):
+        return Path(os.environ["LOCALAPPDATA"]) / "nephele" / "cache"
+    if sys.platform == "darwin":
+        return Path.home() / "Library" / "Caches" / "nephele"
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "nephele"
+
+
+def cache_folder(name):
+    """``<cache>/<name>`` (:func:`cache_root`): where what is made from a user's file (GRIB indexes, unpacked
+    zips) is kept, never beside the user's data, which may be read-only."""
+    return cache_root() / name
+
+
+def file_stamp(path):
+    """A file's identity: its resolved path, size and modification time (a changed file gets a new stamp)."""
+    p = Path(path).resolve()
+    st = p.stat()
+    return f"{p}|{st.st_size}|{st.st_mtime_ns}"
 
 
 def free_bytes(path):
@@ -300,5 +328,6 @@ def _alive_windows(pid, k=None):
         k.CloseHandle(handle)
 
 
-__all__ = ["DISK_ERRNOS", "WriteError", "atomic_write", "check_space", "free_bytes", "lock_file", "locked", "process_alive",
+__all__ = ["DISK_ERRNOS", "WriteError", "atomic_write", "cache_folder", "cache_root", "check_space", "file_stamp",
+           "free_bytes", "lock_file", "locked", "process_alive",
            "fsync_path", "replace", "write_error"]

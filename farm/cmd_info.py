@@ -167,7 +167,7 @@ def version_text():
 
 def run(args):
     from ..core.climate.readers import open_dataset
-    from .cli import UsageError
+    from ..core.errors import UsageError
 
     if args.version:
         print(version_text())

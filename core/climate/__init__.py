@@ -56,7 +56,6 @@ from .netcdf import (  # noqa: F401
 )
 from .readers import (  # noqa: F401
     OVERRIDES,
-    cache_folder,
     check_overrides,
     open_dataset,
     override_source,

@@ -63,8 +63,8 @@ hydrometeor mixing ratios of GFS GRIB1 files, which ecCodes calls ``unknown``.""
 
 
 def index_folder():
-    """``<cache>/grib-index``: where index files live (:func:`~nephele.core.climate.readers.cache_folder`)."""
-    from .readers import cache_folder
+    """``<cache>/grib-index``: where index files live (:func:`~nephele.core.files.cache_folder`)."""
+    from ..files import cache_folder
 
     return cache_folder("grib-index")
 
@@ -94,9 +94,9 @@ def _stamp(path):
     (what the index keeps, level heights included, was made by this code from this file)."""
     from ..pipeline.codehash import code_stamp
 
-    p = Path(path).resolve()
-    st = p.stat()
-    return p, f"{p}|{st.st_size}|{st.st_mtime_ns}|v{INDEX_VERSION}|{code_stamp(Path(__file__).with_name('grib.py'))}"
+    from ..files import file_stamp
+
+    return Path(path).resolve(), f"{file_stamp(path)}|v{INDEX_VERSION}|{code_stamp(Path(__file__).with_name('grib.py'))}"
 
 
 def _datetime(dates, times):

@@ -280,16 +280,14 @@ def _from_zip(path):
     import hashlib
     import zipfile
 
-    from ..files import atomic_write
-    from ..pipeline.cache import source_stamp
-    from .readers import cache_folder
+    from ..files import atomic_write, cache_folder, file_stamp
 
     try:
         with zipfile.ZipFile(path) as z:
             members = [m for m in z.infolist() if m.filename.lower().endswith((".nc", ".nc4", ".netcdf")) and not m.is_dir()]
             if not members:
                 raise DataError(f"the zip holds no NetCDF file ({', '.join(z.namelist()[:5]) or 'nothing'})", path=path)
-            folder = cache_folder("zip") / hashlib.sha256(source_stamp(path).encode()).hexdigest()[:24]
+            folder = cache_folder("zip") / hashlib.sha256(file_stamp(path).encode()).hexdigest()[:24]
             unpacked = []
             for m in members:
                 out = folder / Path(m.filename).name

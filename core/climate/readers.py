@@ -27,14 +27,6 @@ VERTICAL_CHOICES = ("pressure_hpa", "pressure_pa", "height_m", "height_km", "nca
 """What ``vertical=`` may say (:data:`~nephele.core.climate.netcdf.VERTICAL_KINDS`, kept here without xarray)."""
 
 
-def cache_folder(name):
-    """``<cache>/<name>``: where the readers keep what they make from a file (GRIB indexes, unpacked zips), never
-    beside the user's data; the cache is :func:`~nephele.core.pipeline.cache.default_cache_dir`'s."""
-    from ..pipeline.cache import default_cache_dir
-
-    return default_cache_dir() / name
-
-
 def parse_var_map(text, path=None):
     """``"temperature=T2, rh=RH"`` as ``{"temperature": "T2", "rh": "RH"}`` (commas or new lines between pairs)."""
     mapping = {}
@@ -262,4 +254,4 @@ def _opener(path):
     raise DataError(f"unknown format {suffix or '(no extension)'!r}: expected demo, .nc, .zip (of NetCDF), .grib2, .zarr or .ctl", path=path)
 
 
-__all__ = ["OVERRIDES", "cache_folder", "check_overrides", "open_dataset", "override_source", "parse_var_map", "split_source"]
+__all__ = ["OVERRIDES", "check_overrides", "open_dataset", "override_source", "parse_var_map", "split_source"]

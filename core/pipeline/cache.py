@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..files import atomic_write, process_alive
+from ..files import atomic_write, cache_root, file_stamp, process_alive
 from . import registry
 
 CACHE_VERSION = 1
@@ -58,8 +58,7 @@ def source_stamp(source):
     text = str(source)
     p = Path(text)
     if p.is_file():
-        st = p.stat()
-        return f"{p.resolve()}|{st.st_size}|{st.st_mtime_ns}"
+        return file_stamp(p)
     base, sep, query = text.partition("?")
     if sep and Path(base).is_file():
         kept = "&".join(q for q in query.split("&") if not q.startswith("file="))
@@ -68,7 +67,7 @@ def source_stamp(source):
 
 
 def default_cache_dir(blend_path=None):
-    """``<dir>/<stem>_nephele_cache`` beside a .blend, else ``$NEPHELE_CACHE`` or ``~/.cache/nephele``.
+    """``<dir>/<stem>_nephele_cache`` beside a .blend, else Nephele's cache (:func:`~nephele.core.files.cache_root`).
 
     The shared folder (no .blend) suits content-addressed entries only (their
     names are their contents' keys); files a scene links by name belong in
@@ -77,8 +76,7 @@ def default_cache_dir(blend_path=None):
     if blend_path:
         p = Path(blend_path)
         return p.parent / f"{p.stem}_nephele_cache"
-    env = os.environ.get("NEPHELE_CACHE")
-    return Path(env) if env else Path.home() / ".cache" / "nephele"
+    return cache_root()
 
 
 _SESSION = {}

@@ -14,7 +14,7 @@ import pytest
 
 bpy = pytest.importorskip("bpy")
 
-from conftest import render_small  # noqa: E402
+from blender_helpers import render_small  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 

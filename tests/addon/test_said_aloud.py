@@ -6,7 +6,7 @@ import pytest
 
 bpy = pytest.importorskip("bpy")
 
-from nephele.addon import contour_ops, data_ops, layers, panel, volume_ops  # noqa: E402
+from nephele.addon import contour_ops, data_ops, layers, panel, volume_ops, volume_panel  # noqa: E402
 
 
 class _Layout:
@@ -91,10 +91,10 @@ def test_a_refused_threshold_edit_is_shown_beside_the_threshold(empty_scene, tmp
 
 def test_typed_transfer_function_points_that_do_not_parse_are_shown(empty_scene):
     s = empty_scene.nephele_volume
-    s.tf_edit = volume_ops.TF_POINTS
+    s.tf_edit = volume_panel.TF_POINTS
     s.tf_points = "[[0.3, 0], [oops"
     log = []
-    volume_ops.draw_tf(_Layout(log), s)
+    volume_panel.draw_tf(_Layout(log), s)
     labels = [k.get("text", "") for name, _, k in log if name == "label"]
     assert any(t.startswith("Not applied: ") and "is not valid JSON" in t for t in labels), labels
 

@@ -5,7 +5,7 @@ import pytest
 
 bpy = pytest.importorskip("bpy")
 
-from conftest import import_sheared_file  # noqa: E402
+from blender_helpers import import_sheared_file  # noqa: E402
 
 from nephele.addon import data_ops, frame, volume_ops, volume_panel  # noqa: E402
 from nephele.core.climate.dataset import ArrayDataset, hourly  # noqa: E402
