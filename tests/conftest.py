@@ -18,6 +18,40 @@ STRICT = os.environ.get("CI", "").lower() not in ("", "0", "false") or os.enviro
 OPTIONAL = {m for m in os.environ.get("NEPHELE_OPTIONAL", "").split(",") if m}
 
 
+def _one_blas_thread():
+    """OpenBLAS on one thread, in this process and the ones it starts.
+
+    The tests' matrices are small (least-squares Jacobians of 3000 x 40, 3 x 3 frames): a second
+    OpenBLAS thread only spins, and on a loaded 2-core machine it made an SVD of 3000 x 40 cost
+    0.086 CPU s instead of 0.004 (the actin fits' two tests: 27 CPU s, 14 with one thread).  Results
+    are the same (each output element is summed the same way in one thread).  NumPy is already
+    loaded by a plugin (zarr's) when this file runs, so the variable alone is too late here: the
+    loaded libraries are told through their own ``*set_num_threads*`` (Linux: found in
+    /proc/self/maps; elsewhere only the variable, for child processes).
+    """
+    import ctypes
+
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+    try:
+        maps = Path("/proc/self/maps").read_text()
+    except OSError:
+        return
+    libs = {line.split()[-1] for line in maps.splitlines() if "openblas" in line.rsplit("/", 1)[-1]}
+    for lib in sorted(libs):
+        try:
+            dll = ctypes.CDLL(lib)
+        except OSError:
+            continue
+        for name in ("scipy_openblas_set_num_threads64_", "scipy_openblas_set_num_threads",
+                     "openblas_set_num_threads64_", "openblas_set_num_threads"):
+            if hasattr(dll, name):
+                getattr(dll, name)(int(os.environ["OPENBLAS_NUM_THREADS"]))
+                break
+
+
+_one_blas_thread()
+
+
 @pytest.fixture(scope="session")
 def strict():
     """Whether this run is strict (see the module's docstring)."""
