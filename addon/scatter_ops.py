@@ -1,7 +1,7 @@
 """Blender side of the multiple-scattering cloud (Fig. 6).
 
 "Add scattering cloud" builds the droplet density (:mod:`..core.cloud_density`),
-runs the binned shooting solve (:mod:`..core.scatter`: 96 bins, or ``6 n^2`` with
+runs the binned shooting solve (:mod:`..core.light.scatter`: 96 bins, or ``6 n^2`` with
 "Bins per face" ``n``) as a modal operator that advances one group of bins per
 timer tick (progress in the status bar and the panel; the interface stays live;
 Esc cancels), then writes one VDB per frame
@@ -32,11 +32,11 @@ from .render_device import use_device
 
 
 def add_camera(cam, name="Scatter camera"):
-    """A Blender camera matching :class:`..core.scatter.Camera` ``cam``."""
+    """A Blender camera matching :class:`..core.splats.camera.Camera` ``cam`` (perspective)."""
     scene = bpy.context.scene
-    obj = camera_object(scene, name, angle=cam.fov)
-    obj.location = cam.position
-    look_at(obj, cam.target)
+    obj = camera_object(scene, name, angle=math.radians(cam.fov))
+    obj.location = tuple(cam.position)
+    look_at(obj, tuple(cam.position + cam.basis()[0]))
     scene.render.resolution_x, scene.render.resolution_y = cam.width, cam.height
     scene.render.resolution_percentage = 100
     return obj

@@ -144,8 +144,7 @@ def test_render_homogeneous_emission_box():
     n = 12
     sig = np.full((n, n, n), 3.0)
     src = np.full((n, n, n), 2.0)
-    cam = scatter.Camera((0.5, 0.5, 5.0), (0.5, 0.5, 0.5), fov=np.radians(2.0), width=4, height=4,
-                         up=(0.0, 1.0, 0.0))
+    cam = scatter.Camera.look_at((0.5, 0.5, 5.0), (0.5, 0.5, 0.5), up=(0.0, 1.0, 0.0), fov=2.0, width=4, height=4)
     # trilinear fields fall to zero over half a voxel beyond the box on each side
     img = scatter.render(sig, src, (1, 1, 1), cam, step=0.05)
     h = 1.0 / n

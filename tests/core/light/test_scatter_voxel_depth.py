@@ -121,7 +121,7 @@ def test_rendered_single_scattering_from_above(mu0, layers):
     s = np.sqrt(1 - mu0 * mu0)
     sol = scatter.solve(np.full((layers, 3, 3), tau), (1.0, 1.0, 1.0), albedo=omega, g=0.0, sun_dir=(s, 0, mu0),
                         tol=1e-4, periodic=(True, True, False))
-    cam = scatter.Camera((0.5, 0.5, 30.0), (0.5, 0.5, 0.0), fov=np.radians(0.1), width=2, height=2, up=(0, 1, 0))
+    cam = scatter.Camera.look_at((0.5, 0.5, 30.0), (0.5, 0.5, 0.0), up=(0, 1, 0), fov=0.1, width=2, height=2)
     img = scatter.render(sol.sigma, scatter.view_source(sol, cam.position), sol.size, cam, step=0.05)
     ref = omega * mu0 / (4 * np.pi * (1 + mu0)) * (1 - np.exp(-tau * (1 / mu0 + 1)))
     assert img.mean() == pytest.approx(ref, rel=0.03)
