@@ -6,6 +6,7 @@ import numpy as np
 
 from . import phase
 from ..threads import default_threads, split_map, thread_map
+from . import _native
 
 
 class _Tail:
@@ -133,6 +134,8 @@ def _shot_group(bs, unshot, received, total, r, tot, power, shot, albedo):
     loses ``shot`` and gains albedo times ``r``; on threads, voxel ranges side by side (in one
     thread these whole-grid steps took 2.6 s, about 3 %, of a line-profiled 128x128x96 solve)."""
     bs = _as_slice(bs)
+    if _native.shot_group(bs, unshot, received, total, r, tot, power.reshape(-1), shot.reshape(-1), albedo):
+        return
     u, rec, tt = (a.reshape(len(a), -1) for a in (unshot, received, total))
     rr, to, pw, sh = r.reshape(len(r), -1), tot.reshape(len(tot), -1), power.reshape(-1), shot.reshape(-1)
 
@@ -152,6 +155,9 @@ def _caught_per_sub(bs, r, tot, rec, total):
     power caught per bin and sub-direction (k, ns), float64.  On threads, voxel ranges side
     by side."""
     bs = _as_slice(bs)
+    caught = _native.caught_per_sub(bs, r, tot, rec, total)
+    if caught is not None:
+        return caught
     fr, ft = r.reshape(r.shape[0], r.shape[1], -1), tot.reshape(len(tot), -1)
     fo, fa = rec.reshape(len(rec), -1), total.reshape(len(total), -1)
 
@@ -170,8 +176,11 @@ def _as_slice(bs):
 
 def _bin_sum(a, bs):
     """``a[bs].sum(0)`` in float64 over bins ``bs`` of ``a`` (nb, ...), on threads."""
-    flat, out = a.reshape(len(a), -1), np.empty(a.shape[1:], np.float64)
     bs = bs if isinstance(bs, slice) else _as_slice(bs)
+    out = _native.bin_sum(a, bs)
+    if out is not None:
+        return out
+    flat, out = a.reshape(len(a), -1), np.empty(a.shape[1:], np.float64)
 
     def run(s):
         out.reshape(-1)[s] = flat[bs, s].sum(0, dtype=np.float64)
@@ -192,6 +201,10 @@ def _scatter_into(unshot, m_cols, recv, albedo):
     them runs in C without the GIL), and our own threads take every other stack:
     k = 256 on 5e5 voxels, one thread, 0.65 s as single chunks -> 0.38 s.
     """
+    kernel = _native.scatter_kernel() if m_cols.shape[1] < 64 else None
+    if kernel is not None:  # (from 64 columns on, NumPy's BLAS product below is as fast)
+        _native.scatter_into(kernel, unshot, albedo * np.asarray(m_cols), np.asarray(recv, np.float32))
+        return
     g = m_cols.shape[1]
     nb = len(unshot)
     u = unshot.reshape(nb, -1)

@@ -4,6 +4,7 @@ by layer through the grid, catching and carrying light (:func:`_sweep`)."""
 import numpy as np
 
 from ..threads import default_threads, split_map, thread_map
+from . import _native
 from ._escape import _escape_centroid, _offset, _p2_escape, _phi, _variance
 
 
@@ -97,13 +98,19 @@ class _Scratch:
     def __init__(self):
         self.bufs = {}
 
-    def zeros(self, name, shape):
+    def empty(self, name, shape):
+        """The array ``name`` of ``shape``, its values left as they were (for outputs written whole)."""
         n = int(np.prod(shape))
         buf = self.bufs.get(name)
         if buf is None or buf.size < n:
             buf = self.bufs[name] = np.empty(n, np.float32)
-        split_map(lambda s: buf[s].fill(0), n)
         return buf[:n].reshape(shape)
+
+    def zeros(self, name, shape):
+        out = self.empty(name, shape)
+        flat = out.reshape(-1)
+        split_map(lambda s: flat[s].fill(0), flat.size)
+        return out
 
 
 def _sweep(sigma, h, dirs, wsub, emis, inflow, periodic, axis, cache=None, per_sub=False, profile=None,
@@ -158,7 +165,11 @@ def _sweep(sigma, h, dirs, wsub, emis, inflow, periodic, axis, cache=None, per_s
     # received in the grid's own layout, written through a view in sweep order: callers
     # flatten it (phase-matrix products), which would copy a transposed array
     lead = 2 if per_sub else 1
-    zeros = (lambda name, shape: np.zeros(shape, np.float32)) if scratch is None else scratch.zeros
+    kernel = _native.sweep_kernel()
+    if kernel is not None:  # the compiled sweeps write every value of their outputs
+        zeros = (lambda name, shape: np.empty(shape, np.float32)) if scratch is None else scratch.empty
+    else:
+        zeros = (lambda name, shape: np.zeros(shape, np.float32)) if scratch is None else scratch.zeros
     recv_grid = zeros("recv", (g, ns) + sigma.shape if per_sub else (g,) + sigma.shape)
     recv = np.moveaxis(recv_grid, lead + axis, lead)
     total = zeros("total", (g, L, A, B))
@@ -190,22 +201,33 @@ def _sweep(sigma, h, dirs, wsub, emis, inflow, periodic, axis, cache=None, per_s
     slots = len(slot)
     bmom_grid = None if mw is None else zeros("moments", (g, slots) + sigma.shape)
     bmom = None if mw is None else np.moveaxis(bmom_grid, axis + 2, 2)
-    geom = (h, comp, others, periodic, sign, L, A, B, _layer_boxes(sig), slot)
+    if kernel is not None:
+        d = dirs.reshape(-1, 3)
+        ca, cb = 2 - others[0], 2 - others[1]
+        ell = h[comp] / np.abs(d[:, comp])
+        shifts = [d[:, c] / np.abs(d[:, comp]) * (h[comp] / h[c]) for c in (ca, cb)]
+        _native.sweep(kernel, sig, (sign, periodic[ca], periodic[cb], comp),
+                      (ell[:, None] * d / np.asarray(h, float)[None], ell, *shifts, wsub, inflow),
+                      (em, kap, *shape2), (recv, per_sub, total, exit_power, bmom, slot), cache, fresh, threads)
+    else:
+        geom = (h, comp, others, periodic, sign, L, A, B, _layer_boxes(sig), slot)
 
-    def work(t):
-        for ib in range(t, len(blocks), nthreads):
-            bs = blocks[ib]
-            bm = None if mw is None else bmom[bs[0]:bs[-1] + 1]  # a view: blocks are ranges of bins
-            _sweep_block(sig, geom, dirs[bs], wsub[bs], None if em is None else em[bs], inflow[bs],
-                         kap, shape2, cache, ib, fresh, bm, recv, total, exit_power, bs, per_sub)
+        def work(t):
+            for ib in range(t, len(blocks), nthreads):
+                bs = blocks[ib]
+                bm = None if mw is None else bmom[bs[0]:bs[-1] + 1]  # a view: blocks are ranges of bins
+                _sweep_block(sig, geom, dirs[bs], wsub[bs], None if em is None else em[bs], inflow[bs],
+                             kap, shape2, cache, ib, fresh, bm, recv, total, exit_power, bs, per_sub)
 
-    thread_map(work, range(nthreads), nthreads)
+        thread_map(work, range(nthreads), nthreads)
     if mw is not None:
         out, scale = moments[1].reshape(len(mw), 1 + second, 3, -1), np.float32(moments[2])
         bm = bmom_grid.reshape(g, slots, -1)
         d, m2 = (None if profile is None or profile[i] is None else np.asarray(profile[i], np.float32).reshape(3, -1)
                  for i in (1, 2))
         side = [c for c in range(3) if c != comp]
+        if _native.moments(mw, bm, comp, slot, d, m2, scale, out, threads):
+            return recv_grid, np.moveaxis(total, 1, axis + 1), exit_power
 
         def add(s):
             # (einsum, not a BLAS product: OpenBLAS's threads would spin beside the solve's own
