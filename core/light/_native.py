@@ -225,3 +225,21 @@ def moments(mw, bm, comp, slot, d, m2, scale, out, threads=None):
                            None if d is None else d.ctypes.data, None if m2 is None else m2.ctypes.data,
                            float(scale), out.ctypes.data), _ranges(n), threads)
     return True
+
+
+def profile(mom, power, second, tables):
+    """:meth:`._solve._Solve.unshot_profile`'s profiles by the compiled kernel, or None without it:
+    ``mom`` (1 + second, 3, ...) float64, ``power`` (...) float64, ``tables`` = (rtab, rstep, dlo,
+    dhi, dscale) of :func:`._escape._rate_of_offset`; returns (2 + 2 second, 3, voxels) float32."""
+    k = _kernel("scatter_profile", [_I, _I, _I, _I, _P, _P, _P, _P, ctypes.c_float, ctypes.c_float, ctypes.c_float,
+                                    _P])
+    if k is None:
+        return None
+    m = np.ascontiguousarray(mom, np.float64).reshape(len(mom), 3, -1)
+    p = np.ascontiguousarray(power, np.float64).reshape(-1)
+    rtab, rstep, dlo, dhi, dscale = tables
+    n = p.size
+    out = np.empty((4 if second else 2, 3, n), np.float32)
+    thread_map(lambda q: k(n, q[0], q[1], int(second), m.ctypes.data, p.ctypes.data, rtab.ctypes.data,
+                           rstep.ctypes.data, dlo, dhi, dscale, out.ctypes.data), _ranges(n))
+    return out

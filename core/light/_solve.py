@@ -69,7 +69,8 @@ import numpy as np
 from . import phase
 from ..errors import DataError
 from ..threads import split_map
-from ._escape import _offset, _rate_of_offset, _second_moment, _variance
+from . import _native
+from ._escape import _DHI, _DLO, _DSCALE, _RSTEP, _RTAB, _offset, _rate_of_offset, _second_moment, _variance
 from ._passes import (_as_slice, _bin_sum, _caught_per_sub, _fine_bins, _groups, _merge_quarters, _occupied_box,
                       _quarters, _scatter_into, _shot_group, _Tail)
 from ._solution import Progress, Solution, _check_sky
@@ -247,6 +248,10 @@ class _Solve:
             return None
         second = self.second
         mom = self.umom[gi]
+        out = _native.profile(mom, power, second, (_RTAB, _RSTEP, _DLO, _DHI, _DSCALE))
+        if out is not None:
+            prof = tuple(x.reshape(mom.shape[1:]) for x in out)
+            return prof if second else prof + (None, None)
         m, p = mom.reshape(len(mom), 3, -1), power.reshape(-1)
         out = np.empty((2 + 2 * second,) + m.shape[1:], np.float32)
         f32 = np.float32

@@ -77,6 +77,15 @@ static inline float nph_expf(float x)
     return x < NPH_EXPF_MIN ? 0.0f : y;
 }
 
+/* expm1(x) given ex = exp(x) (the caller's, when it needs both) */
+static inline float nph_expm1f_of(float x, float ex)
+{
+    float s = x * (1.0f + x * (0.5f + x * (1.0f / 6 + x * (1.0f / 24 + x * (1.0f / 120 + x * (1.0f / 720
+              + x * (1.0f / 5040 + x * (1.0f / 40320))))))));
+    float e = ex - 1.0f;
+    return nph_absf(x) < 0.5f ? s : e;
+}
+
 static inline float nph_expm1f(float x)
 {
     float s = x * (1.0f + x * (0.5f + x * (1.0f / 6 + x * (1.0f / 24 + x * (1.0f / 120 + x * (1.0f / 720

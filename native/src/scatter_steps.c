@@ -146,3 +146,45 @@ void scatter_moments(int64_t sets, int64_t g, int64_t nslots, int64_t n, int64_t
         }
     }
 }
+
+/* The voxel profile of a sweep group's unshot light from its moments (mom (order, 3, n) float64 about
+ * each voxel's centre, order 2 with second moments) and power p (n,): per axis the exponential's
+ * rate kappa (the inverse of _offset, tabulated: rtab, rstep on offsets dlo + i / dscale) and
+ * centroid delta, and with second moments the P2 weight q (its excess second moment, held where the
+ * source stays >= 0) and the second moment m2; out (2 or 4, 3, n) float32: kappa, delta, m2, q.
+ * _solve._Solve.unshot_profile's twin. */
+CLONES
+void scatter_profile(int64_t n, int64_t v0, int64_t v1, int64_t second, const double *mom, const double *p,
+                     const float *rtab, const float *rstep, float dlo, float dhi, float dscale, float *out)
+{
+    for (int64_t x = 0; x < 3; x++) {
+        const double *m1 = mom + x * n, *m2 = mom + (3 + x) * n;
+        float *kap = out + x * n, *dl = out + (3 + x) * n, *o2 = out + (6 + x) * n, *oq = out + (9 + x) * n;
+        for (int64_t v = v0; v < v1; v++) {
+            const double inv = p[v] > 0 ? 1.0 / p[v] : 0.0;
+            double dd = m1[v] * inv;
+            float dlt = (float)(dd < -0.49 ? -0.49 : dd > 0.49 ? 0.49 : dd);
+            float xi = (nph_clampf(dlt, dlo, dhi) - dlo) * dscale;
+            int32_t i = (int32_t)xi;
+            float k = rtab[i] + (xi - (float)i) * rstep[i];
+            kap[v] = k;
+            dl[v] = dlt;
+            if (!second)
+                continue;
+            float a = nph_absf(k);
+            float e = nph_minf(nph_expf(-a), 0.60653066f), ac = nph_maxf(a, 0.5f);
+            float big = 1.0f / (ac * ac) - e / ((1.0f - e) * (1.0f - e));
+            float k2 = k * k;
+            float series = 1.0f / 12 - k2 * (1.0f / 240 - k2 * (1.0f / 6048));
+            float m2e = (a < 0.5f ? series : big) + dlt * dlt;
+            double s2 = m2[v] * inv;
+            float q = 30.0f * ((float)(s2 < 0.0 ? 0.0 : s2 > 0.25 ? 0.25 : s2) - m2e);
+            float am = nph_maxf(a, 1e-6f), half = nph_minf(0.5f * am, 40.0f);
+            float lo = -am / nph_expm1f(nph_minf(am, 80.0f));
+            float hi = half / ((nph_expf(half) - nph_expf(-half)) * 0.5f) * 2.0f;
+            q = p[v] > 0 ? nph_minf(nph_maxf(q, lo), hi) : 0.0f;
+            o2[v] = m2e + q / 30.0f;
+            oq[v] = q;
+        }
+    }
+}

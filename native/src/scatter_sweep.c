@@ -70,16 +70,21 @@ struct rows {
 /* ------------------------------------------------------------------ the closed forms (float32) */
 
 /* escape fraction (clipped to [0, 1]) and centroid along the path of a source exp(-beta v) over
- * optical depth tau: _escape_centroid */
-INLINE void escape_centroid(float tau, float beta, float *esc, float *vs)
+ * optical depth tau (t = exp(-tau)): _escape_centroid.  exp(min(beta, 0) - min(tau, beta)) is 1,
+ * t or exp(-|beta|), which expm1(-|beta|) needs anyway: two exponentials per call, not four.  Two
+ * divisions where the twin has four (vector division is the slowest operation here); the floors
+ * keep the products normal, and phi(x) is 1 to float32 below them. */
+INLINE void escape_centroid(float tau, float beta, float t, float *esc, float *vs)
 {
-    /* (two divisions where the twin has four: vector division is the slowest operation here; the
-     * floors keep the products normal, and phi(x) is 1 to float32 below them) */
     float a = nph_absf(beta);
     float na = -nph_maxf(a, 1e-18f);
-    float ma = nph_expm1f(na);
+    float ea = nph_expf(na);
+    float ma = nph_expm1f_of(na, ea);
     float nd = -nph_maxf(nph_absf(beta - tau), 1e-18f);
-    float e = nph_expf(nph_minf(beta, 0.0f) - nph_minf(tau, beta)) * (nph_expm1f(nd) * na) / (nd * ma);
+    float ed = nph_expm1f_of(nd, nph_expf(nd));
+    float big_e = beta >= tau ? t : ea;
+    float ee = beta <= 0.0f ? 1.0f : big_e;
+    float e = ee * (ed * na) / (nd * ma);
     float k2 = beta * beta;
     float series = beta * (-1.0f / 12 + k2 * (1.0f / 720 - k2 * (1.0f / 30240)));
     float big = (na - ma) / (ma * na) + 0.5f; /* 1 / ma - 1 / na + 1/2 = _offset(|beta|) <= 0, odd in beta */
@@ -167,7 +172,7 @@ INLINE void row_sub(const struct nph_sweep *s, int64_t j, int64_t n, const float
                 shift = cs[i];
                 kept2 = ck[i];
             } else {
-                escape_centroid(tau, c0 * k0[i] + c1 * k1[i] + c2 * k2[i], &esc, &vs);
+                escape_centroid(tau, c0 * k0[i] + c1 * k1[i] + c2 * k2[i], t, &esc, &vs);
                 if (QA)
                     esc = nph_clampf(esc + qa[i] * p2_escape(tau, t), 0.0f, 1.0f);
                 if (MOM) {

@@ -470,3 +470,19 @@ def test_scratch_arrays_come_back_zeroed_on_kept_memory():
     c = s.zeros("recv", (10, 10))  # larger than kept: fresh memory, kept from now on
     assert np.all(c == 0) and np.shares_memory(c, s.zeros("recv", (7,)))
     assert not np.shares_memory(s.zeros("total", (3, 4)), c)
+
+
+def test_merged_bins_are_chosen_by_the_flux_values_not_its_last_bits():
+    # tol 1 merges every bin, whatever the order of the sums; mirror bins equal but for rounding
+    # are merged together or not at all (the C and NumPy paths once parted over such a bit)
+    kids = passes._quarters(4, 2)
+    rng = np.random.default_rng(2)
+    flux = rng.random(96)
+    assert not passes._fine_bins(flux, kids, 1.0).any()
+    flux[flux > 0.5] += 1.0
+    flux[[10, 11]] = 0.5, 0.5 * (1 + 1e-9)  # a tie where some tol's share of the power ends
+    for tol in np.linspace(0.02, 0.4, 39):
+        fine = passes._fine_bins(flux, kids, tol)
+        assert fine[10] == fine[11]
+        assert not fine[flux < flux[fine].min()].any()  # the merged bins are the weakest
+        assert flux[~fine].sum() <= tol * flux.sum() * (1 + 1e-12)
