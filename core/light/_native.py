@@ -207,23 +207,27 @@ def caught_per_sub(bs, r, tot, rec, total):
     return caught.sum(0)
 
 
-def moments(mw, bm, comp, slot, d, m2, scale, out, threads=None):
+def moments(mw, bm, comp, slot, d, m2, scale, out, threads=None, also=None):
     """The moments' sums of :func:`._sweep._sweep` by the compiled kernel; False without it.
-    ``bm`` (g, slots, voxels) float32, ``out`` (sets, order, 3, voxels) float64."""
-    k = _kernel("scatter_moments", [_I, _I, _I, _I, _I, _I, _P, _P, _I, _I, _I, _I, _P, _P, ctypes.c_float, _P])
+    ``bm`` (g, slots, voxels) float32, ``out`` (and ``also``, when given) (sets, order, 3, voxels)
+    float64."""
+    k = _kernel("scatter_moments", [_I, _I, _I, _I, _I, _I, _P, _P, _I, _I, _I, _I, _P, _P, ctypes.c_float, _P,
+                                    _P])
     if k is None:
         return False
     sets, g = mw.shape
     mw = np.ascontiguousarray(mw, np.float32)
-    if bm.dtype != np.float32 or not bm.flags.c_contiguous or out.dtype != np.float64 or not out.flags.c_contiguous:
-        raise TypeError("scatter_moments: contiguous float32 moments and float64 sums")
+    for o in (out, also) if also is not None else (out,):
+        if bm.dtype != np.float32 or not bm.flags.c_contiguous or o.dtype != np.float64 or not o.flags.c_contiguous:
+            raise TypeError("scatter_moments: contiguous float32 moments and float64 sums")
     d = None if d is None else np.ascontiguousarray(d, np.float32)
     m2 = None if m2 is None else np.ascontiguousarray(m2, np.float32)
     n = bm.shape[-1]
     thread_map(lambda q: k(sets, g, bm.shape[1], n, q[0], q[1], mw.ctypes.data, bm.ctypes.data, comp,
                            slot.get("kept", -1), slot.get("m2", -1), slot.get("dep", -1),
                            None if d is None else d.ctypes.data, None if m2 is None else m2.ctypes.data,
-                           float(scale), out.ctypes.data), _ranges(n), threads)
+                           float(scale), out.ctypes.data, None if also is None else also.ctypes.data), _ranges(n),
+               threads)
     return True
 
 

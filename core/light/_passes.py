@@ -47,9 +47,9 @@ class _Tail:
         d = self.start[0]
         fd, fr = d.reshape(len(d), -1), self.arrays[0].reshape(len(d), -1)
 
-        def increment(s):  # this pass's increment, in place of the copy
+        def increment(s):  # this pass's increment, in place of the copy; its L1 (signed after a warm start)
             np.subtract(fr[:, s], fd[:, s], out=fd[:, s])
-            return fd[:, s].sum(dtype=np.float64)
+            return np.abs(fd[:, s]).sum(dtype=np.float64)
 
         power = float(sum(split_map(increment, fd.shape[1])))
         factor, change = None, np.inf

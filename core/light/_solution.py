@@ -51,6 +51,10 @@ class Solution:
     injected : power that entered the cloud (first interception of sun and sky).
     passes, residual, converged, history : the convergence report (``history``: the unshot
         residual after each pass; ``residual``: the last one, or the extrapolation's error).
+    warm : whether the solve started from a previous frame's solution (:mod:`._warm`).
+    moments_binned : where inside their voxels the scattering of the binned light (after the
+        peaked orders, and the sky) sits: its first (and second) moments per sweep group of bins,
+        (sets, 1 or 2, 3, …) float32, or None (no source profiles); a warm start's profiles.
     albedo_binned, g_binned, delta_f : albedo, asymmetry and delta-M fraction of the
         scaled medium the binned flux was transported in; ``received`` is in that medium,
         except the first ``real_orders`` of ``received_peaked``, caught in the real medium.
@@ -83,6 +87,8 @@ class Solution:
     delta_f: float = 0.0
     real_orders: int = 0
     origin: tuple = (0, 0, 0)
+    warm: bool = False
+    moments_binned: object = None  # float32 (sets, order, 3, …) or None
 
     @property
     def bins_per_face(self):
@@ -105,7 +111,8 @@ class Solution:
     def report(self):
         """One line: passes, residual, converged or stopped at the pass limit."""
         state = "converged" if self.converged else "stopped at the pass limit (not converged)"
-        return f"{self.passes} passes, residual {self.residual:.3g} of the entered power: {state}"
+        start = ", from the previous frame" if self.warm else ""
+        return f"{self.passes} passes{start}, residual {self.residual:.3g} of the entered power: {state}"
 
 
 def _check_sky(sky_radiance, nb):
@@ -143,6 +150,7 @@ def slab_reflectance(sol):
 
 _ARRAYS = ("sigma", "received", "total", "received_sun", "received_peaked", "peaked_weights", "unshot",
            "exit_flux")
+_OPTIONAL = ("moments_binned",)  # saved where not None; files without them load with None
 
 
 def json_plain(value):
@@ -152,9 +160,10 @@ def json_plain(value):
 
 def solution_arrays(sol):
     """A :class:`Solution` as a dict of plain arrays (metadata as a JSON string array)."""
-    meta = {k: getattr(sol, k) for k in sol.__dataclass_fields__ if k not in _ARRAYS}
+    meta = {k: getattr(sol, k) for k in sol.__dataclass_fields__ if k not in _ARRAYS + _OPTIONAL}
     meta = json.loads(json.dumps(meta, default=json_plain))
-    return {"meta": np.array(json.dumps(meta)), **{k: getattr(sol, k) for k in _ARRAYS}}
+    extra = {k: getattr(sol, k) for k in _OPTIONAL if getattr(sol, k) is not None}
+    return {"meta": np.array(json.dumps(meta)), **{k: getattr(sol, k) for k in _ARRAYS}, **extra}
 
 
 def solution_from_arrays(arrays):
@@ -164,7 +173,8 @@ def solution_from_arrays(arrays):
         if k in meta:
             meta[k] = tuple(meta[k])
     meta["sky_radiance"] = _check_sky(meta.get("sky_radiance", 0.0), len(arrays["received"]))
-    return Solution(**{k: np.asarray(arrays[k]) for k in _ARRAYS}, **meta)
+    extra = {k: np.asarray(arrays[k]) for k in _OPTIONAL if k in arrays}
+    return Solution(**{k: np.asarray(arrays[k]) for k in _ARRAYS}, **extra, **meta)
 
 
 def save_solution(sol, path):
@@ -179,6 +189,7 @@ def load_solution(path):
     """Read a :class:`Solution` written by :func:`save_solution`."""
     try:
         z = np.load(path, allow_pickle=False)
-        return solution_from_arrays({k: z[k] for k in ("meta",) + _ARRAYS})
+        return solution_from_arrays({k: z[k] for k in ("meta",) + _ARRAYS + _OPTIONAL if k in z.files
+                                     or k not in _OPTIONAL})
     except (OSError, KeyError, ValueError, TypeError) as exc:
         raise DataError(f"not a scattering solution file ({exc})", path=path) from exc

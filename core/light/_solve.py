@@ -75,6 +75,7 @@ from ._passes import (_as_slice, _bin_sum, _caught_per_sub, _fine_bins, _groups,
                       _quarters, _scatter_into, _shot_group, _Tail)
 from ._solution import Progress, Solution, _check_sky
 from ._sweep import _layer_area, _Scratch, _sweep
+from . import _warm
 
 MERGE_TOL = 0.2
 MERGE_TOL_FIRST = 0.01
@@ -232,6 +233,7 @@ class _Solve:
         self.second = bool(o.source_profile and second_moments)
         self.umom = (np.zeros((len(self.groups), 1 + self.second, 3) + self.shape, np.float64)
                      if o.source_profile else None)
+        self.mom_binned = None if self.umom is None else np.zeros_like(self.umom)
         if o.source_profile:
             kap = np.zeros((3,) + self.shape, np.float32)
             kap[c] = self.sigma * (h[c] / self.prop[c])
@@ -277,13 +279,15 @@ class _Solve:
         prof = tuple(x.reshape(mom.shape[1:]) for x in out)
         return prof if second else prof + (None, None)
 
-    def moment_sets(self, cols, alb):
+    def moment_sets(self, cols, alb, binned=False):
         """:func:`._sweep._sweep`'s ``moments``: add albedo times what is caught to ``umom``, each
         of ``k`` scattering columns (nb, k) into each sweep group by the share it scatters into
-        the group's bins; None without profiles."""
+        the group's bins (``binned``: the binned light's, kept for the next frame's warm start,
+        also to ``mom_binned``); None without profiles."""
         if self.umom is None:
             return None
-        return np.stack([cols[bs].sum(0) for _, bs in self.groups]), self.umom, alb
+        return (np.stack([cols[bs].sum(0) for _, bs in self.groups]), self.umom, alb,
+                self.mom_binned if binned else None)
 
     # ------------------------------------------------------------------ peaked orders of sunlight
 
@@ -382,7 +386,7 @@ class _Solve:
             else:
                 sky_in = sky_radiance[bs][:, None] * wabs[bs] * np.abs(dirs[bs][..., cc]) * area
             r, tot, ex = _sweep(self.sig_s, h, dirs[bs], self.wsub[bs], None, sky_in, o.periodic, axis,
-                                moments=self.moment_sets(self.M[:, bs], self.alb_s), scratch=self.scratch)
+                                moments=self.moment_sets(self.M[:, bs], self.alb_s, True), scratch=self.scratch)
             self.received[bs] += r.astype(np.float32)
             self.total[bs] += tot.astype(np.float32)
             self.exit_flux[bs] += ex
@@ -401,13 +405,55 @@ class _Solve:
         area = _layer_area(self.sigma)
         return [{} if arrays * o.nb * ns * area <= 1 << 28 else None for _ in self.groups]
 
-    def start_passes(self):
-        """After the first step: the unshot power per voxel (all bins), kept up to date group by
-        group instead of summing the bins again (the phase matrix's columns sum to 1: a group
-        adds albedo times what it caught); summed afresh after each pass."""
+    def warm_pass(self, prev):
+        """The Jacobi pass of a warm start (:mod:`._warm`): this frame's unshot light plus the
+        scattering of ``prev``'s binned light, swept once through the new medium (2x2
+        sub-directions, as the early passes); what is caught goes to ``received``, and the unshot
+        light becomes the scattering of the difference from ``prev``'s.  The moments of the
+        guess's own light are not known: the profiles of what is shot now take them as centred."""
+        o, nb = self.o, self.o.nb
+        origin = (0, 0, 0) if self.box is None else tuple(b.start for b in self.box)
+        g = _warm.guess(prev, origin, self.shape)
+        rec, pk = self.received.reshape(nb, -1), self.peaked.reshape(len(self.peaked), nb, -1)
+        fg = g.reshape(nb, -1)
+        for k in range(len(self.peaked)):  # this frame's sky (received less its peaked orders) is in g
+            fg += pk[k]
+        fg -= rec
+        _scatter_into(self.unshot, self.M, g, self.alb_s)
+        gm = _warm.moments(prev, origin, self.shape, self.umom)
+        if gm is not None:  # where the guess's light sits in its voxels (else: centred)
+            self.umom += self.alb_s * gm
+        prof = [self.unshot_profile(gi, _bin_sum(self.unshot, bs)) for gi, (_, bs) in enumerate(self.groups)]
+        if self.umom is not None:
+            self.umom[:] = 0.0
+            self.mom_binned[:] = 0.0
+        diff = np.zeros_like(self.unshot)
+        for gi, (axis, bs) in enumerate(self.groups):
+            sl = _as_slice(bs)
+            r, tot, ex = _sweep(self.sig_s, self.h, self.dirs[bs], self.wsub[bs], self.unshot[sl],
+                                np.zeros(self.wsub[bs].shape), o.periodic, axis, profile=prof[gi],
+                                moments=self.moment_sets(self.M[:, bs], self.alb_s, True), scratch=self.scratch)
+            self.received[sl] += r
+            self.total[sl] += tot
+            self.exit_flux[bs] += ex
+            r -= g[sl]
+            _scatter_into(diff, self.M[:, bs], r, self.alb_s)
+        if gm is not None:  # the difference's moments: the new catch's less the guess's
+            self.umom -= self.alb_s * gm
+        self.unshot = diff
+        self.warm = True
+
+    def start_passes(self, prev=None):
+        """After the first step (and a warm start's Jacobi pass from ``prev``): the unshot power per
+        voxel (all bins), kept up to date group by group instead of summing the bins again (the
+        phase matrix's columns sum to 1: a group adds albedo times what it caught); summed afresh
+        after each pass.  After a warm start the unshot light is signed: its residual is its L1."""
         self.ref = max(self.injected, 1e-300)
+        self.warm = False
+        if _warm.compatible(prev, self.full_sigma.shape, self.o.nb):
+            self.warm_pass(prev)
         self.power = _bin_sum(self.unshot, slice(None))
-        self.residual = float(self.power.sum()) / self.ref
+        self.residual = self.unshot_residual()
         self.history.append(self.residual)
         self.converged = self.residual <= self.o.tol
         # Isotropic scattering: where a beam was caught says nothing about the direction its light
@@ -418,6 +464,7 @@ class _Solve:
         self.shared = self.umom is not None and self.g_s == 0.0
         if self.shared:
             self.umom = self.umom.sum(0, keepdims=True)
+            self.mom_binned = self.mom_binned.sum(0, keepdims=True)
         self.beams = (self.dirs, self.wsub, self.M, self.new_caches(self.dirs.shape[1]))
         self.tail = _Tail(self.received, self.total, self.exit_flux) if self.o.extrapolate else None
         self.late = self.o.late_sub is None
@@ -445,7 +492,8 @@ class _Solve:
                 umom[0, 1] -= prof[2] * shot
         elif umom is not None:
             umom[gi] = 0.0
-        sets = (np.ones((1, len(bs))), umom, self.alb_s) if self.shared else self.moment_sets(M_p[:, bs], self.alb_s)
+        sets = ((np.ones((1, len(bs))), umom, self.alb_s, self.mom_binned) if self.shared
+                else self.moment_sets(M_p[:, bs], self.alb_s, True))
         keep = int(o.profile_every) > 1
         r, tot, ex = _sweep(self.sig_s, self.h, dirs_p[bs], wsub_p[bs], self.unshot[_as_slice(bs)],
                             np.zeros(wsub_p[bs].shape), o.periodic, axis, caches_p[gi], profile=prof, moments=sets,
@@ -470,17 +518,32 @@ class _Solve:
                 self.residual = float(self.power.sum()) / self.ref
                 yield Progress(self.passes, gi + 1, len(groups), self.residual)
             self.power = _bin_sum(self.unshot, slice(None))
-            self.residual = float(self.power.sum()) / self.ref
+            self.residual = self.unshot_residual()
             self.history.append(self.residual)
             self.converged = self.residual <= o.tol
-            if self.tail is not None and not self.converged:
+            if self.tail is not None and (not self.converged or self.warm):
+                # (a warm start's passes reach tol with its unshot light undone, which would still
+                # add about residual / (1 - rho): their tail goes in too, once it is known)
                 err = self.alb_s * self.tail.end() / self.ref
-                if err <= o.tol:
+                if err <= o.tol or (self.converged and self.tail.factor is not None):
                     self.tail.apply()
                     self.unshot[:] = 0.0
-                    self.residual, self.converged = err, True
+                    self.residual, self.converged = min(err, self.residual), True
                     yield Progress(self.passes, len(groups), len(groups), self.residual)
         self.tail = None
+
+    def moments_out(self):
+        """The binned light's scattering moments per unit albedo (float32), for the next frame."""
+        if self.mom_binned is None:
+            return None
+        return (self.mom_binned / max(self.alb_s, 1e-30)).astype(np.float32)
+
+    def unshot_residual(self):
+        """The unshot power over the entered power: its sum, or after a warm start its L1."""
+        if not self.warm:
+            return float(self.power.sum()) / self.ref
+        u = self.unshot.reshape(-1)
+        return float(sum(split_map(lambda s: np.abs(u[s]).sum(dtype=np.float64), u.size))) / self.ref
 
     def solution(self):
         o = self.o
@@ -493,7 +556,8 @@ class _Solve:
             sun_exit=self.sun_exit, injected=self.injected, passes=self.passes, residual=self.residual,
             converged=bool(self.converged), history=self.history, sub=int(o.sub), periodic=o.periodic,
             albedo_binned=float(self.alb_s), g_binned=float(self.g_s), delta_f=float(self.f),
-            real_orders=o.real_orders, origin=(0, 0, 0) if self.box is None else tuple(b.start for b in self.box))
+            real_orders=o.real_orders, origin=(0, 0, 0) if self.box is None else tuple(b.start for b in self.box),
+            warm=self.warm, moments_binned=self.moments_out())
 
 
 def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun_irradiance=1.0,
@@ -501,7 +565,7 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
                 delta_m=True, phase_sub=6, first_sub=None, source_profile=True, second_moments=None,
                 peaked_orders=None, real_orders=1, profile_every=1, extrapolate=True, merge_tol=MERGE_TOL,
                 late_sub=1, late_residual=0.1, merge_tol_first=MERGE_TOL_FIRST, merge_tol_later=MERGE_TOL_LATER,
-                bins_per_face=phase.N_PER_FACE):
+                bins_per_face=phase.N_PER_FACE, warm=None):
     """The shooting solve as a generator: yields :class:`.Progress` after each group of bins,
     returns the :class:`.Solution` (``StopIteration.value``; :func:`solve` unwraps it).
 
@@ -573,6 +637,10 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
         instead of ``sub x sub`` (None: never).
     bins_per_face : direction bins per cube-face side, an even integer from 2 to 8
         (:func:`.phase.bins`): ``6 n^2`` bins, 4 (default) the paper's 96.
+    warm : a :class:`.Solution` of the previous frame (same grid and bins; albedo, g, sun and
+        density may differ) to start from (:mod:`._warm`): the passes then shoot only the
+        difference the new density makes and end where a cold solve ends (to ``tol``).  Ignored
+        when the grids differ (``Solution.warm`` says which).
 
     References
     ----------
@@ -591,7 +659,7 @@ def solve_steps(sigma, size, *, albedo=0.99, g=0.8, sun_dir=(0.0, 0.0, 1.0), sun
     s.profile_moments()
     s.peaked_orders()
     s.sky()
-    s.start_passes()
+    s.start_passes(warm)
     yield Progress(0, len(s.groups), len(s.groups), s.residual)
     yield from s.run_passes()
     return s.solution()

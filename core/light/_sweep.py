@@ -137,7 +137,7 @@ def _sweep(sigma, h, dirs, wsub, emis, inflow, periodic, axis, cache=None, per_s
     ``exp(-beta v)``, ``beta = kappa . c``, and escapes with :func:`_exp_source_escape`, and
     ``u_a`` is ``v`` or ``1 - v``: the P2 term adds ``q_a`` times :func:`_p2_escape`.
     Without a profile the uniform ``(1 - e^-tau)/tau``.
-    ``moments = (w, out, scale)`` or None: also add ``scale`` times ``m`` first and second
+    ``moments = (w, out, scale[, also])`` or None: also add ``scale`` times ``m`` first and second
     moments of the received power about each voxel's centre to ``out`` (m, 2, 3, nz, ny, nx;
     in voxel units, x y z), set ``s`` summing bin ``b``'s moments times ``w[s, b]`` (``w``
     (m, g): e.g. the share of what bin ``b`` catches that is scattered into the bins of set
@@ -222,27 +222,29 @@ def _sweep(sigma, h, dirs, wsub, emis, inflow, periodic, axis, cache=None, per_s
         thread_map(work, range(nthreads), nthreads)
     if mw is not None:
         out, scale = moments[1].reshape(len(mw), 1 + second, 3, -1), np.float32(moments[2])
+        also = None if len(moments) < 4 or moments[3] is None else moments[3].reshape(out.shape)
         bm = bmom_grid.reshape(g, slots, -1)
         d, m2 = (None if profile is None or profile[i] is None else np.asarray(profile[i], np.float32).reshape(3, -1)
                  for i in (1, 2))
         side = [c for c in range(3) if c != comp]
-        if _native.moments(mw, bm, comp, slot, d, m2, scale, out, threads):
+        if _native.moments(mw, bm, comp, slot, d, m2, scale, out, threads, also):
             return recv_grid, np.moveaxis(total, 1, axis + 1), exit_power
 
         def add(s):
             # (einsum, not a BLAS product: OpenBLAS's threads would spin beside the solve's own
             # afterwards; 64x64x48 on 2 threads 19.4 s CPU that way, 13.3 s so)
             m = scale * np.einsum("sb,bkn->ksn", mw, bm[:, :, s])
-            out[:, 0, comp, s] += m[slot["m1"]]
-            if "kept" in slot:
-                for c in range(3):
-                    out[:, 0, c, s] += d[c, s] * m[slot["kept"]]
-            if second:
-                out[:, 1, comp, s] += m[slot["m2"]]
-                for c in side:
-                    out[:, 1, c, s] += np.float32(1 / 12) * m[slot["dep"]]
-                    if "kept" in slot:
-                        out[:, 1, c, s] += m2[c, s] * m[slot["kept"]]
+            for o in (out, also) if also is not None else (out,):
+                o[:, 0, comp, s] += m[slot["m1"]]
+                if "kept" in slot:
+                    for c in range(3):
+                        o[:, 0, c, s] += d[c, s] * m[slot["kept"]]
+                if second:
+                    o[:, 1, comp, s] += m[slot["m2"]]
+                    for c in side:
+                        o[:, 1, c, s] += np.float32(1 / 12) * m[slot["dep"]]
+                        if "kept" in slot:
+                            o[:, 1, c, s] += m2[c, s] * m[slot["kept"]]
 
         split_map(add, bm.shape[2], threads)
     return recv_grid, np.moveaxis(total, 1, axis + 1), exit_power

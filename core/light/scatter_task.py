@@ -16,14 +16,17 @@ def task_params(cloud, extinction=40.0, **solve):
     """JSON parameters of the ``"scatter"`` task: a cloud (:class:`.cloud_density.CloudParams`),
     its extinction per unit density and :func:`solve` keywords (``_SOLVE_KEYS``; a per-bin
     ``sky_radiance`` array becomes a list of its ``6 n^2`` values, so the cache key holds them
-    all; the default ``bins_per_face`` is left out, so default solves keep their earlier keys)."""
+    all; the default ``bins_per_face`` and ``noise_offset`` are left out, so default solves keep
+    their earlier keys)."""
     bad = sorted(set(solve) - set(_SOLVE_KEYS))
     if bad:
         raise DataError(f"unknown scattering parameters {bad}", field="scatter")
     if solve.get("bins_per_face", N_PER_FACE) == N_PER_FACE:
         solve = {k: v for k, v in solve.items() if k != "bins_per_face"}
-    return json.loads(json.dumps({"cloud": asdict(cloud), "extinction": float(extinction), "solve": solve},
-                                 default=json_plain))
+    c = asdict(cloud)
+    if not any(c.get("noise_offset", ())):  # (the default: earlier solves keep their keys)
+        c.pop("noise_offset", None)
+    return json.loads(json.dumps({"cloud": c, "extinction": float(extinction), "solve": solve}, default=json_plain))
 
 
 @task("scatter")
@@ -33,8 +36,9 @@ def solve_task(params):
     c = dict(params["cloud"])
     c["ellipsoids"] = tuple(cd.Ellipsoid(tuple(e["center"]), tuple(e["radii"]), float(e["weight"]))
                             for e in c.get("ellipsoids", ()))
-    for k in ("shape", "size"):
-        c[k] = tuple(c[k])
+    for k in ("shape", "size", "noise_offset"):
+        if k in c:
+            c[k] = tuple(c[k])
     sigma = float(params["extinction"]) * cd.cloud_density(cd.CloudParams(**c))
     return solution_arrays(solve(sigma, c["size"], **params["solve"]))
 

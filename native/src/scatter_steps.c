@@ -98,12 +98,40 @@ void scatter_caught(int64_t g, int64_t ns, const int64_t *bins, int64_t n, int64
  * the slots kept / m2 / dep where >= 0), added to the unshot light's moments of each set of bins
  * (out (sets, order, 3, n) float64, order 2 with second moments): scale times the sum over bins
  * with weights mw (sets, g); the power a source kept adds its sideways moments (d, m2: (3, n), the
- * profile's centroid and second moment) and the deposits their even sideways spread (1/12).  The
- * moments' sums of _sweep._sweep. */
+ * profile's centroid and second moment) and the deposits their even sideways spread (1/12); the same
+ * sums also to ``also`` where it is not NULL.  The moments' sums of _sweep._sweep. */
+/* one set's sums of a run of m voxels from c (acc: its slots) added to out (order, 3, n) */
+static inline __attribute__((always_inline)) void add_moments(double *o1, int64_t n, int64_t c, int64_t m,
+                                                               int64_t order, int64_t comp, int64_t slot_kept,
+                                                               int64_t slot_m2, int64_t slot_dep, const float *d,
+                                                               const float *m2, float scale, float acc[][RUN])
+{
+    for (int64_t v = 0; v < m; v++)
+        o1[comp * n + v] += scale * acc[0][v];
+    if (slot_kept >= 0)
+        for (int64_t x = 0; x < 3; x++)
+            for (int64_t v = 0; v < m; v++)
+                o1[x * n + v] += d[x * n + c + v] * (scale * acc[slot_kept][v]);
+    if (order == 2) {
+        double *o2 = o1 + 3 * n;
+        for (int64_t v = 0; v < m; v++)
+            o2[comp * n + v] += scale * acc[slot_m2][v];
+        for (int64_t x = 0; x < 3; x++) {
+            if (x == comp)
+                continue;
+            for (int64_t v = 0; v < m; v++)
+                o2[x * n + v] += (1.0f / 12) * (scale * acc[slot_dep][v]);
+            if (slot_kept >= 0)
+                for (int64_t v = 0; v < m; v++)
+                    o2[x * n + v] += m2[x * n + c + v] * (scale * acc[slot_kept][v]);
+        }
+    }
+}
+
 CLONES
 void scatter_moments(int64_t sets, int64_t g, int64_t nslots, int64_t n, int64_t v0, int64_t v1, const float *mw,
                      const float *bm, int64_t comp, int64_t slot_kept, int64_t slot_m2, int64_t slot_dep,
-                     const float *d, const float *m2, float scale, double *out)
+                     const float *d, const float *m2, float scale, double *out, double *also)
 {
     const int64_t order = slot_m2 >= 0 ? 2 : 1;
     for (int64_t c = v0; c < v1; c += RUN) {
@@ -122,27 +150,11 @@ void scatter_moments(int64_t sets, int64_t g, int64_t nslots, int64_t n, int64_t
                         a[v] += w * x[v];
                 }
             }
-            double *o1 = out + (s * order) * 3 * n + c;
-            for (int64_t v = 0; v < m; v++)
-                o1[comp * n + v] += scale * acc[0][v];
-            if (slot_kept >= 0)
-                for (int64_t x = 0; x < 3; x++)
-                    for (int64_t v = 0; v < m; v++)
-                        o1[x * n + v] += d[x * n + c + v] * (scale * acc[slot_kept][v]);
-            if (order == 2) {
-                double *o2 = o1 + 3 * n;
-                for (int64_t v = 0; v < m; v++)
-                    o2[comp * n + v] += scale * acc[slot_m2][v];
-                for (int64_t x = 0; x < 3; x++) {
-                    if (x == comp)
-                        continue;
-                    for (int64_t v = 0; v < m; v++)
-                        o2[x * n + v] += (1.0f / 12) * (scale * acc[slot_dep][v]);
-                    if (slot_kept >= 0)
-                        for (int64_t v = 0; v < m; v++)
-                            o2[x * n + v] += m2[x * n + c + v] * (scale * acc[slot_kept][v]);
-                }
-            }
+            add_moments(out + (s * order) * 3 * n + c, n, c, m, order, comp, slot_kept, slot_m2, slot_dep, d, m2,
+                        scale, acc);
+            if (also != NULL)
+                add_moments(also + (s * order) * 3 * n + c, n, c, m, order, comp, slot_kept, slot_m2, slot_dep, d,
+                            m2, scale, acc);
         }
     }
 }
