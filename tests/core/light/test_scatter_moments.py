@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from nephele.core.light import _escape as escape, _passes as passes, _sweep as sweeps
+from kernel_paths import BOTH, EVERY
 from nephele.core.light import scatter
 from radiative_truth import adding_doubling
 
@@ -89,7 +90,8 @@ def kept_truth(tau, k, q, up):
 
 @pytest.mark.parametrize("tau,k,q,up", [(1.0, 0.0, 0.0, True), (2.0, 1.5, -0.3, True), (2.0, -1.0, 0.2, False),
                                         (0.3, 0.5, -0.5, True), (5.0, 0.0, -0.8, False), (0.05, -2.0, 0.1, True)])
-def test_sweep_keeps_the_exact_moments_of_a_profiled_source(tau, k, q, up):
+@pytest.mark.parametrize("kernels", EVERY, indirect=True)
+def test_sweep_keeps_the_exact_moments_of_a_profiled_source(tau, k, q, up, kernels):
     # one voxel crossed along z by one beam direction: what escapes, what the voxel keeps and
     # where (the moments the next order's profile is fitted to)
     kap = np.zeros((3, 1, 1, 1), np.float32)
@@ -142,6 +144,7 @@ def slab_error(tau, layers, mu0, **kw):
 # without second moments +0.18 / +0.00 %, +0.22 / -0.21 %, +0.18 / -0.30 %.
 @pytest.mark.parametrize("tau,thick,thin,mu0", [(4.0, 2, 8, 1.0), (16.0, 8, 32, 0.5),
                                                 (16.0, 8, 32, float(np.sin(np.radians(15.0))))])
-def test_g08_slab_error_does_not_grow_with_voxel_depth(tau, thick, thin, mu0):
+@pytest.mark.parametrize("kernels", BOTH, indirect=True)
+def test_g08_slab_error_does_not_grow_with_voxel_depth(tau, thick, thin, mu0, kernels):
     diff = slab_error(tau, thick, mu0) - slab_error(tau, thin, mu0)
     assert np.all(np.abs(diff) < 2e-3), diff
