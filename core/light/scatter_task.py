@@ -29,18 +29,23 @@ def task_params(cloud, extinction=40.0, **solve):
     return json.loads(json.dumps({"cloud": c, "extinction": float(extinction), "solve": solve}, default=json_plain))
 
 
-@task("scatter")
-def solve_task(params):
-    """The ``"scatter"`` task: build the cloud of :func:`task_params` and solve it;
-    returns :func:`solution_arrays` (:func:`solution_from_arrays` reads them back)."""
+def task_grid(params):
+    """The extinction grid and box size of :func:`task_params`' cloud."""
     c = dict(params["cloud"])
     c["ellipsoids"] = tuple(cd.Ellipsoid(tuple(e["center"]), tuple(e["radii"]), float(e["weight"]))
                             for e in c.get("ellipsoids", ()))
     for k in ("shape", "size", "noise_offset"):
         if k in c:
             c[k] = tuple(c[k])
-    sigma = float(params["extinction"]) * cd.cloud_density(cd.CloudParams(**c))
-    return solution_arrays(solve(sigma, c["size"], **params["solve"]))
+    return float(params["extinction"]) * cd.cloud_density(cd.CloudParams(**c)), c["size"]
+
+
+@task("scatter")
+def solve_task(params):
+    """The ``"scatter"`` task: build the cloud of :func:`task_params` and solve it;
+    returns :func:`solution_arrays` (:func:`solution_from_arrays` reads them back)."""
+    sigma, size = task_grid(params)
+    return solution_arrays(solve(sigma, size, **params["solve"]))
 
 
 @planner("scatter")
@@ -49,4 +54,4 @@ def plan_solve(obj_params, frame):
     return [("scatter", obj_params["solve_task"])] if "solve_task" in obj_params else []
 
 
-__all__ = ["plan_solve", "solve_task", "task_params"]
+__all__ = ["plan_solve", "solve_task", "task_grid", "task_params"]
