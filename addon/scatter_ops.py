@@ -14,6 +14,11 @@ the solve's bins (:func:`bake_world`: Cycles renders the world alone as a panora
 
 :func:`add_pathtraced_cloud` builds the same medium for Cycles' own volume path
 tracing (the benchmark's reference).
+
+"Motion: Drifting noise" solves a cloud whose noise drifts through it, a solve a frame (each
+started from the frame before), each frame's VDB with its own density; "Live update" re-solves
+the cloud in the background when its albedo, g, sun or density change (:mod:`.scatter_jobs`,
+which also holds the operator's job).
 """
 
 import math
@@ -23,7 +28,7 @@ import bpy
 import numpy as np
 
 from ..core.volume import cloud_density as cd
-from ..core.light import scatter, scatter_task
+from ..core.light import scatter_task
 from ..core.light.sky import luminance, panorama_radiance
 from ..fileio import dense_grids, write_vdb
 from .camera import camera_object, look_at
@@ -32,11 +37,11 @@ from .render_device import use_device
 
 
 def add_camera(cam, name="Scatter camera"):
-    """A Blender camera matching :class:`nephele.core.light.scatter.Camera` ``cam``."""
+    """A Blender camera matching :class:`nephele.core.splats.camera.Camera` ``cam`` (perspective)."""
     scene = bpy.context.scene
-    obj = camera_object(scene, name, angle=cam.fov)
-    obj.location = cam.position
-    look_at(obj, cam.target)
+    obj = camera_object(scene, name, angle=math.radians(cam.fov))
+    obj.location = tuple(cam.position)
+    look_at(obj, tuple(cam.position + cam.basis()[0]))
     scene.render.resolution_x, scene.render.resolution_y = cam.width, cam.height
     scene.render.resolution_percentage = 100
     return obj
@@ -442,140 +447,33 @@ def own_scene(context):
     return new
 
 
-class ScatterJob:
-    """The whole "Add scattering cloud" work in small steps (the modal operator calls
-    :meth:`step` on each timer tick, so the interface stays live).
+def panel_sun(props, scene):
+    """(direction toward the sun, irradiance) the panel lights the cloud with: the scene's sun
+    lamp with "Scene's sun" (its direction and strength), else the panel's sun."""
+    from mathutils import Vector
 
-    Stages: the shooting solve (one group of bins per step), then one frame's
-    view (source toward that frame's camera + VDB) per step, then the object.
-    """
+    lamp = scene_sun(scene) if props.use_scene_sun else None
+    if lamp is not None:  # lit like the rest of the scene
+        return tuple(lamp.matrix_world.to_3x3() @ Vector((0.0, 0.0, 1.0))), lamp.data.energy
+    return sun_direction(props.sun_elevation, props.sun_azimuth), props.sun_irradiance
 
-    def __init__(self, context, props):
-        from mathutils import Vector
 
-        from ..core.memory import check_memory
+def panel_task(props, scene, old):
+    """The ``"scatter"`` task (:func:`..core.light.scatter_task.task_params`) of the panel's
+    cloud, albedo, g, sun and solve settings; the sky from ``old``'s solve (a baked world is
+    not baked again)."""
+    sun, irradiance = panel_sun(props, scene)
+    return scatter_task.task_params(
+        cloud_params(props), props.extinction, albedo=props.albedo, g=props.anisotropy, sun_dir=list(sun),
+        sun_irradiance=irradiance, sky_radiance=old["solve"]["sky_radiance"], tol=props.tolerance,
+        max_passes=props.max_passes, bins_per_face=props.bins_per_face)
 
-        self.params = cloud_params(props)
-        check_memory(BYTES_PER_CELL * (props.bins_per_face / 4) ** 2 * math.prod(self.params.shape),
-                     f"the scattering solve on a {'x'.join(str(n) for n in props.resolution)} grid "
-                     "(lower the grid)", field="resolution")
-        self.scene = own_scene(context) if props.own_scene else context.scene
-        props = self.scene.nephele_scatter
-        self.props = props
-        self.sigma = props.extinction * cd.cloud_density(self.params)
-        self.size = tuple(props.size)
-        self.origin = placement(self.scene, self.size)
-        self.sun = sun_direction(props.sun_elevation, props.sun_azimuth)
-        irradiance = props.sun_irradiance
-        lamp = scene_sun(self.scene) if props.use_scene_sun else None
-        if lamp is not None:
-            # Lit like the rest of the scene: the sun lamp's direction and strength.
-            self.sun = tuple(lamp.matrix_world.to_3x3() @ Vector((0.0, 0.0, 1.0)))
-            irradiance = lamp.data.energy
-        self.directory = output_directory(props.directory)
-        self.frames = list(range(self.scene.frame_start, self.scene.frame_end + 1))
-        centre = tuple(o + 0.5 * d for o, d in zip(self.origin, self.size))
-        sky = {"NONE": 0.0, "UNIFORM": props.sky_radiance}.get(props.sky)
-        if sky is None:  # the scene's world, rendered around the cloud's centre
-            sky = bake_world(context.scene.world, centre, sun_disc=irradiance == 0,
-                             bins_per_face=props.bins_per_face).tolist()
-        # the same solve as the farm's "scatter" task (nephele precompute), cached under its key
-        self.task = scatter_task.task_params(
-            self.params, props.extinction, albedo=props.albedo, g=props.anisotropy, sun_dir=list(self.sun),
-            sun_irradiance=irradiance, sky_radiance=sky,
-            tol=props.tolerance, max_passes=props.max_passes, bins_per_face=props.bins_per_face)
-        self.gen = scatter.solve_steps(self.sigma, self.size, **self.task["solve"])
-        self.solution = None
-        self.last = None
-        self.view_index = 0
-        self.obj = None
-        if self.scene.camera is None and props.orbit_camera:
-            r = 1.7 * max(self.size)
-            e = math.radians(props.orbit_elevation)
-            add_orbit_camera(centre, r * math.cos(e), r * math.sin(e), self.frames, scene=self.scene)
-        if self.scene.camera is None:
-            raise RuntimeError("the scene has no camera: add one or enable 'Orbit camera'")
 
-    @property
-    def fraction(self):
-        if self.solution is None:
-            if self.last is None:
-                return 0.0
-            # passes are unknown ahead: progress by residual on a log scale to the tolerance
-            r = max(self.last.residual, 1e-300)
-            done = math.log(max(r, self.props.tolerance)) / math.log(self.props.tolerance)
-            return 0.7 * min(max(done, 0.0), 1.0)
-        return 0.7 + 0.3 * self.view_index / max(len(self.frames), 1)
+def _live(props, context):
+    """Property update: re-solve the live scattering clouds (:func:`.scatter_jobs.resolve`)."""
+    from .scatter_jobs import resolve
 
-    @property
-    def status(self):
-        if self.solution is None:
-            if self.last is None:
-                return "Scattering: starting"
-            return (f"Scattering: pass {self.last.pass_index}, bins {self.last.group}/{self.last.groups}, "
-                    f"residual {self.last.residual:.2e}")
-        if self.obj is None:
-            return f"Scattering: {self.solution.report}; view {self.view_index}/{len(self.frames)}"
-        return f"Scattering cloud: {self.solution.report}"
-
-    def step(self, budget=0.15):
-        """Work for about ``budget`` seconds; True when everything is done."""
-        import time
-
-        t_end = time.perf_counter() + budget
-        while True:  # at least one unit of work per call
-            if self.solution is None:
-                try:
-                    self.last = next(self.gen)
-                except StopIteration as stop:
-                    self.solution = stop.value
-                    scatter.save_solution(self.solution, self.directory / "solution.npz")
-                    from ..core.pipeline.cache import Cache
-                    from ..core.pipeline.kinds import KINDS
-                    from .frame import results_dir
-
-                    (kind,) = KINDS[KIND].tasks  # stored where the farm's plan for this object looks
-                    Cache(results_dir()).store(kind, self.task, scatter.solution_arrays(self.solution))
-            elif self.view_index < len(self.frames):
-                self._write_view(self.frames[self.view_index])
-                self.view_index += 1
-            else:
-                self._finish()
-                return True
-            if time.perf_counter() >= t_end:
-                return False
-
-    def _write_view(self, frame_number):
-        from mathutils import Vector
-
-        from . import frame
-
-        scene = self.scene
-        with frame.suspended():  # only the camera matters here: the layers update once, in _finish
-            scene.frame_set(frame_number)
-        cam = scene.camera.matrix_world.translation
-        local = Vector(cam) - Vector(self.origin)
-        src = scatter.view_source(self.solution, tuple(local))
-        write_vdb(self.directory / f"scatter_{self.view_index + 1:04d}.vdb",
-                  dense_grids({"density": self.solution.sigma, "emission": src}, self.size))
-
-    def _finish(self):
-        from . import frame
-
-        scene = self.scene
-        scene.frame_set(self.frames[0])
-        obj = _volume_object(OBJECT_NAME, self.directory / "scatter_0001.vdb", (self.frames[0], len(self.frames)),
-                             scene=scene)
-        obj.location = self.origin
-        obj.data.materials.append(emission_material())
-        from .data_ops import stored_dir
-
-        frame.set_params(obj, {"kind": KIND, "directory": stored_dir(self.directory),
-                               "owned": self.props.directory == DEFAULT_DIRECTORY, "frames": self.frames,
-                               "report": self.solution.report, "sun_dir": list(self.sun),
-                               "solve_task": self.task})
-        self.obj = obj
-        self.props.status = self.solution.report
+    resolve(props, context)
 
 
 def _props_to_scene_check(props):
@@ -683,17 +581,17 @@ class NepheleScatterProps(bpy.types.PropertyGroup):
     resolution: bpy.props.IntVectorProperty(name="Grid", size=3, default=(24, 24, 18), min=2, max=512)
     size: bpy.props.FloatVectorProperty(name="Box", size=3, default=(1.0, 1.0, 0.75), min=1e-3)
     extinction: bpy.props.FloatProperty(name="Extinction", default=40.0, min=0.0,
-                                        description="Extinction per scene unit at density 1")
-    albedo: bpy.props.FloatProperty(name="Albedo", default=0.99, min=0.0, max=1.0)
+                                        description="Extinction per scene unit at density 1", update=_live)
+    albedo: bpy.props.FloatProperty(name="Albedo", default=0.99, min=0.0, max=1.0, update=_live)
     anisotropy: bpy.props.FloatProperty(name="Anisotropy g", default=0.8, min=-0.999, max=0.999,
-                                        description="Henyey-Greenstein asymmetry (0.8: water droplets)")
-    noise_amplitude: bpy.props.FloatProperty(name="Noise", default=0.7, min=0.0)
-    noise_scale: bpy.props.FloatProperty(name="Noise scale", default=5.0, min=0.01)
-    octaves: bpy.props.IntProperty(name="Octaves", default=4, min=1, max=8)
-    seed: bpy.props.IntProperty(name="Seed", default=0)
-    sun_elevation: bpy.props.FloatProperty(name="Sun elevation", default=38.0, min=-90.0, max=90.0)
-    sun_azimuth: bpy.props.FloatProperty(name="Sun azimuth", default=-30.0)
-    sun_irradiance: bpy.props.FloatProperty(name="Sun irradiance", default=1.0, min=0.0)
+                                        description="Henyey-Greenstein asymmetry (0.8: water droplets)", update=_live)
+    noise_amplitude: bpy.props.FloatProperty(name="Noise", default=0.7, min=0.0, update=_live)
+    noise_scale: bpy.props.FloatProperty(name="Noise scale", default=5.0, min=0.01, update=_live)
+    octaves: bpy.props.IntProperty(name="Octaves", default=4, min=1, max=8, update=_live)
+    seed: bpy.props.IntProperty(name="Seed", default=0, update=_live)
+    sun_elevation: bpy.props.FloatProperty(name="Sun elevation", default=38.0, min=-90.0, max=90.0, update=_live)
+    sun_azimuth: bpy.props.FloatProperty(name="Sun azimuth", default=-30.0, update=_live)
+    sun_irradiance: bpy.props.FloatProperty(name="Sun irradiance", default=1.0, min=0.0, update=_live)
     sky: bpy.props.EnumProperty(
         name="Sky", default="UNIFORM",
         items=(("NONE", "None", "No skylight: the sun alone"),
@@ -724,6 +622,16 @@ class NepheleScatterProps(bpy.types.PropertyGroup):
         name="Orbit elevation", default=15.0, min=-80.0, max=80.0,
         description="Degrees of the orbit camera above the cloud's centre (the paper's 15; below zero the "
                     "cloud is seen from underneath, against the sky)")
+    live_update: bpy.props.BoolProperty(
+        name="Live update", default=True,
+        description="Re-solve the scattering cloud in the background when its albedo, g, sun or density change")
+    evolve: bpy.props.EnumProperty(
+        name="Motion", default="NONE",
+        items=(("NONE", "Still", "One cloud for the whole film: one solve"),
+               ("DRIFT", "Drifting noise", "The noise drifts through the ellipsoids over the film: a solve a frame, "
+                                           "each started from the frame before")))
+    drift: bpy.props.FloatVectorProperty(name="Drift", size=3, default=(0.25, 0.1, 0.02),
+                                         description="How far the noise moves over the film (box units, x y z)")
     directory: bpy.props.StringProperty(name="Output", default=DEFAULT_DIRECTORY, subtype="DIR_PATH")
     progress: bpy.props.FloatProperty(name="Progress", default=0.0, min=0.0, max=1.0, subtype="FACTOR")
     status: bpy.props.StringProperty(name="Status", default="")
@@ -762,8 +670,19 @@ class NEPHELE_PT_scatter(SubPanel, bpy.types.Panel):
         sub = col.row()
         sub.active = p.orbit_camera
         sub.prop(p, "orbit_elevation")
+        col.prop(p, "evolve")
+        if p.evolve == "DRIFT":
+            col.prop(p, "drift")
+        col.prop(p, "live_update")
         col.prop(p, "directory")
         col.operator(NEPHELE_OT_add_scattering_cloud.bl_idname)
+        from . import frame
+        from .scatter_jobs import live_status
+
+        cloud = context.scene.objects.get(OBJECT_NAME)
+        live = None if cloud is None or frame.params(cloud).get("kind") != KIND else live_status(cloud)
+        if live:
+            col.label(text=live)
         col.operator("nephele.paper_figure", text="Make the paper's figure", icon="IMAGE_DATA").figure = "FIG6"
         if p.status:
             col.prop(p, "progress")
@@ -772,3 +691,5 @@ class NEPHELE_PT_scatter(SubPanel, bpy.types.Panel):
 
 CLASSES = (NepheleScatterProps, NEPHELE_OT_add_scattering_cloud, NEPHELE_PT_scatter)
 SCENE_PROPERTIES = {"nephele_scatter": NepheleScatterProps}
+
+from .scatter_jobs import ScatterJob  # noqa: E402,F401 (registers the re-solve job; the operator's job)

@@ -25,7 +25,9 @@ the mean reference there.
 
 Run: ``.venv/bin/python benchmarks/bench_scatter.py [--ref-spp 4096] [--quick]``;
 ``--quick`` runs a few cases of each part and prints them without writing docs;
-``--film 64 [--film 128]`` only times film-resolution solves and 640x480 views.
+``--film 64 [--film 128]`` only times film-resolution solves and 640x480 views;
+``--compiled`` only the compiled kernels against their NumPy twins (64 and 128, back to back in
+one process) and the 240-frame evolving clouds, warm-started frame by frame against cold solves.
 """
 
 import argparse
@@ -366,6 +368,134 @@ def accuracy(quick=False):
     return rows
 
 
+# ----------------------------------------------------------------- compiled kernels, evolving clouds
+
+class numpy_kernels:
+    """Within: the NumPy twins (as without the nephele_native wheel); the compiled kernels after."""
+
+    def __enter__(self):
+        from nephele.core import native
+
+        self.native, self.saved = native, native._module
+        native._module = lambda: None
+
+    def __exit__(self, *exc):
+        self.native._module = self.saved
+
+
+def _timed(fn):
+    load0 = os.getloadavg()[0]
+    w, c = time.perf_counter(), time.process_time()
+    out = fn()
+    return out, time.perf_counter() - w, time.process_time() - c, f"{load0:.1f}-{os.getloadavg()[0]:.1f}"
+
+
+def _film_cloud(n):
+    from nephele.core.volume import cloud_density
+
+    return EXT * cloud_density.cloud_density(cloud_density.CloudParams(shape=(3 * n // 4, n, n), size=SIZE))
+
+
+def solution_bytes(sol):
+    """Bytes of a solution's arrays (what a solve returns and keeps)."""
+    return sum(a.nbytes for a in vars(sol).values() if isinstance(a, np.ndarray))
+
+
+def compiled(ns=(64, 128), view=(640, 480)):
+    """Rows: per grid, the solve by the compiled kernels and by their NumPy twins back to back
+    (C first, then NumPy, then C again: the load moves), their wall ratio and how far their flux
+    is apart (max |C - NumPy| of received and total over the largest value), the solution's memory,
+    and one view (view_source + march_planes) of the C solution."""
+    from nephele.core import native
+    from nephele.core.light import scatter
+
+    if native.identity() == "numpy":
+        return [("no compiled kernels installed", "", "", "", "")]
+    rows = []
+    kw = dict(albedo=ALBEDO, g=G, sun_dir=SUN, tol=1e-3)
+    scatter.solve(_film_cloud(16), SIZE, **kw)  # the phase tables, built once for both paths
+    for n in ns:
+        sigma = _film_cloud(n)
+        c1, w1, cpu1, l1 = _timed(lambda: scatter.solve(sigma, SIZE, **kw))
+        with numpy_kernels():
+            py, w2, cpu2, l2 = _timed(lambda: scatter.solve(sigma, SIZE, **kw))
+        c2, w3, cpu3, l3 = _timed(lambda: scatter.solve(sigma, SIZE, **kw))
+        diff = {k: float(np.abs(getattr(c1, k) - getattr(py, k)).max() / np.abs(getattr(py, k)).max())
+                for k in ("received", "total")}
+        name = f"{n}x{n}x{3 * n // 4}"
+        rows.append((f"{name} C", f"{w1:.1f} / {w3:.1f}", f"{cpu1:.1f} / {cpu3:.1f}", f"{l1} / {l3}", c1.report))
+        rows.append((f"{name} NumPy", f"{w2:.1f}", f"{cpu2:.1f}", l2,
+                     f"{w2 / min(w1, w3):.1f}x the C's faster run, {2 * w2 / (w1 + w3):.1f}x their mean; flux apart: "
+                     f"received {diff['received']:.1e}, total {diff['total']:.1e} of the largest"))
+        cam = scatter.orbit_camera(VIEW_ANGLE, SIZE, width=view[0], height=view[1])
+        _, wv, cv, lv = _timed(lambda: scatter.march_planes(sigma, scatter.view_source(c2, cam.position), SIZE, cam,
+                                                             samples=2))
+        _, wv2, cv2, lv2 = _timed(lambda: scatter.march_planes(sigma, scatter.view_source(c2, cam.position), SIZE, cam,
+                                                               samples=2))
+        rows.append((f"{name} view {view[0]}x{view[1]}", f"{wv:.2f} / {wv2:.2f}", f"{cv:.2f} / {cv2:.2f}",
+                     f"{lv} / {lv2}", f"first (builds the tables) / second; solution {solution_bytes(c2) / 2**30:.2f} GiB"))
+        for r in rows[-3:]:
+            print(r, flush=True)
+        del c1, c2, py
+    return rows
+
+
+def _error(sol, ref):
+    """(L1 of received over the entered power, max |received - ref| over ref's largest)."""
+    d = np.abs(sol.received - ref.received)
+    return float(d.sum(dtype=np.float64) / ref.injected), float(d.max() / ref.received.max())
+
+
+def evolving(frames=240, n=64, check=24, kinds=("drifting", "climate")):
+    """Rows: per evolving cloud, every frame solved warm-started from the one before, every
+    ``check``-th frame also cold and cold-tight (tol 1e-5 and 2x2 sub-directions in every pass,
+    ``late_sub=None``: the finer reference; a warm start's one Jacobi pass carries all the binned
+    light on 2x2 too, where a cold solve's late passes take 1x1); per-frame seconds warm and cold,
+    and each checked frame's error against its tight solve (warm and cold)."""
+    from nephele.core.climate.synthetic import demo_dataset
+    from nephele.core.light import evolving as ev
+    from nephele.core.light import scatter
+    from nephele.core.volume import cloud_density
+
+    kw = dict(albedo=ALBEDO, g=G, sun_dir=SUN, tol=1e-3)
+    rows, series = [], {}
+    for kind in kinds:
+        if kind == "drifting":
+            params = cloud_density.CloudParams(shape=(3 * n // 4, n, n), size=SIZE)
+            density = lambda i: ev.drifting_cloud(params, i, frames, extinction=EXT)  # noqa: E731
+        else:
+            data = demo_dataset()
+            density = lambda i: ev.climate_cloud(data, i * 240 // frames, shape=(3 * n // 4, n, n), extinction=EXT)  # noqa: E731
+        prev, warm_s, cold_s, errs, passes = None, [], [], [], []
+        load0 = os.getloadavg()[0]
+        for i in range(frames):
+            sigma = density(i)
+            t = time.perf_counter()
+            sol = scatter.solve(sigma, SIZE, warm=prev, **kw)
+            warm_s.append(time.perf_counter() - t)
+            passes.append(sol.passes)
+            if i % check == 0 or i == frames - 1:
+                t = time.perf_counter()
+                cold = scatter.solve(sigma, SIZE, **kw)
+                cold_s.append(time.perf_counter() - t)
+                tight = scatter.solve(sigma, SIZE, **dict(kw, tol=1e-5, late_sub=None))
+                errs.append((i, *_error(sol, tight), *_error(cold, tight)))
+                print(f"{kind} frame {i}: warm {warm_s[-1]:.2f} s ({sol.passes} passes), cold {cold_s[-1]:.2f} s, "
+                      f"errors warm {errs[-1][1]:.2e} / {errs[-1][2]:.2e}, cold {errs[-1][3]:.2e} / {errs[-1][4]:.2e}",
+                      flush=True)
+            prev = sol
+        load = f"{load0:.1f}-{os.getloadavg()[0]:.1f}"
+        worst = max(errs[1:] or errs, key=lambda e: e[1])
+        later = [e for e in errs if e[0] > 0]
+        rows.append((kind, frames, f"{np.mean(warm_s[1:] or warm_s):.2f}", f"{np.mean(cold_s):.2f}",
+                     f"{np.mean(warm_s[1:] or warm_s) / np.mean(cold_s):.2f}", f"{np.mean(passes[1:] or passes):.1f}",
+                     f"{worst[1]:.2e} (frame {worst[0]})", f"{max(e[3] for e in errs):.2e}",
+                     f"{later[0][1]:.2e} -> {later[-1][1]:.2e}" if later else "", load))
+        series[kind] = {"warm_s": warm_s, "cold_s": cold_s, "errors": errs, "passes": passes}
+        print(rows[-1], flush=True)
+    return rows, series
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--ref-spp", type=int, default=1024)
@@ -377,6 +507,9 @@ def main(argv=None):
     ap.add_argument("--ref-device", default="CPU", choices=DEVICES,
                     help="where Cycles renders missing references: CPU, or every GPU of a backend (OPTIX, CUDA, ...)")
     ap.add_argument("--accuracy-only", action="store_true", help="only the voxel-depth table (writes docs)")
+    ap.add_argument("--compiled", action="store_true",
+                    help="only the compiled kernels against the NumPy twins and the evolving clouds (writes docs)")
+    ap.add_argument("--frames", type=int, default=240, help="frames of the evolving clouds (default 240)")
     ap.add_argument("--skip-accuracy", action="store_true", help="leave the voxel-depth table as it is")
     ap.add_argument("--views", type=int, default=120)
     ap.add_argument("--film", type=int, action="append", default=[],
@@ -392,6 +525,33 @@ def main(argv=None):
     args = ap.parse_args(argv)
     from report import md_table, write_section
 
+    if args.compiled or args.quick:
+        ns, frames, n, check = ((24,), 6, 24, 3) if args.quick else ((64, 128), args.frames, 64, 24)
+        load = f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores at the start"
+        rows = compiled(ns)
+        ev_rows, series = evolving(frames, n, check)
+        if not args.quick:
+            write_section("scatter-compiled", f"{load}; the machine is shared, so each row says its load (1-minute "
+                          "average before-after). The compiled kernels (native/src/scatter_*.c) against their NumPy "
+                          "twins in one process, back to back; CPU = this process's CPU seconds, all threads.\n\n"
+                          + md_table(["solve", "wall s", "CPU s", "load", "note"], rows),
+                          title="Multiple scattering: compiled kernels against the NumPy twins")
+            write_section("scatter-evolving", f"{load}. Clouds that change during the film ({frames} frames, "
+                          f"{n}x{n}x{3 * n // 4}): each frame's solve warm-started from the frame before (the passes "
+                          "shoot only the difference its density makes) against a cold solve, both to tol 1e-3; "
+                          f"every {check}th frame (and the last) also solved cold to tol 1e-5 with 2x2 sub-directions in every "
+                          "pass (`late_sub=None`), the reference of the errors: L1 of received over the entered power "
+                          "(a cold solve's late passes on 1x1 sub-directions leave about 2e-3 of it; a warm start's "
+                          "Jacobi pass carries all the binned light on 2x2). "
+                          "The drift column: the warm error at the first and last checked frames after the first.\n\n"
+                          + md_table(["cloud", "frames", "warm s/frame", "cold s/frame", "warm/cold", "warm passes",
+                                      "worst warm error (L1)", "worst cold error (L1)", "drift", "load"], ev_rows),
+                          title="Multiple scattering: evolving clouds, warm starts")
+            OUT.mkdir(parents=True, exist_ok=True)
+            json.dump({"compiled": rows, "evolving": ev_rows, "series": series},
+                      open(OUT / "compiled.json", "w"), indent=1, default=str)
+        if args.compiled:
+            return 0
     if args.film and args.reference_only:
         from nephele.core.light import scatter
         from nephele.core.volume import cloud_density

@@ -10,6 +10,13 @@ camera, a volume sequence Blender renders as an emission-absorption medium.
 ``--sky-map IMAGE`` lights the cloud with a sky from every direction: an
 equirectangular image (an HDRI, a rendered Blender world) binned into the solve's
 directions.
+
+``--evolve drift`` makes the cloud change during the film: its noise drifts through the
+ellipsoids (``--drift`` box units over the film), and ``--evolve climate`` cuts the cloud from
+the demo climate's hourly cloud field (the 10 days spread over the views); each view is then its
+own frame, solved warm-started from the frame before (``DIR/solution_0001.npz`` ...), its VDB
+(``--vdb``) with that frame's density: a sequence Blender and ``nephele render`` play as any
+volume sequence.
 """
 
 import json
@@ -54,6 +61,11 @@ def add_arguments(p):
     p.add_argument("--distance", type=float, default=1.7, help="camera distance from the box centre (default 1.7)")
     p.add_argument("--elevation", type=float, default=15.0, help="camera elevation, degrees (default 15)")
     p.add_argument("--vdb", action="store_true", help="also write per-view VDB grids for Blender")
+    p.add_argument("--evolve", choices=("still", "drift", "climate"), default="still",
+                   help="a cloud that changes from view to view: its noise drifting, or cut from the demo "
+                        "climate's cloud field; one solve a view, each from the one before (default still)")
+    p.add_argument("--drift", default="0.25,0.1,0.02", metavar="DX,DY,DZ",
+                   help="--evolve drift: how far the noise moves over the film, box units (default 0.25,0.1,0.02)")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
 
 
@@ -67,13 +79,14 @@ def _ints(text, n, name, sep="x"):
     return v
 
 
-def _floats(text, n, name):
+def _floats(text, n, name, positive=True):
     try:
         v = [float(t) for t in text.split(",")]
     except ValueError:
         v = []
-    if len(v) != n or min(v) <= 0:
-        raise UsageError(f"{name} must be {n} positive numbers separated by ',', got {text!r}")
+    if len(v) != n or (positive and min(v) <= 0) or not all(map(math.isfinite, v)):
+        kind = "positive numbers" if positive else "numbers"
+        raise UsageError(f"{name} must be {n} {kind} separated by ',', got {text!r}")
     return v
 
 
@@ -131,22 +144,25 @@ def run(args):
     check_solve_memory((nz, ny, nx), args.bins_per_face)  # before anything is allocated or written
     out.mkdir(parents=True, exist_ok=True)
     params = cd.CloudParams(shape=(nz, ny, nx), size=tuple(box), noise_amplitude=args.noise, seed=args.seed)
-    sigma = args.extinction * cd.cloud_density(params)
+    drift = _floats(args.drift, 3, "--drift", positive=False)
+    density = _densities(args, params, drift)
     e, a = math.radians(args.sun_elevation), math.radians(args.sun_azimuth)
     sun = (math.cos(e) * math.cos(a), math.cos(e) * math.sin(a), math.sin(e))
     say = (lambda *m: None) if args.quiet else (lambda *m: print(*m, file=sys.stderr, flush=True))
-    t0 = time.perf_counter()
+    kw = dict(albedo=args.albedo, g=args.g, sun_dir=sun, sun_irradiance=args.irradiance, sky_radiance=sky,
+              tol=args.tol, max_passes=args.max_passes, bins_per_face=args.bins_per_face)
 
     def progress(p):
         if p.group == p.groups:
             say(f"pass {p.pass_index}: residual {p.residual:.3e}")
 
-    sol = scatter.solve(sigma, box, progress=progress, albedo=args.albedo, g=args.g, sun_dir=sun,
-                        sun_irradiance=args.irradiance, sky_radiance=sky, tol=args.tol,
-                        max_passes=args.max_passes, bins_per_face=args.bins_per_face)
+    t0 = time.perf_counter()
+    sigma = density(0)
+    sol = scatter.solve(sigma, box, progress=progress, **kw)
     t_solve = time.perf_counter() - t0
     scatter.save_solution(sol, out / "solution.npz")
     say(f"solve {nx}x{ny}x{nz}: {t_solve:.1f} s, {sol.report}")
+    solves = [(t_solve, sol.report)]
     if args.vdb:
         from ..fileio import dense_grids, write_vdb  # needs bpy's bundled openvdb
     import imageio.v3 as iio
@@ -156,6 +172,13 @@ def run(args):
     white = None
     times = []
     for i in range(args.views):
+        if i and args.evolve != "still":  # this view's own frame, from the frame before
+            t = time.perf_counter()
+            sigma = density(i)
+            sol = scatter.solve(sigma, box, warm=sol, **kw)
+            solves.append((time.perf_counter() - t, sol.report))
+            scatter.save_solution(sol, out / f"solution_{i + 1:04d}.npz")
+            say(f"frame {i + 1}: solve {solves[-1][0]:.1f} s, {sol.report}")
         t = time.perf_counter()
         cam = scatter.orbit_camera(2 * math.pi * i / args.views, box, distance=args.distance,
                                    elevation=math.radians(args.elevation), width=w, height=h)
@@ -179,6 +202,31 @@ def run(args):
             "sky_map": str(Path(args.sky_map).resolve()) if args.sky_map else None,
             "sky_strength": args.sky_strength, "bins_per_face": args.bins_per_face, "report": sol.report,
             "passes": sol.passes, "residual": sol.residual, "converged": sol.converged,
-            "solve_seconds": t_solve, "view_seconds": times, "views": args.views, "size": [w, h]}, indent=1))
+            "solve_seconds": t_solve, "view_seconds": times, "views": args.views, "size": [w, h],
+            "evolve": args.evolve, "drift": drift if args.evolve == "drift" else None,
+            "frame_solves": [{"seconds": s, "report": r} for s, r in solves]}, indent=1))
+    if args.evolve != "still" and len(solves) > 1:
+        warm = np.mean([s for s, _ in solves[1:]])
+        print(f"{args.views} frames: first solve {t_solve:.1f} s (cold), then {warm:.1f} s a frame (warm-started), "
+              f"views median {np.median(times):.2f} s -> {out}")
+        return 0
     print(f"{sol.report}; solve {t_solve:.1f} s, {args.views} views, median {np.median(times):.2f} s each -> {out}")
     return 0
+
+
+def _densities(args, params, drift):
+    """``frame -> extinction`` of the cloud (the same every frame when still)."""
+    from ..core.light import evolving
+    from ..core.volume import cloud_density as cd
+
+    if args.evolve == "drift":
+        return lambda i: evolving.drifting_cloud(params, i, args.views, drift, args.extinction)
+    if args.evolve == "climate":
+        from ..core.climate.synthetic import demo_dataset
+
+        data = demo_dataset()
+        steps = len(data.times)
+        return lambda i: evolving.climate_cloud(data, i * steps // args.views, shape=params.shape,
+                                                extinction=args.extinction)
+    sigma = args.extinction * cd.cloud_density(params)
+    return lambda i: sigma

@@ -19,14 +19,28 @@ def task_params(cloud, extinction=40.0, **solve):
     """JSON parameters of the ``"scatter"`` task: a cloud (:class:`.cloud_density.CloudParams`),
     its extinction per unit density and :func:`solve` keywords (``_SOLVE_KEYS``; a per-bin
     ``sky_radiance`` array becomes a list of its ``6 n^2`` values, so the cache key holds them
-    all; the default ``bins_per_face`` is left out, so default solves keep their earlier keys)."""
+    all; the default ``bins_per_face`` and ``noise_offset`` are left out, so default solves keep
+    their earlier keys)."""
     bad = sorted(set(solve) - set(_SOLVE_KEYS))
     if bad:
         raise DataError(f"unknown scattering parameters {bad}", field="scatter")
     if solve.get("bins_per_face", N_PER_FACE) == N_PER_FACE:
         solve = {k: v for k, v in solve.items() if k != "bins_per_face"}
-    return json.loads(json.dumps({"cloud": asdict(cloud), "extinction": float(extinction), "solve": solve},
-                                 default=json_plain))
+    c = asdict(cloud)
+    if not any(c.get("noise_offset", ())):  # (the default: earlier solves keep their keys)
+        c.pop("noise_offset", None)
+    return json.loads(json.dumps({"cloud": c, "extinction": float(extinction), "solve": solve}, default=json_plain))
+
+
+def task_grid(params):
+    """The extinction grid and box size of :func:`task_params`' cloud."""
+    c = dict(params["cloud"])
+    c["ellipsoids"] = tuple(cd.Ellipsoid(tuple(e["center"]), tuple(e["radii"]), float(e["weight"]))
+                            for e in c.get("ellipsoids", ()))
+    for k in ("shape", "size", "noise_offset"):
+        if k in c:
+            c[k] = tuple(c[k])
+    return float(params["extinction"]) * cd.cloud_density(cd.CloudParams(**c)), c["size"]
 
 
 SOLVE_BYTES_PER_CELL = 8000.0
@@ -50,14 +64,9 @@ def check_solve_memory(shape, bins_per_face=N_PER_FACE):
 def solve_task(params):
     """The ``"scatter"`` task: build the cloud of :func:`task_params` and solve it;
     returns :func:`solution_arrays` (:func:`solution_from_arrays` reads them back)."""
-    c = dict(params["cloud"])
-    c["ellipsoids"] = tuple(cd.Ellipsoid(tuple(e["center"]), tuple(e["radii"]), float(e["weight"]))
-                            for e in c.get("ellipsoids", ()))
-    for k in ("shape", "size"):
-        c[k] = tuple(c[k])
-    check_solve_memory(c["shape"], params["solve"].get("bins_per_face", N_PER_FACE))
-    sigma = float(params["extinction"]) * cd.cloud_density(cd.CloudParams(**c))
-    return solution_arrays(solve(sigma, c["size"], **params["solve"]))
+    sigma, size = task_grid(params)
+    check_solve_memory(params["cloud"]["shape"], params["solve"].get("bins_per_face", N_PER_FACE))
+    return solution_arrays(solve(sigma, size, **params["solve"]))
 
 
 @planner("scatter")
@@ -66,4 +75,4 @@ def plan_solve(obj_params, frame):
     return [("scatter", obj_params["solve_task"])] if "solve_task" in obj_params else []
 
 
-__all__ = ["plan_solve", "solve_task", "task_params"]
+__all__ = ["plan_solve", "solve_task", "task_grid", "task_params"]

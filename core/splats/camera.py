@@ -1,4 +1,5 @@
-"""A pinhole or orthographic camera as Blender describes one.
+"""A pinhole or orthographic camera as Blender describes one (the splat renderers' and the
+scattering views' camera alike).
 
 The camera looks along its own -z with +y up (Blender's and OpenGL's
 convention).  Image pixel ``(row, col)`` has its centre at
@@ -34,12 +35,17 @@ class Camera:
     orthographic : bool
     ortho_scale : float
         Scene units across the image width (orthographic).
+    width, height : int
+        Image size in pixels of the views that take it from the camera (the scattering
+        views, :func:`..light.scatter.render`); the splat renderers are given theirs.
     """
 
     world_to_camera: np.ndarray
     fov: float = 40.0
     orthographic: bool = False
     ortho_scale: float = 2.0
+    width: int = 128
+    height: int = 96
 
     def __post_init__(self):
         m = np.asarray(self.world_to_camera, dtype=np.float64)
@@ -53,10 +59,15 @@ class Camera:
                 raise DataError(f"ortho_scale must be positive, got {self.ortho_scale!r}", field="camera")
         elif not (np.isfinite(self.fov) and 0 < self.fov < 180):
             raise DataError(f"fov must be in (0, 180) degrees, got {self.fov!r}", field="camera")
+        if int(self.width) < 1 or int(self.height) < 1:
+            raise DataError(f"image size must be positive, got {self.width}x{self.height}", field="camera")
         object.__setattr__(self, "world_to_camera", m)
+        object.__setattr__(self, "width", int(self.width))
+        object.__setattr__(self, "height", int(self.height))
 
     @classmethod
-    def look_at(cls, position, target, up=(0.0, 0.0, 1.0), fov=40.0, orthographic=False, ortho_scale=2.0):
+    def look_at(cls, position, target, up=(0.0, 0.0, 1.0), fov=40.0, orthographic=False, ortho_scale=2.0,
+                width=128, height=96):
         """A camera at ``position`` looking at ``target`` with ``up`` projected to the image's up."""
         eye = np.asarray(position, dtype=np.float64)
         fwd = np.asarray(target, dtype=np.float64) - eye
@@ -72,13 +83,35 @@ class Camera:
         m = np.eye(4)
         m[:3, :3] = rot
         m[:3, 3] = -rot @ eye
-        return cls(m, float(fov), bool(orthographic), float(ortho_scale))
+        cam = cls(m, float(fov), bool(orthographic), float(ortho_scale), width, height)
+        object.__setattr__(cam, "_eye", eye.copy())  # as given: the matrix's inverse loses its last bits
+        return cam
 
     @property
     def position(self):
         """Eye position in scene coordinates."""
+        eye = getattr(self, "_eye", None)
+        if eye is not None:
+            return eye.copy()
         r = self.world_to_camera[:3, :3]
         return -r.T @ self.world_to_camera[:3, 3]
+
+    def basis(self):
+        """(forward, right, up) unit vectors in scene coordinates (the view looks along forward)."""
+        r = self.world_to_camera[:3, :3]
+        return -r[2], r[0].copy(), r[1].copy()
+
+    def rays(self):
+        """Unit ray directions (height, width, 3) of a perspective camera through the pixel
+        centres, row 0 at the top of the image."""
+        if self.orthographic:
+            raise DataError("an orthographic camera has no rays from one eye", field="camera")
+        f, r, u = self.basis()
+        t = np.tan(0.5 * np.deg2rad(self.fov))
+        xs = ((np.arange(self.width) + 0.5) / self.width * 2.0 - 1.0) * t
+        ys = (1.0 - (np.arange(self.height) + 0.5) / self.height * 2.0) * t * self.height / self.width
+        d = f[None, None] + xs[None, :, None] * r[None, None] + ys[:, None, None] * u[None, None]
+        return d / np.linalg.norm(d, axis=-1, keepdims=True)
 
     def to_camera(self, xyz):
         """Scene points ``(n, 3)`` in camera coordinates."""

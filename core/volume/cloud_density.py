@@ -56,6 +56,8 @@ class CloudParams:
     noise_scale : noise lattice cells per box unit.
     octaves : noise octaves (fractal sum).
     seed : shifts the noise lattice, giving a different cloud.
+    noise_offset : (x, y, z) shift of the noise in box units: a cloud whose texture drifts
+        from frame to frame (:func:`..light.evolving.drifting_cloud`) keeps its ellipsoids.
     """
 
     shape: tuple = (18, 24, 24)
@@ -65,6 +67,7 @@ class CloudParams:
     noise_scale: float = 5.0
     octaves: int = 4
     seed: int = 0
+    noise_offset: tuple = (0.0, 0.0, 0.0)
 
 
 def voxel_centres(shape, size):
@@ -111,6 +114,7 @@ def cloud_density(params=None):
     off = 17.31 * int(p.seed)
     s = float(p.noise_scale)
     xb, yb, zb = np.broadcast_arrays(x, y, z)
-    n = turbulence(s * xb + off, s * yb + 0.5 * off, s * zb + 0.25 * off, octaves=p.octaves)
+    ox, oy, oz = (float(v) for v in p.noise_offset)
+    n = turbulence(s * (xb + ox) + off, s * (yb + oy) + 0.5 * off, s * (zb + oz) + 0.25 * off, octaves=p.octaves)
     d = base + p.noise_amplitude * n * np.minimum(1.0, base / 0.15)
     return np.clip(d, 0.0, 1.0).astype(np.float32)

@@ -84,3 +84,29 @@ def test_scatter_command_finer_bins(tmp_path, capsys):
     for bad in ("5", "10", "0"):
         assert cli.main(["scatter", "--out", str(tmp_path / "b"), "--bins-per-face", bad]) == 2
         assert "--bins-per-face" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("evolve", ["drift", "climate"])
+def test_scatter_command_evolving_sequence(tmp_path, evolve):
+    from nephele import fileio
+
+    out = tmp_path / "s"
+    rc = cli.main(["scatter", "--out", str(out), "--grid", "8x8x6", "--views", "3", "--size", "24x20",
+                   "--tol", "1e-2", "--vdb", "--quiet", "--evolve", evolve])
+    assert rc == 0
+    meta = json.loads((out / "scatter.json").read_text())
+    assert meta["evolve"] == evolve and len(meta["frame_solves"]) == 3
+    assert all("from the previous frame" in f["report"] for f in meta["frame_solves"][1:])
+    sols = [scatter.load_solution(out / n) for n in ("solution.npz", "solution_0002.npz", "solution_0003.npz")]
+    assert not sols[0].warm and sols[1].warm and sols[2].warm
+    assert np.abs(sols[2].sigma - sols[0].sigma).max() > 0  # the cloud moved
+    vdb = fileio.openvdb()
+    dens = np.zeros((8, 8, 6), np.float32)
+    vdb.read(str(out / "scatter_0003.vdb"), "density").copyToArray(dens)
+    np.testing.assert_allclose(dens.transpose(2, 1, 0), sols[2].sigma, rtol=1e-6)  # each frame's own density
+    assert np.load(out / "view_0003.npy").max() > 0
+
+
+def test_scatter_command_bad_drift(tmp_path, capsys):
+    assert cli.main(["scatter", "--out", str(tmp_path), "--evolve", "drift", "--drift", "0.1,x,0"]) == 2
+    assert "--drift" in capsys.readouterr().err

@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from kernel_paths import BOTH, EVERY
 from nephele.core.light import scatter, scatter_task
 from nephele.core.errors import DataError
 
@@ -33,19 +34,22 @@ def slab(tau, g, albedo, nz=32, **kw):
 
 @pytest.mark.slow
 @pytest.mark.parametrize("tau,g,albedo,r_ref,t_ref", AD)
-def test_slab_against_adding_doubling(tau, g, albedo, r_ref, t_ref):
+@pytest.mark.parametrize("kernels", BOTH, indirect=True)
+def test_slab_against_adding_doubling(tau, g, albedo, r_ref, t_ref, kernels):
     sol, (r, t) = slab(tau, g, albedo)
     assert sol.converged
     assert abs(r - r_ref) <= 0.01 and abs(t - t_ref) <= 0.01, (r, t)
 
 
 @pytest.mark.parametrize("tau,g", [(1.0, 0.0), (16.0, 0.8)])
-def test_slab_conserves_energy_at_albedo_one(tau, g):
+@pytest.mark.parametrize("kernels", EVERY, indirect=True)
+def test_slab_conserves_energy_at_albedo_one(tau, g, kernels):
     sol, (r, t) = slab(tau, g, 1.0)
     assert r + t == pytest.approx(1.0, abs=1e-3)
 
 
-def test_slab_transmission_of_pure_absorber():
+@pytest.mark.parametrize("kernels", EVERY, indirect=True)
+def test_slab_transmission_of_pure_absorber(kernels):
     sol, (r, t) = slab(2.0, 0.5, 0.0)
     assert r == 0.0 and t == pytest.approx(np.exp(-2.0), rel=1e-6)  # float32 beams
 
@@ -64,7 +68,8 @@ def test_empty_density():
     assert np.all(src == 0) and np.all(img == 0)
 
 
-def test_very_thick_voxels_no_overflow():
+@pytest.mark.parametrize("kernels", EVERY, indirect=True)
+def test_very_thick_voxels_no_overflow(kernels):
     sig = small_cloud(value=1e8)
     with np.errstate(over="raise", invalid="raise", divide="raise"):
         sol = scatter.solve(sig, (1, 1, 1), sun_dir=(0.2, -0.1, 1.0), albedo=0.9, max_passes=8)
@@ -144,8 +149,7 @@ def test_render_homogeneous_emission_box():
     n = 12
     sig = np.full((n, n, n), 3.0)
     src = np.full((n, n, n), 2.0)
-    cam = scatter.Camera((0.5, 0.5, 5.0), (0.5, 0.5, 0.5), fov=np.radians(2.0), width=4, height=4,
-                         up=(0.0, 1.0, 0.0))
+    cam = scatter.Camera.look_at((0.5, 0.5, 5.0), (0.5, 0.5, 0.5), up=(0.0, 1.0, 0.0), fov=2.0, width=4, height=4)
     # trilinear fields fall to zero over half a voxel beyond the box on each side
     img = scatter.render(sig, src, (1, 1, 1), cam, step=0.05)
     h = 1.0 / n

@@ -4,6 +4,8 @@ term) and the closed forms the sweeps use for them, against numerical integratio
 import numpy as np
 import pytest
 
+from nephele.core.light import _escape as escape, _passes as passes, _sweep as sweeps
+from kernel_paths import BOTH, EVERY
 from nephele.core.light import scatter
 from radiative_truth import adding_doubling
 
@@ -39,28 +41,28 @@ def test_second_moment_and_variance_against_quadrature(k):
     # cancellation just above it
     p = exp_profile(k)
     c = mean(p * U)
-    assert scatter._variance(np.float64(k)) == pytest.approx(mean(p * (U - c) ** 2), rel=2e-6, abs=1e-12)
-    assert scatter._second_moment(np.float64(k)) == pytest.approx(mean(p * (U - 0.5) ** 2), rel=2e-6)
-    assert scatter._second_moment(np.float32(k)) == pytest.approx(mean(p * (U - 0.5) ** 2), rel=3e-5)
+    assert escape._variance(np.float64(k)) == pytest.approx(mean(p * (U - c) ** 2), rel=2e-6, abs=1e-12)
+    assert escape._second_moment(np.float64(k)) == pytest.approx(mean(p * (U - 0.5) ** 2), rel=2e-6)
+    assert escape._second_moment(np.float32(k)) == pytest.approx(mean(p * (U - 0.5) ** 2), rel=3e-5)
     # known values: uniform 1/12; a thin sheet at a face 1/4
-    assert scatter._second_moment(0.0) == pytest.approx(1 / 12)
-    assert scatter._second_moment(1e6) == pytest.approx(0.25, rel=1e-5)
+    assert escape._second_moment(0.0) == pytest.approx(1 / 12)
+    assert escape._second_moment(1e6) == pytest.approx(0.25, rel=1e-5)
 
 
 @pytest.mark.parametrize("tau", [0.0, 1e-4, 0.2, 0.999, 1.001, 3.0, 25.0, 1e4])
 def test_p2_escape_against_quadrature(tau):
     want = mean(P2 * np.exp(-tau * (1 - U)))
-    assert scatter._p2_escape(np.float64(tau)) == pytest.approx(want, rel=1e-6, abs=1e-12)
-    assert scatter._p2_escape(np.float32(tau)) == pytest.approx(want, rel=1e-4, abs=5e-7)
+    assert escape._p2_escape(np.float64(tau)) == pytest.approx(want, rel=1e-6, abs=1e-12)
+    assert escape._p2_escape(np.float32(tau)) == pytest.approx(want, rel=1e-4, abs=5e-7)
     # the transmittance passed in (as the sweeps do) gives the same
     t = np.float32(tau)
-    assert scatter._p2_escape(t, np.exp(-t)) == pytest.approx(want, rel=1e-4, abs=5e-7)
+    assert escape._p2_escape(t, np.exp(-t)) == pytest.approx(want, rel=1e-4, abs=5e-7)
 
 
 def test_p2_escape_handles_huge_depths_and_arrays():
     tau = np.array([0.0, 0.5, 1.0, 80.0, 1e30], np.float32)
     with np.errstate(over="raise", invalid="raise", divide="raise"):
-        out = scatter._p2_escape(tau)
+        out = escape._p2_escape(tau)
     assert out.dtype == np.float32 and np.all(np.isfinite(out))
     assert out[0] == 0.0 and out[-1] == pytest.approx(0.0, abs=1e-12)
 
@@ -88,20 +90,21 @@ def kept_truth(tau, k, q, up):
 
 @pytest.mark.parametrize("tau,k,q,up", [(1.0, 0.0, 0.0, True), (2.0, 1.5, -0.3, True), (2.0, -1.0, 0.2, False),
                                         (0.3, 0.5, -0.5, True), (5.0, 0.0, -0.8, False), (0.05, -2.0, 0.1, True)])
-def test_sweep_keeps_the_exact_moments_of_a_profiled_source(tau, k, q, up):
+@pytest.mark.parametrize("kernels", EVERY, indirect=True)
+def test_sweep_keeps_the_exact_moments_of_a_profiled_source(tau, k, q, up, kernels):
     # one voxel crossed along z by one beam direction: what escapes, what the voxel keeps and
     # where (the moments the next order's profile is fitted to)
     kap = np.zeros((3, 1, 1, 1), np.float32)
     kap[2] = k
     dlt = np.zeros_like(kap)
-    dlt[2] = scatter._offset(np.float32(k))
+    dlt[2] = escape._offset(np.float32(k))
     m2 = np.full_like(kap, 1 / 12)
-    m2[2] = scatter._second_moment(np.float32(k)) + q / 30
+    m2[2] = escape._second_moment(np.float32(k)) + q / 30
     qq = np.zeros_like(kap)
     qq[2] = q
     out = np.zeros((1, 2, 3, 1, 1, 1))
     d = np.array([[[0.0, 0.0, 1.0 if up else -1.0]]])
-    r, _, ex = scatter._sweep(np.full((1, 1, 1), tau, np.float32), np.ones(3), d, np.ones((1, 1)),
+    r, _, ex = sweeps._sweep(np.full((1, 1, 1), tau, np.float32), np.ones(3), d, np.ones((1, 1)),
                               np.ones((1, 1, 1, 1)), np.zeros((1, 1)), (True, True, False), 0,
                               profile=(kap, dlt, m2, qq), moments=(np.ones((1, 1)), out, 1.0))
     esc, kept, m1, m2k = kept_truth(tau, k, q, up)
@@ -115,15 +118,15 @@ def test_sweep_keeps_the_exact_moments_of_a_profiled_source(tau, k, q, up):
 
 
 def test_slab_groups_split_steep_side_and_grazing_bins():
-    slab = scatter._groups((True, True, False), 2)[0]
+    slab = passes._groups((True, True, False), 2)[0]
     assert [len(b) for _, b in slab] == [16] * 6 and {a for a, _ in slab} == {0}
     cen = scatter.phase.bins(1)[0]
     for _, bs in slab:  # each group: one sign along z, one band of cosines
         assert len(set(np.sign(cen[bs, 2]))) == 1
         mu = np.abs(cen[bs, 2]) / np.linalg.norm(cen[bs], axis=1)
         assert mu.min() >= 0.4 or mu.max() < 0.4
-    assert [len(b) for _, b in scatter._groups((True, True, False), 2, bands=False)[0]] == [48, 48]
-    cloud = scatter._groups((False, False, False), 2)[0]  # no periodic axis: one group per cube face
+    assert [len(b) for _, b in passes._groups((True, True, False), 2, bands=False)[0]] == [48, 48]
+    cloud = passes._groups((False, False, False), 2)[0]  # no periodic axis: one group per cube face
     assert [len(b) for _, b in cloud] == [16] * 6 and sorted(a for a, _ in cloud) == [0, 0, 1, 1, 2, 2]
 
 
@@ -141,6 +144,7 @@ def slab_error(tau, layers, mu0, **kw):
 # without second moments +0.18 / +0.00 %, +0.22 / -0.21 %, +0.18 / -0.30 %.
 @pytest.mark.parametrize("tau,thick,thin,mu0", [(4.0, 2, 8, 1.0), (16.0, 8, 32, 0.5),
                                                 (16.0, 8, 32, float(np.sin(np.radians(15.0))))])
-def test_g08_slab_error_does_not_grow_with_voxel_depth(tau, thick, thin, mu0):
+@pytest.mark.parametrize("kernels", BOTH, indirect=True)
+def test_g08_slab_error_does_not_grow_with_voxel_depth(tau, thick, thin, mu0, kernels):
     diff = slab_error(tau, thick, mu0) - slab_error(tau, thin, mu0)
     assert np.all(np.abs(diff) < 2e-3), diff

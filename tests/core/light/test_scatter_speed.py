@@ -8,6 +8,7 @@ the whole grid, one beam block, the fine-step ray march) and against closed form
 import numpy as np
 import pytest
 
+from nephele.core.light import _escape as escape, _passes as passes, _sweep as sweeps, _views as views
 from nephele.core.light import phase, scatter
 from radiative_truth import single_scattering_r
 
@@ -20,31 +21,31 @@ def test_exp_only_helpers_match_expm1_and_tanh_forms():
     with np.errstate(divide="ignore", invalid="ignore"):
         off_ref = np.where(np.abs(k) < 1e-4, -k / 12.0, 1.0 / k - 0.5 / np.tanh(0.5 * k))
     for dt, tol in ((np.float64, 1e-6), (np.float32, 2e-6)):
-        phi = scatter._phi(x.astype(dt))
+        phi = escape._phi(x.astype(dt))
         assert phi.dtype == dt and np.max(np.abs(phi / phi_ref - 1)) < tol
-        off = scatter._offset(k.astype(dt))
+        off = escape._offset(k.astype(dt))
         assert off.dtype == dt and np.max(np.abs(off - off_ref)) < 10 * tol
     # escape of an exponential source: finite for any rate, the uniform (1 - e^-tau)/tau at rate 0
     tau = np.array([0.0, 1e-3, 0.5, 2.0, 50.0], np.float32)
     for beta in (-700.0, -5.0, 0.0, 5.0, 700.0):
-        esc = scatter._exp_source_escape(tau, np.float32(beta))
+        esc = escape._exp_source_escape(tau, np.float32(beta))
         assert np.all(np.isfinite(esc)) and np.all((esc >= 0) & (esc <= 1 + 1e-6))
-    np.testing.assert_allclose(scatter._exp_source_escape(tau, np.float32(0.0)), scatter._phi(tau), rtol=1e-6)
+    np.testing.assert_allclose(escape._exp_source_escape(tau, np.float32(0.0)), escape._phi(tau), rtol=1e-6)
 
 
 def test_fused_escape_and_centroid_match_their_float64_forms():
     # the sweep's float32 _escape_centroid against _exp_source_escape and 0.5 + _offset in float64
     tau, beta = np.meshgrid(np.concatenate([[0.0], np.geomspace(1e-4, 60.0, 60)]),
                             np.concatenate([-np.geomspace(1e-5, 400.0, 80), [0.0], np.geomspace(1e-5, 400.0, 80)]))
-    esc, vs = scatter._escape_centroid(tau.astype(np.float32), beta.astype(np.float32))
+    esc, vs = escape._escape_centroid(tau.astype(np.float32), beta.astype(np.float32))
     assert esc.dtype == vs.dtype == np.float32
-    esc_ref = np.clip(scatter._exp_source_escape(tau, beta), 0.0, 1.0)
+    esc_ref = np.clip(escape._exp_source_escape(tau, beta), 0.0, 1.0)
     assert np.max(np.abs(esc - esc_ref) / np.maximum(esc_ref, 1e-30)) < 5e-6  # measured 1.8e-6
-    assert np.max(np.abs(vs - (0.5 + scatter._offset(beta)))) < 5e-7  # measured 1.6e-7
+    assert np.max(np.abs(vs - (0.5 + escape._offset(beta)))) < 5e-7  # measured 1.6e-7
     # every |beta| under 0.5: the series branch alone
     small = np.abs(beta) < 0.5
-    _, vs_small = scatter._escape_centroid(tau[small].astype(np.float32), beta[small].astype(np.float32))
-    assert np.max(np.abs(vs_small - (0.5 + scatter._offset(beta[small])))) < 5e-7
+    _, vs_small = escape._escape_centroid(tau[small].astype(np.float32), beta[small].astype(np.float32))
+    assert np.max(np.abs(vs_small - (0.5 + escape._offset(beta[small])))) < 5e-7
 
 
 def shift_line(row, s, periodic, inflow):
@@ -69,11 +70,11 @@ def test_plane_shift_equals_gathers(periodic):
     sa, sb = rng.uniform(-1, 1, K), rng.uniform(-1, 1, K)
     sa[0], sb[1] = 1.0, -1.0  # diagonal beams: a whole cell per layer
     inflow = rng.uniform(0, 1, K).astype(np.float32)
-    sh = scatter._Shifter(sa, sb, *periodic, A, B, inflow)
+    sh = sweeps._Shifter(sa, sb, *periodic, A, B, inflow)
     assert sh.small
     beam = rng.uniform(0, 1, (K, A, B)).astype(np.float32)
-    ga, gb = scatter._shift_indices(A, sa, periodic[0]), scatter._shift_indices(B, sb, periodic[1])
-    ref = scatter._gather_shift(scatter._gather_shift(beam, ga, inflow, 1), gb, inflow, 2)
+    ga, gb = sweeps._shift_indices(A, sa, periodic[0]), sweeps._shift_indices(B, sb, periodic[1])
+    ref = sweeps._gather_shift(sweeps._gather_shift(beam, ga, inflow, 1), gb, inflow, 2)
     np.testing.assert_allclose(sh(beam), ref, rtol=1e-6, atol=1e-7)
     # both against the definition, one line at a time (a first, then b)
     direct = np.empty((K, A, B))
@@ -90,7 +91,7 @@ def test_plane_shift_equals_gathers(periodic):
 
 def test_flat_voxels_fall_back_to_gathers():
     # shifts beyond one cell per layer (voxels flatter along the sweep than across)
-    sh = scatter._Shifter(np.array([2.5, -1.7]), np.array([0.2, 0.0]), False, False, 6, 4,
+    sh = sweeps._Shifter(np.array([2.5, -1.7]), np.array([0.2, 0.0]), False, False, 6, 4,
                           np.array([0.0, 1.0], np.float32))
     assert not sh.small
     beam = np.zeros((2, 6, 4), np.float32)
@@ -111,7 +112,7 @@ def test_beam_blocks_and_threads_give_the_same_solution(monkeypatch):
     sig = small_cloud()
     kw = dict(albedo=0.95, g=0.7, sun_dir=(0.3, -0.2, 1.0), tol=1e-3)
     one = scatter.solve(sig, (1, 1, 0.8), **kw)
-    monkeypatch.setattr(scatter, "_BLOCK", 1)  # one bin per block, blocks on 2 threads
+    monkeypatch.setattr(sweeps, "_BLOCK", 1)  # one bin per block, blocks on 2 threads
     many = scatter.solve(sig, (1, 1, 0.8), **kw)
     assert many.passes == one.passes
     np.testing.assert_allclose(many.received, one.received, rtol=1e-4, atol=1e-6 * one.received.max())
@@ -139,8 +140,8 @@ def test_empty_margin_is_not_solved_but_answer_is_the_same():
     assert b.received.sum() == pytest.approx(a.received.sum(), rel=1e-5)
     cam_a = scatter.orbit_camera(0.5, (1.2, 1.2, 1.0), width=24, height=18)
     shift = np.array([0.2, 0.5, 0.3])  # where the small grid sits inside the big one
-    cam_b = scatter.Camera(tuple(np.array(cam_a.position) + shift), tuple(np.array(cam_a.target) + shift),
-                           cam_a.fov, 24, 18)
+    cam_b = scatter.Camera.look_at(cam_a.position + shift, cam_a.position + cam_a.basis()[0] + shift, fov=cam_a.fov,
+                                   width=24, height=18)
     src_a, src_b = scatter.view_source(a, cam_a.position), scatter.view_source(b, cam_b.position)
     np.testing.assert_allclose(src_b[inner[1:]], src_a, rtol=1e-4, atol=1e-6 * src_a.max())
     assert np.all(src_b[big == 0] == 0)
@@ -160,8 +161,7 @@ def test_single_scattering_still_closed_form(layers):
 def test_march_planes_homogeneous_box_closed_form():
     n = 12
     sig, src = np.full((n, n, n), 3.0), np.full((n, n, n), 2.0)
-    cam = scatter.Camera((0.5, 0.5, 5.0), (0.5, 0.5, 0.5), fov=np.radians(2.0), width=4, height=4,
-                         up=(0.0, 1.0, 0.0))
+    cam = scatter.Camera.look_at((0.5, 0.5, 5.0), (0.5, 0.5, 0.5), up=(0.0, 1.0, 0.0), fov=2.0, width=4, height=4)
     tau_total = 3.0 * (1.0 - 1.0 / n) + 2 * 3.0 / (2 * n)  # chord plus the two half-voxel ramps
     expect = 2.0 / 3.0 * (1 - np.exp(-tau_total))
     for samples in (1, 2):
@@ -204,8 +204,8 @@ def test_layer_rectangles_give_the_same_solution(monkeypatch):
     sig[:, 5:8, 6:9] = 0.0  # a hole through the cloud
     kw = dict(albedo=0.95, g=0.7, sun_dir=(0.3, -0.2, 1.0), tol=1e-3)
     part = scatter.solve(sig, (1, 1, 0.8), **kw)
-    assert any(r is None or r != (slice(0, 14), slice(0, 16)) for r in scatter._layer_boxes(sig.astype(np.float32)))
-    monkeypatch.setattr(scatter, "_layer_boxes", lambda s: [(slice(0, s.shape[1]), slice(0, s.shape[2]))] * len(s))
+    assert any(r is None or r != (slice(0, 14), slice(0, 16)) for r in sweeps._layer_boxes(sig.astype(np.float32)))
+    monkeypatch.setattr(sweeps, "_layer_boxes", lambda s: [(slice(0, s.shape[1]), slice(0, s.shape[2]))] * len(s))
     whole = scatter.solve(sig, (1, 1, 0.8), **kw)
     assert whole.passes == part.passes
     for name in ("received", "total", "received_peaked", "unshot"):
@@ -221,7 +221,7 @@ def test_march_planes_culls_only_rays_that_miss():
     src = sig * np.linspace(0.5, 1.5, 32)[None, None, :]
     size = (1.0, 1.0, 0.75)
     for pos, target, fov in (((2.5, 1.8, 1.2), (0.5, 0.5, 0.4), 15.0), ((0.55, 0.5, 0.4), (0.9, 0.2, 0.3), 60.0)):
-        cam = scatter.Camera(pos, target, np.radians(fov), 48, 36)
+        cam = scatter.Camera.look_at(pos, target, fov=fov, width=48, height=36)
         ref = scatter.render(sig, src, size, cam, step=0.1, background=0.5)
         img = scatter.march_planes(sig, src, size, cam, samples=2, background=0.5)
         np.testing.assert_array_equal(img[ref == np.float32(0.5)], np.float32(0.5))
@@ -247,16 +247,16 @@ def test_view_source_reuses_its_tables_only_for_the_same_arrays():
 
 def test_rate_of_offset_table_inverts_offset():
     d = np.concatenate([np.linspace(-0.49, 0.49, 98001), np.geomspace(1e-9, 0.49, 2001)]).astype(np.float32)
-    rate = scatter._rate_of_offset(d)
+    rate = escape._rate_of_offset(d)
     assert rate.dtype == np.float32
-    np.testing.assert_allclose(scatter._offset(rate.astype(np.float64)), d, rtol=0, atol=2e-6)
+    np.testing.assert_allclose(escape._offset(rate.astype(np.float64)), d, rtol=0, atol=2e-6)
 
 
 def test_l1_combination_matches_the_direct_form():
     rng = np.random.default_rng(5)
     x, y = (rng.standard_normal((7, 5, 6, 4)).astype(np.float32) for _ in range(2))
     a, b = np.float32(1.7), np.float32(-0.6)
-    assert scatter._l1_combination(x, a, y, b) == pytest.approx(np.abs(a * x.astype(float) + b * y).sum(), rel=1e-6)
+    assert passes._l1_combination(x, a, y, b) == pytest.approx(np.abs(a * x.astype(float) + b * y).sum(), rel=1e-6)
 
 
 @pytest.mark.parametrize("threads", ["1", "2"])
@@ -269,7 +269,7 @@ def test_scatter_into_matches_the_direct_product(monkeypatch, threads):
         m = rng.random((96, g))
         u = rng.random((96,) + shape).astype(np.float32)
         want = u + 0.9 * np.einsum("ij,j...->i...", m, r.astype(np.float64))
-        scatter._scatter_into(u, m, r, 0.9)
+        passes._scatter_into(u, m, r, 0.9)
         np.testing.assert_allclose(u, want, rtol=2e-6)
 
 
@@ -324,8 +324,8 @@ def test_merged_peaked_bins_change_less_than_the_sub_directions_own_error(orders
     qs = phase.direct_fractions((0.0, 0.6, -0.8), 0.8, sub=48, into_sub=4)
     w = qs / qs.sum(1, keepdims=True)
     _, omega, dirs, sa = phase.bins(4)
-    kids = scatter._quarters(4, 2)
-    d, wq, share = scatter._merge_quarters(dirs, w, sa / omega[:, None], kids)
+    kids = passes._quarters(4, 2)
+    d, wq, share = passes._merge_quarters(dirs, w, sa / omega[:, None], kids)
     np.testing.assert_allclose(wq, w[:, kids].sum(2), rtol=1e-12)
     np.testing.assert_allclose(share.sum(2), 1.0, rtol=1e-12)
     mean = (dirs[:, kids] * w[:, kids, None]).sum(2)
@@ -376,7 +376,7 @@ def march_all_planes(sigma, source, size, cam, samples, background):
         i = ia * nb + ib
         v = (1 - fa) * ((1 - fb) * pl[i] + fb * pl[i + 1]) + fa * ((1 - fb) * pl[i + nb] + fb * pl[i + nb + 1])
         tau = np.where(front, v.real * step, 0.0).astype(np.float32)
-        rad += trans * np.where(front, v.imag, 0.0) * step * scatter._phi(tau)
+        rad += trans * np.where(front, v.imag, 0.0) * step * escape._phi(tau)
         trans *= np.exp(-tau)
     img[hit] = rad + trans * np.float32(background)
     return img.reshape(cam.height, cam.width)
@@ -391,17 +391,18 @@ def test_march_planes_spans_give_the_all_planes_march(monkeypatch, tile):
     # (tiles with corner rays going backwards along c), in few jobs and in many (chunk=64)
     import functools
 
-    monkeypatch.setattr(scatter, "_tile_spans", functools.partial(scatter._tile_spans, tile=tile))
+    monkeypatch.setattr(views, "_tile_spans", functools.partial(views._tile_spans, tile=tile))
     sig = np.zeros((20, 26, 24))
     sig[4:16, 6:22, 5:21] = small_cloud((12, 16, 16), 20.0)
     sig[9:11, 12:14, 3:6] = 7.0  # a detached blob
     src = sig * np.linspace(0.5, 1.5, 24)[None, None, :]
     size = (1.0, 1.1, 0.8)
     cams = [scatter.orbit_camera(a, size, elevation=e, width=40, height=30) for a, e in ((0.6, 0.26), (3.5, -0.5))]
-    cams += [scatter.Camera((0.5, 0.6, 0.4), (0.9, 0.2, 0.3), np.radians(70.0), 40, 30),
-             scatter.Camera((0.45, 0.55, 0.45), (0.4, 0.9, 0.2), np.radians(50.0), 40, 30),
-             scatter.Camera((0.5, 0.6, 0.4), (0.9, 0.2, 0.3), np.radians(130.0), 40, 30),
-             scatter.Camera((0.5, 0.55, 2.5), (0.5, 0.55, 0.4), np.radians(30.0), 40, 30, up=(0.0, 1.0, 0.0))]
+    cams += [scatter.Camera.look_at((0.5, 0.6, 0.4), (0.9, 0.2, 0.3), fov=70.0, width=40, height=30),
+             scatter.Camera.look_at((0.45, 0.55, 0.45), (0.4, 0.9, 0.2), fov=50.0, width=40, height=30),
+             scatter.Camera.look_at((0.5, 0.6, 0.4), (0.9, 0.2, 0.3), fov=130.0, width=40, height=30),
+             scatter.Camera.look_at((0.5, 0.55, 2.5), (0.5, 0.55, 0.4), up=(0.0, 1.0, 0.0), fov=30.0, width=40,
+                                    height=30)]
     for cam in cams:
         for samples, bg in ((1, 0.0), (2, 0.4)):
             ref = march_all_planes(sig, src, size, cam, samples, bg)
@@ -417,7 +418,7 @@ def test_view_source_matches_the_per_voxel_sums():
     sol = scatter.solve(small_cloud(), (1, 1, 0.8), albedo=0.95, g=0.7, sun_dir=(0.3, -0.2, 1.0), tol=1e-2)
     for angle, elev in ((0.5, 0.3), (2.5, -1.2), (4.0, 1.5)):
         pos = scatter.orbit_camera(angle, (1, 1, 0.8), elevation=elev).position
-        occ, pts, sig, r_sun, _, _ = scatter._view_tables(sol)
+        occ, pts, sig, r_sun, _, _ = views._view_tables(sol)
         w = np.asarray(pos)[None] - pts
         w /= np.linalg.norm(w, axis=1, keepdims=True)
         g = sol.grid("received").reshape(96, -1)[:, occ]
@@ -425,7 +426,7 @@ def test_view_source_matches_the_per_voxel_sums():
         pk = sol.grid("received_peaked").reshape(orders, 96, -1)[:, :, occ]
         diffuse = sol.albedo / (1.0 - sol.albedo * sol.delta_f)
         sub = int(round(np.sqrt(sol.peaked_weights.shape[2])))
-        ref = sol.albedo * r_sun * phase.hg(w @ -np.asarray(sol.sun_dir), sol.g) * scatter._sun_view_escape(sol, w, sig)
+        ref = sol.albedo * r_sun * phase.hg(w @ -np.asarray(sol.sun_dir), sol.g) * views._sun_view_escape(sol, w, sig)
         ref += diffuse * np.einsum("nj,jn->n", phase.bin_phase_toward(w, sol.g), g - pk.sum(0))
         for k in range(orders):
             fac = sol.albedo if k < sol.real_orders else diffuse
@@ -460,7 +461,7 @@ def test_bin_phase_toward_rows_filled_on_demand_equal_the_whole_map():
 
 
 def test_scratch_arrays_come_back_zeroed_on_kept_memory():
-    s = scatter._Scratch()
+    s = sweeps._Scratch()
     a = s.zeros("recv", (3, 4))
     a += 5.0
     b = s.zeros("recv", (2, 5))
@@ -469,3 +470,19 @@ def test_scratch_arrays_come_back_zeroed_on_kept_memory():
     c = s.zeros("recv", (10, 10))  # larger than kept: fresh memory, kept from now on
     assert np.all(c == 0) and np.shares_memory(c, s.zeros("recv", (7,)))
     assert not np.shares_memory(s.zeros("total", (3, 4)), c)
+
+
+def test_merged_bins_are_chosen_by_the_flux_values_not_its_last_bits():
+    # tol 1 merges every bin, whatever the order of the sums; mirror bins equal but for rounding
+    # are merged together or not at all (the C and NumPy paths once parted over such a bit)
+    kids = passes._quarters(4, 2)
+    rng = np.random.default_rng(2)
+    flux = rng.random(96)
+    assert not passes._fine_bins(flux, kids, 1.0).any()
+    flux[flux > 0.5] += 1.0
+    flux[[10, 11]] = 0.5, 0.5 * (1 + 1e-9)  # a tie where some tol's share of the power ends
+    for tol in np.linspace(0.02, 0.4, 39):
+        fine = passes._fine_bins(flux, kids, tol)
+        assert fine[10] == fine[11]
+        assert not fine[flux < flux[fine].min()].any()  # the merged bins are the weakest
+        assert flux[~fine].sum() <= tol * flux.sum() * (1 + 1e-12)

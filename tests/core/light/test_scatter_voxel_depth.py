@@ -10,6 +10,7 @@ from overhead down to 15 degrees.
 import numpy as np
 import pytest
 
+from kernel_paths import BOTH
 from nephele.core.light import scatter
 from radiative_truth import adding_doubling, gauss01, h_function, single_scattering_r
 
@@ -53,7 +54,8 @@ def test_independent_truths_agree():
 # sub-directions) +0.09% at every voxel tau (2026-11-28).
 @pytest.mark.parametrize("mu0", [1.0, 0.5, MU15])
 @pytest.mark.parametrize("layers", [32, 16, 8, 4])  # voxel tau 0.25 .. 2 on tau = 8
-def test_single_scattering_independent_of_voxel_depth(mu0, layers):
+@pytest.mark.parametrize("kernels", BOTH, indirect=True)
+def test_single_scattering_independent_of_voxel_depth(mu0, layers, kernels):
     r, _ = slab(8.0, layers, 1e-3, 0.0, mu0)
     assert r == pytest.approx(single_scattering_r(1e-3, 0.0, 8.0, mu0), rel=5e-3)
 
@@ -69,7 +71,8 @@ def test_single_scattering_independent_of_voxel_depth(mu0, layers):
 @pytest.mark.parametrize("mu0,first_sub,rel", [(1.0, None, 0.005), (0.5, None, 0.005), (MU15, None, 0.005),
                                                (np.sin(np.radians(25.0)), None, 0.005), (MU15, 4, 0.011)])
 @pytest.mark.parametrize("layers", [4, 16])
-def test_single_scattering_forward_peaked(mu0, first_sub, rel, layers):
+@pytest.mark.parametrize("kernels", BOTH, indirect=True)
+def test_single_scattering_forward_peaked(mu0, first_sub, rel, layers, kernels):
     r, _ = slab(8.0, layers, 1e-4, 0.8, mu0, first_sub=first_sub)
     assert r == pytest.approx(single_scattering_r(1e-4, 0.8, 8.0, mu0), rel=rel)
 
@@ -78,7 +81,8 @@ def test_single_scattering_forward_peaked(mu0, first_sub, rel, layers):
 # (2026-11-28, one peaked order for isotropic scattering; with two, as before, up to +0.42%).
 @pytest.mark.parametrize("mu0", [1.0, 0.5, MU15])
 @pytest.mark.parametrize("layers", [64, 32, 16])  # voxel tau 0.5, 1, 2
-def test_semi_infinite_against_h_function(mu0, layers):
+@pytest.mark.parametrize("kernels", BOTH, indirect=True)
+def test_semi_infinite_against_h_function(mu0, layers, kernels):
     omega = 0.9
     r, t = slab(32.0, layers, omega, 0.0, mu0)
     assert t < 1e-5
@@ -88,14 +92,16 @@ def test_semi_infinite_against_h_function(mu0, layers):
 @pytest.mark.slow
 @pytest.mark.parametrize("mu0", [1.0, 0.5])
 @pytest.mark.parametrize("layers", [16, 32, 64, 128])  # voxel tau 2 .. 0.25
-def test_thick_isotropic_slab_against_adding_doubling(mu0, layers):
+@pytest.mark.parametrize("kernels", BOTH, indirect=True)
+def test_thick_isotropic_slab_against_adding_doubling(mu0, layers, kernels):
     r_ref, t_ref = adding_doubling(32.0, 0.99, mu0)
     r, t = slab(32.0, layers, 0.99, 0.0, mu0)
     assert r == pytest.approx(r_ref, rel=1e-2) and t == pytest.approx(t_ref, rel=1e-2)
 
 
 # Measured (voxel tau 1): R +0.50%, T +0.10%; with sources spread evenly -4.8%, +18%.
-def test_uniform_sky_on_isotropic_slab():
+@pytest.mark.parametrize("kernels", BOTH, indirect=True)
+def test_uniform_sky_on_isotropic_slab(kernels):
     # sky radiance L from the upper hemisphere: incident pi L per unit area; the slab's
     # reflected and transmitted fractions are 2 int R(mu0) mu0 dmu0 (adding-doubling)
     tau, omega, layers = 4.0, 0.99, 4  # voxel tau 1
@@ -116,12 +122,13 @@ def test_uniform_sky_on_isotropic_slab():
 # (the rest: the march interpolates voxel values trilinearly).
 @pytest.mark.parametrize("mu0", [1.0, 0.5])
 @pytest.mark.parametrize("layers", [16, 8, 4])  # voxel tau 0.5, 1, 2
-def test_rendered_single_scattering_from_above(mu0, layers):
+@pytest.mark.parametrize("kernels", BOTH, indirect=True)
+def test_rendered_single_scattering_from_above(mu0, layers, kernels):
     omega, tau = 1e-3, 8.0
     s = np.sqrt(1 - mu0 * mu0)
     sol = scatter.solve(np.full((layers, 3, 3), tau), (1.0, 1.0, 1.0), albedo=omega, g=0.0, sun_dir=(s, 0, mu0),
                         tol=1e-4, periodic=(True, True, False))
-    cam = scatter.Camera((0.5, 0.5, 30.0), (0.5, 0.5, 0.0), fov=np.radians(0.1), width=2, height=2, up=(0, 1, 0))
+    cam = scatter.Camera.look_at((0.5, 0.5, 30.0), (0.5, 0.5, 0.0), up=(0, 1, 0), fov=0.1, width=2, height=2)
     img = scatter.render(sol.sigma, scatter.view_source(sol, cam.position), sol.size, cam, step=0.05)
     ref = omega * mu0 / (4 * np.pi * (1 + mu0)) * (1 - np.exp(-tau * (1 / mu0 + 1)))
     assert img.mean() == pytest.approx(ref, rel=0.03)
@@ -153,7 +160,8 @@ AD_G08 = [(1.0, 1.0, 0.06000, 0.93926), (4.0, 1.0, 0.25444, 0.74406), (4.0, 0.99
 @pytest.mark.parametrize("mu0,rel", [(1.0, 0.007), (0.5, 0.0085), (MU15, 0.0095)])
 @pytest.mark.parametrize("vtau", [2.0, 0.5])
 @pytest.mark.parametrize("tau,omega", [(t, o) for t, o, _, _ in AD_G08])
-def test_forward_peaked_slab_against_adding_doubling(tau, omega, vtau, mu0, rel):
+@pytest.mark.parametrize("kernels", BOTH, indirect=True)
+def test_forward_peaked_slab_against_adding_doubling(tau, omega, vtau, mu0, rel, kernels):
     r_ref, t_ref = adding_doubling(tau, omega, mu0, g=0.8)
     r, t = slab(tau, max(1, int(round(tau / vtau))), omega, 0.8, mu0)
     assert r == pytest.approx(r_ref, rel=rel) and t == pytest.approx(t_ref, rel=rel), (r / r_ref - 1, t / t_ref - 1)
@@ -171,7 +179,8 @@ def test_forward_peaked_slab_against_adding_doubling(tau, omega, vtau, mu0, rel)
 @pytest.mark.parametrize("g,rel", [(0.0, 0.0045), (0.8, 0.009)])
 @pytest.mark.parametrize("mu0", [1.0, 0.5, MU15])
 @pytest.mark.parametrize("tau,layers", [(1.0, 1), (2.0, 1), (2.0, 2), (4.0, 2)])
-def test_cubic_voxels_in_thin_layers(tau, layers, mu0, g, rel):
+@pytest.mark.parametrize("kernels", BOTH, indirect=True)
+def test_cubic_voxels_in_thin_layers(tau, layers, mu0, g, rel, kernels):
     s = np.sqrt(1 - mu0 * mu0)
     sol = scatter.solve(np.full((layers, 3, 3), tau), (3.0 / layers, 3.0 / layers, 1.0), albedo=1.0, g=g,
                         sun_dir=(s, 0.0, mu0), tol=1e-6, max_passes=5000, periodic=(True, True, False))
@@ -179,3 +188,18 @@ def test_cubic_voxels_in_thin_layers(tau, layers, mu0, g, rel):
     r, t = scatter.slab_reflectance(sol)
     r_ref, t_ref = adding_doubling(tau, 1.0, mu0, g=g)
     assert r == pytest.approx(r_ref, rel=rel) and t == pytest.approx(t_ref, rel=rel), (r / r_ref - 1, t / t_ref - 1)
+
+
+# The NumPy twins' run of the cases above is in the slow tier; here one cheap case of each property
+# on them in the quick tier (the compiled kernels run every case above).
+@pytest.mark.parametrize("kernels", ["numpy"], indirect=True)
+def test_numpy_twin_keeps_the_accuracy(kernels):
+    r, _ = slab(8.0, 8, 1e-3, 0.0, 0.5)
+    assert r == pytest.approx(single_scattering_r(1e-3, 0.0, 8.0, 0.5), rel=5e-3)
+    r, _ = slab(8.0, 4, 1e-4, 0.8, 0.5)
+    assert r == pytest.approx(single_scattering_r(1e-4, 0.8, 8.0, 0.5), rel=5e-3)
+    r, t = slab(4.0, 2, 0.99, 0.8, 1.0)
+    r_ref, t_ref = adding_doubling(4.0, 0.99, 1.0, g=0.8)
+    assert r == pytest.approx(r_ref, rel=0.007) and t == pytest.approx(t_ref, rel=0.007)
+    r, _ = slab(32.0, 16, 0.9, 0.0, 1.0)
+    assert r == pytest.approx(1 - h_function(0.9)(1.0) * np.sqrt(0.1), rel=5e-3)

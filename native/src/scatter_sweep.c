@@ -1,0 +1,469 @@
+/* The scattering solve's sweeps: the compiled twin of nephele.core.light._sweep._sweep_block.
+ *
+ * One call sweeps bins [bin_lo, bin_hi) of one group (beams sharing the sweep axis and its sign),
+ * each bin with its ns sub-beams, through all layers; Python calls it per bin from its threads
+ * (the bins never share an output).  Per layer a sub-beam's plane moves sideways (bilinear, three
+ * taps per axis: the NumPy twin's plane shift, or its gathers for shifts over a cell), then on the
+ * layer's rectangle of non-empty voxels loses exp(-tau) to what is caught and gains the voxels'
+ * emission that escapes (exponential source profile plus its P2 term), with the moments of what is
+ * caught; outside the rectangle the beams pass and the outputs are written zero (no zeroing pass
+ * in Python).  Arrays in the grid's layout are addressed through element strides in sweep order
+ * (layer, row, column), gathered into contiguous rows so the arithmetic vectorizes; in each row only
+ * the span of non-empty voxels is transported (an empty voxel passes the beams unchanged and holds
+ * no emission: the NumPy twin's rectangles give the same numbers).  float32 as the
+ * NumPy twin; the exponentials are scatter_math.h's, so the two agree to a few float32 ulps per
+ * step, not bit for bit.  Plain C11 and libm, no threads (see native/build.py).
+ */
+
+#include <math.h>
+#include <stdint.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "scatter_math.h"
+
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && defined(__linux__)
+#define CLONES __attribute__((target_clones("arch=x86-64-v3", "default")))
+#else
+#define CLONES
+#endif
+
+#define INLINE static inline __attribute__((always_inline))
+
+/* Mirrored by nephele.core.light._native.SweepArgs (same order, all 8-byte fields). */
+struct nph_sweep {
+    int64_t L, A, B, sign, periodic_a, periodic_b, comp;
+    const float *sig;     /* (L, A, B) contiguous, sweep order */
+    const int64_t *spans; /* (L, A, 2): columns [b0, b1) of each row's non-empty voxels; b0 == b1: none */
+    const int64_t *soff;  /* (L A + 1): each row's span's offset in a beam's cache row */
+    int64_t g, ns;        /* bins of the group, sub-beams per bin: beam j = bin * ns + sub */
+    const int64_t *ia, *ib; /* per beam: the plane shift's centre tap offset along a and b */
+    const float *wa, *wb;   /* per beam: (previous, centre, next) tap weights along a and b */
+    const float *cross;     /* (beams, 3): move across a voxel's unit cube per layer (x y z) */
+    const float *ell, *w, *inflow; /* per beam: path across a layer, share of its bin's emission, inflow */
+    const float *em;
+    int64_t em_s[4];      /* (bin, layer, row, column) or NULL: emission */
+    const float *kap;
+    int64_t kap_s[4];     /* (xyz component, layer, row, column) or NULL: the profiles' rates */
+    const float *qa;
+    int64_t qa_s[3];      /* P2 weight along the sweep axis, or NULL */
+    const float *var;
+    int64_t var_s[3];     /* the profile's variance along the sweep axis (second moments), or NULL */
+    float *recv;
+    int64_t recv_s[5];    /* (bin, sub, layer, row, column): caught (sub stride used if per_sub) */
+    int64_t per_sub;
+    float *total;
+    int64_t total_s[4];   /* (bin, layer, row, column) */
+    double *exit_power;   /* (bins,) */
+    float *mom;
+    int64_t mom_s[5];     /* (bin, slot, layer, row, column) or NULL */
+    int64_t slot_kept, slot_m2, slot_dep; /* -1: not tracked; slot 0 is the first moment */
+    float *cache;         /* (3, beams, soff[L A]): escapes, kept shifts, kept second moments */
+    int64_t cache_mode;   /* 0: none, 1: compute and store, 2: read */
+};
+
+/* Row buffers of one layer row (width n of the rectangle). */
+struct rows {
+    float *em, *k0, *k1, *k2, *qa, *var, *r, *rsum, *etot, *m1, *mk, *m2, *md, *ext;
+};
+
+/* ------------------------------------------------------------------ the closed forms (float32) */
+
+/* escape fraction (clipped to [0, 1]) and centroid along the path of a source exp(-beta v) over
+ * optical depth tau (t = exp(-tau)): _escape_centroid.  exp(min(beta, 0) - min(tau, beta)) is 1,
+ * t or exp(-|beta|), which expm1(-|beta|) needs anyway: two exponentials per call, not four.  Two
+ * divisions where the twin has four (vector division is the slowest operation here); the floors
+ * keep the products normal, and phi(x) is 1 to float32 below them. */
+INLINE void escape_centroid(float tau, float beta, float t, float *esc, float *vs)
+{
+    float a = nph_absf(beta);
+    float na = -nph_maxf(a, 1e-18f);
+    float ea = nph_expf(na);
+    float ma = nph_expm1f_of(na, ea);
+    float nd = -nph_maxf(nph_absf(beta - tau), 1e-18f);
+    float ed = nph_expm1f_of(nd, nph_expf(nd));
+    float big_e = beta >= tau ? t : ea;
+    float ee = beta <= 0.0f ? 1.0f : big_e;
+    float e = ee * (ed * na) / (nd * ma);
+    float k2 = beta * beta;
+    float series = beta * (-1.0f / 12 + k2 * (1.0f / 720 - k2 * (1.0f / 30240)));
+    float big = (na - ma) / (ma * na) + 0.5f; /* 1 / ma - 1 / na + 1/2 = _offset(|beta|) <= 0, odd in beta */
+    big = beta > 0.0f ? big : -big;
+    *vs = (a < 0.5f ? series : big) + 0.5f;
+    *esc = nph_clampf(e, 0.0f, 1.0f);
+}
+
+/* _offset(tau) for tau >= 0, t = exp(-tau): 1 / (t - 1) + 1 / tau + 1/2 from tau = 1/2 on */
+INLINE float offset_pos(float tau, float t)
+{
+    float k2 = tau * tau;
+    float series = tau * (-1.0f / 12 + k2 * (1.0f / 720 - k2 * (1.0f / 30240)));
+    float m = nph_maxf(tau, 0.5f);
+    float big = (m + (t - 1.0f)) / ((t - 1.0f) * m) + 0.5f;
+    return tau < 0.5f ? series : big;
+}
+
+/* _variance(tau, t) */
+INLINE float variance(float tau, float t)
+{
+    float e = nph_minf(t, 0.60653066f);
+    float ac2 = nph_maxf(tau, 0.5f) * nph_maxf(tau, 0.5f), f = (1.0f - e) * (1.0f - e);
+    float big = (f - e * ac2) / (ac2 * f); /* 1 / ac^2 - e / (1 - e)^2 */
+    float k2 = tau * tau;
+    float series = 1.0f / 12 - k2 * (1.0f / 240 - k2 * (1.0f / 6048));
+    return tau < 0.5f ? series : big;
+}
+
+/* _p2_escape(tau, t): coefficients (-1)^n c_n / n! of its series, n = 2..10 (_P2_SERIES, float32) */
+static const float P2S[9] = {
+    0.01666666753590107f, -0.008333333767950535f, 0.0023809524718672037f, -0.0004960317746736109f,
+    8.26719551696442e-05f, -1.1574074051168282e-05f, 1.4029180874786107e-06f, -1.5031264410936274e-07f,
+    1.4453139129955161e-08f,
+};
+
+INLINE float p2_escape(float tau, float t)
+{
+    float a = nph_clampf(tau, 1.0f, 1e12f);
+    float e = nph_minf(t, 0.36787944f);
+    float a2 = a * a;
+    float big = (a2 - 6.0f * a + 12.0f - e * (a2 + 6.0f * a + 12.0f)) / (a2 * a);
+    float ts = nph_minf(tau, 1.0f);
+    float s = P2S[8];
+    for (int n = 7; n >= 0; n--)
+        s = s * ts + P2S[n];
+    s = s * ts * ts;
+    return tau < 1.0f ? s : big;
+}
+
+/* ------------------------------------------------------------------ one sub-beam across one row */
+
+enum { NONE = 0, PLAIN = 1, PROFILE = 2, CACHED = 3 };
+
+/* Transport sub-beam j's row ``cur`` (n cells) through the layer's row (extinction ``sg``, the row
+ * buffers of struct rows): emission ``mode`` (NONE: no emission; PLAIN: spread evenly; PROFILE: its
+ * profile, computed, or CACHED: read from ce, cs, ck), ``QA`` its P2 term, ``MOM`` the moments
+ * (``M2`` second), ``STORE`` the profile's escapes to the cache.  What is caught goes to ``r``, the
+ * rest accumulates over the bin's sub-beams. */
+INLINE void row_sub(const struct nph_sweep *s, int64_t j, int64_t n, const float *restrict sg, float *restrict cur,
+                    const float *restrict em, const float *restrict k0, const float *restrict k1,
+                    const float *restrict k2, const float *restrict qa, const float *restrict vr,
+                    float *restrict r, float *restrict etot, float *restrict m1, float *restrict mk,
+                    float *restrict m2, float *restrict md, float *restrict ce, float *restrict cs,
+                    float *restrict ck, const int mode, const int QA, const int MOM, const int M2, const int STORE)
+{
+    /* (the arrays as restrict parameters: GCC gives up on a loop needing more than 10 run-time
+     * alias checks, and restrict locals did not stop them) */
+    const float ell = s->ell[j], wj = s->w[j];
+    const float c0 = s->cross[3 * j], c1 = s->cross[3 * j + 1], c2 = s->cross[3 * j + 2];
+    const float cw = s->cross[3 * j + s->comp];
+    for (int64_t i = 0; i < n; i++) {
+        float tau = sg[i] * ell;
+        float t = nph_expf(-tau);
+        float bm = cur[i], bt = bm * t, rb = bm - bt;
+        float e = 0.0f, re = 0.0f, esc = 0.0f, vs = 0.5f, shift = 0.0f, kept2 = 0.0f, ri;
+        if (mode == NONE) {
+            ri = rb;
+            cur[i] = bt;
+        } else {
+            if (mode == PLAIN) {
+                esc = nph_phif(tau);
+            } else if (mode == CACHED) {
+                esc = ce[i];
+                shift = cs[i];
+                kept2 = ck[i];
+            } else {
+                escape_centroid(tau, c0 * k0[i] + c1 * k1[i] + c2 * k2[i], t, &esc, &vs);
+                if (QA)
+                    esc = nph_clampf(esc + qa[i] * p2_escape(tau, t), 0.0f, 1.0f);
+                if (MOM) {
+                    /* what a source keeps sits downstream of it (the NumPy twin's comments) */
+                    float kept = nph_maxf(1.0f - esc, 1e-30f), tm = nph_maxf(tau, 1e-2f);
+                    shift = ((vs - esc) * tm + kept) / (kept * tm) - vs; /* (vs - esc) / kept + 1 / tm - vs */
+                    shift = nph_clampf(shift, -1.0f, 1.0f);
+                    shift = tau < 1e-2f ? 1.0f / 6 : shift;
+                    if (M2) {
+                        float ti = 1.0f / nph_maxf(tau, 0.1f);
+                        float m2s = vr[i] + (vs - 0.5f) * (vs - 0.5f);
+                        kept2 = m2s + (vs + vs - 1.0f - esc) * ti + 2.0f * kept * ti * ti - 0.25f * esc;
+                        kept2 = tau < 0.1f ? kept * m2s : kept2;
+                        kept2 = nph_clampf(kept2, 0.0f, 0.25f * kept);
+                    }
+                }
+                if (STORE) {
+                    ce[i] = esc;
+                    cs[i] = shift;
+                    ck[i] = kept2;
+                }
+            }
+            e = em[i] * wj;
+            float ee = e * esc;
+            re = e - ee;
+            ri = rb + re;
+            cur[i] = bt + ee;
+            etot[i] += e;
+        }
+        if (MOM) {
+            float offb = offset_pos(tau, t);
+            float dep = rb * offb;
+            if (mode >= PROFILE) {
+                mk[i] += re;
+                dep += re * shift;
+            }
+            m1[i] += cw * dep;
+            if (M2) {
+                float dep2 = rb * (variance(tau, t) + offb * offb);
+                if (mode >= PROFILE)
+                    dep2 += e * kept2;
+                m2[i] += dep2;
+                md[i] += rb;
+            }
+        }
+        r[i] = ri;
+    }
+}
+
+#define ROW(MODE, QA, MOM, M2, STORE)                                                                            \
+    row_sub(s, j, n, sg, cur, rw->em, rw->k0, rw->k1, rw->k2, rw->qa, rw->var, rw->r, rw->etot, rw->m1, rw->mk,   \
+            rw->m2, rw->md, ce, cs, ck, MODE, QA, MOM, M2, STORE)
+
+INLINE void row_dispatch(const struct nph_sweep *s, int64_t j, const float *sg, float *cur, const struct rows *rw,
+                         float *ce, float *cs, float *ck, int64_t n, int mode, int qa, int mom, int m2, int store)
+{
+    if (mode == NONE || mode == PLAIN || mode == CACHED) {
+        if (!mom)
+            mode == NONE ? ROW(NONE, 0, 0, 0, 0) : mode == PLAIN ? ROW(PLAIN, 0, 0, 0, 0) : ROW(CACHED, 0, 0, 0, 0);
+        else if (!m2)
+            mode == NONE ? ROW(NONE, 0, 1, 0, 0) : mode == PLAIN ? ROW(PLAIN, 0, 1, 0, 0) : ROW(CACHED, 0, 1, 0, 0);
+        else
+            mode == NONE ? ROW(NONE, 0, 1, 1, 0) : mode == PLAIN ? ROW(PLAIN, 0, 1, 1, 0) : ROW(CACHED, 0, 1, 1, 0);
+        return;
+    }
+    if (!mom) {
+        qa ? (store ? ROW(PROFILE, 1, 0, 0, 1) : ROW(PROFILE, 1, 0, 0, 0))
+           : (store ? ROW(PROFILE, 0, 0, 0, 1) : ROW(PROFILE, 0, 0, 0, 0));
+    } else if (!m2) {
+        qa ? (store ? ROW(PROFILE, 1, 1, 0, 1) : ROW(PROFILE, 1, 1, 0, 0))
+           : (store ? ROW(PROFILE, 0, 1, 0, 1) : ROW(PROFILE, 0, 1, 0, 0));
+    } else {
+        qa ? (store ? ROW(PROFILE, 1, 1, 1, 1) : ROW(PROFILE, 1, 1, 1, 0))
+           : (store ? ROW(PROFILE, 0, 1, 1, 1) : ROW(PROFILE, 0, 1, 1, 0));
+    }
+}
+
+/* ------------------------------------------------------------------ plane shifts */
+
+/* index c of an axis of n cells: wrapped (periodic) or -1 (outside: the inflow) */
+static inline int64_t axis_index(int64_t c, int64_t n, int64_t periodic)
+{
+    if (c >= 0 && c < n)
+        return c;
+    if (!periodic)
+        return -1;
+    c %= n;
+    return c < 0 ? c + n : c;
+}
+
+/* new[c] = wc old[c - i0] + wm old[c - i0 - 1] + wp old[c - i0 + 1] along a (rows) into tmp, then
+ * along b (columns) back into p; the inflow outside non-periodic sides. */
+INLINE void shift_plane(const struct nph_sweep *s, int64_t j, float *restrict p, float *restrict tmp,
+                        float *restrict ext, const float *restrict inrow)
+{
+    const int64_t A = s->A, B = s->B;
+    const float wm = s->wa[3 * j], wc = s->wa[3 * j + 1], wp = s->wa[3 * j + 2];
+    const int64_t i0 = s->ia[j];
+    for (int64_t a = 0; a < A; a++) {
+        int64_t ic = axis_index(a - i0, A, s->periodic_a), im = axis_index(a - i0 - 1, A, s->periodic_a),
+                ip = axis_index(a - i0 + 1, A, s->periodic_a);
+        const float *xc = ic < 0 ? inrow : p + ic * B, *xm = im < 0 ? inrow : p + im * B,
+                    *xp = ip < 0 ? inrow : p + ip * B;
+        float *restrict o = tmp + a * B;
+        for (int64_t b = 0; b < B; b++)
+            o[b] = wc * xc[b] + wm * xm[b] + wp * xp[b];
+    }
+    const float vm = s->wb[3 * j], vc = s->wb[3 * j + 1], vp = s->wb[3 * j + 2];
+    const int64_t j0 = s->periodic_b ? ((s->ib[j] % B) + B) % B : s->ib[j];
+    /* ext[q] holds old[q - G] for q in [0, B + 2G): the row with G ghost cells each side */
+    const int64_t G = (j0 < 0 ? -j0 : j0) + 1 > B + 1 ? B + 1 : (j0 < 0 ? -j0 : j0) + 1;
+    for (int64_t a = 0; a < A; a++) {
+        const float *x = tmp + a * B;
+        memcpy(ext + G, x, (size_t)B * sizeof *ext);
+        for (int64_t q = 0; q < G; q++) {
+            int64_t lo = axis_index(q - G, B, s->periodic_b), hi = axis_index(B + q, B, s->periodic_b);
+            ext[q] = lo < 0 ? inrow[0] : x[lo];
+            ext[G + B + q] = hi < 0 ? inrow[0] : x[hi];
+        }
+        float *restrict o = p + a * B;
+        int64_t jc = j0 < -G + 1 ? -G + 1 : (j0 > G - 1 ? G - 1 : j0); /* beyond the ghosts: all inflow */
+        const float *ec = ext + G - jc;
+        for (int64_t b = 0; b < B; b++)
+            o[b] = vc * ec[b] + vm * ec[b - 1] + vp * ec[b + 1];
+    }
+}
+
+/* ------------------------------------------------------------------ one bin */
+
+static inline float *at3(float *base, const int64_t *st, int64_t k, int64_t a, int64_t b)
+{
+    return base + k * st[0] + a * st[1] + b * st[2];
+}
+
+static void gather(float *restrict dst, const float *src, int64_t stride, int64_t n)
+{
+    if (stride == 1)
+        memcpy(dst, src, (size_t)n * sizeof *dst);
+    else
+        for (int64_t i = 0; i < n; i++)
+            dst[i] = src[i * stride];
+}
+
+static void scatter_row(float *dst, int64_t stride, const float *restrict src, int64_t n)
+{
+    if (stride == 1)
+        memcpy(dst, src, (size_t)n * sizeof *dst);
+    else
+        for (int64_t i = 0; i < n; i++)
+            dst[i * stride] = src[i];
+}
+
+static void fill_row(float *dst, int64_t stride, float v, int64_t n)
+{
+    for (int64_t i = 0; i < n; i++)
+        dst[i * stride] = v;
+}
+
+/* zero columns [0, b0) and [b1, B) of row a of a strided (layer, row, column) plane */
+static void zero_outside(float *plane, const int64_t *st, int64_t a, int64_t b0, int64_t b1, int64_t B)
+{
+    fill_row(plane + a * st[1], st[2], 0.0f, b0);
+    fill_row(plane + a * st[1] + b1 * st[2], st[2], 0.0f, B - b1);
+}
+
+INLINE void sweep_bin(const struct nph_sweep *s, int64_t bin, float *planes, float *tmp, struct rows *rw)
+{
+    const int64_t L = s->L, A = s->A, B = s->B, ns = s->ns, AB = A * B;
+    const int64_t nslots = s->mom == NULL ? 0 : 1 + (s->slot_kept >= 0) + (s->slot_m2 >= 0) + (s->slot_dep >= 0);
+    const int mode = s->em == NULL ? NONE : s->kap == NULL ? PLAIN : s->cache_mode == 2 ? CACHED : PROFILE;
+    const int qa = s->qa != NULL, mom = s->mom != NULL, m2 = s->slot_m2 >= 0, store = s->cache_mode == 1;
+    const int64_t nrecv = s->per_sub ? ns : 1;
+    float *inrow = rw->ext + 3 * B + 4; /* a row of the inflow (per sub-beam, refilled) */
+    for (int64_t q = 0; q < ns; q++) {
+        float v = s->inflow[bin * ns + q];
+        for (int64_t c = 0; c < AB; c++)
+            planes[q * AB + c] = v;
+    }
+    for (int64_t n = 0; n < L; n++) {
+        const int64_t k = s->sign > 0 ? n : L - 1 - n;
+        if (n)
+            for (int64_t q = 0; q < ns; q++) {
+                float v = s->inflow[bin * ns + q];
+                for (int64_t b = 0; b < B; b++)
+                    inrow[b] = v;
+                shift_plane(s, bin * ns + q, planes + q * AB, tmp, rw->ext, inrow);
+            }
+        /* total: the beams entering the layer (the emission is added on the rectangle) */
+        for (int64_t c = 0; c < AB; c++)
+            tmp[c] = planes[c];
+        for (int64_t q = 1; q < ns; q++)
+            for (int64_t c = 0; c < AB; c++)
+                tmp[c] += planes[q * AB + c];
+        float *tot = s->total + bin * s->total_s[0];
+        float *rec = s->recv + bin * s->recv_s[0];
+        float *mo = mom ? s->mom + bin * s->mom_s[0] : NULL;
+        for (int64_t a = 0; a < A; a++) {
+            const int64_t b0 = s->spans[2 * (k * A + a)], b1 = s->spans[2 * (k * A + a) + 1], wd = b1 - b0;
+            if (wd <= 0) {
+                scatter_row(at3(tot, s->total_s + 1, k, a, 0), s->total_s[3], tmp + a * B, B);
+                for (int64_t q = 0; q < nrecv; q++)
+                    fill_row(at3(rec + q * s->recv_s[1], s->recv_s + 2, k, a, 0), s->recv_s[4], 0.0f, B);
+                for (int64_t sl = 0; sl < nslots; sl++)
+                    fill_row(at3(mo + sl * s->mom_s[1], s->mom_s + 2, k, a, 0), s->mom_s[4], 0.0f, B);
+                continue;
+            }
+            for (int64_t q = 0; q < nrecv; q++)
+                zero_outside(rec + q * s->recv_s[1] + k * s->recv_s[2], s->recv_s + 2, a, b0, b1, B);
+            for (int64_t sl = 0; sl < nslots; sl++)
+                zero_outside(mo + sl * s->mom_s[1] + k * s->mom_s[2], s->mom_s + 2, a, b0, b1, B);
+            const float *sg = s->sig + k * AB + a * B + b0;
+            if (mode != NONE)
+                gather(rw->em, s->em + bin * s->em_s[0] + k * s->em_s[1] + a * s->em_s[2] + b0 * s->em_s[3],
+                       s->em_s[3], wd);
+            if (mode == PROFILE) {
+                float *kr[3] = {rw->k0, rw->k1, rw->k2};
+                for (int c = 0; c < 3; c++)
+                    gather(kr[c], s->kap + c * s->kap_s[0] + k * s->kap_s[1] + a * s->kap_s[2] + b0 * s->kap_s[3],
+                           s->kap_s[3], wd);
+                if (qa)
+                    gather(rw->qa, s->qa + k * s->qa_s[0] + a * s->qa_s[1] + b0 * s->qa_s[2], s->qa_s[2], wd);
+                if (mom && m2)
+                    gather(rw->var, s->var + k * s->var_s[0] + a * s->var_s[1] + b0 * s->var_s[2], s->var_s[2], wd);
+            }
+            memset(rw->etot, 0, (size_t)wd * sizeof(float));
+            memset(rw->rsum, 0, (size_t)wd * sizeof(float));
+            memset(rw->m1, 0, (size_t)wd * sizeof(float));
+            memset(rw->mk, 0, (size_t)wd * sizeof(float));
+            memset(rw->m2, 0, (size_t)wd * sizeof(float));
+            memset(rw->md, 0, (size_t)wd * sizeof(float));
+            for (int64_t q = 0; q < ns; q++) {
+                const int64_t j = bin * ns + q, beams = s->g * ns, span = s->soff[L * A];
+                float *ce = NULL, *cs = NULL, *ck = NULL;
+                if (s->cache_mode) {
+                    ce = s->cache + j * span + s->soff[k * A + a];
+                    cs = ce + beams * span;
+                    ck = cs + beams * span;
+                }
+                row_dispatch(s, j, sg, planes + q * AB + a * B + b0, rw, ce, cs, ck, wd, mode, qa, mom, m2, store);
+                if (s->per_sub)
+                    scatter_row(at3(rec + q * s->recv_s[1], s->recv_s + 2, k, a, b0), s->recv_s[4], rw->r, wd);
+                else
+                    for (int64_t i = 0; i < wd; i++)
+                        rw->rsum[i] += rw->r[i];
+            }
+            if (!s->per_sub)
+                scatter_row(at3(rec, s->recv_s + 2, k, a, b0), s->recv_s[4], rw->rsum, wd);
+            for (int64_t i = 0; i < wd; i++)
+                tmp[a * B + b0 + i] += rw->etot[i];
+            scatter_row(at3(tot, s->total_s + 1, k, a, 0), s->total_s[3], tmp + a * B, B);
+            if (mom) {
+                const int64_t *ms = s->mom_s + 2;
+                scatter_row(at3(mo, ms, k, a, b0), ms[2], rw->m1, wd);
+                if (s->slot_kept >= 0)
+                    scatter_row(at3(mo + s->slot_kept * s->mom_s[1], ms, k, a, b0), ms[2], rw->mk, wd);
+                if (s->slot_m2 >= 0)
+                    scatter_row(at3(mo + s->slot_m2 * s->mom_s[1], ms, k, a, b0), ms[2], rw->m2, wd);
+                if (s->slot_dep >= 0)
+                    scatter_row(at3(mo + s->slot_dep * s->mom_s[1], ms, k, a, b0), ms[2], rw->md, wd);
+            }
+        }
+    }
+    double ex = 0.0;
+    for (int64_t c = 0; c < ns * AB; c++)
+        ex += planes[c];
+    s->exit_power[bin] = ex;
+}
+
+/* Sweep bins [bin_lo, bin_hi) of the group ``s`` describes; 0, or 1 when out of memory. */
+CLONES
+int scatter_sweep(const struct nph_sweep *s, int64_t bin_lo, int64_t bin_hi)
+{
+    const int64_t AB = s->A * s->B, B = s->B;
+    float *planes = malloc((size_t)(s->ns * AB + AB) * sizeof(float));
+    float *buf = malloc((size_t)(13 * B + 3 * B + 4 + B) * sizeof(float));
+    if (planes == NULL || buf == NULL) {
+        free(planes);
+        free(buf);
+        return 1;
+    }
+    struct rows rw;
+    float **fields[13] = {&rw.em, &rw.k0, &rw.k1, &rw.k2, &rw.qa, &rw.var, &rw.r, &rw.rsum, &rw.etot,
+                          &rw.m1, &rw.mk, &rw.m2, &rw.md};
+    for (int f = 0; f < 13; f++)
+        *fields[f] = buf + f * B;
+    rw.ext = buf + 13 * B; /* 3 B + 4 for the shifted row with its ghosts, then a row of the inflow */
+    unsigned csr = nph_flush_denormals();
+    for (int64_t bin = bin_lo; bin < bin_hi; bin++)
+        sweep_bin(s, bin, planes, planes + s->ns * AB, &rw);
+    nph_restore_denormals(csr);
+    free(planes);
+    free(buf);
+    return 0;
+}
