@@ -24,6 +24,7 @@ MODULES = (
     "flowvol_ops",
     "splat_ops",
     "presets",
+    "annotate_ops",
 )
 
 

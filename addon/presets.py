@@ -32,6 +32,7 @@ FIG1_DEFAULTS = {
     "frames": (1, 24),
     "size": (640, 480),
     "samples": 32,
+    "annotations": False,  # the caption (and for climate data the model time and a legend) over renders
 }
 
 FIG2_DEFAULTS = {
@@ -54,6 +55,7 @@ FIG2_DEFAULTS = {
     "samples": 32,
     "vdb_dir": None,  # None: the volume layer's own cache folder (beside the saved .blend)
     "bake": "all",  # "lazy": each frame's .vdb written when shown (farm: after nephele precompute)
+    "annotations": False,  # the caption (and for climate data the model time and a legend) over renders
 }
 
 FIG3_DEFAULTS = {
@@ -68,6 +70,7 @@ FIG3_DEFAULTS = {
     "frames": (1, 1),
     "size": (320, 240),
     "samples": 4,
+    "annotations": False,  # the caption (and for climate data the model time and a legend) over renders
 }
 
 FIG4_DEFAULTS = {
@@ -86,6 +89,7 @@ FIG4_DEFAULTS = {
     "frames": (1, 13),
     "size": (480, 360),
     "samples": 16,
+    "annotations": False,  # the caption (and for climate data the model time and a legend) over renders
 }
 
 FIG5_DEFAULTS = {
@@ -106,6 +110,7 @@ FIG5_DEFAULTS = {
     "frames": (1, 1),
     "size": (320, 240),
     "samples": 16,
+    "annotations": False,  # the caption (and for climate data the model time and a legend) over renders
 }
 
 FIG6_DEFAULTS = {
@@ -118,6 +123,7 @@ FIG6_DEFAULTS = {
     "directory": None,  # None: the scattering panel's output folder
     "size": (300, 255),  # the paper's
     "samples": 32,
+    "annotations": False,  # the caption (and for climate data the model time and a legend) over renders
 }
 
 FIG7_DEFAULTS = {
@@ -130,6 +136,7 @@ FIG7_DEFAULTS = {
     "separation": 0.006,  # scene units (1 = 100 nm): a 0.6 nm eye base, about 1/30 of the nearest molecules
     "size": (320, 240),
     "samples": 8,
+    "annotations": False,  # the caption (and for climate data the model time and a legend) over renders
 }
 
 
@@ -139,6 +146,14 @@ def _reset(props):
         if prop.identifier != "rna_type" and not prop.is_readonly:
             props.property_unset(prop.identifier)
     return props
+
+
+def _annotate(scene, o, figure, **kw):
+    """With ``o["annotations"]``: the figure's annotation layer (:mod:`.annotate_ops`) over every render."""
+    if o["annotations"]:
+        from . import annotate_ops
+
+        annotate_ops.add_annotations(scene, figure=figure, **kw)
 
 
 def fig1(scene, **options):
@@ -159,6 +174,7 @@ def fig1(scene, **options):
     camera = globe_ops.add_camera(scene, lon=o["camera_lon"], lat=o["camera_lat"], distance=o["camera_distance"])
     globe_scene.render_settings(scene, o["size"], o["samples"])
     frame.install()
+    _annotate(scene, o, "fig1")
     return {"globe": globe, "clouds": clouds, "camera": camera, **sky}
 
 
@@ -195,6 +211,7 @@ def fig2(scene, **options):
     scene.eevee.taa_render_samples = int(o["samples"])
     volume_ops.eevee_volume_settings(scene)
     frame.install()
+    _annotate(scene, o, "fig2")
     return {"globe": globe, "clouds": clouds, "camera": camera, "bake": infos, **sky}
 
 
@@ -217,6 +234,7 @@ def fig3(scene, **options):
     globe_scene.render_settings(scene, o["size"], o["samples"])
     scene.cycles.use_denoising = False  # the denoiser smears the streaks
     splat_ops.render_settings(scene)
+    _annotate(scene, o, "fig3")
     return {"globe": globe, "splats": splats, "camera": camera, **sky}
 
 
@@ -239,6 +257,7 @@ def fig4(scene, **options):
     camera = globe_ops.add_camera(scene, lon=o["camera_lon"], lat=o["camera_lat"], distance=o["camera_distance"])
     globe_scene.render_settings(scene, o["size"], o["samples"])
     frame.install()
+    _annotate(scene, o, "fig4")
     return {"globe": globe, "clouds": clouds, "camera": camera, **sky}
 
 
@@ -260,6 +279,7 @@ def fig5(scene, **options):
             raise RuntimeError(f"Add flow volume failed: {p.status}")
     camera = globe_ops.add_camera(scene, lon=o["camera_lon"], lat=o["camera_lat"], distance=o["camera_distance"])
     globe_scene.render_settings(scene, o["size"], o["samples"])
+    _annotate(scene, o, "fig5")
     return {"globe": globe, "smoke": bpy.data.objects["Flow volume smoke"], "camera": camera, **sky}
 
 
@@ -316,6 +336,7 @@ def fig6(scene, modal=False, **options):
     scene.view_settings.view_transform = "AgX" if o["sky"] == "world" else "Standard"
     scene.render.resolution_x, scene.render.resolution_y = (int(v) for v in o["size"])
     scene.render.resolution_percentage = 100
+    _annotate(scene, o, "fig6")
     return {"cloud": None if modal else bpy.data.objects["Scattering cloud"], "camera": scene.camera}
 
 
@@ -353,6 +374,7 @@ def fig7(scene, **options):
         if light is not None:
             light.parent = cam
             light.location = (0.03, 0.03, 0.0)
+    _annotate(scene, o, "fig7")
     return {"film": obj, "camera": cam}
 
 
@@ -398,6 +420,8 @@ class NEPHELE_OT_paper_figure(bpy.types.Operator):
     bl_options = {"REGISTER", "UNDO"}
 
     figure: bpy.props.EnumProperty(name="Figure", items=[(k, v[1], v[2]) for k, v in FIGURES.items()])
+    annotations: bpy.props.BoolProperty(name="Annotations", default=False,
+                                        description="Lay the caption, the model time and a legend over every render")
     replace: bpy.props.BoolProperty(name="Replace the scene's objects", default=True,
                                     description="Empty this scene first, as the example starts from an empty file")
 
@@ -416,6 +440,7 @@ class NEPHELE_OT_paper_figure(bpy.types.Operator):
         # Fig. 2's 24 frames (~40 s) bake in the background (nephele.bake_volume) where there is a window.
         window = context.window is not None
         options = {"modal": True} if self.figure == "FIG6" and window else {"bake": "lazy"} if self.figure == "FIG2" and window else {}
+        options["annotations"] = self.annotations
         try:
             out = FIGURES[self.figure][0](scene, **options)
         except (ValueError, RuntimeError, OSError) as exc:

@@ -96,6 +96,8 @@ def main(argv=None):
     ap.add_argument("--anaglyph", choices=ANAGLYPH_MODES,
                     help="with --dome --stereo: also write a red-cyan anaglyph of the two eyes in this mode")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--annotations", action="store_true",
+                    help="lay the caption and the molecules' colours over the render")
     ap.add_argument("--film-frames", type=int, default=DEFAULTS["film_frames"], help="simulated film length")
     args = ap.parse_args(argv)
     if args.anaglyph and not (args.dome and args.stereo):
@@ -108,7 +110,7 @@ def main(argv=None):
         ap.error("--size must be at least 8 8")
     if args.spacing is not None and not args.spacing > 0:
         ap.error("--spacing must be > 0")
-    opts = {"seed": args.seed, "film_frames": max(args.film_frames, args.frame)}
+    opts = {"seed": args.seed, "film_frames": max(args.film_frames, args.frame), "annotations": args.annotations}
     if args.dome:
         opts.update(dome="omnimax", stereo=args.stereo, size=(256, 188))
     if args.full:

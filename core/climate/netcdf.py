@@ -398,6 +398,10 @@ class NetCDFDataset(FileDataset):
                 times, note = cf_times_or_steps(tv.values, _attr(tv, "units"), tv.attrs.get("calendar"), path, time_name)
             if note:
                 notes.append(note)
+            if monthly is not None or not note:  # CF dates (not step numbers): keep the file's calendar
+                self.calendar = (str(tv.attrs.get("calendar") or "standard")).strip().lower()
+                self.time_origin = parse_iso(re.split(r"\s+since\s+", time_units or _attr(tv, "units"), maxsplit=1,
+                                                      flags=re.IGNORECASE)[1], path, time_name)
         else:
             times = np.array(["1970-01-01T00:00:00"], dtype="datetime64[s]")
             notes.append("time: the file has no time axis; one step")
