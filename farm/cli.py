@@ -14,6 +14,7 @@ COMMANDS = (
     "info",
     "contour",
     "demo",
+    "film",
     "render",
     "precompute",
     "post",

@@ -10,7 +10,7 @@ opens with.  Both draw text with a rasteriser passed in (:mod:`.canvas`).
 import numpy as np
 
 from .canvas import draw_text, line_height, new_canvas, paste, srgb_encode
-from .legend import legend_image
+from .legend import legend_image, legend_size
 
 FIGURES = {
     "fig1": ("Fig. 1", "Contour surfaces of 15% cloudiness"),
@@ -71,8 +71,11 @@ def overlay(width, height, text, *, heading=None, time_text=None, note=None, leg
             draw_text(canvas, text, note, max(9, int(round(0.8 * size))), width - pad, pad + line_height(big),
                       anchor="right")
     legend = list(legend or ())
-    if legend:
-        img = legend_image(legend, text, max(9, int(round(0.8 * size))))
+    small = max(7, int(round(0.8 * size)))
+    while legend and small > 7 and legend_size(legend, small)[1] > 0.45 * height:
+        small -= 1  # a tiny frame: a smaller legend, at most 45% of the height
+    if legend and legend_size(legend, small)[1] <= 0.45 * height:
+        img = legend_image(legend, text, small)
         paste(canvas, img, pad, height - pad - img.shape[0])
     return canvas
 

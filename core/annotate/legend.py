@@ -161,8 +161,9 @@ def legend_image(entries, text, size=12):
                 left = min(max(tx - mask_w / 2, pad), pad + bw - mask_w)
                 if left < right_edge + small // 2:
                     continue
-                fill(canvas, tx, cy - bh // 2, tx + 1, cy + max(2, bh // 3), (1.0, 1.0, 1.0, 0.9))
-                draw_text(canvas, text, _tick_text(v), small, int(left), cy + 1, outline=False)
+                tick = max(2, bh // 3)
+                fill(canvas, min(tx, pad + bw - 1), cy, min(tx, pad + bw - 1) + 1, cy + tick, (1.0, 1.0, 1.0, 0.9))
+                draw_text(canvas, text, _tick_text(v), small, int(left), cy + tick - 1, outline=False)
                 right_edge = left + mask_w
             cy += lh
         cy += pad
