@@ -56,7 +56,7 @@ $(VENV311)/.native: $(VENV311)/.stamp build/native/.stamp
 	touch $@
 
 demo: $(VENV)/.stamp $(VENV)/.native
-	$(VENV)/bin/nephele demo --out out/demo
+	$(VENV)/bin/nephele film --out out/demo
 
 test: test-main test-core311 test-extension test-slurm test-bench
 

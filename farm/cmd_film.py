@@ -169,9 +169,7 @@ def contact_sheet(stills, out_png, text, columns=4, thumb_width=240, gap=6):
 
 
 def run(args):
-    from ..fileio import text_mask, write_image
     from . import reel
-    from .post import encode
 
     shots, kwargs, out = _check(args)
     q = reel.QUALITIES[args.quality]
@@ -180,7 +178,42 @@ def run(args):
             print(f"{s.key}: {s.script.name} frames 1-{s.frames} {'x'.join(map(str, _resolution(s)))} "
                   f"engine {s.engine or 'scene'} samples {s.samples} -> {s.out_dir}\n  options {json.dumps(s.options)}")
         return 0
+    from .cmd_demo import PeakMemory
+
     load0, t0 = os.getloadavg(), time.perf_counter()
+    meter = PeakMemory(interval=0.5)
+    with meter:
+        code = _film(args, shots, kwargs, out, q)
+    if code:
+        return code
+    summary_path = out / "film.json"
+    summary = json.loads(summary_path.read_text())
+    summary.update(seconds=round(time.perf_counter() - t0, 1), cpu_seconds=round(meter.cpu_seconds, 1),
+                   peak_memory_mb=round(meter.peak_total / 2**20),
+                   load_average_start=[round(v, 2) for v in load0],
+                   load_average_end=[round(v, 2) for v in os.getloadavg()], cpus=os.cpu_count())
+    _write_json(summary_path, summary)
+    print(f"nephele film: {out / summary['movie']} ({summary['seconds_of_film']:.1f} s of film, "
+          f"{len(shots)} segments, {summary['rendered']} frames rendered, {summary['kept']} kept) and "
+          f"{out / summary['contact_sheet']} in {summary['seconds']:.0f} s, {summary['cpu_seconds']:.0f} CPU s "
+          f"(load {load0[0]:.1f} at the start on {os.cpu_count()} CPUs)", file=sys.stderr)
+    return 0
+
+
+def _write_json(path, data):
+    from ..core.files import atomic_write
+
+    with atomic_write(path) as tmp, open(tmp, "w") as f:
+        json.dump(data, f, indent=1)
+
+
+def _film(args, shots, kwargs, out, q):
+    """Title cards, the segments' frames, the movie and the contact sheet; writes ``film.json``."""
+    from ..fileio import text_mask, write_image
+    from . import reel
+    from .post import encode
+
+    t0 = time.perf_counter()
     cards = {}
     if not args.no_annotations:
         for s in shots:
@@ -221,9 +254,9 @@ def run(args):
     summary = {
         "quality": args.quality, "size": list(size), "fps": q["fps"], "seconds_of_film": round(n_pictures / q["fps"], 2),
         "movie": movie.name, "contact_sheet": Path(sheet).name, "annotations": not args.no_annotations,
-        "seconds": round(time.perf_counter() - t0, 1), "render_seconds": round(t_render, 1),
-        "load_average_start": [round(v, 2) for v in load0], "load_average_end": [round(v, 2) for v in os.getloadavg()],
-        "cpus": os.cpu_count(),
+        "render_seconds": round(t_render, 1), "cut_seconds": round(time.perf_counter() - t0 - t_render, 1),
+        "rendered": sum(len(r.rendered) for r in results.values()),
+        "kept": sum(len(r.skipped) for r in results.values()),
         "segments": [{"key": s.key, "title": s.title, "frames": s.frames, "folder": str(s.out_dir.relative_to(out)),
                       "rendered": len(results[s.key].rendered), "kept": len(results[s.key].skipped),
                       "seconds": round(results[s.key].seconds, 1),
@@ -231,12 +264,5 @@ def run(args):
                       if results[s.key].rendered else None,
                       "options": s.options, "engine": s.engine, "samples": s.samples} for s in shots],
     }
-    from ..core.files import atomic_write
-
-    with atomic_write(out / "film.json") as tmp, open(tmp, "w") as f:
-        json.dump(summary, f, indent=1)
-    print(f"nephele film: {movie} ({summary['seconds_of_film']:.1f} s of film, {len(shots)} segments, "
-          f"{sum(len(r.rendered) for r in results.values())} frames rendered, "
-          f"{sum(len(r.skipped) for r in results.values())} kept) and {sheet} in {summary['seconds']:.0f} s "
-          f"(load {load0[0]:.1f} at the start on {os.cpu_count()} CPUs)", file=sys.stderr)
+    _write_json(out / "film.json", summary)
     return 0
