@@ -77,10 +77,17 @@ def text_mask(string, size):
         blf.color(fid, 1.0, 1.0, 1.0, 1.0)
         blf.position(fid, pad, int(round(0.3 * size)), 0)
         blf.draw_buffer(fid, key[0])
-    with ib.with_buffer() as buf:
-        px = np.array(buf, copy=True)
+    if hasattr(ib, "with_buffer"):  # Blender 5.1+
+        with ib.with_buffer() as buf:
+            alpha = np.array(buf, copy=True)[::-1, :, 3]
+    else:  # older Blenders: no pixel access from Python, so through a PNG
+        import tempfile
+
+        with tempfile.TemporaryDirectory(prefix="nephele-text-") as tmp:
+            imbuf.write(ib, filepath=str(Path(tmp) / "text.png"))
+            alpha = read_image(Path(tmp) / "text.png")[:, :, 3]
     ib.free()
-    mask = (px[::-1, :, 3].astype(np.float32) / 255.0) if px.dtype == np.uint8 else px[::-1, :, 3].astype(np.float32)
+    mask = alpha.astype(np.float32) / 255.0 if alpha.dtype == np.uint8 else alpha.astype(np.float32)
     if len(_TEXT_CACHE) > 4096:
         _TEXT_CACHE.clear()
     _TEXT_CACHE[key] = mask

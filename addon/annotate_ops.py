@@ -90,19 +90,36 @@ def add_annotations(scene=None, *, figure=None, heading=None, time=True, legend=
     return obj
 
 
+def _compositor(scene):
+    """``(tree, output node)`` of the scene's compositing (made when missing): Blender 5's node group with a
+    Group Output, or Blender 4's scene node tree with a Composite node."""
+    if hasattr(scene, "compositing_node_group"):
+        tree = scene.compositing_node_group
+        if tree is None:
+            tree = bpy.data.node_groups.new(TREE, "CompositorNodeTree")
+            scene.compositing_node_group = tree
+        if not any(s.in_out == "OUTPUT" for s in tree.interface.items_tree if s.item_type == "SOCKET"):
+            tree.interface.new_socket("Image", in_out="OUTPUT", socket_type="NodeSocketColor")
+        kind = "NodeGroupOutput"
+    else:  # Blender 4.2-4.5
+        scene.use_nodes = True
+        tree, kind = scene.node_tree, "CompositorNodeComposite"
+    out = next((n for n in tree.nodes if n.bl_idname == kind), None) or tree.nodes.new(kind)
+    return tree, out
+
+
+def _input(node, name, index):
+    # Blender 5 names Alpha Over's inputs; Blender 4 has Fac, Image (background), Image (foreground).
+    return node.inputs.get(name) or node.inputs[index]
+
+
 def ensure_compositor(scene):
     """The Alpha Over node laying the annotation image over the render (made, with the tree, when missing)."""
-    tree = scene.compositing_node_group
-    if tree is None:
-        tree = bpy.data.node_groups.new(TREE, "CompositorNodeTree")
-        scene.compositing_node_group = tree
+    tree, out = _compositor(scene)
     nodes, links = tree.nodes, tree.links
     over = nodes.get(OVER)
     if over is not None:
         return over
-    if not any(s.in_out == "OUTPUT" for s in tree.interface.items_tree if s.item_type == "SOCKET"):
-        tree.interface.new_socket("Image", in_out="OUTPUT", socket_type="NodeSocketColor")
-    out = next((n for n in nodes if n.bl_idname == "NodeGroupOutput"), None) or nodes.new("NodeGroupOutput")
     if out.inputs[0].is_linked:  # the user's own compositing: the annotations go on top of it
         source = out.inputs[0].links[0].from_socket
     else:
@@ -112,8 +129,8 @@ def ensure_compositor(scene):
     image.name = image.label = NODE
     over = nodes.new("CompositorNodeAlphaOver")
     over.name = over.label = OVER
-    links.new(source, over.inputs["Background"])
-    links.new(image.outputs["Image"], over.inputs["Foreground"])
+    links.new(source, _input(over, "Background", 1))
+    links.new(image.outputs["Image"], _input(over, "Foreground", 2))
     links.new(over.outputs[0], out.inputs[0])
     scene.render.use_compositing = True
     return over
@@ -229,7 +246,7 @@ def update(obj, params, scene, frame_number):
     img.colorspace_settings.name = space
     img.pixels.foreach_set(np.ascontiguousarray(layer[::-1]).ravel())  # Blender's rows run bottom-up
     img.update()
-    node = scene.compositing_node_group.nodes.get(NODE)
+    node = _compositor(scene)[0].nodes.get(NODE)
     if node is not None and node.image != img:
         node.image = img
     obj["nephele_annotation_time"] = when[0] if when else ""
@@ -304,10 +321,11 @@ def remove_annotations(scene):
     obj = annotations_object(scene)
     if obj is not None:
         bpy.data.objects.remove(obj, do_unlink=True)
-    tree = scene.compositing_node_group
+    tree = scene.compositing_node_group if hasattr(scene, "compositing_node_group") else scene.node_tree
     if tree is not None and OVER in tree.nodes:
         over = tree.nodes[OVER]
-        below = over.inputs["Background"].links[0].from_socket if over.inputs["Background"].is_linked else None
+        background = _input(over, "Background", 1)
+        below = background.links[0].from_socket if background.is_linked else None
         targets = [link.to_socket for link in over.outputs[0].links]
         for name in (OVER, NODE):
             if name in tree.nodes:

@@ -94,11 +94,21 @@ def choose(only=None):
     return [s for s in SEGMENTS if s.key in names]
 
 
+def _camera_distance(key, size):
+    """The figure's camera distance, moved back for a frame wider than the 4:3 it was framed in (the globe whole)."""
+    from ..addon import presets
+
+    default = getattr(presets, f"{key.upper()}_DEFAULTS")["camera_distance"]
+    return round(default * max(1.0, (size[0] / size[1]) / (4.0 / 3.0)), 4)
+
+
 def _options(seg, q, frames, hpf, size, samples, annotate, source, cache):
     """``build()`` options of ``seg``'s example for a reel of quality settings ``q``."""
     preview = q["size"][1] < 720
     climate = {"source": source, "frames": [1, frames], "hours_per_frame": hpf, "size": list(size),
                "samples": samples, "annotations": annotate}
+    if seg.key in ("fig1", "fig2", "fig3", "fig4", "fig5"):
+        climate["camera_distance"] = _camera_distance(seg.key, size)
     if seg.key == "fig1":
         return {**climate, "haze": "shell" if preview else "volume"}
     if seg.key == "fig2":  # EEVEE renders the baked voxels (the exact shader is Cycles' and costs ~20 s a frame)
