@@ -55,6 +55,7 @@ FIG2_DEFAULTS = {
     "samples": 32,
     "vdb_dir": None,  # None: the volume layer's own cache folder (beside the saved .blend)
     "bake": "all",  # "lazy": each frame's .vdb written when shown (farm: after nephele precompute)
+    "volume_bounces": 4,  # clouds lit by each other; 0: single scattering (a preview, several times faster)
     "annotations": False,  # the caption (and for climate data the model time and a legend) over renders
 }
 
@@ -188,7 +189,8 @@ def fig2(scene, **options):
     ``haze``, ``camera_lon``, ``camera_lat``, ``camera_distance``, ``engine``
     (CYCLES or BLENDER_EEVEE), ``frames`` (first, last), ``size`` (w, h),
     ``samples``, ``vdb_dir``, ``bake`` (``"all"`` now, or ``"lazy"``: per
-    frame when shown, from the cache that ``nephele precompute`` fills).
+    frame when shown, from the cache that ``nephele precompute`` fills), ``volume_bounces`` (Cycles;
+    default 4, 0 for single scattering).
     """
     from ..core.volume.sparse import DEFAULT_EXTINCTION, DEFAULT_VOXEL_SIZE
     from ..core.volume.transfer import TransferFunction
@@ -207,7 +209,7 @@ def fig2(scene, **options):
     camera = globe_ops.add_camera(scene, lon=o["camera_lon"], lat=o["camera_lat"], distance=o["camera_distance"])
     globe_scene.render_settings(scene, o["size"], o["samples"], engine=o["engine"])
     # Clouds lit by the sun and by each other (a few volume bounces).
-    scene.cycles.volume_bounces = 4
+    scene.cycles.volume_bounces = int(o["volume_bounces"])
     scene.eevee.taa_render_samples = int(o["samples"])
     volume_ops.eevee_volume_settings(scene)
     frame.install()

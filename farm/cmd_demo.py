@@ -92,6 +92,11 @@ class PeakMemory:
     def cpu_seconds(self):
         return sum(self._cpu.values())
 
+    def sample(self):
+        """Sample now; returns :attr:`cpu_seconds`."""
+        self._sample()
+        return self.cpu_seconds
+
     def _run(self):
         while not self._stop.is_set():
             self._sample()

@@ -11,7 +11,7 @@ out in NumPy and encoded to H.264 by imageio-ffmpeg's ffmpeg:
 ``OUT/NAME.mp4``, ``OUT/contact_sheet.png`` (the title card, first, middle
 and last frame of each segment) and ``OUT/film.json`` (timings, load).
 
-    nephele film --out out/demo                      # preview: 480x270, 16 frames a segment
+    nephele film --out out/demo                      # preview: 480x270, 6 frames a segment
     nephele film --quality final --slurm --jobs 8    # 1920x1080, film length
     nephele film --only fig4                         # one segment
     nephele film --days 10                           # the 10-day climate film, one frame per model hour
@@ -33,7 +33,7 @@ HELP = "render the paper's film: a segment per figure through the farm, title ca
 def add_arguments(p):
     p.add_argument("--out", default="out/film", help="output folder (default out/film)")
     p.add_argument("--quality", choices=("preview", "final"), default="preview",
-                   help="preview: 480x270, 16 frames a segment, few samples (default); final: 1920x1080, film length")
+                   help="preview: 480x270, 6 frames a segment, few samples (default); final: 1920x1080, film length")
     p.add_argument("--only", metavar="FIGS", help="segments to render, e.g. fig4 or fig1,fig6 (fig1..fig7, dome)")
     p.add_argument("--days", type=float, help="the paper's climate film instead: Fig. 4's technique over DAYS model "
                                               "days, one frame per model hour (10 days: 240 frames)")
@@ -119,8 +119,11 @@ def _bar(done, total, width=24):
     return "[" + "#" * n + "-" * (width - n) + "]"
 
 
-def render_shots(shots, kwargs, args):
-    """Render every shot on one cluster; returns ``{key: RenderResult}`` (stops at the first shot that fails)."""
+def render_shots(shots, kwargs, args, meter=None):
+    """Render every shot on one cluster; returns ``{key: RenderResult}`` (stops at the first shot that fails).
+
+    With ``meter`` (a :class:`~nephele.farm.cmd_demo.PeakMemory` running), each result gets ``cpu_seconds``:
+    the CPU time all processes spent while that shot rendered."""
     from .cluster import open_client
     from .render import render_sequence
 
@@ -132,10 +135,13 @@ def render_shots(shots, kwargs, args):
         for i, shot in enumerate(shots, 1):
             _say(args, f"{_bar(done, total)} segment {i}/{len(shots)} {shot.title}: {shot.frames} frames "
                        f"-> {shot.out_dir}")
+            cpu0 = meter.sample() if meter else 0.0
             res = render_sequence(shot.script, f"1-{shot.frames}", shot.out_dir, scheduler=address,
                                   security=kwargs["security"], engine=shot.engine, samples=shot.samples,
                                   resolution=_resolution(shot), scene_options=shot.options, cache_dir=shot.cache_dir,
+                                  persistent=True,
                                   retries=args.retries, timeout=args.timeout, progress=not args.quiet)
+            res.cpu_seconds = (meter.sample() - cpu0) if meter else None
             results[shot.key] = res
             done += shot.frames
             elapsed = time.perf_counter() - t0
@@ -183,7 +189,7 @@ def run(args):
     load0, t0 = os.getloadavg(), time.perf_counter()
     meter = PeakMemory(interval=0.5)
     with meter:
-        code = _film(args, shots, kwargs, out, q)
+        code = _film(args, shots, kwargs, out, q, meter)
     if code:
         return code
     summary_path = out / "film.json"
@@ -207,7 +213,7 @@ def _write_json(path, data):
         json.dump(data, f, indent=1)
 
 
-def _film(args, shots, kwargs, out, q):
+def _film(args, shots, kwargs, out, q, meter=None):
     """Title cards, the segments' frames, the movie and the contact sheet; writes ``film.json``."""
     from ..fileio import text_mask, write_image
     from . import reel
@@ -219,7 +225,7 @@ def _film(args, shots, kwargs, out, q):
         for s in shots:
             cards[s.key] = reel.card(s, s.size, text_mask)
             write_image(out / "cards" / f"{s.key}.png", cards[s.key])
-    results = render_shots(shots, kwargs, args)
+    results = render_shots(shots, kwargs, args, meter)
     failed = {k: r for k, r in results.items() if not r.ok}
     if failed or len(results) < len(shots):
         for key, r in failed.items():
@@ -260,6 +266,7 @@ def _film(args, shots, kwargs, out, q):
         "segments": [{"key": s.key, "title": s.title, "frames": s.frames, "folder": str(s.out_dir.relative_to(out)),
                       "rendered": len(results[s.key].rendered), "kept": len(results[s.key].skipped),
                       "seconds": round(results[s.key].seconds, 1),
+                      "cpu_seconds": None if results[s.key].cpu_seconds is None else round(results[s.key].cpu_seconds, 1),
                       "seconds_per_rendered_frame": round(results[s.key].seconds / len(results[s.key].rendered), 2)
                       if results[s.key].rendered else None,
                       "options": s.options, "engine": s.engine, "samples": s.samples} for s in shots],

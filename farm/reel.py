@@ -52,7 +52,7 @@ KEYS = tuple(s.key for s in SEGMENTS)
 QUALITIES = {
     # size, frames per segment, model hours per frame, samples, film rate, shows per rendered frame,
     # seconds of title card and of the last frame held
-    "preview": dict(size=(480, 270), frames=16, hours_per_frame=6.0, samples=4, fps=24, hold=2, title_s=1.5,
+    "preview": dict(size=(480, 270), frames=6, hours_per_frame=3.0, samples=4, fps=24, hold=4, title_s=1.5,
                     tail_s=0.25),
     "final": dict(size=(1920, 1080), frames=240, hours_per_frame=1.0, samples=32, fps=24, hold=1, title_s=4.0,
                   tail_s=1.0),
@@ -116,8 +116,8 @@ def _options(seg, q, frames, hpf, size, samples, annotate, source, cache):
                 "haze": not preview}
     if seg.key == "fig3":
         return climate
-    if seg.key == "fig4":
-        return {**climate, "haze": not preview}
+    if seg.key == "fig4":  # a preview composes one-frame maps: a constant cost a frame (restart grows to 24 frames')
+        return {**climate, "haze": not preview, **({"strategy": "compose"} if preview else {})}
     if seg.key == "fig5":
         return {**climate, "hours": 12.0}
     if seg.key == "fig6":
@@ -125,7 +125,7 @@ def _options(seg, q, frames, hpf, size, samples, annotate, source, cache):
                 "annotations": annotate}
     if seg.key == "fig7":
         return {"film_frames": frames, "size": list(size), "samples": samples, "annotations": annotate,
-                **({"spacing": 1.0} if preview else {})}
+                **({"spacing": 1.4} if preview else {})}
     # the dome: a square domemaster, the globe's clouds following the hours
     side = min(size)
     return {"preset": "domemaster", "stereo": False, "source": source, "frames": [1, frames],

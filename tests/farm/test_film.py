@@ -65,14 +65,14 @@ def test_unwritable_output_folder_exits_2(tmp_path, capsys, no_render):
 def test_dry_run_prints_the_plan_and_renders_nothing(tmp_path, capsys, no_render):
     assert cli.main(["film", "--out", str(tmp_path), "--only", "fig6,fig1", "--dry-run"]) == 0
     out = capsys.readouterr().out
-    assert out.index("fig1:") < out.index("fig6:") and "frames 1-16 480x270" in out
+    assert out.index("fig1:") < out.index("fig6:") and "frames 1-6 480x270" in out
     assert not (tmp_path / "frames").exists()
 
 
 def test_plan_follows_the_paper():
     shots = reel.plan("/tmp/x")
     assert [s.key for s in shots] == ["fig1", "fig2", "fig3", "fig4", "fig5", "fig6", "fig7", "dome"]
-    assert all(s.frames == 16 and s.size == (480, 270) for s in shots)
+    assert all(s.frames == 6 and s.size == (480, 270) for s in shots)
     assert [s.key for s in reel.plan("/tmp/x", only="dome,fig4")] == ["fig4", "dome"]
     final = {s.key: s for s in reel.plan("/tmp/x", "final")}
     assert final["fig1"].frames == 240 and final["fig6"].frames == 120 and final["fig1"].size == (1920, 1080)
