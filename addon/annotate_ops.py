@@ -123,7 +123,8 @@ def ensure_compositor(scene):
     if out.inputs[0].is_linked:  # the user's own compositing: the annotations go on top of it
         source = out.inputs[0].links[0].from_socket
     else:
-        layers = next((n for n in nodes if n.bl_idname == "CompositorNodeRLayers"), None) or nodes.new("CompositorNodeRLayers")
+        layers = (next((n for n in nodes if n.bl_idname == "CompositorNodeRLayers"), None)
+                  or nodes.new("CompositorNodeRLayers"))
         source = layers.outputs["Image"]
     image = nodes.new("CompositorNodeImage")
     image.name = image.label = NODE
@@ -177,7 +178,8 @@ def legend_entries(scene):
             lo, hi = p.get("color_range") or (0.0, 1.0)
             if stops:
                 var = p.get("color_var", "altitude")
-                entries.append(ColorBar(f"{var} → colour", tuple((lo + s * (hi - lo), c) for s, c in stops), _unit(var)))
+                scaled = tuple((lo + s * (hi - lo), c) for s, c in stops)
+                entries.append(ColorBar(f"{var} → colour", scaled, _unit(var)))
         elif kind in ("volume", "splats"):
             var, cvar = p.get("var", "cloud"), p.get("color_var") or ""
             entries.append(OpacityBar(f"{var} → opacity", TransferFunction.from_dict(p["tf"]).points))

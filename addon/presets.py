@@ -105,6 +105,7 @@ FIG5_DEFAULTS = {
     "sides": 32,
     # Optical depth about 1 across the generator's diameter: translucent smoke, as in the paper.
     "density": 10.0,
+    "grow": False,  # True: the release lasts until the frame's time (the smoke leaves the generator and is carried)
     "camera_lon": -40.0,
     "camera_lat": 38.0,
     "camera_distance": 2.2,
@@ -279,6 +280,10 @@ def fig5(scene, **options):
     with bpy.context.temp_override(scene=scene):
         if bpy.ops.nephele.add_flow_volume() != {"FINISHED"}:
             raise RuntimeError(f"Add flow volume failed: {p.status}")
+    if o["grow"]:
+        smoke = bpy.data.objects["Flow volume smoke"]
+        frame.set_params(smoke, {**frame.params(smoke), "grow": True})
+        frame.submit(smoke, scene, force=True)
     camera = globe_ops.add_camera(scene, lon=o["camera_lon"], lat=o["camera_lat"], distance=o["camera_distance"])
     globe_scene.render_settings(scene, o["size"], o["samples"])
     _annotate(scene, o, "fig5")

@@ -146,7 +146,8 @@ def render_shots(shots, kwargs, args, meter=None):
             done += shot.frames
             elapsed = time.perf_counter() - t0
             _say(args, f"{_bar(done, total)} {shot.key}: {len(res.rendered)} rendered, {len(res.skipped)} kept, "
-                       f"{len(res.failed)} failed in {res.seconds:.1f} s; {done}/{total} frames, {elapsed:.0f} s so far")
+                       f"{len(res.failed)} failed in {res.seconds:.1f} s; {done}/{total} frames, "
+                       f"{elapsed:.0f} s so far")
             if not res.ok:
                 break
     return results
@@ -206,6 +207,10 @@ def run(args):
     return 0
 
 
+def _round(value, digits=1):
+    return None if value is None else round(value, digits)
+
+
 def _write_json(path, data):
     from ..core.files import atomic_write
 
@@ -258,7 +263,8 @@ def _film(args, shots, kwargs, out, q, meter=None):
     sheet = contact_sheet(stills, out / "contact_sheet.png", text_mask, columns=columns)
     n_pictures = reel.reel_length(shots, cards, q["fps"], q["hold"], q["title_s"], q["tail_s"])
     summary = {
-        "quality": args.quality, "size": list(size), "fps": q["fps"], "seconds_of_film": round(n_pictures / q["fps"], 2),
+        "quality": args.quality, "size": list(size), "fps": q["fps"],
+        "seconds_of_film": round(n_pictures / q["fps"], 2),
         "movie": movie.name, "contact_sheet": Path(sheet).name, "annotations": not args.no_annotations,
         "render_seconds": round(t_render, 1), "cut_seconds": round(time.perf_counter() - t0 - t_render, 1),
         "rendered": sum(len(r.rendered) for r in results.values()),
@@ -266,7 +272,7 @@ def _film(args, shots, kwargs, out, q, meter=None):
         "segments": [{"key": s.key, "title": s.title, "frames": s.frames, "folder": str(s.out_dir.relative_to(out)),
                       "rendered": len(results[s.key].rendered), "kept": len(results[s.key].skipped),
                       "seconds": round(results[s.key].seconds, 1),
-                      "cpu_seconds": None if results[s.key].cpu_seconds is None else round(results[s.key].cpu_seconds, 1),
+                      "cpu_seconds": _round(results[s.key].cpu_seconds),
                       "seconds_per_rendered_frame": round(results[s.key].seconds / len(results[s.key].rendered), 2)
                       if results[s.key].rendered else None,
                       "options": s.options, "engine": s.engine, "samples": s.samples} for s in shots],

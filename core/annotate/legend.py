@@ -121,12 +121,19 @@ def _tick_text(value):
     return f"{value:.5g}"
 
 
-def legend_size(entries, size):
-    """``(width, height, bar_width, bar_height)`` in pixels of :func:`draw_legend`'s panel for text ``size``."""
+def _label(entry):
+    return entry.label + (f" ({entry.unit})" if getattr(entry, "unit", "") else "")
+
+
+def legend_size(entries, size, text=None):
+    """``(width, height, bar_width, bar_height)`` in pixels of :func:`legend_image`'s panel for text ``size``.
+
+    With the rasteriser ``text`` the panel is also wide enough for the longest label."""
     pad, lh = max(2, size // 2), line_height(size)
     bw, bh = 10 * size, max(4, int(round(0.8 * size)))
     rows = sum(lh + bh + (lh if not isinstance(e, Swatch) else 0) + pad for e in entries)
-    return bw + 2 * pad, rows + pad, bw, bh
+    labels = max((text(_label(e), size).shape[1] for e in entries), default=0) if text else 0
+    return max(bw, labels) + 2 * pad, rows + pad, bw, bh
 
 
 def legend_image(entries, text, size=12):
@@ -140,14 +147,13 @@ def legend_image(entries, text, size=12):
     entries = list(entries)
     if not entries:
         return new_canvas(0, 0)
-    w, h, bw, bh = legend_size(entries, size)
+    w, h, bw, bh = legend_size(entries, size, text)
     canvas = new_canvas(w, h)
     pad, lh, small = max(2, size // 2), line_height(size), max(8, int(round(0.85 * size)))
     fill(canvas, 0, 0, w, h, (0.0, 0.0, 0.0, 0.55))
     cy = pad
     for e in entries:
-        label = e.label + (f" ({e.unit})" if getattr(e, "unit", "") else "")
-        draw_text(canvas, text, label, size, pad, cy, outline=False)
+        draw_text(canvas, text, _label(e), size, pad, cy, outline=False)
         cy += lh
         canvas[cy : cy + bh, pad : pad + bw, :3] = bar_pixels(e, bw)[None, :, :]
         canvas[cy : cy + bh, pad : pad + bw, 3] = 1.0

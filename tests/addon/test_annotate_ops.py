@@ -133,3 +133,19 @@ def test_remove_restores_the_compositor():
     annotate_ops.remove_annotations(scene)
     assert annotate_ops.annotations_object(scene) is None
     assert out.inputs[0].links[0].from_node.bl_idname == "CompositorNodeRLayers"
+
+
+def test_growing_smoke_release_and_its_time():
+    """A growing release (the reel's Fig. 5) lasts until the frame's time; the annotation shows its end."""
+    from nephele.addon.flowvol_ops import release_window
+
+    p = {"source": "demo:small", "start_hour": 0.0, "hours": 12.0, "grow": True, "hours_per_frame": 3.0,
+         "frame_start": 1}
+    assert [release_window(p, f) for f in (1, 2, 4, 10)] == [(0.0, 3.0), (0.0, 6.0), (0.0, 12.0), (0.0, 12.0)]
+    assert release_window({**p, "hours": 100.0}, 30) == (0.0, 47.0)  # demo:small ends at 47 h
+    scene = bpy.context.scene
+    smoke = bpy.data.objects.new("smoke", None)
+    scene.collection.objects.link(smoke)
+    frame.set_params(smoke, {"kind": "flowvol", **p})
+    label, note = annotate_ops.frame_time(scene, 3)
+    assert label == "1987-01-01 09:00" and note == ""

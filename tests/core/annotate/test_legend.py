@@ -44,12 +44,15 @@ def test_opacity_bar_is_the_transfer_function():
 
 
 def test_legend_image_holds_the_bars_where_laid_out():
-    entries = [ColorBar("altitude", ALTITUDE_COLORS.points, "m"), OpacityBar("cloud", TransferFunction.ramp(0.3, 0.7).points),
+    entries = [ColorBar("altitude", ALTITUDE_COLORS.points, "m"),
+               OpacityBar("cloud", TransferFunction.ramp(0.3, 0.7).points),
                Swatch("smoke", (0.8, 0.8, 0.9))]
     size = 12
     img = legend_image(entries, box_text, size)
-    w, h, bw, bh = legend_size(entries, size)
+    w, h, bw, bh = legend_size(entries, size, box_text)
     assert img.shape == (h, w, 4)
+    long = legend_image([Swatch("a label much longer than the bar is wide", (1.0, 1.0, 1.0))], box_text, size)
+    assert long.shape[1] > legend_size([entries[2]], size)[0]  # the panel widens for its label
     pad, lh = size // 2, line_height(size)
     y = pad + lh  # the first bar under its label
     np.testing.assert_allclose(img[y + bh // 2, pad : pad + bw, :3], bar_pixels(entries[0], bw), atol=1e-6)
