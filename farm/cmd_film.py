@@ -103,10 +103,9 @@ def _check(args):
 
 
 def _resolution(shot):
-    if shot.key == "dome":
-        side = min(shot.size)
-        return side, side
-    return tuple(shot.size)
+    from .reel import dome_size
+
+    return dome_size(shot.size) if shot.key == "dome" else tuple(shot.size)
 
 
 def _say(args, text):

@@ -45,14 +45,14 @@ SEGMENTS = (
     Segment("fig5", "fig5_flow_volume.py", "smoke released from a generator and carried by the winds"),
     Segment("fig6", "fig6_scattering.py", "the camera orbits a cloud lit by multiple scattering", climate=False),
     Segment("fig7", "fig7_muscle.py", "myosin cross-bridges cycle along the actin filaments", climate=False),
-    Segment("dome", "dome_omnimax.py", "a domemaster frame sequence: the globe counter-distorted for a dome"),
+    Segment("dome", "dome_omnimax.py", "an Omnimax frame sequence: the globe counter-distorted for a tilted dome"),
 )
 KEYS = tuple(s.key for s in SEGMENTS)
 
 QUALITIES = {
     # size, frames per segment, model hours per frame, samples, film rate, shows per rendered frame,
     # seconds of title card and of the last frame held
-    "preview": dict(size=(480, 270), frames=6, hours_per_frame=3.0, samples=4, fps=24, hold=4, title_s=1.5,
+    "preview": dict(size=(480, 270), frames=6, hours_per_frame=3.0, samples=2, fps=24, hold=4, title_s=1.5,
                     tail_s=0.25),
     "final": dict(size=(1920, 1080), frames=240, hours_per_frame=1.0, samples=32, fps=24, hold=1, title_s=4.0,
                   tail_s=1.0),
@@ -126,10 +126,15 @@ def _options(seg, q, frames, hpf, size, samples, annotate, source, cache):
     if seg.key == "fig7":
         return {"film_frames": frames, "size": list(size), "samples": samples, "annotations": annotate,
                 **({"spacing": 1.4} if preview else {})}
-    # the dome: a square domemaster, the globe's clouds following the hours
-    side = min(size)
-    return {"preset": "domemaster", "stereo": False, "source": source, "frames": [1, frames],
-            "hours_per_frame": hpf, "size": [side, side], "samples": samples}
+    # the dome: an Omnimax frame (the paper's Fig. 7 format), the globe's clouds following the hours
+    return {"preset": "omnimax", "stereo": False, "source": source, "frames": [1, frames],
+            "hours_per_frame": hpf, "size": list(dome_size(size)), "samples": samples}
+
+
+def dome_size(size):
+    """The Omnimax frame (2048:1500) as tall as the reel's frame, width even."""
+    h = int(size[1])
+    return 2 * round(h * 2048 / 1500 / 2), h
 
 
 def plan(out, quality="preview", only=None, *, days=None, frames=None, size=None, samples=None, annotate=True,
@@ -164,7 +169,9 @@ def plan(out, quality="preview", only=None, *, days=None, frames=None, size=None
             lines[0] = f"{days:g} model days, one frame per model hour: the texture moves with the wind"
         # splats: EEVEE draws them as the paper's hardware did, ~4x faster than Cycles here; 1 sample is enough
         engine = "BLENDER_EEVEE" if quality == "preview" and seg.key == "fig3" else None
-        n_samples = 1 if engine == "BLENDER_EEVEE" and samples_given is None else samples
+        n_samples = samples
+        if samples_given is None and quality == "preview":  # the denoiser cleans 2 samples; Fig. 7 has none
+            n_samples = 1 if engine == "BLENDER_EEVEE" else 4 if seg.key == "fig7" else samples
         shot = Shot(seg, title, options, count, engine=engine, samples=n_samples, size=size, cache_dir=cache,
                     lines=lines)
         shot.out_dir = Path(out) / "frames" / f"{seg.key}-{fingerprint(shot)}"

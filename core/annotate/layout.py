@@ -9,7 +9,7 @@ opens with.  Both draw text with a rasteriser passed in (:mod:`.canvas`).
 
 import numpy as np
 
-from .canvas import draw_text, line_height, new_canvas, paste, srgb_encode
+from .canvas import draw_text, fill, line_height, new_canvas, paste, srgb_encode
 from .legend import legend_image, legend_size
 
 FIGURES = {
@@ -64,12 +64,12 @@ def overlay(width, height, text, *, heading=None, time_text=None, note=None, leg
         s = _fitting(text, heading, size, room)
         line = _elided(text, heading, s, room)
         if line:
-            draw_text(canvas, text, line, s, pad, pad)
+            _backed(canvas, text, line, s, pad, pad)
     if time_text:
-        draw_text(canvas, text, time_text, big, width - pad, pad, anchor="right")
+        _backed(canvas, text, time_text, big, width - pad, pad, anchor="right")
         if note:
-            draw_text(canvas, text, note, max(9, int(round(0.8 * size))), width - pad, pad + line_height(big),
-                      anchor="right")
+            _backed(canvas, text, note, max(9, int(round(0.8 * size))), width - pad, pad + line_height(big),
+                    anchor="right")
     legend = list(legend or ())
     small = max(7, int(round(0.8 * size)))
     while legend and small > 7 and legend_size(legend, small)[1] > 0.45 * height:
@@ -78,6 +78,15 @@ def overlay(width, height, text, *, heading=None, time_text=None, note=None, leg
         img = legend_image(legend, text, small)
         paste(canvas, img, pad, height - pad - img.shape[0])
     return canvas
+
+
+def _backed(canvas, text, string, size, x, y, anchor="left"):
+    """Text on a translucent dark box: readable over bright clouds and molecules alike."""
+    w = text(string, size).shape[1]
+    left = x if anchor == "left" else x - w
+    m = max(2, size // 5)
+    fill(canvas, left - m, y - m // 2, left + w + m, y + line_height(size) + m // 2, (0.0, 0.0, 0.0, 0.4))
+    draw_text(canvas, text, string, size, x, y, anchor=anchor)
 
 
 def _fitting(text, string, size, width, smallest=9):
@@ -111,7 +120,7 @@ def title_card(width, height, text, *, number, caption, lines=()):
     usable = int(0.9 * width)
     big = _fitting(text, number, max(12, height // 8), usable)
     mid = _fitting(text, caption, max(10, height // 18), usable)
-    small = max(9, height // 30)
+    small = max(11, height // 30)
     y = int(0.30 * height)
     draw_text(canvas, text, number, big, width // 2, y, anchor="center", outline=False)
     y += line_height(big) + height // 40
