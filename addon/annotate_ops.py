@@ -205,7 +205,10 @@ def legend_entries(scene):
 def _image(width, height):
     img = bpy.data.images.get(IMAGE)
     if img is not None and tuple(img.size) != (width, height):
-        img.scale(width, height)
+        if img.source == "GENERATED":  # a generated image keeps its generated size: scale() does not hold
+            img.generated_width, img.generated_height = width, height
+        else:
+            img.scale(width, height)
     if img is None:
         img = bpy.data.images.new(IMAGE, width, height, alpha=True, float_buffer=False)
     return img

@@ -56,6 +56,7 @@ FIG2_DEFAULTS = {
     "vdb_dir": None,  # None: the volume layer's own cache folder (beside the saved .blend)
     "bake": "all",  # "lazy": each frame's .vdb written when shown (farm: after nephele precompute)
     "volume_bounces": 4,  # clouds lit by each other; 0: single scattering (a preview, several times faster)
+    "volume_biased": False,  # Cycles' ray marching: ~20x less set-up a frame than null scattering, ~2.5% darker
     "annotations": False,  # the caption (and for climate data the model time and a legend) over renders
 }
 
@@ -106,6 +107,7 @@ FIG5_DEFAULTS = {
     # Optical depth about 1 across the generator's diameter: translucent smoke, as in the paper.
     "density": 10.0,
     "grow": False,  # True: the release lasts until the frame's time (the smoke leaves the generator and is carried)
+    "volume_biased": False,  # Cycles' ray marching: ~20x less set-up a frame than null scattering, ~2.5% darker
     "camera_lon": -40.0,
     "camera_lat": 38.0,
     "camera_distance": 2.2,
@@ -125,6 +127,7 @@ FIG6_DEFAULTS = {
     "directory": None,  # None: the scattering panel's output folder
     "size": (300, 255),  # the paper's
     "samples": 32,
+    "volume_biased": False,  # Cycles' ray marching: ~20x less set-up a frame than null scattering, ~2.5% darker
     "annotations": False,  # the caption (and for climate data the model time and a legend) over renders
 }
 
@@ -138,6 +141,7 @@ FIG7_DEFAULTS = {
     "separation": 0.006,  # scene units (1 = 100 nm): a 0.6 nm eye base, about 1/30 of the nearest molecules
     "size": (320, 240),
     "samples": 8,
+    "max_bounces": None,  # None: Cycles' 12; 3 for a preview (the headlit lattice is mostly direct light)
     "annotations": False,  # the caption (and for climate data the model time and a legend) over renders
 }
 
@@ -211,6 +215,7 @@ def fig2(scene, **options):
     globe_scene.render_settings(scene, o["size"], o["samples"], engine=o["engine"])
     # Clouds lit by the sun and by each other (a few volume bounces).
     scene.cycles.volume_bounces = int(o["volume_bounces"])
+    scene.cycles.volume_biased = bool(o["volume_biased"])
     scene.eevee.taa_render_samples = int(o["samples"])
     volume_ops.eevee_volume_settings(scene)
     frame.install()
@@ -280,6 +285,7 @@ def fig5(scene, **options):
     with bpy.context.temp_override(scene=scene):
         if bpy.ops.nephele.add_flow_volume() != {"FINISHED"}:
             raise RuntimeError(f"Add flow volume failed: {p.status}")
+    scene.cycles.volume_biased = bool(o["volume_biased"])
     if o["grow"]:
         smoke = bpy.data.objects["Flow volume smoke"]
         frame.set_params(smoke, {**frame.params(smoke), "grow": True})
@@ -338,6 +344,7 @@ def fig6(scene, modal=False, **options):
     scene.cycles.samples = int(o["samples"])
     scene.cycles.use_denoising = True  # OIDN: the emission volume's sampling noise only
     scene.cycles.volume_bounces = 0  # the light is in the emission grid already
+    scene.cycles.volume_biased = bool(o["volume_biased"])
     # a physical sky is high dynamic range (bright horizon, sun-side glow): AgX rolls it off
     # where Standard clips it to white
     scene.view_settings.view_transform = "AgX" if o["sky"] == "world" else "Standard"
@@ -347,13 +354,24 @@ def fig6(scene, modal=False, **options):
     return {"cloud": None if modal else bpy.data.objects["Scattering cloud"], "camera": scene.camera}
 
 
+def cap_bounces(scene, bounces):
+    """At most ``bounces`` bounces per Cycles light path (each kind capped too), no caustics."""
+    c = scene.cycles
+    b = int(bounces)
+    c.max_bounces = b
+    c.diffuse_bounces, c.glossy_bounces = min(b, c.diffuse_bounces), min(b, c.glossy_bounces)
+    c.transmission_bounces = min(b, c.transmission_bounces)
+    c.transparent_max_bounces = min(b, c.transparent_max_bounces)
+    c.caustics_reflective = c.caustics_refractive = False  # opaque molecules: caustic paths would only add noise
+
+
 def fig7(scene, **options):
     """Fig. 7, muscle cross-bridges in motion, into ``scene``; returns ``{"film": obj, "camera": camera or rig}``.
 
     Options (see :data:`FIG7_DEFAULTS`): ``seed``, ``film_frames``, ``spacing``
     (nm), ``tiles``, ``dome`` (None: a perspective camera inside the lattice;
     ``"omnimax"`` or ``"domemaster"``: the dome rig, its front along the fibre),
-    ``stereo``, ``separation``, ``size``, ``samples``.
+    ``stereo``, ``separation``, ``size``, ``samples``, ``max_bounces`` (None: Cycles' own).
     """
     from . import dome_ops, muscle_ops
 
@@ -362,6 +380,8 @@ def fig7(scene, **options):
     scene.cycles.device = "CPU"
     scene.cycles.samples = int(o["samples"])
     scene.cycles.use_denoising = False
+    if o["max_bounces"] is not None:
+        cap_bounces(scene, o["max_bounces"])
     frame.install()
     obj = muscle_ops.add_muscle_film(seed=o["seed"], frames=o["film_frames"], spacing=o["spacing"],
                                      tiles=tuple(o["tiles"]), scene=scene)

@@ -64,12 +64,7 @@ def render_settings(scene, *, samples=None, denoise=False, bounces=None):
         c.denoising_input_passes = "RGB_ALBEDO_NORMAL"
         c.denoising_prefilter = "ACCURATE"
     if bounces is not None:
-        b = int(bounces)
-        c.max_bounces = b
-        c.diffuse_bounces, c.glossy_bounces = min(b, c.diffuse_bounces), min(b, c.glossy_bounces)
-        c.transmission_bounces = min(b, c.transmission_bounces)
-        c.transparent_max_bounces = min(b, c.transparent_max_bounces)
-        c.caustics_reflective = c.caustics_refractive = False  # opaque molecules: caustic paths would only add noise
+        presets.cap_bounces(scene, bounces)
 
 
 def write_anaglyph(left, right, out, mode="half"):

@@ -85,7 +85,7 @@ def _backed(canvas, text, string, size, x, y, anchor="left"):
     w = text(string, size).shape[1]
     left = x if anchor == "left" else x - w
     m = max(2, size // 5)
-    fill(canvas, left - m, y - m // 2, left + w + m, y + line_height(size) + m // 2, (0.0, 0.0, 0.0, 0.4))
+    fill(canvas, left - m, y - m // 2, left + w + m, y + line_height(size) + m // 2, (0.0, 0.0, 0.0, 0.5))
     draw_text(canvas, text, string, size, x, y, anchor=anchor)
 
 

@@ -122,6 +122,10 @@ def test_colour_space_follows_the_view_transform():
         scene.frame_set(2)
         assert img.colorspace_settings.name == space
     assert tuple(img.size) == annotate_ops.render_size(scene)
+    scene.render.resolution_x, scene.render.resolution_y = 1920, 1080
+    scene.render.resolution_percentage = 25  # a new size: the layer follows
+    scene.frame_set(3)
+    assert tuple(img.size) == annotate_ops.render_size(scene) == (480, 270)
 
 
 def test_remove_restores_the_compositor():
