@@ -9,7 +9,7 @@ opens with.  Both draw text with a rasteriser passed in (:mod:`.canvas`).
 
 import numpy as np
 
-from .canvas import draw_text, fill, line_height, new_canvas, paste, srgb_encode
+from .canvas import PANEL, draw_text, fill, line_height, new_canvas, paste, srgb_encode
 from .legend import legend_image, legend_size
 
 FIGURES = {
@@ -81,12 +81,12 @@ def overlay(width, height, text, *, heading=None, time_text=None, note=None, leg
 
 
 def _backed(canvas, text, string, size, x, y, anchor="left"):
-    """Text on a translucent dark box: readable over bright clouds and molecules alike."""
+    """Text on a dark box (:data:`.canvas.PANEL`): readable over bright clouds and molecules alike."""
     w = text(string, size).shape[1]
     left = x if anchor == "left" else x - w
     m = max(2, size // 5)
-    fill(canvas, left - m, y - m // 2, left + w + m, y + line_height(size) + m // 2, (0.0, 0.0, 0.0, 0.5))
-    draw_text(canvas, text, string, size, x, y, anchor=anchor)
+    fill(canvas, left - m, y - m // 2, left + w + m, y + line_height(size) + m // 2, PANEL)
+    draw_text(canvas, text, string, size, x, y, anchor=anchor, outline=False)
 
 
 def _fitting(text, string, size, width, smallest=9):

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import DataError
-from .canvas import draw_text, fill, line_height, new_canvas, srgb_encode
+from .canvas import PANEL, draw_text, fill, line_height, new_canvas, srgb_encode
 
 
 def _ascending(values, what):
@@ -150,7 +150,7 @@ def legend_image(entries, text, size=12):
     w, h, bw, bh = legend_size(entries, size, text)
     canvas = new_canvas(w, h)
     pad, lh, small = max(2, size // 2), line_height(size), max(8, int(round(0.85 * size)))
-    fill(canvas, 0, 0, w, h, (0.0, 0.0, 0.0, 0.7))
+    fill(canvas, 0, 0, w, h, PANEL)
     cy = pad
     for e in entries:
         draw_text(canvas, text, _label(e), size, pad, cy, outline=False)
