@@ -151,30 +151,36 @@ def test_only_each_figure(key, farm_cluster, tmp_path):
 
 @pytest.mark.slow
 def test_kill_worker_mid_reel_then_resume(farm_cluster, tmp_path):
-    """kill -9 of a worker while the reel renders: nothing is lost; a resume renders only missing frames."""
+    """kill -9 of a worker while it renders a frame of the reel: nothing is lost; a resume renders only missing frames."""
     pytest.importorskip("bpy")
     from distributed import Client
 
-    with Client(farm_cluster.scheduler_address) as client:
-        pids = list(client.run(os.getpid).values())
+    argv = ("--only", "fig1,dome", "--frames", "6")
     box = {}
-    t = threading.Thread(target=lambda: box.setdefault("rc", _film(farm_cluster, tmp_path, "--only", "fig1,dome",
-                                                                   "--frames", "4")))
+    t = threading.Thread(target=lambda: box.setdefault("rc", _film(farm_cluster, tmp_path, *argv)))
     t.start()
-    deadline = time.time() + 600
-    while not list(tmp_path.glob("frames/fig1-*/frame_0001.png")) and time.time() < deadline:
-        time.sleep(0.1)
-    os.kill(pids[0], signal.SIGKILL)
+    victim, deadline = None, time.time() + 600
+    with Client(farm_cluster.scheduler_address) as client:
+        while victim is None and time.time() < deadline:  # a worker in the middle of a frame of the reel
+            busy = [w for w, keys in client.processing().items() if any("nephele-frames" in k for k in keys)]
+            if busy and list(tmp_path.glob("frames/fig1-*/frame_0001.png")):
+                victim = client.run(os.getpid, workers=busy[:1])[busy[0]]
+            time.sleep(0.05)
+    assert victim is not None
+    os.kill(victim, signal.SIGKILL)
     t.join(900)
     assert box["rc"] == 0
     summary = json.loads((tmp_path / "film.json").read_text())
+    entries = []
     for seg in summary["segments"]:
         manifest = json.loads((tmp_path / seg["folder"] / "manifest.json").read_text())
-        assert sorted(int(f) for f in manifest["frames"]) == [1, 2, 3, 4]
+        assert sorted(int(f) for f in manifest["frames"]) == [1, 2, 3, 4, 5, 6]
         assert all(e["status"] == "ok" for e in manifest["frames"].values())
+        entries += manifest["frames"].values()
+    assert any(e["attempts"] >= 2 or e.get("recovered") for e in entries)  # the killed frame was done again
     (tmp_path / summary["segments"][0]["folder"] / "frame_0002.png").unlink()
-    (tmp_path / summary["segments"][1]["folder"] / "frame_0004.png").unlink()
-    assert _film(farm_cluster, tmp_path, "--only", "fig1,dome", "--frames", "4") == 0
+    (tmp_path / summary["segments"][1]["folder"] / "frame_0005.png").unlink()
+    assert _film(farm_cluster, tmp_path, *argv) == 0
     again = json.loads((tmp_path / "film.json").read_text())
-    assert [(s["rendered"], s["kept"]) for s in again["segments"]] == [(1, 3), (1, 3)]
+    assert [(s["rendered"], s["kept"]) for s in again["segments"]] == [(1, 5), (1, 5)]
     assert len(_mp4_frames(tmp_path / "reel.mp4")) == round(again["seconds_of_film"] * again["fps"])
