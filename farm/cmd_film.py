@@ -25,7 +25,7 @@ import time
 from pathlib import Path
 
 from .cli import UsageError
-from .cmd_render import add_cluster_arguments, cluster_kwargs, parse_resolution
+from .cmd_render import add_cluster_arguments, cluster_kwargs, parse_resolution, print_job_script
 
 HELP = "render the paper's film: a segment per figure through the farm, title cards, an MP4 and a contact sheet"
 
@@ -183,6 +183,8 @@ def run(args):
         for s in shots:
             print(f"{s.key}: {s.script.name} frames 1-{s.frames} {'x'.join(map(str, _resolution(s)))} "
                   f"engine {s.engine or 'scene'} samples {s.samples} -> {s.out_dir}\n  options {json.dumps(s.options)}")
+        if kwargs["jobqueue"]:
+            print_job_script(kwargs["jobqueue"], kwargs["security"])
         return 0
     from .cmd_demo import PeakMemory
 
