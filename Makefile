@@ -73,7 +73,7 @@ $(GRIB_SAMPLES): tests/data/fetch_grib_samples.py $(VENV)/.stamp
 	touch $@
 
 demo: $(VENV)/.stamp $(VENV)/.native
-	$(VENV)/bin/nephele demo --out out/demo
+	$(VENV)/bin/nephele film --out out/demo
 
 # The quick tier: everything but the slow hard cases, the extension zips and Slurm.
 test: $(VENV)/.stamp $(VENV)/.native $(GRIB_SAMPLES)

@@ -46,6 +46,55 @@ def openvdb():
 # --- images -------------------------------------------------------------------------------------
 
 
+_TEXT_CACHE = {}
+
+
+def text_mask(string, size):
+    """``string`` drawn by Blender's font engine (``blf``, the interface font) as a ``(h, w)`` float alpha mask.
+
+    ``size`` is pixels per em; every string of one size gets the same height
+    (:func:`nephele.core.annotate.canvas.line_height`), its baseline at the
+    same row, so lines line up.  OpenImageIO in the bpy wheel has no FreeType;
+    ``blf`` draws into an image buffer without a GPU or a window.
+    """
+    import bpy  # noqa: F401  (blf and imbuf are Blender's own modules, importable once bpy is)
+    import blf
+    import imbuf
+
+    from .core.annotate.canvas import line_height
+
+    key = (str(string), int(size))
+    hit = _TEXT_CACHE.get(key)
+    if hit is not None:
+        return hit
+    fid = 0  # Blender's default (interface) font
+    blf.size(fid, int(size))
+    pad = max(1, int(size) // 8)
+    width = int(np.ceil(blf.dimensions(fid, key[0])[0])) + 2 * pad
+    height = line_height(size)
+    ib = imbuf.new((max(1, width), height))
+    with blf.bind_imbuf(fid, ib):
+        blf.color(fid, 1.0, 1.0, 1.0, 1.0)
+        blf.position(fid, pad, int(round(0.3 * size)), 0)
+        blf.draw_buffer(fid, key[0])
+    if hasattr(ib, "with_buffer"):  # Blender 5.1+
+        with ib.with_buffer() as buf:
+            alpha = np.array(buf, copy=True)[::-1, :, 3]
+    else:  # older Blenders: no pixel access from Python, so through a PNG
+        import tempfile
+
+        with tempfile.TemporaryDirectory(prefix="nephele-text-") as tmp:
+            imbuf.write(ib, filepath=str(Path(tmp) / "text.png"))
+            alpha = read_image(Path(tmp) / "text.png")[:, :, 3]
+    ib.free()
+    mask = alpha.astype(np.float32) / 255.0 if alpha.dtype == np.uint8 else alpha.astype(np.float32)
+    if len(_TEXT_CACHE) > 4096:
+        _TEXT_CACHE.clear()
+    _TEXT_CACHE[key] = mask
+    return mask
+
+
+
 def read_image(path):
     """All channels of an image file as ``(H, W, C)`` float32 (rows top-down, as stored)."""
     io = oiio()

@@ -25,6 +25,7 @@ MODULES = (
     "flowvol_ops",
     "splat_ops",
     "presets",
+    "annotate_ops",
 )
 
 

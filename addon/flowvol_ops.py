@@ -96,8 +96,16 @@ def release_window(params, frame_number):
     keeps its length and ends ``frame_hours(frame)`` later, so at the first frame
     the smoke is the whole release and later frames show it flowing on while
     the generator keeps releasing (the end is clamped to the data's last hour).
+    With ``grow`` the release starts at ``start_hour`` and lasts until the
+    frame's time (at least one frame's hours, at most ``hours``): the smoke
+    leaves the generator and is carried on, frame by frame.
     """
     t0, hours = float(params["start_hour"]), float(params["hours"])
+    if params.get("grow") and not is_vtu(params["source"]):
+        ds = sources.open_source(params["source"])
+        step = float(params.get("hours_per_frame", 1.0))
+        shift = sources.frame_hours(frame_number, params.get("frame_start", 1), step)
+        return t0, max(min(shift + step, hours, float(ds.hours[-1]) - t0), 0.0)
     if params.get("follow") and not is_vtu(params["source"]):  # a steady flow: every window gives the same tube
         ds = sources.open_source(params["source"])
         shift = sources.frame_hours(frame_number, params.get("frame_start", 1), params.get("hours_per_frame", 1.0))

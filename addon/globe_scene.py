@@ -68,6 +68,8 @@ def argument_parser(description, defaults):
     ap.add_argument("--size", type=parse_size, default=defaults["size"], help=f"WxH (default {w}x{h})")
     ap.add_argument("--samples", type=int, default=defaults["samples"])
     ap.add_argument("--source", default=defaults["source"], help='"demo", "demo:small", a .nc or a .ctl')
+    ap.add_argument("--annotations", action="store_true",
+                    help="lay the caption, the model date and time and a legend over every render")
     return ap
 
 

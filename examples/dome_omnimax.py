@@ -49,6 +49,7 @@ DEFAULTS = {
     "samples": 16,
     "frames": (1, 1),
     "hours_per_frame": 1.0,
+    "annotations": False,
 }
 SMALL = {"omnimax": (256, 188), "domemaster": (192, 192)}
 FULL = {"omnimax": (2048, 1500), "domemaster": (2048, 2048)}
@@ -81,7 +82,8 @@ def build(**options):
     ``distance`` (of the audience from the globe's centre), ``elevation`` (of
     the globe's centre above the dome's front horizon), ``source``, ``haze``,
     ``size`` (w, h; default small), ``samples``, ``frames`` (first, last: the
-    scene's frame range) and ``hours_per_frame`` (climate hours per frame).
+    scene's frame range), ``hours_per_frame`` (climate hours per frame) and ``annotations`` (the
+    caption and the model date and time over the frame's corners; Cycles' fisheye only).
     """
     from nephele.addon import dome_ops
     from nephele.core.climate.grid import lonlat_to_xyz
@@ -97,6 +99,10 @@ def build(**options):
                                    separation=o["separation"])
     eye = o["distance"] * lonlat_to_xyz(-40.0, 22.0)
     aim_rig(rig, eye, (0.0, 0.0, 0.0), o["elevation"])
+    if o["annotations"]:
+        from nephele.addon import annotate_ops
+
+        annotate_ops.add_annotations(bpy.context.scene, figure="dome", legend=False)
     return {**objs, "rig": rig}
 
 

@@ -40,7 +40,7 @@ def main(argv=None):
 
     bpy.ops.wm.read_factory_settings(use_empty=True)
     build(source=args.source, level=args.level, frames=args.frames, size=args.size, samples=args.samples,
-          hours_per_frame=args.hours_per_frame, haze=args.haze)
+          hours_per_frame=args.hours_per_frame, haze=args.haze, annotations=args.annotations)
     if args.save:
         globe_scene.save(args.save)
     if args.out:

@@ -58,7 +58,8 @@ def main(argv=None):
         # Save first, so the sequence lands beside the .blend and is linked relatively.
         globe_scene.save(args.save)
     build(source=args.source, threshold=args.threshold, mode=args.mode, voxel_size=args.voxel_size, frames=args.frames,
-          size=args.size, samples=args.samples, haze=not args.no_haze, engine=args.engine, vdb_dir=vdb_dir)
+          size=args.size, samples=args.samples, haze=not args.no_haze, engine=args.engine, vdb_dir=vdb_dir,
+          annotations=args.annotations)
     if args.save:
         globe_scene.save(args.save)
     if args.out:

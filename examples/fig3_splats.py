@@ -41,7 +41,8 @@ def main(argv=None):
     ap.add_argument("--extinction", type=float, default=DEFAULTS["extinction"])
     args = ap.parse_args(argv)
     bpy.ops.wm.read_factory_settings(use_empty=True)
-    build(source=args.source, frames=args.frames, size=args.size, samples=args.samples, extinction=args.extinction)
+    build(source=args.source, frames=args.frames, size=args.size, samples=args.samples, extinction=args.extinction,
+          annotations=args.annotations)
     if args.save:
         globe_scene.save(args.save)
     if args.out:

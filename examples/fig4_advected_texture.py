@@ -57,7 +57,8 @@ def main(argv=None):
     build(source=args.source, level=args.level, frames=args.frames, size=args.size, samples=args.samples,
           haze=not args.no_haze, strategy=args.strategy, period=args.period, hours_per_frame=args.hours_per_frame,
           vertical=args.vertical,
-          camera_lon=args.camera[0], camera_lat=args.camera[1], camera_distance=args.camera[2])
+          camera_lon=args.camera[0], camera_lat=args.camera[1], camera_distance=args.camera[2],
+          annotations=args.annotations)
     if args.save:
         globe_scene.save(args.save)
     if args.out:

@@ -130,6 +130,10 @@ def main(argv=None):
     bpy.ops.wm.read_factory_settings(use_empty=True)
     if args.fire:
         build_fire(path=args.vtu, size=args.size, samples=args.samples, density=args.density, seconds=args.seconds)
+        if args.annotations:
+            from nephele.addon import annotate_ops
+
+            annotate_ops.add_annotations(bpy.context.scene, figure="fig5")
         print(bpy.context.scene.nephele_flowvol.status)
         if args.save:
             globe_scene.save(args.save)
@@ -137,7 +141,7 @@ def main(argv=None):
             globe_scene.render_frames(bpy.context.scene, args.frames, args.out)
         return 0
     build(source=args.source, frames=args.frames, size=args.size, samples=args.samples, hours=args.hours, radius=args.radius,
-          density=DEFAULTS["density"] if args.density is None else args.density)
+          density=DEFAULTS["density"] if args.density is None else args.density, annotations=args.annotations)
     print(bpy.context.scene.nephele_flowvol.status)
     if args.save:
         globe_scene.save(args.save)

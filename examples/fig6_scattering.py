@@ -27,8 +27,11 @@ ROOT = Path(__file__).resolve().parent.parent
 
 
 def build(frames=120, grid=(24, 24, 18), sun_irradiance=7.0, sky_radiance=0.35, directory=None,
-          size=(300, 255), samples=32, sky="uniform", **_):
-    """Build the Fig. 6 scene into the current (empty) scene (:func:`nephele.addon.presets.fig6`); returns the cloud."""
+          size=(300, 255), samples=32, sky="uniform", annotations=False, volume_biased=False, **_):
+    """Build the Fig. 6 scene into the current (empty) scene (:func:`nephele.addon.presets.fig6`); returns the cloud.
+
+    ``annotations``: the figure's caption over every render (:mod:`nephele.addon.annotate_ops`);
+    ``volume_biased``: Cycles' ray marching instead of null scattering (a preview: far less set-up a frame)."""
     import bpy
 
     import nephele
@@ -38,7 +41,7 @@ def build(frames=120, grid=(24, 24, 18), sun_irradiance=7.0, sky_radiance=0.35, 
         nephele.register()
     return presets.fig6(bpy.context.scene, frames=frames, grid=grid, sun_irradiance=sun_irradiance,
                         sky_radiance=sky_radiance, directory=directory, size=size, samples=samples,
-                        sky=sky)["cloud"]
+                        sky=sky, annotations=bool(annotations), volume_biased=bool(volume_biased))["cloud"]
 
 
 def main(argv=None):
@@ -52,6 +55,7 @@ def main(argv=None):
     ap.add_argument("--grid", default="24x24x18")
     ap.add_argument("--sky", choices=("uniform", "world"), default="uniform",
                     help="uniform sky from above, or a Sky Texture world lighting the cloud")
+    ap.add_argument("--annotations", action="store_true", help="lay the figure's caption over every render")
     args = ap.parse_args(argv)
 
     import bpy
@@ -65,7 +69,7 @@ def main(argv=None):
     out = Path(args.out).resolve() if args.out else None
     directory = (out / "vdb") if out else None
     build(frames=max(120, last), grid=tuple(int(v) for v in args.grid.split("x")), size=(w, h),
-          samples=args.samples, directory=directory, sky=args.sky)
+          samples=args.samples, directory=directory, sky=args.sky, annotations=args.annotations)
     scene = bpy.context.scene
     if args.save:
         bpy.ops.wm.save_as_mainfile(filepath=str(Path(args.save).resolve()))

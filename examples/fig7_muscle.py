@@ -64,12 +64,7 @@ def render_settings(scene, *, samples=None, denoise=False, bounces=None):
         c.denoising_input_passes = "RGB_ALBEDO_NORMAL"
         c.denoising_prefilter = "ACCURATE"
     if bounces is not None:
-        b = int(bounces)
-        c.max_bounces = b
-        c.diffuse_bounces, c.glossy_bounces = min(b, c.diffuse_bounces), min(b, c.glossy_bounces)
-        c.transmission_bounces = min(b, c.transmission_bounces)
-        c.transparent_max_bounces = min(b, c.transparent_max_bounces)
-        c.caustics_reflective = c.caustics_refractive = False  # opaque molecules: caustic paths would only add noise
+        presets.cap_bounces(scene, bounces)
 
 
 def write_anaglyph(left, right, out, mode="half"):
@@ -96,6 +91,8 @@ def main(argv=None):
     ap.add_argument("--anaglyph", choices=ANAGLYPH_MODES,
                     help="with --dome --stereo: also write a red-cyan anaglyph of the two eyes in this mode")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--annotations", action="store_true",
+                    help="lay the caption and the molecules' colours over the render")
     ap.add_argument("--film-frames", type=int, default=DEFAULTS["film_frames"], help="simulated film length")
     args = ap.parse_args(argv)
     if args.anaglyph and not (args.dome and args.stereo):
@@ -108,7 +105,7 @@ def main(argv=None):
         ap.error("--size must be at least 8 8")
     if args.spacing is not None and not args.spacing > 0:
         ap.error("--spacing must be > 0")
-    opts = {"seed": args.seed, "film_frames": max(args.film_frames, args.frame)}
+    opts = {"seed": args.seed, "film_frames": max(args.film_frames, args.frame), "annotations": args.annotations}
     if args.dome:
         opts.update(dome="omnimax", stereo=args.stereo, size=(256, 188))
     if args.full:

@@ -16,6 +16,7 @@ COMMANDS = (
     "info",
     "contour",
     "demo",
+    "film",
     "render",
     "precompute",
     "post",

@@ -47,6 +47,8 @@ class PeakMemory:
     ``peak_total`` sums resident set sizes (pages shared between processes
     counted in each: an upper bound); ``peak_pss`` sums proportional set sizes
     (shared pages split between their users), where the system reports them.
+    ``cpu_seconds`` sums the CPU time (user + system) each process had used
+    when last seen: a process's last ``interval`` before it ended is missed.
     """
 
     def __init__(self, interval=0.25):
@@ -54,6 +56,7 @@ class PeakMemory:
         self.peak_total = 0
         self.peak_pss = 0
         self.peak_process = 0
+        self._cpu = {}
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
 
@@ -65,13 +68,25 @@ class PeakMemory:
         for p in [me] + me.children(recursive=True):
             try:
                 info = p.memory_full_info()
+                times = p.cpu_times()
+                key = (p.pid, p.create_time())
             except (psutil.NoSuchProcess, psutil.AccessDenied):
                 continue
+            self._cpu[key] = max(self._cpu.get(key, 0.0), times.user + times.system)
             total += info.rss
             pss += getattr(info, "pss", info.rss)
             self.peak_process = max(self.peak_process, info.rss)
         self.peak_total = max(self.peak_total, total)
         self.peak_pss = max(self.peak_pss, pss)
+
+    @property
+    def cpu_seconds(self):
+        return sum(self._cpu.values())
+
+    def sample(self):
+        """Sample now; returns :attr:`cpu_seconds`."""
+        self._sample()
+        return self.cpu_seconds
 
     def _run(self):
         while not self._stop.is_set():

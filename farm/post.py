@@ -183,24 +183,47 @@ def movie(paths, out_mp4, fps=24, crf=18, view="Standard", background=(0.0, 0.0,
     paths = [Path(p) for p in paths]
     if not paths:
         raise DataError("no frames given for the movie")
+
+    def pictures():
+        for p in paths:
+            rgba = read_rgba(p, view)
+            yield p, np.round(_over(rgba, background) * 255.0).astype(np.uint8)
+
+    return encode(pictures(), out_mp4, fps=fps, crf=crf)
+
+
+def encode(pictures, out_mp4, fps=24, crf=18, preset="medium"):
+    """Encode ``(label, rgb)`` pairs, ``rgb`` an ``(h, w, 3)`` uint8 array, as an H.264 MP4, atomically.
+
+    Every picture must have the first one's size (``label``, a path or a
+    name, is what an error message names).  Odd sizes are padded by one pixel
+    (H.264 4:2:0 needs even sizes).  Returns the path of the movie.
+    """
     if not fps > 0:
         raise DataError(f"fps must be > 0, got {fps}", field="fps")
     out_mp4 = Path(out_mp4)
     out_mp4.parent.mkdir(parents=True, exist_ok=True)
-    first = read_rgba(paths[0], view)
-    h, w = first.shape[:2]
+    pictures = iter(pictures)
+    try:
+        label, rgb = next(pictures)
+    except StopIteration:
+        raise DataError("no frames given for the movie") from None
+    h, w = rgb.shape[:2]
     with atomic_write(out_mp4) as tmp:
         cmd = [ffmpeg_exe(), "-y", "-loglevel", "error", "-f", "rawvideo", "-pix_fmt", "rgb24", "-s", f"{w}x{h}",
                "-r", str(fps), "-i", "-", "-vf", "pad=ceil(iw/2)*2:ceil(ih/2)*2", "-c:v", "libx264",
-               "-preset", "medium", "-crf", str(crf), "-pix_fmt", "yuv420p", "-movflags", "+faststart", str(tmp)]
+               "-preset", preset, "-crf", str(crf), "-pix_fmt", "yuv420p", "-movflags", "+faststart", str(tmp)]
         proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stderr=subprocess.PIPE)
         try:
-            for i, p in enumerate(paths):
-                rgba = first if i == 0 else read_rgba(p, view)
-                if rgba.shape[:2] != (h, w):
-                    raise DataError(f"frame size {rgba.shape[1]}x{rgba.shape[0]} differs from the first {w}x{h}", path=p)
-                rgb = np.round(_over(rgba, background) * 255.0).astype(np.uint8)
-                proc.stdin.write(rgb.tobytes())
+            while True:
+                if rgb.shape[:2] != (h, w):
+                    raise DataError(f"frame size {rgb.shape[1]}x{rgb.shape[0]} differs from the first {w}x{h}",
+                                    path=label)
+                proc.stdin.write(np.ascontiguousarray(rgb, np.uint8).tobytes())
+                try:
+                    label, rgb = next(pictures)
+                except StopIteration:
+                    break
             proc.stdin.close()
             err = proc.stderr.read().decode(errors="replace")
             if proc.wait() != 0:

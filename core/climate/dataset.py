@@ -72,6 +72,11 @@ class Dataset(abc.ABC):
     """
 
     levels_follow_air = False
+    calendar = "standard"
+    """CF calendar of the time axis; readers of model output set others (``"360_day"``, ``"noleap"``)."""
+    time_origin = None
+    """The time axis' reference date (``datetime64[s]``): times are elapsed time from it, so in a model
+    calendar the dates shown are it plus that time in the calendar (:mod:`nephele.core.annotate`)."""
     aliases = {}
     """File names of fields → their standard names (readers fill it)."""
     earth_radius = EARTH_RADIUS

@@ -479,6 +479,10 @@ class NetCDFDataset(VerticalCoordinates, FileDataset):
             times, note = cf_times_or_steps(tv.values, _attr(tv, "units"), tv.attrs.get("calendar"), path, time_name)
         if note:
             self._notes.append(note)
+        if monthly is not None or not note:  # CF dates (not step numbers): keep the file's calendar
+            self.calendar = (str(tv.attrs.get("calendar") or "standard")).strip().lower()
+            self.time_origin = parse_iso(re.split(r"\s+since\s+", time_units or _attr(tv, "units"), maxsplit=1,
+                                                  flags=re.IGNORECASE)[1], path, time_name)
         return times
 
     def _levels(self, ds, path, names, skipped, lat_index, lon_index, nj, ni):
