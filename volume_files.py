@@ -1,4 +1,4 @@
-"""Volume sequences in files, for the add-on and the farm alike: one ``.vdb`` per frame.
+"""Volume sequences in files, for the add-on and the farm alike: one ``.vdb`` per frame [1]_.
 
 A sequence is what a Blender volume with ``is_sequence``, ``frame_start`` = the
 sequence's first frame and ``frame_offset`` = 0 reads natively: files
@@ -8,7 +8,7 @@ mode each holds the resampled :class:`~nephele.core.volume.sparse.SparseVolume`
 (:mod:`nephele.core.volume.volume_atlas`) the ``support`` grid, with the values
 atlas of that frame in an ``.exr`` of the same name, plus ``<prefix>_heights.exr``
 (the heights atlas, one file: the grid is fixed).  The shader that reads the
-atlases is built by :mod:`nephele.addon.volume_exact`.
+atlases is built by :mod:`nephele.addon.volume_exact` (the paper's Fig. 2 [2]_).
 
 Files are written through :mod:`.fileio` (OpenVDB and OpenImageIO, bundled
 with Blender): to a temporary name in the same folder, then renamed, so a

@@ -25,6 +25,7 @@ extensions = [
     "sphinx.ext.autosummary",
     "sphinx.ext.mathjax",
     "nephele_cli",
+    "nephele_xref",
 ]
 
 source_suffix = {".md": "markdown", ".rst": "restructuredtext"}
@@ -40,7 +41,7 @@ myst_enable_extensions = ["dollarmath", "colon_fence", "deflist", "attrs_inline"
 # hints repeated in the signature (the numpydoc Parameters sections carry them).
 autodoc_member_order = "bysource"
 autodoc_typehints = "none"
-autodoc_default_options = {"members": False}
+autodoc_default_options = {}
 autosummary_generate = False
 numpydoc_show_class_members = False
 numpydoc_class_members_toctree = False

@@ -159,20 +159,43 @@ def open_dataset(source, **kw):
         Climate Data Store delivers ERA5), a GRIB file (``.grib``, ``.grib2``,
         ``.grb``, ``.grb2``; needs ecCodes), a Zarr store
         (``.zarr`` directory; needs zarr) or a GrADS descriptor (``.ctl``).
+        It may also be a name from :func:`override_source`
+        (``path?radius=6371220&...``): the file opened with those overrides.
+    vertical : str, optional
+        NetCDF and Zarr: what the level coordinate is when the file does not
+        say: ``"pressure_hpa"``, ``"pressure_pa"``, ``"height_m"``,
+        ``"height_km"`` or ``"ncar_hybrid"``.
+    p0 : float, optional
+        NetCDF and Zarr: reference pressure of hybrid levels (Pa).
+    time_units : str, optional
+        NetCDF and Zarr: CF time units, such as ``"days since 1988-01-01"``.
+    radius : float, optional
+        Planet radius (m), replacing the file's.
+    variables : dict, optional
+        Standard name → the file's variable name where the names are not
+        recognised, e.g. ``{"temperature": "T2"}``.
+    level_type : str, optional
+        GRIB: the ecCodes ``typeOfLevel`` to read (``"isobaricInhPa"``,
+        ``"hybrid"``...); by default the kind of level with the most 3-D
+        variables (``nephele info`` lists them).
+    member : int, optional
+        NetCDF, Zarr and GRIB: the ensemble member; by default the control
+        (0) or the lowest.
     **kw
-        Passed to the reader: for the demo ``seed``; for NetCDF and GRIB the
-        overrides of what a file gets wrong or leaves out, ``p0=`` (Pa,
-        reference pressure of hybrid levels) and ``time_units=`` (CF units
-        such as ``"days since 1988-01-01"``); ``member=`` (ensemble member) for
-        NetCDF, Zarr and GRIB; for GRIB also ``level_type=``.
+        Passed to the reader: for the demo ``seed``; for files ``rh_crit``
+        (Sundqvist's critical relative humidity, one value or one per level).
+
+    Returns
+    -------
+    Dataset
+        Lazy: fields are read one time step at a time.
 
     Raises
     ------
     DataError
-        Missing file, unknown format or bad contents, naming file and field.
-
-    ``source`` may also be a name from :func:`override_source`
-    (``path?radius=6371220&...``): the file opened with those overrides.
+        Missing file, unknown format or bad contents, naming file and field;
+        an override the format does not take (GrADS takes none; GRIB states
+        its levels and times, so not ``vertical``, ``p0`` or ``time_units``).
     """
     text, named = split_source(source)
     if named:

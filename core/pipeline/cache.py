@@ -20,8 +20,8 @@ from ..files import atomic_write, cache_root, file_stamp, process_alive
 from . import registry
 
 CACHE_VERSION = 1
-_WINDOWS = os.name == "nt"
 """Bump when the meaning of cached arrays changes; old entries are then ignored."""
+_WINDOWS = os.name == "nt"
 
 
 def canonical(params):
