@@ -15,6 +15,10 @@ VENV311 := .venv311
 BPY52 := build/venv-bpy52
 BPY50 := build/venv-bpy50
 PYTEST_ARGS ?=
+# Test processes (pytest-xdist), one per core; a test file stays in one process (its module fixtures
+# are built once). JOBS=0 runs in this process only.
+JOBS ?= $(shell nproc 2>/dev/null || echo 2)
+XDIST = -n $(JOBS) --dist loadfile
 STRICT := NEPHELE_STRICT=1
 # Each tier runs under tests/budget.py: its time against its budget in seconds (it fails past 1.5
 # times that) and its ten slowest tests.
@@ -78,7 +82,7 @@ demo: $(VENV)/.stamp $(VENV)/.native
 # The quick tier: everything but the slow hard cases, the extension zips and Slurm.
 test: $(VENV)/.stamp $(VENV)/.native $(GRIB_SAMPLES)
 	@mkdir -p $(TIERS)
-	$(STRICT) $(BUDGET) quick 480 --junit $(TIERS)/quick.xml -- $(VENV)/bin/python -m pytest -m "not slow" \
+	$(STRICT) $(BUDGET) quick 480 --junit $(TIERS)/quick.xml -- $(VENV)/bin/python -m pytest $(XDIST) -m "not slow" \
 	  --ignore=tests/extension --ignore=tests/farm/slurm --junitxml=$(TIERS)/quick.xml $(PYTEST_ARGS)
 
 # pyflakes, pycodestyle, isort and bugbear with the configuration in pyproject.toml.
@@ -94,7 +98,7 @@ test-full:
 # Everything on Python 3.13 + bpy, the slow hard cases too (the zips and Slurm have tiers of their own).
 test-main: $(VENV)/.stamp $(VENV)/.native $(GRIB_SAMPLES)
 	@mkdir -p $(TIERS)
-	$(STRICT) $(BUDGET) main 900 --junit $(TIERS)/main.xml -- $(VENV)/bin/python -m pytest \
+	$(STRICT) $(BUDGET) main 900 --junit $(TIERS)/main.xml -- $(VENV)/bin/python -m pytest $(XDIST) \
 	  --ignore=tests/extension --ignore=tests/farm/slurm --junitxml=$(TIERS)/main.xml $(PYTEST_ARGS)
 
 # The core (no bpy, no farm) on the numpy 1.26 / Python 3.11 that Blender 4.2-5.0 ship. This tier has
@@ -102,7 +106,7 @@ test-main: $(VENV)/.stamp $(VENV)/.native $(GRIB_SAMPLES)
 test-core311: $(VENV)/.stamp $(VENV311)/.stamp $(VENV311)/.native $(GRIB_SAMPLES)
 	@mkdir -p $(TIERS)
 	$(STRICT) NEPHELE_OPTIONAL=bpy $(BUDGET) core311 420 --junit $(TIERS)/core311.xml -- \
-	  $(VENV311)/bin/python -m pytest -m "not bpy and not slow" --ignore=tests/farm --ignore=tests/addon \
+	  $(VENV311)/bin/python -m pytest $(XDIST) -m "not bpy and not slow" --ignore=tests/farm --ignore=tests/addon \
 	  --ignore=tests/extension --junitxml=$(TIERS)/core311.xml $(PYTEST_ARGS)
 
 # Build the linux-x64 zips (wheels cached in build/wheels), install each into its Blender-only

@@ -302,8 +302,8 @@ def fig6(scene, modal=False, **options):
     Options (see :data:`FIG6_DEFAULTS`): ``frames`` (the orbit's length),
     ``grid``, ``sun_irradiance``, ``sky_radiance``, ``sky`` (``"uniform"``: a blue
     background, the cloud lit by a uniform sky of ``sky_radiance``; ``"world"``: a
-    Sky Texture world, :func:`.scatter_ops.add_sky_world`, with its sun where the
-    cloud's sun is, lighting the cloud through :func:`.scatter_ops.bake_world`),
+    Sky Texture world, :func:`.scatter_scene.add_sky_world`, with its sun where the
+    cloud's sun is, lighting the cloud through :func:`.scatter_scene.bake_world`),
     ``camera_elevation`` (degrees of the orbit above the cloud's centre; default 15, or -20
     under a world sky so that the sky is behind the cloud), ``directory`` (the VDBs),
     ``size``, ``samples``.  ``modal``: the solve runs as the scattering
@@ -321,10 +321,10 @@ def fig6(scene, modal=False, **options):
     if o["directory"]:
         p.directory = str(o["directory"])
     if o["sky"] == "world":
-        from . import scatter_ops
+        from . import scatter_scene
 
         p.sky = "WORLD"
-        world = scatter_ops.add_sky_world(p.sun_elevation, p.sun_azimuth, name="Fig6 sky")
+        world = scatter_scene.add_sky_world(p.sun_elevation, p.sun_azimuth, name="Fig6 sky")
     elif o["sky"] == "uniform":
         world = bpy.data.worlds.new("Fig6 sky")
         if world.node_tree is None:

@@ -22,13 +22,11 @@ import math
 import time
 from pathlib import Path
 
-import bpy
-
 from ..core.light import evolving, scatter, scatter_task
 from ..core.volume import cloud_density as cd
 from ..fileio import dense_grids, write_vdb
 from . import frame
-from . import scatter_ops as so
+from . import scatter_scene as ss
 
 _LAST = {}  # object uid -> its last Solution (a warm start's first guess; this session only)
 
@@ -39,24 +37,24 @@ class ScatterJob:
     def __init__(self, context, props):
         from ..core.memory import check_memory
 
-        self.params = so.cloud_params(props)
-        check_memory(so.BYTES_PER_CELL * (props.bins_per_face / 4) ** 2 * math.prod(self.params.shape),
+        self.params = ss.cloud_params(props)
+        check_memory(ss.BYTES_PER_CELL * (props.bins_per_face / 4) ** 2 * math.prod(self.params.shape),
                      f"the scattering solve on a {'x'.join(str(n) for n in props.resolution)} grid "
                      "(lower the grid)", field="resolution")
-        self.scene = so.own_scene(context) if props.own_scene else context.scene
+        self.scene = ss.own_scene(context) if props.own_scene else context.scene
         props = self.props = self.scene.nephele_scatter
         self.size = tuple(props.size)
-        self.origin = so.placement(self.scene, self.size)
-        self.directory = so.output_directory(props.directory)
+        self.origin = ss.placement(self.scene, self.size)
+        self.directory = ss.output_directory(props.directory)
         self.frames = list(range(self.scene.frame_start, self.scene.frame_end + 1))
         centre = tuple(o + 0.5 * d for o, d in zip(self.origin, self.size))
         sky = {"NONE": 0.0, "UNIFORM": props.sky_radiance}.get(props.sky)
         if sky is None:  # the scene's world, rendered around the cloud's centre
-            sun_on = (so.scene_sun(self.scene) if props.use_scene_sun else None) is not None or props.sun_irradiance
-            sky = so.bake_world(context.scene.world, centre, sun_disc=not sun_on,
+            sun_on = (ss.scene_sun(self.scene) if props.use_scene_sun else None) is not None or props.sun_irradiance
+            sky = ss.bake_world(context.scene.world, centre, sun_disc=not sun_on,
                                 bins_per_face=props.bins_per_face).tolist()
         # the same solve as the farm's "scatter" task (nephele precompute), cached under its key
-        self.task = so.panel_task(props, self.scene, {"solve": {"sky_radiance": sky}})
+        self.task = ss.panel_task(props, self.scene, {"solve": {"sky_radiance": sky}})
         self.sun = tuple(self.task["solve"]["sun_dir"])
         self.evolve = props.evolve == "DRIFT"
         self.prev = self.solution = self.last = self.gen = None
@@ -66,7 +64,7 @@ class ScatterJob:
         if self.scene.camera is None and props.orbit_camera:
             r = 1.7 * max(self.size)
             e = math.radians(props.orbit_elevation)
-            so.add_orbit_camera(centre, r * math.cos(e), r * math.sin(e), self.frames, scene=self.scene)
+            ss.add_orbit_camera(centre, r * math.cos(e), r * math.sin(e), self.frames, scene=self.scene)
         if self.scene.camera is None:
             raise RuntimeError("the scene has no camera: add one or enable 'Orbit camera'")
 
@@ -134,7 +132,7 @@ class ScatterJob:
             from ..core.pipeline.kinds import KINDS
             from .frame import results_dir
 
-            (kind,) = KINDS[so.KIND].tasks  # stored where the farm's plan for this object looks
+            (kind,) = KINDS[ss.KIND].tasks  # stored where the farm's plan for this object looks
             Cache(results_dir()).store(kind, self.task, scatter.solution_arrays(self.solution))
             return
         self.prev = self.solution
@@ -158,12 +156,12 @@ class ScatterJob:
 
         scene = self.scene
         scene.frame_set(self.frames[0])
-        obj = so._volume_object(so.OBJECT_NAME, self.directory / "scatter_0001.vdb",
+        obj = ss._volume_object(ss.OBJECT_NAME, self.directory / "scatter_0001.vdb",
                                 (self.frames[0], len(self.frames)), scene=scene)
         obj.location = self.origin
-        obj.data.materials.append(so.emission_material())
-        params = {"kind": so.KIND, "directory": stored_dir(self.directory),
-                  "owned": self.props.directory == so.DEFAULT_DIRECTORY, "frames": self.frames,
+        obj.data.materials.append(ss.emission_material())
+        params = {"kind": ss.KIND, "directory": stored_dir(self.directory),
+                  "owned": self.props.directory == ss.DEFAULT_DIRECTORY, "frames": self.frames,
                   "report": self.solution.report, "sun_dir": list(self.sun)}
         if self.evolve:  # a sequence of solves, not one: the VDBs are the result (the farm renders them)
             params["evolve"] = {"drift": list(self.props.drift), "frames": len(self.frames)}
@@ -238,7 +236,7 @@ def progress(args):
     return args.get("status")
 
 
-update_scatter = frame.register_job(so.KIND, plan, compute, apply, progress)
+update_scatter = frame.register_job(ss.KIND, plan, compute, apply, progress)
 
 
 def resolve(props, context):
@@ -249,9 +247,9 @@ def resolve(props, context):
     scene = context.scene
     for obj in scene.objects:
         params = frame.params(obj)
-        if params.get("kind") != so.KIND or "cameras" not in params:
+        if params.get("kind") != ss.KIND or "cameras" not in params:
             continue
-        params["solve_task"] = so.panel_task(props, scene, params["solve_task"])
+        params["solve_task"] = ss.panel_task(props, scene, params["solve_task"])
         params["sun_dir"] = params["solve_task"]["solve"]["sun_dir"]
         frame.set_params(obj, params)
         frame.submit(obj, scene)

@@ -43,6 +43,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "benchmarks"))
 sys.path.insert(0, str(ROOT / "tests" / "core" / "light"))  # the independent truths the tests use
 from nephele.addon.render_device import DEVICES  # noqa: E402 (no bpy at import)
+
 OUT = ROOT / "out" / "bench" / "scatter"
 
 SIZE = (1.0, 1.0, 0.75)
@@ -52,8 +53,8 @@ VIEW_ANGLE = 0.6
 
 
 def scene():
-    from nephele.core.volume import cloud_density
     from nephele.core.light import scatter
+    from nephele.core.volume import cloud_density
 
     sigma = EXT * cloud_density.cloud_density(cloud_density.CloudParams(shape=(18, 24, 24), size=SIZE))
     cam = scatter.orbit_camera(VIEW_ANGLE, SIZE, width=128, height=96)
@@ -78,25 +79,25 @@ def errors(img, ref):
 def cycles_render(sigma, cam, samples, *, denoise=False, seed=0, threads=2, tag="pt", vdb=None, device="CPU"):
     import bpy
 
-    from nephele.addon import scatter_ops as so
+    from nephele.addon import scatter_scene as ss
 
     bpy.ops.wm.read_factory_settings(use_empty=True)
     sc = bpy.context.scene
-    so.add_camera(cam)
-    so.black_world()
-    so.add_sun(SUN, 1.0)
-    so.add_pathtraced_cloud(sigma, SIZE, albedo=ALBEDO, g=G, vdb_path=vdb or OUT / "cloud.vdb")
-    so.cycles_settings(sc, 1, denoise=denoise, threads=threads, device=device)
+    ss.add_camera(cam)
+    ss.black_world()
+    ss.add_sun(SUN, 1.0)
+    ss.add_pathtraced_cloud(sigma, SIZE, albedo=ALBEDO, g=G, vdb_path=vdb or OUT / "cloud.vdb")
+    ss.cycles_settings(sc, 1, denoise=denoise, threads=threads, device=device)
     sc.cycles.seed = seed
     sc.render.use_persistent_data = True  # keep the synced scene between frames, as for an animation
     t = time.perf_counter()
     exr = (Path(vdb).parent if vdb else OUT) / f"{tag}.exr"
-    so.render_array(sc, exr)  # warm-up: kernels, scene and volume sync
+    ss.render_array(sc, exr)  # warm-up: kernels, scene and volume sync
     cold = time.perf_counter() - t
     sc.cycles.samples = int(samples)
     sc.frame_set(2)  # a next frame of an animation: the scene is synced again
     t = time.perf_counter()
-    img = so.render_array(sc, exr)
+    img = ss.render_array(sc, exr)
     return img, time.perf_counter() - t, cold
 
 
@@ -155,8 +156,8 @@ def film(n, width=640, height=480, views=3, anchor=True, cycles=None, ref_device
     (cached per grid): the first 640x480 view against one of each of ``spps_640`` samples,
     the 128x96 test view against each of ``spps_test``, beside Cycles raw and OIDN-denoised
     points at the test view; missing references are rendered on ``ref_device``."""
-    from nephele.core.volume import cloud_density
     from nephele.core.light import scatter
+    from nephele.core.volume import cloud_density
 
     shape = (3 * n // 4, n, n)
     sigma = EXT * cloud_density.cloud_density(cloud_density.CloudParams(shape=shape, size=SIZE))
@@ -266,8 +267,8 @@ def picture(ours, ref, name, zoom=3):
 
 def scaling(shapes=((18, 24, 24), (36, 48, 48), (72, 96, 96))):
     """Seconds per shooting pass (after the first) and passes to converge, per grid size."""
-    from nephele.core.volume import cloud_density
     from nephele.core.light import scatter
+    from nephele.core.volume import cloud_density
 
     rows = []
     for shape in shapes:

@@ -27,7 +27,7 @@ def build(frames=240, grid=(24, 24, 18), drift=(0.25, 0.1, 0.02), directory=None
 
     import nephele
     from nephele.addon import presets
-    from nephele.addon.scatter_ops import OBJECT_NAME
+    from nephele.addon.scatter_scene import OBJECT_NAME
 
     if not hasattr(bpy.types.Scene, "nephele_scatter"):
         nephele.register()

@@ -24,8 +24,9 @@ import sys
 import time
 from pathlib import Path
 
-from .cli import UsageError
-from .cmd_render import add_cluster_arguments, cluster_kwargs, parse_resolution, print_job_script
+from ..core.errors import UsageError
+from ..core.parse import parse_size
+from .cmd_render import add_cluster_arguments, cluster_kwargs, print_job_script
 
 HELP = "render the paper's film: a segment per figure through the farm, title cards, an MP4 and a contact sheet"
 
@@ -83,9 +84,7 @@ def _check(args):
         raise UsageError(f"--retries must be >= 0, got {args.retries}")
     if args.timeout is not None and not args.timeout > 0:
         raise UsageError(f"--timeout must be > 0 seconds, got {args.timeout}")
-    size = parse_resolution(args.size) if args.size else None
-    if size and not (16 <= size[0] <= 8192 and 16 <= size[1] <= 8192):
-        raise UsageError(f"--size {args.size} is outside 16..8192 pixels")
+    size = parse_size(args.size, "--size", example="1280x720", lo=16, hi=8192) if args.size else None
     if not args.name or "/" in args.name or args.name.startswith("."):
         raise UsageError(f"--name must be a plain file name, got {args.name!r}")
     if args.days is not None:

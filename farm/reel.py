@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core.annotate import FIGURES, REFERENCE, title_card
-from .cli import UsageError
+from ..core.errors import UsageError
 
 ROOT = Path(__file__).resolve().parent.parent
 EXAMPLES = ROOT / "examples"

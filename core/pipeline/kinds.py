@@ -31,11 +31,12 @@ KINDS = {
     "contour": ObjectKind(("contour",), "surface.contour_task", "contour_ops"),
     "advected_contour": ObjectKind(("advect_contour",), "flow.advect_task", "advect_ops"),
     "volume": ObjectKind(("volume",), "volume.volume_task", "volume_ops"),
-    "scatter": ObjectKind(("scatter",), "light.scatter_task"),
+    "scatter": ObjectKind(("scatter",), "light.scatter_task", "scatter_jobs"),
     "muscle": ObjectKind(("muscle_frame",), "muscle.film", "muscle_ops"),
     "flowvol": ObjectKind(updater="flowvol_ops"),
     "splats": ObjectKind(updater="splat_ops"),
     "dome": ObjectKind(),
+    "annotations": ObjectKind(updater="annotate_ops"),
 }
 """Object kind -> :class:`ObjectKind` (task kinds, core module, add-on updater)."""
 

@@ -4,7 +4,7 @@ import pytest
 
 bpy = pytest.importorskip("bpy")
 
-from nephele.addon import scatter_ops as so  # noqa: E402
+from nephele.addon import scatter_scene as ss  # noqa: E402
 from nephele.addon.render_device import DEVICES, use_device  # noqa: E402
 from nephele.core.errors import DataError  # noqa: E402
 
@@ -44,7 +44,7 @@ def test_gpu_backend_enables_only_its_devices(empty_scene):
     kind = next((k for k in DEVICES[1:] if _gpus(k)), None)
     if kind is None:
         pytest.skip("no GPU backend on this host (checked on a lent GPU by benchmarks/bench_scatter.py --ref-device)")
-    so.cycles_settings(empty_scene, 4, device=kind)
+    ss.cycles_settings(empty_scene, 4, device=kind)
     prefs = bpy.context.preferences.addons["cycles"].preferences
     assert empty_scene.cycles.device == "GPU"
     assert all(d.use == (d.type == kind) for d in prefs.devices)

@@ -9,7 +9,8 @@ import pytest
 bpy = pytest.importorskip("bpy")
 
 from nephele import fileio  # noqa: E402
-from nephele.addon import frame, scatter_ops as so  # noqa: E402
+from nephele.addon import frame
+from nephele.addon import scatter_scene as ss  # noqa: E402
 from nephele.core.light import scatter  # noqa: E402
 
 
@@ -22,7 +23,7 @@ def _cloud(scene, tmp_path, frames=2, **props):
         setattr(p, k, v)
     scene.frame_start, scene.frame_end = 1, frames
     assert bpy.ops.nephele.add_scattering_cloud() == {"FINISHED"}
-    return p, bpy.data.objects[so.OBJECT_NAME]
+    return p, bpy.data.objects[ss.OBJECT_NAME]
 
 
 def _emission(path, shape):

@@ -6,7 +6,8 @@ import pytest
 bpy = pytest.importorskip("bpy")
 
 from nephele import fileio  # noqa: E402
-from nephele.addon import scatter_ops as so  # noqa: E402
+from nephele.addon import scatter_scene as ss  # noqa: E402
+from nephele.addon.scatter_jobs import ScatterJob  # noqa: E402
 from nephele.core.light import scatter  # noqa: E402
 
 
@@ -30,7 +31,7 @@ def test_operator_writes_volume_sequence(empty_scene, tmp_path, monkeypatch):
     scene = empty_scene
     _setup(scene, tmp_path, frames=2)
     assert bpy.ops.nephele.add_scattering_cloud() == {"FINISHED"}
-    obj = bpy.data.objects[so.OBJECT_NAME]
+    obj = bpy.data.objects[ss.OBJECT_NAME]
     vol = obj.data
     assert vol.is_sequence and vol.frame_start == 1 and vol.frame_duration == 2
     files = sorted((tmp_path / "scatter").glob("scatter_*.vdb"))
@@ -62,7 +63,7 @@ def test_job_runs_in_small_steps(empty_scene, tmp_path):
 
     scene = empty_scene
     p = _setup(scene, tmp_path, frames=3)
-    job = so.ScatterJob(bpy.context, p)
+    job = ScatterJob(bpy.context, p)
     fractions, longest = [], 0.0
     for _ in range(10000):
         t = time.perf_counter()
@@ -98,11 +99,11 @@ def test_cycles_renders_the_emission_volume_like_the_core(empty_scene, tmp_path)
     cam = scatter.orbit_camera(0.7, (1, 1, 0.75), width=32, height=24, distance=1.4)
     src = scatter.view_source(sol, cam.position)
     ours = scatter.render(sigma, src, (1, 1, 0.75), cam, step=0.2)
-    so.add_camera(cam)
-    so.black_world()
+    ss.add_camera(cam)
+    ss.black_world()
     fileio.write_vdb(tmp_path / "ea.vdb", fileio.dense_grids({"density": sigma, "emission": src}, (1, 1, 0.75)))
-    obj = so._volume_object("ea", tmp_path / "ea.vdb")
-    obj.data.materials.append(so.emission_material())
-    so.cycles_settings(empty_scene, 64)
-    img = so.render_array(empty_scene, tmp_path / "ea.exr")
+    obj = ss._volume_object("ea", tmp_path / "ea.vdb")
+    obj.data.materials.append(ss.emission_material())
+    ss.cycles_settings(empty_scene, 64)
+    img = ss.render_array(empty_scene, tmp_path / "ea.exr")
     assert img.mean() == pytest.approx(ours.mean(), rel=0.03)

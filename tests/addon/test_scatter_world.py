@@ -6,7 +6,8 @@ import pytest
 
 bpy = pytest.importorskip("bpy")
 
-from nephele.addon import scatter_ops as so  # noqa: E402
+from nephele.addon import scatter_scene as ss  # noqa: E402
+from nephele.addon.scatter_jobs import ScatterJob  # noqa: E402
 from nephele.core.light import phase, scatter, sky  # noqa: E402
 from nephele.core.volume import cloud_density as cdm  # noqa: E402
 
@@ -42,7 +43,7 @@ def test_bake_follows_the_panorama_convention_and_cleans_up(empty_scene):
     world = _linear_world(a)
     world.cycles_visibility.camera = False  # held out of camera rays: the bake sees it anyway
     counts = (len(bpy.data.scenes), len(bpy.data.objects), len(bpy.data.cameras))
-    out = so.bake_world(world, size=(128, 64), samples=16, threads=2)
+    out = ss.bake_world(world, size=(128, 64), samples=16, threads=2)
     np.testing.assert_allclose(out, 1.0 - phase.mean_directions(16) @ a, atol=2e-3)
     assert (len(bpy.data.scenes), len(bpy.data.objects), len(bpy.data.cameras)) == counts
     assert not world.cycles_visibility.camera
@@ -51,18 +52,18 @@ def test_bake_follows_the_panorama_convention_and_cleans_up(empty_scene):
 def test_bake_on_finer_bins(empty_scene):
     # the linear world of the test above, on the 216 bins of bins_per_face 6
     a = np.array([0.3, -0.5, 0.4])
-    out = so.bake_world(_linear_world(a), size=(128, 64), samples=16, threads=2, bins_per_face=6)
+    out = ss.bake_world(_linear_world(a), size=(128, 64), samples=16, threads=2, bins_per_face=6)
     assert out.shape == (216,)
     np.testing.assert_allclose(out, 1.0 - phase.mean_directions(16, 6) @ a, atol=2e-3)
 
 
 def test_bake_leaves_the_sky_sun_disc_out_unless_asked(empty_scene):
-    world = so.add_sky_world(38.0, -30.0, sun_disc=True)
+    world = ss.add_sky_world(38.0, -30.0, sun_disc=True)
     kw = dict(size=(128, 64), samples=16, threads=2)
-    without = so.bake_world(world, **kw)
-    with_disc = so.bake_world(world, sun_disc=True, **kw)
+    without = ss.bake_world(world, **kw)
+    with_disc = ss.bake_world(world, sun_disc=True, **kw)
     assert world.node_tree.nodes["Sky Texture"].sun_disc  # restored
-    sun_bin = phase.bin_of(-np.array(so.sun_direction(38.0, -30.0)))  # the node's sun is where add_sky_world says
+    sun_bin = phase.bin_of(-np.array(ss.sun_direction(38.0, -30.0)))  # the node's sun is where add_sky_world says
     others = np.arange(96) != sun_bin
     np.testing.assert_allclose(with_disc[others], without[others], rtol=1e-6)
     assert with_disc[sun_bin] > 20 * without[sun_bin]
@@ -77,7 +78,7 @@ def _sky_world_scene(scene, tmp_path, monkeypatch):
     p = scene.nephele_scatter
     p.resolution, p.directory, p.tolerance = (8, 8, 6), str(tmp_path / "scatter"), 1e-2
     scene.frame_start, scene.frame_end = 1, 1
-    scene.world = so.add_sky_world(p.sun_elevation, p.sun_azimuth)
+    scene.world = ss.add_sky_world(p.sun_elevation, p.sun_azimuth)
     p.sky = "WORLD"
     return p
 
@@ -88,9 +89,9 @@ def test_operator_lights_the_cloud_with_the_world(empty_scene, tmp_path, monkeyp
     assert bpy.ops.nephele.add_scattering_cloud() == {"FINISHED"}
     sol = scatter.load_solution(tmp_path / "scatter" / "solution.npz")
     assert np.shape(sol.sky_radiance) == (96,)
-    np.testing.assert_allclose(sol.sky_radiance, so.bake_world(scene.world), rtol=1e-2)
+    np.testing.assert_allclose(sol.sky_radiance, ss.bake_world(scene.world), rtol=1e-2)
     p.sky = "NONE"
-    assert so.ScatterJob(bpy.context, p).task["solve"]["sky_radiance"] == 0.0
+    assert ScatterJob(bpy.context, p).task["solve"]["sky_radiance"] == 0.0
 
 
 def _errors(img, ref, n=4):
@@ -117,17 +118,17 @@ def test_sky_lit_cloud_against_cycles(empty_scene, tmp_path, sun_irradiance):
     sigma = 40.0 * cdm.cloud_density(cdm.CloudParams(shape=(18, 24, 24), size=SIZE))
     cam = scatter.orbit_camera(0.6, SIZE, width=64, height=48)
     scene = empty_scene
-    so.add_camera(cam)
-    scene.world = so.add_sky_world(38.0, -30.0, sun_disc=False)
+    ss.add_camera(cam)
+    scene.world = ss.add_sky_world(38.0, -30.0, sun_disc=False)
     scene.world.cycles_visibility.camera = False  # only the cloud's light: no background
-    sun = so.sun_direction(38.0, -30.0)
+    sun = ss.sun_direction(38.0, -30.0)
     if sun_irradiance:
-        so.add_sun(sun, sun_irradiance)
-    so.add_pathtraced_cloud(sigma, SIZE, albedo=0.99, g=0.8, vdb_path=tmp_path / "cloud.vdb")
-    so.cycles_settings(scene, 128, threads=2)
-    ref = sky.luminance(so.render_rgba(scene, tmp_path / "cycles.exr"))
+        ss.add_sun(sun, sun_irradiance)
+    ss.add_pathtraced_cloud(sigma, SIZE, albedo=0.99, g=0.8, vdb_path=tmp_path / "cloud.vdb")
+    ss.cycles_settings(scene, 128, threads=2)
+    ref = sky.luminance(ss.render_rgba(scene, tmp_path / "cycles.exr"))
     assert ref[:2, :2].max() == 0.0  # the world is out of camera rays (the corners miss the cloud)
-    per_bin = so.bake_world(scene.world, (0.5, 0.5, 0.375), threads=2)
+    per_bin = ss.bake_world(scene.world, (0.5, 0.5, 0.375), threads=2)
     sol = scatter.solve(sigma, SIZE, albedo=0.99, g=0.8, sun_dir=sun, sun_irradiance=sun_irradiance,
                         sky_radiance=per_bin)
     ours = scatter.march_planes(sigma, scatter.view_source(sol, cam.position), SIZE, cam, samples=2)
@@ -140,24 +141,24 @@ def test_own_scene_shows_the_sky_that_lights_it(empty_scene, tmp_path, monkeypat
     p = _sky_world_scene(scene, tmp_path, monkeypatch)
     p.own_scene, p.orbit_elevation = True, -20.0
     assert bpy.ops.nephele.add_scattering_cloud() == {"FINISHED"}
-    own = bpy.data.scenes[so.SCENE_NAME]
+    own = bpy.data.scenes[ss.SCENE_NAME]
     assert own.world == scene.world  # the background is the sky the cloud was lit by
     # the orbit camera looks up at the cloud from 20 degrees below its centre
-    origin = np.array(so.placement(own, tuple(p.size)))
+    origin = np.array(ss.placement(own, tuple(p.size)))
     centre = origin + 0.5 * np.array(p.size)
     assert np.allclose(own.camera.parent.location, centre)  # the orbit's pivot
     offset = np.array(own.camera.matrix_world.translation) - centre
     assert np.degrees(np.arctan2(offset[2], np.hypot(*offset[:2]))) == pytest.approx(-20.0, abs=0.5)
     p.sky = "UNIFORM"  # a uniform sky again: the cloud's scene gets its own black world back
     with bpy.context.temp_override(scene=scene):
-        so.own_scene(bpy.context)
+        ss.own_scene(bpy.context)
     assert own.world != scene.world
     assert tuple(own.world.node_tree.nodes["Background"].inputs["Color"].default_value)[:3] == (0.0, 0.0, 0.0)
 
 
 def test_bake_finds_the_sun_disc_inside_a_node_group(empty_scene):
     # A Sky Texture wrapped in a node group (as artists share skies) is a sun disc all the same.
-    world = so.add_sky_world(38.0, -30.0, sun_disc=True)
+    world = ss.add_sky_world(38.0, -30.0, sun_disc=True)
     nt = world.node_tree
     inner = nt.nodes["Sky Texture"]
     grp = bpy.data.node_groups.new("Sky group", "ShaderNodeTree")
@@ -170,10 +171,10 @@ def test_bake_finds_the_sun_disc_inside_a_node_group(empty_scene):
     node = nt.nodes.new("ShaderNodeGroup")
     node.node_tree = grp
     nt.links.new(node.outputs["Color"], nt.nodes["Background"].inputs["Color"])
-    assert so.sky_texture_nodes(nt) == [sky]
+    assert ss.sky_texture_nodes(nt) == [sky]
     kw = dict(size=(128, 64), samples=16, threads=2)
-    without = so.bake_world(world, **kw)
-    with_disc = so.bake_world(world, sun_disc=True, **kw)
+    without = ss.bake_world(world, **kw)
+    with_disc = ss.bake_world(world, sun_disc=True, **kw)
     assert sky.sun_disc  # restored
-    sun_bin = phase.bin_of(-np.array(so.sun_direction(38.0, -30.0)))
+    sun_bin = phase.bin_of(-np.array(ss.sun_direction(38.0, -30.0)))
     assert with_disc[sun_bin] > 20 * without[sun_bin]
