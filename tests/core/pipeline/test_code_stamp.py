@@ -92,11 +92,13 @@ def test_compiled_kernels_enter_the_key(monkeypatch):
     from nephele.core import native
 
     film, scatter = CORE / "muscle" / "film.py", CORE / "light" / "scatter_task.py"
+    contour = CORE / "surface" / "contour_task.py"
     stamps = {}
     for ident in ("numpy", "0123456789abcdef"):
         monkeypatch.setattr(native, "identity", lambda ident=ident: ident)
         codehash.code_stamp.cache_clear()
-        stamps[ident] = (codehash.code_stamp(film), codehash.code_stamp(scatter))
+        stamps[ident] = tuple(codehash.code_stamp(p) for p in (film, scatter, contour))
     codehash.code_stamp.cache_clear()
     assert stamps["numpy"][0] != stamps["0123456789abcdef"][0]
-    assert stamps["numpy"][1] == stamps["0123456789abcdef"][1]  # no kernel behind the scattering
+    assert stamps["numpy"][1] != stamps["0123456789abcdef"][1]  # the scattering's sweeps are compiled too
+    assert stamps["numpy"][2] == stamps["0123456789abcdef"][2]  # no kernel behind the contours

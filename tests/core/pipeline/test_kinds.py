@@ -31,18 +31,30 @@ def test_every_task_module_registers_its_rows():
     assert set(TASK_MODULES) == {row.module for row in KINDS.values() if row.module}
 
 
+def _constants(tree):
+    """Module-level ``NAME = "constant"`` assignments of a parsed module."""
+    return {t.id: n.value.value for n in tree.body if isinstance(n, ast.Assign)
+            for t in n.targets if isinstance(t, ast.Name) and isinstance(n.value, ast.Constant)}
+
+
 def _registered_updaters():
     """``kind -> add-on module`` of every ``register_job(kind, ...)`` and ``register_updater(kind)`` call."""
     out = {}
     for path in sorted(ADDON.glob("*.py")):
         tree = ast.parse(path.read_bytes())
-        consts = {t.id: n.value.value for n in tree.body if isinstance(n, ast.Assign)
-                  for t in n.targets if isinstance(t, ast.Name) and isinstance(n.value, ast.Constant)}
+        # sibling modules imported as names (``from . import scatter_scene as ss``), for ``ss.KIND``
+        siblings = {a.asname or a.name: a.name for n in tree.body if isinstance(n, ast.ImportFrom)
+                    and n.level == 1 and n.module is None for a in n.names}
         for node in ast.walk(tree):
             if isinstance(node, ast.Call) and getattr(node.func, "attr", getattr(node.func, "id", None)) in (
                     "register_job", "register_updater") and path.stem != "frame":
                 arg = node.args[0]
-                kind = arg.value if isinstance(arg, ast.Constant) else consts[arg.id]
+                if isinstance(arg, ast.Constant):
+                    kind = arg.value
+                elif isinstance(arg, ast.Attribute):
+                    kind = _constants(ast.parse((ADDON / f"{siblings[arg.value.id]}.py").read_bytes()))[arg.attr]
+                else:
+                    kind = _constants(tree)[arg.id]
                 assert kind not in out, f"{kind} registered by {out.get(kind)} and {path.stem}"
                 out[kind] = path.stem
     return out
