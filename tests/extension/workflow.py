@@ -25,7 +25,7 @@ MODULE = "bl_ext.user_default.nephele"
 DRIVEN = {"import_dataset", "add_contour", "update_frame", "add_advected_texture", "add_globe", "add_sky",
           "add_camera", "add_volume_clouds", "add_scattering_cloud", "add_dome_camera", "render_dome_cube",
           "add_flow_volume", "update_flow_volume", "add_muscle_film", "clear_cache", "cancel_jobs", "delete_layer",
-          "sync_layers", "paper_figure", "add_wind_splats", "bake_volume"}
+          "sync_layers", "paper_figure", "add_wind_splats", "bake_volume", "add_annotations", "remove_annotations"}
 # Registered but not driven here: the status-bar watcher is a modal operator that needs a window
 # (headless, work is synchronous and never needs watching).
 WINDOW_ONLY = {"watch_jobs"}
@@ -144,11 +144,18 @@ scene.cycles.samples = 2
 scene.render.resolution_x, scene.render.resolution_y = 64, 48
 scene.render.resolution_percentage = 100
 scene.render.filepath = str(OUT / "frame.png")
+# The annotation layer (heading, model time, legend) over the render, through the compositor.
+step("add_annotations", lambda: ops.add_annotations(heading="Workflow"))
+annotate = importlib.import_module(MODULE + ".addon.annotate_ops")
+layer = bpy.data.images[annotate.IMAGE]
+assert tuple(layer.size) == (64, 48) and np.array(layer.pixels[:])[3::4].max() > 0.5, "the annotation layer is empty"
 step("render", lambda: bpy.ops.render.render(write_still=True))
 times["install_to_frame"] = time.perf_counter() - t0
 img = bpy.data.images.load(str(OUT / "frame.png"))
 pixels = np.array(img.pixels[:], dtype=np.float32).reshape(48, 64, 4)[..., :3]
 assert pixels.std() > 0.02 and pixels.max() > 0.1, "the rendered frame is blank"
+step("remove_annotations", lambda: ops.remove_annotations())
+assert annotate.annotations_object(scene) is None and annotate.IMAGE not in bpy.data.images
 
 # The muscle film (its own world and lattice), small: one box, a coarse grid.
 step("add_muscle_film", lambda: ops.add_muscle_film(frames=2, spacing=1.5, tiles=(1, 1, 1), camera=False))
