@@ -58,6 +58,8 @@ def text_mask(string, size):
     ``blf`` draws into an image buffer without a GPU or a window.
     """
     import bpy  # noqa: F401  (blf and imbuf are Blender's own modules, importable once bpy is)
+
+    # isort: split
     import blf
     import imbuf
 

@@ -31,9 +31,8 @@ import math
 import tempfile
 from pathlib import Path
 
-import numpy as np
-
 import bpy
+import numpy as np
 from bpy.app.handlers import persistent
 from mathutils import Matrix, Vector
 

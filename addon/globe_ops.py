@@ -15,9 +15,8 @@ References
 import math
 from pathlib import Path
 
-import numpy as np
-
 import bpy
+import numpy as np
 
 from ..core.climate import relief as core_relief
 from ..core.climate.grid import EARTH_RADIUS, globe_radius, lonlat_to_xyz

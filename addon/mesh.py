@@ -7,9 +7,8 @@ letting Blender derive the edges takes well under a second (see
 docs/benchmarks.md, section ``mesh_transfer``).
 """
 
-import numpy as np
-
 import bpy
+import numpy as np
 
 _VECTOR_TYPES = {1: ("FLOAT", "value"), 2: ("FLOAT2", "vector"), 3: ("FLOAT_VECTOR", "vector"), 4: ("FLOAT_COLOR", "color")}
 

@@ -19,8 +19,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from report import md_table, write_section  # noqa: E402
 
-from nephele.core.surface.contour import isosurface  # noqa: E402
 from nephele.core.climate.grid import lonlat_to_xyz  # noqa: E402
+from nephele.core.surface.contour import isosurface  # noqa: E402
 from nephele.core.surface.mesh import triangle_areas  # noqa: E402
 
 

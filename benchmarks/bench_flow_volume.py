@@ -47,8 +47,8 @@ from scipy.integrate import solve_ivp
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from report import md_table, write_section  # noqa: E402
 
-from nephele.core.flowvol import ClimateVelocity, flow_volume  # noqa: E402
 from nephele.core.climate.synthetic import SyntheticClimate  # noqa: E402
+from nephele.core.flowvol import ClimateVelocity, flow_volume  # noqa: E402
 
 
 def abc(p, t, A=np.sqrt(3), B=np.sqrt(2), C=1.0):

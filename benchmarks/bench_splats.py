@@ -43,6 +43,7 @@ from report import md_table, write_section  # noqa: E402
 
 from nephele.core.climate.dataset import ArrayDataset, hourly  # noqa: E402
 from nephele.core.climate.grid import GlobeGrid  # noqa: E402
+from nephele.core.climate.synthetic import demo_dataset  # noqa: E402
 from nephele.core.splats import (  # noqa: E402
     Camera,
     Splats,
@@ -57,9 +58,8 @@ from nephele.core.splats import (  # noqa: E402
     streak_maps,
 )
 from nephele.core.splats.partition import shell_heights, shell_reach, stencil_weights, widening  # noqa: E402
-from nephele.core.climate.synthetic import demo_dataset  # noqa: E402
-from nephele.core.volume.transfer import TransferFunction  # noqa: E402
 from nephele.core.volume.sparse import resample  # noqa: E402
+from nephele.core.volume.transfer import TransferFunction  # noqa: E402
 
 TF = TransferFunction.ramp(0.3, 0.8)
 

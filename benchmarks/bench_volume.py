@@ -24,14 +24,18 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from report import md_table, write_section  # noqa: E402
 
-
-from nephele.core.volume.exact_ray import (  # noqa: E402
-    opacity, ray_samples, reference_optical_depth, segment_optical_depth, sphere_span, volume_optical_depth,
-)
 from nephele.core.climate.grid import height_from_radius, lonlat_to_xyz  # noqa: E402
 from nephele.core.climate.readers import open_dataset  # noqa: E402
-from nephele.core.volume.transfer import TransferFunction  # noqa: E402
+from nephele.core.volume.exact_ray import (  # noqa: E402
+    opacity,
+    ray_samples,
+    reference_optical_depth,
+    segment_optical_depth,
+    sphere_span,
+    volume_optical_depth,
+)
 from nephele.core.volume.sparse import DEFAULT_EXTINCTION, DEFAULT_VOXEL_SIZE, CurvilinearField, resample  # noqa: E402
+from nephele.core.volume.transfer import TransferFunction  # noqa: E402
 from nephele.core.volume.volume_atlas import DEFAULT_SUPPORT_SIZE, atlas_layout, exact_volume  # noqa: E402
 
 TF = TransferFunction.ramp(0.3, 0.7)  # the Fig. 2 example's transfer function

@@ -30,9 +30,8 @@ import math
 import sys
 from pathlib import Path
 
-import numpy as np
-
 import bpy
+import numpy as np
 from mathutils import Matrix, Vector
 
 HERE = Path(__file__).resolve().parent

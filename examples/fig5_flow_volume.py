@@ -53,10 +53,11 @@ FIRE = {
 
 def _room(bounds):
     """Floor, back wall and left wall of the room's box (grey, diffuse) and a sun."""
+    import numpy as np
+
     from nephele.addon.materials import enable_nodes
     from nephele.addon.mesh import new_object
     from nephele.core.surface.mesh import Mesh
-    import numpy as np
 
     (x0, x1), (y0, y1), (z0, z1) = bounds
     quads = {"floor": [(x0, y0, z0), (x1, y0, z0), (x1, y1, z0), (x0, y1, z0)],
@@ -82,10 +83,9 @@ def build_fire(**options):
     import numpy as np
     from mathutils import Vector
 
+    import nephele
     from nephele.addon import globe_scene
     from nephele.core.flowvol import UnstructuredVelocity
-
-    import nephele
 
     o = {**FIRE, **{k: v for k, v in options.items() if v is not None}}
     scene = bpy.context.scene

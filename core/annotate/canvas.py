@@ -13,7 +13,6 @@ plain boxes for tests and for environments without Blender.
 
 import numpy as np
 
-
 PANEL = (0.05, 0.06, 0.08, 1.0)
 """Colour of the boxes behind text and legends.  Opaque: a translucent box over a bright, high dynamic range
 picture (a compositor works in scene-linear light, before the view transform) hardly darkens it."""

@@ -72,8 +72,8 @@ from .relief import (  # noqa: F401
 from .synthetic import (  # noqa: F401
     DELTA,
     SIZES,
-    SyntheticClimate,
     TOP,
+    SyntheticClimate,
     demo_dataset,
 )
 from .zarrstore import (  # noqa: F401

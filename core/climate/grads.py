@@ -31,8 +31,8 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import DataError
-from .gridfile import FileDataset, standard_name, tidy_lonlat
 from .grid import GlobeGrid
+from .gridfile import FileDataset, standard_name, tidy_lonlat
 from .humidity import RH_CRIT, standard_height
 
 _MONTHS = {m: i + 1 for i, m in enumerate("jan feb mar apr may jun jul aug sep oct nov dec".split())}

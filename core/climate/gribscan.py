@@ -92,9 +92,8 @@ def _multi(eccodes, f):
 def _stamp(path):
     """``(resolved path, identity)``: the file's path, size and modification time, and the reader's code
     (what the index keeps, level heights included, was made by this code from this file)."""
-    from ..pipeline.codehash import code_stamp
-
     from ..files import file_stamp
+    from ..pipeline.codehash import code_stamp
 
     return Path(path).resolve(), f"{file_stamp(path)}|v{INDEX_VERSION}|{code_stamp(Path(__file__).with_name('grib.py'))}"
 

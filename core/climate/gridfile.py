@@ -25,8 +25,8 @@ import re
 
 import numpy as np
 
-from .dataset import Dataset, Variable
 from ..errors import DataError
+from .dataset import Dataset, Variable
 from .humidity import RH_CRIT, relative_humidity, sundqvist_cloud
 
 # Lower-case file names (CF, ECMWF/ERA, ECHAM, NCEP, GrADS, CMIP, MERRA-2, WRF, CAM) → standard name.

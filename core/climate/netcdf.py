@@ -67,8 +67,17 @@ import numpy as np
 
 from ..errors import DataError
 from .dataset import Variable
-from .gridfile import FileDataset, cf_times, cf_times_or_steps, parse_iso, plausible_units, standard_name, step_times, tidy_lonlat
 from .grid import EARTH_RADIUS, GlobeGrid, right_handed, rotated_pole_matrix
+from .gridfile import (
+    FileDataset,
+    cf_times,
+    cf_times_or_steps,
+    parse_iso,
+    plausible_units,
+    standard_name,
+    step_times,
+    tidy_lonlat,
+)
 from .humidity import G0, RH_CRIT
 from .netcdflevels import CAM_P0, VERTICAL_KINDS, VerticalCoordinates, _attr  # noqa: F401  (CAM_P0, VERTICAL_KINDS: public here)
 from .projections import inverse

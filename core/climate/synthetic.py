@@ -83,8 +83,8 @@ import functools
 
 import numpy as np
 
-from .dataset import Dataset, Variable
 from ..errors import DataError
+from .dataset import Dataset, Variable
 from .grid import EARTH_RADIUS, GlobeGrid
 from .relief import load_relief, sample_relief
 

@@ -16,12 +16,25 @@ from collections import OrderedDict
 import numpy as np
 
 from ..errors import DataError
-from ..pipeline.sources import open_source
 from ..pipeline.registry import planner, task
+from ..pipeline.sources import open_source
 from ..surface.contour import isosurface
 from ..surface.contour_task import ALTITUDE, task_params
-from .advect import (COPIES, DEFAULT_BAND, START, START_ALT, STRATEGIES, WEIGHT, ComposedTrace, Copy, FullTrace, RestartTrace,
-                     WindField, active_vertices, steps_to_keep)
+from .advect import (
+    COPIES,
+    DEFAULT_BAND,
+    START,
+    START_ALT,
+    STRATEGIES,
+    WEIGHT,
+    ComposedTrace,
+    Copy,
+    FullTrace,
+    RestartTrace,
+    WindField,
+    active_vertices,
+    steps_to_keep,
+)
 
 ADVECT_DEFAULTS = {"strategy": "restart", "period": 24, "integrator": "rk4", "order": 3, "band": DEFAULT_BAND, "nan": "error",
                    "vertical": "auto", "cfl": 2.0}

@@ -32,8 +32,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..climate.dataset import Dataset, Variable, hourly
-from ..errors import DataError
 from ..climate.grid import EARTH_RADIUS, GlobeGrid
+from ..errors import DataError
 
 DAY_HOURS = 24.0
 

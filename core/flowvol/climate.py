@@ -19,9 +19,9 @@ References
 
 import numpy as np
 
-from ..flow.advect import WindField, steps_to_keep
-from ..errors import DataError
 from ..climate.grid import DEFAULT_EXAGGERATION, EARTH_RADIUS, globe_radius, height_from_radius
+from ..errors import DataError
+from ..flow.advect import WindField, steps_to_keep
 
 
 class ClimateVelocity:

@@ -18,8 +18,8 @@ from ..memory import check_memory
 from ..surface.mesh import Mesh, vertex_normals
 from .climate import ClimateVelocity
 from .front import Front, perpendicular_frame
-from .unstructured import UnstructuredVelocity
 from .tets import boundary_faces, merge_vertices, orient, signed_volumes, split_prisms
+from .unstructured import UnstructuredVelocity
 
 
 @dataclass

@@ -4,9 +4,8 @@ extrapolated tail of the passes (:class:`_Tail`)."""
 
 import numpy as np
 
-from . import phase
 from ..threads import default_threads, split_map, thread_map
-from . import _native
+from . import _native, phase
 
 
 class _Tail:

@@ -5,9 +5,9 @@ film speed)."""
 
 import numpy as np
 
-from . import phase
 from ..splats.camera import Camera
 from ..threads import default_threads, thread_map
+from . import phase
 from ._escape import _exp_source_escape, _phi, _transport_factors
 
 

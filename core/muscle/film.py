@@ -36,7 +36,18 @@ from ..pipeline.registry import planner, task
 from . import brownian as br
 from . import lattice as lat
 from .blobby import blobby_surface
-from .molecules import LEVEL, LEVER, LEVER_LENGTH, MOTOR, S2_RADIUS, Cylinders, Ellipsoids, actin_subunit, cylinder_mesh, myosin_head
+from .molecules import (
+    LEVEL,
+    LEVER,
+    LEVER_LENGTH,
+    MOTOR,
+    S2_RADIUS,
+    Cylinders,
+    Ellipsoids,
+    actin_subunit,
+    cylinder_mesh,
+    myosin_head,
+)
 
 ACTIN, MOTOR_PART, LEVER_PART, TAIL, BACKBONE = 0, MOTOR, LEVER, 3, 4
 """Molecule ids written per vertex (attribute ``"molecule"``) for the materials."""

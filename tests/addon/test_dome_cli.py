@@ -5,9 +5,9 @@ import pytest
 
 pytest.importorskip("bpy")
 
-from nephele.fileio import read_image, write_image  # noqa: E402
 from nephele.core.camera import dome  # noqa: E402
 from nephele.farm.cli import main  # noqa: E402
+from nephele.fileio import read_image, write_image  # noqa: E402
 
 
 def _field(d):

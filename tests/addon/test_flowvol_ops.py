@@ -8,8 +8,8 @@ import pytest
 bpy = pytest.importorskip("bpy")
 
 from nephele.addon import flowvol_ops as fo  # noqa: E402
-from nephele.core.flowvol import ClimateVelocity, flow_volume  # noqa: E402
 from nephele.core.climate.synthetic import SyntheticClimate  # noqa: E402
+from nephele.core.flowvol import ClimateVelocity, flow_volume  # noqa: E402
 
 _DS = SyntheticClimate(ni=64, nj=32, nk=4, days=1, seed=0)
 
@@ -83,9 +83,8 @@ def test_update_without_generator_fails_cleanly(flowvol_scene):
 
 def test_cycles_smoke_matches_the_core_compositor(empty_scene, tmp_path):
     """Orthographic Cycles render of a flow-volume tube vs C(1 - exp(-tau L)) on the same rays (mean within 2 %)."""
-    from nephele.core.flowvol.render import composite
-
     from nephele.addon.mesh import new_object
+    from nephele.core.flowvol.render import composite
 
     scene = empty_scene
     fv = flow_volume(lambda p, t: np.tile([0, 0, 1.0], (len(p), 1)), [0, 0, 0], 0.6, 1.5, sides=12)

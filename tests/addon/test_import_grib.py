@@ -8,10 +8,10 @@ import pytest
 bpy = pytest.importorskip("bpy")
 pytest.importorskip("eccodes")
 
+from gribfiles import field, isobaric, regular_ll, write  # noqa: E402
+
 from nephele.addon import contour_ops, data_ops  # noqa: E402
 from nephele.core.climate.readers import open_dataset  # noqa: E402
-
-from gribfiles import field, isobaric, regular_ll, write  # noqa: E402
 
 
 def _ensemble(path):

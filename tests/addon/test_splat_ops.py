@@ -5,9 +5,10 @@ import pytest
 
 bpy = pytest.importorskip("bpy")
 
+from blender_helpers import import_sheared_file  # noqa: E402
+
 from nephele.addon import data_ops, splat_ops  # noqa: E402
 from nephele.addon.mesh import point_attribute  # noqa: E402
-from blender_helpers import import_sheared_file  # noqa: E402
 from nephele.core.splats import Camera, render_splats, splat_kernel, splat_samples, streak_maps  # noqa: E402
 from nephele.core.volume.transfer import TransferFunction  # noqa: E402
 

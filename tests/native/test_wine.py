@@ -14,8 +14,8 @@ import subprocess
 
 import numpy as np
 import pytest
-
 from kernel_calls import Recorder, loaded, read_out, write_calls
+
 from nephele.core import native
 from nephele.core.muscle import blobby
 

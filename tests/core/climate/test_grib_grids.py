@@ -14,11 +14,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from gribfiles import message, write
 
 from nephele.core.climate.readers import open_dataset
 from nephele.core.errors import DataError
-
-from gribfiles import message, write
 
 eccodes = pytest.importorskip("eccodes")
 DATA = Path(__file__).resolve().parents[2] / "data" / "grib"

@@ -11,12 +11,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from gribfiles import message, regular_ll, when, write
 
 from nephele.core.climate.humidity import G0, R_DRY
 from nephele.core.climate.readers import open_dataset
 from nephele.core.errors import DataError
-
-from gribfiles import message, regular_ll, when, write
 
 eccodes = pytest.importorskip("eccodes")
 DATA = Path(__file__).resolve().parents[2] / "data" / "grib"

@@ -6,11 +6,10 @@ tests know; the reader must give those values back at the right level, time and 
 
 import numpy as np
 import pytest
+from gribfiles import field, isobaric, other_level, regular_ll, write
 
 from nephele.core.climate.readers import open_dataset
 from nephele.core.errors import DataError
-
-from gribfiles import field, isobaric, other_level, regular_ll, write
 
 pytest.importorskip("eccodes")
 

@@ -2,8 +2,8 @@ import numpy as np
 import pytest
 
 from nephele.core.climate.dataset import ArrayDataset, hourly
-from nephele.core.errors import DataError
 from nephele.core.climate.grid import EARTH_RADIUS, GlobeGrid, globe_radius, lonlat_to_xyz, xyz_to_lonlat
+from nephele.core.errors import DataError
 
 
 def small_grid(ni=8, nj=5, nk=3):

@@ -13,8 +13,8 @@ import sys
 import numpy as np
 import pytest
 
-from nephele.core.errors import DataError
 from nephele.core.climate.projections import inverse
+from nephele.core.errors import DataError
 
 CASES = {
     "lcc_2sp_sphere_wrf": {"grid_mapping_name": "lambert_conformal_conic", "standard_parallel": [30.0, 60.0],

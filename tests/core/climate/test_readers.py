@@ -5,9 +5,9 @@ import pytest
 
 xr = pytest.importorskip("xarray")
 
-from nephele.core.errors import DataError  # noqa: E402
 from nephele.core.climate.humidity import standard_height  # noqa: E402
 from nephele.core.climate.readers import open_dataset  # noqa: E402
+from nephele.core.errors import DataError  # noqa: E402
 
 UNDEF = -2.56e33
 
@@ -396,11 +396,10 @@ def _nc(path):
 def _proj_rotated_to_true(path, mapping, rlon, rlat):
     """True lon/lat of a rotated grid by PROJ, in a fresh Python: pyproj imported after netCDF4 has
     opened a file crashes the interpreter (their bundled libraries clash), so it runs apart."""
+    import importlib.util
     import json
     import subprocess
     import sys
-
-    import importlib.util
 
     if importlib.util.find_spec("pyproj") is None:
         pytest.skip("pyproj is not installed")
@@ -459,7 +458,6 @@ def test_cam_history_file_ncar_hybrid_levels():
         open_dataset(path, variables={"temperature": "TS"})
     mesh = _contour(ds, "temperature", 250.0)
     assert len(mesh.faces) > 1000
-    from nephele.core.climate.grid import xyz_to_lonlat
 
     r = np.linalg.norm(mesh.vertices, axis=1)
     radii = ds.grid.radii()

@@ -2,13 +2,12 @@
 current CDS (packed shorts, valid_time, pressure_level, number, expver, the zip), MERRA-2 model layers,
 CMIP6 ``cl`` on hybrid sigma-pressure with 360-day and no-leap calendars, unstructured grids refused."""
 
+import archives
 import numpy as np
 import pytest
 
 from nephele.core.climate.readers import open_dataset
 from nephele.core.errors import DataError
-
-import archives
 
 
 def test_era5_cds_pressure_levels_packed_shorts(tmp_path):

@@ -16,10 +16,11 @@ import pytest
 
 xr = pytest.importorskip("xarray")
 
-from nephele.core.errors import DataError  # noqa: E402
+from projections import lcc_inverse  # noqa: E402
+
 from nephele.core.climate.grid import lonlat_to_xyz, xyz_to_lonlat  # noqa: E402
 from nephele.core.climate.readers import open_dataset  # noqa: E402
-from projections import lcc_inverse  # noqa: E402
+from nephele.core.errors import DataError  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[2] / "data"
 R = 6370000.0  # WRF's sphere

@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
-from nephele.core.errors import DataError
 from nephele.core.climate.grid import EARTH_RADIUS, lonlat_to_xyz, xyz_to_lonlat
 from nephele.core.climate.readers import open_dataset
 from nephele.core.climate.synthetic import SyntheticClimate, demo_dataset
+from nephele.core.errors import DataError
 
 
 @pytest.fixture(scope="module")

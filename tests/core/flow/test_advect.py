@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
-from nephele.core.flow import advect, flows
 from nephele.core.climate.dataset import ArrayDataset, hourly
-from nephele.core.errors import DataError
 from nephele.core.climate.grid import GlobeGrid, lonlat_to_xyz, xyz_to_lonlat
+from nephele.core.errors import DataError
+from nephele.core.flow import advect, flows
 
 TILT = np.pi / 2 - 0.05
 

@@ -12,6 +12,7 @@ pole.  The winds are stored as a file would hold them: east/north components
 
 import numpy as np
 import pytest
+from projections import lcc_inverse, polar_inverse
 from scipy.integrate import solve_ivp
 
 from nephele.core.climate.columns import ColumnLocator
@@ -20,7 +21,6 @@ from nephele.core.climate.grid import GlobeGrid, lonlat_to_xyz, xyz_to_lonlat
 from nephele.core.errors import DataError
 from nephele.core.flow import advect
 from nephele.core.flow.flows import DeformationalFlow, rotate, tangent_velocity
-from projections import lcc_inverse, polar_inverse
 
 R = 6_371_000.0
 HOURS = 25

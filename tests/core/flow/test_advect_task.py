@@ -3,11 +3,11 @@
 import numpy as np
 import pytest
 
+from nephele.core.climate.grid import xyz_to_lonlat
 from nephele.core.flow import advect, advect_task
 from nephele.core.pipeline import tasks
 from nephele.core.pipeline.cache import Cache
 from nephele.core.pipeline.sources import open_source
-from nephele.core.climate.grid import xyz_to_lonlat
 from nephele.core.surface.mesh import Mesh
 
 OBJ = {"kind": "advected_contour", "source": "demo:small", "var": "cloud", "level": 0.15, "hours_per_frame": 1.0,

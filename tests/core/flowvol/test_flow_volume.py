@@ -2,12 +2,12 @@
 
 import numpy as np
 import pytest
+from mesh_checks import check_mesh
 from scipy.integrate import solve_ivp
 
 from nephele.core.errors import DataError
 from nephele.core.flow.flows import FlowDataset, SolidBodyRotation, sample_grid
 from nephele.core.flowvol import ClimateVelocity, flow_volume
-from mesh_checks import check_mesh
 
 
 def polygon_area(radius, sides):

@@ -11,6 +11,7 @@ so flow_volume's bounded rule applies).
 
 import numpy as np
 import pytest
+from projections import lcc_inverse
 
 from nephele.core.climate.columns import ColumnLocator
 from nephele.core.climate.dataset import ArrayDataset, hourly
@@ -19,7 +20,6 @@ from nephele.core.errors import DataError
 from nephele.core.flow.flows import rotate
 from nephele.core.flowvol import ClimateVelocity, flow_volume
 from nephele.core.flowvol.tets import face_use_counts, signed_volumes
-from projections import lcc_inverse
 
 R = 6_371_000.0
 AXIS = lonlat_to_xyz(-100.0, 20.0)  # 25 degrees south of the grid's centre

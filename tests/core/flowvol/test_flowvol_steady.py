@@ -5,11 +5,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from mesh_checks import check_mesh
 from scipy.integrate import solve_ivp
 
 from nephele.core.flowvol import flow_volume
 from nephele.core.flowvol.front import Streams, advance
-from mesh_checks import check_mesh
 from nephele.core.flowvol.unstructured import UnstructuredVelocity
 
 FIRE = Path(__file__).resolve().parents[2] / "data" / "flow" / "fire_ug.vtu"

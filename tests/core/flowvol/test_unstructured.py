@@ -4,11 +4,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from mesh_checks import check_mesh
 
 from nephele.core.errors import DataError
 from nephele.core.flowvol import flow_volume
 from nephele.core.flowvol.tets import face_use_counts, signed_volumes
-from mesh_checks import check_mesh
 from nephele.core.flowvol.unstructured import UnstructuredVelocity, read_vtu
 
 FIRE = Path(__file__).resolve().parents[2] / "data" / "flow" / "fire_ug.vtu"

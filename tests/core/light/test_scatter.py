@@ -2,10 +2,10 @@
 
 import numpy as np
 import pytest
-
 from kernel_paths import BOTH, EVERY
-from nephele.core.light import scatter, scatter_task
+
 from nephele.core.errors import DataError
+from nephele.core.light import scatter, scatter_task
 
 # Homogeneous slab, normal incidence, no refractive boundary: total R and T
 # (T includes the unscattered exp(-tau)) from adding-doubling (facts.md;
@@ -175,8 +175,8 @@ def test_save_load_roundtrip(tmp_path):
 
 
 def test_scatter_task_matches_solve_and_is_planned(tmp_path):
-    from nephele.core.volume import cloud_density as cd
     from nephele.core.pipeline import tasks
+    from nephele.core.volume import cloud_density as cd
 
     cloud = cd.CloudParams(shape=(6, 8, 8), size=(1.0, 1.0, 0.75), seed=3)
     params = scatter_task.task_params(cloud, 30.0, albedo=0.9, g=0.8, sun_dir=[0.3, 0.1, 1.0], tol=1e-2)

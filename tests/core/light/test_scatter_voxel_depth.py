@@ -9,10 +9,10 @@ from overhead down to 15 degrees.
 
 import numpy as np
 import pytest
-
 from kernel_paths import BOTH
-from nephele.core.light import scatter
 from radiative_truth import adding_doubling, gauss01, h_function, single_scattering_r
+
+from nephele.core.light import scatter
 
 
 def slab(tau, layers, omega, g, mu0, **kw):

@@ -5,11 +5,19 @@ import pytest
 from scipy import ndimage
 
 from nephele.core.climate.dataset import ArrayDataset, hourly
-from nephele.core.errors import DataError
 from nephele.core.climate.grid import GlobeGrid
-from nephele.core.splats import Splats, cell_jacobians, footprint_table, principal_axes, reconstruct, splat_kernel, splat_samples
-from nephele.core.splats.partition import shell_heights, shell_reach, stencil_weights, widening
 from nephele.core.climate.synthetic import demo_dataset
+from nephele.core.errors import DataError
+from nephele.core.splats import (
+    Splats,
+    cell_jacobians,
+    footprint_table,
+    principal_axes,
+    reconstruct,
+    splat_kernel,
+    splat_samples,
+)
+from nephele.core.splats.partition import shell_heights, shell_reach, stencil_weights, widening
 from nephele.core.volume.transfer import TransferFunction
 
 

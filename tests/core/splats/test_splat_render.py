@@ -4,7 +4,15 @@ import numpy as np
 import pytest
 
 from nephele.core.errors import DataError
-from nephele.core.splats import Camera, Splats, principal_axes, project_splats, ray_integral, render_splats, splat_kernel
+from nephele.core.splats import (
+    Camera,
+    Splats,
+    principal_axes,
+    project_splats,
+    ray_integral,
+    render_splats,
+    splat_kernel,
+)
 
 K = splat_kernel()
 

@@ -4,10 +4,10 @@ import numpy as np
 import pytest
 
 from nephele.core.climate.dataset import ArrayDataset, hourly
-from nephele.core.errors import DataError
 from nephele.core.climate.grid import EARTH_RADIUS, GlobeGrid
-from nephele.core.splats import splat_kernel, splat_samples
 from nephele.core.climate.synthetic import demo_dataset
+from nephele.core.errors import DataError
+from nephele.core.splats import splat_kernel, splat_samples
 from nephele.core.volume.transfer import ALTITUDE_COLORS, TransferFunction
 
 TF = TransferFunction.ramp(0.15, 0.6)

@@ -12,6 +12,7 @@ rotation about any axis are ``ω × x`` (closed form).
 
 import numpy as np
 import pytest
+from projections import lcc_inverse, polar_inverse
 from scipy.spatial import cKDTree
 
 from nephele.core.climate.dataset import ArrayDataset, hourly
@@ -19,7 +20,6 @@ from nephele.core.climate.grid import EARTH_RADIUS, GlobeGrid, lonlat_to_xyz
 from nephele.core.splats import Camera, project_splats, splat_kernel, splat_samples
 from nephele.core.splats.partition import shell_heights
 from nephele.core.volume.transfer import TransferFunction
-from projections import lcc_inverse, polar_inverse
 
 R = EARTH_RADIUS
 EXAGGERATION = 30.0

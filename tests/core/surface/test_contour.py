@@ -4,11 +4,11 @@ analytic surfaces, agreement with VTK and scikit-image."""
 import numpy as np
 import pytest
 
+from nephele.core.climate.grid import GlobeGrid, lonlat_to_xyz
+from nephele.core.errors import DataError
 from nephele.core.surface import _mc_tables as tables
 from nephele.core.surface import contour
 from nephele.core.surface.contour import EDGE_MARGIN, isosurface, regular_points
-from nephele.core.errors import DataError
-from nephele.core.climate.grid import GlobeGrid, lonlat_to_xyz
 from nephele.core.surface.mesh import triangle_areas
 
 METHODS = ["cubes", "tetra5"]

@@ -3,13 +3,12 @@
 import numpy as np
 import pytest
 
-from nephele.core.pipeline import sources
-from nephele.core.surface import contour_task
-from nephele.core.pipeline import tasks
-from nephele.core.pipeline.cache import Cache
 from nephele.core.climate.dataset import ArrayDataset, hourly
-from nephele.core.errors import DataError
 from nephele.core.climate.grid import GlobeGrid, globe_radius
+from nephele.core.errors import DataError
+from nephele.core.pipeline import sources, tasks
+from nephele.core.pipeline.cache import Cache
+from nephele.core.surface import contour_task
 
 H_SCALE = (10000.0, 20000.0, 40000.0)  # cloud = height / H_SCALE[t]
 

@@ -9,14 +9,13 @@ agree to ~1e-5 and the tolerance is 1e-4 (fields of order 1).
 import numpy as np
 import pytest
 
+from nephele.core.climate.dataset import ArrayDataset, hourly
+from nephele.core.climate.grid import GlobeGrid, globe_radius, lonlat_to_xyz
+from nephele.core.errors import DataError
 from nephele.core.pipeline import tasks
 from nephele.core.pipeline.sources import register_source
-from nephele.core.climate.dataset import ArrayDataset, hourly
-from nephele.core.errors import DataError
-from nephele.core.climate.grid import GlobeGrid, globe_radius, lonlat_to_xyz
-from nephele.core.volume.transfer import TransferFunction
 from nephele.core.volume.sparse import EXACT, CurvilinearField
-from nephele.core.volume.volume_task import frame_params
+from nephele.core.volume.transfer import TransferFunction
 from nephele.core.volume.volume_atlas import (
     DEFAULT_BELOW,
     atlas_layout,
@@ -25,6 +24,7 @@ from nephele.core.volume.volume_atlas import (
     map_runs,
     tf_eval32,
 )
+from nephele.core.volume.volume_task import frame_params
 
 TF = TransferFunction.ramp(0.3, 0.7)
 TOL = 1e-4  # value agreement, float32 shader against float64 reference

@@ -16,7 +16,6 @@ import time
 from pathlib import Path
 
 import pytest
-
 from slurm_local import Unavailable, ensure_installed, only_frames, render_args
 
 from nephele.farm import cli

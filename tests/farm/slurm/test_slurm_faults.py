@@ -11,7 +11,6 @@ import time
 from pathlib import Path
 
 import pytest
-
 from slurm_local import only_frames, render_args
 
 from nephele.farm import cli
