@@ -34,6 +34,7 @@ SIGMA = (0.5, 1.0)  # per-axis sigmas drawn in this range: sigma_min = 0.5
 LEVEL = 0.5
 CUTOFF = 4.0
 VOLUME_PER_BLOB = 30.0  # box volume per ellipsoid (about 15% of it inside the surface)
+SHARED = Path(__file__).resolve().parent.parent.parent / "shared" / "data"  # the project's real data
 DENSE_LIMIT = 150e6  # dense-grid nodes the anchor may allocate (float32: 600 MB)
 
 
@@ -103,7 +104,7 @@ def error(points, args, box, sample, rng):
     return float(d.max()), float(np.sqrt(np.mean(d * d)))
 
 
-def actin_table(shared=Path(__file__).resolve().parent.parent.parent / "shared" / "data"):
+def actin_table(shared=SHARED):
     """RMS and maximum distance of 1-8 fitted ellipsoids (k-means) and the 4 subdomains to the actin
     subunit's own Gaussian molecular surface; writes section ``blobby_actin``."""
     from nephele.core.muscle.molecules import atom_gaussians, fit_ellipsoids, read_pqr, subdomain_of
@@ -116,7 +117,7 @@ def actin_table(shared=Path(__file__).resolve().parent.parent.parent / "shared" 
     t, target = timed(lambda: atom_gaussians(atoms).surface(0.05))
     rows = []
     for k in range(1, 9):
-        sec, fit = timed(lambda: fit_ellipsoids(atoms, k, target=target))
+        sec, fit = timed(lambda k=k: fit_ellipsoids(atoms, k, target=target))
         rows.append([k, "k-means", fit.rms, fit.max, sec])
         print(rows[-1], flush=True)
     sec, fit = timed(lambda: fit_ellipsoids(atoms, 4, groups=subdomain_of(atoms), target=target))
@@ -204,7 +205,7 @@ def main():
         blobs, side = scene(n)
         for box in (None, np.full(3, side)):
             (t, cpu, mesh), peak = peak_rss(
-                lambda: timed_cpu(lambda: blobby_surface(*blobs, LEVEL, h, box=box, cutoff=CUTOFF, threads=args.threads)))
+                lambda blobs=blobs, box=box: timed_cpu(lambda: blobby_surface(*blobs, LEVEL, h, box=box, cutoff=CUTOFF, threads=args.threads)))
             nv, nf = len(mesh.vertices), len(mesh.faces)
             vertices = mesh.vertices
             mesh = None  # (only the vertices are checked; the next mesh is made without this one)
@@ -218,7 +219,7 @@ def main():
             rows.append([n, kind, t, cpu, nv, nf, erms, emax])
             print(rows[-1], f"peak RSS {peak:.2f} GiB" if peak is not None else "", flush=True)
             if box is None and compiled and n <= args.numpy_max:
-                t, cpu, mesh = numpy_twins(lambda: timed_cpu(
+                t, cpu, mesh = numpy_twins(lambda blobs=blobs: timed_cpu(
                     lambda: blobby_surface(*blobs, LEVEL, h, cutoff=CUTOFF, threads=args.threads)))
                 emax, erms = error(mesh.vertices, blobs, None, sample, rng)
                 rows.append([n, "ours, NumPy kernels (no wheel)", t, cpu, len(mesh.vertices), len(mesh.faces), erms, emax])
@@ -226,14 +227,14 @@ def main():
                 print(rows[-1], flush=True)
         nodes = float(np.ceil((side + 2 * CUTOFF * SIGMA[1]) / h) + 1) ** 3
         if nodes <= DENSE_LIMIT:
-            t, cpu, (v, f) = timed_cpu(lambda: dense_anchor(*blobs, h))
+            t, cpu, (v, f) = timed_cpu(lambda blobs=blobs: dense_anchor(*blobs, h))
             emax, erms = error(v, blobs, None, sample, rng)
             rows.append([n, "dense NumPy + skimage", t, cpu, len(v), len(f), erms, emax])
         else:
             rows.append([n, "dense NumPy + skimage", f"not run ({nodes / 1e6:.0f}M nodes)", "", "", "", "", ""])
         print(rows[-1], flush=True)
         if nodes * 8 <= DENSE_LIMIT:
-            t, cpu, (v, f) = timed_cpu(lambda: dense_anchor(*blobs, h / 2))
+            t, cpu, (v, f) = timed_cpu(lambda blobs=blobs: dense_anchor(*blobs, h / 2))
             emax, erms = error(v, blobs, None, sample, rng)
             rows.append([n, "dense NumPy + skimage at spacing/2", t, cpu, len(v), len(f), erms, emax])
             print(rows[-1], flush=True)

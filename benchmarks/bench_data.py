@@ -11,6 +11,7 @@ import argparse
 import sys
 import tempfile
 import time
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -44,7 +45,7 @@ def demo_rows(ds, steps):
         fresh = demo_dataset("full" if ds.source == "demo" else "small")  # empty caches
         row = [ds.source, f"step {t}"]
         total_cpu = 0.0
-        for job in (lambda: fresh.read("cloud", t), lambda: fresh.read("temperature", t), lambda: fresh.wind(t)):
+        for job in (partial(fresh.read, "cloud", t), partial(fresh.read, "temperature", t), partial(fresh.wind, t)):
             w0, c0 = time.perf_counter(), time.process_time()
             job()
             wall, cpu = time.perf_counter() - w0, time.process_time() - c0

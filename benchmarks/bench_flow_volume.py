@@ -85,9 +85,9 @@ def part_abc(quick):
     rows = []
     centre, radius, T = [0.5, 0.3, 0.2], 0.3, 1.0
     for tol in ([0.1, 0.04] if quick else [0.2, 0.1, 0.04, 0.02]):
-        fv, sec = timed(lambda: flow_volume(abc, centre, radius, T, sides=16, tol=tol, steps=16), 1 if quick else 3)
+        fv, sec = timed(lambda tol=tol: flow_volume(abc, centre, radius, T, sides=16, tol=tol, steps=16), 1 if quick else 3)
         first = np.isclose(fv.release, 0.0)
-        ref, ref_sec = timed(lambda: solve_ivp(lambda t, y: abc(y.reshape(-1, 3), t).ravel(), (0, T), fv.generator.ravel(),
+        ref, ref_sec = timed(lambda fv=fv: solve_ivp(lambda t, y: abc(y.reshape(-1, 3), t).ravel(), (0, T), fv.generator.ravel(),
                                                method="DOP853", rtol=1e-12, atol=1e-12).y[:, -1].reshape(-1, 3), 1)
         err = np.max(np.linalg.norm(fv.vertices[first] - ref, axis=1))
         flux = polygon_flux(fv)
@@ -107,9 +107,9 @@ def part_climate(quick):
             kw = dict(sides=sides, rings=1, steps=8, tol=0.02)
             flow_volume(vel, c, 0.03, hours, **kw)  # warm the wind cache
             cpu = []
-            fv, sec = timed(lambda: flow_volume(vel, c, 0.03, hours, **kw), 1 if quick else 5, cpu)
+            fv, sec = timed(lambda hours=hours, kw=kw: flow_volume(vel, c, 0.03, hours, **kw), 1 if quick else 5, cpu)
             flow_volume(per_step, c, 0.03, hours, **kw)
-            _, slow = timed(lambda: flow_volume(per_step, c, 0.03, hours, **kw), 1)
+            _, slow = timed(lambda hours=hours, kw=kw: flow_volume(per_step, c, 0.03, hours, **kw), 1)
             rows.append([sides, f"{hours:g}", len(fv.vertices), len(np.unique(fv.tets)), len(fv.tets), f"{sec * 1e3:.0f}", f"{cpu[0] * 1e3:.0f}",
                          f"{slow * 1e3:.0f}", "yes" if cpu[0] <= 0.05 else "no"])
     return md_table(["sides", "release hours", "front points", "kept (merged)", "tets", "rebuild ms (wall)", "CPU ms", "ms, winds read step by step",
@@ -165,9 +165,9 @@ def part_fire(quick):
     for sides, secs, tol in ([(32, 1.0, 0.05), (32, 10.0, 0.1)] if quick else [(16, 1.0, 0.05), (32, 1.0, 0.05), (32, 10.0, 0.05), (32, 10.0, 0.1)]):
         kw = dict(sides=sides, rings=1, steps=8, tol=tol)
         cpu = []
-        fv, sec = timed(lambda: flow_volume(fire, c, 0.1, secs, **kw), 1 if quick else 3, cpu)
-        layer, layer_sec = timed(lambda: flow_volume(fire, c, 0.1, secs, steady=False, **kw), 1 if quick else 3)
-        ref, ref_sec = (None, None) if probe is None else timed(lambda: flow_volume(probe, c, 0.1, secs, steady=True, **kw), 1)
+        fv, sec = timed(lambda secs=secs, kw=kw: flow_volume(fire, c, 0.1, secs, **kw), 1 if quick else 3, cpu)
+        layer, layer_sec = timed(lambda secs=secs, kw=kw: flow_volume(fire, c, 0.1, secs, steady=False, **kw), 1 if quick else 3)
+        ref, ref_sec = (None, None) if probe is None else timed(lambda secs=secs, kw=kw: flow_volume(probe, c, 0.1, secs, steady=True, **kw), 1)
         agree = "-" if ref is None else f"{100 * (fv.volume / ref.volume - 1):+.3f}"
         conv = flow_volume(fire, c, 0.1, secs, **dict(kw, steps=600)).volume
         rows.append([sides, f"{secs:g}", f"{tol:g}", len(fv.vertices), int(fv.exited.sum()), len(fv.tets), f"{sec * 1e3:.0f}", f"{cpu[0] * 1e3:.0f}",

@@ -417,10 +417,10 @@ def compiled(ns=(64, 128), view=(640, 480)):
     scatter.solve(_film_cloud(16), SIZE, **kw)  # the phase tables, built once for both paths
     for n in ns:
         sigma = _film_cloud(n)
-        c1, w1, cpu1, l1 = _timed(lambda: scatter.solve(sigma, SIZE, **kw))
+        c1, w1, cpu1, l1 = _timed(lambda sigma=sigma: scatter.solve(sigma, SIZE, **kw))
         with numpy_kernels():
-            py, w2, cpu2, l2 = _timed(lambda: scatter.solve(sigma, SIZE, **kw))
-        c2, w3, cpu3, l3 = _timed(lambda: scatter.solve(sigma, SIZE, **kw))
+            py, w2, cpu2, l2 = _timed(lambda sigma=sigma: scatter.solve(sigma, SIZE, **kw))
+        c2, w3, cpu3, l3 = _timed(lambda sigma=sigma: scatter.solve(sigma, SIZE, **kw))
         diff = {k: float(np.abs(getattr(c1, k) - getattr(py, k)).max() / np.abs(getattr(py, k)).max())
                 for k in ("received", "total")}
         name = f"{n}x{n}x{3 * n // 4}"
@@ -429,9 +429,9 @@ def compiled(ns=(64, 128), view=(640, 480)):
                      f"{w2 / min(w1, w3):.1f}x the C's faster run, {2 * w2 / (w1 + w3):.1f}x their mean; flux apart: "
                      f"received {diff['received']:.1e}, total {diff['total']:.1e} of the largest"))
         cam = scatter.orbit_camera(VIEW_ANGLE, SIZE, width=view[0], height=view[1])
-        _, wv, cv, lv = _timed(lambda: scatter.march_planes(sigma, scatter.view_source(c2, cam.position), SIZE, cam,
+        _, wv, cv, lv = _timed(lambda sigma=sigma, c2=c2, cam=cam: scatter.march_planes(sigma, scatter.view_source(c2, cam.position), SIZE, cam,
                                                              samples=2))
-        _, wv2, cv2, lv2 = _timed(lambda: scatter.march_planes(sigma, scatter.view_source(c2, cam.position), SIZE, cam,
+        _, wv2, cv2, lv2 = _timed(lambda sigma=sigma, c2=c2, cam=cam: scatter.march_planes(sigma, scatter.view_source(c2, cam.position), SIZE, cam,
                                                                samples=2))
         rows.append((f"{name} view {view[0]}x{view[1]}", f"{wv:.2f} / {wv2:.2f}", f"{cv:.2f} / {cv2:.2f}",
                      f"{lv} / {lv2}", f"first (builds the tables) / second; solution {solution_bytes(c2) / 2**30:.2f} GiB"))
@@ -463,10 +463,10 @@ def evolving(frames=240, n=64, check=24, kinds=("drifting", "climate")):
     for kind in kinds:
         if kind == "drifting":
             params = cloud_density.CloudParams(shape=(3 * n // 4, n, n), size=SIZE)
-            density = lambda i: ev.drifting_cloud(params, i, frames, extinction=EXT)  # noqa: E731
+            density = lambda i, params=params: ev.drifting_cloud(params, i, frames, extinction=EXT)  # noqa: E731
         else:
             data = demo_dataset()
-            density = lambda i: ev.climate_cloud(data, i * 240 // frames, shape=(3 * n // 4, n, n), extinction=EXT)  # noqa: E731
+            density = lambda i, data=data: ev.climate_cloud(data, i * 240 // frames, shape=(3 * n // 4, n, n), extinction=EXT)  # noqa: E731
         prev, warm_s, cold_s, errs, passes = None, [], [], [], []
         load0 = os.getloadavg()[0]
         for i in range(frames):

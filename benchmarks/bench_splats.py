@@ -160,7 +160,7 @@ def part_kernels(quick):
     rows = []
     for kind, label in (("gaussian", "ours: exp(-r²/2σ²)(1-r²/R²)², σ 0.85, R 2.5"), ("paper", "paper: truncated Gaussian σ 0.65, R 2.5")):
         k = splat_kernel(kind)
-        (worst, ripple), sec = timed(lambda: lattice_deviation(k, pts))
+        (worst, ripple), sec = timed(lambda k=k: lattice_deviation(k, pts))
         rows.append([label, f"{worst:.2e}", f"{ripple:.2e}", "-"])
     n, sub = 16, 4
     g = np.arange(n, dtype=np.float64)
@@ -230,16 +230,16 @@ def part_footprints(quick):
     for kind in ("gaussian", "paper"):
         k = splat_kernel(kind)
         p = rng.uniform(-k.radius, k.radius, (npts, 2))
-        ref = np.array([quad(lambda z: k.weight([[x, y, z]])[0], -3, 3, limit=200, epsabs=1e-13)[0] for x, y in p])
+        ref = np.array([quad(lambda z, k=k, x=x, y=y: k.weight([[x, y, z]])[0], -3, 3, limit=200, epsabs=1e-13)[0] for x, y in p])
         exact = np.abs(k.footprint(p) - ref).max() / k.peak
         table = np.abs(k.footprint_rho2(np.sum(p * p, axis=1)) - ref).max() / k.peak
         t64 = footprint_table(k, 64)
         c = -k.radius + (np.arange(64) + 0.5) * (2 * k.radius / 64)
         sel = rng.integers(0, 64, (20, 2))
-        tex = max(abs(t64[j, i] - quad(lambda z: k.weight([[c[i], c[j], z]])[0], -3, 3, limit=200)[0]) for j, i in sel) / k.peak
+        tex = max(abs(t64[j, i] - quad(lambda z, k=k, c=c, i=i, j=j: k.weight([[c[i], c[j], z]])[0], -3, 3, limit=200)[0]) for j, i in sel) / k.peak
         big = rng.uniform(-k.radius, k.radius, (10**6, 2))
-        _, t_exact = timed(lambda: k.footprint(big))
-        _, t_table = timed(lambda: k.footprint_rho2(np.sum(big * big, axis=1)), 3)
+        _, t_exact = timed(lambda k=k, big=big: k.footprint(big))
+        _, t_table = timed(lambda k=k, big=big: k.footprint_rho2(np.sum(big * big, axis=1)), 3)
         rows.append([kind, f"{k.peak:.4f}", f"{exact:.1e}", f"{tex:.1e}", f"{table:.1e}", f"{t_exact * 1e3:.0f}", f"{t_table * 1e3:.0f}"])
     return md_table(["kernel", "peak F(0) (cells)", "exact vs quad / peak", "64² texture vs quad / peak", "ρ² table vs quad / peak", "exact ms / 10⁶", "table ms / 10⁶"], rows)
 
@@ -263,8 +263,8 @@ def part_convergence(quick):
     for label, cam in cams[:1] if quick else cams:
         for h in (0.3, 0.15) if quick else (0.3, 0.15, 0.075):
             sp = blob(h, k)
-            img, t_r = timed(lambda: render_splats(sp, k, cam, 48, 48, extinction=5.0, prefilter=0.0), 1 if quick else 3)
-            ref, t_x = timed(lambda: ray_integral(sp, k, cam, 48, 48, extinction=5.0, steps=300))
+            img, t_r = timed(lambda sp=sp, cam=cam: render_splats(sp, k, cam, 48, 48, extinction=5.0, prefilter=0.0), 1 if quick else 3)
+            ref, t_x = timed(lambda sp=sp, cam=cam: ray_integral(sp, k, cam, 48, 48, extinction=5.0, steps=300))
             d = np.abs(img - ref)
             rows.append([label, h, len(sp), f"{t_r:.3f}", f"{d[..., :3].max():.2e}", f"{np.sqrt(np.mean(d[..., :3] ** 2)):.2e}", f"{d[..., 3].max():.1e}", f"{t_x:.1f}"])
     return md_table(["camera", "spacing h", "splats", "render s (48²)", "worst colour error", "rms colour error", "worst alpha error", "exact ray integral s"], rows)
@@ -280,8 +280,8 @@ def part_frame(quick, picture=None):
     rows = []
     out = None
     for stride in ((2, 1) if quick else (4, 2, 1)):
-        sp, t_s = timed(lambda: splat_samples(ds, "cloud", 12.0, TF, color_var="altitude", stride=stride, kernel=k))
-        img, t_r = timed(lambda: render_splats(sp, k, cam, w, h, streaks=maps, hours=12.0, depth=depth))
+        sp, t_s = timed(lambda stride=stride: splat_samples(ds, "cloud", 12.0, TF, color_var="altitude", stride=stride, kernel=k))
+        img, t_r = timed(lambda sp=sp: render_splats(sp, k, cam, w, h, streaks=maps, hours=12.0, depth=depth))
         rows.append([f"splats, stride {stride}", len(sp), f"{t_s:.2f}", f"{t_r:.2f}", f"{w}×{h}, streaks, globe depth"])
         if stride == 1:
             out = img
@@ -293,7 +293,7 @@ def part_frame(quick, picture=None):
     for n in ((64,) if quick else (128, 256)):
         # VTK splats spheres: give them our kernels' median largest cut-off radius (a fraction of the box side).
         radius = float(np.median(semi[:, 2])) / side
-        _, t_v = timed(lambda: vtk_splatter(sp.centers, sp.opacity, (n, n, n), (lo[0], lo[0] + side, lo[1], lo[1] + side, lo[2], lo[2] + side), radius))
+        _, t_v = timed(lambda n=n, radius=radius: vtk_splatter(sp.centers, sp.opacity, (n, n, n), (lo[0], lo[0] + side, lo[1], lo[1] + side, lo[2], lo[2] + side), radius))
         rows.append([f"anchor: vtkGaussianSplatter → {n}³ volume", len(sp), "-", f"{t_v:.2f}",
                      f"voxel {side / (n - 1):.4f}; median cell {cell[2]:.4f} × {cell[1]:.4f} × {cell[0]:.4f}"])
     cloud = ds.read_at("cloud", 12.0)

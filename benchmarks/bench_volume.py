@@ -155,8 +155,8 @@ def main(argv=None):
     rows = []
     for vs in sizes:
         repeat = 1 if vs < 0.0025 else 3
-        vol, wall, cpu = timed(lambda: resample(grid, values, TF, voxel_size=vs, color_name="altitude", workers=1), repeat)
-        (_, wall2, cpu2) = timed(lambda: resample(grid, values, TF, voxel_size=vs, color_name="altitude", workers=2), repeat)
+        vol, wall, cpu = timed(lambda vs=vs: resample(grid, values, TF, voxel_size=vs, color_name="altitude", workers=1), repeat)
+        (_, wall2, cpu2) = timed(lambda vs=vs: resample(grid, values, TF, voxel_size=vs, color_name="altitude", workers=2), repeat)
         tv = volume_optical_depth(vol, o, d, t0, t1, min(vs / 4, 0.0005))
         err = opacity(tv, DEFAULT_EXTINCTION) - a_ref
         if vs == DEFAULT_VOXEL_SIZE:
@@ -197,7 +197,7 @@ def main(argv=None):
     step_tf = TransferFunction(points=((0.12, 0.0), (0.12, 0.12), (1.0, 1.0)))
     post_rows = []
     for vs in (0.004, DEFAULT_VOXEL_SIZE):
-        svol, swall, scpu = timed(lambda: resample(grid, values, step_tf, voxel_size=vs), 1)
+        svol, swall, scpu = timed(lambda vs=vs: resample(grid, values, step_tf, voxel_size=vs), 1)
         pts, seg = ray_samples(o, d, t0, t1, min(vs / 4, 0.0005))
         sv = np.concatenate([svol.sample(c) for c in np.array_split(pts.reshape(-1, 3), 40)]).reshape(seg.shape[0], -1)
         dens = TF(sv)
@@ -235,7 +235,7 @@ def main(argv=None):
     layout, layout_wall, layout_cpu = timed(lambda: atlas_layout(grid), 3)
     evs, exact_rows = [], []
     for ss in support_sizes:
-        ev, wall, cpu = timed(lambda: exact_volume(grid, values, TF, support_size=ss, color_name="altitude",
+        ev, wall, cpu = timed(lambda ss=ss: exact_volume(grid, values, TF, support_size=ss, color_name="altitude",
                                                    layout=layout), 3)
         evs.append(ev)
         exact_rows.append([f"{ss:g}" + (" (default)" if ss == DEFAULT_SUPPORT_SIZE else ""),
@@ -413,9 +413,9 @@ def curvilinear(quick):
     ref = field.interpolate("value", flat, f, ok)
     rows = []
     for texels in (2, 4, 8):
-        im, wall, cpu = timed(lambda: index_map(field.columns, texels=texels), 1)
+        im, wall, cpu = timed(lambda texels=texels: index_map(field.columns, texels=texels), 1)
         p32 = pts.astype(np.float32)
-        (ci, cj, _), look_wall, _ = timed(lambda: im.lookup(p32), 3)
+        (ci, cj, _), look_wall, _ = timed(lambda im=im, p32=p32: im.lookup(p32), 3)
         e = np.maximum(np.abs(ci - ri), np.abs(cj - rj))
         layout = atlas_layout(grid)
         layout.index = im

@@ -285,7 +285,7 @@ class SyntheticClimate(Dataset):
     def _theta_table(self, t):
         """Zonal rotation angle per unit jet factor after ``t`` seconds, tabulated on ``_ZNODES``."""
         total = np.zeros_like(_ZNODES)
-        for (lat0, width, peak, osc, period, phase), shape in zip(_JETS, self._jet_shapes):
+        for (_lat0, _width, _peak, osc, period, phase), shape in zip(_JETS, self._jet_shapes):
             om = 2.0 * np.pi / (period * DAY)
             integral = t - osc / om * (np.cos(om * t + phase) - np.cos(phase))  # ∫0^t (1 + osc sin(om s + phase)) ds
             total += integral * shape

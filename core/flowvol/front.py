@@ -43,7 +43,8 @@ def polygon_points(center, e1, e2, radius, sides, u, rho):
     ang = 2 * np.pi * np.arange(sides + 1) / sides
     k = np.minimum(np.floor(u).astype(int), sides - 1)
     f = (u - k)[..., None]
-    corner = lambda i: np.cos(ang[i])[..., None] * e1 + np.sin(ang[i])[..., None] * e2
+    def corner(i):
+        return np.cos(ang[i])[..., None] * e1 + np.sin(ang[i])[..., None] * e2
     return center + (radius * np.asarray(rho, dtype=np.float64))[..., None] * ((1 - f) * corner(k) + f * corner(k + 1))
 
 
@@ -421,7 +422,8 @@ class Front:
         J, R = len(self.us), self.rings
         j = np.arange(J)
         j2 = (j + 1) % J
-        g = lambda jj, i: 1 + jj * R + i
+        def g(jj, i):
+            return 1 + jj * R + i
         tris = [np.stack([np.zeros(J, dtype=np.int64), g(j, 0), g(j2, 0)], axis=1)]
         for i in range(R - 1):
             tris.append(np.stack([g(j, i), g(j, i + 1), g(j2, i + 1)], axis=1))

@@ -292,7 +292,8 @@ class UnstructuredVelocity:
             g[:, ax] = np.minimum(np.searchsorted(e, q[:, ax], "right") - 1, self._nb[ax] - 1)
             near[:, ax] = q[:, ax] - self._eps < e[g[:, ax]]
         np.maximum(g, 0, out=g)
-        rows = lambda gg: self._table[(gg[:, 0] * self._nb[1] + gg[:, 1]) * self._nb[2] + gg[:, 2]]
+        def rows(gg):
+            return self._table[(gg[:, 0] * self._nb[1] + gg[:, 1]) * self._nb[2] + gg[:, 2]]
         left = self._in_rows(p, todo, rows(g), cell, rst, tol, iterations)
         # A point on a bucket face belongs to the bucket above it; if no cell there holds it
         # (a wall, an obstacle), the buckets below along the axes of the faces it lies on are tried.

@@ -258,6 +258,7 @@ def _march_rays(planes, xs, nbp, lim, coef, start, end, first, block=8):
     tr_all = np.ones(len(start), np.float32)
     tiny = np.float32(-np.finfo(np.float32).tiny)
     act = np.zeros(0, np.intp)
+    acc = tr = None  # the active rays' sums, bound once a block has rays (read only from then on)
     joined = 0
     for p0 in range(first, len(xs), block):
         if len(act):

@@ -63,7 +63,8 @@ def test_shear_gives_polygon_area_times_duration():
 
 def test_solid_body_rotation_matches_pappus():
     # v = z x p about the z axis; the generator at x = 1 faces +y; the axis lies in its plane.
-    rot = lambda p, t: np.stack([-p[:, 1], p[:, 0], 0 * p[:, 0]], axis=1)
+    def rot(p, t):
+        return np.stack([-p[:, 1], p[:, 0], 0 * p[:, 0]], axis=1)
     fv = flow_volume(rot, [1, 0, 0], 0.25, 2.0, sides=16, tol=0.01)
     assert np.allclose(fv.normal, [0, 1, 0])
     exact = polygon_area(0.25, 16) * 2.0 * 1.0
@@ -90,7 +91,8 @@ def test_front_matches_dop853_reference_on_abc():
 
 def test_refinement_reintegrates_from_the_generator_on_a_diverging_flow():
     # v = (x, y, 1): exact flow map (x e^a, y e^a, z + a) for age a; the front spreads e^2 = 7.4 times.
-    div = lambda p, t: np.stack([p[:, 0], p[:, 1], np.ones(len(p))], axis=1)
+    def div(p, t):
+        return np.stack([p[:, 0], p[:, 1], np.ones(len(p))], axis=1)
     fv = flow_volume(div, [0, 0, 0], 0.2, 2.0, sides=8, tol=0.1, steps=64)
     assert len(fv.generator) > 1 + 2 * 8  # columns were inserted
     a = fv.age[:, None]
@@ -107,7 +109,8 @@ def test_refinement_reintegrates_from_the_generator_on_a_diverging_flow():
 
 
 def test_stagnation_point_at_the_centre():
-    para = lambda p, t: np.stack([0 * p[:, 0], 0 * p[:, 0], p[:, 0] ** 2 + p[:, 1] ** 2], axis=1)
+    def para(p, t):
+        return np.stack([0 * p[:, 0], 0 * p[:, 0], p[:, 0] ** 2 + p[:, 1] ** 2], axis=1)
     with pytest.raises(DataError, match="calm air"):
         flow_volume(para, [0, 0, 0], 1.0, 1.0)
     fv = flow_volume(para, [0, 0, 0], 1.0, 1.0, normal=[0, 0, 1], sides=24, rings=8, tol=0.05)
@@ -122,7 +125,8 @@ def test_stagnation_point_at_the_centre():
 
 
 def test_zero_wind_and_zero_duration_give_no_smoke():
-    calm = lambda p, t: np.zeros_like(p)
+    def calm(p, t):
+        return np.zeros_like(p)
     fv = flow_volume(calm, [0, 0, 0], 1.0, 5.0, normal=[1, 0, 0])
     assert len(fv.tets) == 0 and fv.volume == 0.0 and len(fv.surface.faces) == 0
     fv = flow_volume(uniform, [0, 0, 0], 1.0, 0.0)
@@ -180,7 +184,8 @@ def test_climate_generator_outside_the_data_time_raises(rotation_globe):
 def test_converging_flow_merges_front_points_and_keeps_the_volume():
     # v = (-x, 0, 1): exact flow map (x e^-a, y, z + a); air of age a fills area A e^-a per unit
     # height, so V = A (1 - e^-T).  The front narrows to a segment: its points merge.
-    conv = lambda p, t: np.stack([-p[:, 0], 0 * p[:, 0], np.ones(len(p))], axis=1)
+    def conv(p, t):
+        return np.stack([-p[:, 0], 0 * p[:, 0], np.ones(len(p))], axis=1)
     T, exact = 6.0, polygon_area(1.0, 32) * (1 - np.exp(-6.0))
     kept = flow_volume(conv, [0, 0, 0], 1.0, T, normal=[0, 0, 1], sides=32, tol=0.1, steps=64, merge=0.5)
     full = flow_volume(conv, [0, 0, 0], 1.0, T, normal=[0, 0, 1], sides=32, tol=0.1, steps=64, merge=0.0)
@@ -208,7 +213,8 @@ def test_converging_flow_merges_front_points_and_keeps_the_volume():
 def test_merging_leaves_uniform_and_diverging_fronts_alone():
     fv = flow_volume(uniform, [1.0, 2.0, 3.0], 0.7, 2.5, sides=32, merge=0.9)
     assert len(np.unique(fv.tets)) == len(fv.vertices)
-    div = lambda p, t: np.stack([p[:, 0], p[:, 1], np.ones(len(p))], axis=1)
+    def div(p, t):
+        return np.stack([p[:, 0], p[:, 1], np.ones(len(p))], axis=1)
     fv = flow_volume(div, [0, 0, 0], 0.2, 2.0, sides=8, tol=0.1, steps=64, merge=0.9)
     assert len(np.unique(fv.tets)) == len(fv.vertices)
 

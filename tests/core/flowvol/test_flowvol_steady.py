@@ -68,11 +68,13 @@ def test_every_layer_of_the_stream_tube_matches_dop853_on_abc():
 
 @pytest.mark.parametrize("steady", [False, True])
 def test_uniform_and_shear_flows_stay_exact(steady):
-    uniform = lambda p, t: np.tile([0.3, -0.2, 2.0], (len(p), 1))
+    def uniform(p, t):
+        return np.tile([0.3, -0.2, 2.0], (len(p), 1))
     fv = flow_volume(uniform, [1.0, 2.0, 3.0], 0.7, 2.5, sides=9, steady=steady)
     area = 0.5 * 9 * 0.7**2 * np.sin(2 * np.pi / 9)
     assert fv.volume == pytest.approx(area * np.linalg.norm([0.3, -0.2, 2.0]) * 2.5, rel=1e-12)
-    shear = lambda p, t: np.stack([0 * p[:, 0], 0 * p[:, 0], 1 + p[:, 0]], axis=1)
+    def shear(p, t):
+        return np.stack([0 * p[:, 0], 0 * p[:, 0], 1 + p[:, 0]], axis=1)
     fv = flow_volume(shear, [0, 0, 0], 0.5, 2.0, normal=[0, 0, 1], sides=7, rings=3, steady=steady)
     assert fv.volume == pytest.approx(0.5 * 7 * 0.25 * np.sin(2 * np.pi / 7) * 2.0, rel=1e-12)
     check_mesh(fv, positive=True)
@@ -80,7 +82,8 @@ def test_uniform_and_shear_flows_stay_exact(steady):
 
 def test_diverging_flow_points_come_from_the_generator():
     # v = (x, y, 1): exact flow map (x e^a, y e^a, z + a); inserted columns get their own streamlines.
-    div = lambda p, t: np.stack([p[:, 0], p[:, 1], np.ones(len(p))], axis=1)
+    def div(p, t):
+        return np.stack([p[:, 0], p[:, 1], np.ones(len(p))], axis=1)
     fv = flow_volume(div, [0, 0, 0], 0.2, 2.0, sides=8, tol=0.1, steps=64, steady=True)
     assert len(fv.generator) > 1 + 2 * 8
     a = fv.age

@@ -96,7 +96,7 @@ def test_footprint_equals_a_numerical_line_integral(kind):
     k = splat_kernel(kind)
     rng = np.random.default_rng(3)
     p = np.vstack([[0.0, 0.0], [2.4, 0.3], rng.uniform(-2.0, 2.0, (12, 2))])
-    ref = np.array([integrate.quad(lambda z: k.weight([[x, y, z]])[0], -3, 3, points=[0], limit=200, epsabs=1e-13)[0] for x, y in p])
+    ref = np.array([integrate.quad(lambda z, x=x, y=y: k.weight([[x, y, z]])[0], -3, 3, points=[0], limit=200, epsabs=1e-13)[0] for x, y in p])
     assert np.abs(k.footprint(p) - ref).max() < 1e-9 * k.peak
     # The renderer's ρ² table.
     assert np.abs(k.footprint_rho2(np.sum(p * p, axis=1)) - ref).max() < 1e-6 * k.peak
@@ -111,7 +111,7 @@ def test_footprint_table_matches_line_integrals_at_texel_centres():
     assert t.shape == (32, 32) and t.dtype == np.float32
     c = -k.radius + (np.arange(32) + 0.5) * (2 * k.radius / 32)
     for j, i in [(0, 0), (15, 16), (16, 16), (3, 20), (31, 9)]:
-        ref = integrate.quad(lambda z: k.weight([[c[i], c[j], z]])[0], -3, 3, limit=200)[0]
+        ref = integrate.quad(lambda z, i=i, j=j: k.weight([[c[i], c[j], z]])[0], -3, 3, limit=200)[0]
         assert abs(t[j, i] - ref) < 1e-3 * k.peak
     assert t.max() <= k.peak
     assert footprint_table(k, 33, normalized=True).max() == pytest.approx(1.0, abs=1e-6)  # odd size samples the centre

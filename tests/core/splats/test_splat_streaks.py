@@ -68,7 +68,7 @@ def test_rendered_streaks_follow_a_uniform_wind_within_5_degrees():
     maps = streak_maps()
     errors = []
     for theta in np.deg2rad([0, 30, 75, 120, 160]):
-        sp = slab(lambda c: 0.2 * np.array([np.cos(theta), np.sin(theta), 0.0]))
+        sp = slab(lambda c, theta=theta: 0.2 * np.array([np.cos(theta), np.sin(theta), 0.0]))
         img = render_splats(sp, K, TOP, 128, 128, streaks=maps, streak_contrast=1.0, extinction=10.0)
         angle, _ = streak_orientation(img[..., 3], sigma=3)
         expected = np.arctan2(-np.sin(theta), np.cos(theta)) % np.pi  # image y points down
