@@ -28,7 +28,8 @@ REPLACE_WAITS = (0.05, 0.1, 0.2, 0.4, 0.8, 1.6)
 """Seconds between tries of a Windows rename onto a file another program holds open
 (a viewer, Blender reading a frame, a virus scanner): 3.15 s in all, then the error."""
 
-DISK_ERRNOS = {errno.ENOSPC, errno.EROFS, errno.EACCES, errno.EPERM, errno.EFBIG, getattr(errno, "EDQUOT", errno.ENOSPC)}
+DISK_ERRNOS = {errno.ENOSPC, errno.EROFS, errno.EACCES, errno.EPERM, errno.EFBIG,
+               getattr(errno, "EDQUOT", errno.ENOSPC)}
 """Errors of the place written to (full, read-only, not ours), not of the data."""
 LOW_SPACE = 1 << 20
 """Below this many free bytes, a writer's failure of any kind is taken for a full disk."""

@@ -137,6 +137,6 @@ def over_rgb(rgb, overlay):
     return (overlay[..., :3] * a + np.asarray(rgb, np.float32)[..., :3] * (1.0 - a)).astype(np.float32)
 
 
-__all__ = ["PANEL", "box_text", "draw_text", "fill", "halo", "line_height", "new_canvas", "over_rgb", "over_rgba", "paint",
-           "paste",
+__all__ = ["PANEL", "box_text", "draw_text", "fill", "halo", "line_height", "new_canvas", "over_rgb", "over_rgba",
+           "paint", "paste",
            "srgb_decode", "srgb_encode"]

@@ -1,4 +1,5 @@
-"""Climate data: the globe grid, datasets and their readers (NetCDF, GrADS, GRIB, Zarr), the synthetic demo, humidity and relief."""
+"""Climate data: the globe grid, datasets and their readers (NetCDF, GrADS, GRIB, Zarr), the synthetic demo,
+humidity and relief."""
 
 from .columns import (  # noqa: F401
     ColumnLocator,

@@ -188,7 +188,8 @@ class Streams:
         end = x + hc / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
         bad = b2 | b3 | b4
         ve, be = self._f(np.where(bad[:, None], x, end))
-        outside = np.where(b2[:, None], s1, np.where(b3[:, None], s2, np.where(b4[:, None], s3, end)))  # first stage out
+        # first stage out
+        outside = np.where(b2[:, None], s1, np.where(b3[:, None], s2, np.where(b4[:, None], s3, end)))
         return end, ve, outside, bad | be
 
     def add(self, points):
@@ -249,7 +250,8 @@ class Streams:
         until :meth:`exits` has placed them on the boundary)."""
         ids, ages = np.asarray(ids), np.asarray(ages, dtype=np.float64)
         h, last = self.h, self.last[ids]
-        i = np.clip(np.floor(ages / h).astype(np.int64), 0, self.steps - 1) if h > 0 else np.zeros(len(ids), dtype=np.int64)
+        i = (np.clip(np.floor(ages / h).astype(np.int64), 0, self.steps - 1) if h > 0
+             else np.zeros(len(ids), dtype=np.int64))
         out = ages > last * h + self.tail[ids] + 1e-12 * max(h, 1e-300)
         inner = i < last
         pos = np.empty((len(ids), 3))
@@ -288,7 +290,8 @@ class Front:
     rest at their exit point).
     """
 
-    def __init__(self, velocity, center, e1, e2, radius, sides, rings, t0, duration, steps, layers=2, stop=False, steady=False, resolution=None):
+    def __init__(self, velocity, center, e1, e2, radius, sides, rings, t0, duration, steps, layers=2, stop=False,
+                 steady=False, resolution=None):
         self.velocity, self.center, self.e1, self.e2 = velocity, center, e1, e2
         self.radius, self.sides, self.rings = radius, sides, rings
         self.t_end, self.steps, self.stop = t0 + duration, steps, stop
@@ -297,7 +300,9 @@ class Front:
         self.taus = np.linspace(t0, t0 + duration, max(int(layers), 2))
         g = self._generator(self.us, True)
         # A steady flow: one streamline per generator point, every layer read from them (no per-layer integration).
-        self.streams = Streams(velocity, duration, steps, stop, resolution or radius / sides) if steady and duration > 0 else None
+        self.streams = (Streams(velocity, duration, steps, stop, resolution or radius / sides)
+                        if steady and duration > 0
+                        else None)
         if self.streams is not None:
             self.ids = self.streams.add(g)  # each lattice column's streamline
             alive = float((self.streams.last * self.streams.h + self.streams.tail).max())
@@ -306,10 +311,12 @@ class Front:
                 # The layers are spread over the ages where some air is left (and one beyond), plus the oldest.
                 gap = duration / (len(self.taus) - 1)
                 n = int(np.ceil(alive / gap)) + 1
-                self.taus = np.concatenate([[t0], self.t_end - gap * np.arange(n, -1, -1)]) if n * gap < duration else self.taus
+                self.taus = (np.concatenate([[t0], self.t_end - gap * np.arange(n, -1, -1)]) if n * gap < duration
+                             else self.taus)
             self._sample()
             return
-        x, out = advance(velocity, np.tile(g, (len(self.taus), 1)), np.repeat(self.taus, len(g)), self.t_end, steps, stop)
+        x, out = advance(velocity, np.tile(g, (len(self.taus), 1)), np.repeat(self.taus, len(g)), self.t_end, steps,
+                         stop)
         self.pos, self.out = x.reshape(len(self.taus), len(g), 3), out.reshape(len(self.taus), len(g))
 
     def _sample(self):
@@ -325,7 +332,8 @@ class Front:
 
     def _generator(self, us, centre):
         rho = np.arange(1, self.rings + 1) / self.rings
-        pts = polygon_points(self.center, self.e1, self.e2, self.radius, self.sides, us[:, None] + 0 * rho, rho + 0 * us[:, None])
+        pts = polygon_points(self.center, self.e1, self.e2, self.radius, self.sides, us[:, None] + 0 * rho,
+                             rho + 0 * us[:, None])
         pts = pts.reshape(-1, 3)
         return np.vstack([self.center[None], pts]) if centre else pts
 
@@ -402,12 +410,14 @@ class Front:
             return
         gl = self._generator(us[order], centre=True)
         x, out = advance(self.velocity, np.concatenate([np.tile(gc, (K, 1)), np.tile(gl, (len(new_taus), 1))]),
-                         np.concatenate([np.repeat(self.taus, len(gc)), np.repeat(new_taus, len(gl))]), self.t_end, self.steps, self.stop)
+                         np.concatenate([np.repeat(self.taus, len(gc)), np.repeat(new_taus, len(gl))]), self.t_end,
+                         self.steps, self.stop)
         m = K * len(gc)
 
         def columns(old, new, shape):
             # Old and new columns of the old layers, in perimeter order.
-            cols = np.concatenate([old[:, 1:].reshape((K, J, R) + shape), new.reshape((K, len(new_us), R) + shape)], axis=1)
+            cols = np.concatenate([old[:, 1:].reshape((K, J, R) + shape), new.reshape((K, len(new_us), R) + shape)],
+                                  axis=1)
             return np.concatenate([old[:, :1], cols[:, order].reshape((K, -1) + shape)], axis=1)
 
         pos, was_out = columns(self.pos, x[:m], (3,)), columns(self.out, out[:m], ())
@@ -465,6 +475,7 @@ class Front:
             bridge = np.linalg.norm(kept - cols[:, (j + 1) % J], axis=-1).max(axis=-1) < tol
             merge = near & bridge & ~(protect & (self.us[j] == np.round(self.us[j])))
             ks = np.nonzero(merge)[0]
-            target[layers[ks], 1 + j * R:1 + (j + 1) * R] = target[layers[ks][:, None], 1 + keep[ks, None] * R + np.arange(R)]
+            target[layers[ks], 1 + j * R:1 + (j + 1) * R] = target[layers[ks][:, None],
+                                                                   1 + keep[ks, None] * R + np.arange(R)]
             keep = np.where(merge, keep, j)
         return target.reshape(-1)

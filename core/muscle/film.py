@@ -117,7 +117,8 @@ def frame_molecules(lattice, frame):
     sub = lat.actin_subunits(lattice, frame.slide)
     m = len(sub.origins)
     a_rot = np.repeat(sub.rotations, len(actin), 0) @ np.tile(actin.rotations, (m, 1, 1))
-    a_ctr = np.einsum("mij,kj->mki", sub.rotations, actin.centers).reshape(-1, 3) + np.repeat(sub.origins, len(actin), 0)
+    a_ctr = np.einsum("mij,kj->mki", sub.rotations,
+                      actin.centers).reshape(-1, 3) + np.repeat(sub.origins, len(actin), 0)
     head = myosin_head()
     heads = lat.myosin_heads(lattice)
     h = len(heads)
