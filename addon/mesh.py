@@ -10,7 +10,8 @@ docs/benchmarks.md, section ``mesh_transfer``).
 import bpy
 import numpy as np
 
-_VECTOR_TYPES = {1: ("FLOAT", "value"), 2: ("FLOAT2", "vector"), 3: ("FLOAT_VECTOR", "vector"), 4: ("FLOAT_COLOR", "color")}
+_VECTOR_TYPES = {1: ("FLOAT", "value"), 2: ("FLOAT2", "vector"), 3: ("FLOAT_VECTOR", "vector"),
+                 4: ("FLOAT_COLOR", "color")}
 
 
 def _as_arrays(mesh):

@@ -440,7 +440,8 @@ def clear_scene(scene):
 
 
 class NEPHELE_OT_paper_figure(bpy.types.Operator):
-    """Build the paper's figure in this scene, as its example does (data, layer, camera, sun and sky, render settings)"""
+    """Build the paper's figure in this scene, as its example does (data, layer, camera, sun and sky, render
+    settings)"""
 
     bl_idname = "nephele.paper_figure"
     bl_label = "Make the paper's figure"
@@ -466,7 +467,8 @@ class NEPHELE_OT_paper_figure(bpy.types.Operator):
         # Fig. 6's solve (~30 s) runs as the scattering operator's modal job where there is a window to show it.
         # Fig. 2's 24 frames (~40 s) bake in the background (nephele.bake_volume) where there is a window.
         window = context.window is not None
-        options = {"modal": True} if self.figure == "FIG6" and window else {"bake": "lazy"} if self.figure == "FIG2" and window else {}
+        options = ({"modal": True} if self.figure == "FIG6" and window
+                   else {"bake": "lazy"} if self.figure == "FIG2" and window else {})
         options["annotations"] = self.annotations
         try:
             out = FIGURES[self.figure][0](scene, **options)
