@@ -47,8 +47,8 @@ def test_read_only_output_is_refused_before_rendering(small_disk, capsys):
     code = cli.main(["render", str(SCENE), "--frames", "1-3", "--out", str(disk / "out")])
     err = capsys.readouterr().err
     assert code == 2 and time.perf_counter() - t0 < 5.0  # before any worker starts
-    assert err.strip().splitlines() == [f"nephele render: error: {disk / 'out'}: field '--out': output directory cannot "
-                                        "be written: Read-only file system"]
+    assert err.strip().splitlines() == [f"nephele render: error: {disk / 'out'}: field '--out': output directory "
+                                        "cannot be written: Read-only file system"]
 
 
 def test_full_disk_estimate_then_stop_then_resume(small_disk):

@@ -35,7 +35,8 @@ def test_lonlat_roundtrip_and_poles():
 
 def test_periodic_detection():
     assert small_grid(ni=9).periodic_lon
-    g = GlobeGrid(np.linspace(0, 90, 10), np.linspace(-10, 10, 3), np.zeros((2, 3, 10)) + np.array([0, 1.0])[:, None, None])
+    g = GlobeGrid(np.linspace(0, 90, 10), np.linspace(-10, 10, 3),
+                  np.zeros((2, 3, 10)) + np.array([0, 1.0])[:, None, None])
     assert not g.periodic_lon
 
 

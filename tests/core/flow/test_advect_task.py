@@ -27,7 +27,8 @@ def test_first_frame_starts_where_the_vertices_are():
         start = m.attributes[advect.START.format(c)]
         assert start.shape == (len(m.vertices), 3)
         np.testing.assert_allclose(_unit(start), _unit(m.vertices), atol=2e-3)
-        np.testing.assert_allclose(m.attributes[advect.START_ALT.format(c)], m.attributes["altitude"], rtol=1e-3, atol=1.0)
+        np.testing.assert_allclose(m.attributes[advect.START_ALT.format(c)], m.attributes["altitude"], rtol=1e-3,
+                                   atol=1.0)
     assert m.attributes[advect.WEIGHT.format("a")][0] == 0.0
 
 

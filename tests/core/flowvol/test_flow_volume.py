@@ -41,7 +41,8 @@ def shear(p, t):
 
 def abc(p, t, A=np.sqrt(3), B=np.sqrt(2), C=1.0):
     x, y, z = p.T
-    return np.stack([A * np.sin(z) + C * np.cos(y), B * np.sin(x) + A * np.cos(z), C * np.sin(y) + B * np.cos(x)], axis=1)
+    return np.stack([A * np.sin(z) + C * np.cos(y), B * np.sin(x) + A * np.cos(z), C * np.sin(y) + B * np.cos(x)],
+                    axis=1)
 
 
 @pytest.mark.parametrize("sides,duration", [(3, 1.0), (32, 2.5)])
@@ -84,7 +85,8 @@ def test_front_matches_dop853_reference_on_abc():
     fv = flow_volume(abc, [0.5, 0.3, 0.2], 0.3, 1.5, sides=12, steps=32)
     first = np.isclose(fv.release, 0.0)
     start = fv.generator
-    ref = solve_ivp(lambda t, y: abc(y.reshape(-1, 3), t).ravel(), (0, 1.5), start.ravel(), method="DOP853", rtol=1e-12, atol=1e-12).y[:, -1].reshape(-1, 3)
+    ref = solve_ivp(lambda t, y: abc(y.reshape(-1, 3), t).ravel(), (0, 1.5), start.ravel(), method="DOP853", rtol=1e-12,
+                    atol=1e-12).y[:, -1].reshape(-1, 3)
     got = fv.vertices[first]
     assert np.max(np.linalg.norm(got - ref, axis=1)) < 1e-6
 
@@ -224,7 +226,8 @@ def test_climate_stacked_steps_equal_step_by_step_reads(rotation_globe):
     _, ds = rotation_globe
     stacked, per_step = ClimateVelocity(ds), ClimateVelocity(ds, stack_mb=0)
     rng = np.random.default_rng(3)
-    p = np.array([stacked.point(lo, la, h) for lo, la, h in zip(rng.uniform(-180, 180, 200), rng.uniform(-89, 89, 200), rng.uniform(0, 9000, 200))])
+    p = np.array([stacked.point(lo, la, h) for lo, la, h in zip(rng.uniform(-180, 180, 200), rng.uniform(-89, 89, 200),
+                                                                rng.uniform(0, 9000, 200))])
     t = rng.uniform(0, 24, 200)
     t[:10] = np.round(t[:10])  # exactly on a step
     a, b = stacked(p, t), per_step(p, t)

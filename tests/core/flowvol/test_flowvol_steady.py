@@ -17,14 +17,16 @@ FIRE = Path(__file__).resolve().parents[2] / "data" / "flow" / "fire_ug.vtu"
 
 def abc(p, t, A=np.sqrt(3), B=np.sqrt(2), C=1.0):
     x, y, z = p.T
-    return np.stack([A * np.sin(z) + C * np.cos(y), B * np.sin(x) + A * np.cos(z), C * np.sin(y) + B * np.cos(x)], axis=1)
+    return np.stack([A * np.sin(z) + C * np.cos(y), B * np.sin(x) + A * np.cos(z), C * np.sin(y) + B * np.cos(x)],
+                    axis=1)
 
 
 def dop853(v, points, ages):
     """Positions of ``points`` after each of ``ages`` by DOP853 (rtol = atol = 1e-11): (n, len(ages), 3)."""
     out = np.empty((len(points), len(ages), 3))
     for i, p in enumerate(points):
-        sol = solve_ivp(lambda t, y: v(y[None], t)[0], (0, ages.max()), p, method="DOP853", rtol=1e-11, atol=1e-11, dense_output=True)
+        sol = solve_ivp(lambda t, y: v(y[None], t)[0], (0, ages.max()), p, method="DOP853", rtol=1e-11, atol=1e-11,
+                        dense_output=True)
         out[i] = sol.sol(ages).T
     return out
 

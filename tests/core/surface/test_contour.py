@@ -101,7 +101,8 @@ def test_cube_table_normals_point_toward_the_corners_below():
         above = [(config >> c) & 1 for c in range(8)]
         down = tables.CORNERS[[c for c in range(8) if not above[c]]].mean(axis=0)
         up = tables.CORNERS[[c for c in range(8) if above[c]]].mean(axis=0)
-        flux = sum(np.dot(np.cross(mid[b] - mid[a], mid[c] - mid[a]), down - up) for a, b, c in table[config, : ntri[config]])
+        flux = sum(np.dot(np.cross(mid[b] - mid[a], mid[c] - mid[a]), down - up)
+                   for a, b, c in table[config, : ntri[config]])
         assert flux >= 0  # zero only for the symmetric configurations
     assert ntri[0] == ntri[255] == 0
 

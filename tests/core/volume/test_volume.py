@@ -176,7 +176,8 @@ def test_longitude_origin_and_threads_do_not_change_the_volume(lon0):
     first = lon0 + d[shift]  # the column nearest lon0, written near lon0
     rolled = GlobeGrid(first + np.arange(g.lon.size) * 360.0 / g.lon.size, g.lat,
                        np.roll(g.height, -shift, axis=2), np.roll(g.terrain, -shift, axis=1))
-    got = resample(rolled, np.roll(c, -shift, axis=2), tf, voxel_size=0.03, color_name=ALTITUDE, workers=2, chunk_blocks=8)
+    got = resample(rolled, np.roll(c, -shift, axis=2), tf, voxel_size=0.03, color_name=ALTITUDE, workers=2,
+                   chunk_blocks=8)
     assert got.stats["active_voxels"] == ref.stats["active_voxels"] > 1000
     np.testing.assert_array_equal(got.blocks, ref.blocks)
     np.testing.assert_allclose(got.density, ref.density, atol=1e-5)
