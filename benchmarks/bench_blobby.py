@@ -61,7 +61,9 @@ def dense_anchor(c, r, s, w, h):
         i1 = np.minimum(np.ceil((ci + hi - lo) / h).astype(int) + 1, dims)
         ax = [lo[k] + h * np.arange(i0[k], i1[k]) - ci[k] for k in range(3)]
         x, y, z = np.meshgrid(*ax, indexing="ij", sparse=True)
-        q = ai[0, 0] * x * x + ai[1, 1] * y * y + ai[2, 2] * z * z + 2 * (ai[0, 1] * x * y + ai[0, 2] * x * z + ai[1, 2] * y * z)
+        q = ai[0, 0] * x * x + ai[1, 1] * y * y + ai[2,
+                                                     2] * z * z + 2 * (ai[0, 1] * x * y + ai[0, 2] * x * z + ai[1, 2]
+                                                                       * y * z)
         vol[i0[0] : i1[0], i0[1] : i1[1], i0[2] : i1[2]] += (wi * np.exp(-0.5 * q)).astype(np.float32)
     verts, faces, _, _ = marching_cubes(vol, LEVEL, spacing=(h, h, h))
     return verts + lo, faces
@@ -205,7 +207,9 @@ def main():
         blobs, side = scene(n)
         for box in (None, np.full(3, side)):
             (t, cpu, mesh), peak = peak_rss(
-                lambda blobs=blobs, box=box: timed_cpu(lambda: blobby_surface(*blobs, LEVEL, h, box=box, cutoff=CUTOFF, threads=args.threads)))
+                lambda blobs=blobs,
+                box=box: timed_cpu(lambda: blobby_surface(*blobs, LEVEL, h, box=box, cutoff=CUTOFF,
+                                                          threads=args.threads)))
             nv, nf = len(mesh.vertices), len(mesh.faces)
             vertices = mesh.vertices
             mesh = None  # (only the vertices are checked; the next mesh is made without this one)
@@ -222,7 +226,8 @@ def main():
                 t, cpu, mesh = numpy_twins(lambda blobs=blobs: timed_cpu(
                     lambda: blobby_surface(*blobs, LEVEL, h, cutoff=CUTOFF, threads=args.threads)))
                 emax, erms = error(mesh.vertices, blobs, None, sample, rng)
-                rows.append([n, "ours, NumPy kernels (no wheel)", t, cpu, len(mesh.vertices), len(mesh.faces), erms, emax])
+                rows.append([n, "ours, NumPy kernels (no wheel)", t, cpu, len(mesh.vertices), len(mesh.faces), erms,
+                             emax])
                 mesh = None
                 print(rows[-1], flush=True)
         nodes = float(np.ceil((side + 2 * CUTOFF * SIGMA[1]) / h) + 1) ** 3
@@ -246,7 +251,8 @@ def main():
             rows.append([n, "Blender metaballs (own falloff)", t, cpu, nv, f"{nf} quads/tris", "n/a", "n/a"])
             print(rows[-1], flush=True)
         elif args.metaballs:
-            rows.append([n, "Blender metaballs (own falloff)", f"not run (--metaball-max {args.metaball_max})", "", "", "", "", ""])
+            rows.append([n, "Blender metaballs (own falloff)", f"not run (--metaball-max {args.metaball_max})", "", "",
+                         "", "", ""])
     load1 = os.getloadavg()[0]
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20  # KiB on Linux
     ratios = "; ".join(f"{n}: {balls[n][0] / ours[n][0]:.1f}x wall, {balls[n][1] / ours[n][1]:.1f}x CPU"
@@ -279,7 +285,8 @@ def main():
         f"machine's load. Load average {load0:.1f} at the start, "
         f"{load1:.1f} at the end, {os.cpu_count()} cores shared.{speed}{mem} Peak memory of the whole run "
         f"(resident): {peak:.1f} GiB; this machine has 24.\n\n"
-        + md_table(["ellipsoids", "method", "seconds", "CPU seconds", "vertices", "triangles", "rms error", "max error"], rows)
+        + md_table(["ellipsoids", "method", "seconds", "CPU seconds", "vertices", "triangles", "rms error",
+                    "max error"], rows)
     )
     write_section("blobby", body, title="Blobby surfaces (sums of Gaussian ellipsoids)")
     if args.actin if args.actin is not None else not args.quick:

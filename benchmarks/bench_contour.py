@@ -121,7 +121,8 @@ def speed(repeat, level, step):
         have_skimage = False
     med, last = timed(repeat, candidates)
     # The paper's split is ~10x slower: fewer rounds.
-    med5, last5 = timed(max(3, repeat // 3), {"nephele tetra5 (periodic seam, poles closed)": lambda: isosurface(points, values, level, method="tetra5", **closed)})
+    med5, last5 = timed(max(3, repeat // 3),
+                        {"nephele tetra5 (periodic seam, poles closed)": lambda: isosurface(points, values, level, method="tetra5", **closed)})
     med.update(med5)
     last.update(last5)
 
@@ -143,8 +144,8 @@ def speed(repeat, level, step):
     text = (
         f"{what}, level {level}, grid {values.shape[2]}×{values.shape[1]}×{values.shape[0]} "
         f"(lon × lat × level), median of {repeat} interleaved runs (tetra5: {max(3, repeat // 3)}), single thread. "
-        "The machine is shared with other jobs, so absolute times are noisy; the ratio to VTK is measured in the same run. "
-        "Open edges of our closed-seam meshes are only where clouds touch the lowest (or highest) grid level; "
+        "The machine is shared with other jobs, so absolute times are noisy; the ratio to VTK is measured in the same "
+        "run. Open edges of our closed-seam meshes are only where clouds touch the lowest (or highest) grid level; "
         "VTK's and skimage's meshes are welded too but also open along the longitude seam (VTK: the "
         "repeated column's vertices are not merged with column 0; skimage: no seam column, and it works "
         "in index space, not on the globe)."
@@ -193,7 +194,8 @@ def accuracy(scales=(1, 2, 4, 8)):
                 int(np.count_nonzero(area == 0)),
                 open_edges(np.asarray(faces)),
             ])
-    header = ["method", "grid (lon×lat×r)", "triangles", "max vertex distance error", "area error", "zero-area", "open edges"]
+    header = ["method", "grid (lon×lat×r)", "triangles", "max vertex distance error", "area error", "zero-area",
+              "open edges"]
     text = (
         "Accuracy: sphere of radius 0.6 centred off the axis at (0.1, 0.05, 0.2) in a spherical-shell grid "
         "r ∈ [0.2, 1.2] with rows at both poles (values = distance to the centre). Errors fall 4× per halving "
@@ -210,7 +212,8 @@ def main(argv=None):
     ap.add_argument("--time", type=int, default=12, help="demo time step")
     ap.add_argument("--quick", action="store_true", help="one repeat, the two coarsest accuracy grids (smoke run)")
     args = ap.parse_args(argv)
-    body = speed(1 if args.quick else args.repeat, args.level, args.time) + "\n\n" + accuracy((1, 2) if args.quick else (1, 2, 4, 8))
+    body = speed(1 if args.quick else args.repeat, args.level,
+                 args.time) + "\n\n" + accuracy((1, 2) if args.quick else (1, 2, 4, 8))
     write_section("contour", body, title="Contour surfaces (marching cubes / 5 tetrahedra) on the globe grid")
 
 

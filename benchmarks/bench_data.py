@@ -95,7 +95,8 @@ def real_rows():
         b = b[:, ::-1][:, :, np.argsort(np.mod(xr.open_dataset(nc)["lon"].values, 360))]
         rows.append(("ECHAM5 NetCDF 192x96x17", "t", t_ours, t_anchor, float(np.abs(a - b).max())))
         t_cloud, _ = best(lambda: open_dataset(nc).read("cloud", 0))
-        rows.append(("ECHAM5 NetCDF 192x96x17", "cloud (Sundqvist from rhumidity)", t_cloud, float("nan"), float("nan")))
+        rows.append(("ECHAM5 NetCDF 192x96x17", "cloud (Sundqvist from rhumidity)", t_cloud, float("nan"),
+                     float("nan")))
     ctl = SHARED / "climate" / "model.ctl"
     if ctl.is_file():
         t_ours, a = best(lambda: open_dataset(ctl).read("temperature", 3))
@@ -191,7 +192,8 @@ def main():
         "linear in time), against the exact flow map the clouds are built from. The error is the data's "
         "interpolation error; the clouds themselves are exact.",
         "",
-        md_table(["steps", "median error km", "95 % error km", "max error km", "median distance travelled km"], [trace]),
+        md_table(["steps", "median error km", "95 % error km", "max error km", "median distance travelled km"],
+                 [trace]),
     ]
     write_section("data", "\n".join(body), title="Data: demo climate and readers")
 

@@ -32,13 +32,15 @@ def field(d):
     """A smooth RGB test field over the sphere, with detail: periods down to ~14 deg."""
     d = d / np.linalg.norm(d, axis=-1, keepdims=True)
     x, y, z = d[..., 0], d[..., 1], d[..., 2]
-    return np.stack([0.5 + 0.4 * np.sin(24 * x + 12 * z), 0.5 + 0.4 * np.cos(18 * y - 6 * z), 0.5 + 0.4 * x * y * z], axis=-1)
+    return np.stack([0.5 + 0.4 * np.sin(24 * x + 12 * z), 0.5 + 0.4 * np.cos(18 * y - 6 * z), 0.5 + 0.4 * x * y * z],
+                    axis=-1)
 
 
 def cube_of(n):
     c = np.arange(n)
     cc, rr = np.meshgrid(c, c)
-    return np.stack([field(dome.cube_to_direction(np.full(cc.shape, f), cc, rr, n)) for f in range(6)]).astype(np.float32)
+    return np.stack([field(dome.cube_to_direction(np.full(cc.shape, f), cc, rr, n))
+                     for f in range(6)]).astype(np.float32)
 
 
 def equirect_of(w, h):

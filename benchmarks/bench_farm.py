@@ -1,4 +1,5 @@
-"""Farm overhead: the Dask farm (1 and 2 workers, and one Slurm job) against Blender's own animation render and a process per frame.
+"""Farm overhead: the Dask farm (1 and 2 workers, and one Slurm job) against Blender's own animation render
+and a process per frame.
 
 All on the same tiny scene (tests/farm/cube_scene.py: a turning cube, Cycles,
 64x48, 4 samples), in one run.  The Slurm row runs the same sequence through
@@ -10,7 +11,8 @@ frames' own file times (the moment each was moved into place), so start-up
 (Python, bpy, cluster, scene) is reported apart.  Then the resume check of an
 already complete 240-frame directory.
 
-Run: ``.venv/bin/python benchmarks/bench_farm.py [--frames 16 --rounds 3]``; writes section ``farm`` of docs/benchmarks.md.
+Run: ``.venv/bin/python benchmarks/bench_farm.py [--frames 16 --rounds 3]``; writes section ``farm`` of
+docs/benchmarks.md.
 """
 
 import argparse
@@ -115,8 +117,8 @@ def farm(out, n, workers, persistent=False):
     from nephele.farm.render import render_sequence
 
     t0 = time.perf_counter()
-    res = render_sequence(SCENE, f"1-{n}", out, workers=workers, engine="CYCLES", samples=SAMPLES, persistent=persistent,
-                          scene_options={"size": list(SIZE)}, progress=False)
+    res = render_sequence(SCENE, f"1-{n}", out, workers=workers, engine="CYCLES", samples=SAMPLES,
+                          persistent=persistent, scene_options={"size": list(SIZE)}, progress=False)
     assert res.ok, res.failure_report()
     return time.perf_counter() - t0, res
 
@@ -273,8 +275,8 @@ starting, bpy and the scene in the worker): Slurm {startup_of[slurm_label]:.2f} 
        "The difference is larger than 15%: rerun at a lower load before drawing a conclusion.\n")
     else:
         slurm_text = f"\nThe single-node Slurm row is missing from this run: {no_slurm}.\n"
-    table = md_table(["method", "frames", "total s (median)", "start-up s", "s/frame steady, best", "s/frame steady, median",
-                      "per frame vs Blender (best / median)"], rows)
+    table = md_table(["method", "frames", "total s (median)", "start-up s", "s/frame steady, best",
+                      "s/frame steady, median", "per frame vs Blender (best / median)"], rows)
     body = f"""
 Same scene everywhere: `tests/farm/cube_scene.py` (a turning cube), Cycles CPU, {SIZE[0]}x{SIZE[1]} px,
 {SAMPLES} samples, {cores} render threads per process in total (2 farm workers get {max(1, cores // 2)} each).

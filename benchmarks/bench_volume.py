@@ -146,7 +146,8 @@ def main(argv=None):
         out = []
         for _, sl in families:
             e = np.abs(err[sl]) * 100
-            out += [f"{x:.{digits}f}" for x in (e.max(), np.percentile(e, 99.9), np.percentile(e, 99), np.sqrt(np.mean(e**2)))]
+            out += [f"{x:.{digits}f}"
+                    for x in (e.max(), np.percentile(e, 99.9), np.percentile(e, 99), np.sqrt(np.mean(e**2)))]
         return out
 
     # The whole atmosphere shell as one dense grid, for scale.
@@ -155,8 +156,10 @@ def main(argv=None):
     rows = []
     for vs in sizes:
         repeat = 1 if vs < 0.0025 else 3
-        vol, wall, cpu = timed(lambda vs=vs: resample(grid, values, TF, voxel_size=vs, color_name="altitude", workers=1), repeat)
-        (_, wall2, cpu2) = timed(lambda vs=vs: resample(grid, values, TF, voxel_size=vs, color_name="altitude", workers=2), repeat)
+        vol, wall, cpu = timed(lambda vs=vs: resample(grid, values, TF, voxel_size=vs, color_name="altitude",
+                                                      workers=1), repeat)
+        (_, wall2, cpu2) = timed(lambda vs=vs: resample(grid, values, TF, voxel_size=vs, color_name="altitude",
+                                                        workers=2), repeat)
         tv = volume_optical_depth(vol, o, d, t0, t1, min(vs / 4, 0.0005))
         err = opacity(tv, DEFAULT_EXTINCTION) - a_ref
         if vs == DEFAULT_VOXEL_SIZE:
@@ -209,7 +212,8 @@ def main(argv=None):
         if vs == DEFAULT_VOXEL_SIZE:
             # Both grids in one material, combined per sample: the opacity capped
             # near the scalar's (kills the threshold bias, cuts thin layers).
-            pv = np.concatenate([default_vol.sample(c) for c in np.array_split(pts.reshape(-1, 3), 40)]).reshape(seg.shape[0], -1)
+            pv = np.concatenate([default_vol.sample(c)
+                                 for c in np.array_split(pts.reshape(-1, 3), 40)]).reshape(seg.shape[0], -1)
             both = svol.stats["active_voxels"] + default_vol.stats["active_voxels"]
             for name, mix in (("both, min(opacity, TF(scalar) + 0.01)", np.minimum(pv, dens + 0.01)),
                               ("both, opacity where scalar > threshold", pv * (sv > TF.values[0])),
@@ -370,7 +374,8 @@ the globe (the exact mode's atlases, {exact_default[3]} MB, do not depend on the
 {md_table(["threshold", "% grid points above", "candidate cells", "exact: support voxels", "exact: support MB",
            "voxels: active voxels", "voxels: blocks", "voxels: memory MB", "voxels: bytes / active voxel"], mem_rows)}
 """
-    write_section("volume", body, title="Volume clouds: exact shading and voxels vs memory, build time and opacity error")
+    write_section("volume", body,
+                  title="Volume clouds: exact shading and voxels vs memory, build time and opacity error")
     write_section("volume-curvilinear", curvilinear(args.quick),
                   title="Exact volume mode on a curvilinear grid: the column index map")
     return 0

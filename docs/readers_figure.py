@@ -51,8 +51,10 @@ def main():
     glon = np.where(um.grid.lon > 180, um.grid.lon - 360, um.grid.lon)
     box(glon, um.grid.lat)
     ax.plot([tlon.mean()], [tlat.mean()], "o", ms=9, mfc="none", mec="C3", mew=2)
-    ax.annotate("with the rotation:\n52.4 N 3.1 W (Wales)", (tlon.mean(), tlat.mean()), (-23, 40), arrowprops={"arrowstyle": "->"})
-    ax.annotate("grid coordinates alone:\n0.1 S 0.4 W", (glon.mean(), um.grid.lat.mean()), (-23, 8), arrowprops={"arrowstyle": "->"})
+    ax.annotate("with the rotation:\n52.4 N 3.1 W (Wales)", (tlon.mean(), tlat.mean()), (-23, 40),
+                arrowprops={"arrowstyle": "->"})
+    ax.annotate("grid coordinates alone:\n0.1 S 0.4 W", (glon.mean(), um.grid.lat.mean()), (-23, 8),
+                arrowprops={"arrowstyle": "->"})
     ax.set_title("(a) UM rotated pole (pole 37.5 N 177.5 E)")
     fig.colorbar(m, ax=ax, shrink=0.8, label="potential temperature, lowest level (K)")
     # (b) polar stereographic satellite brightness at its projected positions

@@ -68,8 +68,8 @@ def main(argv=None):
             from nephele.farm.post import contact_sheet
 
             picks = sorted({0, len(paths) // 2, len(paths) - 1})
-            contact_sheet([paths[i] for i in picks], out / "side_by_side.png", columns=len(picks), thumb_width=args.size[0],
-                          labels=[f"frame {args.frames[0] + i}" for i in picks])
+            contact_sheet([paths[i] for i in picks], out / "side_by_side.png", columns=len(picks),
+                          thumb_width=args.size[0], labels=[f"frame {args.frames[0] + i}" for i in picks])
     return 0
 
 

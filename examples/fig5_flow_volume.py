@@ -122,10 +122,12 @@ def main(argv=None):
     ap.add_argument("--hours", type=float, default=DEFAULTS["hours"], help="release window in hours")
     ap.add_argument("--radius", type=float, default=DEFAULTS["radius"], help="generator radius (globe radius 1)")
     ap.add_argument("--density", type=float, default=None, help="smoke density (per scene unit)")
-    ap.add_argument("--fire", action="store_true", help="smoke above the fire in a room (fire_ug.vtu) instead of the globe")
+    ap.add_argument("--fire", action="store_true",
+                    help="smoke above the fire in a room (fire_ug.vtu) instead of the globe")
     ap.add_argument("--vtu", default=FIRE["path"], help="the .vtu of --fire")
     ap.add_argument("--seconds", type=float, default=None,
-                    help=f"--fire: release window in seconds (default {FIRE['seconds']:g}; longer releases reach the walls)")
+                    help=f"--fire: release window in seconds (default {FIRE['seconds']:g}; longer releases reach the "
+                         "walls)")
     args = ap.parse_args(argv)
     bpy.ops.wm.read_factory_settings(use_empty=True)
     if args.fire:
@@ -140,7 +142,8 @@ def main(argv=None):
         if args.out:
             globe_scene.render_frames(bpy.context.scene, args.frames, args.out)
         return 0
-    build(source=args.source, frames=args.frames, size=args.size, samples=args.samples, hours=args.hours, radius=args.radius,
+    build(source=args.source, frames=args.frames, size=args.size, samples=args.samples, hours=args.hours,
+          radius=args.radius,
           density=DEFAULTS["density"] if args.density is None else args.density, annotations=args.annotations)
     print(bpy.context.scene.nephele_flowvol.status)
     if args.save:
