@@ -277,7 +277,8 @@ def fig5(scene, **options):
     o = globe_scene.merge_options(FIG5_DEFAULTS, options)
     globe, sky = globe_scene.globe_scene(scene, o, sun_direction=(0.55, -0.75, 0.35), haze=False)
     p = _reset(scene.nephele_flowvol)
-    p.lon, p.lat, p.height, p.radius, p.hours, p.sides = o["lon"], o["lat"], o["height"], o["radius"], o["hours"], o["sides"]
+    p.lon, p.lat, p.height, p.radius = o["lon"], o["lat"], o["height"], o["radius"]
+    p.hours, p.sides = o["hours"], o["sides"]
     p.density = o["density"]
     p.live = False
     if o["exaggeration"] is not None:

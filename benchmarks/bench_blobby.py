@@ -61,9 +61,8 @@ def dense_anchor(c, r, s, w, h):
         i1 = np.minimum(np.ceil((ci + hi - lo) / h).astype(int) + 1, dims)
         ax = [lo[k] + h * np.arange(i0[k], i1[k]) - ci[k] for k in range(3)]
         x, y, z = np.meshgrid(*ax, indexing="ij", sparse=True)
-        q = ai[0, 0] * x * x + ai[1, 1] * y * y + ai[2,
-                                                     2] * z * z + 2 * (ai[0, 1] * x * y + ai[0, 2] * x * z + ai[1, 2]
-                                                                       * y * z)
+        q = (ai[0, 0] * x * x + ai[1, 1] * y * y + ai[2, 2] * z * z
+             + 2 * (ai[0, 1] * x * y + ai[0, 2] * x * z + ai[1, 2] * y * z))
         vol[i0[0] : i1[0], i0[1] : i1[1], i0[2] : i1[2]] += (wi * np.exp(-0.5 * q)).astype(np.float32)
     verts, faces, _, _ = marching_cubes(vol, LEVEL, spacing=(h, h, h))
     return verts + lo, faces

@@ -122,7 +122,8 @@ def speed(repeat, level, step):
     med, last = timed(repeat, candidates)
     # The paper's split is ~10x slower: fewer rounds.
     med5, last5 = timed(max(3, repeat // 3),
-                        {"nephele tetra5 (periodic seam, poles closed)": lambda: isosurface(points, values, level, method="tetra5", **closed)})
+                        {"nephele tetra5 (periodic seam, poles closed)":
+                         lambda: isosurface(points, values, level, method="tetra5", **closed)})
     med.update(med5)
     last.update(last5)
 

@@ -255,7 +255,8 @@ def main():
         startup = "every frame" if label.startswith("one subprocess") else total - med * (count - 1)
         vs = f"{(best - ref[1]) / ref[1]:+.0%} / {(med - ref[2]) / ref[2]:+.0%}"
         if label == "farm, 1 worker, `--persistent-data`":
-            vs += f" (vs Blender with persistent data: {(best - ref_p[1]) / ref_p[1]:+.0%} / {(med - ref_p[2]) / ref_p[2]:+.0%})"
+            vs += (f" (vs Blender with persistent data: {(best - ref_p[1]) / ref_p[1]:+.0%} / "
+                   f"{(med - ref_p[2]) / ref_p[2]:+.0%})")
         rows.append([label, count, total, startup, best, med, "reference" if label == next(iter(methods)) else vs])
 
     if slurm_label in methods:
@@ -277,6 +278,7 @@ starting, bpy and the scene in the worker): Slurm {startup_of[slurm_label]:.2f} 
         slurm_text = f"\nThe single-node Slurm row is missing from this run: {no_slurm}.\n"
     table = md_table(["method", "frames", "total s (median)", "start-up s", "s/frame steady, best",
                       "s/frame steady, median", "per frame vs Blender (best / median)"], rows)
+    worker = "the worker's `render_one` (log, error trap, decode, check, sha256, fsync, `os.replace`)"
     body = f"""
 Same scene everywhere: `tests/farm/cube_scene.py` (a turning cube), Cycles CPU, {SIZE[0]}x{SIZE[1]} px,
 {SAMPLES} samples, {cores} render threads per process in total (2 farm workers get {max(1, cores // 2)} each).
@@ -298,7 +300,7 @@ interleaved rounds of {n} frames, so load drift hits both alike):
 | loop in one bpy process | s/frame, best | s/frame, median |
 |---|---|---|
 | bare `frame_set` + `render(write_still=True)` | {one[0]:.4f} | {one[1]:.4f} |
-| the worker's `render_one` (log, error trap, decode, check, sha256, fsync, `os.replace`) | {one[2]:.4f} | {one[3]:.4f} |
+| {worker} | {one[2]:.4f} | {one[3]:.4f} |
 | difference | {(one[2] - one[0]) / one[0]:+.1%} | {(one[3] - one[1]) / one[1]:+.1%} |
 
 Resume of an already complete 240-frame directory (nothing to render, no cluster started):

@@ -71,7 +71,8 @@ def polygon_flux(fv, n=80):
 
 
 def timed(f, repeat, cpu=None):
-    """Result and best wall time of ``repeat`` runs; with a list ``cpu``, the best CPU time (this process) is appended to it."""
+    """Result and best wall time of ``repeat`` runs; with a list ``cpu``, the best CPU time (this process) is
+    appended to it."""
     best, best_cpu = np.inf, np.inf
     for _ in range(repeat):
         t, c = time.perf_counter(), time.process_time()

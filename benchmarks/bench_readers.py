@@ -368,7 +368,8 @@ def grib_section(quick, big_gb):
                  f"({nbytes / 1e6 / read:.0f} MB/s; {read_cpu:.2f} CPU s, {nbytes / 1e6 / read_cpu:.0f} MB per CPU "
                  f"second: ecCodes' unpacking bounds it) against {plain:.2f} s ({nbytes / 1e6 / plain:.0f} MB/s) to "
                  "read the same bytes plainly (page cache warm: the file was just written or read).  The anchor "
-                 f"(cfgrib + filter, in process) opens it and loads that t in {anchor[0]:.1f} s the first time (building its index) and {anchor[1]:.1f} s "
+                 f"(cfgrib + filter, in process) opens it and loads that t in {anchor[0]:.1f} s the first time "
+                 f"(building its index) and {anchor[1]:.1f} s "
                  f"with its index.  Load average at the end {os.getloadavg()[0]:.1f}.")
     if quick:
         print(body)

@@ -471,7 +471,8 @@ def evolving(frames=240, n=64, check=24, kinds=("drifting", "climate")):
             density = lambda i, params=params: ev.drifting_cloud(params, i, frames, extinction=EXT)  # noqa: E731
         else:
             data = demo_dataset()
-            density = lambda i, data=data: ev.climate_cloud(data, i * 240 // frames, shape=(3 * n // 4, n, n), extinction=EXT)  # noqa: E731
+            density = lambda i, data=data: ev.climate_cloud(  # noqa: E731
+                data, i * 240 // frames, shape=(3 * n // 4, n, n), extinction=EXT)
         prev, warm_s, cold_s, errs, passes = None, [], [], [], []
         load0 = os.getloadavg()[0]
         for i in range(frames):

@@ -277,9 +277,11 @@ def main(argv=None):
                  "in every row." if exact_same else "The rows' errors differ: a support hides cloud.")
     same_note += (" No cloudy sample lies outside a support, so the remaining error" if not outside.any()
                   else " The remaining error")
-    same_note += f" (worst {ex_worst:.4f}% over all rows) is that of the shader's float32 program against the float64 reference."
+    same_note += (f" (worst {ex_worst:.4f}% over all rows) is that of the shader's float32 program against the "
+                  "float64 reference.")
     body = f"""
-Demo grid {ni}×{nj}×{nk} (`open_dataset("{args.source}")`, step {step_index}, cloud {np.mean(values > 0.3) * 100:.1f}% of
+Demo grid {ni}×{nj}×{nk} (`open_dataset("{args.source}")`, step {step_index}, \
+cloud {np.mean(values > 0.3) * 100:.1f}% of
 grid points above 0.3), transfer function {TF.points} (the Fig. 2 example's), extinction {DEFAULT_EXTINCTION:g}
 per scene unit at opacity 1, exaggeration 30, colour = altitude.  Error: opacity along {n_rays} rays
 (half from a Fig. 2-like camera, half random chords through the shell, many grazing the cloud layers)
@@ -303,7 +305,8 @@ be cloudy) only bounds where the renderer looks.  The error here is that of the 
 `ExactVolume.sample` (the node graph's program in float32, texel for texel as Cycles' linear image
 lookup, NaN where its density is forced to zero) at the reference's own {n_samples} sample points,
 integrated exactly as the reference is (recomputing the reference on those points reproduces its opacity
-to {same_points:.1e}% of full scale: the same points; {exact_wall:.1f} s wall / {exact_cpu:.1f} s CPU for all support sizes, the atlas
+to {same_points:.1e}% of full scale: the same points; {exact_wall:.1f} s wall / {exact_cpu:.1f} s CPU for all \
+support sizes, the atlas
 lookups shared).  Cycles adds Monte-Carlo noise of its volume sampling on top of this; a render test
 checks the node graph in Cycles, and no number for that noise is given here.
 
@@ -356,7 +359,8 @@ The paper's alternative, interpolating the scalar and then applying the transfer
 ("post-classification"; in Blender a Float Curve on the grid), measured with the same rays
 and reference:
 
-{md_table(["voxel", "route", "active voxels", *(f"{f} {m}" for f in fam for m in ("max", "p99.9", "p99", "rms"))], post_rows)}
+{md_table(["voxel", "route", "active voxels",
+           *(f"{f} {m}" for f in fam for m in ("max", "p99.9", "p99", "rms"))], post_rows)}
 
 Post-classification has no threshold bias, so its worst rays are far better, but it is worse at
 the percentiles: trilinear interpolation of the scalar flattens the peaks of thin layers before the
@@ -368,7 +372,8 @@ could) trades the worst rays against the 99th percentile; none brings both to 2%
 ### Memory against cloudy volume
 
 The threshold sets how much of the atmosphere is cloud; the exact mode's support voxels (at
-{DEFAULT_SUPPORT_SIZE:g}) and the voxel mode's active voxels (at {DEFAULT_VOXEL_SIZE:g}) both follow the cloudy volume, not
+{DEFAULT_SUPPORT_SIZE:g}) and the voxel mode's active voxels (at {DEFAULT_VOXEL_SIZE:g}) both follow the \
+cloudy volume, not
 the globe (the exact mode's atlases, {exact_default[3]} MB, do not depend on the threshold).
 
 {md_table(["threshold", "% grid points above", "candidate cells", "exact: support voxels", "exact: support MB",

@@ -111,8 +111,9 @@ def write_error(exc, path, *, low=0):
         return WriteError(code, path, "file too large for this file system")
     free = free_bytes(path)
     if free is not None and free < max(LOW_SPACE, low):
+        said = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         return WriteError(errno.ENOSPC, path, f"no space left on the disk ({format_bytes(free)} free; the writer "
-                                              f"said: {str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__})")
+                                              f"said: {said})")
     return None
 
 
@@ -256,7 +257,8 @@ def lock_file(path, what):
     naming its holder.
     """
     path = Path(path)
-    me = f"{os.getpid()} {socket.gethostname()} {datetime.datetime.now(datetime.timezone.utc).isoformat(timespec='seconds')}"
+    now = datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
+    me = f"{os.getpid()} {socket.gethostname()} {now}"
     for _ in range(3):
         try:
             fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)

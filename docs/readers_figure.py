@@ -47,7 +47,8 @@ def main():
     theta = um.read("air_potential_temperature", 0)[0]
     _coast(ax, (-25, 15), (-10, 60))
     m = ax.pcolormesh(tlon, tlat, theta, shading="auto", cmap="inferno")
-    box = lambda lo, la: ax.plot(np.r_[lo[0], lo[-1], lo[-1], lo[0], lo[0]], np.r_[la[0], la[0], la[-1], la[-1], la[0]], lw=1.5)  # noqa: E731
+    box = lambda lo, la: ax.plot(np.r_[lo[0], lo[-1], lo[-1], lo[0], lo[0]],  # noqa: E731
+                                 np.r_[la[0], la[0], la[-1], la[-1], la[0]], lw=1.5)
     glon = np.where(um.grid.lon > 180, um.grid.lon - 360, um.grid.lon)
     box(glon, um.grid.lat)
     ax.plot([tlon.mean()], [tlat.mean()], "o", ms=9, mfc="none", mec="C3", mew=2)

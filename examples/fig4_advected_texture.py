@@ -32,7 +32,8 @@ DEFAULTS = presets.FIG4_DEFAULTS  # the add-on's recipe, also its panel's preset
 
 
 def build(**options):
-    """Build the Fig. 4 scene into the current scene (:func:`nephele.addon.presets.fig4`); returns a dict of the main objects."""
+    """Build the Fig. 4 scene into the current scene (:func:`nephele.addon.presets.fig4`); returns a dict of
+    the main objects."""
     return presets.fig4(bpy.context.scene, **options)
 
 

@@ -32,7 +32,8 @@ DEFAULTS = presets.FIG5_DEFAULTS  # the add-on's recipe, also its panel's preset
 
 
 def build(**options):
-    """Build the Fig. 5 scene into the current scene (:func:`nephele.addon.presets.fig5`); returns a dict of the main objects."""
+    """Build the Fig. 5 scene into the current scene (:func:`nephele.addon.presets.fig5`); returns a dict of
+    the main objects."""
     import nephele
 
     if not hasattr(bpy.types.Scene, "nephele_flowvol"):

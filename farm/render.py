@@ -463,7 +463,8 @@ def _space_needed(out, manifest, frames, views, count, force):
 
 
 def _after_lost_task(out, frame, fmt, views, exc, since_ns):
-    """Entry for a frame whose task did not return: kept if this run moved all its views into place whole, else failed."""
+    """Entry for a frame whose task did not return: kept if this run moved all its views into place whole,
+    else failed."""
     paths = [out / frame_name(frame, fmt, v) for v in views]
     log = f"logs/{Path(frame_name(frame, fmt)).stem}.log"
     try:

@@ -94,7 +94,8 @@ class GribDataset(FileDataset):
 
     # ------------------------------------------------------------------ what the file holds
     def _survey(self, index):
-        """``{typeOfLevel: {"3d": n, "fields": n}}``: 3-D variables (a parameter on two or more levels) and fields per kind."""
+        """``{typeOfLevel: {"3d": n, "fields": n}}``: 3-D variables (a parameter on two or more levels) and
+        fields per kind."""
         by_type = {}
         for g, info in enumerate(index.groups):
             by_type.setdefault(info["typeOfLevel"], {}).setdefault(tuple(info["raw"]), []).append(g)
@@ -265,7 +266,8 @@ class GribDataset(FileDataset):
         index = self._index
         want = self._valid[t]
         for g, info in enumerate(index.groups):
-            if info["typeOfLevel"] not in level_types or info["grid"] != self._grid_id or index.short_name(g) != short_name:
+            if (info["typeOfLevel"] not in level_types or info["grid"] != self._grid_id
+                    or index.short_name(g) != short_name):
                 continue
             rows = np.flatnonzero((index.group == g) & (index.valid == want))
             if self.member is not None:

@@ -95,7 +95,8 @@ def _isobaric(ds, path, take):
 
 
 def _isobaric_heights(ds, p, level_index, take):
-    """Heights of pressure levels: the mean geopotential height of each in the first step, else the standard atmosphere."""
+    """Heights of pressure levels: the mean geopotential height of each in the first step, else the standard
+    atmosphere."""
     heights = standard_height(p)
     source = "standard atmosphere"
     found = _geopotential(ds)
@@ -197,7 +198,8 @@ def _hybrid_heights(ds, take, half, upper, level_index, nlev):
             how += f", surface at {where!r}" if where else ", surface at sea level (no z or orog in the file)"
             return z[rank][level_index], how
     p = 0.5 * (half[upper] + half[upper + 1])[level_index]
-    return standard_height(p), "from the standard atmosphere of the pressure (not every level from the lowest up, or no t)"
+    return standard_height(p), ("from the standard atmosphere of the pressure (not every level from the lowest up, "
+                                "or no t)")
 
 
 def _native(ds, path, take):
@@ -255,7 +257,8 @@ def _by_geopotential(ds, path, take):
         def pressure(t):
             return ds._raw(pres, t)[take][level_index].astype(np.float32)
 
-    return z[level_index], level_index, pressure, f"{ds.level_type} levels at the heights of {name!r} (terrain following)"
+    return (z[level_index], level_index, pressure,
+            f"{ds.level_type} levels at the heights of {name!r} (terrain following)")
 
 
 __all__ = ["ISOBARIC", "vertical"]

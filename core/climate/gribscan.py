@@ -97,7 +97,8 @@ def _stamp(path):
     from ..files import file_stamp
     from ..pipeline.codehash import code_stamp
 
-    return Path(path).resolve(), f"{file_stamp(path)}|v{INDEX_VERSION}|{code_stamp(Path(__file__).with_name('grib.py'))}"
+    return (Path(path).resolve(),
+            f"{file_stamp(path)}|v{INDEX_VERSION}|{code_stamp(Path(__file__).with_name('grib.py'))}")
 
 
 def _datetime(dates, times):
@@ -186,8 +187,8 @@ class GribIndex:
                 if eccodes.codes_get_long(h, "bitmapPresent"):
                     v = np.where(v == eccodes.codes_get_double(h, "missingValue"), np.nan, v)
             except (eccodes.CodesInternalError, OSError) as exc:
-                raise DataError(f"cannot decode the message at byte {int(self.offset[i])} ({type(exc).__name__}: {exc})",
-                                path=self.path) from None
+                raise DataError(f"cannot decode the message at byte {int(self.offset[i])} "
+                                f"({type(exc).__name__}: {exc})", path=self.path) from None
             finally:
                 if h is not None:
                     eccodes.codes_release(h)
@@ -211,7 +212,8 @@ class GribIndex:
         return out
 
     def concept(self, g, keys=CONCEPTS):
-        """ecCodes' names of group ``g`` (``keys``, by default :data:`CONCEPTS`), each looked up once and kept with the index."""
+        """ecCodes' names of group ``g`` (``keys``, by default :data:`CONCEPTS`), each looked up once and kept
+        with the index."""
         have = self._concepts.setdefault(g, {})
         missing = [k for k in keys if k not in have]
         if missing:

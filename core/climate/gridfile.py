@@ -314,7 +314,8 @@ def cf_times_or_steps(values, units, calendar, path, field="time"):
     except DataError as exc:
         if "calendar" in exc.problem or "NaN" in exc.problem:
             raise
-        return step_times(values.size), f"{field}: {exc.problem}; the {values.size} step(s) are numbered 0..{values.size - 1}, one hour apart"
+        return step_times(values.size), (f"{field}: {exc.problem}; the {values.size} step(s) are numbered "
+                                         f"0..{values.size - 1}, one hour apart")
 
 
 _CALENDARS = ("standard", "gregorian", "proleptic_gregorian", "noleap", "365_day", "all_leap", "366_day", "360_day",

@@ -183,7 +183,8 @@ def _month_times(values, units, calendar, path, field):
     times = ref + np.rint(secs).astype(np.int64).astype("timedelta64[s]")
     note = None
     if cal != "360_day":
-        note = f"{field}: units {units!r} read as calendar months of the {cal!r} calendar (CF's month is 1/12 of 365.24 days; monthly model output means calendar months)"
+        note = (f"{field}: units {units!r} read as calendar months of the {cal!r} calendar (CF's month is 1/12 of "
+                "365.24 days; monthly model output means calendar months)")
     return times, note
 
 
@@ -259,7 +260,8 @@ _CELL_DIMS = {"ncells": "ICON", "cell": "ICON", "ncol": "CAM-SE", "nCells": "MPA
 
 
 def _member_dim(ds):
-    """The ensemble member dimension of the data variables (a known name, or a coordinate with standard_name realization)."""
+    """The ensemble member dimension of the data variables (a known name, or a coordinate with standard_name
+    realization)."""
     dims = {d for v in ds.data_vars.values() for d in v.dims}
     for name in dims:
         if name.lower() in _MEMBER_DIMS or (name in ds.variables
@@ -384,7 +386,8 @@ class NetCDFDataset(VerticalCoordinates, FileDataset):
         names, skipped = self._three_d_fields(ds, path, lon_name, lat_name, time_name, time_dim)
         self._time_dim = time_dim
         if curvilinear:
-            lon, lat, lon_index, lat_index, lon2d, lat2d = self._curvilinear(ds, path, lon_name, lat_name, projected, *self._lonlat_dims)
+            lon, lat, lon_index, lat_index, lon2d, lat2d = self._curvilinear(ds, path, lon_name, lat_name, projected,
+                                                                             *self._lonlat_dims)
         else:
             lon, lat, lon_index, lat_index = tidy_lonlat(ds[lon_name].values, ds[lat_name].values, path, lon_name,
                                                          lat_name)
@@ -513,7 +516,8 @@ class NetCDFDataset(VerticalCoordinates, FileDataset):
         return times
 
     def _levels(self, ds, path, names, skipped, lat_index, lon_index, nj, ni):
-        """``(heights, level index, pressure(t) or None, description)``: WRF eta levels or the CF vertical coordinate."""
+        """``(heights, level index, pressure(t) or None, description)``: WRF eta levels or the CF vertical
+        coordinate."""
         zdim = self._zdim
         self._wrf = _is_wrf(ds, zdim) and self._vertical_kind is None
         self._stagger, self._alpha = {}, None
@@ -538,7 +542,8 @@ class NetCDFDataset(VerticalCoordinates, FileDataset):
         return levels
 
     def _planet_radius(self, radius, vertical):
-        """:attr:`earth_radius`: the ``radius=`` override, the grid mapping's, the model's convention, else the mean Earth."""
+        """:attr:`earth_radius`: the ``radius=`` override, the grid mapping's, the model's convention, else
+        the mean Earth."""
         if radius is not None:
             self.earth_radius = float(radius)
         elif self.earth_radius is None and "NCAR" in vertical:
@@ -576,8 +581,8 @@ class NetCDFDataset(VerticalCoordinates, FileDataset):
         return fields
 
     def _read(self, name, t):
-        if name in ("u",
-                    "v") and self._alpha is not None and self.file_names.get("u") == "U" and self.file_names.get("v") == "V":
+        if (name in ("u", "v") and self._alpha is not None
+                and self.file_names.get("u") == "U" and self.file_names.get("v") == "V"):
             # WRF's U, V are along the grid's x and y; COSALPHA/SINALPHA turn them to east and north.
             u, v = (np.asarray(super(NetCDFDataset, self)._read(n, t), dtype=np.float64) for n in ("u", "v"))
             cos_a, sin_a = self._alpha
@@ -673,7 +678,8 @@ class NetCDFDataset(VerticalCoordinates, FileDataset):
             lon2d, lat2d, notes = projected_lonlat(dict(ds[mapping].attrs), ds[lon_name].values * scale[0],
                                                    ds[lat_name].values * scale[1], path, mapping)
             name = _attr(ds[mapping], "grid_mapping_name")
-            self._notes += [f"grid: longitudes/latitudes computed from the {name} grid mapping"] + [f"grid: {n}" for n in notes]
+            self._notes += ([f"grid: longitudes/latitudes computed from the {name} grid mapping"]
+                            + [f"grid: {n}" for n in notes])
         else:
             planes = []
             for name in (lon_name, lat_name):

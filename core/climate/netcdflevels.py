@@ -219,7 +219,8 @@ class VerticalCoordinates:
             z, how = standard_height(pressure_file(0)), "the standard atmosphere of 'PL'"
         level_index = self._level_order(z.reshape(z.shape[0], -1).mean(axis=1), path, zdim)
         pressure = None if pressure_file is None else (lambda t: pressure_file(t)[level_index].astype(np.float32))
-        return z[level_index], level_index, pressure, f"model layers 1..{ds.sizes[zdim]} (terrain following), heights from {how}"
+        return (z[level_index], level_index, pressure,
+                f"model layers 1..{ds.sizes[zdim]} (terrain following), heights from {how}")
 
     def _layer_fields(self, ds, names=("H", "PL", "DELP")):
         """Those of ``names`` that are fields on the level dimension (GEOS's mid-layer heights, pressure, thickness)."""

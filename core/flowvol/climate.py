@@ -58,7 +58,8 @@ class ClimateVelocity:
         self._dr_ds = np.gradient(h) * self.radius * self.exaggeration / EARTH_RADIUS if len(h) > 1 else np.zeros(1)
 
     def _stacked(self, lo, hi):
-        """Wind steps ``lo..hi`` (padded, converted) stacked along the level axis, kept between calls; None if too big."""
+        """Wind steps ``lo..hi`` (padded, converted) stacked along the level axis, kept between calls; None if
+        too big."""
         if self._stack is not None and self._stack[0] <= lo and hi <= self._stack[1]:
             a, _, f = self._stack
             nk = self.wind.nk

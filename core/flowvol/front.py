@@ -76,7 +76,8 @@ def advance(velocity, points, release, t_end, steps, stop=False):
         v = np.asarray(velocity(p, tt), dtype=np.float64).reshape(-1, 3)
         bad = ~np.isfinite(v).all(axis=1)
         if bad.any() and (not stop or where == "release"):
-            what = "of the generator's points lie outside the velocity's domain" if where == "release" else "velocities are missing"
+            what = ("of the generator's points lie outside the velocity's domain" if where == "release"
+                    else "velocities are missing")
             raise DataError(f"{int(bad.sum())} of {len(v)} {what} (NaN) along the flow volume", field="velocity")
         v[bad] = 0.0
         return v, bad
@@ -133,7 +134,8 @@ def advance(velocity, points, release, t_end, steps, stop=False):
 
 
 def _hermite(x0, v0, x1, v1, h, s):
-    """Cubic Hermite interpolation at fraction ``s`` (n,) of steps of length ``h`` (n,) between (x0, v0) and (x1, v1)."""
+    """Cubic Hermite interpolation at fraction ``s`` (n,) of steps of length ``h`` (n,) between (x0, v0) and
+    (x1, v1)."""
     s2, s3 = s * s, s * s * s
     w = [2 * s3 - 3 * s2 + 1, (s3 - 2 * s2 + s) * h, 3 * s2 - 2 * s3, (s3 - s2) * h]
     return w[0][:, None] * x0 + w[1][:, None] * v0 + w[2][:, None] * x1 + w[3][:, None] * v1
@@ -172,12 +174,14 @@ class Streams:
         v = np.asarray(self.velocity(p, np.zeros(len(p))), dtype=np.float64).reshape(-1, 3)
         bad = ~np.isfinite(v).all(axis=1)
         if bad.any() and (release or not self.stop):
-            what = "of the generator's points lie outside the velocity's domain" if release else "velocities are missing"
+            what = ("of the generator's points lie outside the velocity's domain" if release
+                    else "velocities are missing")
             raise DataError(f"{int(bad.sum())} of {len(v)} {what} (NaN) along the flow volume", field="velocity")
         return v, bad
 
     def _step(self, x, k1, h):
-        """One RK4 step of lengths ``h`` (n,) from ``x`` with its velocity ``k1``: end, its velocity, the first stage outside, out."""
+        """One RK4 step of lengths ``h`` (n,) from ``x`` with its velocity ``k1``: end, its velocity, the
+        first stage outside, out."""
         hc = h[:, None]
         s1 = x + 0.5 * hc * k1
         k2, b2 = self._f(s1)

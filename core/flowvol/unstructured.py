@@ -201,7 +201,8 @@ class UnstructuredVelocity:
             raise DataError("is not a 3-component point array of the grid", path=self.path, field=field)
         self.points = grid["points"]
         conn = grid["connectivity"]
-        if conn.size != 8 * len(types) or len(arr) != len(self.points) or (conn.size and not 0 <= conn.min() <= conn.max() < len(self.points)):
+        if (conn.size != 8 * len(types) or len(arr) != len(self.points)
+                or (conn.size and not 0 <= conn.min() <= conn.max() < len(self.points))):
             raise DataError(f"has {conn.size} corner indices for {len(types)} hexahedra and {len(self.points)} points "
                             f"({len(arr)} vectors): they do not fit together", path=self.path)
         if not np.isfinite(np.ptp(self.points, axis=0)).all():

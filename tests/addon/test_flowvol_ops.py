@@ -140,7 +140,8 @@ def test_operator_on_the_fire_vtu_without_vtk(empty_scene):
     from nephele.core.flowvol import UnstructuredVelocity
 
     p = empty_scene.nephele_flowvol
-    p.vtu_path, p.vtu_height, p.radius, p.hours, p.sides, p.steps, p.tolerance, p.live = FIRE, 0.1, 0.1, 1.0, 16, 8, 0.05, False
+    p.vtu_path, p.vtu_height, p.radius, p.hours = FIRE, 0.1, 0.1, 1.0
+    p.sides, p.steps, p.tolerance, p.live = 16, 8, 0.05, False
     assert bpy.ops.nephele.add_flow_volume() == {"FINISHED"}, p.status
     gen, smoke = bpy.data.objects[fo.GENERATOR], bpy.data.objects[fo.SMOKE]
     fire = UnstructuredVelocity(FIRE)

@@ -126,5 +126,6 @@ def test_damaged_manifest_is_moved_aside_and_the_render_goes_on(farm_cluster, tm
     bad = list(out.glob("manifest.json.bad-*"))
     assert len(bad) == 1 and bad[0].read_text() == '{"version": 1, "frames": {"1": '  # its history kept
     warning = [ln for ln in err.splitlines() if "warning" in ln]
-    assert len(warning) == 1 and f"{out / 'manifest.json'}: is not valid JSON" in warning[0] and bad[0].name in warning[0]
+    assert (len(warning) == 1 and f"{out / 'manifest.json'}: is not valid JSON" in warning[0]
+            and bad[0].name in warning[0])
     assert sorted(map(int, json.loads((out / "manifest.json").read_text())["frames"])) == [1, 2, 3, 4]

@@ -214,7 +214,8 @@ def small_vtu(fire):
         block = base64.b64encode(np.array([1, len(raw), len(raw), len(packed)],
                                           "<u4").tobytes()) + base64.b64encode(packed)
         attr = f' Name="{name}"' if name else ""
-        tags.append(f'<DataArray type="{kind}"{attr} NumberOfComponents="{comps}" format="appended" offset="{offset}"/>')
+        tags.append(f'<DataArray type="{kind}"{attr} NumberOfComponents="{comps}" format="appended" '
+                    f'offset="{offset}"/>')
         blob += block
         offset += len(block)
     xml = (f'<?xml version="1.0"?>\n<VTKFile type="UnstructuredGrid" version="0.1" byte_order="LittleEndian" '

@@ -114,7 +114,8 @@ def test_a_read_failing_in_the_library_is_a_data_error(tmp_path, monkeypatch):
 
 
 def test_netcdf_failing_while_opening_is_a_data_error(tmp_path, monkeypatch):
-    """The issue's first finding: 'RuntimeError: NetCDF: HDF error' out of open_dataset (raised after the file opened)."""
+    """The issue's first finding: 'RuntimeError: NetCDF: HDF error' out of open_dataset (raised after the file
+    opened)."""
     from nephele.core.climate import netcdf, open_dataset
 
     real = netcdf._find_time

@@ -168,7 +168,8 @@ def test_rotated_grid_with_an_angle_is_refused_in_one_line(tmp_path):
 
 def _rotated_to_true(x, y, centre_lat, centre_lon):
     """PROJ's true longitude/latitude of rotated coordinates whose (0, 0) is true (centre_lon, centre_lat)."""
-    crs = f"+proj=ob_tran +o_proj=longlat +o_lat_p={90.0 - centre_lat} +o_lon_p=0 +lon_0={centre_lon} +R=6371229 +no_defs"
+    crs = (f"+proj=ob_tran +o_proj=longlat +o_lat_p={90.0 - centre_lat} +o_lon_p=0 +lon_0={centre_lon} "
+           "+R=6371229 +no_defs")
     return proj(crs, x, y, radius=6371229)
 
 

@@ -76,7 +76,8 @@ def test_level_type_chooses_another_kind_and_refuses_an_unknown_one(tmp_path):
 def test_variables_by_meaning_shortname_standard_and_cf_names(tmp_path):
     path, lon, lat = _product(tmp_path / "gfs-like.grib2")
     ds = open_dataset(path)
-    assert ds.resolve("clwmr") == ds.resolve("cloud_water") == ds.resolve("cloud_liquid_water_mixing_ratio") == "cloud_water"
+    assert (ds.resolve("clwmr") == ds.resolve("cloud_water") == ds.resolve("cloud_liquid_water_mixing_ratio")
+            == "cloud_water")
     assert ds.read("clwmr", 0) is ds.read("cloud_water", 0)
     assert ds.resolve("t") == ds.resolve("air_temperature") == ds.resolve("TEMPERATURE") == "temperature"
     assert ds.variables["cloud_water"].units == "kg/kg"

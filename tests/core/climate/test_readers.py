@@ -567,7 +567,8 @@ def test_zarr_store_written_from_the_cam_file(tmp_path):
 
 
 def test_packed_and_filled_copy_of_the_cam_file(tmp_path):
-    """The CAM T packed to int16 (scale_factor/add_offset) with _FillValue holes: unpacked within half a step, holes NaN."""
+    """The CAM T packed to int16 (scale_factor/add_offset) with _FillValue holes: unpacked within half a step,
+    holes NaN."""
     src = DATA / "cam_vinth2p.nc"
     with xr.open_dataset(src, decode_times=False) as f:
         f = f.load()

@@ -15,7 +15,8 @@ def polygon_area(radius, sides):
 
 
 def polygon_flux(fv, v, n=60):
-    """Flux of a steady ``v`` through the generator polygon: centroid rule on n^2 equal sub-triangles of each fan triangle."""
+    """Flux of a steady ``v`` through the generator polygon: centroid rule on n^2 equal sub-triangles of each
+    fan triangle."""
     c, g = fv.generator[0], fv.generator[1:]
     outer = g[1::2]  # rings=2: the outer ring's points (the polygon's corners and edge points)
     i, j = np.meshgrid(np.arange(n), np.arange(n))

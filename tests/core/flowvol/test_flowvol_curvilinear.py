@@ -52,9 +52,8 @@ def test_velocity_matches_the_rotation_inside_and_is_nan_outside(rotation_lcc):
     cols = lonlat_to_xyz(g.lon2d, g.lat2d)
     j, i = rng.integers(0, g.shape[1] - 1, 500), rng.integers(0, g.shape[2] - 1, 500)
     a, b = rng.uniform(0.0, 1.0, (2, 500, 1))  # blends of each cell's four columns: inside the cell
-    q = (1 - a) * (1 - b) * cols[j, i] + a * (1 - b) * cols[j,
-                                                            i
-                                                            + 1] + (1 - a) * b * cols[j + 1, i] + a * b * cols[j + 1, i + 1]
+    q = ((1 - a) * (1 - b) * cols[j, i] + a * (1 - b) * cols[j, i + 1]
+         + (1 - a) * b * cols[j + 1, i] + a * b * cols[j + 1, i + 1])
     q /= np.linalg.norm(q, axis=1)[:, None]
     assert np.all(ColumnLocator(g.lon2d, g.lat2d)(q)[0] >= 0)
     pts = q * vel.point(0.0, 0.0, 5000.0)[0]

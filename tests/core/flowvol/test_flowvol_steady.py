@@ -32,7 +32,8 @@ def dop853(v, points, ages):
 
 
 def polygon_flux(fv, v, n=60):
-    """Flux of a steady ``v`` through the generator (rings=2: outer ring every other point): centroid rule on n^2 sub-triangles."""
+    """Flux of a steady ``v`` through the generator (rings=2: outer ring every other point): centroid rule on
+    n^2 sub-triangles."""
     c, outer = fv.generator[0], fv.generator[1:][1::2]
     i, j = np.meshgrid(np.arange(n), np.arange(n))
     up, down = i + j < n, i + j < n - 1

@@ -103,8 +103,8 @@ def test_cell_interpolation_is_exact_for_a_linear_field(fire):
 
 
 def test_flow_volume_above_the_fire(fire):
-    up = (fire.points[:, 2] < 1.2) & (fire.points[:,
-                                                  0] > 0.3) & (fire.points[:, 0] < 5.7) & (fire.points[:, 1] > 0.3) & (fire.points[:, 1] < 2.2)
+    up = ((fire.points[:, 2] < 1.2) & (fire.points[:, 0] > 0.3) & (fire.points[:, 0] < 5.7)
+          & (fire.points[:, 1] > 0.3) & (fire.points[:, 1] < 2.2))
     i = np.argmax(np.where(up, fire.vectors[:, 2], -np.inf))
     assert np.allclose(fire.updraft(0.1), fire.points[i] + [0, 0, 0.1])
     fv = flow_volume(str(FIRE), fire.updraft(0.1), 0.1, 1.0, sides=16, rings=1, steps=8, tol=0.05)

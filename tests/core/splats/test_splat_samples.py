@@ -182,8 +182,8 @@ def test_shells_sample_each_column_linearly_in_height():
     assert np.allclose(shells, np.linspace(0.0, 10000.0, 6))  # the levels over flat ground
     vals = ShellSampler(g, shells)(ds.read_at("cloud", 0.0))
     below = shells[:, None, None] < g.terrain[None]
-    assert np.all(np.isnan(vals[below])) and np.allclose(vals[~below],
-                                                         np.broadcast_to(shells[:, None, None] / 1e4, vals.shape)[~below], atol=1e-12)
+    assert np.all(np.isnan(vals[below]))
+    assert np.allclose(vals[~below], np.broadcast_to(shells[:, None, None] / 1e4, vals.shape)[~below], atol=1e-12)
     ident = TransferFunction(points=((0.0, 0.0), (1.0, 1.0)))
     sp = splat_samples(ds, "cloud", 0.0, ident, color_var="altitude")
     k, j, i = sp.index.T
