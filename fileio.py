@@ -58,6 +58,8 @@ def text_mask(string, size):
     ``blf`` draws into an image buffer without a GPU or a window.
     """
     import bpy  # noqa: F401  (blf and imbuf are Blender's own modules, importable once bpy is)
+
+    # isort: split
     import blf
     import imbuf
 
@@ -211,7 +213,7 @@ def read_grid(path, name="density"):
     if grid.activeVoxelCount() == 0:
         return None, None, vs
     lo, hi = grid.evalActiveVoxelBoundingBox()
-    shape = tuple(h - l + 1 for l, h in zip(lo, hi))
+    shape = tuple(i1 - i0 + 1 for i0, i1 in zip(lo, hi))
     a = np.zeros(shape, dtype=np.float32)
     grid.copyToArray(a, ijk=lo)
     return a, np.array(lo), vs

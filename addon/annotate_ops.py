@@ -23,10 +23,11 @@ muted colours).
 """
 
 import bpy
-from bpy.app.handlers import persistent
 import numpy as np
+from bpy.app.handlers import persistent
 
-from ..core.annotate import ColorBar, OpacityBar, Swatch, calendar_note, heading as figure_heading, overlay, time_label
+from ..core.annotate import ColorBar, OpacityBar, Swatch, calendar_note, overlay, time_label
+from ..core.annotate import heading as figure_heading
 from ..core.pipeline.sources import frame_hours
 from ..core.volume.transfer import ALTITUDE_COLORS, TEMPERATURE_COLORS, ColorMap, TransferFunction
 from . import data_ops, frame, materials

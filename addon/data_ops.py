@@ -230,11 +230,13 @@ class NephelePropsData(bpy.types.PropertyGroup):
     )
     read_time_units: bpy.props.StringProperty(
         name="Time units",
-        description='CF time units replacing the file\'s, e.g. "days since 1988-01-01"; empty: the file\'s (--time-units)',
+        description='CF time units replacing the file\'s, e.g. "days since 1988-01-01"; empty: the file\'s '
+                    '(--time-units)',
     )
     read_earth_radius: bpy.props.FloatProperty(
         name="Earth radius (m)", default=0.0, min=0.0, soft_max=1e8,
-        description="Planet radius in metres; 0: the file's grid mapping or model convention, else 6371000 (--earth-radius)",
+        description="Planet radius in metres; 0: the file's grid mapping or model convention, else 6371000 "
+                    "(--earth-radius)",
     )
     read_var_map: bpy.props.StringProperty(
         name="Variable map",

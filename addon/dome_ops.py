@@ -31,9 +31,8 @@ import math
 import tempfile
 from pathlib import Path
 
-import numpy as np
-
 import bpy
+import numpy as np
 from bpy.app.handlers import persistent
 from mathutils import Matrix, Vector
 
@@ -98,7 +97,8 @@ def camera_params(camera, *, stereo=False, separation=0.065, face_size=None, sup
 def dome_from_params(p):
     """The core DomeCamera described by a rig's parameters."""
     return core_dome.dome_camera(
-        p["preset"], width=p["width"], height=p["height"], fov=p["fov"], tilt=p["tilt"], lens=p["lens"], lens_shift=p["lens_shift"]
+        p["preset"], width=p["width"], height=p["height"], fov=p["fov"], tilt=p["tilt"], lens=p["lens"],
+        lens_shift=p["lens_shift"]
     )
 
 
@@ -157,7 +157,8 @@ def add_dome_camera(
         Bad preset, field of view, size, tilt or eye separation.
     """
     scene = scene or bpy.context.scene
-    camera = core_dome.dome_camera(preset, width=width, height=height, fov=fov, tilt=tilt, lens=lens, lens_shift=lens_shift)
+    camera = core_dome.dome_camera(preset, width=width, height=height, fov=fov, tilt=tilt, lens=lens,
+                                   lens_shift=lens_shift)
     eyes = core_dome.stereo_eyes(separation) if stereo else {"": np.zeros(3)}
     rotation = (0.0, 0.0, -math.radians(yaw))
     if location is None:

@@ -45,7 +45,8 @@ def generator_circle(sides):
     me.vertices.add(sides)
     me.vertices.foreach_set("co", v.astype(np.float32).ravel())
     me.edges.add(sides)
-    me.edges.foreach_set("vertices", np.stack([np.arange(sides), (np.arange(sides) + 1) % sides], 1).astype(np.int32).ravel())
+    me.edges.foreach_set("vertices",
+                         np.stack([np.arange(sides), (np.arange(sides) + 1) % sides], 1).astype(np.int32).ravel())
     me.update()
     return me
 
@@ -146,7 +147,8 @@ def apply(obj, args, fv):
         _state["matrix"] = [tuple(r) for r in gen.matrix_world]
     unit = "" if is_vtu(args["source"]) else " h"
     obj["nephele_status"] = (f"{len(fv.tets)} tets, volume {fv.volume:.3g}, released {args['t0']:g}-"
-                             f"{args['t0'] + args['duration']:g}{unit}" + ("" if fv.complete else " (front size limit reached)"))
+                             f"{args['t0'] + args['duration']:g}{unit}"
+                             + ("" if fv.complete else " (front size limit reached)"))
 
 
 update_smoke = frame.register_job(KIND, plan, compute, apply)
@@ -196,7 +198,8 @@ def _on_depsgraph(scene, depsgraph=None):
     m = [tuple(r) for r in gen.matrix_world]
     # Only a moved or scaled generator triggers a rebuild (our own rotation change is not a move).
     if _state["matrix"] is None or np.allclose(np.array(m)[:3, 3], np.array(_state["matrix"])[:3, 3]) and \
-            np.isclose(max(gen.matrix_world.to_scale()), max(np.linalg.norm(np.array(_state["matrix"])[:3, :3], axis=0))):
+            np.isclose(max(gen.matrix_world.to_scale()),
+                       max(np.linalg.norm(np.array(_state["matrix"])[:3, :3], axis=0))):
         return
     _state["pending"] = True
     bpy.app.timers.register(_rebuild_later, first_interval=_DEBOUNCE_S)
@@ -233,7 +236,8 @@ class NEPHELE_OT_add_flow_volume(bpy.types.Operator):
             if gen is None:
                 gen = bpy.data.objects.new(GENERATOR, generator_circle(props.sides))
                 context.scene.collection.objects.link(gen)
-            gen.location = vel.updraft(props.vtu_height) if is_vtu(source) else vel.point(props.lon, props.lat, props.height)
+            gen.location = (vel.updraft(props.vtu_height) if is_vtu(source)
+                            else vel.point(props.lon, props.lat, props.height))
             gen.scale = (props.radius,) * 3
             context.view_layer.update()
             build(context, props)
@@ -269,26 +273,31 @@ class NepheleFlowVolumeProps(bpy.types.PropertyGroup):
     lon: bpy.props.FloatProperty(name="Longitude", default=-40.0, min=-180.0, max=360.0)
     lat: bpy.props.FloatProperty(name="Latitude", default=35.0, min=-90.0, max=90.0)
     height: bpy.props.FloatProperty(name="Height (m)", default=2000.0, min=0.0)
-    radius: bpy.props.FloatProperty(name="Radius", default=0.03, min=1e-4, description="Generator radius in scene units (globe radius 1)")
+    radius: bpy.props.FloatProperty(name="Radius", default=0.03, min=1e-4,
+                                    description="Generator radius in scene units (globe radius 1)")
     hours: bpy.props.FloatProperty(name="Release hours", default=24.0, min=0.0)
     start_hour: bpy.props.FloatProperty(name="Start hour", default=0.0, min=0.0)
     sides: bpy.props.IntProperty(name="Sides", default=32, min=3, max=256)
     steps: bpy.props.IntProperty(name="RK4 steps", default=8, min=1, max=256)
-    tolerance: bpy.props.FloatProperty(name="Tolerance", default=0.02, min=1e-5, description="Largest gap between front points")
+    tolerance: bpy.props.FloatProperty(name="Tolerance", default=0.02, min=1e-5,
+                                       description="Largest gap between front points")
     exaggeration: bpy.props.FloatProperty(name="Exaggeration", default=30.0, min=1.0)
-    color: bpy.props.FloatVectorProperty(name="Smoke colour", subtype="COLOR", size=3, default=(0.9, 0.9, 1.0), min=0.0, max=1.0)
+    color: bpy.props.FloatVectorProperty(name="Smoke colour", subtype="COLOR", size=3, default=(0.9, 0.9, 1.0), min=0.0,
+                                         max=1.0)
     # Optical depth ~1 across the default generator's diameter: translucent smoke.
     density: bpy.props.FloatProperty(name="Density τ", default=20.0, min=0.0)
     live: bpy.props.BoolProperty(name="Live", default=True, description="Rebuild when the generator moves")
     follow_frame: bpy.props.BoolProperty(
         name="Flow with the frames", default=True,
-        description="The release window moves on with the frame (by the dataset's hours per frame): the smoke flows in a film")
+        description="The release window moves on with the frame (by the dataset's hours per frame): the smoke flows "
+                    "in a film")
     vtu_path: bpy.props.StringProperty(
         name="3-D flow (.vtu)", default="", subtype="FILE_PATH",
-        description="A VTK XML unstructured grid with point vectors 'uvw' (e.g. the fire in a room): used instead of the climate winds; "
-                    "times in its units")
+        description="A VTK XML unstructured grid with point vectors 'uvw' (e.g. the fire in a room): used instead of "
+                    "the climate winds; times in its units")
     vtu_height: bpy.props.FloatProperty(name="Above the updraft", default=0.1, min=0.0,
-                                        description="The generator starts this far above the fastest updraft of the 3-D flow")
+                                        description="The generator starts this far above the fastest updraft of the "
+                                                    "3-D flow")
     status: bpy.props.StringProperty(name="Status", default="")
 
 
@@ -300,7 +309,8 @@ class NEPHELE_PT_flowvol(SubPanel, bpy.types.Panel):
     def draw(self, context):
         p = context.scene.nephele_flowvol
         col = self.layout.column()
-        for name in ("vtu_path", "vtu_height", "lon", "lat", "height", "radius", "hours", "start_hour", "sides", "steps", "tolerance", "exaggeration", "color", "density", "live", "follow_frame"):
+        for name in ("vtu_path", "vtu_height", "lon", "lat", "height", "radius", "hours", "start_hour", "sides",
+                     "steps", "tolerance", "exaggeration", "color", "density", "live", "follow_frame"):
             col.prop(p, name)
         col.operator(NEPHELE_OT_add_flow_volume.bl_idname)
         col.operator(NEPHELE_OT_update_flow_volume.bl_idname)

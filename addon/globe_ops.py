@@ -15,9 +15,8 @@ References
 import math
 from pathlib import Path
 
-import numpy as np
-
 import bpy
+import numpy as np
 
 from ..core.climate import relief as core_relief
 from ..core.climate.grid import EARTH_RADIUS, globe_radius, lonlat_to_xyz
@@ -318,7 +317,8 @@ def shell_haze_material(radius, exaggeration, sun_direction, *, density=None, sc
     mu2 = n.math("MAXIMUM", n.math("SUBTRACT", 1.0, n.math("DIVIDE", n.math("MULTIPLY", b, b), radius * radius)), 0.0)
     tau_ground = n.math("DIVIDE", density * h_scene, n.math("SQRT", n.math("ADD", mu2, 2 * h_scene / (np.pi * radius))))
     hits = n.math("LESS_THAN", b, radius)
-    tau = n.math("ADD", n.math("MULTIPLY", hits, tau_ground), n.math("MULTIPLY", n.math("SUBTRACT", 1.0, hits), tau_pass))
+    tau = n.math("ADD", n.math("MULTIPLY", hits, tau_ground),
+                 n.math("MULTIPLY", n.math("SUBTRACT", 1.0, hits), tau_pass))
     # Only camera rays entering from outside.
     seen = n.math("MULTIPLY", path.outputs["Is Camera Ray"], n.math("SUBTRACT", 1.0, geo.outputs["Backfacing"]))
     tau = n.math("MULTIPLY", tau, seen)

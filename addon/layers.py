@@ -286,9 +286,9 @@ def _threshold_get(self):
 def _threshold_set(self, value):
     # The volume's transfer function: live only where the exact mode's baked support covers it
     # (the material applies it); otherwise the Volume panel re-bakes.
-    from . import volume_ops
     from ..core.errors import DataError
     from ..core.volume.transfer import TransferFunction
+    from . import volume_ops
 
     obj = self.id_data
     p = frame.params(obj)

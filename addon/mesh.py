@@ -7,11 +7,11 @@ letting Blender derive the edges takes well under a second (see
 docs/benchmarks.md, section ``mesh_transfer``).
 """
 
+import bpy
 import numpy as np
 
-import bpy
-
-_VECTOR_TYPES = {1: ("FLOAT", "value"), 2: ("FLOAT2", "vector"), 3: ("FLOAT_VECTOR", "vector"), 4: ("FLOAT_COLOR", "color")}
+_VECTOR_TYPES = {1: ("FLOAT", "value"), 2: ("FLOAT2", "vector"), 3: ("FLOAT_VECTOR", "vector"),
+                 4: ("FLOAT_COLOR", "color")}
 
 
 def _as_arrays(mesh):

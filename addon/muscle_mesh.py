@@ -13,9 +13,8 @@ References
    (molecules as contour surfaces of sums of Gaussian ellipsoids).
 """
 
-import numpy as np
-
 import bpy
+import numpy as np
 
 from .mesh import fill_mesh
 

@@ -277,7 +277,8 @@ def fig5(scene, **options):
     o = globe_scene.merge_options(FIG5_DEFAULTS, options)
     globe, sky = globe_scene.globe_scene(scene, o, sun_direction=(0.55, -0.75, 0.35), haze=False)
     p = _reset(scene.nephele_flowvol)
-    p.lon, p.lat, p.height, p.radius, p.hours, p.sides = o["lon"], o["lat"], o["height"], o["radius"], o["hours"], o["sides"]
+    p.lon, p.lat, p.height, p.radius = o["lon"], o["lat"], o["height"], o["radius"]
+    p.hours, p.sides = o["hours"], o["sides"]
     p.density = o["density"]
     p.live = False
     if o["exaggeration"] is not None:
@@ -440,7 +441,8 @@ def clear_scene(scene):
 
 
 class NEPHELE_OT_paper_figure(bpy.types.Operator):
-    """Build the paper's figure in this scene, as its example does (data, layer, camera, sun and sky, render settings)"""
+    """Build the paper's figure in this scene, as its example does (data, layer, camera, sun and sky, render
+    settings)"""
 
     bl_idname = "nephele.paper_figure"
     bl_label = "Make the paper's figure"
@@ -466,7 +468,8 @@ class NEPHELE_OT_paper_figure(bpy.types.Operator):
         # Fig. 6's solve (~30 s) runs as the scattering operator's modal job where there is a window to show it.
         # Fig. 2's 24 frames (~40 s) bake in the background (nephele.bake_volume) where there is a window.
         window = context.window is not None
-        options = {"modal": True} if self.figure == "FIG6" and window else {"bake": "lazy"} if self.figure == "FIG2" and window else {}
+        options = ({"modal": True} if self.figure == "FIG6" and window
+                   else {"bake": "lazy"} if self.figure == "FIG2" and window else {})
         options["annotations"] = self.annotations
         try:
             out = FIGURES[self.figure][0](scene, **options)

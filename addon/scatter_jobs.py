@@ -222,7 +222,8 @@ def apply(obj, args, result):
     sol, sources = result
     directory = Path(args["directory"])
     for i, src in enumerate(sources):
-        write_vdb(directory / f"scatter_{i + 1:04d}.vdb", dense_grids({"density": sol.sigma, "emission": src}, sol.size))
+        write_vdb(directory / f"scatter_{i + 1:04d}.vdb",
+                  dense_grids({"density": sol.sigma, "emission": src}, sol.size))
     scatter.save_solution(sol, directory / "solution.npz")
     _LAST[args["uid"]] = sol
     p = frame.params(obj)

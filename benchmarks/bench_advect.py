@@ -66,15 +66,16 @@ def part1(quick):
             # 240 frames equals the cost at frame 120 (linear in n), measured there.
             analytic = isinstance(wind, advect.AnalyticWind)
             nl = isinstance(flow, flows.DeformationalFlow)
-            runs = (("euler", 1.0), ("rk2", 1.0), ("rk4", 1.0), ("rk4", 0.25)) if analytic and nl and not quick else (("rk4", 1.0),)
+            runs = ((("euler", 1.0), ("rk2", 1.0), ("rk4", 1.0), ("rk4", 0.25)) if analytic and nl and not quick
+                    else (("rk4", 1.0),))
             for method, dt in runs:
                 st = advect.FullTrace(wind, fh, grid, method=method, dt_max=dt)
                 t0 = time.perf_counter()
                 c_half = st.copies(half, pts)[0]
                 sec = time.perf_counter() - t0
                 c_end = st.copies(nframes, pts)[0]
-                rows.append([cname, wname, f"(a) full, {method}", f"{dt:g} h", len(pts), *err_km(c_half.xyz, truth_half),
-                             *err_km(c_end.xyz, truth_end), sec])
+                rows.append([cname, wname, f"(a) full, {method}", f"{dt:g} h", len(pts),
+                             *err_km(c_half.xyz, truth_half), *err_km(c_end.xyz, truth_end), sec])
             # (b) composition of one-frame maps on the whole grid (both levels), streamed over 240 frames.
             # (the machine is shared: the trilinear row only where it shows the smear, NL case 4 analytic)
             for order in ((1, 3) if analytic and nl and not quick else (3,)):
@@ -88,7 +89,8 @@ def part1(quick):
                         e_half = err_km(c.xyz, truth_half)
                 sec = (time.perf_counter() - t0) / nframes
                 label = "(b) compose, " + ("trilinear" if order == 1 else "Catmull-Rom bicubic")
-                rows.append([cname, wname, label, "1 frame", grid.shape[0] * len(lvl0), *e_half, *err_km(c.xyz, truth_end), sec])
+                rows.append([cname, wname, label, "1 frame", grid.shape[0] * len(lvl0), *e_half,
+                             *err_km(c.xyz, truth_end), sec])
             # (c) restart every 24 frames, two copies: error of the longest-running copy (23 frames).
             st = advect.RestartTrace(wind, fh, grid, period=24)
             first = half - 24
@@ -99,7 +101,8 @@ def part1(quick):
             n = half + 11
             errs = []
             for cp in cs:
-                truth = reference(flow, xyz, fh[n], cp.start_hours) if not isinstance(flow, flows.SolidBodyRotation) else \
+                truth = reference(flow, xyz, fh[n],
+                                  cp.start_hours) if not isinstance(flow, flows.SolidBodyRotation) else \
                     flow.exact_start(flow.exact_start(xyz, fh[n]), -cp.start_hours)
                 errs.append(err_km(cp.xyz, truth))
             worst = max(errs, key=lambda e: e[1])
@@ -163,9 +166,12 @@ def part2(quick):
         (one, "rk4", lambda: advect.RestartTrace(wind("levels", False), fh, grid, period=24, cfl=2.0), True),
         (from_w, "rk4", lambda: advect.RestartTrace(wind(), fh, grid, period=24, cfl=2.0), False),
         (from_w, "rk4", lambda: advect.RestartTrace(wind(), fh, grid, period=24, cfl=2.0), True),
-        ("(c) restart P=24, incremental, CFL 1, from w", "rk4", lambda: advect.RestartTrace(wind(), fh, grid, period=24), False),
-        ("(c) restart P=24, incremental, from w", "rk2", lambda: advect.RestartTrace(wind(), fh, grid, period=24, method="rk2"), False),
-        (f"(b) compose, bicubic, band {advect.DEFAULT_BAND}, from w", "rk4", lambda: advect.ComposedTrace(wind(), fh, grid), False),
+        ("(c) restart P=24, incremental, CFL 1, from w", "rk4",
+         lambda: advect.RestartTrace(wind(), fh, grid, period=24), False),
+        ("(c) restart P=24, incremental, from w", "rk2",
+         lambda: advect.RestartTrace(wind(), fh, grid, period=24, method="rk2"), False),
+        (f"(b) compose, bicubic, band {advect.DEFAULT_BAND}, from w", "rk4",
+         lambda: advect.ComposedTrace(wind(), fh, grid), False),
     ]
     for label, method, make, later in setups[:1] if quick else setups:
         st = make()
@@ -204,8 +210,8 @@ def main(argv=None):
     args = ap.parse_args(argv)
     load = os.getloadavg()[0]
     note = (f"Shared 2-core machine, other jobs possibly running (1-minute load average {load:.1f} when this run "
-            "started): seconds are upper bounds.  Errors are great-circle km; one grid cell is ~125 km, so the data interpolation floor "
-            "(a tenth of a cell) is ~12 km.\n\n")
+            "started): seconds are upper bounds.  Errors are great-circle km; one grid cell is ~125 km, so the data "
+            "interpolation floor (a tenth of a cell) is ~12 km.\n\n")
     if args.part in ("demo", "all"):
         r2, ds = part2(args.quick)
         nk, nj, ni = ds.grid.shape
@@ -224,7 +230,8 @@ def main(argv=None):
                 "repeated runs on this machine differ by up to ~15 %.  The Blender default row took 1.66 s/frame "
                 "(frames 1–24) before the speed-up of commit 8e642ec and its successors.  The exact analytic cases are "
                 "in the next section.\n\n"
-                + md_table(["strategy", "method", "step", "vertices", "rms km", "max km", "s/frame", "CPU s/frame", "note"],
+                + md_table(["strategy", "method", "step", "vertices", "rms km", "max km", "s/frame", "CPU s/frame",
+                            "note"],
                            r2))
         write_section("advect", body, title="Advected texture coordinates (Fig. 4)")
     if args.part in ("exact", "all"):

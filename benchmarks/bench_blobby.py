@@ -34,6 +34,7 @@ SIGMA = (0.5, 1.0)  # per-axis sigmas drawn in this range: sigma_min = 0.5
 LEVEL = 0.5
 CUTOFF = 4.0
 VOLUME_PER_BLOB = 30.0  # box volume per ellipsoid (about 15% of it inside the surface)
+SHARED = Path(__file__).resolve().parent.parent.parent / "shared" / "data"  # the project's real data
 DENSE_LIMIT = 150e6  # dense-grid nodes the anchor may allocate (float32: 600 MB)
 
 
@@ -60,7 +61,8 @@ def dense_anchor(c, r, s, w, h):
         i1 = np.minimum(np.ceil((ci + hi - lo) / h).astype(int) + 1, dims)
         ax = [lo[k] + h * np.arange(i0[k], i1[k]) - ci[k] for k in range(3)]
         x, y, z = np.meshgrid(*ax, indexing="ij", sparse=True)
-        q = ai[0, 0] * x * x + ai[1, 1] * y * y + ai[2, 2] * z * z + 2 * (ai[0, 1] * x * y + ai[0, 2] * x * z + ai[1, 2] * y * z)
+        q = (ai[0, 0] * x * x + ai[1, 1] * y * y + ai[2, 2] * z * z
+             + 2 * (ai[0, 1] * x * y + ai[0, 2] * x * z + ai[1, 2] * y * z))
         vol[i0[0] : i1[0], i0[1] : i1[1], i0[2] : i1[2]] += (wi * np.exp(-0.5 * q)).astype(np.float32)
     verts, faces, _, _ = marching_cubes(vol, LEVEL, spacing=(h, h, h))
     return verts + lo, faces
@@ -103,7 +105,7 @@ def error(points, args, box, sample, rng):
     return float(d.max()), float(np.sqrt(np.mean(d * d)))
 
 
-def actin_table(shared=Path(__file__).resolve().parent.parent.parent / "shared" / "data"):
+def actin_table(shared=SHARED):
     """RMS and maximum distance of 1-8 fitted ellipsoids (k-means) and the 4 subdomains to the actin
     subunit's own Gaussian molecular surface; writes section ``blobby_actin``."""
     from nephele.core.muscle.molecules import atom_gaussians, fit_ellipsoids, read_pqr, subdomain_of
@@ -116,7 +118,7 @@ def actin_table(shared=Path(__file__).resolve().parent.parent.parent / "shared" 
     t, target = timed(lambda: atom_gaussians(atoms).surface(0.05))
     rows = []
     for k in range(1, 9):
-        sec, fit = timed(lambda: fit_ellipsoids(atoms, k, target=target))
+        sec, fit = timed(lambda k=k: fit_ellipsoids(atoms, k, target=target))
         rows.append([k, "k-means", fit.rms, fit.max, sec])
         print(rows[-1], flush=True)
     sec, fit = timed(lambda: fit_ellipsoids(atoms, 4, groups=subdomain_of(atoms), target=target))
@@ -204,7 +206,9 @@ def main():
         blobs, side = scene(n)
         for box in (None, np.full(3, side)):
             (t, cpu, mesh), peak = peak_rss(
-                lambda: timed_cpu(lambda: blobby_surface(*blobs, LEVEL, h, box=box, cutoff=CUTOFF, threads=args.threads)))
+                lambda blobs=blobs,
+                box=box: timed_cpu(lambda: blobby_surface(*blobs, LEVEL, h, box=box, cutoff=CUTOFF,
+                                                          threads=args.threads)))
             nv, nf = len(mesh.vertices), len(mesh.faces)
             vertices = mesh.vertices
             mesh = None  # (only the vertices are checked; the next mesh is made without this one)
@@ -218,22 +222,23 @@ def main():
             rows.append([n, kind, t, cpu, nv, nf, erms, emax])
             print(rows[-1], f"peak RSS {peak:.2f} GiB" if peak is not None else "", flush=True)
             if box is None and compiled and n <= args.numpy_max:
-                t, cpu, mesh = numpy_twins(lambda: timed_cpu(
+                t, cpu, mesh = numpy_twins(lambda blobs=blobs: timed_cpu(
                     lambda: blobby_surface(*blobs, LEVEL, h, cutoff=CUTOFF, threads=args.threads)))
                 emax, erms = error(mesh.vertices, blobs, None, sample, rng)
-                rows.append([n, "ours, NumPy kernels (no wheel)", t, cpu, len(mesh.vertices), len(mesh.faces), erms, emax])
+                rows.append([n, "ours, NumPy kernels (no wheel)", t, cpu, len(mesh.vertices), len(mesh.faces), erms,
+                             emax])
                 mesh = None
                 print(rows[-1], flush=True)
         nodes = float(np.ceil((side + 2 * CUTOFF * SIGMA[1]) / h) + 1) ** 3
         if nodes <= DENSE_LIMIT:
-            t, cpu, (v, f) = timed_cpu(lambda: dense_anchor(*blobs, h))
+            t, cpu, (v, f) = timed_cpu(lambda blobs=blobs: dense_anchor(*blobs, h))
             emax, erms = error(v, blobs, None, sample, rng)
             rows.append([n, "dense NumPy + skimage", t, cpu, len(v), len(f), erms, emax])
         else:
             rows.append([n, "dense NumPy + skimage", f"not run ({nodes / 1e6:.0f}M nodes)", "", "", "", "", ""])
         print(rows[-1], flush=True)
         if nodes * 8 <= DENSE_LIMIT:
-            t, cpu, (v, f) = timed_cpu(lambda: dense_anchor(*blobs, h / 2))
+            t, cpu, (v, f) = timed_cpu(lambda blobs=blobs: dense_anchor(*blobs, h / 2))
             emax, erms = error(v, blobs, None, sample, rng)
             rows.append([n, "dense NumPy + skimage at spacing/2", t, cpu, len(v), len(f), erms, emax])
             print(rows[-1], flush=True)
@@ -245,7 +250,8 @@ def main():
             rows.append([n, "Blender metaballs (own falloff)", t, cpu, nv, f"{nf} quads/tris", "n/a", "n/a"])
             print(rows[-1], flush=True)
         elif args.metaballs:
-            rows.append([n, "Blender metaballs (own falloff)", f"not run (--metaball-max {args.metaball_max})", "", "", "", "", ""])
+            rows.append([n, "Blender metaballs (own falloff)", f"not run (--metaball-max {args.metaball_max})", "", "",
+                         "", "", ""])
     load1 = os.getloadavg()[0]
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20  # KiB on Linux
     ratios = "; ".join(f"{n}: {balls[n][0] / ours[n][0]:.1f}x wall, {balls[n][1] / ours[n][1]:.1f}x CPU"
@@ -278,7 +284,8 @@ def main():
         f"machine's load. Load average {load0:.1f} at the start, "
         f"{load1:.1f} at the end, {os.cpu_count()} cores shared.{speed}{mem} Peak memory of the whole run "
         f"(resident): {peak:.1f} GiB; this machine has 24.\n\n"
-        + md_table(["ellipsoids", "method", "seconds", "CPU seconds", "vertices", "triangles", "rms error", "max error"], rows)
+        + md_table(["ellipsoids", "method", "seconds", "CPU seconds", "vertices", "triangles", "rms error",
+                    "max error"], rows)
     )
     write_section("blobby", body, title="Blobby surfaces (sums of Gaussian ellipsoids)")
     if args.actin if args.actin is not None else not args.quick:

@@ -19,8 +19,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from report import md_table, write_section  # noqa: E402
 
-from nephele.core.surface.contour import isosurface  # noqa: E402
 from nephele.core.climate.grid import lonlat_to_xyz  # noqa: E402
+from nephele.core.surface.contour import isosurface  # noqa: E402
 from nephele.core.surface.mesh import triangle_areas  # noqa: E402
 
 
@@ -121,7 +121,9 @@ def speed(repeat, level, step):
         have_skimage = False
     med, last = timed(repeat, candidates)
     # The paper's split is ~10x slower: fewer rounds.
-    med5, last5 = timed(max(3, repeat // 3), {"nephele tetra5 (periodic seam, poles closed)": lambda: isosurface(points, values, level, method="tetra5", **closed)})
+    med5, last5 = timed(max(3, repeat // 3),
+                        {"nephele tetra5 (periodic seam, poles closed)":
+                         lambda: isosurface(points, values, level, method="tetra5", **closed)})
     med.update(med5)
     last.update(last5)
 
@@ -143,8 +145,8 @@ def speed(repeat, level, step):
     text = (
         f"{what}, level {level}, grid {values.shape[2]}×{values.shape[1]}×{values.shape[0]} "
         f"(lon × lat × level), median of {repeat} interleaved runs (tetra5: {max(3, repeat // 3)}), single thread. "
-        "The machine is shared with other jobs, so absolute times are noisy; the ratio to VTK is measured in the same run. "
-        "Open edges of our closed-seam meshes are only where clouds touch the lowest (or highest) grid level; "
+        "The machine is shared with other jobs, so absolute times are noisy; the ratio to VTK is measured in the same "
+        "run. Open edges of our closed-seam meshes are only where clouds touch the lowest (or highest) grid level; "
         "VTK's and skimage's meshes are welded too but also open along the longitude seam (VTK: the "
         "repeated column's vertices are not merged with column 0; skimage: no seam column, and it works "
         "in index space, not on the globe)."
@@ -193,7 +195,8 @@ def accuracy(scales=(1, 2, 4, 8)):
                 int(np.count_nonzero(area == 0)),
                 open_edges(np.asarray(faces)),
             ])
-    header = ["method", "grid (lon×lat×r)", "triangles", "max vertex distance error", "area error", "zero-area", "open edges"]
+    header = ["method", "grid (lon×lat×r)", "triangles", "max vertex distance error", "area error", "zero-area",
+              "open edges"]
     text = (
         "Accuracy: sphere of radius 0.6 centred off the axis at (0.1, 0.05, 0.2) in a spherical-shell grid "
         "r ∈ [0.2, 1.2] with rows at both poles (values = distance to the centre). Errors fall 4× per halving "
@@ -210,7 +213,8 @@ def main(argv=None):
     ap.add_argument("--time", type=int, default=12, help="demo time step")
     ap.add_argument("--quick", action="store_true", help="one repeat, the two coarsest accuracy grids (smoke run)")
     args = ap.parse_args(argv)
-    body = speed(1 if args.quick else args.repeat, args.level, args.time) + "\n\n" + accuracy((1, 2) if args.quick else (1, 2, 4, 8))
+    body = speed(1 if args.quick else args.repeat, args.level,
+                 args.time) + "\n\n" + accuracy((1, 2) if args.quick else (1, 2, 4, 8))
     write_section("contour", body, title="Contour surfaces (marching cubes / 5 tetrahedra) on the globe grid")
 
 

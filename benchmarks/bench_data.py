@@ -11,6 +11,7 @@ import argparse
 import sys
 import tempfile
 import time
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -44,7 +45,7 @@ def demo_rows(ds, steps):
         fresh = demo_dataset("full" if ds.source == "demo" else "small")  # empty caches
         row = [ds.source, f"step {t}"]
         total_cpu = 0.0
-        for job in (lambda: fresh.read("cloud", t), lambda: fresh.read("temperature", t), lambda: fresh.wind(t)):
+        for job in (partial(fresh.read, "cloud", t), partial(fresh.read, "temperature", t), partial(fresh.wind, t)):
             w0, c0 = time.perf_counter(), time.process_time()
             job()
             wall, cpu = time.perf_counter() - w0, time.process_time() - c0
@@ -94,7 +95,8 @@ def real_rows():
         b = b[:, ::-1][:, :, np.argsort(np.mod(xr.open_dataset(nc)["lon"].values, 360))]
         rows.append(("ECHAM5 NetCDF 192x96x17", "t", t_ours, t_anchor, float(np.abs(a - b).max())))
         t_cloud, _ = best(lambda: open_dataset(nc).read("cloud", 0))
-        rows.append(("ECHAM5 NetCDF 192x96x17", "cloud (Sundqvist from rhumidity)", t_cloud, float("nan"), float("nan")))
+        rows.append(("ECHAM5 NetCDF 192x96x17", "cloud (Sundqvist from rhumidity)", t_cloud, float("nan"),
+                     float("nan")))
     ctl = SHARED / "climate" / "model.ctl"
     if ctl.is_file():
         t_ours, a = best(lambda: open_dataset(ctl).read("temperature", 3))
@@ -190,7 +192,8 @@ def main():
         "linear in time), against the exact flow map the clouds are built from. The error is the data's "
         "interpolation error; the clouds themselves are exact.",
         "",
-        md_table(["steps", "median error km", "95 % error km", "max error km", "median distance travelled km"], [trace]),
+        md_table(["steps", "median error km", "95 % error km", "max error km", "median distance travelled km"],
+                 [trace]),
     ]
     write_section("data", "\n".join(body), title="Data: demo climate and readers")
 

@@ -32,13 +32,15 @@ def field(d):
     """A smooth RGB test field over the sphere, with detail: periods down to ~14 deg."""
     d = d / np.linalg.norm(d, axis=-1, keepdims=True)
     x, y, z = d[..., 0], d[..., 1], d[..., 2]
-    return np.stack([0.5 + 0.4 * np.sin(24 * x + 12 * z), 0.5 + 0.4 * np.cos(18 * y - 6 * z), 0.5 + 0.4 * x * y * z], axis=-1)
+    return np.stack([0.5 + 0.4 * np.sin(24 * x + 12 * z), 0.5 + 0.4 * np.cos(18 * y - 6 * z), 0.5 + 0.4 * x * y * z],
+                    axis=-1)
 
 
 def cube_of(n):
     c = np.arange(n)
     cc, rr = np.meshgrid(c, c)
-    return np.stack([field(dome.cube_to_direction(np.full(cc.shape, f), cc, rr, n)) for f in range(6)]).astype(np.float32)
+    return np.stack([field(dome.cube_to_direction(np.full(cc.shape, f), cc, rr, n))
+                     for f in range(6)]).astype(np.float32)
 
 
 def equirect_of(w, h):
@@ -84,8 +86,8 @@ def part1(quick):
     rows = []
     for ss in (1, 2, 3):
         dome._remap_table.cache_clear()
-        table, t_build = timed(lambda: dome.remap_table(cam, "cube", n, ss), 1)
-        img, t_apply = timed(lambda: table.apply(cube), 5)
+        table, t_build = timed(lambda ss=ss: dome.remap_table(cam, "cube", n, ss), 1)
+        img, t_apply = timed(lambda table=table: table.apply(cube), 5)
         mean, mx = errors(img, ref, core)
         rows.append([f"{ss}x{ss}", f"{cam.width}x{cam.height}", f"6x{n}^2", t_build, t_apply,
                      table.weights.size / (cam.width * cam.height), mean, mx])
@@ -133,7 +135,7 @@ def part2():
     src = oi.ImageBuf(np.ascontiguousarray(padded))
     stbuf = oi.ImageBuf(st)
     for filt in ("", "lanczos3"):
-        def warp():
+        def warp(filt=filt):
             # the output ROI: the ST map's pixels, the source's 3 channels
             roi = oi.ROI(0, cam.width, 0, cam.height, 0, 1, 0, 3)
             return oi.ImageBufAlgo.st_warp(src, stbuf, filtername=filt, roi=roi)

@@ -1,4 +1,5 @@
-"""Farm overhead: the Dask farm (1 and 2 workers, and one Slurm job) against Blender's own animation render and a process per frame.
+"""Farm overhead: the Dask farm (1 and 2 workers, and one Slurm job) against Blender's own animation render
+and a process per frame.
 
 All on the same tiny scene (tests/farm/cube_scene.py: a turning cube, Cycles,
 64x48, 4 samples), in one run.  The Slurm row runs the same sequence through
@@ -10,7 +11,8 @@ frames' own file times (the moment each was moved into place), so start-up
 (Python, bpy, cluster, scene) is reported apart.  Then the resume check of an
 already complete 240-frame directory.
 
-Run: ``.venv/bin/python benchmarks/bench_farm.py [--frames 16 --rounds 3]``; writes section ``farm`` of docs/benchmarks.md.
+Run: ``.venv/bin/python benchmarks/bench_farm.py [--frames 16 --rounds 3]``; writes section ``farm`` of
+docs/benchmarks.md.
 """
 
 import argparse
@@ -115,8 +117,8 @@ def farm(out, n, workers, persistent=False):
     from nephele.farm.render import render_sequence
 
     t0 = time.perf_counter()
-    res = render_sequence(SCENE, f"1-{n}", out, workers=workers, engine="CYCLES", samples=SAMPLES, persistent=persistent,
-                          scene_options={"size": list(SIZE)}, progress=False)
+    res = render_sequence(SCENE, f"1-{n}", out, workers=workers, engine="CYCLES", samples=SAMPLES,
+                          persistent=persistent, scene_options={"size": list(SIZE)}, progress=False)
     assert res.ok, res.failure_report()
     return time.perf_counter() - t0, res
 
@@ -253,7 +255,8 @@ def main():
         startup = "every frame" if label.startswith("one subprocess") else total - med * (count - 1)
         vs = f"{(best - ref[1]) / ref[1]:+.0%} / {(med - ref[2]) / ref[2]:+.0%}"
         if label == "farm, 1 worker, `--persistent-data`":
-            vs += f" (vs Blender with persistent data: {(best - ref_p[1]) / ref_p[1]:+.0%} / {(med - ref_p[2]) / ref_p[2]:+.0%})"
+            vs += (f" (vs Blender with persistent data: {(best - ref_p[1]) / ref_p[1]:+.0%} / "
+                   f"{(med - ref_p[2]) / ref_p[2]:+.0%})")
         rows.append([label, count, total, startup, best, med, "reference" if label == next(iter(methods)) else vs])
 
     if slurm_label in methods:
@@ -273,8 +276,9 @@ starting, bpy and the scene in the worker): Slurm {startup_of[slurm_label]:.2f} 
        "The difference is larger than 15%: rerun at a lower load before drawing a conclusion.\n")
     else:
         slurm_text = f"\nThe single-node Slurm row is missing from this run: {no_slurm}.\n"
-    table = md_table(["method", "frames", "total s (median)", "start-up s", "s/frame steady, best", "s/frame steady, median",
-                      "per frame vs Blender (best / median)"], rows)
+    table = md_table(["method", "frames", "total s (median)", "start-up s", "s/frame steady, best",
+                      "s/frame steady, median", "per frame vs Blender (best / median)"], rows)
+    worker = "the worker's `render_one` (log, error trap, decode, check, sha256, fsync, `os.replace`)"
     body = f"""
 Same scene everywhere: `tests/farm/cube_scene.py` (a turning cube), Cycles CPU, {SIZE[0]}x{SIZE[1]} px,
 {SAMPLES} samples, {cores} render threads per process in total (2 farm workers get {max(1, cores // 2)} each).
@@ -296,7 +300,7 @@ interleaved rounds of {n} frames, so load drift hits both alike):
 | loop in one bpy process | s/frame, best | s/frame, median |
 |---|---|---|
 | bare `frame_set` + `render(write_still=True)` | {one[0]:.4f} | {one[1]:.4f} |
-| the worker's `render_one` (log, error trap, decode, check, sha256, fsync, `os.replace`) | {one[2]:.4f} | {one[3]:.4f} |
+| {worker} | {one[2]:.4f} | {one[3]:.4f} |
 | difference | {(one[2] - one[0]) / one[0]:+.1%} | {(one[3] - one[1]) / one[1]:+.1%} |
 
 Resume of an already complete 240-frame directory (nothing to render, no cluster started):

@@ -47,13 +47,14 @@ from scipy.integrate import solve_ivp
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from report import md_table, write_section  # noqa: E402
 
-from nephele.core.flowvol import ClimateVelocity, flow_volume  # noqa: E402
 from nephele.core.climate.synthetic import SyntheticClimate  # noqa: E402
+from nephele.core.flowvol import ClimateVelocity, flow_volume  # noqa: E402
 
 
 def abc(p, t, A=np.sqrt(3), B=np.sqrt(2), C=1.0):
     x, y, z = np.asarray(p).reshape(-1, 3).T
-    return np.stack([A * np.sin(z) + C * np.cos(y), B * np.sin(x) + A * np.cos(z), C * np.sin(y) + B * np.cos(x)], axis=1)
+    return np.stack([A * np.sin(z) + C * np.cos(y), B * np.sin(x) + A * np.cos(z), C * np.sin(y) + B * np.cos(x)],
+                    axis=1)
 
 
 def polygon_flux(fv, n=80):
@@ -70,7 +71,8 @@ def polygon_flux(fv, n=80):
 
 
 def timed(f, repeat, cpu=None):
-    """Result and best wall time of ``repeat`` runs; with a list ``cpu``, the best CPU time (this process) is appended to it."""
+    """Result and best wall time of ``repeat`` runs; with a list ``cpu``, the best CPU time (this process) is
+    appended to it."""
     best, best_cpu = np.inf, np.inf
     for _ in range(repeat):
         t, c = time.perf_counter(), time.process_time()
@@ -85,21 +87,26 @@ def part_abc(quick):
     rows = []
     centre, radius, T = [0.5, 0.3, 0.2], 0.3, 1.0
     for tol in ([0.1, 0.04] if quick else [0.2, 0.1, 0.04, 0.02]):
-        fv, sec = timed(lambda: flow_volume(abc, centre, radius, T, sides=16, tol=tol, steps=16), 1 if quick else 3)
+        fv, sec = timed(lambda tol=tol: flow_volume(abc, centre, radius, T, sides=16, tol=tol, steps=16),
+                        1 if quick else 3)
         first = np.isclose(fv.release, 0.0)
-        ref, ref_sec = timed(lambda: solve_ivp(lambda t, y: abc(y.reshape(-1, 3), t).ravel(), (0, T), fv.generator.ravel(),
+        ref, ref_sec = timed(lambda fv=fv: solve_ivp(lambda t, y: abc(y.reshape(-1, 3), t).ravel(), (0, T),
+                                                     fv.generator.ravel(),
                                                method="DOP853", rtol=1e-12, atol=1e-12).y[:, -1].reshape(-1, 3), 1)
         err = np.max(np.linalg.norm(fv.vertices[first] - ref, axis=1))
         flux = polygon_flux(fv)
-        rows.append([f"{tol:g}", len(fv.vertices), len(fv.tets), f"{sec * 1e3:.1f}", f"{100 * (fv.volume / (flux * T) - 1):+.3f}",
+        rows.append([f"{tol:g}", len(fv.vertices), len(fv.tets), f"{sec * 1e3:.1f}",
+                     f"{100 * (fv.volume / (flux * T) - 1):+.3f}",
                      f"{err:.1e}", f"{ref_sec * 1e3:.1f}", "yes" if fv.complete else "no"])
-    return md_table(["tol", "front points", "tets", "build ms", "volume vs flux×T %", "front error vs DOP853", "DOP853 ms (same seeds)", "converged"], rows)
+    return md_table(["tol", "front points", "tets", "build ms", "volume vs flux×T %", "front error vs DOP853",
+                     "DOP853 ms (same seeds)", "converged"], rows)
 
 
 def part_climate(quick):
     ds = SyntheticClimate(ni=160, nj=80, nk=6, days=2, seed=0)
     vel, per_step = ClimateVelocity(ds), ClimateVelocity(ds, stack_mb=0)
-    vel(vel.point(np.array([0.0]), np.array([0.0]), np.array([2000.0])).reshape(1, 3), np.array([0.0]))  # read the first steps
+    # read the first steps
+    vel(vel.point(np.array([0.0]), np.array([0.0]), np.array([2000.0])).reshape(1, 3), np.array([0.0]))
     rows = []
     c = vel.point(-40.0, 35.0, 2000.0)
     for sides in ([8, 32] if quick else [8, 16, 32]):
@@ -107,13 +114,14 @@ def part_climate(quick):
             kw = dict(sides=sides, rings=1, steps=8, tol=0.02)
             flow_volume(vel, c, 0.03, hours, **kw)  # warm the wind cache
             cpu = []
-            fv, sec = timed(lambda: flow_volume(vel, c, 0.03, hours, **kw), 1 if quick else 5, cpu)
+            fv, sec = timed(lambda hours=hours, kw=kw: flow_volume(vel, c, 0.03, hours, **kw), 1 if quick else 5, cpu)
             flow_volume(per_step, c, 0.03, hours, **kw)
-            _, slow = timed(lambda: flow_volume(per_step, c, 0.03, hours, **kw), 1)
-            rows.append([sides, f"{hours:g}", len(fv.vertices), len(np.unique(fv.tets)), len(fv.tets), f"{sec * 1e3:.0f}", f"{cpu[0] * 1e3:.0f}",
+            _, slow = timed(lambda hours=hours, kw=kw: flow_volume(per_step, c, 0.03, hours, **kw), 1)
+            rows.append([sides, f"{hours:g}", len(fv.vertices), len(np.unique(fv.tets)), len(fv.tets),
+                         f"{sec * 1e3:.0f}", f"{cpu[0] * 1e3:.0f}",
                          f"{slow * 1e3:.0f}", "yes" if cpu[0] <= 0.05 else "no"])
-    return md_table(["sides", "release hours", "front points", "kept (merged)", "tets", "rebuild ms (wall)", "CPU ms", "ms, winds read step by step",
-                     "≤ 50 ms (CPU)"], rows)
+    return md_table(["sides", "release hours", "front points", "kept (merged)", "tets", "rebuild ms (wall)", "CPU ms",
+                     "ms, winds read step by step", "≤ 50 ms (CPU)"], rows)
 
 
 class VtkProbeVelocity:
@@ -162,20 +170,26 @@ def part_fire(quick):
         probe = None
     c = fire.updraft(0.1)
     rows = []
-    for sides, secs, tol in ([(32, 1.0, 0.05), (32, 10.0, 0.1)] if quick else [(16, 1.0, 0.05), (32, 1.0, 0.05), (32, 10.0, 0.05), (32, 10.0, 0.1)]):
+    for sides, secs, tol in ([(32, 1.0, 0.05), (32, 10.0, 0.1)] if quick
+                             else [(16, 1.0, 0.05), (32, 1.0, 0.05), (32, 10.0, 0.05), (32, 10.0, 0.1)]):
         kw = dict(sides=sides, rings=1, steps=8, tol=tol)
         cpu = []
-        fv, sec = timed(lambda: flow_volume(fire, c, 0.1, secs, **kw), 1 if quick else 3, cpu)
-        layer, layer_sec = timed(lambda: flow_volume(fire, c, 0.1, secs, steady=False, **kw), 1 if quick else 3)
-        ref, ref_sec = (None, None) if probe is None else timed(lambda: flow_volume(probe, c, 0.1, secs, steady=True, **kw), 1)
+        fv, sec = timed(lambda secs=secs, kw=kw: flow_volume(fire, c, 0.1, secs, **kw), 1 if quick else 3, cpu)
+        layer, layer_sec = timed(lambda secs=secs, kw=kw: flow_volume(fire, c, 0.1, secs, steady=False, **kw),
+                                 1 if quick else 3)
+        ref, ref_sec = ((None, None) if probe is None
+                        else timed(lambda secs=secs, kw=kw: flow_volume(probe, c, 0.1, secs, steady=True, **kw), 1))
         agree = "-" if ref is None else f"{100 * (fv.volume / ref.volume - 1):+.3f}"
         conv = flow_volume(fire, c, 0.1, secs, **dict(kw, steps=600)).volume
-        rows.append([sides, f"{secs:g}", f"{tol:g}", len(fv.vertices), int(fv.exited.sum()), len(fv.tets), f"{sec * 1e3:.0f}", f"{cpu[0] * 1e3:.0f}",
-                     f"{100 * (fv.volume / conv - 1):+.2f}", f"{layer_sec * 1e3:.0f}", f"{100 * (layer.volume / conv - 1):+.2f}",
-                     "-" if ref is None else f"{ref_sec * 1e3:.0f}", f"{fv.volume:.4f}", agree, "yes" if cpu[0] <= 0.05 else "no"])
+        rows.append([sides, f"{secs:g}", f"{tol:g}", len(fv.vertices), int(fv.exited.sum()), len(fv.tets),
+                     f"{sec * 1e3:.0f}", f"{cpu[0] * 1e3:.0f}",
+                     f"{100 * (fv.volume / conv - 1):+.2f}", f"{layer_sec * 1e3:.0f}",
+                     f"{100 * (layer.volume / conv - 1):+.2f}",
+                     "-" if ref is None else f"{ref_sec * 1e3:.0f}", f"{fv.volume:.4f}", agree,
+                     "yes" if cpu[0] <= 0.05 else "no"])
         print(rows[-1], flush=True)
-    return md_table(["sides", "release s", "tol m", "front points", "left the room", "tets", "rebuild ms (wall)", "CPU ms",
-                     "volume vs 600 steps %", "per-layer ms (wall)", "per-layer volume vs 600 steps %",
+    return md_table(["sides", "release s", "tol m", "front points", "left the room", "tets", "rebuild ms (wall)",
+                     "CPU ms", "volume vs 600 steps %", "per-layer ms (wall)", "per-layer volume vs 600 steps %",
                      "ms (wall), velocity by vtkProbeFilter", "volume m³", "volume vs probe %", "≤ 50 ms (CPU)"], rows)
 
 
@@ -233,8 +247,10 @@ def part_vtk(quick):
     open_edges = fe.GetOutput().GetNumberOfCells()
     _, ours = timed(lambda: flow_volume(abc, [0.5, 0.3, 0.2], 0.3, 1.0, sides=16, tol=0.04, steps=16), 1)
     return md_table(["method", "ms", "points", "cells", "boundary/non-manifold edges", "encloses a volume"],
-                    [["vtkStreamSurface (ring seeds, 1 arc length of the fastest seed)", f"{sec * 1e3:.1f}", out.GetNumberOfPoints(), out.GetNumberOfCells(), open_edges, "no (open surface)"],
-                     ["nephele flow_volume (tol 0.04)", f"{ours * 1e3:.1f}", len(fv.vertices), len(fv.tets), 0, f"yes ({fv.volume:.4f})"]])
+                    [["vtkStreamSurface (ring seeds, 1 arc length of the fastest seed)", f"{sec * 1e3:.1f}",
+                      out.GetNumberOfPoints(), out.GetNumberOfCells(), open_edges, "no (open surface)"],
+                     ["nephele flow_volume (tol 0.04)", f"{ours * 1e3:.1f}", len(fv.vertices), len(fv.tets), 0,
+                      f"yes ({fv.volume:.4f})"]])
 
 
 def main():
@@ -242,14 +258,18 @@ def main():
     ap.add_argument("--quick", action="store_true", help="fewer tolerances and generators")
     args = ap.parse_args()
     load0 = os.getloadavg()[0]
-    parts = [("ABC flow (divergence-free), 16-sided generator r = 0.3, 1 time unit, 16 RK4 steps per trajectory", part_abc(args.quick)),
-             ("Demo climate (SyntheticClimate 160×80×6), generator r = 0.03 at 40°W 35°N 2 km, tol 0.02, 8 RK4 steps", part_climate(args.quick)),
-             ("Fire in a room (fire_ug.vtu, 12,323 points, 10,462 hexahedra), generator r = 0.1 m placed 0.1 m above the fastest updraft, 8 RK4 steps", part_fire(args.quick)),
+    parts = [("ABC flow (divergence-free), 16-sided generator r = 0.3, 1 time unit, 16 RK4 steps per trajectory",
+              part_abc(args.quick)),
+             ("Demo climate (SyntheticClimate 160×80×6), generator r = 0.03 at 40°W 35°N 2 km, tol 0.02, 8 RK4 steps",
+              part_climate(args.quick)),
+             ("Fire in a room (fire_ug.vtu, 12,323 points, 10,462 hexahedra), generator r = 0.1 m placed 0.1 m above "
+              "the fastest updraft, 8 RK4 steps", part_fire(args.quick)),
              ("Beside VTK on the same seeds", part_vtk(args.quick))]
     load1 = os.getloadavg()[0]
-    body = (f"Shared 2-core machine, other jobs running (1-minute load average {load0:.1f} at the start, {load1:.1f} at the end; "
-            "under such load wall times are several times the CPU time this process got, so the interactive goal is judged on CPU ms, best of 5)"
-            f"{'; --quick' if args.quick else ''}.\n\n" + "\n\n".join(f"**{t}**\n\n{b}" for t, b in parts))
+    body = (f"Shared 2-core machine, other jobs running (1-minute load average {load0:.1f} at the start, {load1:.1f} "
+            "at the end; under such load wall times are several times the CPU time this process got, so the "
+            f"interactive goal is judged on CPU ms, best of 5){'; --quick' if args.quick else ''}.\n\n"
+            + "\n\n".join(f"**{t}**\n\n{b}" for t, b in parts))
     write_section("flow_volume", body, "Flow volumes (Fig. 5)")
 
 

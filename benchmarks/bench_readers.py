@@ -80,7 +80,8 @@ def row(name, path, var, open_anchor, repeat):
     err = float(np.max(np.abs(a[both] - ref[both]))) if both.any() else float("nan")
     nan_same = bool(np.array_equal(np.isnan(a), np.isnan(ref)))
     nk, nj, ni = ds.grid.shape
-    return (name, f"{ni}x{nj}x{nk}", var, f"{t_open * 1e3:.1f}", f"{t_read * 1e3:.1f}", f"{(t_open + t_read) * 1e3:.1f}",
+    return (name, f"{ni}x{nj}x{nk}", var, f"{t_open * 1e3:.1f}", f"{t_read * 1e3:.1f}",
+            f"{(t_open + t_read) * 1e3:.1f}",
             f"{t_anchor * 1e3:.1f}", f"{err:.1e}" + ("" if nan_same else " (NaN differ)"),
             ", ".join(dict.fromkeys(n.split(":")[0] for n in ds.notes)) or "-")
 
@@ -101,11 +102,13 @@ def written_files(tmp):
     x = (np.arange(200) - 99.5) * 12000.0
     y = (np.arange(150) - 74.5) * 12000.0
     z = np.linspace(100.0, 15000.0, 30)
-    t = (300.0 - 0.0065 * z[:, None, None] + 0.001 * x[None, None, :] / 1000.0 + 0.0 * y[None, :, None]).astype(np.float32)
+    t = (300.0 - 0.0065 * z[:, None, None] + 0.001 * x[None, None, :] / 1000.0 + 0.0
+         * y[None, :, None]).astype(np.float32)
     xr.Dataset(
         {"T": (("z", "y", "x"), t, {"units": "K", "grid_mapping": "lambert"}),
          "lambert": ((), 0, {"grid_mapping_name": "lambert_conformal_conic", "standard_parallel": [30.0, 60.0],
-                             "longitude_of_central_meridian": -100.0, "latitude_of_projection_origin": 45.0, "earth_radius": 6370000.0})},
+                             "longitude_of_central_meridian": -100.0, "latitude_of_projection_origin": 45.0,
+                             "earth_radius": 6370000.0})},
         coords={"z": ("z", z, {"units": "m", "standard_name": "height"}),
                 "y": ("y", y, {"units": "m", "standard_name": "projection_y_coordinate"}),
                 "x": ("x", x, {"units": "m", "standard_name": "projection_x_coordinate"})},
@@ -138,10 +141,12 @@ def main():
     with tempfile.TemporaryDirectory() as d:
         extra = written_files(Path(d))
         if "zarr" in extra:
-            cases.append(("Zarr store of the CAM file", extra["zarr"], "T", lambda p: xr.open_zarr(p, decode_times=False)))
+            cases.append(("Zarr store of the CAM file", extra["zarr"], "T",
+                          lambda p: xr.open_zarr(p, decode_times=False)))
         cases.append(("Lambert conformal, x/y only", extra["lcc"], "T", nc))
         rows = [row(*c, repeat) for c in cases]
-    header = ("file", "grid", "field", "open ms", "read ms", "Nephele total ms", "xarray anchor ms", "max abs diff", "notes on")
+    header = ("file", "grid", "field", "open ms", "read ms", "Nephele total ms", "xarray anchor ms", "max abs diff",
+              "notes on")
     table = md_table(header, rows)
     body = (
         f"Best of {repeat} (each a fresh open), machine load {load:.1f} at the start (2 shared cores).  "
@@ -159,8 +164,8 @@ def main():
 # ---------------------------------------------------------------------------------------------- GRIB (issue 37)
 BIG = Path("/tmp/nephele-bench-grib")
 BIG_VARS = ("t", "u", "v", "w", "r", "q", "gh", "clwmr", "icmr", "o3mr")
-BIG_LEVELS = (1000, 975, 950, 925, 900, 875, 850, 825, 800, 775, 750, 700, 650, 600, 550, 500, 450, 400, 350, 300, 250, 225,
-              200, 175, 150, 125, 100, 70, 50, 30, 20, 10, 7, 5, 3, 2, 1)
+BIG_LEVELS = (1000, 975, 950, 925, 900, 875, 850, 825, 800, 775, 750, 700, 650, 600, 550, 500, 450, 400, 350, 300, 250,
+              225, 200, 175, 150, 125, 100, 70, 50, 30, 20, 10, 7, 5, 3, 2, 1)
 
 
 def big_grib(gb):
@@ -284,7 +289,8 @@ def grib_row(name, path, repeat, member=None):
     err = float(np.max(np.abs(a[both] - ref[both]))) if a.shape == ref.shape else float("nan")
     n3 = sum(1 for v in ds.variables if v not in ds.derived)
     nk, nj, ni = ds.grid.shape
-    return (name, f"{path.stat().st_size / 1e6:.1f} MB", f"{ni}x{nj}x{nk}", f"{min(cold):.2f} ({min(cpu):.2f})", f"{min(warm):.3f} ({min(warm_cpu):.3f})",
+    return (name, f"{path.stat().st_size / 1e6:.1f} MB", f"{ni}x{nj}x{nk}", f"{min(cold):.2f} ({min(cpu):.2f})",
+            f"{min(warm):.3f} ({min(warm_cpu):.3f})",
             f"{min(read) * 1e3:.0f}", f"{n3}", f"{min(a_cold):.2f} ({min(a_cpu):.2f})", f"{min(a_warm):.2f}",
             f"{len(ads.data_vars)}" + (f" (not: {', '.join(skipped)})" if skipped else ""), f"{err:.1e}")
 
@@ -340,12 +346,13 @@ def grib_section(quick, big_gb):
     load = os.getloadavg()
     rows = [grib_row("NCEP GFS 2.5 deg GRIB2 (pygrib sample)", samples / "gfs.t12z.pgrbf120.2p5deg.grib2", repeat),
             grib_row("the same forecast in GRIB1", samples / "gfs.t12z.pgrbf120.2p5deg.grib1", repeat),
-            grib_row("ERA5 ensemble, 10 members (cfgrib sample)", samples / "era5-levels-members.grib", repeat, member=0)]
+            grib_row("ERA5 ensemble, 10 members (cfgrib sample)", samples / "era5-levels-members.grib", repeat,
+                     member=0)]
     header = ("file", "size", "grid", "Nephele 1st open s (CPU s)", "2nd open s (CPU s)", "read t ms", "fields read",
               "cfgrib+filter 1st s (CPU s)", "2nd s", "cfgrib fields", "max abs diff t")
-    body = (f"Best of {repeat}; load average {load[0]:.1f} / {load[1]:.1f} / {load[2]:.1f} (1 / 5 / 15 min) at the start, "
-            "2 shared cores (CPU s: the process's own CPU time, what an idle machine would take).  Nephele: first open = "
-            "one header scan + the index written to a fresh cache; second open = "
+    body = (f"Best of {repeat}; load average {load[0]:.1f} / {load[1]:.1f} / {load[2]:.1f} (1 / 5 / 15 min) at the "
+            "start, 2 shared cores (CPU s: the process's own CPU time, what an idle machine would take).  Nephele: "
+            "first open = one header scan + the index written to a fresh cache; second open = "
             "the index from the cache; both build the grid, levels (mean gh heights) and every isobaric variable.  "
             "Anchor: `xarray.open_dataset(engine=\"cfgrib\", filter_by_keys={\"typeOfLevel\": \"isobaricInhPa\"})` "
             "and t loaded, first with no index, then with its index; the fields it could not merge are named.\n\n"
@@ -353,16 +360,17 @@ def grib_section(quick, big_gb):
     if not quick and big_gb > 0:
         path = big_grib(big_gb)
         runs, warm_open, (read, read_cpu), nbytes, plain, n, shape, anchor = big_row(path)
-        body += (f"\n\nBig file: {path.stat().st_size / 1e9:.2f} GB, {n} messages ({shape[2]} x {shape[1]} x {shape[0]} levels, "
-                 f"10 isobaric variables, 30 single-level fields per step).  `nephele info` as a command (Python start-up "
-                 f"included): first run {runs[0]:.1f} s (scan), second {runs[1]:.2f} s, third {runs[2]:.2f} s; open in "
-                 f"process with the index {warm_open:.2f} s; one 3-D field (t, {shape[0]} messages, {nbytes / 1e6:.0f} MB) "
-                 f"read and decoded in {read:.2f} s ({nbytes / 1e6 / read:.0f} MB/s; {read_cpu:.2f} CPU s, "
-                 f"{nbytes / 1e6 / read_cpu:.0f} MB per CPU second: ecCodes' unpacking bounds it) against {plain:.2f} s "
-                 f"({nbytes / 1e6 / plain:.0f} MB/s) to read the same bytes plainly (page cache warm: the file was just "
-                 f"written or read).  The anchor (cfgrib + filter, in process) opens it and loads that t in "
-                 f"{anchor[0]:.1f} s the first time (building its index) and {anchor[1]:.1f} s with its index.  "
-                 f"Load average at the end {os.getloadavg()[0]:.1f}.")
+        body += (f"\n\nBig file: {path.stat().st_size / 1e9:.2f} GB, {n} messages ({shape[2]} x {shape[1]} x "
+                 f"{shape[0]} levels, 10 isobaric variables, 30 single-level fields per step).  `nephele info` as a "
+                 f"command (Python start-up included): first run {runs[0]:.1f} s (scan), second {runs[1]:.2f} s, "
+                 f"third {runs[2]:.2f} s; open in process with the index {warm_open:.2f} s; one 3-D field (t, "
+                 f"{shape[0]} messages, {nbytes / 1e6:.0f} MB) read and decoded in {read:.2f} s "
+                 f"({nbytes / 1e6 / read:.0f} MB/s; {read_cpu:.2f} CPU s, {nbytes / 1e6 / read_cpu:.0f} MB per CPU "
+                 f"second: ecCodes' unpacking bounds it) against {plain:.2f} s ({nbytes / 1e6 / plain:.0f} MB/s) to "
+                 "read the same bytes plainly (page cache warm: the file was just written or read).  The anchor "
+                 f"(cfgrib + filter, in process) opens it and loads that t in {anchor[0]:.1f} s the first time "
+                 f"(building its index) and {anchor[1]:.1f} s "
+                 f"with its index.  Load average at the end {os.getloadavg()[0]:.1f}.")
     if quick:
         print(body)
     else:

@@ -180,7 +180,8 @@ def film(n, width=640, height=480, views=3, anchor=True, cycles=None, ref_device
         src = scatter.view_source(sol, cam.position)
         ws, cs = time.perf_counter() - w, time.process_time() - c
         img = scatter.march_planes(sigma, src, SIZE, cam, samples=2)
-        note = f"source {ws:.2f} s wall / {cs:.2f} s CPU" + (" (first view builds the phase and voxel tables)" if i == 0 else "")
+        note = f"source {ws:.2f} s wall / {cs:.2f} s CPU" + (" (first view builds the phase and voxel tables)"
+                                                             if i == 0 else "")
         if i == 0 and anchor:
             w2, c2 = time.perf_counter(), time.process_time()
             ref = scatter.render(sigma, src, SIZE, cam)
@@ -225,7 +226,8 @@ def film_cycles(n, sigma, sol, spps, points=((False, 256), (True, 16), (True, 64
     load0 = os.getloadavg()[0]
     w, c = time.perf_counter(), time.process_time()
     img = scatter.march_planes(sigma, scatter.view_source(sol, cam.position), SIZE, cam, samples=2)
-    times = (f"{time.perf_counter() - w:.2f}", f"{time.process_time() - c:.2f}", f"{load0:.1f}-{os.getloadavg()[0]:.1f}")
+    times = (f"{time.perf_counter() - w:.2f}", f"{time.process_time() - c:.2f}",
+             f"{load0:.1f}-{os.getloadavg()[0]:.1f}")
     rows = []
     for spp in filter(None, spps):
         row, ref = _against_cycles(f"{cam.width}x{cam.height} test view", img, sigma, cam, spp, n, times, device)
@@ -417,10 +419,10 @@ def compiled(ns=(64, 128), view=(640, 480)):
     scatter.solve(_film_cloud(16), SIZE, **kw)  # the phase tables, built once for both paths
     for n in ns:
         sigma = _film_cloud(n)
-        c1, w1, cpu1, l1 = _timed(lambda: scatter.solve(sigma, SIZE, **kw))
+        c1, w1, cpu1, l1 = _timed(lambda sigma=sigma: scatter.solve(sigma, SIZE, **kw))
         with numpy_kernels():
-            py, w2, cpu2, l2 = _timed(lambda: scatter.solve(sigma, SIZE, **kw))
-        c2, w3, cpu3, l3 = _timed(lambda: scatter.solve(sigma, SIZE, **kw))
+            py, w2, cpu2, l2 = _timed(lambda sigma=sigma: scatter.solve(sigma, SIZE, **kw))
+        c2, w3, cpu3, l3 = _timed(lambda sigma=sigma: scatter.solve(sigma, SIZE, **kw))
         diff = {k: float(np.abs(getattr(c1, k) - getattr(py, k)).max() / np.abs(getattr(py, k)).max())
                 for k in ("received", "total")}
         name = f"{n}x{n}x{3 * n // 4}"
@@ -429,12 +431,15 @@ def compiled(ns=(64, 128), view=(640, 480)):
                      f"{w2 / min(w1, w3):.1f}x the C's faster run, {2 * w2 / (w1 + w3):.1f}x their mean; flux apart: "
                      f"received {diff['received']:.1e}, total {diff['total']:.1e} of the largest"))
         cam = scatter.orbit_camera(VIEW_ANGLE, SIZE, width=view[0], height=view[1])
-        _, wv, cv, lv = _timed(lambda: scatter.march_planes(sigma, scatter.view_source(c2, cam.position), SIZE, cam,
+        _, wv, cv, lv = _timed(lambda sigma=sigma, c2=c2,
+                               cam=cam: scatter.march_planes(sigma, scatter.view_source(c2, cam.position), SIZE, cam,
                                                              samples=2))
-        _, wv2, cv2, lv2 = _timed(lambda: scatter.march_planes(sigma, scatter.view_source(c2, cam.position), SIZE, cam,
+        _, wv2, cv2, lv2 = _timed(lambda sigma=sigma, c2=c2,
+                                  cam=cam: scatter.march_planes(sigma, scatter.view_source(c2, cam.position), SIZE, cam,
                                                                samples=2))
         rows.append((f"{name} view {view[0]}x{view[1]}", f"{wv:.2f} / {wv2:.2f}", f"{cv:.2f} / {cv2:.2f}",
-                     f"{lv} / {lv2}", f"first (builds the tables) / second; solution {solution_bytes(c2) / 2**30:.2f} GiB"))
+                     f"{lv} / {lv2}",
+                     f"first (builds the tables) / second; solution {solution_bytes(c2) / 2**30:.2f} GiB"))
         for r in rows[-3:]:
             print(r, flush=True)
         del c1, c2, py
@@ -463,10 +468,11 @@ def evolving(frames=240, n=64, check=24, kinds=("drifting", "climate")):
     for kind in kinds:
         if kind == "drifting":
             params = cloud_density.CloudParams(shape=(3 * n // 4, n, n), size=SIZE)
-            density = lambda i: ev.drifting_cloud(params, i, frames, extinction=EXT)  # noqa: E731
+            density = lambda i, params=params: ev.drifting_cloud(params, i, frames, extinction=EXT)  # noqa: E731
         else:
             data = demo_dataset()
-            density = lambda i: ev.climate_cloud(data, i * 240 // frames, shape=(3 * n // 4, n, n), extinction=EXT)  # noqa: E731
+            density = lambda i, data=data: ev.climate_cloud(  # noqa: E731
+                data, i * 240 // frames, shape=(3 * n // 4, n, n), extinction=EXT)
         prev, warm_s, cold_s, errs, passes = None, [], [], [], []
         load0 = os.getloadavg()[0]
         for i in range(frames):
@@ -540,10 +546,10 @@ def main(argv=None):
             write_section("scatter-evolving", f"{load}. Clouds that change during the film ({frames} frames, "
                           f"{n}x{n}x{3 * n // 4}): each frame's solve warm-started from the frame before (the passes "
                           "shoot only the difference its density makes) against a cold solve, both to tol 1e-3; "
-                          f"every {check}th frame (and the last) also solved cold to tol 1e-5 with 2x2 sub-directions in every "
-                          "pass (`late_sub=None`), the reference of the errors: L1 of received over the entered power "
-                          "(a cold solve's late passes on 1x1 sub-directions leave about 2e-3 of it; a warm start's "
-                          "Jacobi pass carries all the binned light on 2x2). "
+                          f"every {check}th frame (and the last) also solved cold to tol 1e-5 with 2x2 sub-directions "
+                          "in every pass (`late_sub=None`), the reference of the errors: L1 of received over the "
+                          "entered power (a cold solve's late passes on 1x1 sub-directions leave about 2e-3 of it; a "
+                          "warm start's Jacobi pass carries all the binned light on 2x2). "
                           "The drift column: the warm error at the first and last checked frames after the first.\n\n"
                           + md_table(["cloud", "frames", "warm s/frame", "cold s/frame", "warm/cold", "warm passes",
                                       "worst warm error (L1)", "worst cold error (L1)", "drift", "load"], ev_rows),
@@ -629,7 +635,8 @@ def main(argv=None):
     np.save(OUT / "ours.npy", img)
     e = errors(img, ref)
     rows = [("ours: solve", "", f"{t_solve:.2f}", "", "", "", sol.report)]
-    rows.append(("ours: one view (source + march)", "", f"{t_view:.3f}", f"{e[0]:+.3f}", f"{e[1]:.3f}", f"{e[2]:.3f}", ""))
+    rows.append(("ours: one view (source + march)", "", f"{t_view:.3f}", f"{e[0]:+.3f}", f"{e[1]:.3f}", f"{e[2]:.3f}",
+                 ""))
     orbit_ours = t_solve + args.views * t_view
     rows.append((f"ours: {args.views}-view orbit", "", f"{orbit_ours:.1f}", "", "", "", "solve + views"))
     print(rows, flush=True)

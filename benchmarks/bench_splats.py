@@ -43,6 +43,7 @@ from report import md_table, write_section  # noqa: E402
 
 from nephele.core.climate.dataset import ArrayDataset, hourly  # noqa: E402
 from nephele.core.climate.grid import GlobeGrid  # noqa: E402
+from nephele.core.climate.synthetic import demo_dataset  # noqa: E402
 from nephele.core.splats import (  # noqa: E402
     Camera,
     Splats,
@@ -57,9 +58,8 @@ from nephele.core.splats import (  # noqa: E402
     streak_maps,
 )
 from nephele.core.splats.partition import shell_heights, shell_reach, stencil_weights, widening  # noqa: E402
-from nephele.core.climate.synthetic import demo_dataset  # noqa: E402
-from nephele.core.volume.transfer import TransferFunction  # noqa: E402
 from nephele.core.volume.sparse import resample  # noqa: E402
+from nephele.core.volume.transfer import TransferFunction  # noqa: E402
 
 TF = TransferFunction.ramp(0.3, 0.8)
 
@@ -104,7 +104,8 @@ def drawn_sum(sp, layout, kernel, f, reach, exaggeration=30.0):
     row, kk, jj, ii, w = stencil_weights(p, to_cell, f, kernel, reach)
     total = np.bincount(row, w * fac[kk, jj, ii], minlength=len(f))
     size = tuple(2 * r + 2 for r in reach)
-    full = ndimage.minimum_filter(present.astype(np.uint8), size=size, origin=(-1, -1, -1), mode=("nearest", "nearest", "wrap"))
+    full = ndimage.minimum_filter(present.astype(np.uint8), size=size, origin=(-1, -1, -1),
+                                  mode=("nearest", "nearest", "wrap"))
     b = np.floor(f).astype(int)
     return total, full[b[:, 0], b[:, 1], b[:, 2] % shape[2]].astype(bool)
 
@@ -115,7 +116,8 @@ def demo_sweep(vertical, m):
     full = demo_dataset("full").grid
     k = splat_kernel()
     ds = ArrayDataset(full, hourly("2000-01-01", 1), {"cloud": np.ones((1,) + full.shape, np.float32)})
-    sp, sec = timed(lambda: splat_samples(ds, "cloud", 0.0, TransferFunction(points=((0.0, 1.0),)), kernel=k, vertical=vertical))
+    sp, sec = timed(lambda: splat_samples(ds, "cloud", 0.0, TransferFunction(points=((0.0, 1.0),)), kernel=k,
+                                          vertical=vertical))
     nk, nj, ni = full.shape
     if vertical == "shells":
         h = shell_heights(full)
@@ -158,9 +160,10 @@ def vtk_splatter(points, scalars, dims, bounds, radius):
 def part_kernels(quick):
     pts = probe_points(1000 if quick else 4000)
     rows = []
-    for kind, label in (("gaussian", "ours: exp(-r²/2σ²)(1-r²/R²)², σ 0.85, R 2.5"), ("paper", "paper: truncated Gaussian σ 0.65, R 2.5")):
+    for kind, label in (("gaussian", "ours: exp(-r²/2σ²)(1-r²/R²)², σ 0.85, R 2.5"),
+                        ("paper", "paper: truncated Gaussian σ 0.65, R 2.5")):
         k = splat_kernel(kind)
-        (worst, ripple), sec = timed(lambda: lattice_deviation(k, pts))
+        (worst, ripple), sec = timed(lambda k=k: lattice_deviation(k, pts))
         rows.append([label, f"{worst:.2e}", f"{ripple:.2e}", "-"])
     n, sub = 16, 4
     g = np.arange(n, dtype=np.float64)
@@ -171,7 +174,8 @@ def part_kernels(quick):
     ideal = np.pi ** 1.5 * (2.5**2 / 5) ** 1.5  # ∫ exp(-5 r²/R²) d³x, untruncated: VTK's mean should be near it
     rows.append(
         [
-            f"vtkGaussianSplatter (sum, R 2.5 cells, exponent -5), {sub}× per cell; mean / ideal integral {inner.mean() / ideal:.4f}",
+            f"vtkGaussianSplatter (sum, R 2.5 cells, exponent -5), {sub}× per cell; mean / ideal integral "
+            f"{inner.mean() / ideal:.4f}",
             f"{np.abs(inner / inner.mean() - 1).max():.2e}",
             f"{(inner.max() - inner.min()) / inner.mean():.2e}",
             f"{sec:.2f}",
@@ -185,9 +189,11 @@ def part_kernels(quick):
     g = np.arange(12, dtype=np.float64)
     idx = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3)
     m = len(idx)
-    sp = Splats(idx @ jac.T, principal_axes(np.broadcast_to(jac, (m, 3, 3)), k.radius), np.ones((m, 3)), np.ones(m), np.zeros((m, 3)), k.radius)
+    sp = Splats(idx @ jac.T, principal_axes(np.broadcast_to(jac, (m, 3, 3)), k.radius), np.ones((m, 3)), np.ones(m),
+                np.zeros((m, 3)), k.radius)
     u = np.random.default_rng(1).uniform(4, 7, (1500, 3))
-    rows.append(["sheared, anisotropic lattice (12³)", f"{np.abs(reconstruct(sp, k, u @ jac.T) - 1).max():.2e}", "", "", ""])
+    rows.append(["sheared, anisotropic lattice (12³)", f"{np.abs(reconstruct(sp, k, u @ jac.T) - 1).max():.2e}", "", "",
+                 ""])
     full = demo_dataset("full").grid
     for label, even in (("native: globe cells 1.125°, 19 even levels (31×31 block, 22–57°N)", True),
                         ("native: demo cells, stretched terrain-following levels (same block)", False)):
@@ -211,7 +217,8 @@ def part_kernels(quick):
         rows.append([label, f"{np.abs(reconstruct(spl, k, x, values=spl.opacity) - 1).max():.2e}", "", "", ""])
     mm = 1000 if quick else 3000
     for label, vertical in (("native: whole demo interior (terrain-following levels)", "native"),
-                            ("**shells (default)**: whole demo interior, widened kernels, factors in the opacity", "shells")):
+                            ("**shells (default)**: whole demo interior, widened kernels, factors in the opacity",
+                             "shells")):
         e, ok, lat, lev, sec = demo_sweep(vertical, mm)
         low, polar = ok & (lev < 6), ok & (lat > 75)
         rows.append([f"{label}; {ok.sum()} of {mm} points with all neighbours above ground; splat_samples {sec:.1f} s",
@@ -230,18 +237,22 @@ def part_footprints(quick):
     for kind in ("gaussian", "paper"):
         k = splat_kernel(kind)
         p = rng.uniform(-k.radius, k.radius, (npts, 2))
-        ref = np.array([quad(lambda z: k.weight([[x, y, z]])[0], -3, 3, limit=200, epsabs=1e-13)[0] for x, y in p])
+        ref = np.array([quad(lambda z, k=k, x=x, y=y: k.weight([[x, y, z]])[0], -3, 3, limit=200, epsabs=1e-13)[0]
+                        for x, y in p])
         exact = np.abs(k.footprint(p) - ref).max() / k.peak
         table = np.abs(k.footprint_rho2(np.sum(p * p, axis=1)) - ref).max() / k.peak
         t64 = footprint_table(k, 64)
         c = -k.radius + (np.arange(64) + 0.5) * (2 * k.radius / 64)
         sel = rng.integers(0, 64, (20, 2))
-        tex = max(abs(t64[j, i] - quad(lambda z: k.weight([[c[i], c[j], z]])[0], -3, 3, limit=200)[0]) for j, i in sel) / k.peak
+        tex = max(abs(t64[j, i] - quad(lambda z, k=k, c=c, i=i, j=j: k.weight([[c[i], c[j], z]])[0], -3, 3,
+                                       limit=200)[0]) for j, i in sel) / k.peak
         big = rng.uniform(-k.radius, k.radius, (10**6, 2))
-        _, t_exact = timed(lambda: k.footprint(big))
-        _, t_table = timed(lambda: k.footprint_rho2(np.sum(big * big, axis=1)), 3)
-        rows.append([kind, f"{k.peak:.4f}", f"{exact:.1e}", f"{tex:.1e}", f"{table:.1e}", f"{t_exact * 1e3:.0f}", f"{t_table * 1e3:.0f}"])
-    return md_table(["kernel", "peak F(0) (cells)", "exact vs quad / peak", "64² texture vs quad / peak", "ρ² table vs quad / peak", "exact ms / 10⁶", "table ms / 10⁶"], rows)
+        _, t_exact = timed(lambda k=k, big=big: k.footprint(big))
+        _, t_table = timed(lambda k=k, big=big: k.footprint_rho2(np.sum(big * big, axis=1)), 3)
+        rows.append([kind, f"{k.peak:.4f}", f"{exact:.1e}", f"{tex:.1e}", f"{table:.1e}", f"{t_exact * 1e3:.0f}",
+                     f"{t_table * 1e3:.0f}"])
+    return md_table(["kernel", "peak F(0) (cells)", "exact vs quad / peak", "64² texture vs quad / peak",
+                     "ρ² table vs quad / peak", "exact ms / 10⁶", "table ms / 10⁶"], rows)
 
 
 def blob(h, k):
@@ -252,7 +263,8 @@ def blob(h, k):
     t = np.clip(0.5 + 1.2 * c[:, 2], 0, 1)
     col = np.column_stack([t, np.full_like(t, 0.3), 1 - t])
     m = len(c)
-    return Splats(c, principal_axes(np.broadcast_to(np.eye(3) * h, (m, 3, 3)), k.radius), col, o, np.zeros((m, 3)), k.radius)
+    return Splats(c, principal_axes(np.broadcast_to(np.eye(3) * h, (m, 3, 3)), k.radius), col, o, np.zeros((m, 3)),
+                  k.radius)
 
 
 def part_convergence(quick):
@@ -263,11 +275,14 @@ def part_convergence(quick):
     for label, cam in cams[:1] if quick else cams:
         for h in (0.3, 0.15) if quick else (0.3, 0.15, 0.075):
             sp = blob(h, k)
-            img, t_r = timed(lambda: render_splats(sp, k, cam, 48, 48, extinction=5.0, prefilter=0.0), 1 if quick else 3)
-            ref, t_x = timed(lambda: ray_integral(sp, k, cam, 48, 48, extinction=5.0, steps=300))
+            img, t_r = timed(lambda sp=sp, cam=cam: render_splats(sp, k, cam, 48, 48, extinction=5.0, prefilter=0.0),
+                             1 if quick else 3)
+            ref, t_x = timed(lambda sp=sp, cam=cam: ray_integral(sp, k, cam, 48, 48, extinction=5.0, steps=300))
             d = np.abs(img - ref)
-            rows.append([label, h, len(sp), f"{t_r:.3f}", f"{d[..., :3].max():.2e}", f"{np.sqrt(np.mean(d[..., :3] ** 2)):.2e}", f"{d[..., 3].max():.1e}", f"{t_x:.1f}"])
-    return md_table(["camera", "spacing h", "splats", "render s (48²)", "worst colour error", "rms colour error", "worst alpha error", "exact ray integral s"], rows)
+            rows.append([label, h, len(sp), f"{t_r:.3f}", f"{d[..., :3].max():.2e}",
+                         f"{np.sqrt(np.mean(d[..., :3] ** 2)):.2e}", f"{d[..., 3].max():.1e}", f"{t_x:.1f}"])
+    return md_table(["camera", "spacing h", "splats", "render s (48²)", "worst colour error", "rms colour error",
+                     "worst alpha error", "exact ray integral s"], rows)
 
 
 def part_frame(quick, picture=None):
@@ -280,8 +295,9 @@ def part_frame(quick, picture=None):
     rows = []
     out = None
     for stride in ((2, 1) if quick else (4, 2, 1)):
-        sp, t_s = timed(lambda: splat_samples(ds, "cloud", 12.0, TF, color_var="altitude", stride=stride, kernel=k))
-        img, t_r = timed(lambda: render_splats(sp, k, cam, w, h, streaks=maps, hours=12.0, depth=depth))
+        sp, t_s = timed(lambda stride=stride: splat_samples(ds, "cloud", 12.0, TF, color_var="altitude", stride=stride,
+                                                            kernel=k))
+        img, t_r = timed(lambda sp=sp: render_splats(sp, k, cam, w, h, streaks=maps, hours=12.0, depth=depth))
         rows.append([f"splats, stride {stride}", len(sp), f"{t_s:.2f}", f"{t_r:.2f}", f"{w}×{h}, streaks, globe depth"])
         if stride == 1:
             out = img
@@ -293,12 +309,16 @@ def part_frame(quick, picture=None):
     for n in ((64,) if quick else (128, 256)):
         # VTK splats spheres: give them our kernels' median largest cut-off radius (a fraction of the box side).
         radius = float(np.median(semi[:, 2])) / side
-        _, t_v = timed(lambda: vtk_splatter(sp.centers, sp.opacity, (n, n, n), (lo[0], lo[0] + side, lo[1], lo[1] + side, lo[2], lo[2] + side), radius))
+        _, t_v = timed(lambda n=n,
+                       radius=radius: vtk_splatter(sp.centers, sp.opacity, (n, n, n),
+                                                   (lo[0], lo[0] + side, lo[1], lo[1] + side, lo[2], lo[2] + side),
+                                                   radius))
         rows.append([f"anchor: vtkGaussianSplatter → {n}³ volume", len(sp), "-", f"{t_v:.2f}",
                      f"voxel {side / (n - 1):.4f}; median cell {cell[2]:.4f} × {cell[1]:.4f} × {cell[0]:.4f}"])
     cloud = ds.read_at("cloud", 12.0)
     vol, t_vol = timed(lambda: resample(ds.grid, cloud, TF, color_values=None, color_name="altitude"))
-    rows.append(["anchor: core.volume.resample (Fig. 2 clouds)", f"{vol.stats['active_voxels']} voxels", "-", f"{t_vol:.2f}", "voxel 0.0027 (default), sparse 8³ blocks"])
+    rows.append(["anchor: core.volume.resample (Fig. 2 clouds)", f"{vol.stats['active_voxels']} voxels", "-",
+                 f"{t_vol:.2f}", "voxel 0.0027 (default), sparse 8³ blocks"])
     if picture is not None and out is not None:
         save_png(out, picture, globe_image(cam, w, h, depth))
     return md_table(["method", "samples", "samples s", "render / resample s", "notes"], rows)
@@ -420,23 +440,29 @@ def main():
         load1 = os.getloadavg()[0]
         write_section(
             "splats-blender",
-            f"Shared 2-core machine, other jobs running (1-minute load average {load0:.1f} at the start, {load1:.1f} at the end); "
-            "each case in a fresh process (`benchmarks/bench_splats.py --blender`). Goal: ≤ 5 s for the 640×480 splat frame.\n\n" + table,
+            f"Shared 2-core machine, other jobs running (1-minute load average {load0:.1f} at the start, {load1:.1f} "
+            "at the end); each case in a fresh process (`benchmarks/bench_splats.py --blender`). Goal: ≤ 5 s for the "
+            "640×480 splat frame.\n\n" + table,
             "Splats in Blender: a Fig. 3 frame beside the volume clouds",
         )
         return
     load0 = os.getloadavg()[0]
-    picture = None if args.quick else Path(__file__).resolve().parent.parent / "docs" / "images" / "splats_reference.png"
+    picture = (None if args.quick
+               else Path(__file__).resolve().parent.parent / "docs" / "images" / "splats_reference.png")
     parts = [
-        ("Partition of unity (random points, lattice points, cell centres, face and edge midpoints)", part_kernels(args.quick)),
-        ("Footprints: exact Gauss–Legendre integral, the 64² texture and the renderer's ρ² table against scipy quad", part_footprints(args.quick)),
-        ("Renderer against the exact ray integral of the kernel-reconstructed medium (Gaussian cloud, extinction 5, no prefilter)", part_convergence(args.quick)),
-        ("A Fig. 3 frame of the demo climate at 12 h (cloud ramp 0.3..0.8), reference renderer, beside the anchors on the same step", part_frame(args.quick, picture)),
+        ("Partition of unity (random points, lattice points, cell centres, face and edge midpoints)",
+         part_kernels(args.quick)),
+        ("Footprints: exact Gauss–Legendre integral, the 64² texture and the renderer's ρ² table against scipy quad",
+         part_footprints(args.quick)),
+        ("Renderer against the exact ray integral of the kernel-reconstructed medium (Gaussian cloud, extinction 5, "
+         "no prefilter)", part_convergence(args.quick)),
+        ("A Fig. 3 frame of the demo climate at 12 h (cloud ramp 0.3..0.8), reference renderer, beside the anchors on "
+         "the same step", part_frame(args.quick, picture)),
     ]
     load1 = os.getloadavg()[0]
     body = (
-        f"Shared 2-core machine, other jobs running (1-minute load average {load0:.1f} at the start, {load1:.1f} at the end)"
-        f"{'; --quick' if args.quick else ''}.\n\n" + "\n\n".join(f"**{t}**\n\n{b}" for t, b in parts)
+        f"Shared 2-core machine, other jobs running (1-minute load average {load0:.1f} at the start, {load1:.1f} at "
+        f"the end){'; --quick' if args.quick else ''}.\n\n" + "\n\n".join(f"**{t}**\n\n{b}" for t, b in parts)
     )
     if picture is not None:
         body += f"\n\n![reference splat render](images/{picture.name})"

@@ -24,14 +24,18 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from report import md_table, write_section  # noqa: E402
 
-
-from nephele.core.volume.exact_ray import (  # noqa: E402
-    opacity, ray_samples, reference_optical_depth, segment_optical_depth, sphere_span, volume_optical_depth,
-)
 from nephele.core.climate.grid import height_from_radius, lonlat_to_xyz  # noqa: E402
 from nephele.core.climate.readers import open_dataset  # noqa: E402
-from nephele.core.volume.transfer import TransferFunction  # noqa: E402
+from nephele.core.volume.exact_ray import (  # noqa: E402
+    opacity,
+    ray_samples,
+    reference_optical_depth,
+    segment_optical_depth,
+    sphere_span,
+    volume_optical_depth,
+)
 from nephele.core.volume.sparse import DEFAULT_EXTINCTION, DEFAULT_VOXEL_SIZE, CurvilinearField, resample  # noqa: E402
+from nephele.core.volume.transfer import TransferFunction  # noqa: E402
 from nephele.core.volume.volume_atlas import DEFAULT_SUPPORT_SIZE, atlas_layout, exact_volume  # noqa: E402
 
 TF = TransferFunction.ramp(0.3, 0.7)  # the Fig. 2 example's transfer function
@@ -142,7 +146,8 @@ def main(argv=None):
         out = []
         for _, sl in families:
             e = np.abs(err[sl]) * 100
-            out += [f"{x:.{digits}f}" for x in (e.max(), np.percentile(e, 99.9), np.percentile(e, 99), np.sqrt(np.mean(e**2)))]
+            out += [f"{x:.{digits}f}"
+                    for x in (e.max(), np.percentile(e, 99.9), np.percentile(e, 99), np.sqrt(np.mean(e**2)))]
         return out
 
     # The whole atmosphere shell as one dense grid, for scale.
@@ -151,8 +156,10 @@ def main(argv=None):
     rows = []
     for vs in sizes:
         repeat = 1 if vs < 0.0025 else 3
-        vol, wall, cpu = timed(lambda: resample(grid, values, TF, voxel_size=vs, color_name="altitude", workers=1), repeat)
-        (_, wall2, cpu2) = timed(lambda: resample(grid, values, TF, voxel_size=vs, color_name="altitude", workers=2), repeat)
+        vol, wall, cpu = timed(lambda vs=vs: resample(grid, values, TF, voxel_size=vs, color_name="altitude",
+                                                      workers=1), repeat)
+        (_, wall2, cpu2) = timed(lambda vs=vs: resample(grid, values, TF, voxel_size=vs, color_name="altitude",
+                                                        workers=2), repeat)
         tv = volume_optical_depth(vol, o, d, t0, t1, min(vs / 4, 0.0005))
         err = opacity(tv, DEFAULT_EXTINCTION) - a_ref
         if vs == DEFAULT_VOXEL_SIZE:
@@ -193,7 +200,7 @@ def main(argv=None):
     step_tf = TransferFunction(points=((0.12, 0.0), (0.12, 0.12), (1.0, 1.0)))
     post_rows = []
     for vs in (0.004, DEFAULT_VOXEL_SIZE):
-        svol, swall, scpu = timed(lambda: resample(grid, values, step_tf, voxel_size=vs), 1)
+        svol, swall, scpu = timed(lambda vs=vs: resample(grid, values, step_tf, voxel_size=vs), 1)
         pts, seg = ray_samples(o, d, t0, t1, min(vs / 4, 0.0005))
         sv = np.concatenate([svol.sample(c) for c in np.array_split(pts.reshape(-1, 3), 40)]).reshape(seg.shape[0], -1)
         dens = TF(sv)
@@ -205,7 +212,8 @@ def main(argv=None):
         if vs == DEFAULT_VOXEL_SIZE:
             # Both grids in one material, combined per sample: the opacity capped
             # near the scalar's (kills the threshold bias, cuts thin layers).
-            pv = np.concatenate([default_vol.sample(c) for c in np.array_split(pts.reshape(-1, 3), 40)]).reshape(seg.shape[0], -1)
+            pv = np.concatenate([default_vol.sample(c)
+                                 for c in np.array_split(pts.reshape(-1, 3), 40)]).reshape(seg.shape[0], -1)
             both = svol.stats["active_voxels"] + default_vol.stats["active_voxels"]
             for name, mix in (("both, min(opacity, TF(scalar) + 0.01)", np.minimum(pv, dens + 0.01)),
                               ("both, opacity where scalar > threshold", pv * (sv > TF.values[0])),
@@ -231,7 +239,7 @@ def main(argv=None):
     layout, layout_wall, layout_cpu = timed(lambda: atlas_layout(grid), 3)
     evs, exact_rows = [], []
     for ss in support_sizes:
-        ev, wall, cpu = timed(lambda: exact_volume(grid, values, TF, support_size=ss, color_name="altitude",
+        ev, wall, cpu = timed(lambda ss=ss: exact_volume(grid, values, TF, support_size=ss, color_name="altitude",
                                                    layout=layout), 3)
         evs.append(ev)
         exact_rows.append([f"{ss:g}" + (" (default)" if ss == DEFAULT_SUPPORT_SIZE else ""),
@@ -269,9 +277,11 @@ def main(argv=None):
                  "in every row." if exact_same else "The rows' errors differ: a support hides cloud.")
     same_note += (" No cloudy sample lies outside a support, so the remaining error" if not outside.any()
                   else " The remaining error")
-    same_note += f" (worst {ex_worst:.4f}% over all rows) is that of the shader's float32 program against the float64 reference."
+    same_note += (f" (worst {ex_worst:.4f}% over all rows) is that of the shader's float32 program against the "
+                  "float64 reference.")
     body = f"""
-Demo grid {ni}×{nj}×{nk} (`open_dataset("{args.source}")`, step {step_index}, cloud {np.mean(values > 0.3) * 100:.1f}% of
+Demo grid {ni}×{nj}×{nk} (`open_dataset("{args.source}")`, step {step_index}, \
+cloud {np.mean(values > 0.3) * 100:.1f}% of
 grid points above 0.3), transfer function {TF.points} (the Fig. 2 example's), extinction {DEFAULT_EXTINCTION:g}
 per scene unit at opacity 1, exaggeration 30, colour = altitude.  Error: opacity along {n_rays} rays
 (half from a Fig. 2-like camera, half random chords through the shell, many grazing the cloud layers)
@@ -295,7 +305,8 @@ be cloudy) only bounds where the renderer looks.  The error here is that of the 
 `ExactVolume.sample` (the node graph's program in float32, texel for texel as Cycles' linear image
 lookup, NaN where its density is forced to zero) at the reference's own {n_samples} sample points,
 integrated exactly as the reference is (recomputing the reference on those points reproduces its opacity
-to {same_points:.1e}% of full scale: the same points; {exact_wall:.1f} s wall / {exact_cpu:.1f} s CPU for all support sizes, the atlas
+to {same_points:.1e}% of full scale: the same points; {exact_wall:.1f} s wall / {exact_cpu:.1f} s CPU for all \
+support sizes, the atlas
 lookups shared).  Cycles adds Monte-Carlo noise of its volume sampling on top of this; a render test
 checks the node graph in Cycles, and no number for that noise is given here.
 
@@ -348,7 +359,8 @@ The paper's alternative, interpolating the scalar and then applying the transfer
 ("post-classification"; in Blender a Float Curve on the grid), measured with the same rays
 and reference:
 
-{md_table(["voxel", "route", "active voxels", *(f"{f} {m}" for f in fam for m in ("max", "p99.9", "p99", "rms"))], post_rows)}
+{md_table(["voxel", "route", "active voxels",
+           *(f"{f} {m}" for f in fam for m in ("max", "p99.9", "p99", "rms"))], post_rows)}
 
 Post-classification has no threshold bias, so its worst rays are far better, but it is worse at
 the percentiles: trilinear interpolation of the scalar flattens the peaks of thin layers before the
@@ -360,13 +372,15 @@ could) trades the worst rays against the 99th percentile; none brings both to 2%
 ### Memory against cloudy volume
 
 The threshold sets how much of the atmosphere is cloud; the exact mode's support voxels (at
-{DEFAULT_SUPPORT_SIZE:g}) and the voxel mode's active voxels (at {DEFAULT_VOXEL_SIZE:g}) both follow the cloudy volume, not
+{DEFAULT_SUPPORT_SIZE:g}) and the voxel mode's active voxels (at {DEFAULT_VOXEL_SIZE:g}) both follow the \
+cloudy volume, not
 the globe (the exact mode's atlases, {exact_default[3]} MB, do not depend on the threshold).
 
 {md_table(["threshold", "% grid points above", "candidate cells", "exact: support voxels", "exact: support MB",
            "voxels: active voxels", "voxels: blocks", "voxels: memory MB", "voxels: bytes / active voxel"], mem_rows)}
 """
-    write_section("volume", body, title="Volume clouds: exact shading and voxels vs memory, build time and opacity error")
+    write_section("volume", body,
+                  title="Volume clouds: exact shading and voxels vs memory, build time and opacity error")
     write_section("volume-curvilinear", curvilinear(args.quick),
                   title="Exact volume mode on a curvilinear grid: the column index map")
     return 0
@@ -409,9 +423,9 @@ def curvilinear(quick):
     ref = field.interpolate("value", flat, f, ok)
     rows = []
     for texels in (2, 4, 8):
-        im, wall, cpu = timed(lambda: index_map(field.columns, texels=texels), 1)
+        im, wall, cpu = timed(lambda texels=texels: index_map(field.columns, texels=texels), 1)
         p32 = pts.astype(np.float32)
-        (ci, cj, _), look_wall, _ = timed(lambda: im.lookup(p32), 3)
+        (ci, cj, _), look_wall, _ = timed(lambda im=im, p32=p32: im.lookup(p32), 3)
         e = np.maximum(np.abs(ci - ri), np.abs(cj - rj))
         layout = atlas_layout(grid)
         layout.index = im

@@ -19,7 +19,8 @@ from pathlib import Path
 from nephele.core.files import atomic_write, locked
 
 DOC = Path(__file__).resolve().parent.parent / "docs" / "benchmarks.md"
-HEADER = "# Benchmarks\n\nWritten by the scripts in `benchmarks/` (`make bench`). Each section says when and where it ran.\n"
+HEADER = ("# Benchmarks\n\nWritten by the scripts in `benchmarks/` (`make bench`). Each section says when and where "
+          "it ran.\n")
 
 
 def machine():

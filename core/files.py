@@ -28,7 +28,8 @@ REPLACE_WAITS = (0.05, 0.1, 0.2, 0.4, 0.8, 1.6)
 """Seconds between tries of a Windows rename onto a file another program holds open
 (a viewer, Blender reading a frame, a virus scanner): 3.15 s in all, then the error."""
 
-DISK_ERRNOS = {errno.ENOSPC, errno.EROFS, errno.EACCES, errno.EPERM, errno.EFBIG, getattr(errno, "EDQUOT", errno.ENOSPC)}
+DISK_ERRNOS = {errno.ENOSPC, errno.EROFS, errno.EACCES, errno.EPERM, errno.EFBIG,
+               getattr(errno, "EDQUOT", errno.ENOSPC)}
 """Errors of the place written to (full, read-only, not ours), not of the data."""
 LOW_SPACE = 1 << 20
 """Below this many free bytes, a writer's failure of any kind is taken for a full disk."""
@@ -110,8 +111,9 @@ def write_error(exc, path, *, low=0):
         return WriteError(code, path, "file too large for this file system")
     free = free_bytes(path)
     if free is not None and free < max(LOW_SPACE, low):
+        said = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         return WriteError(errno.ENOSPC, path, f"no space left on the disk ({format_bytes(free)} free; the writer "
-                                              f"said: {str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__})")
+                                              f"said: {said})")
     return None
 
 
@@ -255,7 +257,8 @@ def lock_file(path, what):
     naming its holder.
     """
     path = Path(path)
-    me = f"{os.getpid()} {socket.gethostname()} {datetime.datetime.now(datetime.timezone.utc).isoformat(timespec='seconds')}"
+    now = datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
+    me = f"{os.getpid()} {socket.gethostname()} {now}"
     for _ in range(3):
         try:
             fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)

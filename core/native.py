@@ -9,7 +9,6 @@ two agree to the tolerances their tests state, not bit for bit, so cache keys ca
 import os
 from functools import lru_cache
 
-
 _FALLBACK = {"reason": None, "listeners": []}
 
 

@@ -28,9 +28,9 @@ def main(argv=None):
     import nephele
     from nephele.addon.globe_ops import add_globe
     from nephele.addon.mesh import new_object
-    from nephele.core.surface.contour import isosurface
     from nephele.core.climate.grid import lonlat_to_xyz
     from nephele.core.climate.readers import open_dataset
+    from nephele.core.surface.contour import isosurface
 
     bpy.ops.wm.read_factory_settings(use_empty=True)
     nephele.register()

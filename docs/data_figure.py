@@ -61,17 +61,20 @@ def main():
     for ax, t in zip(axes.flat[:3], (0, 96, 192)):
         u, v, _ = demo.wind(t)
         h = demo.grid.height[k]
-        panel(ax, demo.grid, demo.read("cloud", t)[k], f"demo climate, level {k} ({h.min() / 1000:.1f}-{h.max() / 1000:.1f} km), "
+        panel(ax, demo.grid, demo.read("cloud", t)[k],
+              f"demo climate, level {k} ({h.min() / 1000:.1f}-{h.max() / 1000:.1f} km), "
               f"{np.datetime_as_string(demo.times[t], unit='h')}", u[k], v[k], bg)
     ctl = Path(args.shared) / "climate" / "model.ctl"
     ax = axes.flat[3]
     if ctl.is_file():
         grads = open_dataset(ctl)
         u, v, _ = grads.wind(0)
-        panel(ax, grads.grid, grads.read("cloud", 0)[2], "GrADS sample, 700 hPa, 1987-01-02: cloud from RH (Sundqvist, RH_c 0.8)", u[2], v[2], bg)
+        panel(ax, grads.grid, grads.read("cloud", 0)[2],
+              "GrADS sample, 700 hPa, 1987-01-02: cloud from RH (Sundqvist, RH_c 0.8)", u[2], v[2], bg)
     else:
         ax.set_axis_off()
-    fig.suptitle("Cloud fraction (white; yellow: 15 % contour) and wind (red arrows) over the ETOPO60 relief", fontsize=10)
+    fig.suptitle("Cloud fraction (white; yellow: 15 % contour) and wind (red arrows) over the ETOPO60 relief",
+                 fontsize=10)
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=out.parent, suffix=".png")

@@ -56,7 +56,8 @@ def grid(images, columns=2, gap=4):
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("reel", type=Path, help="a preview reel's folder (film.json, reel.mp4, contact_sheet.png)")
-    ap.add_argument("--final", type=Path, help="a folder of final-quality frames (nephele film --quality final --frames 1)")
+    ap.add_argument("--final", type=Path,
+                    help="a folder of final-quality frames (nephele film --quality final --frames 1)")
     args = ap.parse_args(argv)
     sheet = read_rgba(args.reel / "contact_sheet.png")[..., :3]
     print(write_image(IMAGES / "film_contact_sheet.jpg", reduced(sheet, 960), compression="jpeg:82"))

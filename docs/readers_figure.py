@@ -47,12 +47,15 @@ def main():
     theta = um.read("air_potential_temperature", 0)[0]
     _coast(ax, (-25, 15), (-10, 60))
     m = ax.pcolormesh(tlon, tlat, theta, shading="auto", cmap="inferno")
-    box = lambda lo, la: ax.plot(np.r_[lo[0], lo[-1], lo[-1], lo[0], lo[0]], np.r_[la[0], la[0], la[-1], la[-1], la[0]], lw=1.5)  # noqa: E731
+    box = lambda lo, la: ax.plot(np.r_[lo[0], lo[-1], lo[-1], lo[0], lo[0]],  # noqa: E731
+                                 np.r_[la[0], la[0], la[-1], la[-1], la[0]], lw=1.5)
     glon = np.where(um.grid.lon > 180, um.grid.lon - 360, um.grid.lon)
     box(glon, um.grid.lat)
     ax.plot([tlon.mean()], [tlat.mean()], "o", ms=9, mfc="none", mec="C3", mew=2)
-    ax.annotate("with the rotation:\n52.4 N 3.1 W (Wales)", (tlon.mean(), tlat.mean()), (-23, 40), arrowprops={"arrowstyle": "->"})
-    ax.annotate("grid coordinates alone:\n0.1 S 0.4 W", (glon.mean(), um.grid.lat.mean()), (-23, 8), arrowprops={"arrowstyle": "->"})
+    ax.annotate("with the rotation:\n52.4 N 3.1 W (Wales)", (tlon.mean(), tlat.mean()), (-23, 40),
+                arrowprops={"arrowstyle": "->"})
+    ax.annotate("grid coordinates alone:\n0.1 S 0.4 W", (glon.mean(), um.grid.lat.mean()), (-23, 8),
+                arrowprops={"arrowstyle": "->"})
     ax.set_title("(a) UM rotated pole (pole 37.5 N 177.5 E)")
     fig.colorbar(m, ax=ax, shrink=0.8, label="potential temperature, lowest level (K)")
     # (b) polar stereographic satellite brightness at its projected positions

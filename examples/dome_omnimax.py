@@ -30,9 +30,8 @@ import math
 import sys
 from pathlib import Path
 
-import numpy as np
-
 import bpy
+import numpy as np
 from mathutils import Matrix, Vector
 
 HERE = Path(__file__).resolve().parent
@@ -145,7 +144,8 @@ def _shrink(img, height):
     rows = np.minimum((np.arange(height + 1) * h / height).astype(int), h)
     cols = np.minimum((np.arange(width + 1) * w / width).astype(int), w)
     cs = np.cumsum(np.cumsum(np.pad(img, ((1, 0), (1, 0), (0, 0))), 0), 1)
-    s = cs[rows[1:]][:, cols[1:]] - cs[rows[:-1]][:, cols[1:]] - cs[rows[1:]][:, cols[:-1]] + cs[rows[:-1]][:, cols[:-1]]
+    s = (cs[rows[1:]][:, cols[1:]] - cs[rows[:-1]][:, cols[1:]]
+         - cs[rows[1:]][:, cols[:-1]] + cs[rows[:-1]][:, cols[:-1]])
     area = np.outer(np.diff(rows), np.diff(cols))[..., None]
     return (s / area).astype(np.float32)
 

@@ -23,7 +23,8 @@ DEFAULTS = presets.FIG1_DEFAULTS  # the add-on's recipe, also its panel's preset
 
 
 def build(**options):
-    """Build the Fig. 1 scene into the current scene (:func:`nephele.addon.presets.fig1`); returns a dict of the main objects."""
+    """Build the Fig. 1 scene into the current scene (:func:`nephele.addon.presets.fig1`); returns a dict of
+    the main objects."""
     return presets.fig1(bpy.context.scene, **options)
 
 

@@ -25,7 +25,8 @@ DEFAULTS = presets.FIG3_DEFAULTS  # the add-on's recipe, also its panel's preset
 
 
 def build(**options):
-    """Build the Fig. 3 scene into the current scene (:func:`nephele.addon.presets.fig3`); returns a dict of the main objects."""
+    """Build the Fig. 3 scene into the current scene (:func:`nephele.addon.presets.fig3`); returns a dict of
+    the main objects."""
     import nephele
 
     if not hasattr(bpy.types.Scene, "nephele_splats"):

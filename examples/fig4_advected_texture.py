@@ -32,7 +32,8 @@ DEFAULTS = presets.FIG4_DEFAULTS  # the add-on's recipe, also its panel's preset
 
 
 def build(**options):
-    """Build the Fig. 4 scene into the current scene (:func:`nephele.addon.presets.fig4`); returns a dict of the main objects."""
+    """Build the Fig. 4 scene into the current scene (:func:`nephele.addon.presets.fig4`); returns a dict of
+    the main objects."""
     return presets.fig4(bpy.context.scene, **options)
 
 
@@ -68,8 +69,8 @@ def main(argv=None):
             from nephele.farm.post import contact_sheet
 
             picks = sorted({0, len(paths) // 2, len(paths) - 1})
-            contact_sheet([paths[i] for i in picks], out / "side_by_side.png", columns=len(picks), thumb_width=args.size[0],
-                          labels=[f"frame {args.frames[0] + i}" for i in picks])
+            contact_sheet([paths[i] for i in picks], out / "side_by_side.png", columns=len(picks),
+                          thumb_width=args.size[0], labels=[f"frame {args.frames[0] + i}" for i in picks])
     return 0
 
 

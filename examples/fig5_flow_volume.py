@@ -32,7 +32,8 @@ DEFAULTS = presets.FIG5_DEFAULTS  # the add-on's recipe, also its panel's preset
 
 
 def build(**options):
-    """Build the Fig. 5 scene into the current scene (:func:`nephele.addon.presets.fig5`); returns a dict of the main objects."""
+    """Build the Fig. 5 scene into the current scene (:func:`nephele.addon.presets.fig5`); returns a dict of
+    the main objects."""
     import nephele
 
     if not hasattr(bpy.types.Scene, "nephele_flowvol"):
@@ -53,10 +54,11 @@ FIRE = {
 
 def _room(bounds):
     """Floor, back wall and left wall of the room's box (grey, diffuse) and a sun."""
+    import numpy as np
+
     from nephele.addon.materials import enable_nodes
     from nephele.addon.mesh import new_object
     from nephele.core.surface.mesh import Mesh
-    import numpy as np
 
     (x0, x1), (y0, y1), (z0, z1) = bounds
     quads = {"floor": [(x0, y0, z0), (x1, y0, z0), (x1, y1, z0), (x0, y1, z0)],
@@ -82,10 +84,9 @@ def build_fire(**options):
     import numpy as np
     from mathutils import Vector
 
+    import nephele
     from nephele.addon import globe_scene
     from nephele.core.flowvol import UnstructuredVelocity
-
-    import nephele
 
     o = {**FIRE, **{k: v for k, v in options.items() if v is not None}}
     scene = bpy.context.scene
@@ -122,10 +123,12 @@ def main(argv=None):
     ap.add_argument("--hours", type=float, default=DEFAULTS["hours"], help="release window in hours")
     ap.add_argument("--radius", type=float, default=DEFAULTS["radius"], help="generator radius (globe radius 1)")
     ap.add_argument("--density", type=float, default=None, help="smoke density (per scene unit)")
-    ap.add_argument("--fire", action="store_true", help="smoke above the fire in a room (fire_ug.vtu) instead of the globe")
+    ap.add_argument("--fire", action="store_true",
+                    help="smoke above the fire in a room (fire_ug.vtu) instead of the globe")
     ap.add_argument("--vtu", default=FIRE["path"], help="the .vtu of --fire")
     ap.add_argument("--seconds", type=float, default=None,
-                    help=f"--fire: release window in seconds (default {FIRE['seconds']:g}; longer releases reach the walls)")
+                    help=f"--fire: release window in seconds (default {FIRE['seconds']:g}; longer releases reach the "
+                         "walls)")
     args = ap.parse_args(argv)
     bpy.ops.wm.read_factory_settings(use_empty=True)
     if args.fire:
@@ -140,7 +143,8 @@ def main(argv=None):
         if args.out:
             globe_scene.render_frames(bpy.context.scene, args.frames, args.out)
         return 0
-    build(source=args.source, frames=args.frames, size=args.size, samples=args.samples, hours=args.hours, radius=args.radius,
+    build(source=args.source, frames=args.frames, size=args.size, samples=args.samples, hours=args.hours,
+          radius=args.radius,
           density=DEFAULTS["density"] if args.density is None else args.density, annotations=args.annotations)
     print(bpy.context.scene.nephele_flowvol.status)
     if args.save:

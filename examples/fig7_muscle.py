@@ -40,7 +40,8 @@ from pathlib import Path
 import bpy
 
 from nephele.addon import presets
-from nephele.core.camera.anaglyph import MODES as ANAGLYPH_MODES, red_cyan
+from nephele.core.camera.anaglyph import MODES as ANAGLYPH_MODES
+from nephele.core.camera.anaglyph import red_cyan
 
 DEFAULTS = presets.FIG7_DEFAULTS  # the add-on's recipe, also its panel's preset
 

@@ -429,6 +429,7 @@ def wait_for_worker(cluster, client, system, timeout=None, log_dir=None, poll=0.
                 raise UsageError(f"--interface/--contact-address: worker job {running[0]} runs but its worker has not "
                                  f"reached the scheduler at {address} within {timeout:g} s: is that address reachable "
                                  f"from the compute nodes?{_log_tail(log_dir, running[0])}")
-            what = ", ".join(f"job {j} {st} ({why})" for j, (st, why) in states.items()) or f"{len(ids)} job(s) submitted"
+            what = ", ".join(f"job {j} {st} ({why})"
+                             for j, (st, why) in states.items()) or f"{len(ids)} job(s) submitted"
             raise UsageError(f"--start-timeout: no worker job started within {timeout:g} s: {what}")
         time.sleep(poll)

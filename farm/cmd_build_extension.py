@@ -42,7 +42,8 @@ from ..core.errors import UsageError
 HELP = "build the Blender extension zips (one per platform and Blender Python), wheels bundled"
 
 ROOT = Path(__file__).resolve().parent.parent
-PARTS = ("__init__.py", "fileio.py", "volume_files.py", "blender_manifest.toml", "addon", "core", "README.md", "LICENSE", "LICENSE.txt", "COPYING")
+PARTS = ("__init__.py", "fileio.py", "volume_files.py", "blender_manifest.toml", "addon", "core", "README.md",
+         "LICENSE", "LICENSE.txt", "COPYING")
 
 # Packages the add-on imports that Blender does not ship, and what they pull in, all pinned
 # in the requirement files the tests run on, so a zip built another day bundles the same

@@ -22,7 +22,8 @@ JOB_VARS = ("SLURM_JOB_ID", "SLURM_JOB_PARTITION", "SLURM_CPUS_PER_TASK", "SLURM
 
 def add_arguments(p):
     p.add_argument("--out", default="nephele-cluster-check",
-                   help="directory for the test frame; must be shared with the compute nodes (default ./nephele-cluster-check)")
+                   help="directory for the test frame; must be shared with the compute nodes (default "
+                        "./nephele-cluster-check)")
     add_cluster_arguments(p)
 
 

@@ -10,11 +10,13 @@ HELP = "export the contour surface of a variable at one time step as .ply, .glb 
 
 def add_arguments(p):
     p.add_argument("source", metavar="FILE",
-                   help='dataset: "demo", "demo:small", a NetCDF .nc (or a .zip of them), a GRIB file, a Zarr store or a GrADS .ctl file')
+                   help='dataset: "demo", "demo:small", a NetCDF .nc (or a .zip of them), a GRIB file, a Zarr store '
+                        'or a GrADS .ctl file')
     p.add_argument("--var", required=True, metavar="NAME",
                    help="variable to contour, by its standard, file or GRIB name (e.g. cloud, cloud_water, clwmr)")
     p.add_argument("--level", required=True, type=float, metavar="X", help="contour value (e.g. 0.15)")
-    p.add_argument("--time", type=int, default=0, metavar="I", help="time step index (default 0; negative counts from the end)")
+    p.add_argument("--time", type=int, default=0, metavar="I",
+                   help="time step index (default 0; negative counts from the end)")
     p.add_argument("--exaggeration", type=float, metavar="E", help="vertical exaggeration of heights (default 30)")
     p.add_argument("--radius", type=float, default=1.0, help="sea-level radius in scene units (default 1)")
     p.add_argument("--method", choices=("cubes", "tetra5"), default="cubes",
@@ -50,7 +52,8 @@ def run(args):
     name = ds.resolve(args.var)
     finite = values[np.isfinite(values)]
     if finite.size == 0:
-        raise DataError(f"every value at time step {args.time} is missing (NaN): nothing to contour", path=ds.source, field=name)
+        raise DataError(f"every value at time step {args.time} is missing (NaN): nothing to contour", path=ds.source,
+                        field=name)
     lo, hi = float(finite.min()), float(finite.max())
     if not lo <= args.level <= hi:
         raise DataError(f"level {args.level:g} is outside the data range {lo:g}..{hi:g} at time step {args.time}: "
@@ -63,8 +66,8 @@ def run(args):
     mesh = isosurface(points, values, args.level, periodic_lon=periodic, close_poles=periodic,
                       method=args.method, attributes=attributes)
     if len(mesh.faces) == 0:
-        raise DataError(f"the contour at level {args.level:g} is empty at time step {args.time} (values {lo:g}..{hi:g}; "
-                        "the level is only met next to missing values)", path=ds.source, field=name)
+        raise DataError(f"the contour at level {args.level:g} is empty at time step {args.time} (values "
+                        f"{lo:g}..{hi:g}; the level is only met next to missing values)", path=ds.source, field=name)
     mesh.save(out)
     when = np.datetime_as_string(ds.times[args.time], unit="h") if ds.times.size else "?"
     print(f"{out}: {len(mesh.vertices)} vertices, {len(mesh.faces)} triangles "

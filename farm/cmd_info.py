@@ -10,7 +10,8 @@ HELP = "describe a dataset: grid type, shape, longitudes/latitudes, levels, vari
 
 def add_arguments(p):
     p.add_argument("source", metavar="FILE", nargs="?",
-                   help='dataset: "demo", "demo:small", a NetCDF .nc (or a .zip of them), a GRIB file, a Zarr store or a GrADS .ctl file')
+                   help='dataset: "demo", "demo:small", a NetCDF .nc (or a .zip of them), a GRIB file, a Zarr store '
+                        'or a GrADS .ctl file')
     p.add_argument("--version", action="store_true", help="print Nephele's version and which kernels run, and exit")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of text")
     add_reader_options(p)
@@ -63,7 +64,9 @@ def describe(ds):
     }
     if getattr(ds, "level_types", None):  # GRIB: every kind of level, the one read first
         info["level_type"] = ds.level_type
-        info["level_types"] = {k: dict(v) for k, v in sorted(ds.level_types.items(), key=lambda kv: (kv[0] != ds.level_type, -kv[1]["3d"], kv[0]))}
+        info["level_types"] = {k: dict(v)
+                               for k, v in sorted(ds.level_types.items(),
+                                                  key=lambda kv: (kv[0] != ds.level_type, -kv[1]["3d"], kv[0]))}
     if getattr(ds, "members", None):
         info["members"] = list(ds.members)
         info["member"] = ds.member
@@ -109,8 +112,10 @@ def format_text(info):
         lines[-2] = f"  grid x     columns 0 .. {s['lon'] - 1}"
         lines[-1] = f"  grid y     rows 0 .. {s['lat'] - 1}"
     elif info.get("rotated_pole"):
-        lines[-2] = lines[-2].replace("  lon        ", "  grid lon   ").replace(" degrees east", " degrees (rotated pole)")
-        lines[-1] = lines[-1].replace("  lat        ", "  grid lat   ").replace(" degrees north", " degrees (rotated pole)")
+        lines[-2] = lines[-2].replace("  lon        ",
+                                      "  grid lon   ").replace(" degrees east", " degrees (rotated pole)")
+        lines[-1] = lines[-1].replace("  lat        ",
+                                      "  grid lat   ").replace(" degrees north", " degrees (rotated pole)")
     if "true_lon" in info:
         lines += [
             f"  true lon   {info['true_lon'][0]:.4f} .. {info['true_lon'][1]:.4f} degrees east",
@@ -144,8 +149,10 @@ def format_text(info):
                      "choose another with --level-type:")
         others = [f"{k} {v['3d']}" for k, v in kinds.items() if v["3d"] and k != info["level_type"]]
         flat = [f"{k} ({v['fields']})" for k, v in kinds.items() if not v["3d"]]
-        lines += textwrap.wrap(", ".join(others) + " (3-D variables)", 100, initial_indent=" " * 13, subsequent_indent=" " * 13) if others else []
-        lines += textwrap.wrap("single-level only: " + ", ".join(flat), 100, initial_indent=" " * 13, subsequent_indent=" " * 13) if flat else []
+        lines += textwrap.wrap(", ".join(others) + " (3-D variables)", 100, initial_indent=" " * 13,
+                               subsequent_indent=" " * 13) if others else []
+        lines += textwrap.wrap("single-level only: " + ", ".join(flat), 100, initial_indent=" " * 13,
+                               subsequent_indent=" " * 13) if flat else []
     lines += [f"  note       {n}" for n in info["notes"]]
     return "\n".join(lines)
 
@@ -161,7 +168,8 @@ def version_text():
         version = metadata.version("nephele")
     except metadata.PackageNotFoundError:
         version = "(not installed: run from source)"
-    return "\n".join([f"nephele {version}", f"python {platform.python_version()} on {platform.system()} {platform.machine()}",
+    return "\n".join([f"nephele {version}",
+                      f"python {platform.python_version()} on {platform.system()} {platform.machine()}",
                       f"kernels {native.status()}"])
 
 

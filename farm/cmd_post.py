@@ -19,7 +19,8 @@ def frames_of(inputs, eye=None):
     for item in inputs:
         p = Path(item)
         if p.is_dir():
-            found = sorted(q for q in p.iterdir() if q.name.startswith("frame_") and q.suffix.lower() in (".png", ".exr"))
+            found = sorted(q for q in p.iterdir() if q.name.startswith("frame_")
+                           and q.suffix.lower() in (".png", ".exr"))
             if not found:
                 raise DataError("no frame_*.png or frame_*.exr files in this directory", path=p)
             stereo = {q.stem[-2:] for q in found} == {"_L", "_R"}

@@ -21,8 +21,10 @@ def add_reader_options(p):
     g = p.add_argument_group("reading the file (override what it gets wrong or leaves out)")
     g.add_argument("--vertical-coord", dest="read_vertical", choices=VERTICAL_CHOICES, metavar="KIND",
                    help=f"what the level coordinate is when the file does not say ({', '.join(VERTICAL_CHOICES)})")
-    g.add_argument("--p0", type=float, metavar="PA", help="reference pressure of hybrid levels in Pa (default: the file's, else 100000)")
-    g.add_argument("--time-units", metavar="UNITS", help='CF time units replacing the file\'s, e.g. "days since 1988-01-01"')
+    g.add_argument("--p0", type=float, metavar="PA",
+                   help="reference pressure of hybrid levels in Pa (default: the file's, else 100000)")
+    g.add_argument("--time-units", metavar="UNITS",
+                   help='CF time units replacing the file\'s, e.g. "days since 1988-01-01"')
     g.add_argument("--earth-radius", type=float, metavar="M",
                    help="planet radius in metres (default: the file's grid mapping or model convention, else 6371000)")
     g.add_argument("--var-map", action="append", default=[], metavar="STD=NAME",
@@ -30,7 +32,8 @@ def add_reader_options(p):
     g.add_argument("--level-type", metavar="KIND",
                    help="GRIB: the kind of level to read, e.g. isobaricInhPa or hybrid (default: the one with the most "
                         "3-D fields; 'nephele info' lists them)")
-    g.add_argument("--member", type=int, metavar="N", help="ensemble member to read (default: the control, 0, or the lowest)")
+    g.add_argument("--member", type=int, metavar="N",
+                   help="ensemble member to read (default: the control, 0, or the lowest)")
 
 
 def reader_kwargs(args):

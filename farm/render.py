@@ -92,7 +92,8 @@ def check_scene(scene):
         if not any(isinstance(n, ast.FunctionDef) and n.name == "build" for n in tree.body):
             raise DataError("the example script defines no build(**options) function", path=path, field="SCENE")
         return path, "script"
-    raise DataError("SCENE must be a .blend file or an example .py script with build(**options)", path=path, field="SCENE")
+    raise DataError("SCENE must be a .blend file or an example .py script with build(**options)", path=path,
+                    field="SCENE")
 
 
 def check_out_dir(out_dir):
@@ -108,7 +109,8 @@ def check_out_dir(out_dir):
     return out
 
 
-def _check_options(engine, samples, resolution, percentage, device, fmt, retries, timeout, chunk, workers, scene_options):
+def _check_options(engine, samples, resolution, percentage, device, fmt, retries, timeout, chunk, workers,
+                   scene_options):
     if engine is not None and engine not in ENGINES:
         raise UsageError(f"unknown engine {engine!r}; expected one of {', '.join(ENGINES)}")
     if fmt not in FORMATS:
@@ -282,7 +284,8 @@ def render_sequence(scene, frames, out_dir, *, workers=None, engine=None, sample
     fmt = fmt.upper()
     device = device.upper() if isinstance(device, str) else device
     resolution = tuple(resolution) if resolution is not None else None
-    _check_options(engine, samples, resolution, percentage, device, fmt, retries, timeout, chunk, workers, scene_options)
+    _check_options(engine, samples, resolution, percentage, device, fmt, retries, timeout, chunk, workers,
+                   scene_options)
     out = check_out_dir(out_dir)
 
     with lock_file(out / ".nephele.lock", "nephele render"):
@@ -345,7 +348,8 @@ def _render(manifest, result, todo, reclassify, scene_path, kind, settings, out,
     since_ns = time.time_ns() - 2_000_000_000  # frames this run moves into place are newer (2 s clock slack)
     futures = {}
     try:
-        with open_client(workers=workers, scheduler=scheduler, security=security, jobqueue=jobqueue, jobs=jobs) as client:
+        with open_client(workers=workers, scheduler=scheduler, security=security, jobqueue=jobqueue,
+                         jobs=jobs) as client:
             name, info = _start(client, spec)
             manifest.run["worker_scene"] = {k: info[k] for k in ("engine", "size", "device", "threads", "dome_route")}
             views = tuple(info["views"])
@@ -459,7 +463,8 @@ def _space_needed(out, manifest, frames, views, count, force):
 
 
 def _after_lost_task(out, frame, fmt, views, exc, since_ns):
-    """Entry for a frame whose task did not return: kept if this run moved all its views into place whole, else failed."""
+    """Entry for a frame whose task did not return: kept if this run moved all its views into place whole,
+    else failed."""
     paths = [out / frame_name(frame, fmt, v) for v in views]
     log = f"logs/{Path(frame_name(frame, fmt)).stem}.log"
     try:
@@ -530,7 +535,8 @@ def _precompute(client, objects, frames, cache_dir):
                 key = cache_key(kind, task_params)
                 if key not in by_key:
                     by_key[key] = client.submit(precompute, kind, task_params, cache_dir, pure=False,
-                                                priority=1_000_000 - f, key=f"nephele-pre-{key[:16]}-{uuid.uuid4().hex[:6]}")
+                                                priority=1_000_000 - f,
+                                                key=f"nephele-pre-{key[:16]}-{uuid.uuid4().hex[:6]}")
                 needs.append(by_key[key])
         if needs:
             per_frame[f] = client.submit(_count, needs, pure=False, key=f"nephele-need-{f}-{uuid.uuid4().hex[:6]}")

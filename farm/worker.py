@@ -324,7 +324,8 @@ def fit_dome(scene):
     rig = _dome_rig(scene)
     if rig is None:
         return
-    from ..addon import dome_ops, frame as nframe
+    from ..addon import dome_ops
+    from ..addon import frame as nframe
 
     r = scene.render
     size = (r.resolution_x * r.resolution_percentage // 100, r.resolution_y * r.resolution_percentage // 100)

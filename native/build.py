@@ -89,7 +89,8 @@ def compiler(target=HOST, cc=CC, macos=None, toolchain=TOOLCHAIN):
         return [cc], FLAGS, ver, None
     exe = zig(toolchain)
     env = _zig_env(exe)
-    ver = "zig " + subprocess.run([str(exe), "version"], capture_output=True, text=True, check=True, env=env).stdout.strip()
+    ver = "zig " + subprocess.run([str(exe), "version"], capture_output=True, text=True, check=True,
+                                  env=env).stdout.strip()
     flags = list(ZIG_FLAGS) if target != HOST else flags
     if target.startswith("macos"):
         triple += "." + (macos or MACOS_MIN)

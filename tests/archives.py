@@ -38,7 +38,8 @@ def era5_values(name, times, levels, lat, lon, member=0):
     la, lo = np.deg2rad(lat)[None, None, :, None], np.deg2rad(lon)[None, None, None, :]
     base = {"t": 300.0 - 60.0 * (1.0 - p / 1000.0), "z": 9.80665 * 44330.8 * (1.0 - (p / 1013.25) ** 0.1903),
             "cc": 0.5 + 0.0 * p, "clwc": 1e-4 * p / 1000.0, "w": 0.1 + 0.0 * p}[name]
-    return base + {"t": 5.0, "z": 20.0, "cc": 0.4, "clwc": 5e-5, "w": 0.05}[name] * np.cos(la) * np.sin(lo + 0.3 * t) + 0.5 * member * (name == "t")
+    return base + {"t": 5.0, "z": 20.0, "cc": 0.4, "clwc": 5e-5,
+                   "w": 0.05}[name] * np.cos(la) * np.sin(lo + 0.3 * t) + 0.5 * member * (name == "t")
 
 
 def era5_cds(path, *, members=None, packed=True, times=4, levels=(1000, 850, 500), names=("t", "z", "cc", "clwc", "w")):
@@ -50,7 +51,8 @@ def era5_cds(path, *, members=None, packed=True, times=4, levels=(1000, 850, 500
            "clwc": "specific_cloud_liquid_water_content", "w": "lagrangian_tendency_of_air_pressure"}
     written = {}
     with netCDF4.Dataset(path, "w") as nc:
-        nc.setncatts({"GRIB_centre": "ecmf", "GRIB_centreDescription": "European Centre for Medium-Range Weather Forecasts",
+        nc.setncatts({"GRIB_centre": "ecmf",
+                      "GRIB_centreDescription": "European Centre for Medium-Range Weather Forecasts",
                       "Conventions": "CF-1.7", "institution": "European Centre for Medium-Range Weather Forecasts"})
         dims = []
         if members:
@@ -65,7 +67,8 @@ def era5_cds(path, *, members=None, packed=True, times=4, levels=(1000, 850, 500
             v.assignValue(0)
         nc.createDimension("valid_time", times)
         v = nc.createVariable("valid_time", "i8", ("valid_time",))
-        v.setncatts({"long_name": "time", "standard_name": "time", "units": "seconds since 1970-01-01", "calendar": "proleptic_gregorian"})
+        v.setncatts({"long_name": "time", "standard_name": "time", "units": "seconds since 1970-01-01",
+                     "calendar": "proleptic_gregorian"})
         v[:] = valid.astype(np.int64)
         nc.createDimension("pressure_level", len(levels))
         v = nc.createVariable("pressure_level", "f8", ("pressure_level",))
@@ -130,7 +133,8 @@ def merra2(path, nlev=72, times=2):
     ps = 100000.0 + 1500.0 * rng.standard_normal((times, lat.size, lon.size))
     edges = np.concatenate([[1.0], np.geomspace(2.0, 1.0, nlev)])  # relative layer thickness, top down
     frac = np.cumsum(edges[1:]) / np.sum(edges[1:])
-    p_half = 1.0 + (ps[:, None] - 1.0) * np.concatenate([[0.0], frac])[None, :, None, None]  # top (ptop = 1 Pa) to surface
+    # top (ptop = 1 Pa) to surface
+    p_half = 1.0 + (ps[:, None] - 1.0) * np.concatenate([[0.0], frac])[None, :, None, None]
     delp = np.diff(p_half, axis=1)
     pl = 0.5 * (p_half[:, 1:] + p_half[:, :-1])
     t = 220.0 + 70.0 * (pl / 1e5)
@@ -138,7 +142,8 @@ def merra2(path, nlev=72, times=2):
     ql = 1e-5 * np.exp(-((pl - 70000.0) / 15000.0) ** 2)
     with netCDF4.Dataset(path, "w") as nc:
         nc.setncatts({"Conventions": "CF-1", "Source": "CVS tag: GEOSadas-5_12_4", "ShortName": "M2I3NVASM",
-                      "Title": "MERRA2 inst3_3d_asm_Nv: 3d,3-Hourly,Instantaneous,Model-Level,Assimilation,Assimilated Meteorological Fields"})
+                      "Title": "MERRA2 inst3_3d_asm_Nv: "
+                               "3d,3-Hourly,Instantaneous,Model-Level,Assimilation,Assimilated Meteorological Fields"})
         _axes(nc, lat, lon, "lat", "lon")
         nc.createDimension("lev", nlev)
         v = nc.createVariable("lev", "f8", ("lev",))
@@ -150,13 +155,15 @@ def merra2(path, nlev=72, times=2):
         v.setncatts({"long_name": "time", "units": "minutes since 2017-01-01 00:00:00", "time_increment": 30000,
                      "begin_date": 20170101, "begin_time": 0})
         v[:] = np.arange(times) * 180
-        spec = {"T": (t, "K", "air_temperature"), "PL": (pl, "Pa", "mid_level_pressure"), "H": (h, "m", "mid_layer_heights"),
-                "DELP": (delp, "Pa", "pressure_thickness"), "QL": (ql, "kg kg-1", "mass_fraction_of_cloud_liquid_water_condensate"),
-                "QI": (0.3 * ql, "kg kg-1", "mass_fraction_of_cloud_ice_water"), "CLOUD": (np.minimum(ql / 1e-5, 1.0), "1", "cloud_fraction_for_radiation")}
+        spec = {"T": (t, "K", "air_temperature"), "PL": (pl, "Pa", "mid_level_pressure"),
+                "H": (h, "m", "mid_layer_heights"), "DELP": (delp, "Pa", "pressure_thickness"),
+                "QL": (ql, "kg kg-1", "mass_fraction_of_cloud_liquid_water_condensate"),
+                "QI": (0.3 * ql, "kg kg-1", "mass_fraction_of_cloud_ice_water"),
+                "CLOUD": (np.minimum(ql / 1e-5, 1.0), "1", "cloud_fraction_for_radiation")}
         for name, (a, units, long_name) in spec.items():
             v = nc.createVariable(name, "f4", ("time", "lev", "lat", "lon"), fill_value=np.float32(1e15))
-            v.setncatts({"long_name": long_name, "units": units, "missing_value": np.float32(1e15), "fmissing_value": np.float32(1e15),
-                         "vmax": np.float32(1e15), "vmin": np.float32(-1e15)})
+            v.setncatts({"long_name": long_name, "units": units, "missing_value": np.float32(1e15),
+                         "fmissing_value": np.float32(1e15), "vmax": np.float32(1e15), "vmin": np.float32(-1e15)})
             v[:] = a
         v = nc.createVariable("PS", "f4", ("time", "lat", "lon"), fill_value=np.float32(1e15))
         v.setncatts({"long_name": "surface_pressure", "units": "Pa"})
@@ -186,7 +193,8 @@ def cmip6_cl(path, calendar="360_day", nlev=5, times=3):
         v[:] = np.stack([mid - month / 2, mid + month / 2], axis=1)
         nc.createDimension("lev", nlev)
         v = nc.createVariable("lev", "f8", ("lev",))
-        v.setncatts({"bounds": "lev_bnds", "units": "1", "axis": "Z", "positive": "down", "long_name": "hybrid sigma pressure coordinate",
+        v.setncatts({"bounds": "lev_bnds", "units": "1", "axis": "Z", "positive": "down",
+                     "long_name": "hybrid sigma pressure coordinate",
                      "standard_name": "atmosphere_hybrid_sigma_pressure_coordinate", "formula": "p = a*p0 + b*ps",
                      "formula_terms": "p0: p0 a: a b: b ps: ps"})
         v[:] = a + b
@@ -238,8 +246,8 @@ def icon(path):
         v.setncatts({"standard_name": "time", "units": "hours since 2024-01-01"})
         v[:] = [0.0]
         v = nc.createVariable("temp", "f4", ("time", "height", "ncells"))
-        v.setncatts({"standard_name": "air_temperature", "units": "K", "CDI_grid_type": "unstructured", "number_of_grid_in_reference": 1,
-                     "coordinates": "clat clon"})
+        v.setncatts({"standard_name": "air_temperature", "units": "K", "CDI_grid_type": "unstructured",
+                     "number_of_grid_in_reference": 1, "coordinates": "clat clon"})
     return path
 
 

@@ -78,7 +78,8 @@ def grib_samples():
     pytest.importorskip("eccodes")
     import importlib.util
 
-    spec = importlib.util.spec_from_file_location("fetch_grib_samples", ROOT / "tests" / "data" / "fetch_grib_samples.py")
+    spec = importlib.util.spec_from_file_location("fetch_grib_samples",
+                                                  ROOT / "tests" / "data" / "fetch_grib_samples.py")
     fetch = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(fetch)
     try:
@@ -146,7 +147,8 @@ def small_disk(tmp_path):
         where.mkdir()
         if os.geteuid() != 0:
             pytest.skip("mounting a small tmpfs for the disk-full tests needs root")  # fails when STRICT
-        run = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(where)], capture_output=True, text=True)
+        run = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(where)], capture_output=True,
+                             text=True)
         if run.returncode:
             pytest.skip(f"cannot mount a tmpfs ({run.stderr.strip()})")  # fails when STRICT
         mounted.append(where)

@@ -55,7 +55,8 @@ def when(date=20240101, time=0, step=0):
     return (("dataDate", date), ("dataTime", time), ("stepUnits", 1), ("step", step))
 
 
-def isobaric(short, level, grid, values, *, date=20240101, time=0, step=0, number=None, centre="ecmf", sample="regular_ll_pl_grib2"):
+def isobaric(short, level, grid, values, *, date=20240101, time=0, step=0, number=None, centre="ecmf",
+             sample="regular_ll_pl_grib2"):
     """A message of ``short`` on ``level`` hPa (ECMWF or NCEP ``centre``), with an ensemble ``number`` if given."""
     keys = [("centre", centre), *when(date, time, step), *grid]
     if number is not None:  # PDT 1: individual ensemble forecast

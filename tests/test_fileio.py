@@ -31,7 +31,8 @@ def test_written_files_have_the_umasks_mode(tmp_path):
     old = os.umask(0o022)
     try:
         p = fileio.write_image(tmp_path / "m.png", np.zeros((2, 2, 3), np.float32))
-        v = fileio.write_vdb(tmp_path / "m.vdb", [fileio.block_grid("density", [(0, 0, 0)], np.ones((1, 8, 8, 8)), 8, 0.5)])
+        v = fileio.write_vdb(tmp_path / "m.vdb",
+                             [fileio.block_grid("density", [(0, 0, 0)], np.ones((1, 8, 8, 8)), 8, 0.5)])
     finally:
         os.umask(old)
     assert stat.S_IMODE(os.stat(p).st_mode) == stat.S_IMODE(os.stat(v).st_mode) == 0o644

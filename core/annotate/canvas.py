@@ -13,7 +13,6 @@ plain boxes for tests and for environments without Blender.
 
 import numpy as np
 
-
 PANEL = (0.05, 0.06, 0.08, 1.0)
 """Colour of the boxes behind text and legends.  Opaque: a translucent box over a bright, high dynamic range
 picture (a compositor works in scene-linear light, before the view transform) hardly darkens it."""
@@ -138,6 +137,6 @@ def over_rgb(rgb, overlay):
     return (overlay[..., :3] * a + np.asarray(rgb, np.float32)[..., :3] * (1.0 - a)).astype(np.float32)
 
 
-__all__ = ["PANEL", "box_text", "draw_text", "fill", "halo", "line_height", "new_canvas", "over_rgb", "over_rgba", "paint",
-           "paste",
+__all__ = ["PANEL", "box_text", "draw_text", "fill", "halo", "line_height", "new_canvas", "over_rgb", "over_rgba",
+           "paint", "paste",
            "srgb_decode", "srgb_encode"]

@@ -286,7 +286,6 @@ def direction_to_cube(dirs, n):
     ax, ay, az = np.abs(x), np.abs(y), np.abs(z)
     xmaj = (ax >= ay) & (ax >= az)
     ymaj = ~xmaj & (ay >= az)
-    zmaj = ~(xmaj | ymaj)
     # Face coordinates (right, up) / forward; the sign conventions of CUBE_AXES folded in.
     with np.errstate(divide="ignore", invalid="ignore"):
         a = np.where(xmaj, -y / x, np.where(ymaj, x / y, x / az))

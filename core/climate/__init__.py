@@ -1,4 +1,5 @@
-"""Climate data: the globe grid, datasets and their readers (NetCDF, GrADS, GRIB, Zarr), the synthetic demo, humidity and relief."""
+"""Climate data: the globe grid, datasets and their readers (NetCDF, GrADS, GRIB, Zarr), the synthetic demo,
+humidity and relief."""
 
 from .columns import (  # noqa: F401
     ColumnLocator,
@@ -72,8 +73,8 @@ from .relief import (  # noqa: F401
 from .synthetic import (  # noqa: F401
     DELTA,
     SIZES,
-    SyntheticClimate,
     TOP,
+    SyntheticClimate,
     demo_dataset,
 )
 from .zarrstore import (  # noqa: F401

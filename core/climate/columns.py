@@ -46,7 +46,8 @@ class ColumnLocator:
     def __init__(self, lon2d, lat2d, path=None):
         lon2d, lat2d = np.asarray(lon2d, dtype=np.float64), np.asarray(lat2d, dtype=np.float64)
         if lon2d.ndim != 2 or lon2d.shape != lat2d.shape or min(lon2d.shape) < 2:
-            raise DataError(f"needs matching 2-D longitudes/latitudes of at least 2 x 2 columns, got {lon2d.shape} and {lat2d.shape}",
+            raise DataError(f"needs matching 2-D longitudes/latitudes of at least 2 x 2 columns, got {lon2d.shape} "
+                            f"and {lat2d.shape}",
                             path=path, field="lon2d")
         if not (np.all(np.isfinite(lon2d)) and np.all(np.isfinite(lat2d))):
             raise DataError("has NaN or infinite coordinates", path=path, field="lon2d")
@@ -57,7 +58,8 @@ class ColumnLocator:
             raise DataError("the columns surround the globe: no centre for a regional chart", path=path, field="lon2d")
         c /= norm
         if float((p @ c).min()) < 0.2:
-            raise DataError("the grid reaches more than 78 degrees from its centre; volumes need a regional grid", path=path, field="lon2d")
+            raise DataError("the grid reaches more than 78 degrees from its centre; volumes need a regional grid",
+                            path=path, field="lon2d")
         a = np.array([0.0, 0.0, 1.0]) if abs(c[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
         e1 = np.cross(a, c)
         e1 /= np.linalg.norm(e1)
@@ -71,7 +73,8 @@ class ColumnLocator:
         # A point inside a cell is at most the cell's diameter from its nearest column: farther points are outside.
         x = self.xy
         corners = (x[:-1, :-1], x[:-1, 1:], x[1:, :-1], x[1:, 1:])
-        self._reach = max(float(np.linalg.norm(a - b, axis=-1).max()) for n, a in enumerate(corners) for b in corners[n + 1 :])
+        self._reach = max(float(np.linalg.norm(a - b, axis=-1).max()) for n, a in enumerate(corners)
+                          for b in corners[n + 1 :])
         self._raster()
         self._points = p.reshape(-1, 3)
         self._tree3 = None
@@ -84,7 +87,8 @@ class ColumnLocator:
         lo, hi = self.xy.reshape(-1, 2).min(axis=0), self.xy.reshape(-1, 2).max(axis=0)
         m = np.maximum(np.ceil(np.array([ni, nj]) * per_cell), 1).astype(int)
         step = (hi - lo) / m
-        centres = lo + (np.stack(np.meshgrid(np.arange(m[0]), np.arange(m[1]), indexing="xy"), axis=-1).reshape(-1, 2) + 0.5) * step
+        centres = lo + (np.stack(np.meshgrid(np.arange(m[0]), np.arange(m[1]), indexing="xy"), axis=-1).reshape(-1, 2)
+                        + 0.5) * step
         dist, near = self._tree.query(centres, k=1)
         jn, in_ = np.divmod(np.asarray(near), ni)
         cj, ci = np.clip(jn, 0, nj - 2), np.clip(in_, 0, ni - 2)

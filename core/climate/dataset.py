@@ -149,9 +149,11 @@ class Dataset(abc.ABC):
                 raise
             except Exception as exc:  # a damaged file fails here, in its library's own types (HDF, ecCodes, zarr)
                 first = (str(exc).strip().splitlines() or [""])[0][:200]
-                raise DataError(f"cannot read step {t} ({type(exc).__name__}: {first})", path=self.source, field=name) from exc
+                raise DataError(f"cannot read step {t} ({type(exc).__name__}: {first})", path=self.source,
+                                field=name) from exc
             if a.shape != self.grid.shape:
-                raise DataError(f"step {t} has shape {a.shape}, grid is {self.grid.shape}", path=self.source, field=name)
+                raise DataError(f"step {t} has shape {a.shape}, grid is {self.grid.shape}", path=self.source,
+                                field=name)
             a.setflags(write=False)
             self._cache[key] = a
             while len(self._cache) > self._cache_steps:
@@ -208,7 +210,8 @@ class ArrayDataset(Dataset):
         for name, a in fields.items():
             a = np.asarray(a)
             if a.shape != (nt,) + grid.shape:
-                raise DataError(f"shape {a.shape} is not (times, levels, lat, lon) = {(nt,) + grid.shape}", path=source, field=name)
+                raise DataError(f"shape {a.shape} is not (times, levels, lat, lon) = {(nt,) + grid.shape}", path=source,
+                                field=name)
             self._fields[name] = a
 
     def _read(self, name, t):

@@ -31,13 +31,14 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import DataError
-from .gridfile import FileDataset, standard_name, tidy_lonlat
 from .grid import GlobeGrid
+from .gridfile import FileDataset, standard_name, tidy_lonlat
 from .humidity import RH_CRIT, standard_height
 
 _MONTHS = {m: i + 1 for i, m in enumerate("jan feb mar apr may jun jul aug sep oct nov dec".split())}
 _STEP_SECONDS = {"mn": 60, "hr": 3600, "dy": 86400}
-_UNITS = {"u": "m/s", "v": "m/s", "w": "m/s", "temperature": "K", "q": "kg/kg", "z": "m", "hgt": "m", "rh": "1", "cloud": "1"}
+_UNITS = {"u": "m/s", "v": "m/s", "w": "m/s", "temperature": "K", "q": "kg/kg", "z": "m", "hgt": "m", "rh": "1",
+          "cloud": "1"}
 
 
 MAX_AXIS = 10**7
@@ -50,7 +51,8 @@ def _count(words, i, path, field, low=1):
     try:
         n = int(words[i])
     except (IndexError, ValueError):
-        raise DataError(f"expected a whole number after {field.upper()}, got {' '.join(words)!r}", path=path, field=field) from None
+        raise DataError(f"expected a whole number after {field.upper()}, got {' '.join(words)!r}", path=path,
+                        field=field) from None
     if not low <= n <= MAX_AXIS:
         raise DataError(f"claims {n} values; expected {low} to {MAX_AXIS:,}", path=path, field=field)
     return n
@@ -204,8 +206,10 @@ class GradsDataset(FileDataset):
         need = ctl["fileheader"] + 4 * nx * ny * per_time * nt
         size = data.stat().st_size
         if size < need:
-            raise DataError(f"is {size} bytes, the descriptor needs {need} (wrong dimensions?)", path=data, field="dset")
-        self._data = np.memmap(data, dtype=endian + "f4", mode="r", offset=ctl["fileheader"], shape=(nt, per_time, ny, nx))
+            raise DataError(f"is {size} bytes, the descriptor needs {need} (wrong dimensions?)", path=data,
+                            field="dset")
+        self._data = np.memmap(data, dtype=endian + "f4", mode="r", offset=ctl["fileheader"],
+                               shape=(nt, per_time, ny, nx))
         self._undef = ctl.get("undef")
         lat_file = ctl["ydef"][::-1] if "yrev" in ctl["options"] else ctl["ydef"]
         lon, lat, lon_index, lat_index = tidy_lonlat(ctl["xdef"], lat_file, path, "xdef", "ydef")
@@ -219,12 +223,14 @@ class GradsDataset(FileDataset):
             raise DataError("levels are not monotonic (non-monotonic levels)", path=path, field="zdef")
         kind = vertical if vertical != "auto" else ("pressure" if d[0] < 0 else "height")
         if kind not in ("pressure", "height"):
-            raise DataError(f"vertical must be 'auto', 'pressure' or 'height', got {vertical!r}", path=path, field="zdef")
+            raise DataError(f"vertical must be 'auto', 'pressure' or 'height', got {vertical!r}", path=path,
+                            field="zdef")
         upward = -z if kind == "pressure" else z
         level_index = np.arange(nz) if upward[1] > upward[0] else np.arange(nz)[::-1]
         self._zrev = "zrev" in ctl["options"]
         if self._zrev and any(0 < levs < nz for _, levs, _ in ctl["vars"]):
-            raise DataError("OPTIONS zrev with variables on fewer levels than ZDEF is not supported", path=path, field="options")
+            raise DataError("OPTIONS zrev with variables on fewer levels than ZDEF is not supported", path=path,
+                            field="options")
         fields, skipped = {}, {}
         for name, levs, desc in ctl["vars"]:
             if levs == 0:
@@ -247,8 +253,10 @@ class GradsDataset(FileDataset):
             pressure, desc = (lambda t: p3), f"pressure levels, heights from the {source} (not terrain following)"
         else:
             heights, pressure, desc = z, None, "height levels (flat)"
-        grid = GlobeGrid(lon, lat, np.broadcast_to(np.asarray(heights)[:, None, None], (nz, lat.size, lon.size))).validate(path)
-        super().__init__(path, grid, ctl["tdef"], fields, order, pressure=pressure, rh_crit=rh_crit, vertical=desc, skipped=skipped, cache_steps=cache_steps)
+        grid = GlobeGrid(lon, lat,
+                         np.broadcast_to(np.asarray(heights)[:, None, None], (nz, lat.size, lon.size))).validate(path)
+        super().__init__(path, grid, ctl["tdef"], fields, order, pressure=pressure, rh_crit=rh_crit, vertical=desc,
+                         skipped=skipped, cache_steps=cache_steps)
 
     def _mean_heights(self, fields, order):
         for std in ("z", "hgt", "Z"):

@@ -61,7 +61,8 @@ class GribDataset(FileDataset):
         The member read.
     """
 
-    def __init__(self, path, *, level_type=None, member=None, radius=None, variables=None, rh_crit=RH_CRIT, cache_steps=8):
+    def __init__(self, path, *, level_type=None, member=None, radius=None, variables=None, rh_crit=RH_CRIT,
+                 cache_steps=8):
         from . import griblevels
         from .gribscan import open_index
 
@@ -69,7 +70,8 @@ class GribDataset(FileDataset):
         self._notes = list(index.notes)
         self.level_types = self._survey(index)
         self.level_type = self._choose_level_type(path, level_type)
-        rows = np.flatnonzero(np.isin(index.group, [g for g, info in enumerate(index.groups) if info["typeOfLevel"] == self.level_type]))
+        rows = np.flatnonzero(np.isin(index.group, [g for g, info in enumerate(index.groups)
+                                                    if info["typeOfLevel"] == self.level_type]))
         rows = self._choose_member(path, rows, member)
         names, skipped = self._variables(path, rows)
         self._levels, times = self._axes(names)
@@ -85,13 +87,15 @@ class GribDataset(FileDataset):
         heights, level_index, pressure, vertical = griblevels.vertical(self, path, lat_index, lon_index)
         grid = GlobeGrid(lon, lat, heights, rotation=g.rotation, lon2d=lon2d, lat2d=lat2d).validate(path)
         fields = self._field_map(path, names, skipped, variables)
-        super().__init__(path, grid, times, fields, (level_index, lat_index, lon_index), pressure=pressure, rh_crit=rh_crit,
+        super().__init__(path, grid, times, fields, (level_index, lat_index, lon_index), pressure=pressure,
+                         rh_crit=rh_crit,
                          vertical=vertical, skipped=skipped, notes=self._notes, cache_steps=cache_steps)
         index.save()
 
     # ------------------------------------------------------------------ what the file holds
     def _survey(self, index):
-        """``{typeOfLevel: {"3d": n, "fields": n}}``: 3-D variables (a parameter on two or more levels) and fields per kind."""
+        """``{typeOfLevel: {"3d": n, "fields": n}}``: 3-D variables (a parameter on two or more levels) and
+        fields per kind."""
         by_type = {}
         for g, info in enumerate(index.groups):
             by_type.setdefault(info["typeOfLevel"], {}).setdefault(tuple(info["raw"]), []).append(g)
@@ -110,7 +114,8 @@ class GribDataset(FileDataset):
         kinds = self.level_types
         if asked is not None:
             if asked not in kinds:
-                raise DataError(f"no fields on level type {asked!r} (found: {', '.join(sorted(kinds))})", path=path, field="level_type")
+                raise DataError(f"no fields on level type {asked!r} (found: {', '.join(sorted(kinds))})", path=path,
+                                field="level_type")
             if kinds[asked]["3d"] == 0:
                 raise DataError(f"level type {asked!r} has no field on two or more levels (3-D fields: "
                                 f"{_summary(kinds) or 'none'})", path=path, field="level_type")
@@ -118,7 +123,8 @@ class GribDataset(FileDataset):
         usable = {k: v for k, v in kinds.items() if v["3d"] and k not in ATMOSPHERE_SKIP}
         if not usable:
             damaged = "".join(f"; {n}" for n in self._notes if n.startswith("scan:"))
-            raise DataError(f"no 3-D field: no parameter on two or more levels of one kind (level types: {', '.join(sorted(kinds))})"
+            raise DataError("no 3-D field: no parameter on two or more levels of one kind (level types: "
+                            f"{', '.join(sorted(kinds))})"
                             + damaged, path=path, field="variables")
         return max(usable, key=lambda k: (usable[k]["3d"], k in _PREFER, -_PREFER.index(k) if k in _PREFER else 0, k))
 
@@ -127,7 +133,8 @@ class GribDataset(FileDataset):
         self.members = [int(n) for n in numbers if n >= 0]
         if not self.members:
             if member is not None:
-                raise DataError(f"member {member} asked for, but the file has no ensemble members", path=path, field="member")
+                raise DataError(f"member {member} asked for, but the file has no ensemble members", path=path,
+                                field="member")
             self.member = None
             return rows
         if member is None:
@@ -143,7 +150,8 @@ class GribDataset(FileDataset):
         found = {}
         for g in np.unique(index.group[rows]):
             c = index.concept(int(g))
-            name = c["shortName"] if c["shortName"] not in (None, "unknown") else "param_" + "_".join(str(r) for r in index.groups[g]["raw"][1:4])
+            name = (c["shortName"] if c["shortName"] not in (None, "unknown")
+                    else "param_" + "_".join(str(r) for r in index.groups[g]["raw"][1:4]))
             processing = index.groups[g]["raw"][5 if index.groups[g]["edition"] == 2 else 3]  # statistical processing
             found.setdefault((name, processing), []).append(int(g))
         names, skipped, self._concept_of = {}, {}, {}
@@ -186,8 +194,8 @@ class GribDataset(FileDataset):
             table[t, k] = order
             self._table[name] = table
         if clashes:
-            self._notes.append(f"time: {clashes} field(s) repeat a valid time from an earlier reference time; the later "
-                               "reference time (shorter lead) is read")
+            self._notes.append(f"time: {clashes} field(s) repeat a valid time from an earlier reference time; the "
+                               "later reference time (shorter lead) is read")
         missing = {n: int((tab < 0).all(axis=0).sum()) for n, tab in self._table.items()}
         partial = [f"{n} ({levels.size - m} of {levels.size})" for n, m in sorted(missing.items()) if m]
         if partial:
@@ -230,11 +238,13 @@ class GribDataset(FileDataset):
         chosen = {raw: std for std, raw in (variables or {}).items()}
         for raw in chosen:
             if raw not in names:
-                raise DataError(f"is not a 3-D field on the {self.level_type} levels (fields: {', '.join(names)})", path=path, field=raw)
+                raise DataError(f"is not a 3-D field on the {self.level_type} levels (fields: {', '.join(names)})",
+                                path=path, field=raw)
         fields, taken = {}, {}
         for name in sorted(names, key=lambda n: n not in chosen):
             c = self._concept_of[name]
-            std = chosen.get(name) or standard_name(name, {"standard_name": c.get("cfName") or "", "units": c.get("units") or ""})
+            std = chosen.get(name) or standard_name(name, {"standard_name": c.get("cfName") or "",
+                                                           "units": c.get("units") or ""})
             if std in fields:
                 skipped[name] = f"another variable ({taken[std]!r}) already gives {std!r}"
                 continue
@@ -256,7 +266,8 @@ class GribDataset(FileDataset):
         index = self._index
         want = self._valid[t]
         for g, info in enumerate(index.groups):
-            if info["typeOfLevel"] not in level_types or info["grid"] != self._grid_id or index.short_name(g) != short_name:
+            if (info["typeOfLevel"] not in level_types or info["grid"] != self._grid_id
+                    or index.short_name(g) != short_name):
                 continue
             rows = np.flatnonzero((index.group == g) & (index.valid == want))
             if self.member is not None:
@@ -272,7 +283,8 @@ class GribDataset(FileDataset):
 
 def _ranges(numbers):
     numbers = sorted(numbers)
-    return f"{numbers[0]}..{numbers[-1]}" if numbers == list(range(numbers[0], numbers[-1] + 1)) and len(numbers) > 2 else ", ".join(map(str, numbers))
+    return (f"{numbers[0]}..{numbers[-1]}" if numbers == list(range(numbers[0], numbers[-1] + 1)) and len(numbers) > 2
+            else ", ".join(map(str, numbers)))
 
 
 def _summary(kinds):
@@ -304,8 +316,8 @@ def open_grib(path, **kw):
     """
     given = sorted(k for k in ("vertical", "p0", "time_units") if kw.get(k) is not None)
     if given:
-        raise DataError(f"GRIB files state their levels and times; {', '.join(given)} apply to NetCDF and Zarr files", path=path,
-                        field=given[0])
+        raise DataError(f"GRIB files state their levels and times; {', '.join(given)} apply to NetCDF and Zarr files",
+                        path=path, field=given[0])
     for k in ("vertical", "p0", "time_units"):
         kw.pop(k, None)
     from .gribscan import need_eccodes
@@ -314,7 +326,8 @@ def open_grib(path, **kw):
     try:
         return GribDataset(path, **kw)
     except eccodes.CodesInternalError as exc:  # a message that scanned but will not open: one line, as everywhere
-        raise DataError(f"cannot read as GRIB ({type(exc).__name__}: {str(exc).strip().splitlines()[0] if str(exc).strip() else ''})",
+        raise DataError(f"cannot read as GRIB ({type(exc).__name__}: "
+                        f"{str(exc).strip().splitlines()[0] if str(exc).strip() else ''})",
                         path=path) from None
 
 

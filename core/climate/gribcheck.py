@@ -46,15 +46,17 @@ def _sections(f, path, n, start, end):
         head = f.read(5)
         if head[:4] == b"7777":
             if pos + 4 != end:
-                raise DataError(f"cannot open as GRIB (message {n} at byte {start} ends before its stated length)", path=path)
+                raise DataError(f"cannot open as GRIB (message {n} at byte {start} ends before its stated length)",
+                                path=path)
             return points
         if len(head) < 5:
             break
         length, number = int.from_bytes(head[:4], "big"), head[4]
         if not 1 <= number <= 7 or length < 5 or pos + length > end - 4:
-            raise DataError(f"cannot open as GRIB (message {n} at byte {start} is damaged: section {number} at byte {pos} "
-                            f"claims {length} bytes, the message has {end - pos - 4} left)", path=path)
-        if number in (3, 5):  # the grid's number of data points; the packed number of values (ecCodes decodes that many)
+            raise DataError(f"cannot open as GRIB (message {n} at byte {start} is damaged: section {number} at byte "
+                            f"{pos} claims {length} bytes, the message has {end - pos - 4} left)", path=path)
+        if number in (3, 5):
+            # the grid's number of data points; the packed number of values (ecCodes decodes that many)
             want = 5 if number == 3 else 4
             body = f.read(want)
             if len(body) == want:

@@ -43,7 +43,8 @@ _ROTATED = ("rotated_ll", "rotated_gg")
 _KEYS = ("gridType", "Ni", "Nj", "N", "pl", "jPointsAreConsecutive", "alternativeRowScanning", "iScansNegatively",
          "jScansPositively", "latitudeOfFirstGridPointInDegrees", "longitudeOfFirstGridPointInDegrees",
          "latitudeOfLastGridPointInDegrees", "longitudeOfLastGridPointInDegrees", "latitudeOfSouthernPoleInDegrees",
-         "longitudeOfSouthernPoleInDegrees", "angleOfRotationInDegrees", "latitudeOfGridPoints", "longitudeOfGridPoints",
+         "longitudeOfSouthernPoleInDegrees", "angleOfRotationInDegrees", "latitudeOfGridPoints",
+         "longitudeOfGridPoints",
          "angleDivisor", "radius", "earthIsOblate", "earthMajorAxis", "earthMinorAxis", "numberOfDataPoints",
          "gridDefinitionDescription", "isOctahedral")
 
@@ -97,13 +98,16 @@ class GribGrid:
 
     def arrays(self):
         """The grid as plain arrays and JSON-able metadata (to keep with the GRIB index)."""
-        meta = {"kind": self.kind, "shape": list(self.shape), "transpose": self.transpose, "radius": self.radius, "notes": self.notes}
-        arrays = {k: getattr(self, k) for k in ("lon", "lat", "lon2d", "lat2d", "rotation", "pl") if getattr(self, k) is not None}
+        meta = {"kind": self.kind, "shape": list(self.shape), "transpose": self.transpose, "radius": self.radius,
+                "notes": self.notes}
+        arrays = {k: getattr(self, k) for k in ("lon", "lat", "lon2d", "lat2d", "rotation", "pl")
+                  if getattr(self, k) is not None}
         return meta, arrays
 
     @classmethod
     def from_arrays(cls, meta, arrays):
-        return cls(meta["kind"], tuple(meta["shape"]), transpose=meta["transpose"], radius=meta["radius"], notes=list(meta["notes"]),
+        return cls(meta["kind"], tuple(meta["shape"]), transpose=meta["transpose"], radius=meta["radius"],
+                   notes=list(meta["notes"]),
                    **{k: arrays[k] for k in ("lon", "lat", "lon2d", "lat2d", "rotation", "pl") if k in arrays})
 
 
@@ -127,12 +131,13 @@ def grid_of(index, i, path, field):
     elif kind == "ncep_32769":
         g = _ncep_rotated(k, radius)
     elif kind == "sh":
-        raise DataError("is a spectral field (spherical harmonics); transform it to a grid first (e.g. 'cdo sp2gp')", path=path, field=field)
+        raise DataError("is a spectral field (spherical harmonics); transform it to a grid first (e.g. 'cdo sp2gp')",
+                        path=path, field=field)
     elif int(k["Ni"] or 0) > 0 and int(k["Nj"] or 0) > 0 and not str(kind).startswith("reduced"):
         g = _projected(index, i, k, path, field)
     else:
-        raise DataError(f"grid type {kind!r} ({k['gridDefinitionDescription']}) is not read: regular, reduced Gaussian, rotated "
-                        "and projected grids are", path=path, field=field)
+        raise DataError(f"grid type {kind!r} ({k['gridDefinitionDescription']}) is not read: regular, reduced "
+                        "Gaussian, rotated and projected grids are", path=path, field=field)
     g.radius = radius
     return g
 
@@ -191,7 +196,8 @@ def _rotated(index, i, k, path, field):
     between tools (ecCodes shifts true longitudes by it), and products use 0."""
     angle = float(k["angleOfRotationInDegrees"] or 0.0)
     if angle != 0.0:
-        raise DataError(f"rotated grid with an angle of rotation of {angle:g} degrees is not read (only 0 is)", path=path, field=field)
+        raise DataError(f"rotated grid with an angle of rotation of {angle:g} degrees is not read (only 0 is)",
+                        path=path, field=field)
     shape, transpose, lon, lat = _axes(index, i, k, path, field, unrotated=False)
     sp_lat, sp_lon = float(k["latitudeOfSouthernPoleInDegrees"]), float(k["longitudeOfSouthernPoleInDegrees"])
     rotation = rotated_pole_matrix(sp_lon + 180.0, -sp_lat, 0.0)
@@ -233,14 +239,15 @@ def _reduced_gaussian(index, i, k, path, field):
     nj = int(k["Nj"])
     lon_first = float(k["longitudeOfFirstGridPointInDegrees"])
     if pl.size != nj or int(pl.sum()) != int(k["numberOfDataPoints"]) or lon_first != 0.0 or int(k["N"]) * 2 != nj:
-        raise DataError(f"is a sub-area of a reduced Gaussian grid ({nj} rows, first longitude {lon_first:g}); only global "
-                        "reduced Gaussian grids are expanded", path=path, field=field)
+        raise DataError(f"is a sub-area of a reduced Gaussian grid ({nj} rows, first longitude {lon_first:g}); only "
+                        "global reduced Gaussian grids are expanded", path=path, field=field)
     _, lat = _positions(index, i, path, field)
     starts = np.concatenate([[0], np.cumsum(pl)[:-1]])
     ni = int(pl.max())
     octa = "octahedral " if k.get("isOctahedral") else ""
-    note = (f"grid: {octa}reduced Gaussian N{int(k['N'])} ({int(pl.sum())} points, {int(pl.min())}..{ni} per latitude) expanded "
-            f"to a regular {ni} x {nj} Gaussian grid by linear interpolation along each latitude circle")
+    note = (f"grid: {octa}reduced Gaussian N{int(k['N'])} ({int(pl.sum())} points, {int(pl.min())}..{ni} per "
+            f"latitude) expanded to a regular {ni} x {nj} Gaussian grid by linear interpolation along each latitude "
+            "circle")
     return GribGrid("reduced_gg", (nj, ni), lon=np.arange(ni) * (360.0 / ni), lat=lat[starts], pl=pl, notes=[note])
 
 

@@ -95,7 +95,8 @@ def _isobaric(ds, path, take):
 
 
 def _isobaric_heights(ds, p, level_index, take):
-    """Heights of pressure levels: the mean geopotential height of each in the first step, else the standard atmosphere."""
+    """Heights of pressure levels: the mean geopotential height of each in the first step, else the standard
+    atmosphere."""
     heights = standard_height(p)
     source = "standard atmosphere"
     found = _geopotential(ds)
@@ -143,13 +144,14 @@ def _hybrid(ds, path, take):
     nlev = a.size - 1
     n = ds._levels.astype(np.int64)
     if n.min() < 1 or n.max() > nlev:
-        raise DataError(f"model levels {n.min()}..{n.max()} do not fit the {nlev} levels of the pv coefficients", path=path, field="pv")
+        raise DataError(f"model levels {n.min()}..{n.max()} do not fit the {nlev} levels of the pv coefficients",
+                        path=path, field="pv")
     upper = n - 1 if numbered_from_top else nlev - n  # half levels above and below each full level (top-down)
     if _surface_pressure(ds, 0, take) is None:
         if _field(ds, "pres") is not None:
             return _native(ds, path, take)
-        raise DataError("hybrid levels need the surface pressure (lnsp on model level 1, or sp on the surface) for the same "
-                        "times and member", path=path, field="pv")
+        raise DataError("hybrid levels need the surface pressure (lnsp on model level 1, or sp on the surface) for "
+                        "the same times and member", path=path, field="pv")
 
     def pressure_of(t):
         ps = _surface_pressure(ds, t, take)
@@ -196,7 +198,8 @@ def _hybrid_heights(ds, take, half, upper, level_index, nlev):
             how += f", surface at {where!r}" if where else ", surface at sea level (no z or orog in the file)"
             return z[rank][level_index], how
     p = 0.5 * (half[upper] + half[upper + 1])[level_index]
-    return standard_height(p), "from the standard atmosphere of the pressure (not every level from the lowest up, or no t)"
+    return standard_height(p), ("from the standard atmosphere of the pressure (not every level from the lowest up, "
+                                "or no t)")
 
 
 def _native(ds, path, take):
@@ -245,8 +248,8 @@ def _by_geopotential(ds, path, take):
     z = ds._raw(name, 0)[take] * scale
     holes = int((~np.isfinite(z)).any(axis=0).sum())
     if holes:
-        raise DataError(f"cannot place {ds.level_type} levels: {name!r} is missing in {holes} column(s) (the levels do not "
-                        "exist everywhere); choose another kind with level_type=", path=path, field="level_type")
+        raise DataError(f"cannot place {ds.level_type} levels: {name!r} is missing in {holes} column(s) (the levels "
+                        "do not exist everywhere); choose another kind with level_type=", path=path, field="level_type")
     level_index = _order(np.nanmean(z.reshape(z.shape[0], -1), axis=1), path, "level")
     pres = _field(ds, "pres")
     pressure = None
@@ -254,7 +257,8 @@ def _by_geopotential(ds, path, take):
         def pressure(t):
             return ds._raw(pres, t)[take][level_index].astype(np.float32)
 
-    return z[level_index], level_index, pressure, f"{ds.level_type} levels at the heights of {name!r} (terrain following)"
+    return (z[level_index], level_index, pressure,
+            f"{ds.level_type} levels at the heights of {name!r} (terrain following)")
 
 
 __all__ = ["ISOBARIC", "vertical"]

@@ -50,13 +50,15 @@ _KEYS_2 = ("centre", "discipline", "parameterCategory", "parameterNumber", "prod
            "typeOfStatisticalProcessing", "typeOfSecondFixedSurface")
 CONCEPTS = ("shortName", "name", "units", "cfName")
 """ecCodes' table look-ups made once per group of messages (each costs milliseconds: only those Nephele uses)."""
-LEVEL_AXES = frozenset({"isobaricInhPa", "isobaricInPa", "hybrid", "sigma", "theta", "potentialVorticity", "heightAboveSea",
+LEVEL_AXES = frozenset({"isobaricInhPa", "isobaricInPa", "hybrid", "sigma", "theta", "potentialVorticity",
+                        "heightAboveSea",
                         "generalVertical", "generalVerticalLayer", "hybridHeight", "hybridPressure", "snow", "soil"})
 """Kinds of level whose level value never changes a field's name (``2t`` versus ``t`` at 2 m does change it
 on ``heightAboveGround``, so other kinds keep the level in the group key)."""
 
 
-NCEP_GRIB1 = {153: ("clwmr", "Cloud mixing ratio"), 154: ("o3mr", "Ozone mixing ratio"), 170: ("rwmr", "Rain mixing ratio"),
+NCEP_GRIB1 = {153: ("clwmr", "Cloud mixing ratio"), 154: ("o3mr", "Ozone mixing ratio"),
+              170: ("rwmr", "Rain mixing ratio"),
               171: ("snmr", "Snow mixing ratio"), 178: ("icmr", "Ice water mixing ratio")}
 """NCEP's GRIB1 parameter table 2 (Office Note 388) entries ecCodes 2.50 has no name for (in kg/kg): the
 hydrometeor mixing ratios of GFS GRIB1 files, which ecCodes calls ``unknown``."""
@@ -92,11 +94,11 @@ def _multi(eccodes, f):
 def _stamp(path):
     """``(resolved path, identity)``: the file's path, size and modification time, and the reader's code
     (what the index keeps, level heights included, was made by this code from this file)."""
+    from ..files import file_stamp
     from ..pipeline.codehash import code_stamp
 
-    from ..files import file_stamp
-
-    return Path(path).resolve(), f"{file_stamp(path)}|v{INDEX_VERSION}|{code_stamp(Path(__file__).with_name('grib.py'))}"
+    return (Path(path).resolve(),
+            f"{file_stamp(path)}|v{INDEX_VERSION}|{code_stamp(Path(__file__).with_name('grib.py'))}")
 
 
 def _datetime(dates, times):
@@ -104,7 +106,8 @@ def _datetime(dates, times):
     out = np.empty(len(dates), dtype="datetime64[s]")
     pairs = np.stack([np.asarray(dates, np.int64), np.asarray(times, np.int64)], axis=1)
     for (d, t), rows in zip(*_unique_rows(pairs), strict=True):
-        out[rows] = np.datetime64(f"{d // 10000:04d}-{d // 100 % 100:02d}-{d % 100:02d}T{t // 100:02d}:{t % 100:02d}", "s")
+        out[rows] = np.datetime64(f"{d // 10000:04d}-{d // 100 % 100:02d}-{d % 100:02d}T{t // 100:02d}:{t % 100:02d}",
+                                  "s")
     return out
 
 
@@ -168,7 +171,8 @@ class GribIndex:
                 for _ in range(field + 1):
                     h = eccodes.codes_grib_new_from_file(f, headers_only=headers_only)
         if h is None:
-            raise DataError(f"message at byte {int(self.offset[i])} is missing (the file changed while open?)", path=self.path)
+            raise DataError(f"message at byte {int(self.offset[i])} is missing (the file changed while open?)",
+                            path=self.path)
         return h
 
     def values(self, i):
@@ -183,8 +187,8 @@ class GribIndex:
                 if eccodes.codes_get_long(h, "bitmapPresent"):
                     v = np.where(v == eccodes.codes_get_double(h, "missingValue"), np.nan, v)
             except (eccodes.CodesInternalError, OSError) as exc:
-                raise DataError(f"cannot decode the message at byte {int(self.offset[i])} ({type(exc).__name__}: {exc})",
-                                path=self.path) from None
+                raise DataError(f"cannot decode the message at byte {int(self.offset[i])} "
+                                f"({type(exc).__name__}: {exc})", path=self.path) from None
             finally:
                 if h is not None:
                     eccodes.codes_release(h)
@@ -208,11 +212,13 @@ class GribIndex:
         return out
 
     def concept(self, g, keys=CONCEPTS):
-        """ecCodes' names of group ``g`` (``keys``, by default :data:`CONCEPTS`), each looked up once and kept with the index."""
+        """ecCodes' names of group ``g`` (``keys``, by default :data:`CONCEPTS`), each looked up once and kept
+        with the index."""
         have = self._concepts.setdefault(g, {})
         missing = [k for k in keys if k not in have]
         if missing:
-            have.update({k: (None if v is None else str(v)) for k, v in self.get(self.groups[g]["first"], missing).items()})
+            have.update({k: (None if v is None else str(v))
+                         for k, v in self.get(self.groups[g]["first"], missing).items()})
             raw = self.groups[g]["raw"]
             if have.get("shortName") == "unknown" and self.groups[g]["edition"] == 1 and raw[0] in ("kwbc", "7") \
                     and raw[1] in ("1", "2", "3") and int(raw[2]) in NCEP_GRIB1:
@@ -335,12 +341,14 @@ def scan(path):
             row["group"] = g
             rows.append(row)
     if damaged:
-        notes.append(f"scan: skipped {len(damaged)} damaged message(s) at byte {', '.join(damaged[:3])}" + (" ..." if len(damaged) > 3 else ""))
+        notes.append(f"scan: skipped {len(damaged)} damaged message(s) at byte {', '.join(damaged[:3])}"
+                     + (" ..." if len(damaged) > 3 else ""))
     if not rows:
         why = f"no readable GRIB message; {notes[0][6:]}" if notes else "no GRIB message found: not GRIB"
         raise DataError(f"cannot open as GRIB ({why})", path=path)
     col = {k: np.array([r[k] for r in rows]) for k in ("offset", "field", "group", "level", "number")}
-    arrays = {"offset": col["offset"].astype(np.int64), "field": col["field"].astype(np.int64), "group": col["group"].astype(np.int32),
+    arrays = {"offset": col["offset"].astype(np.int64), "field": col["field"].astype(np.int64),
+              "group": col["group"].astype(np.int32),
               "level": col["level"].astype(np.float64), "number": col["number"].astype(np.int64),
               "valid": _datetime([r["vdate"] for r in rows], [r["vtime"] for r in rows]),
               "ref": _datetime([r["rdate"] for r in rows], [r["rtime"] for r in rows])}

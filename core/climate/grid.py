@@ -80,7 +80,8 @@ def rotated_pole_matrix(pole_lon, pole_lat, pole_grid_lon=0.0):
     lam = np.deg2rad(float(pole_lon) + 180.0)
     o = np.deg2rad(float(pole_grid_lon))
     # Grid longitude pole_grid_lon → 180°, so that the true pole's meridian lines up.
-    rz_o = np.array([[np.cos(np.pi - o), -np.sin(np.pi - o), 0.0], [np.sin(np.pi - o), np.cos(np.pi - o), 0.0], [0.0, 0.0, 1.0]])
+    rz_o = np.array([[np.cos(np.pi - o), -np.sin(np.pi - o), 0.0], [np.sin(np.pi - o), np.cos(np.pi - o), 0.0],
+                     [0.0, 0.0, 1.0]])
     ry = np.array([[np.sin(phi), 0.0, -np.cos(phi)], [0.0, 1.0, 0.0], [np.cos(phi), 0.0, np.sin(phi)]])
     rz = np.array([[np.cos(lam), -np.sin(lam), 0.0], [np.sin(lam), np.cos(lam), 0.0], [0.0, 0.0, 1.0]])
     return rz @ ry @ rz_o @ np.diag([-1.0, -1.0, 1.0])
@@ -97,7 +98,8 @@ def right_handed(lon2d, lat2d):
 
 def _distinct(a):
     """``a`` with every broadcast axis (stride 0) cut to length 1: the same values, each once."""
-    return a[tuple(slice(0, 1) if stride == 0 and n > 1 else slice(None) for stride, n in zip(a.strides, a.shape, strict=True))]
+    return a[tuple(slice(0, 1) if stride == 0 and n > 1 else slice(None)
+                   for stride, n in zip(a.strides, a.shape, strict=True))]
 
 
 @dataclass(frozen=True, eq=False)
@@ -154,7 +156,8 @@ class GlobeGrid:
         if self.rotation is not None:
             object.__setattr__(self, "rotation", np.asarray(self.rotation, dtype=np.float64).reshape(3, 3))
         if (self.lon2d is None) != (self.lat2d is None):
-            raise DataError("a curvilinear grid needs both lon2d and lat2d", field="lon2d" if self.lon2d is None else "lat2d")
+            raise DataError("a curvilinear grid needs both lon2d and lat2d",
+                            field="lon2d" if self.lon2d is None else "lat2d")
         if self.lon2d is not None:
             if self.rotation is not None:
                 raise DataError("a grid is either rotated-pole or curvilinear (2-D lon/lat), not both", field="lon2d")
@@ -170,7 +173,8 @@ class GlobeGrid:
         """Raise :class:`DataError` for a curvilinear grid: ``what`` needs 1-D longitude/latitude axes."""
         if self.curvilinear:
             raise DataError(
-                f"{what} on a curvilinear grid (2-D longitude/latitude) is not supported yet; contours, volumes, advected textures and flow volumes are",
+                f"{what} on a curvilinear grid (2-D longitude/latitude) is not supported yet; contours, volumes, "
+                "advected textures and flow volumes are",
                 path=path,
                 field="grid",
             )
@@ -204,7 +208,8 @@ class GlobeGrid:
         if self.curvilinear:
             for name, c in (("lon2d", self.lon2d), ("lat2d", self.lat2d)):
                 if c.shape != (lat.size, lon.size):
-                    raise DataError(f"shape {c.shape} does not match (lat={lat.size}, lon={lon.size})", path=path, field=name)
+                    raise DataError(f"shape {c.shape} does not match (lat={lat.size}, lon={lon.size})", path=path,
+                                    field=name)
                 if not np.all(np.isfinite(c)):
                     raise DataError("has NaN or infinite coordinates", path=path, field=name)
             if np.any(np.abs(self.lat2d) > 90.0):
@@ -223,7 +228,8 @@ class GlobeGrid:
         if not np.all(np.isfinite(height)):
             raise DataError("has NaN or infinite level heights", path=path, field="height")
         if not np.all(np.diff(height, axis=0) > 0):
-            raise DataError("levels are not strictly increasing upward (non-monotonic levels)", path=path, field="height")
+            raise DataError("levels are not strictly increasing upward (non-monotonic levels)", path=path,
+                            field="height")
         return self
 
     def radii(self, radius=1.0, exaggeration=DEFAULT_EXAGGERATION):

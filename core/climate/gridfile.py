@@ -25,13 +25,14 @@ import re
 
 import numpy as np
 
-from .dataset import Dataset, Variable
 from ..errors import DataError
+from .dataset import Dataset, Variable
 from .humidity import RH_CRIT, relative_humidity, sundqvist_cloud
 
 # Lower-case file names (CF, ECMWF/ERA, ECHAM, NCEP, GrADS, CMIP, MERRA-2, WRF, CAM) → standard name.
 ALIASES = {
-    "cloud": ("cloud", "cc", "clc", "cl", "aclcac", "cldfrac", "cldfra", "cloud_fraction", "cloudiness", "cfrac", "tcc"),
+    "cloud": ("cloud", "cc", "clc", "cl", "aclcac", "cldfrac", "cldfra", "cloud_fraction", "cloudiness", "cfrac",
+              "tcc"),
     "cloud_water": ("cloud_water", "clwmr", "clwc", "clw", "ql", "qcloud", "qc", "cldliq", "cloud_liquid_water"),
     "cloud_ice": ("cloud_ice", "icmr", "ciwc", "cli", "qi", "qice", "cldice", "cloud_ice_water"),
     "temperature": ("t", "ta", "temp", "air", "temperature", "air_temperature", "tk"),
@@ -56,8 +57,8 @@ STANDARD_NAMES = {
     "relative_humidity": "rh",
     "specific_humidity": "q",
 }
-UNITS = {"cloud": "1", "cloud_water": "kg/kg", "cloud_ice": "kg/kg", "temperature": "K", "u": "m/s", "v": "m/s", "w": "m/s",
-         "omega": "Pa/s", "rh": "1", "q": "kg/kg", "pressure": "Pa"}
+UNITS = {"cloud": "1", "cloud_water": "kg/kg", "cloud_ice": "kg/kg", "temperature": "K", "u": "m/s", "v": "m/s",
+         "w": "m/s", "omega": "Pa/s", "rh": "1", "q": "kg/kg", "pressure": "Pa"}
 _PER_TIME_PRESSURE = ("pas-1", "pa/s", "pas**-1", "pa.s-1", "hpas-1", "hpa/s", "mb/s")
 
 
@@ -142,7 +143,8 @@ def tidy_lonlat(lon, lat, path, lon_name="lon", lat_name="lat"):
     lat = np.asarray(lat, dtype=np.float64)
     for name, c in ((lon_name, lon), (lat_name, lat)):
         if c.ndim != 1:
-            raise DataError(f"is {c.ndim}-D; only rectilinear longitude × latitude grids are read", path=path, field=name)
+            raise DataError(f"is {c.ndim}-D; only rectilinear longitude × latitude grids are read", path=path,
+                            field=name)
         if c.size < 2:
             raise DataError(f"needs at least 2 values, got {c.size}", path=path, field=name)
         if not np.all(np.isfinite(c)):
@@ -203,7 +205,8 @@ class FileDataset(Dataset):
     is ``ds.read("temperature", 0)``).
     """
 
-    def __init__(self, path, grid, times, fields, order, *, pressure=None, rh_crit=RH_CRIT, vertical="", skipped=None, notes=(), cache_steps=8):
+    def __init__(self, path, grid, times, fields, order, *, pressure=None, rh_crit=RH_CRIT, vertical="", skipped=None,
+                 notes=(), cache_steps=8):
         self.path = str(path)
         self.notes = list(notes)
         self._fields = dict(fields)
@@ -232,11 +235,14 @@ class FileDataset(Dataset):
             variables.append(Variable("cloud", "1", "cloud fraction from RH (Sundqvist 1989)"))
             self.derived["cloud"] = f"rh, Sundqvist (1989), RH_crit={_fmt_crit(rh_crit)}"
         nk = grid.shape[0]
-        self.rh_crit = np.broadcast_to(np.asarray(rh_crit, dtype=np.float64), (nk,)).reshape(nk, 1, 1) if np.ndim(rh_crit) else float(rh_crit)
+        self.rh_crit = (np.broadcast_to(np.asarray(rh_crit, dtype=np.float64), (nk,)).reshape(nk, 1, 1)
+                        if np.ndim(rh_crit)
+                        else float(rh_crit))
         super().__init__(grid, times, variables, path, cache_steps)
         # A file name that is another standard name (GRIB's w in Pa/s is omega) never stands for it: code asking
         # for "w" means the upward wind in m/s.
-        self.aliases = {raw: std for std, raw in self.file_names.items() if raw != std and raw not in self.variables and raw not in UNITS}
+        self.aliases = {raw: std for std, raw in self.file_names.items() if raw != std and raw not in self.variables
+                        and raw not in UNITS}
         for std in self.variables:  # by meaning: --var clwmr and --var cloud_water reach the same field in any file
             for alias in meaning_aliases(std):
                 if alias not in self.variables:
@@ -308,10 +314,12 @@ def cf_times_or_steps(values, units, calendar, path, field="time"):
     except DataError as exc:
         if "calendar" in exc.problem or "NaN" in exc.problem:
             raise
-        return step_times(values.size), f"{field}: {exc.problem}; the {values.size} step(s) are numbered 0..{values.size - 1}, one hour apart"
+        return step_times(values.size), (f"{field}: {exc.problem}; the {values.size} step(s) are numbered "
+                                         f"0..{values.size - 1}, one hour apart")
 
 
-_CALENDARS = ("standard", "gregorian", "proleptic_gregorian", "noleap", "365_day", "all_leap", "366_day", "360_day", "julian", "none")
+_CALENDARS = ("standard", "gregorian", "proleptic_gregorian", "noleap", "365_day", "all_leap", "366_day", "360_day",
+              "julian", "none")
 
 
 def cf_times(values, units, calendar, path, field="time"):
@@ -327,7 +335,8 @@ def cf_times(values, units, calendar, path, field="time"):
         raise DataError(f"calendar {calendar!r} is not a CF calendar ({', '.join(_CALENDARS)})", path=path, field=field)
     m = re.match(r"\s*(\w+)\s+since\s+(.+?)\s*$", units or "")
     if not m or m.group(1).lower() not in _TIME_UNITS:
-        raise DataError(f"time units {units!r} are not '<seconds|minutes|hours|days> since <date>'", path=path, field=field)
+        raise DataError(f"time units {units!r} are not '<seconds|minutes|hours|days> since <date>'", path=path,
+                        field=field)
     ref = parse_iso(m.group(2), path, field)
     values = np.asarray(values, dtype=np.float64)
     if not np.all(np.isfinite(values)):
@@ -338,11 +347,13 @@ def cf_times(values, units, calendar, path, field="time"):
 
 def parse_iso(text, path, field):
     """A CF reference date such as ``2001-1-1 00:00:00``, ``1987-01-02T06:00Z`` or ``2001-01-01 0:0:0.0 UTC``."""
-    m = re.match(r"(-?\d{1,4})-(\d{1,2})-(\d{1,2})(?:[ T](\d{1,2}):(\d{1,2})(?::(\d{1,2})(?:\.\d*)?)?)?\s*(?:Z|UTC|GMT|[+-]00:?00)?\s*$", text.strip())
+    m = re.match(r"(-?\d{1,4})-(\d{1,2})-(\d{1,2})(?:[ "
+                 r"T](\d{1,2}):(\d{1,2})(?::(\d{1,2})(?:\.\d*)?)?)?\s*(?:Z|UTC|GMT|[+-]00:?00)?\s*$", text.strip())
     if not m:
         raise DataError(f"cannot read the reference date {text!r}", path=path, field=field)
     y, mo, d, hh, mm, ss = (int(g) if g else 0 for g in m.groups())
     return np.datetime64(f"{y:04d}-{mo:02d}-{d:02d}T{hh:02d}:{mm:02d}:{ss:02d}", "s")
 
 
-__all__ = ["ALIASES", "FileDataset", "meaning_aliases", "cf_times", "cf_times_or_steps", "plausible_units", "standard_name", "step_times", "tidy_lonlat"]
+__all__ = ["ALIASES", "FileDataset", "meaning_aliases", "cf_times", "cf_times_or_steps", "plausible_units",
+           "standard_name", "step_times", "tidy_lonlat"]

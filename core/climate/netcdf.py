@@ -67,8 +67,17 @@ import numpy as np
 
 from ..errors import DataError
 from .dataset import Variable
-from .gridfile import FileDataset, cf_times, cf_times_or_steps, parse_iso, plausible_units, standard_name, step_times, tidy_lonlat
 from .grid import EARTH_RADIUS, GlobeGrid, right_handed, rotated_pole_matrix
+from .gridfile import (
+    FileDataset,
+    cf_times,
+    cf_times_or_steps,
+    parse_iso,
+    plausible_units,
+    standard_name,
+    step_times,
+    tidy_lonlat,
+)
 from .humidity import G0, RH_CRIT
 from .netcdflevels import CAM_P0, VERTICAL_KINDS, VerticalCoordinates, _attr  # noqa: F401  (CAM_P0, VERTICAL_KINDS: public here)
 from .projections import inverse
@@ -95,14 +104,16 @@ def _find_axis(ds, path, kind):
     for name in ds.variables:
         if name.lower() in names:
             return name
-    raise DataError(f"no {std} coordinate (looked for standard_name {std}, units {units[0]}, names {'/'.join(names[:2])})", path=path, field=kind)
+    raise DataError(f"no {std} coordinate (looked for standard_name {std}, units {units[0]}, names "
+                    f"{'/'.join(names[:2])})", path=path, field=kind)
 
 
 def _find_time(ds):
     """The time coordinate: a 1-D one first (cfgrib's ``valid_time`` along ``step``), else a scalar one."""
     for ndim in (1, 0):
         for name, var in ds.variables.items():
-            if var.ndim == ndim and (_attr(var, "standard_name").lower() == "time" or _attr(var, "axis").upper() == "T" or " since " in _attr(var, "units")):
+            if var.ndim == ndim and (_attr(var, "standard_name").lower() == "time" or _attr(var, "axis").upper() == "T"
+                                     or " since " in _attr(var, "units")):
                 return name
     return "time" if "time" in ds.variables else None
 
@@ -135,7 +146,8 @@ def _month_times(values, units, calendar, path, field):
     try:
         import cftime
     except ImportError:
-        raise DataError(f"time units {units!r} need the cftime package ('pip install cftime')", path=path, field=field) from None
+        raise DataError(f"time units {units!r} need the cftime package ('pip install cftime')", path=path,
+                        field=field) from None
     cal = (calendar or "standard").strip().lower()
     if cal == "none":
         raise DataError(f"time units {units!r} with calendar 'none' have no months", path=path, field=field)
@@ -171,11 +183,13 @@ def _month_times(values, units, calendar, path, field):
     times = ref + np.rint(secs).astype(np.int64).astype("timedelta64[s]")
     note = None
     if cal != "360_day":
-        note = f"{field}: units {units!r} read as calendar months of the {cal!r} calendar (CF's month is 1/12 of 365.24 days; monthly model output means calendar months)"
+        note = (f"{field}: units {units!r} read as calendar months of the {cal!r} calendar (CF's month is 1/12 of "
+                "365.24 days; monthly model output means calendar months)")
     return times, note
 
 
-_LENGTH = {"m": 1.0, "meter": 1.0, "meters": 1.0, "metre": 1.0, "metres": 1.0, "km": 1000.0, "kilometer": 1000.0, "kilometers": 1000.0}
+_LENGTH = {"m": 1.0, "meter": 1.0, "meters": 1.0, "metre": 1.0, "metres": 1.0, "km": 1000.0, "kilometer": 1000.0,
+           "kilometers": 1000.0}
 
 
 def _projection_axes(ds):
@@ -241,15 +255,17 @@ def _is_wrf(ds, zdim):
 
 
 _MEMBER_DIMS = ("number", "realization", "member", "members", "ensemble", "ens", "member_id", "ensemble_member")
-_CELL_DIMS = {"ncells": "ICON", "cell": "ICON", "ncol": "CAM-SE", "nCells": "MPAS", "nMesh2_face": "UGRID", "nmesh2d_face": "UGRID",
-              "grid_cells": "unstructured"}
+_CELL_DIMS = {"ncells": "ICON", "cell": "ICON", "ncol": "CAM-SE", "nCells": "MPAS", "nMesh2_face": "UGRID",
+              "nmesh2d_face": "UGRID", "grid_cells": "unstructured"}
 
 
 def _member_dim(ds):
-    """The ensemble member dimension of the data variables (a known name, or a coordinate with standard_name realization)."""
+    """The ensemble member dimension of the data variables (a known name, or a coordinate with standard_name
+    realization)."""
     dims = {d for v in ds.data_vars.values() for d in v.dims}
     for name in dims:
-        if name.lower() in _MEMBER_DIMS or (name in ds.variables and _attr(ds[name], "standard_name").lower() == "realization"):
+        if name.lower() in _MEMBER_DIMS or (name in ds.variables
+                                            and _attr(ds[name], "standard_name").lower() == "realization"):
             return name
     return None
 
@@ -261,7 +277,8 @@ def _refuse_unstructured(ds, path):
         if _attr(var, "cf_role") == "mesh_topology":
             found = ("UGRID", name)
         elif _attr(var, "CDI_grid_type").lower() == "unstructured":
-            found = ("ICON/CDI", next((d for d in var.dims if d in _CELL_DIMS or d.lower() in _CELL_DIMS), var.dims[-1]))
+            found = ("ICON/CDI",
+                     next((d for d in var.dims if d in _CELL_DIMS or d.lower() in _CELL_DIMS), var.dims[-1]))
     if found is None:
         for dim in ds.dims:
             if dim in _CELL_DIMS and any(dim in v.dims for v in ds.data_vars.values()):
@@ -270,8 +287,8 @@ def _refuse_unstructured(ds, path):
     if found is not None:
         kind, dim = found
         size = f"{ds.sizes[dim]} cells on dimension {dim!r}" if dim in ds.dims else f"mesh {dim!r}"
-        raise DataError(f"is on an unstructured grid ({kind}: {size}); Nephele reads latitude/longitude, rotated and projected "
-                        "grids: remap it first (e.g. 'cdo remapcon,r360x180')", path=path, field=dim)
+        raise DataError(f"is on an unstructured grid ({kind}: {size}); Nephele reads latitude/longitude, rotated and "
+                        "projected grids: remap it first (e.g. 'cdo remapcon,r360x180')", path=path, field=dim)
 
 
 def _from_zip(path):
@@ -284,7 +301,8 @@ def _from_zip(path):
 
     try:
         with zipfile.ZipFile(path) as z:
-            members = [m for m in z.infolist() if m.filename.lower().endswith((".nc", ".nc4", ".netcdf")) and not m.is_dir()]
+            members = [m for m in z.infolist() if m.filename.lower().endswith((".nc", ".nc4", ".netcdf"))
+                       and not m.is_dir()]
             if not members:
                 raise DataError(f"the zip holds no NetCDF file ({', '.join(z.namelist()[:5]) or 'nothing'})", path=path)
             folder = cache_folder("zip") / hashlib.sha256(file_stamp(path).encode()).hexdigest()[:24]
@@ -312,7 +330,8 @@ def _three_d_count(path):
     except DataError:
         return -1
     with ds:
-        return sum(len([d for d in v.dims if d not in ("time", "valid_time", "Time")]) >= 3 for v in ds.data_vars.values())
+        return sum(len([d for d in v.dims if d not in ("time", "valid_time", "Time")]) >= 3
+                   for v in ds.data_vars.values())
 
 
 def _open_netcdf(path):
@@ -331,8 +350,8 @@ def _open_netcdf(path):
 class NetCDFDataset(VerticalCoordinates, FileDataset):
     """A CF NetCDF file opened lazily; see the module docstring for what is understood."""
 
-    def __init__(self, path, *, rh_crit=RH_CRIT, vertical=None, p0=None, time_units=None, radius=None, variables=None, member=None,
-                 cache_steps=8, opened=None):
+    def __init__(self, path, *, rh_crit=RH_CRIT, vertical=None, p0=None, time_units=None, radius=None, variables=None,
+                 member=None, cache_steps=8, opened=None):
         """Open ``path``; the keywords override what a file gets wrong or leaves out.
 
         Parameters
@@ -367,20 +386,25 @@ class NetCDFDataset(VerticalCoordinates, FileDataset):
         names, skipped = self._three_d_fields(ds, path, lon_name, lat_name, time_name, time_dim)
         self._time_dim = time_dim
         if curvilinear:
-            lon, lat, lon_index, lat_index, lon2d, lat2d = self._curvilinear(ds, path, lon_name, lat_name, projected, *self._lonlat_dims)
+            lon, lat, lon_index, lat_index, lon2d, lat2d = self._curvilinear(ds, path, lon_name, lat_name, projected,
+                                                                             *self._lonlat_dims)
         else:
-            lon, lat, lon_index, lat_index = tidy_lonlat(ds[lon_name].values, ds[lat_name].values, path, lon_name, lat_name)
+            lon, lat, lon_index, lat_index = tidy_lonlat(ds[lon_name].values, ds[lat_name].values, path, lon_name,
+                                                         lat_name)
             lon2d = lat2d = None
         times = self._times(ds, path, time_name, time_dim, time_units)
         self._nt = times.size
-        heights, level_index, pressure, vertical = self._levels(ds, path, names, skipped, lat_index, lon_index, lat.size, lon.size)
+        heights, level_index, pressure, vertical = self._levels(ds, path, names, skipped, lat_index, lon_index,
+                                                                lat.size, lon.size)
         grid = GlobeGrid(lon, lat, heights, rotation=rotation, lon2d=lon2d, lat2d=lat2d).validate(path)
         self._planet_radius(radius, vertical)
         fields = self._field_map(ds, path, names, skipped, variables)
-        super().__init__(path, grid, times, fields, (level_index, lat_index, lon_index), pressure=pressure, rh_crit=rh_crit,
+        super().__init__(path, grid, times, fields, (level_index, lat_index, lon_index), pressure=pressure,
+                         rh_crit=rh_crit,
                          vertical=vertical, skipped=skipped, notes=self._notes, cache_steps=cache_steps)
         if self._wrf and "T" in names and pressure is not None and "temperature" not in self.variables:
-            self.variables["temperature"] = Variable("temperature", "K", "from WRF T + 300 K and P + PB (Poisson's equation)")
+            self.variables["temperature"] = Variable("temperature", "K",
+                                                     "from WRF T + 300 K and P + PB (Poisson's equation)")
             self.derived["temperature"] = "WRF T (perturbation potential temperature) + 300 K, P + PB"
             self.aliases.pop("temperature", None)
 
@@ -391,7 +415,8 @@ class NetCDFDataset(VerticalCoordinates, FileDataset):
         self.members, self.member = [], None
         if dim is None:
             if member is not None:
-                raise DataError(f"member {member} asked for, but the file has no ensemble member dimension", path=path, field="member")
+                raise DataError(f"member {member} asked for, but the file has no ensemble member dimension", path=path,
+                                field="member")
             return ds
         values = ds[dim].values if dim in ds.variables else np.arange(ds.sizes[dim])
         numbered = np.issubdtype(np.asarray(values).dtype, np.integer)
@@ -399,7 +424,8 @@ class NetCDFDataset(VerticalCoordinates, FileDataset):
         if member is None:
             member = 0 if 0 in self.members else self.members[0]
         elif int(member) not in self.members:
-            raise DataError(f"no member {member} (members: {', '.join(map(str, self.members))})", path=path, field="member")
+            raise DataError(f"no member {member} (members: {', '.join(map(str, self.members))})", path=path,
+                            field="member")
         self.member = int(member)
         if not numbered:
             self._notes.append(f"members: {dim!r} holds names; member={self.member} is {values[self.member]!s}")
@@ -440,7 +466,9 @@ class NetCDFDataset(VerticalCoordinates, FileDataset):
         lon_dim, lat_dim = self._lonlat_dims
         candidates, skipped = {}, {}
         # Cell bounds and grid mappings describe coordinates; they are not fields to list as skipped.
-        described = {_attr(v, "bounds") for v in ds.variables.values()} | {_attr(v, "grid_mapping").split(":")[0].strip() for v in ds.data_vars.values()}
+        described = {_attr(v, "bounds")
+                     for v in ds.variables.values()} | {_attr(v, "grid_mapping").split(":")[0].strip()
+                                                        for v in ds.data_vars.values()}
         for name, var in ds.data_vars.items():
             if name in described:
                 continue
@@ -450,7 +478,8 @@ class NetCDFDataset(VerticalCoordinates, FileDataset):
             elif name not in (lon_name, lat_name, time_name):
                 skipped[name] = f"dimensions {var.dims} are not (time, level, lat, lon)"
         if not candidates:
-            raise DataError(f"no 3-D field on (level, {lat_dim}, {lon_dim}) (variables: {', '.join(ds.data_vars) or 'none'})",
+            raise DataError(f"no 3-D field on (level, {lat_dim}, {lon_dim}) (variables: "
+                            f"{', '.join(ds.data_vars) or 'none'})",
                             path=path, field="variables")
         dims = list(candidates.values())
         self._zdim = zdim = max(set(dims), key=dims.count)
@@ -464,7 +493,8 @@ class NetCDFDataset(VerticalCoordinates, FileDataset):
         """The time axis (datetime64[s]): CF units (months too), step numbers, or one step."""
         if time_name is None and time_dim:
             times = step_times(ds.sizes[time_dim])
-            self._notes.append(f"time: dimension {time_dim!r} has no coordinate variable; the {times.size} step(s) are numbered 0..{times.size - 1}, one hour apart")
+            self._notes.append(f"time: dimension {time_dim!r} has no coordinate variable; the {times.size} step(s) "
+                               f"are numbered 0..{times.size - 1}, one hour apart")
             return times
         if not time_name:
             self._notes.append("time: the file has no time axis; one step")
@@ -486,7 +516,8 @@ class NetCDFDataset(VerticalCoordinates, FileDataset):
         return times
 
     def _levels(self, ds, path, names, skipped, lat_index, lon_index, nj, ni):
-        """``(heights, level index, pressure(t) or None, description)``: WRF eta levels or the CF vertical coordinate."""
+        """``(heights, level index, pressure(t) or None, description)``: WRF eta levels or the CF vertical
+        coordinate."""
         zdim = self._zdim
         self._wrf = _is_wrf(ds, zdim) and self._vertical_kind is None
         self._stagger, self._alpha = {}, None
@@ -499,17 +530,20 @@ class NetCDFDataset(VerticalCoordinates, FileDataset):
             skipped.pop(name, None)
             names.append(name)
         if self._stagger:
-            self._notes.append(f"staggered: {', '.join(sorted(self._stagger))} read at the mass points (mean of the two neighbours)")
+            self._notes.append(f"staggered: {', '.join(sorted(self._stagger))} read at the mass points (mean of the "
+                               "two neighbours)")
         if {"U", "V"} <= set(self._stagger):
             if "COSALPHA" in ds.variables and "SINALPHA" in ds.variables:
                 self._alpha = tuple(self._wrf_plane(ds, n, lat_index, lon_index) for n in ("COSALPHA", "SINALPHA"))
                 self._notes.append("wind: U, V turned from grid to earth axes with COSALPHA/SINALPHA")
             else:
-                self._notes.append("wind: U, V are along the grid's axes (the file has no COSALPHA/SINALPHA to turn them east/north)")
+                self._notes.append("wind: U, V are along the grid's axes (the file has no COSALPHA/SINALPHA to turn "
+                                   "them east/north)")
         return levels
 
     def _planet_radius(self, radius, vertical):
-        """:attr:`earth_radius`: the ``radius=`` override, the grid mapping's, the model's convention, else the mean Earth."""
+        """:attr:`earth_radius`: the ``radius=`` override, the grid mapping's, the model's convention, else
+        the mean Earth."""
         if radius is not None:
             self.earth_radius = float(radius)
         elif self.earth_radius is None and "NCAR" in vertical:
@@ -547,7 +581,8 @@ class NetCDFDataset(VerticalCoordinates, FileDataset):
         return fields
 
     def _read(self, name, t):
-        if name in ("u", "v") and self._alpha is not None and self.file_names.get("u") == "U" and self.file_names.get("v") == "V":
+        if (name in ("u", "v") and self._alpha is not None
+                and self.file_names.get("u") == "U" and self.file_names.get("v") == "V"):
             # WRF's U, V are along the grid's x and y; COSALPHA/SINALPHA turn them to east and north.
             u, v = (np.asarray(super(NetCDFDataset, self)._read(n, t), dtype=np.float64) for n in ("u", "v"))
             cos_a, sin_a = self._alpha
@@ -573,7 +608,8 @@ class NetCDFDataset(VerticalCoordinates, FileDataset):
 
         z_stag = (plane("PH", 0) + plane("PHB", 0)) / G0
         if z_stag.shape[0] != ds.sizes[zdim] + 1:
-            raise DataError(f"PH has {z_stag.shape[0]} staggered levels for {ds.sizes[zdim]} mass levels (expected one more)", path=path, field="PH")
+            raise DataError(f"PH has {z_stag.shape[0]} staggered levels for {ds.sizes[zdim]} mass levels (expected "
+                            "one more)", path=path, field="PH")
         heights = 0.5 * (z_stag[:-1] + z_stag[1:])
         level_index = self._level_order(heights.reshape(heights.shape[0], -1).mean(axis=1), path, zdim)
         heights = heights[level_index]
@@ -603,7 +639,8 @@ class NetCDFDataset(VerticalCoordinates, FileDataset):
         if lon_name is None or _attr(ds[lon_name], "standard_name").lower() != "grid_longitude":
             return None, radius
         if str(gm.get("grid_mapping_name", "")) != "rotated_latitude_longitude":
-            raise DataError("has standard_name grid_longitude but no rotated_latitude_longitude grid mapping", path=path, field=lon_name)
+            raise DataError("has standard_name grid_longitude but no rotated_latitude_longitude grid mapping",
+                            path=path, field=lon_name)
         try:
             pole = [float(gm[k]) for k in ("grid_north_pole_longitude", "grid_north_pole_latitude")]
         except KeyError as exc:
@@ -619,7 +656,8 @@ class NetCDFDataset(VerticalCoordinates, FileDataset):
             return ds[lon_name].dims[0], ds[lat_name].dims[0]
         lon_dims, lat_dims = ds[lon_name].dims, ds[lat_name].dims
         if len(lon_dims) < 2 or lon_dims[-2:] != lat_dims[-2:]:
-            raise DataError(f"longitude dimensions {lon_dims} and latitude dimensions {lat_dims} do not match", path=path, field=lon_name)
+            raise DataError(f"longitude dimensions {lon_dims} and latitude dimensions {lat_dims} do not match",
+                            path=path, field=lon_name)
         return lon_dims[-1], lon_dims[-2]
 
     def _curvilinear(self, ds, path, lon_name, lat_name, projected, xdim, ydim):
@@ -635,10 +673,13 @@ class NetCDFDataset(VerticalCoordinates, FileDataset):
             mapping = _grid_mapping(ds)
             scale = [_LENGTH.get(_attr(ds[n], "units").lower(), None) for n in projected]
             if None in scale:
-                raise DataError(f"projection coordinates need units m or km, got {[_attr(ds[n], 'units') for n in projected]}", path=path, field=lon_name)
-            lon2d, lat2d, notes = projected_lonlat(dict(ds[mapping].attrs), ds[lon_name].values * scale[0], ds[lat_name].values * scale[1], path, mapping)
+                raise DataError("projection coordinates need units m or km, got "
+                                f"{[_attr(ds[n], 'units') for n in projected]}", path=path, field=lon_name)
+            lon2d, lat2d, notes = projected_lonlat(dict(ds[mapping].attrs), ds[lon_name].values * scale[0],
+                                                   ds[lat_name].values * scale[1], path, mapping)
             name = _attr(ds[mapping], "grid_mapping_name")
-            self._notes += [f"grid: longitudes/latitudes computed from the {name} grid mapping"] + [f"grid: {n}" for n in notes]
+            self._notes += ([f"grid: longitudes/latitudes computed from the {name} grid mapping"]
+                            + [f"grid: {n}" for n in notes])
         else:
             planes = []
             for name in (lon_name, lat_name):
@@ -647,14 +688,18 @@ class NetCDFDataset(VerticalCoordinates, FileDataset):
                 planes.append(np.asarray(var.isel(extra).transpose(ydim, xdim).values, dtype=np.float64))
             lon2d, lat2d = planes
         if lon2d.shape[0] < 2 or lon2d.shape[1] < 2:
-            raise DataError(f"a curvilinear grid needs at least 2 x 2 columns, got {lon2d.shape}", path=path, field=lon_name)
+            raise DataError(f"a curvilinear grid needs at least 2 x 2 columns, got {lon2d.shape}", path=path,
+                            field=lon_name)
         if not (np.all(np.isfinite(lon2d)) and np.all(np.isfinite(lat2d))):
-            raise DataError("has NaN or infinite 2-D longitudes/latitudes (masked land points?)", path=path, field=lon_name)
+            raise DataError("has NaN or infinite 2-D longitudes/latitudes (masked land points?)", path=path,
+                            field=lon_name)
         lon_index, lat_index = np.arange(lon2d.shape[1]), np.arange(lon2d.shape[0])
         if not right_handed(lon2d, lat2d):
             lat_index = lat_index[::-1]
         lon2d, lat2d = lon2d[lat_index], lat2d[lat_index]
-        return np.arange(lon_index.size, dtype=np.float64), np.arange(lat_index.size, dtype=np.float64), lon_index, lat_index, lon2d, lat2d
+        return np.arange(lon_index.size,
+                         dtype=np.float64), np.arange(lat_index.size,
+                                                      dtype=np.float64), lon_index, lat_index, lon2d, lat2d
 
     def _raw(self, name, t):
         var = self._ds[name]

@@ -19,7 +19,8 @@ from .gridfile import pressure_scale
 from .humidity import G0, standard_height
 
 _HEIGHT_NAMES = ("zg", "z", "hgt", "geopotential_height", "gh", "geopot", "phi")
-_PARAMETRIC = ("atmosphere_hybrid_sigma_pressure_coordinate", "atmosphere_sigma_coordinate", "atmosphere_hybrid_height_coordinate")
+_PARAMETRIC = ("atmosphere_hybrid_sigma_pressure_coordinate", "atmosphere_sigma_coordinate",
+               "atmosphere_hybrid_height_coordinate")
 CAM_P0 = 100000.0
 """CAM's reference pressure (Pa), used when a file names ``P0`` but does not store it."""
 VERTICAL_KINDS = {
@@ -86,7 +87,8 @@ class VerticalCoordinates:
         units = _attr(zvar, "units").lower()
         if self._vertical_kind is not None:
             if self._vertical_kind not in VERTICAL_KINDS:
-                raise DataError(f"vertical={self._vertical_kind!r} is not one of {', '.join(VERTICAL_KINDS)}", path=path, field=zdim)
+                raise DataError(f"vertical={self._vertical_kind!r} is not one of {', '.join(VERTICAL_KINDS)}",
+                                path=path, field=zdim)
             std, units = VERTICAL_KINDS[self._vertical_kind]
         take = np.ix_(lat_index, lon_index)
 
@@ -107,12 +109,16 @@ class VerticalCoordinates:
             ps_scale = pressure_scale(_attr(ds[ps_name], "units") or "Pa", path, ps_name)
             if std == "atmosphere_sigma_coordinate":
                 sigma = _values(ds, terms.get("sigma", zdim), path, zdim)
-                ptop = float(_values(ds, terms["ptop"], path, zdim)) * pressure_scale(_attr(ds[terms["ptop"]], "units") or "Pa", path, terms["ptop"]) if "ptop" in terms else 0.0
+                ptop = (float(_values(ds, terms["ptop"], path, zdim))
+                        * pressure_scale(_attr(ds[terms["ptop"]], "units") or "Pa", path, terms["ptop"])
+                        if "ptop" in terms
+                        else 0.0)
                 a_pa, b = ptop * (1.0 - sigma), sigma
             else:
                 b = _values(ds, terms.get("b", ""), path, zdim)
                 if "ap" in terms:
-                    a_pa = _values(ds, terms["ap"], path, zdim) * pressure_scale(_attr(ds[terms["ap"]], "units") or "Pa", path, terms["ap"])
+                    a_pa = _values(ds, terms["ap"], path,
+                                   zdim) * pressure_scale(_attr(ds[terms["ap"]], "units") or "Pa", path, terms["ap"])
                 elif "a" in terms:
                     p0 = self._reference_pressure(ds, terms.get("p0"), path, zdim)
                     a_pa = _values(ds, terms["a"], path, zdim) * p0
@@ -129,7 +135,8 @@ class VerticalCoordinates:
             level_index = self._level_order(a + b * 1000.0, path, zdim)
             heights = a[level_index, None, None] + b[level_index, None, None] * surface(orog_name, 0)[None]
             return heights, level_index, None, "hybrid height (terrain following)"
-        is_pressure = std in ("air_pressure", "pressure") or units in ("pa", "hpa", "mb", "mbar", "millibar", "millibars", "hectopascal", "hectopascals")
+        is_pressure = std in ("air_pressure", "pressure") or units in ("pa", "hpa", "mb", "mbar", "millibar",
+                                                                       "millibars", "hectopascal", "hectopascals")
         if is_pressure:
             p = z * pressure_scale(units, path, zdim)
             level_index = self._level_order(-p, path, zdim)
@@ -147,18 +154,22 @@ class VerticalCoordinates:
                 lambda t: p3,
                 f"pressure levels, heights from the {source} (not terrain following)",
             )
-        if std in ("height", "altitude", "height_above_mean_sea_level") or units in ("m", "km", "meter", "meters", "metre", "metres"):
+        if std in ("height", "altitude",
+                   "height_above_mean_sea_level") or units in ("m", "km", "meter", "meters", "metre", "metres"):
             scale = 1000.0 if units == "km" else 1.0
             if _attr(zvar, "positive").lower() == "down":
                 raise DataError("heights with positive='down' (depth) are not supported", path=path, field=zdim)
             level_index = self._level_order(z * scale, path, zdim)
             heights = (z * scale)[level_index]
-            return np.broadcast_to(heights[:, None, None], (heights.size, nj, ni)), level_index, None, "height levels (flat)"
-        if std == "model_layers" or units in ("layer", "layers") or (units in ("level", "levels") and self._layer_fields(ds)):
+            return np.broadcast_to(heights[:, None, None],
+                                   (heights.size, nj, ni)), level_index, None, "height levels (flat)"
+        if std == "model_layers" or units in ("layer",
+                                              "layers") or (units in ("level", "levels") and self._layer_fields(ds)):
             return self._model_layers(ds, path, zdim, take)
         raise DataError(
-            f"cannot tell what the vertical coordinate is (standard_name {std or 'none'!r}, units {units or 'none'!r}); "
-            "expected pressure, hybrid sigma-pressure, hybrid height or height (say which with vertical=...)",
+            f"cannot tell what the vertical coordinate is (standard_name {std or 'none'!r}, units "
+            f"{units or 'none'!r}); expected pressure, hybrid sigma-pressure, hybrid height or height (say which with "
+            "vertical=...)",
             path=path,
             field=zdim,
         )
@@ -178,8 +189,8 @@ class VerticalCoordinates:
 
         have = self._layer_fields(ds, ("H", "PL", "DELP", "T", "QV"))
         if not have & {"H", "PL", "DELP"}:
-            raise DataError(f"levels numbered 1..{ds.sizes[zdim]} (model layers) need mid-layer heights 'H', pressure 'PL' "
-                            "or thickness 'DELP' in the file (as MERRA-2/GEOS write them)", path=path, field=zdim)
+            raise DataError(f"levels numbered 1..{ds.sizes[zdim]} (model layers) need mid-layer heights 'H', pressure "
+                            "'PL' or thickness 'DELP' in the file (as MERRA-2/GEOS write them)", path=path, field=zdim)
 
         def half_levels(t):  # top (1 Pa, GEOS's model top) down to the surface
             delp = field("DELP", t)
@@ -199,18 +210,22 @@ class VerticalCoordinates:
         elif "DELP" in have and "T" in have:
             from .modellevels import hypsometric_heights
 
-            phis = field("PHIS", 0)[0] / G0 if "PHIS" in ds.variables and ds["PHIS"].ndim >= 2 and _surface_only(ds, "PHIS", dims) else 0.0
+            phis = (field("PHIS", 0)[0] / G0
+                    if "PHIS" in ds.variables and ds["PHIS"].ndim >= 2 and _surface_only(ds, "PHIS", dims)
+                    else 0.0)
             z = hypsometric_heights(half_levels(0), field("T", 0), field("QV", 0) if "QV" in have else None, phis)
             how = "the hypsometric equation from DELP and T" + (" and QV" if "QV" in have else "")
         else:
             z, how = standard_height(pressure_file(0)), "the standard atmosphere of 'PL'"
         level_index = self._level_order(z.reshape(z.shape[0], -1).mean(axis=1), path, zdim)
         pressure = None if pressure_file is None else (lambda t: pressure_file(t)[level_index].astype(np.float32))
-        return z[level_index], level_index, pressure, f"model layers 1..{ds.sizes[zdim]} (terrain following), heights from {how}"
+        return (z[level_index], level_index, pressure,
+                f"model layers 1..{ds.sizes[zdim]} (terrain following), heights from {how}")
 
     def _layer_fields(self, ds, names=("H", "PL", "DELP")):
         """Those of ``names`` that are fields on the level dimension (GEOS's mid-layer heights, pressure, thickness)."""
-        return {n for n in names if n in ds.variables and [d for d in ds[n].dims if d != self._time_dim] == list(self._dims)}
+        return {n for n in names if n in ds.variables
+                and [d for d in ds[n].dims if d != self._time_dim] == list(self._dims)}
 
     def _reference_pressure(self, ds, name, path, field):
         """``P0`` in Pa: the ``p0=`` argument, the file's variable, else CAM's 100000 Pa with a note."""
@@ -218,7 +233,8 @@ class VerticalCoordinates:
             return float(self._p0)
         if name and name in ds.variables:
             return float(_values(ds, name, path, field)) * pressure_scale(_attr(ds[name], "units") or "Pa", path, name)
-        self._notes.append(f"{field}: reference pressure {name or 'P0'!r} is not in the file; used CAM's P0 = {CAM_P0:g} Pa")
+        self._notes.append(f"{field}: reference pressure {name or 'P0'!r} is not in the file; used CAM's P0 = "
+                           f"{CAM_P0:g} Pa")
         return CAM_P0
 
     def _ncar_hybrid(self, ds, zvar, path, zdim, surface):
@@ -227,7 +243,8 @@ class VerticalCoordinates:
         b_name = str(zvar.attrs.get("B_var", "hybm" if zdim != "ilev" else "hybi"))
         ps_name = str(zvar.attrs.get("PS_var", "PS"))
         if ps_name not in ds.variables:
-            raise DataError(f"hybrid levels need surface pressure {ps_name!r}, which is not in the file", path=path, field=zdim)
+            raise DataError(f"hybrid levels need surface pressure {ps_name!r}, which is not in the file", path=path,
+                            field=zdim)
         p0 = self._reference_pressure(ds, str(zvar.attrs.get("P0_var", "P0")), path, zdim)
         a_pa = _values(ds, a_name, path, zdim) * p0
         b = _values(ds, b_name, path, zdim)
@@ -260,9 +277,11 @@ class VerticalCoordinates:
             var = ds[name]
             std = _attr(var, "standard_name").lower()
             units = _attr(var, "units").lower().replace(" ", "")
-            if std == "geopotential_height" or (name.lower() in _HEIGHT_NAMES and units in ("m", "gpm", "meters", "metres")):
+            if std == "geopotential_height" or (name.lower() in _HEIGHT_NAMES
+                                                and units in ("m", "gpm", "meters", "metres")):
                 scale = 1.0
-            elif std == "geopotential" or (name.lower() in _HEIGHT_NAMES and units in ("m2s-2", "m**2s**-2", "m^2/s^2", "m2/s2")):
+            elif std == "geopotential" or (name.lower() in _HEIGHT_NAMES
+                                           and units in ("m2s-2", "m**2s**-2", "m^2/s^2", "m2/s2")):
                 scale = 1.0 / G0
             else:
                 continue

@@ -103,7 +103,8 @@ def inverse(mapping, x, y, path=None, field="grid_mapping"):
     """
     name = str(mapping.get("grid_mapping_name", "")).strip()
     if name not in SUPPORTED:
-        raise DataError(f"grid mapping {name or 'none'!r} is not one of {', '.join(SUPPORTED)} (store 2-D latitude/longitude instead)", path=path, field=field)
+        raise DataError(f"grid mapping {name or 'none'!r} is not one of {', '.join(SUPPORTED)} (store 2-D "
+                        "latitude/longitude instead)", path=path, field=field)
     a, e, note = figure(mapping)
     x = np.asarray(x, dtype=np.float64) - _get(mapping, "false_easting", 0.0)
     y = np.asarray(y, dtype=np.float64) - _get(mapping, "false_northing", 0.0)
@@ -152,7 +153,8 @@ def _stereographic(mapping, name, x, y, a, e, path, field):
     """Polar (Snyder 21-33..21-39, any figure) or oblique (sphere, Snyder 20-18, 21-15, 21-16) stereographic."""
     lat0 = _get(mapping, "latitude_of_projection_origin")
     if name == "polar_stereographic":
-        lam0 = np.deg2rad(_get(mapping, "straight_vertical_longitude_from_pole", mapping.get("longitude_of_projection_origin", 0.0)))
+        lam0 = np.deg2rad(_get(mapping, "straight_vertical_longitude_from_pole",
+                               mapping.get("longitude_of_projection_origin", 0.0)))
     else:
         lam0 = np.deg2rad(_get(mapping, "longitude_of_projection_origin"))
     if abs(abs(lat0) - 90.0) < 1e-9:
@@ -169,13 +171,15 @@ def _stereographic(mapping, name, x, y, a, e, path, field):
         lam, phi = lam0 + np.arctan2(x, -y), _phi_from_t(rho / scale, e)
         return (-lam, -phi) if south else (lam, phi)
     if e != 0.0:
-        raise DataError("an oblique stereographic grid on an ellipsoid is not read (store 2-D latitude/longitude)", path=path, field=field)
+        raise DataError("an oblique stereographic grid on an ellipsoid is not read (store 2-D latitude/longitude)",
+                        path=path, field=field)
     k0 = _get(mapping, "scale_factor_at_projection_origin", 1.0)
     p1 = np.deg2rad(lat0)
     rho = np.hypot(x, y)
     c = 2 * np.arctan(rho / (2 * a * k0))
     with np.errstate(invalid="ignore", divide="ignore"):
-        phi = np.where(rho > 0, np.arcsin(np.cos(c) * np.sin(p1) + y * np.sin(c) * np.cos(p1) / np.where(rho > 0, rho, 1.0)), p1)
+        phi = np.where(rho > 0,
+                       np.arcsin(np.cos(c) * np.sin(p1) + y * np.sin(c) * np.cos(p1) / np.where(rho > 0, rho, 1.0)), p1)
     lam = lam0 + np.arctan2(x * np.sin(c), rho * np.cos(p1) * np.cos(c) - y * np.sin(p1) * np.sin(c))
     return lam, phi
 

@@ -21,7 +21,8 @@ OVERRIDES = ("vertical", "p0", "time_units", "radius", "variables", "level_type"
 """Keywords of :func:`open_dataset` that override what a NetCDF, GRIB or Zarr file gets wrong or leaves out,
 or choose what to read from it (``level_type`` of a GRIB file, ensemble ``member``)."""
 OVERRIDE_FIELDS = {"vertical": "vertical coordinate", "p0": "P0", "time_units": "time units",
-                   "radius": "earth radius", "variables": "variable map", "level_type": "level type", "member": "member"}
+                   "radius": "earth radius", "variables": "variable map", "level_type": "level type",
+                   "member": "member"}
 """How an override is named in messages (the Blender panel's labels)."""
 VERTICAL_CHOICES = ("pressure_hpa", "pressure_pa", "height_m", "height_km", "ncar_hybrid")
 """What ``vertical=`` may say (:data:`~nephele.core.climate.netcdf.VERTICAL_KINDS`, kept here without xarray)."""
@@ -41,7 +42,8 @@ def parse_var_map(text, path=None):
     return mapping
 
 
-def check_overrides(path=None, *, vertical=None, p0=None, time_units=None, radius=None, variables=None, level_type=None, member=None):
+def check_overrides(path=None, *, vertical=None, p0=None, time_units=None, radius=None, variables=None, level_type=None,
+                    member=None):
     """The overrides given (not ``None``/empty), checked, as keywords of :func:`open_dataset`.
 
     Parameters
@@ -98,7 +100,8 @@ def check_overrides(path=None, *, vertical=None, p0=None, time_units=None, radiu
         kw["variables"] = dict(variables)
     if level_type is not None and str(level_type).strip():
         if not str(level_type).strip().isidentifier():
-            raise bad("level_type", f"must be an ecCodes typeOfLevel such as isobaricInhPa or hybrid, got {level_type!r}")
+            raise bad("level_type",
+                      f"must be an ecCodes typeOfLevel such as isobaricInhPa or hybrid, got {level_type!r}")
         kw["level_type"] = str(level_type).strip()
     if member is not None and member != "":
         try:
@@ -118,7 +121,8 @@ def override_source(source, **kw):
     opens it in any process (a saved scene, a farm worker).  A trailing
     ``&file=ID`` (the CLI's file identity for cache keys) is allowed and ignored.
     """
-    flat = {k: (",".join(f"{s}:{r}" for s, r in sorted(v.items())) if isinstance(v, dict) else v) for k, v in sorted(kw.items())}
+    flat = {k: (",".join(f"{s}:{r}" for s, r in sorted(v.items())) if isinstance(v, dict) else v)
+            for k, v in sorted(kw.items())}
     return f"{source}?{urlencode(flat)}" if flat else str(source)
 
 
@@ -215,7 +219,8 @@ def open_dataset(source, **kw):
     path = Path(source)
     opener, kind = _opener(path)
     if kind == "GrADS" and given:
-        raise DataError(f"GrADS files take no overrides ({', '.join(given)}); they apply to NetCDF, GRIB and Zarr", path=path)
+        raise DataError(f"GrADS files take no overrides ({', '.join(given)}); they apply to NetCDF, GRIB and Zarr",
+                        path=path)
     try:
         return opener(path, **kw)
     except (DataError, MemoryError, ImportError):
@@ -274,7 +279,8 @@ def _opener(path):
         return open_grads, "GrADS"
     if not path.exists():
         raise DataError("file not found", path=path)
-    raise DataError(f"unknown format {suffix or '(no extension)'!r}: expected demo, .nc, .zip (of NetCDF), .grib2, .zarr or .ctl", path=path)
+    raise DataError(f"unknown format {suffix or '(no extension)'!r}: expected demo, .nc, .zip (of NetCDF), .grib2, "
+                    ".zarr or .ctl", path=path)
 
 
 __all__ = ["OVERRIDES", "check_overrides", "open_dataset", "override_source", "parse_var_map", "split_source"]

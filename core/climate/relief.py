@@ -133,7 +133,8 @@ def write_relief(etopo_path, out_path=RELIEF_FILE):
         raise DataError("has missing values; cannot make a complete relief", path=etopo_path, field="elevation")
     out_path = Path(out_path)
     with atomic_write(out_path) as tmp, open(tmp, "wb") as f:
-        np.savez_compressed(f, lon=lon.astype(np.float32), lat=lat.astype(np.float32), elevation=np.rint(z).astype(np.int16))
+        np.savez_compressed(f, lon=lon.astype(np.float32), lat=lat.astype(np.float32),
+                            elevation=np.rint(z).astype(np.int16))
     return out_path
 
 

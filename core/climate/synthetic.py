@@ -83,8 +83,8 @@ import functools
 
 import numpy as np
 
-from .dataset import Dataset, Variable
 from ..errors import DataError
+from .dataset import Dataset, Variable
 from .grid import EARTH_RADIUS, GlobeGrid
 from .relief import load_relief, sample_relief
 
@@ -178,7 +178,8 @@ class SyntheticClimate(Dataset):
 
     levels_follow_air = True
 
-    def __init__(self, ni=320, nj=160, nk=19, days=10, seed=0, start="1987-01-01", n_storms=None, relief=None, cache_steps=8, source="demo"):
+    def __init__(self, ni=320, nj=160, nk=19, days=10, seed=0, start="1987-01-01", n_storms=None, relief=None,
+                 cache_steps=8, source="demo"):
         for name, val, low in (("ni", ni, 3), ("nj", nj, 2), ("nk", nk, 2)):
             if int(val) != val or val < low:
                 raise DataError(f"must be an integer >= {low}, got {val!r}", path=source, field=name)
@@ -190,7 +191,8 @@ class SyntheticClimate(Dataset):
         lat = -90.0 + (np.arange(nj) + 0.5) * (180.0 / nj)
         terrain = _cell_mean_terrain(load_relief() if relief is None else relief, lon, lat)
         if terrain.max() >= TOP / 3:
-            raise DataError(f"terrain {terrain.max():.0f} m is too high for a {TOP:.0f} m model top", path=source, field="terrain")
+            raise DataError(f"terrain {terrain.max():.0f} m is too high for a {TOP:.0f} m model top", path=source,
+                            field="terrain")
         eta = (np.arange(nk) / (nk - 1)) ** 1.4
         self.eta = eta
         self.b = (1.0 - eta) ** 3
@@ -215,7 +217,8 @@ class SyntheticClimate(Dataset):
         rng = np.random.default_rng(self.seed)
         self._storms = self._make_storms(rng, days, n_storms)
         phi = np.rad2deg(np.arcsin(_ZNODES))
-        self._jet_shapes = [peak / np.cos(np.deg2rad(lat0)) * _gauss(phi, lat0, width) / EARTH_RADIUS for lat0, width, peak, *_ in _JETS]
+        self._jet_shapes = [peak / np.cos(np.deg2rad(lat0)) * _gauss(phi, lat0, width) / EARTH_RADIUS
+                            for lat0, width, peak, *_ in _JETS]
         # Storm frames Z_s: per group, per distinct jet factor, cos and sin of the rotation angle
         # j Θ(z, s) on _FNODES; between nodes they are interpolated and normalised, which defines
         # the frame rotation exactly (and without trigonometry) for the map and its inverse alike.
@@ -224,7 +227,8 @@ class SyntheticClimate(Dataset):
         for g in self._storms:
             angle = self._jet_values[:, None] * np.interp(_FNODES, _ZNODES, self._theta_table(g["frame"]))[None, :]
             self._frames.append((np.cos(angle).ravel(), np.sin(angle).ravel()))
-        self._noise = [self._make_waves(rng, 10, 3.0, 7.0, 4.0), self._make_waves(rng, 16, 12.0, 22.0, 25.0), self._make_waves(rng, 10, 4.0, 12.0, 3.0)]
+        self._noise = [self._make_waves(rng, 10, 3.0, 7.0, 4.0), self._make_waves(rng, 16, 12.0, 22.0, 25.0),
+                       self._make_waves(rng, 10, 4.0, 12.0, 3.0)]
         # Grid points as unit vectors (float64) and east/north unit vectors, shape (nj, ni).
         lam, phi = np.deg2rad(lon)[None, :], np.deg2rad(lat)[:, None]
         cl, sl, cp, sp = np.cos(lam), np.sin(lam), np.cos(phi), np.sin(phi)
@@ -264,12 +268,13 @@ class SyntheticClimate(Dataset):
             lon0 = rng.uniform(0.0, 2 * np.pi)
             lons = lon0 + np.arange(count) * (2 * np.pi / count)
             phi, alpha = np.deg2rad(lat), np.deg2rad(radius)
-            centres = np.stack([np.cos(phi) * np.cos(lons), np.cos(phi) * np.sin(lons), np.full(count, np.sin(phi))], axis=1)
+            centres = np.stack([np.cos(phi) * np.cos(lons), np.cos(phi) * np.sin(lons), np.full(count, np.sin(phi))],
+                               axis=1)
             birth = rng.uniform(0.0, max(days - 0.5, 0.0)) * DAY
             life = rng.uniform(1.0, 2.5) * DAY if tropical else rng.uniform(1.5, 3.0) * DAY
             zlim = (np.sin(phi - alpha), np.sin(min(phi + alpha, 0.5 * np.pi)))
-            groups.append(dict(centres=centres, lon0=lon0, lons=lons, count=count, cos_lat=np.cos(phi), sin_lat=np.sin(phi),
-                               rho=2.0 * np.sin(alpha / 2.0), strengths=strengths,
+            groups.append(dict(centres=centres, lon0=lon0, lons=lons, count=count, cos_lat=np.cos(phi),
+                               sin_lat=np.sin(phi), rho=2.0 * np.sin(alpha / 2.0), strengths=strengths,
                                birth=birth, life=life, frame=birth + 0.5 * life, zlim=zlim))
         groups.sort(key=lambda g: g["frame"])
         return groups
@@ -285,7 +290,7 @@ class SyntheticClimate(Dataset):
     def _theta_table(self, t):
         """Zonal rotation angle per unit jet factor after ``t`` seconds, tabulated on ``_ZNODES``."""
         total = np.zeros_like(_ZNODES)
-        for (lat0, width, peak, osc, period, phase), shape in zip(_JETS, self._jet_shapes):
+        for (_lat0, _width, _peak, osc, period, phase), shape in zip(_JETS, self._jet_shapes):
             om = 2.0 * np.pi / (period * DAY)
             integral = t - osc / om * (np.cos(om * t + phase) - np.cos(phase))  # ∫0^t (1 + osc sin(om s + phase)) ds
             total += integral * shape
@@ -350,7 +355,8 @@ class SyntheticClimate(Dataset):
             px, py = c * x0 - s * y0, s * x0 + c * y0  # into the storm's frame
             count = g["count"]
             if count > 1:  # the vortex of the point's longitude sector
-                sector = np.floor((np.arctan2(py, px) - g["lon0"]) * (count / (2 * np.pi)) + 0.5).astype(np.intp) % count
+                sector = np.floor((np.arctan2(py, px) - g["lon0"]) * (count / (2 * np.pi))
+                                  + 0.5).astype(np.intp) % count
             else:
                 sector = np.zeros(cand.size, dtype=np.intp)
             cen = g["centres"]
@@ -386,7 +392,8 @@ class SyntheticClimate(Dataset):
     def inverse(self, x, t, jet, storm):
         """``X⁻¹(x, t)``: the labels (positions at ``t = 0``) of the parcels at ``x`` at ``t`` seconds."""
         z = np.array(x[2], dtype=np.float64)
-        px, py = self._rotate_z(np.asarray(x[0], dtype=np.float64), np.asarray(x[1], dtype=np.float64), -jet * self._lookup(self._theta_table(t), z))
+        px, py = self._rotate_z(np.asarray(x[0], dtype=np.float64), np.asarray(x[1], dtype=np.float64),
+                                -jet * self._lookup(self._theta_table(t), z))
         return tuple(self._twists([px, py, z], t, jet, storm, inverse=True))
 
     def level_factors(self, k):
@@ -402,7 +409,8 @@ class SyntheticClimate(Dataset):
         x, y, z = (np.asarray(v, dtype=np.float32) for v in a)
         eta = np.float32(0.0) if level_height is None else np.asarray(level_height, dtype=np.float32) / np.float32(TOP)
         out = np.zeros(np.broadcast(x, eta).shape, dtype=np.float32)
-        for (kx, ky, kz), ph, am, m in zip(kvec.astype(np.float32), phase.astype(np.float32), amp.astype(np.float32), vertical.astype(np.float32)):
+        for (kx, ky, kz), ph, am, m in zip(kvec.astype(np.float32), phase.astype(np.float32), amp.astype(np.float32),
+                                           vertical.astype(np.float32)):
             out += am * np.sin(kx * x + ky * y + kz * z + (ph + m * eta))
         return out * np.float32(1.0 / np.sqrt(0.5 * np.sum(amp**2)))
 

@@ -26,7 +26,8 @@ def open_zarr_store(path, **kw):
     import xarray as xr
 
     if kw.pop("level_type", None) is not None:
-        raise DataError("level_type= chooses among the kinds of level of a GRIB file, not of a Zarr store", path=path, field="level_type")
+        raise DataError("level_type= chooses among the kinds of level of a GRIB file, not of a Zarr store", path=path,
+                        field="level_type")
     try:
         import zarr  # noqa: F401  (xarray's zarr engine needs it; say so in one line)
     except ImportError:

@@ -16,15 +16,28 @@ from collections import OrderedDict
 import numpy as np
 
 from ..errors import DataError
-from ..pipeline.sources import open_source
 from ..pipeline.registry import planner, task
+from ..pipeline.sources import open_source
 from ..surface.contour import isosurface
 from ..surface.contour_task import ALTITUDE, task_params
-from .advect import (COPIES, DEFAULT_BAND, START, START_ALT, STRATEGIES, WEIGHT, ComposedTrace, Copy, FullTrace, RestartTrace,
-                     WindField, active_vertices, steps_to_keep)
+from .advect import (
+    COPIES,
+    DEFAULT_BAND,
+    START,
+    START_ALT,
+    STRATEGIES,
+    WEIGHT,
+    ComposedTrace,
+    Copy,
+    FullTrace,
+    RestartTrace,
+    WindField,
+    active_vertices,
+    steps_to_keep,
+)
 
-ADVECT_DEFAULTS = {"strategy": "restart", "period": 24, "integrator": "rk4", "order": 3, "band": DEFAULT_BAND, "nan": "error",
-                   "vertical": "auto", "cfl": 2.0}
+ADVECT_DEFAULTS = {"strategy": "restart", "period": 24, "integrator": "rk4", "order": 3, "band": DEFAULT_BAND,
+                   "nan": "error", "vertical": "auto", "cfl": 2.0}
 """Texture-advection settings an advected contour object stores (besides its contour's).
 
 ``cfl`` 2 (RK4 steps up to two grid spacings) halves the tracing of
@@ -75,7 +88,8 @@ def _strategy(params, ds):
     opts = dict(method=params["integrator"], cfl=float(params["cfl"]))
     name = params["strategy"]
     if name == "restart":
-        st = RestartTrace(wind, fh, ds.grid, period=int(params["period"]), order=int(params["order"]), band=params["band"], **opts)
+        st = RestartTrace(wind, fh, ds.grid, period=int(params["period"]), order=int(params["order"]),
+                          band=params["band"], **opts)
     elif name == "compose":
         st = ComposedTrace(wind, fh, ds.grid, order=int(params["order"]), band=params["band"], **opts)
     else:
@@ -125,7 +139,8 @@ def advect_contour(params):
     rot = ds.grid.rotation
     for name, cp in zip(COPIES, copies):
         alt = wind.start_height(cp.xyz, cp.s) if len(cp.s) else np.zeros(0)
-        xyz = cp.xyz if rot is None else cp.xyz @ rot.T  # traced in a rotated grid's frame; the mesh is on the true globe
+        # traced in a rotated grid's frame; the mesh is on the true globe
+        xyz = cp.xyz if rot is None else cp.xyz @ rot.T
         for c, vals in enumerate((xyz[:, 0], xyz[:, 1], xyz[:, 2], alt)):
             f = np.zeros(ds.grid.shape, dtype=np.float32)
             f.reshape(-1)[index] = vals

@@ -32,8 +32,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..climate.dataset import Dataset, Variable, hourly
-from ..errors import DataError
 from ..climate.grid import EARTH_RADIUS, GlobeGrid
+from ..errors import DataError
 
 DAY_HOURS = 24.0
 
@@ -154,7 +154,8 @@ class FlowDataset(Dataset):
         n = int(round(flow.period_hours)) + 1 if hours is None else int(hours)
         if n < 2:
             raise DataError("needs at least 2 hourly steps", path=f"<{type(flow).__name__}>", field="time")
-        super().__init__(grid, hourly("2000-01-01", n), [Variable("u", "m/s"), Variable("v", "m/s"), Variable("w", "m/s")],
+        super().__init__(grid, hourly("2000-01-01", n),
+                         [Variable("u", "m/s"), Variable("v", "m/s"), Variable("w", "m/s")],
                          f"<{type(flow).__name__}>", cache_steps=12)
         self.earth_radius = float(getattr(flow, "radius", EARTH_RADIUS))
         self._lon = np.broadcast_to(grid.lon[None, None, :], grid.shape)

@@ -8,9 +8,9 @@ level/row/column index, linear in time, rows mirrored across the poles and
 periodic longitudes, so generators may straddle the seam or a pole).  On a
 curvilinear (2-D longitude/latitude) grid the wind field locates points in the
 grid's columns.  On a regional grid (curvilinear, or longitudes that do not
-close the circle) the velocity is NaN outside the region (``bounded``): :func:`~nephele.core.flowvol.volume.flow_volume` stops air that
-leaves the region at its exit point and drops the tetrahedra that reach it.
-Time is in hours; velocities in scene units per hour.
+close the circle) the velocity is NaN outside the region (``bounded``):
+:func:`~nephele.core.flowvol.volume.flow_volume` stops air that leaves the region at its exit point and
+drops the tetrahedra that reach it. Time is in hours; velocities in scene units per hour.
 
 References
 ----------
@@ -19,9 +19,9 @@ References
 
 import numpy as np
 
-from ..flow.advect import WindField, steps_to_keep
-from ..errors import DataError
 from ..climate.grid import DEFAULT_EXAGGERATION, EARTH_RADIUS, globe_radius, height_from_radius
+from ..errors import DataError
+from ..flow.advect import WindField, steps_to_keep
 
 
 class ClimateVelocity:
@@ -44,7 +44,8 @@ class ClimateVelocity:
         MB; otherwise each step is read on its own.
     """
 
-    def __init__(self, dataset, radius=1.0, exaggeration=DEFAULT_EXAGGERATION, nan="error", keep_hours=48, stack_mb=256):
+    def __init__(self, dataset, radius=1.0, exaggeration=DEFAULT_EXAGGERATION, nan="error", keep_hours=48,
+                 stack_mb=256):
         self.wind = WindField(dataset, nan=nan, read_ahead=False, cache_steps=steps_to_keep(dataset.grid, keep_hours))
         self.bounded = self.wind.index.bounded  # NaN outside a regional grid (flow_volume stops air there)
         self.radius, self.exaggeration = float(radius), float(exaggeration)
@@ -57,7 +58,8 @@ class ClimateVelocity:
         self._dr_ds = np.gradient(h) * self.radius * self.exaggeration / EARTH_RADIUS if len(h) > 1 else np.zeros(1)
 
     def _stacked(self, lo, hi):
-        """Wind steps ``lo..hi`` (padded, converted) stacked along the level axis, kept between calls; None if too big."""
+        """Wind steps ``lo..hi`` (padded, converted) stacked along the level axis, kept between calls; None if
+        too big."""
         if self._stack is not None and self._stack[0] <= lo and hi <= self._stack[1]:
             a, _, f = self._stack
             nk = self.wind.nk
@@ -75,7 +77,8 @@ class ClimateVelocity:
 
     def _level(self, r):
         hgt = height_from_radius(r, self.radius, self.exaggeration)
-        return np.interp(hgt, self.level_height, np.arange(len(self.level_height))) if len(self.level_height) > 1 else np.zeros(len(r))
+        return (np.interp(hgt, self.level_height, np.arange(len(self.level_height))) if len(self.level_height) > 1
+                else np.zeros(len(r)))
 
     def point(self, lon, lat, height):
         """Scene point of a longitude, latitude (degrees) and height (m)."""
@@ -88,7 +91,8 @@ class ClimateVelocity:
         t = np.broadcast_to(np.asarray(hours, dtype=np.float64), (len(p),))
         r = np.sqrt(np.einsum("ij,ij->i", p, p))
         if not r.all():
-            raise DataError("a flow-volume point is at the globe's centre", path=self.wind.dataset.source, field="position")
+            raise DataError("a flow-volume point is at the globe's centre", path=self.wind.dataset.source,
+                            field="position")
         unit = p / r[:, None]
         s = self._level(r)
         # Every point has its own time: read the winds at the hourly steps bracketing each
@@ -99,11 +103,13 @@ class ClimateVelocity:
         self.wind.check_time(t_hi)
         i0 = np.searchsorted(hours, t, side="right") - 1
         np.clip(i0, 0, max(len(hours) - 2, 0), out=i0)
-        w1 = np.clip((t - hours[i0]) / (hours[np.minimum(i0 + 1, len(hours) - 1)] - hours[i0] if len(hours) > 1 else 1.0), 0.0, 1.0)
+        w1 = np.clip((t - hours[i0])
+                     / (hours[np.minimum(i0 + 1, len(hours) - 1)] - hours[i0] if len(hours) > 1 else 1.0), 0.0, 1.0)
         lo, hi = int(i0[0] if t_lo == t_hi else i0.min()), min(int(i0.max()) + 1, len(hours) - 1)
         stack = self._stacked(lo, hi)
         fr = self.wind.index.fractional(unit, s) if stack is not None or self.bounded else None
-        out = self._stacked_velocity(stack, fr, unit, r, s, i0, w1, lo) if stack is not None else self._per_step(p, unit, r, s, i0, w1)
+        out = (self._stacked_velocity(stack, fr, unit, r, s, i0, w1, lo) if stack is not None
+               else self._per_step(p, unit, r, s, i0, w1))
         if self.bounded:
             out[np.isnan(fr[2])] = np.nan
         return out

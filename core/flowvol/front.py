@@ -43,7 +43,8 @@ def polygon_points(center, e1, e2, radius, sides, u, rho):
     ang = 2 * np.pi * np.arange(sides + 1) / sides
     k = np.minimum(np.floor(u).astype(int), sides - 1)
     f = (u - k)[..., None]
-    corner = lambda i: np.cos(ang[i])[..., None] * e1 + np.sin(ang[i])[..., None] * e2
+    def corner(i):
+        return np.cos(ang[i])[..., None] * e1 + np.sin(ang[i])[..., None] * e2
     return center + (radius * np.asarray(rho, dtype=np.float64))[..., None] * ((1 - f) * corner(k) + f * corner(k + 1))
 
 
@@ -75,7 +76,8 @@ def advance(velocity, points, release, t_end, steps, stop=False):
         v = np.asarray(velocity(p, tt), dtype=np.float64).reshape(-1, 3)
         bad = ~np.isfinite(v).all(axis=1)
         if bad.any() and (not stop or where == "release"):
-            what = "of the generator's points lie outside the velocity's domain" if where == "release" else "velocities are missing"
+            what = ("of the generator's points lie outside the velocity's domain" if where == "release"
+                    else "velocities are missing")
             raise DataError(f"{int(bad.sum())} of {len(v)} {what} (NaN) along the flow volume", field="velocity")
         v[bad] = 0.0
         return v, bad
@@ -132,7 +134,8 @@ def advance(velocity, points, release, t_end, steps, stop=False):
 
 
 def _hermite(x0, v0, x1, v1, h, s):
-    """Cubic Hermite interpolation at fraction ``s`` (n,) of steps of length ``h`` (n,) between (x0, v0) and (x1, v1)."""
+    """Cubic Hermite interpolation at fraction ``s`` (n,) of steps of length ``h`` (n,) between (x0, v0) and
+    (x1, v1)."""
     s2, s3 = s * s, s * s * s
     w = [2 * s3 - 3 * s2 + 1, (s3 - 2 * s2 + s) * h, 3 * s2 - 2 * s3, (s3 - s2) * h]
     return w[0][:, None] * x0 + w[1][:, None] * v0 + w[2][:, None] * x1 + w[3][:, None] * v1
@@ -171,12 +174,14 @@ class Streams:
         v = np.asarray(self.velocity(p, np.zeros(len(p))), dtype=np.float64).reshape(-1, 3)
         bad = ~np.isfinite(v).all(axis=1)
         if bad.any() and (release or not self.stop):
-            what = "of the generator's points lie outside the velocity's domain" if release else "velocities are missing"
+            what = ("of the generator's points lie outside the velocity's domain" if release
+                    else "velocities are missing")
             raise DataError(f"{int(bad.sum())} of {len(v)} {what} (NaN) along the flow volume", field="velocity")
         return v, bad
 
     def _step(self, x, k1, h):
-        """One RK4 step of lengths ``h`` (n,) from ``x`` with its velocity ``k1``: end, its velocity, the first stage outside, out."""
+        """One RK4 step of lengths ``h`` (n,) from ``x`` with its velocity ``k1``: end, its velocity, the
+        first stage outside, out."""
         hc = h[:, None]
         s1 = x + 0.5 * hc * k1
         k2, b2 = self._f(s1)
@@ -187,7 +192,8 @@ class Streams:
         end = x + hc / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
         bad = b2 | b3 | b4
         ve, be = self._f(np.where(bad[:, None], x, end))
-        outside = np.where(b2[:, None], s1, np.where(b3[:, None], s2, np.where(b4[:, None], s3, end)))  # first stage out
+        # first stage out
+        outside = np.where(b2[:, None], s1, np.where(b3[:, None], s2, np.where(b4[:, None], s3, end)))
         return end, ve, outside, bad | be
 
     def add(self, points):
@@ -248,7 +254,8 @@ class Streams:
         until :meth:`exits` has placed them on the boundary)."""
         ids, ages = np.asarray(ids), np.asarray(ages, dtype=np.float64)
         h, last = self.h, self.last[ids]
-        i = np.clip(np.floor(ages / h).astype(np.int64), 0, self.steps - 1) if h > 0 else np.zeros(len(ids), dtype=np.int64)
+        i = (np.clip(np.floor(ages / h).astype(np.int64), 0, self.steps - 1) if h > 0
+             else np.zeros(len(ids), dtype=np.int64))
         out = ages > last * h + self.tail[ids] + 1e-12 * max(h, 1e-300)
         inner = i < last
         pos = np.empty((len(ids), 3))
@@ -287,7 +294,8 @@ class Front:
     rest at their exit point).
     """
 
-    def __init__(self, velocity, center, e1, e2, radius, sides, rings, t0, duration, steps, layers=2, stop=False, steady=False, resolution=None):
+    def __init__(self, velocity, center, e1, e2, radius, sides, rings, t0, duration, steps, layers=2, stop=False,
+                 steady=False, resolution=None):
         self.velocity, self.center, self.e1, self.e2 = velocity, center, e1, e2
         self.radius, self.sides, self.rings = radius, sides, rings
         self.t_end, self.steps, self.stop = t0 + duration, steps, stop
@@ -296,7 +304,9 @@ class Front:
         self.taus = np.linspace(t0, t0 + duration, max(int(layers), 2))
         g = self._generator(self.us, True)
         # A steady flow: one streamline per generator point, every layer read from them (no per-layer integration).
-        self.streams = Streams(velocity, duration, steps, stop, resolution or radius / sides) if steady and duration > 0 else None
+        self.streams = (Streams(velocity, duration, steps, stop, resolution or radius / sides)
+                        if steady and duration > 0
+                        else None)
         if self.streams is not None:
             self.ids = self.streams.add(g)  # each lattice column's streamline
             alive = float((self.streams.last * self.streams.h + self.streams.tail).max())
@@ -305,10 +315,12 @@ class Front:
                 # The layers are spread over the ages where some air is left (and one beyond), plus the oldest.
                 gap = duration / (len(self.taus) - 1)
                 n = int(np.ceil(alive / gap)) + 1
-                self.taus = np.concatenate([[t0], self.t_end - gap * np.arange(n, -1, -1)]) if n * gap < duration else self.taus
+                self.taus = (np.concatenate([[t0], self.t_end - gap * np.arange(n, -1, -1)]) if n * gap < duration
+                             else self.taus)
             self._sample()
             return
-        x, out = advance(velocity, np.tile(g, (len(self.taus), 1)), np.repeat(self.taus, len(g)), self.t_end, steps, stop)
+        x, out = advance(velocity, np.tile(g, (len(self.taus), 1)), np.repeat(self.taus, len(g)), self.t_end, steps,
+                         stop)
         self.pos, self.out = x.reshape(len(self.taus), len(g), 3), out.reshape(len(self.taus), len(g))
 
     def _sample(self):
@@ -324,7 +336,8 @@ class Front:
 
     def _generator(self, us, centre):
         rho = np.arange(1, self.rings + 1) / self.rings
-        pts = polygon_points(self.center, self.e1, self.e2, self.radius, self.sides, us[:, None] + 0 * rho, rho + 0 * us[:, None])
+        pts = polygon_points(self.center, self.e1, self.e2, self.radius, self.sides, us[:, None] + 0 * rho,
+                             rho + 0 * us[:, None])
         pts = pts.reshape(-1, 3)
         return np.vstack([self.center[None], pts]) if centre else pts
 
@@ -401,12 +414,14 @@ class Front:
             return
         gl = self._generator(us[order], centre=True)
         x, out = advance(self.velocity, np.concatenate([np.tile(gc, (K, 1)), np.tile(gl, (len(new_taus), 1))]),
-                         np.concatenate([np.repeat(self.taus, len(gc)), np.repeat(new_taus, len(gl))]), self.t_end, self.steps, self.stop)
+                         np.concatenate([np.repeat(self.taus, len(gc)), np.repeat(new_taus, len(gl))]), self.t_end,
+                         self.steps, self.stop)
         m = K * len(gc)
 
         def columns(old, new, shape):
             # Old and new columns of the old layers, in perimeter order.
-            cols = np.concatenate([old[:, 1:].reshape((K, J, R) + shape), new.reshape((K, len(new_us), R) + shape)], axis=1)
+            cols = np.concatenate([old[:, 1:].reshape((K, J, R) + shape), new.reshape((K, len(new_us), R) + shape)],
+                                  axis=1)
             return np.concatenate([old[:, :1], cols[:, order].reshape((K, -1) + shape)], axis=1)
 
         pos, was_out = columns(self.pos, x[:m], (3,)), columns(self.out, out[:m], ())
@@ -421,7 +436,8 @@ class Front:
         J, R = len(self.us), self.rings
         j = np.arange(J)
         j2 = (j + 1) % J
-        g = lambda jj, i: 1 + jj * R + i
+        def g(jj, i):
+            return 1 + jj * R + i
         tris = [np.stack([np.zeros(J, dtype=np.int64), g(j, 0), g(j2, 0)], axis=1)]
         for i in range(R - 1):
             tris.append(np.stack([g(j, i), g(j, i + 1), g(j2, i + 1)], axis=1))
@@ -463,6 +479,7 @@ class Front:
             bridge = np.linalg.norm(kept - cols[:, (j + 1) % J], axis=-1).max(axis=-1) < tol
             merge = near & bridge & ~(protect & (self.us[j] == np.round(self.us[j])))
             ks = np.nonzero(merge)[0]
-            target[layers[ks], 1 + j * R:1 + (j + 1) * R] = target[layers[ks][:, None], 1 + keep[ks, None] * R + np.arange(R)]
+            target[layers[ks], 1 + j * R:1 + (j + 1) * R] = target[layers[ks][:, None],
+                                                                   1 + keep[ks, None] * R + np.arange(R)]
             keep = np.where(merge, keep, j)
         return target.reshape(-1)

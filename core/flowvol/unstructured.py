@@ -33,7 +33,8 @@ VTK_HEXAHEDRON = 12
 _DTYPES = {"Int8": "i1", "UInt8": "u1", "Int16": "i2", "UInt16": "u2", "Int32": "i4", "UInt32": "u4",
            "Int64": "i8", "UInt64": "u8", "Float32": "f4", "Float64": "f8"}
 # Parametric corners (r, s, t) of VTK's hexahedron, in its node order.
-_CORNERS = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]], dtype=np.float64)
+_CORNERS = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]],
+                    dtype=np.float64)
 # The corners in (t, s, r) lattice order: corner (r, s, t) at [t, s, r] after a reshape to (2, 2, 2).
 _LATTICE = np.array([0, 1, 3, 2, 4, 5, 7, 6])
 
@@ -89,7 +90,8 @@ def read_vtu(path):
         return _parse_vtu(path, path.read_bytes())
     except (DataError, MemoryError):
         raise
-    except (ValueError, KeyError, IndexError, TypeError, OverflowError, zlib.error) as exc:  # binascii.Error: a ValueError
+    except (ValueError, KeyError, IndexError, TypeError, OverflowError, zlib.error) as exc:
+        # binascii.Error: a ValueError
         first = (str(exc).strip().splitlines() or [""])[0][:200]
         raise DataError(f"is damaged ({type(exc).__name__}: {first})", path=str(path)) from exc
 
@@ -136,7 +138,8 @@ def _parse_vtu(path, blob):
             data = None
         else:
             raise DataError(f"unknown data format {fmt!r}", path=str(path), field=el.get("Name"))
-        a = np.array((el.text or "").split(), dtype=dtype.newbyteorder("=")) if data is None else np.frombuffer(data, dtype=dtype)
+        a = (np.array((el.text or "").split(), dtype=dtype.newbyteorder("=")) if data is None
+             else np.frombuffer(data, dtype=dtype))
         c = int(el.get("NumberOfComponents", "1"))
         return a.reshape(-1, c) if c > 1 else a
 
@@ -158,7 +161,8 @@ def trilinear(rst):
     f = np.where(c == 1, p, 1 - p)  # (n, 8) factors
     w = f.prod(axis=2)
     sign = 2 * c - 1
-    d = np.stack([sign[..., 0] * f[..., 1] * f[..., 2], sign[..., 1] * f[..., 0] * f[..., 2], sign[..., 2] * f[..., 0] * f[..., 1]], axis=2)
+    d = np.stack([sign[..., 0] * f[..., 1] * f[..., 2], sign[..., 1] * f[..., 0] * f[..., 2],
+                  sign[..., 2] * f[..., 0] * f[..., 1]], axis=2)
     return w, d
 
 
@@ -190,13 +194,15 @@ class UnstructuredVelocity:
         if len(types) == 0:
             raise DataError("is not a VTK XML unstructured grid with cells", path=self.path)
         if np.any(types != VTK_HEXAHEDRON) or np.any(np.diff(np.concatenate([[0], grid["offsets"]])) != 8):
-            raise DataError(f"has cells other than hexahedra (types {sorted(set(types.tolist()))}); only type 12 is interpolated", path=self.path)
+            raise DataError(f"has cells other than hexahedra (types {sorted(set(types.tolist()))}); only type 12 is "
+                            "interpolated", path=self.path)
         arr = grid["point_data"].get(field)
         if arr is None or arr.ndim != 2 or arr.shape[1] != 3:
             raise DataError("is not a 3-component point array of the grid", path=self.path, field=field)
         self.points = grid["points"]
         conn = grid["connectivity"]
-        if conn.size != 8 * len(types) or len(arr) != len(self.points) or (conn.size and not 0 <= conn.min() <= conn.max() < len(self.points)):
+        if (conn.size != 8 * len(types) or len(arr) != len(self.points)
+                or (conn.size and not 0 <= conn.min() <= conn.max() < len(self.points))):
             raise DataError(f"has {conn.size} corner indices for {len(types)} hexahedra and {len(self.points)} points "
                             f"({len(arr)} vectors): they do not fit together", path=self.path)
         if not np.isfinite(np.ptp(self.points, axis=0)).all():
@@ -228,7 +234,8 @@ class UnstructuredVelocity:
         # The trilinear map x0 + a_r r + a_s s + a_t t + (bilinear and trilinear terms): affine when those vanish.
         x = corners
         twist = np.stack([x[:, 0] - x[:, 1] + x[:, 2] - x[:, 3], x[:, 0] - x[:, 1] + x[:, 5] - x[:, 4],
-                          x[:, 0] - x[:, 3] + x[:, 7] - x[:, 4], x[:, 1] - x[:, 0] - x[:, 2] + x[:, 3] + x[:, 4] - x[:, 5] + x[:, 6] - x[:, 7]], axis=1)
+                          x[:, 0] - x[:, 3] + x[:, 7] - x[:, 4],
+                          x[:, 1] - x[:, 0] - x[:, 2] + x[:, 3] + x[:, 4] - x[:, 5] + x[:, 6] - x[:, 7]], axis=1)
         jac = np.stack([x[:, 1] - x[:, 0], x[:, 3] - x[:, 0], x[:, 4] - x[:, 0]], axis=2)  # columns d x / d(r, s, t)
         det = np.linalg.det(jac)
         size = np.abs(self._hi - self._lo).max(axis=1)
@@ -249,7 +256,8 @@ class UnstructuredVelocity:
         for ax in range(3):
             lattice = np.unique(corners[..., ax])
             n = int(counts[ax])
-            self._edges.append(lattice if len(lattice) - 1 <= 4 * n and len(lattice) > 1 else np.linspace(lattice[0], lattice[-1], n + 1))
+            self._edges.append(lattice if len(lattice) - 1 <= 4 * n and len(lattice) > 1
+                               else np.linspace(lattice[0], lattice[-1], n + 1))
         nb = np.array([len(e) - 1 for e in self._edges])
         self._nb = nb
         i0 = np.stack([np.searchsorted(e, clo[:, ax], "right") - 1 for ax, e in enumerate(self._edges)], axis=1)
@@ -271,7 +279,8 @@ class UnstructuredVelocity:
         flat, cell = flat[order], cell[order]
         counts = np.bincount(flat, minlength=int(np.prod(nb)))
         start = np.concatenate([[0], np.cumsum(counts)[:-1]])
-        table = np.full((len(counts), max(int(counts.max()), 1)), -1, dtype=np.int32 if len(self.cells) < 2**31 else np.int64)
+        table = np.full((len(counts), max(int(counts.max()), 1)), -1,
+                        dtype=np.int32 if len(self.cells) < 2**31 else np.int64)
         table[flat, np.arange(len(flat)) - start[flat]] = cell
         self._table = table
         self._lo_all, self._hi_all = self._lo.min(axis=0), self._hi.max(axis=0)
@@ -292,7 +301,8 @@ class UnstructuredVelocity:
             g[:, ax] = np.minimum(np.searchsorted(e, q[:, ax], "right") - 1, self._nb[ax] - 1)
             near[:, ax] = q[:, ax] - self._eps < e[g[:, ax]]
         np.maximum(g, 0, out=g)
-        rows = lambda gg: self._table[(gg[:, 0] * self._nb[1] + gg[:, 1]) * self._nb[2] + gg[:, 2]]
+        def rows(gg):
+            return self._table[(gg[:, 0] * self._nb[1] + gg[:, 1]) * self._nb[2] + gg[:, 2]]
         left = self._in_rows(p, todo, rows(g), cell, rst, tol, iterations)
         # A point on a bucket face belongs to the bucket above it; if no cell there holds it
         # (a wall, an obstacle), the buckets below along the axes of the faces it lies on are tried.
@@ -342,7 +352,8 @@ class UnstructuredVelocity:
             idx = cand[:, c]
             q = p[todo]
             safe = np.maximum(idx, 0)
-            try_ = np.nonzero((idx >= 0) & ~self._affine[safe] & np.all((q >= self._lo[safe]) & (q <= self._hi[safe]), axis=1))[0]
+            try_ = np.nonzero((idx >= 0) & ~self._affine[safe] & np.all((q >= self._lo[safe]) & (q <= self._hi[safe]),
+                                                                        axis=1))[0]
             if len(try_) == 0:
                 continue
             r, ins = self._newton(idx[try_], q[try_], tol, iterations)
@@ -413,7 +424,8 @@ class UnstructuredVelocity:
         return cell, np.minimum(np.maximum(r, 0.0), 1.0)
 
     def updraft(self, height=0.1, margin=0.3):
-        """A generator place: ``height`` above the fastest rising (+z) grid point in the lower half, ``margin`` from the side walls.
+        """A generator place: ``height`` above the fastest rising (+z) grid point in the lower half,
+        ``margin`` from the side walls.
 
         Above a fire this is its plume, so the smoke is seeded where the hot air rises.
         """

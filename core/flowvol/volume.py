@@ -18,8 +18,8 @@ from ..memory import check_memory
 from ..surface.mesh import Mesh, vertex_normals
 from .climate import ClimateVelocity
 from .front import Front, perpendicular_frame
-from .unstructured import UnstructuredVelocity
 from .tets import boundary_faces, merge_vertices, orient, signed_volumes, split_prisms
+from .unstructured import UnstructuredVelocity
 
 
 @dataclass
@@ -71,11 +71,12 @@ def _as_velocity(velocity):
         return UnstructuredVelocity(velocity)
     if hasattr(velocity, "grid") and hasattr(velocity, "hours"):
         return ClimateVelocity(velocity)
-    raise DataError(f"velocity must be a callable velocity(points, t) or a climate dataset, got {type(velocity).__name__}", field="velocity")
+    raise DataError("velocity must be a callable velocity(points, t) or a climate dataset, got "
+                    f"{type(velocity).__name__}", field="velocity")
 
 
-def flow_volume(velocity, center, radius, duration, *, normal=None, sides=32, rings=2, t0=0.0, tol=None, merge=0.5, steps=16, max_points=200_000,
-                steady=None):
+def flow_volume(velocity, center, radius, duration, *, normal=None, sides=32, rings=2, t0=0.0, tol=None, merge=0.5,
+                steps=16, max_points=200_000, steady=None):
     """The air released through a generator polygon during ``duration``, carried to ``t0 + duration``.
 
     Parameters
@@ -140,9 +141,11 @@ def flow_volume(velocity, center, radius, duration, *, normal=None, sides=32, ri
     v = np.asarray(velocity(center[None], np.array([float(t0)])), dtype=np.float64).reshape(3)
     if normal is None:
         if not np.all(np.isfinite(v)):
-            raise DataError(f"the velocity at the generator centre {center.tolist()} is missing (NaN)", field="velocity")
+            raise DataError(f"the velocity at the generator centre {center.tolist()} is missing (NaN)",
+                            field="velocity")
         if not np.linalg.norm(v) > 0:
-            raise DataError(f"calm air at the generator centre {center.tolist()}: no flow direction to face; give a normal", field="normal")
+            raise DataError(f"calm air at the generator centre {center.tolist()}: no flow direction to face; give a "
+                            "normal", field="normal")
         normal = v
     normal = np.asarray(normal, dtype=np.float64).reshape(3)
     if not np.linalg.norm(normal) > 0:
@@ -167,7 +170,8 @@ def flow_volume(velocity, center, radius, duration, *, normal=None, sides=32, ri
         # (a layer's own integration took ``steps`` steps of age / steps each; a cell per step left the fire's
         # 1 s tube 2.7% too large, half a cell 0.1%).
         steps = max(steps, int(np.ceil(2.0 * float(duration) * speed / velocity.cell_size)))
-    front = Front(velocity, center, e1, e2, float(radius), sides, rings, float(t0), float(duration), steps, layers, stop, steady, tol / 4)
+    front = Front(velocity, center, e1, e2, float(radius), sides, rings, float(t0), float(duration), steps, layers,
+                  stop, steady, tol / 4)
     complete = True if duration == 0 else front.refine(tol, max_points)
     front.settle()
     if stop and hasattr(velocity, "bounds"):
@@ -211,4 +215,5 @@ def _assemble(front, normal, complete, tol, merge):
     sv = vertices[used]
     sf = remap[faces]
     surface = Mesh(sv, sf, vertex_normals(sv, sf), {"age": (front.t_end - release[used]).astype(np.float32)})
-    return FlowVolume(vertices, tets, surface, release, front.t_end - release, front.generator, normal, complete, front.out.reshape(-1).copy())
+    return FlowVolume(vertices, tets, surface, release, front.t_end - release, front.generator, normal, complete,
+                      front.out.reshape(-1).copy())

@@ -2,8 +2,8 @@
 
 from .phase import (  # noqa: F401
     FACES,
-    NBINS,
     N_PER_FACE,
+    NBINS,
     bin_of,
     bin_phase_toward,
     bins,
@@ -16,8 +16,8 @@ from .phase import (  # noqa: F401
     sub_sub_phase_matrix,
 )
 from .scatter import (  # noqa: F401
-    Camera,
     NB,
+    Camera,
     Progress,
     Solution,
     load_solution,
@@ -31,13 +31,13 @@ from .scatter import (  # noqa: F401
     solve_steps,
     view_source,
 )
-from .sky import (  # noqa: F401
-    luminance,
-    panorama_radiance,
-    panorama_solid_angles,
-)
 from .scatter_task import (  # noqa: F401
     plan_solve,
     solve_task,
     task_params,
+)
+from .sky import (  # noqa: F401
+    luminance,
+    panorama_radiance,
+    panorama_solid_angles,
 )

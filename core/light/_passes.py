@@ -4,9 +4,8 @@ extrapolated tail of the passes (:class:`_Tail`)."""
 
 import numpy as np
 
-from . import phase
 from ..threads import default_threads, split_map, thread_map
-from . import _native
+from . import _native, phase
 
 
 class _Tail:
@@ -39,7 +38,7 @@ class _Tail:
         self.start[0], self.spare = self.spare, None
         for buf, a in zip(self.start[:2], self.arrays[:2]):
             fb, fa = buf.reshape(len(buf), -1), a.reshape(len(a), -1)
-            split_map(lambda s: np.copyto(fb[:, s], fa[:, s]), fa.shape[1])
+            split_map(lambda s, fb=fb, fa=fa: np.copyto(fb[:, s], fa[:, s]), fa.shape[1])
         np.copyto(self.start[2], self.arrays[2])
 
     def end(self):

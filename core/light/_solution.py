@@ -7,9 +7,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import phase
 from ..errors import DataError
 from ..files import atomic_write
+from . import phase
 
 
 @dataclass

@@ -66,16 +66,25 @@ Measured choices behind the defaults
 
 import numpy as np
 
-from . import phase
 from ..errors import DataError
 from ..threads import split_map
-from . import _native
+from . import _native, _warm, phase
 from ._escape import _DHI, _DLO, _DSCALE, _RSTEP, _RTAB, _offset, _rate_of_offset, _second_moment, _variance
-from ._passes import (_as_slice, _bin_sum, _caught_per_sub, _fine_bins, _groups, _merge_quarters, _occupied_box,
-                      _quarters, _scatter_into, _shot_group, _Tail)
+from ._passes import (
+    _as_slice,
+    _bin_sum,
+    _caught_per_sub,
+    _fine_bins,
+    _groups,
+    _merge_quarters,
+    _occupied_box,
+    _quarters,
+    _scatter_into,
+    _shot_group,
+    _Tail,
+)
 from ._solution import Progress, Solution, _check_sky
 from ._sweep import _layer_area, _Scratch, _sweep
-from . import _warm
 
 MERGE_TOL = 0.2
 MERGE_TOL_FIRST = 0.01

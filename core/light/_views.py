@@ -5,9 +5,9 @@ film speed)."""
 
 import numpy as np
 
-from . import phase
 from ..splats.camera import Camera
 from ..threads import default_threads, thread_map
+from . import phase
 from ._escape import _exp_source_escape, _phi, _transport_factors
 
 
@@ -258,6 +258,7 @@ def _march_rays(planes, xs, nbp, lim, coef, start, end, first, block=8):
     tr_all = np.ones(len(start), np.float32)
     tiny = np.float32(-np.finfo(np.float32).tiny)
     act = np.zeros(0, np.intp)
+    acc = tr = None  # the active rays' sums, bound once a block has rays (read only from then on)
     joined = 0
     for p0 in range(first, len(xs), block):
         if len(act):

@@ -85,12 +85,28 @@ Rendering Workshop 1992.
 K. D. Lathrop, "Ray effects in discrete ordinates equations", Nucl. Sci. Eng. 32 (1968).
 """
 
-from . import phase
 from ..splats.camera import Camera
-from ._solution import (Progress, Solution, json_plain, load_solution, save_solution, slab_reflectance,
-                        solution_arrays, solution_from_arrays)
-from ._solve import (LOW_SUN, MERGE_TOL, MERGE_TOL_FIRST, MERGE_TOL_LATER, PEAKED_ORDERS, SECOND_MOMENTS_TAU, solve,
-                     solve_steps)
+from . import phase
+from ._solution import (
+    Progress,
+    Solution,
+    json_plain,
+    load_solution,
+    save_solution,
+    slab_reflectance,
+    solution_arrays,
+    solution_from_arrays,
+)
+from ._solve import (
+    LOW_SUN,
+    MERGE_TOL,
+    MERGE_TOL_FIRST,
+    MERGE_TOL_LATER,
+    PEAKED_ORDERS,
+    SECOND_MOMENTS_TAU,
+    solve,
+    solve_steps,
+)
 from ._views import march_planes, orbit_camera, render, view_source
 
 NB = phase.NBINS  # the default layout's bin count (96); a solve's own is ``len(sol.received)``

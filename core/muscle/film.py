@@ -36,7 +36,18 @@ from ..pipeline.registry import planner, task
 from . import brownian as br
 from . import lattice as lat
 from .blobby import blobby_surface
-from .molecules import LEVEL, LEVER, LEVER_LENGTH, MOTOR, S2_RADIUS, Cylinders, Ellipsoids, actin_subunit, cylinder_mesh, myosin_head
+from .molecules import (
+    LEVEL,
+    LEVER,
+    LEVER_LENGTH,
+    MOTOR,
+    S2_RADIUS,
+    Cylinders,
+    Ellipsoids,
+    actin_subunit,
+    cylinder_mesh,
+    myosin_head,
+)
 
 ACTIN, MOTOR_PART, LEVER_PART, TAIL, BACKBONE = 0, MOTOR, LEVER, 3, 4
 """Molecule ids written per vertex (attribute ``"molecule"``) for the materials."""
@@ -106,7 +117,8 @@ def frame_molecules(lattice, frame):
     sub = lat.actin_subunits(lattice, frame.slide)
     m = len(sub.origins)
     a_rot = np.repeat(sub.rotations, len(actin), 0) @ np.tile(actin.rotations, (m, 1, 1))
-    a_ctr = np.einsum("mij,kj->mki", sub.rotations, actin.centers).reshape(-1, 3) + np.repeat(sub.origins, len(actin), 0)
+    a_ctr = np.einsum("mij,kj->mki", sub.rotations,
+                      actin.centers).reshape(-1, 3) + np.repeat(sub.origins, len(actin), 0)
     head = myosin_head()
     heads = lat.myosin_heads(lattice)
     h = len(heads)

@@ -214,7 +214,8 @@ def unit_cell(d10=D10, length=CELL_LENGTH, thick_turn=SUPERLATTICE_TURNS, thin_t
     assert len(thick) == 3 and len(thin) == 6, (len(thick), len(thin))
     thick_turn = np.asarray(thick_turn, np.float64).reshape(3)
     # Default thin phases: azimuths and axial offsets spread over one subunit step.
-    thin_turn = np.arange(6) * 2 * np.pi / 6 * 0.37 if thin_turn is None else np.asarray(thin_turn, np.float64).reshape(6)
+    thin_turn = (np.arange(6) * 2 * np.pi / 6 * 0.37 if thin_turn is None
+                 else np.asarray(thin_turn, np.float64).reshape(6))
     thin_z0 = np.arange(6) * ACTIN_RISE / 6 if thin_z0 is None else np.asarray(thin_z0, np.float64).reshape(6)
     return Lattice(a, float(length), thick, thick_turn, np.zeros(3), thin, thin_turn, thin_z0)
 

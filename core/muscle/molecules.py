@@ -107,14 +107,16 @@ class Ellipsoids:
     def moved(self, rotation, translation):
         """The ellipsoids turned by ``rotation`` (3, 3) about the origin, then shifted."""
         rot = np.asarray(rotation, np.float64)
-        return Ellipsoids(self.centers @ rot.T + translation, rot @ self.rotations, self.sigmas, self.weights, self.part)
+        return Ellipsoids(self.centers @ rot.T + translation, rot @ self.rotations, self.sigmas, self.weights,
+                          self.part)
 
     @staticmethod
     def concat(items):
         items = list(items)
         if not items:
             return Ellipsoids(np.zeros((0, 3)), np.zeros((0, 3, 3)), np.zeros((0, 3)), np.zeros(0))
-        return Ellipsoids(*(np.concatenate([getattr(e, k) for e in items]) for k in ("centers", "rotations", "sigmas", "weights", "part")))
+        return Ellipsoids(*(np.concatenate([getattr(e, k) for e in items])
+                            for k in ("centers", "rotations", "sigmas", "weights", "part")))
 
     def surface(self, spacing, **kw):
         """The blobby surface at :data:`LEVEL` (attribute ``"part"`` per vertex)."""
@@ -168,7 +170,8 @@ def atom_gaussians(atoms, blobbiness=BLOBBINESS):
     """The atoms' Gaussian molecular density: ``exp(B (1 - d^2 / r^2))`` per atom, surface at :data:`LEVEL`."""
     n = len(atoms.xyz)
     sig = atoms.radius / np.sqrt(2 * blobbiness)
-    return Ellipsoids(atoms.xyz, np.repeat(np.eye(3)[None], n, 0), np.repeat(sig[:, None], 3, 1), np.full(n, np.exp(blobbiness)))
+    return Ellipsoids(atoms.xyz, np.repeat(np.eye(3)[None], n, 0), np.repeat(sig[:, None], 3, 1),
+                      np.full(n, np.exp(blobbiness)))
 
 
 def subdomain_of(atoms):
@@ -307,8 +310,10 @@ def fit_ellipsoids(atoms, k, *, groups=None, spacing=0.05, sample=1000, band=0.3
 
     # Bounds keep every ellipsoid a compact piece of the subunit (peak >= 1.5 level, sigma <= 3 nm):
     # no broad faint background that would leak into the neighbours' field.
-    lo = np.concatenate([c0 - 2.0, np.full((m, 3), -np.pi), np.full((m, 3), np.log(0.2)), np.full((m, 1), np.log(1.5 * LEVEL))], 1)
-    hi = np.concatenate([c0 + 2.0, np.full((m, 3), np.pi), np.full((m, 3), np.log(3.0)), np.full((m, 1), np.log(8 * LEVEL))], 1)
+    lo = np.concatenate([c0 - 2.0, np.full((m, 3), -np.pi), np.full((m, 3), np.log(0.2)),
+                         np.full((m, 1), np.log(1.5 * LEVEL))], 1)
+    hi = np.concatenate([c0 + 2.0, np.full((m, 3), np.pi), np.full((m, 3), np.log(3.0)),
+                         np.full((m, 1), np.log(8 * LEVEL))], 1)
     x0 = np.clip(p0, lo + 1e-9, hi - 1e-9).reshape(-1)
     sol = least_squares(resid, x0, bounds=(lo.reshape(-1), hi.reshape(-1)), loss="soft_l1", f_scale=0.2,
                         x_scale=0.1, max_nfev=max_nfev)
@@ -371,9 +376,12 @@ def lever_arm():
     """
     L = LEVER_LENGTH
     parts = [
-        _axis_ellipsoid((0.5, 0, 0), (L, 0, 0), _radius_sigma(((L - 0.5) / 2 + 0.3, 0.6, 0.6)), HEAD_WEIGHT),  # heavy-chain helix
-        _axis_ellipsoid((0.8, 0.6, 0), (0.8 + 0.45 * L, 0.9, 0), _radius_sigma((0.25 * L, 1.35, 1.1)), HEAD_WEIGHT),  # RLC
-        _axis_ellipsoid((0.5 * L, 0.9, 0), (0.96 * L, 0.7, 0), _radius_sigma((0.27 * L, 1.45, 1.15)), HEAD_WEIGHT),  # ELC
+        # heavy-chain helix
+        _axis_ellipsoid((0.5, 0, 0), (L, 0, 0), _radius_sigma(((L - 0.5) / 2 + 0.3, 0.6, 0.6)), HEAD_WEIGHT),
+        # RLC
+        _axis_ellipsoid((0.8, 0.6, 0), (0.8 + 0.45 * L, 0.9, 0), _radius_sigma((0.25 * L, 1.35, 1.1)), HEAD_WEIGHT),
+        # ELC
+        _axis_ellipsoid((0.5 * L, 0.9, 0), (0.96 * L, 0.7, 0), _radius_sigma((0.27 * L, 1.45, 1.15)), HEAD_WEIGHT),
     ]
     return Ellipsoids(*map(np.array, zip(*parts)), part=np.full(3, LEVER))
 
@@ -387,10 +395,14 @@ def motor_domain():
     L, M = LEVER_LENGTH, S1_LENGTH - LEVER_LENGTH
     w, d = S1_WIDTH, S1_DEPTH
     parts = [
-        _axis_ellipsoid((L - 0.3, -0.2, 0), (L + 2.0, 0.4, 0), _radius_sigma((1.6, 1.6, 1.4)), HEAD_WEIGHT),  # converter
-        _axis_ellipsoid((L + 0.8, 0.6, 0), (L + 0.55 * M, 1.4, 0), _radius_sigma((0.32 * M, 1.9, d / 2 - 0.25)), HEAD_WEIGHT),  # N-terminal
-        _axis_ellipsoid((L + 0.35 * M, 1.8, 0), (S1_LENGTH - 0.5, 1.1, 0), _radius_sigma((0.36 * M, w / 2 - 1.6, d / 2 - 0.25)), HEAD_WEIGHT),  # upper 50K
-        _axis_ellipsoid((L + 0.3 * M, -0.9, 0), (S1_LENGTH - 0.8, -1.9, 0), _radius_sigma((0.34 * M, 1.5, d / 2 - 0.45)), HEAD_WEIGHT),  # lower 50K
+        # converter
+        _axis_ellipsoid((L - 0.3, -0.2, 0), (L + 2.0, 0.4, 0), _radius_sigma((1.6, 1.6, 1.4)), HEAD_WEIGHT),
+        _axis_ellipsoid((L + 0.8, 0.6, 0), (L + 0.55 * M, 1.4, 0), _radius_sigma((0.32 * M, 1.9, d / 2 - 0.25)),
+                        HEAD_WEIGHT),  # N-terminal
+        _axis_ellipsoid((L + 0.35 * M, 1.8, 0), (S1_LENGTH - 0.5, 1.1, 0),
+                        _radius_sigma((0.36 * M, w / 2 - 1.6, d / 2 - 0.25)), HEAD_WEIGHT),  # upper 50K
+        _axis_ellipsoid((L + 0.3 * M, -0.9, 0), (S1_LENGTH - 0.8, -1.9, 0),
+                        _radius_sigma((0.34 * M, 1.5, d / 2 - 0.45)), HEAD_WEIGHT),  # lower 50K
     ]
     return Ellipsoids(*map(np.array, zip(*parts)), part=np.full(4, MOTOR))
 
@@ -438,7 +450,8 @@ def cylinder_mesh(cyl, segments=16):
     # Per cylinder: side ring 0 (s), side ring 1 (s), cap 0 ring (s), cap 1 ring (s), two centres.
     verts = np.concatenate([cyl.starts[:, None] + rr, cyl.ends[:, None] + rr, cyl.starts[:, None] + rr,
                             cyl.ends[:, None] + rr, cyl.starts[:, None], cyl.ends[:, None]], axis=1)
-    norms = np.concatenate([ring, ring, np.repeat(-x[:, None], s, 1), np.repeat(x[:, None], s, 1), -x[:, None], x[:, None]], axis=1)
+    norms = np.concatenate([ring, ring, np.repeat(-x[:, None], s, 1), np.repeat(x[:, None], s, 1), -x[:, None],
+                            x[:, None]], axis=1)
     i = np.arange(s)
     j = (i + 1) % s
     side = np.concatenate([np.stack([i, j, s + j], 1), np.stack([i, s + j, s + i], 1)])

@@ -9,4 +9,5 @@ from .tasks import load_all, plan, run, run_cached
 
 __all__ = ["CACHE_VERSION", "KINDS", "PLANNERS", "TASKS", "TASK_MODULES", "Cache", "ObjectKind", "cache_key",
            "canonical", "code_stamp", "default_cache_dir", "dependencies", "frame_hours", "load_all",
-           "open_source", "open_with_overrides", "plan", "planner", "register_source", "run", "run_cached", "source_stamp", "task"]
+           "open_source", "open_with_overrides", "plan", "planner", "register_source", "run", "run_cached",
+           "source_stamp", "task"]

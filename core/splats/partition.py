@@ -96,7 +96,8 @@ def check_shells(heights, path=None):
     """``heights`` as float64, checked: finite, strictly ascending, at least 2."""
     h = np.asarray(heights, dtype=np.float64).reshape(-1)
     if h.size < 2 or not np.all(np.isfinite(h)) or not np.all(np.diff(h) > 0):
-        raise DataError(f"shell heights must be >= 2 finite, strictly ascending values, got {h.size}", path=path, field="shells")
+        raise DataError(f"shell heights must be >= 2 finite, strictly ascending values, got {h.size}", path=path,
+                        field="shells")
     return h
 
 
@@ -126,7 +127,8 @@ class ShellSampler:
     def __init__(self, grid, heights):
         self.shape = (len(heights),) + grid.shape[1:]
         self._lo, self._frac, self._inside = _column_weights(
-            np.ascontiguousarray(grid.height).tobytes(), grid.shape, np.ascontiguousarray(heights, dtype=np.float64).tobytes()
+            np.ascontiguousarray(grid.height).tobytes(), grid.shape,
+            np.ascontiguousarray(heights, dtype=np.float64).tobytes()
         )
 
     def at(self, values, sel):
@@ -309,7 +311,8 @@ def _factors(lat_bytes, shell_bytes, lon_step, exaggeration, kernel_params):
     mat = None
     for rows in np.unique(np.column_stack([rk, ri]), axis=0):  # cells grouped by their reach
         sel = cells[(rk == rows[0]) & (ri == rows[1])]
-        pts = np.vstack([base[sel] + o for o in _FACES] + [base[sel] + rng.random((sel.size, 3)) for _ in range(_RANDOM_PER_CELL)])
+        pts = np.vstack([base[sel] + o for o in _FACES]
+                        + [base[sel] + rng.random((sel.size, 3)) for _ in range(_RANDOM_PER_CELL)])
         row, k, j, _, w = stencil_weights(points, to_cell, pts, kernel, (int(rows[0]), rj, int(rows[1])))
         part = sparse.csr_matrix((w, (row, k * nj + j)), shape=(len(pts), nk * nj))
         mat = part if mat is None else sparse.vstack([mat, part])

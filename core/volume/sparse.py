@@ -416,7 +416,8 @@ def _sub_block_candidates(field, tf, voxel_size, sub, metres_per_unit):
     # ~20 bytes per voxel of the candidate blocks at the peak (tracemalloc on demo:small, voxel 0.0027:
     # 14.4 M block voxels, 284 MB; the add-on's BYTES_PER_VOXEL).
     check_memory(20.0 * near.shape[0] * sub**3, f"resampling {near.shape[0]:,} blocks of {sub}^3 voxels "
-                 f"(voxel size {voxel_size:g})", hint="raise the voxel size or lower the exaggeration", field="voxel_size")
+                 f"(voxel size {voxel_size:g})", hint="raise the voxel size or lower the exaggeration",
+                 field="voxel_size")
     stats = {"candidate_cells": int(np.count_nonzero(cells)), "boxed_blocks": int(blocks.shape[0]),
              "candidate_blocks": int(near.shape[0])}
     return near, table, stats

@@ -164,7 +164,8 @@ class ColorMap(_JsonRoundTrip):
 
     def __post_init__(self):
         values, outs = _check_points(self.points, "colour map", 3)
-        object.__setattr__(self, "points", tuple((float(v), tuple(float(c) for c in rgb)) for v, rgb in zip(values, outs)))
+        object.__setattr__(self, "points",
+                           tuple((float(v), tuple(float(c) for c in rgb)) for v, rgb in zip(values, outs)))
         object.__setattr__(self, "values", values)
         object.__setattr__(self, "colors", outs)
 
@@ -195,7 +196,8 @@ class ColorMap(_JsonRoundTrip):
 
 # Cloud colour (scattering albedo) by altitude in metres: warm grey low
 # cloud, white in the middle, pale blue cirrus high up.
-ALTITUDE_COLORS = ColorMap(points=((0.0, (0.85, 0.78, 0.7)), (5000.0, (0.97, 0.97, 0.97)), (12000.0, (0.75, 0.85, 1.0))))
+ALTITUDE_COLORS = ColorMap(points=((0.0, (0.85, 0.78, 0.7)), (5000.0, (0.97, 0.97, 0.97)),
+                                   (12000.0, (0.75, 0.85, 1.0))))
 # Cloud colour by temperature (K): white cold tops to warm grey-pink.
 TEMPERATURE_COLORS = ColorMap(points=((210.0, (1.0, 1.0, 1.0)), (260.0, (0.85, 0.9, 1.0)), (300.0, (0.9, 0.7, 0.6))))
 

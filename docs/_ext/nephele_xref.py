@@ -20,7 +20,6 @@ immutable sequence").
 import sys
 
 from sphinx.pycode import ModuleAnalyzer
-
 from sphinx.util.nodes import make_refnode
 
 # Reference roles -> the object types they may point at.

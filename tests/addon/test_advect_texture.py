@@ -141,7 +141,8 @@ def test_operator_on_contour_gives_per_frame_start_coordinates(empty_scene):
     pos = pos.reshape(-1, 3)
     sa = attr(advect.START.format("a"), 3)
     moved = np.degrees(np.arccos(np.clip(np.sum(
-        sa / np.linalg.norm(sa, axis=1, keepdims=True) * pos / np.linalg.norm(pos, axis=1, keepdims=True), axis=1), -1, 1)))
+        sa / np.linalg.norm(sa, axis=1, keepdims=True) * pos / np.linalg.norm(pos, axis=1, keepdims=True), axis=1), -1,
+                                         1)))
     assert len(me.vertices) != nv1 or np.median(moved) > 0.05
     assert np.median(moved) < 10.0
     wa, wb = attr(advect.WEIGHT.format("a")), attr(advect.WEIGHT.format("b"))
@@ -149,7 +150,8 @@ def test_operator_on_contour_gives_per_frame_start_coordinates(empty_scene):
     assert wa[0] == pytest.approx(1 - abs(2 * (5 % 8) / 8 - 1))
     mat = obj.active_material
     assert mat.use_backface_culling
-    assert any(n.bl_idname == "ShaderNodeGroup" and n.node_tree.name.startswith(advect_ops.GROUP_NAME) for n in mat.node_tree.nodes)
+    assert any(n.bl_idname == "ShaderNodeGroup" and n.node_tree.name.startswith(advect_ops.GROUP_NAME)
+               for n in mat.node_tree.nodes)
 
 
 def test_operator_refuses_non_contour(empty_scene):

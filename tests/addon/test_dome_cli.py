@@ -5,9 +5,9 @@ import pytest
 
 pytest.importorskip("bpy")
 
-from nephele.fileio import read_image, write_image  # noqa: E402
 from nephele.core.camera import dome  # noqa: E402
 from nephele.farm.cli import main  # noqa: E402
+from nephele.fileio import read_image, write_image  # noqa: E402
 
 
 def _field(d):
@@ -43,7 +43,8 @@ def test_cli_sequence_with_face_pattern_and_equirect(tmp_path):
     lon = ((np.arange(128) + 0.5) / 128 - 0.5) * 2 * np.pi
     lat = (0.5 - (np.arange(64) + 0.5) / 64) * np.pi
     lo, la = np.meshgrid(lon, lat)
-    write_image(tmp_path / "eq.png", _field(np.stack([np.cos(la) * np.sin(lo), np.cos(la) * np.cos(lo), np.sin(la)], -1)))
+    write_image(tmp_path / "eq.png",
+                _field(np.stack([np.cos(la) * np.sin(lo), np.cos(la) * np.cos(lo), np.sin(la)], -1)))
     assert main(["dome", str(tmp_path / "eq.png"), "--out", str(tmp_path / "eqdm.png"), "--preset", "domemaster",
                  "--size", "48x48"]) == 0
     a, b = read_image(tmp_path / "eqdm.png"), read_image(tmp_path / "dm_0001.png")

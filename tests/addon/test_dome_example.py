@@ -20,8 +20,8 @@ def _example():
 
 
 def test_example_renders_globe_where_expected(tmp_path):
-    from nephele.fileio import read_image
     from nephele.core.camera import dome
+    from nephele.fileio import read_image
 
     ex = _example()
     paths = ex.render(tmp_path, "omnimax", size=(128, 94), samples=4, stereo=True, elevation=25.0, distance=1.7)

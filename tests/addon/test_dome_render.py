@@ -10,9 +10,13 @@ bpy = pytest.importorskip("bpy")
 from nephele.addon import dome_ops  # noqa: E402
 from nephele.core.camera import dome  # noqa: E402
 
-COLOURS = {"red": (1, 0, 0), "green": (0, 1, 0), "blue": (0, 0, 1), "yellow": (1, 1, 0), "magenta": (1, 0, 1), "cyan": (0, 1, 1)}
+COLOURS = {"red": (1, 0, 0), "green": (0, 1, 0), "blue": (0, 0, 1), "yellow": (1, 1, 0), "magenta": (1, 0, 1),
+           "cyan": (0, 1, 1)}
 # (elevation, azimuth right of the front) in degrees: ahead, sideways, high, behind the zenith, low
-MARKERS = {"red": (20, 0), "green": (0, 35), "blue": (50, -60), "yellow": (75, 90), "magenta": (8, -75), "cyan": (100, 20)}
+MARKERS = {"red": (20, 0), "green": (0, 35), "blue": (50, -60), "yellow": (75, 90), "magenta": (8, -75),
+           "cyan": (100, 20)}
+
+ORIGIN = np.zeros(3)  # the rig's eye unless a test moves it (read only)
 
 
 def _direction(el, az):
@@ -70,7 +74,7 @@ def _render(scene, path, engine="CYCLES", samples=8):
     return path
 
 
-def _check_markers(img, cam, eye=np.zeros(3), distance=10.0, tol=1.0, markers=MARKERS):
+def _check_markers(img, cam, eye=ORIGIN, distance=10.0, tol=1.0, markers=MARKERS):
     found = _centroids(img)
     checked = 0
     for name, (el, az) in markers.items():
@@ -182,7 +186,8 @@ def test_engine_warning_and_handler(empty_scene, capsys, tmp_path):
 
 def test_operator_configures_the_camera(empty_scene):
     scene = empty_scene
-    assert bpy.ops.nephele.add_dome_camera(preset="omnimax", tilt=25.0, fov=180.0, width=2048, height=1500) == {"FINISHED"}
+    assert bpy.ops.nephele.add_dome_camera(preset="omnimax", tilt=25.0, fov=180.0, width=2048,
+                                           height=1500) == {"FINISHED"}
     ob = scene.camera
     cd = ob.data
     assert cd.type == "PANO" and cd.panorama_type == "FISHEYE_LENS_POLYNOMIAL"
@@ -202,11 +207,12 @@ def test_operator_configures_the_camera(empty_scene):
     assert (p["width"], p["height"], p["tilt"]) == (2048, 2048, 0.0)
     assert (scene.render.resolution_x, scene.render.resolution_y) == (2048, 2048)
     # stereo: two cameras and multi-view _L/_R output
-    assert bpy.ops.nephele.add_dome_camera(preset="domemaster", width=256, height=256, stereo=True, separation=0.1) == {"FINISHED"}
+    assert bpy.ops.nephele.add_dome_camera(preset="domemaster", width=256, height=256, stereo=True,
+                                           separation=0.1) == {"FINISHED"}
     assert {o.name for o in scene.objects if o.type == "CAMERA"} == {"DomeCamera_L", "DomeCamera_R"}
     assert scene.render.use_multiview and scene.render.views_format == "MULTIVIEW"
-    l, r = scene.objects["DomeCamera_L"], scene.objects["DomeCamera_R"]
-    assert (r.matrix_world.translation - l.matrix_world.translation).to_tuple(6) == pytest.approx((0.1, 0, 0))
+    left, right = scene.objects["DomeCamera_L"], scene.objects["DomeCamera_R"]
+    assert (right.matrix_world.translation - left.matrix_world.translation).to_tuple(6) == pytest.approx((0.1, 0, 0))
 
 
 @pytest.mark.parametrize(

@@ -8,8 +8,8 @@ import pytest
 bpy = pytest.importorskip("bpy")
 
 from nephele.addon import flowvol_ops as fo  # noqa: E402
-from nephele.core.flowvol import ClimateVelocity, flow_volume  # noqa: E402
 from nephele.core.climate.synthetic import SyntheticClimate  # noqa: E402
+from nephele.core.flowvol import ClimateVelocity, flow_volume  # noqa: E402
 
 _DS = SyntheticClimate(ni=64, nj=32, nk=4, days=1, seed=0)
 
@@ -45,7 +45,9 @@ def test_operator_builds_the_core_surface_and_rebuilds_on_move(flowvol_scene):
     assert bpy.ops.nephele.update_flow_volume() == {"FINISHED"}
     co2 = np.empty(len(smoke.data.vertices) * 3, np.float32)
     smoke.data.vertices.foreach_get("co", co2)
-    assert np.linalg.norm(co2.reshape(-1, 3).mean(axis=0) - np.array(gen.location)) < np.linalg.norm(co.reshape(-1, 3).mean(axis=0) - np.array(gen.location))
+    assert np.linalg.norm(co2.reshape(-1, 3).mean(axis=0)
+                          - np.array(gen.location)) < np.linalg.norm(co.reshape(-1, 3).mean(axis=0)
+                                                                     - np.array(gen.location))
     assert "tets" in p.status and len(smoke.data.polygons) != before
 
 
@@ -83,9 +85,8 @@ def test_update_without_generator_fails_cleanly(flowvol_scene):
 
 def test_cycles_smoke_matches_the_core_compositor(empty_scene, tmp_path):
     """Orthographic Cycles render of a flow-volume tube vs C(1 - exp(-tau L)) on the same rays (mean within 2 %)."""
-    from nephele.core.flowvol.render import composite
-
     from nephele.addon.mesh import new_object
+    from nephele.core.flowvol.render import composite
 
     scene = empty_scene
     fv = flow_volume(lambda p, t: np.tile([0, 0, 1.0], (len(p), 1)), [0, 0, 0], 0.6, 1.5, sides=12)
@@ -125,7 +126,8 @@ def test_cycles_smoke_matches_the_core_compositor(empty_scene, tmp_path):
     c = (np.arange(48) + 0.5) / 48 * 2.0 - 1.0
     zz, yy = np.meshgrid(c + 0.75, -c, indexing="ij")
     origins = np.stack([np.full(zz.size, -5.0), yy.ravel(), zz.ravel()], axis=1)
-    ref = composite(fv.vertices, fv.tets, origins, np.tile([1.0, 0, 0], (len(origins), 1)), color, tau).reshape(48, 48, 3)
+    ref = composite(fv.vertices, fv.tets, origins, np.tile([1.0, 0, 0], (len(origins), 1)), color,
+                    tau).reshape(48, 48, 3)
     assert ref.mean() > 0.05
     assert got.mean() == pytest.approx(ref.mean(), rel=0.02)
 
@@ -138,7 +140,8 @@ def test_operator_on_the_fire_vtu_without_vtk(empty_scene):
     from nephele.core.flowvol import UnstructuredVelocity
 
     p = empty_scene.nephele_flowvol
-    p.vtu_path, p.vtu_height, p.radius, p.hours, p.sides, p.steps, p.tolerance, p.live = FIRE, 0.1, 0.1, 1.0, 16, 8, 0.05, False
+    p.vtu_path, p.vtu_height, p.radius, p.hours = FIRE, 0.1, 0.1, 1.0
+    p.sides, p.steps, p.tolerance, p.live = 16, 8, 0.05, False
     assert bpy.ops.nephele.add_flow_volume() == {"FINISHED"}, p.status
     gen, smoke = bpy.data.objects[fo.GENERATOR], bpy.data.objects[fo.SMOKE]
     fire = UnstructuredVelocity(FIRE)
@@ -150,4 +153,5 @@ def test_operator_on_the_fire_vtu_without_vtk(empty_scene):
     assert np.allclose(z / np.linalg.norm(z), fv.normal, atol=1e-5) and fv.normal[2] > 0.5
     co = np.empty(len(smoke.data.vertices) * 3, np.float32)
     smoke.data.vertices.foreach_get("co", co)
-    assert np.all(co.reshape(-1, 3) >= fire.bounds[:, 0] - 1e-4) and np.all(co.reshape(-1, 3) <= fire.bounds[:, 1] + 1e-4)
+    assert np.all(co.reshape(-1, 3) >= fire.bounds[:, 0]
+                  - 1e-4) and np.all(co.reshape(-1, 3) <= fire.bounds[:, 1] + 1e-4)

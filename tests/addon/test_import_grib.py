@@ -8,10 +8,10 @@ import pytest
 bpy = pytest.importorskip("bpy")
 pytest.importorskip("eccodes")
 
+from gribfiles import field, isobaric, regular_ll, write  # noqa: E402
+
 from nephele.addon import contour_ops, data_ops  # noqa: E402
 from nephele.core.climate.readers import open_dataset  # noqa: E402
-
-from gribfiles import field, isobaric, regular_ll, write  # noqa: E402
 
 
 def _ensemble(path):
@@ -42,5 +42,7 @@ def test_bad_level_type_is_one_error_line(empty_scene, tmp_path, own_cache):
     scene = empty_scene
     path = _ensemble(tmp_path / "ens.grib2")
     scene.nephele_data.read_level_type = "hybrid"
-    with pytest.raises(RuntimeError, match=r"ens.grib2: field 'level_type': no fields on level type 'hybrid' \(found: isobaricInhPa\)$"):
+    with pytest.raises(RuntimeError,
+                       match=r"ens.grib2: field 'level_type': no fields on level type 'hybrid' \(found: "
+                             r"isobaricInhPa\)$"):
         bpy.ops.nephele.import_dataset(kind="FILE", filepath=str(path))  # the operator's ERROR report, one line

@@ -113,7 +113,8 @@ def test_p0_and_vertical_coordinate_reach_the_reader(empty_scene):
     assert bpy.ops.nephele.import_dataset(kind="FILE", filepath=str(NCL)) == {"FINISHED"}
     lev = np.sort(xr.open_dataset(NCL)["lev"].values.astype(np.float64))
     height = data_ops.dataset(scene=scene).grid.height  # broadcast to (level, lat, lon): flat levels
-    np.testing.assert_allclose(height.reshape(lev.size, -1), np.repeat(lev[:, None] * 1000.0, 64 * 128, axis=1), rtol=1e-12)
+    np.testing.assert_allclose(height.reshape(lev.size, -1), np.repeat(lev[:, None] * 1000.0, 64 * 128, axis=1),
+                               rtol=1e-12)
 
 
 def test_panel_draws_the_overrides_in_a_collapsible_section(empty_scene):
@@ -134,5 +135,5 @@ def test_panel_draws_the_overrides_in_a_collapsible_section(empty_scene):
 
     data_ops.NEPHELE_PT_data.draw(type("Panel", (), {"layout": Layout()})(), bpy.context)
     assert panels == [("NEPHELE_PT_data_overrides", True)]
-    assert drawn[-7:] == ["read_vertical", "read_p0", "read_time_units", "read_earth_radius", "read_var_map", "read_level_type",
-                          "read_member"]
+    assert drawn[-7:] == ["read_vertical", "read_p0", "read_time_units", "read_earth_radius", "read_var_map",
+                          "read_level_type", "read_member"]

@@ -13,7 +13,8 @@ RED, BLUE = (1.0, 0.0, 0.0), (0.0, 0.0, 1.0)
 def strip(n=21):
     """A 2 x 0.5 strip in the xy-plane with attribute ``t`` = 0..10 from left to right."""
     x = np.linspace(-1.0, 1.0, n)
-    v = np.concatenate([np.stack([x, np.full(n, -0.25), np.zeros(n)], 1), np.stack([x, np.full(n, 0.25), np.zeros(n)], 1)])
+    v = np.concatenate([np.stack([x, np.full(n, -0.25), np.zeros(n)], 1),
+                        np.stack([x, np.full(n, 0.25), np.zeros(n)], 1)])
     i = np.arange(n - 1)
     f = np.concatenate([np.stack([i, i + 1, n + i + 1], 1), np.stack([i, n + i + 1, n + i], 1)])
     t = np.concatenate([np.linspace(0.0, 10.0, n)] * 2)

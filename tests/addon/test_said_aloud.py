@@ -99,7 +99,8 @@ def test_typed_transfer_function_points_that_do_not_parse_are_shown(empty_scene)
     assert any(t.startswith("Not applied: ") and "is not valid JSON" in t for t in labels), labels
 
 
-@pytest.mark.parametrize("raw, words", [("{not json", "cannot be read"), ('{"exaggeration": 1e6}', "exaggeration must be")])
+@pytest.mark.parametrize("raw, words",
+                         [("{not json", "cannot be read"), ('{"exaggeration": 1e6}', "exaggeration must be")])
 def test_corrupt_scene_settings_are_reported_before_they_are_reset(empty_scene, raw, words, capfd):
     scene = empty_scene
     scene[data_ops.MIRROR_KEY] = raw

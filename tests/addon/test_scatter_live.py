@@ -9,7 +9,7 @@ import pytest
 bpy = pytest.importorskip("bpy")
 
 from nephele import fileio  # noqa: E402
-from nephele.addon import frame
+from nephele.addon import frame  # noqa: E402
 from nephele.addon import scatter_scene as ss  # noqa: E402
 from nephele.core.light import scatter  # noqa: E402
 

@@ -5,9 +5,10 @@ import pytest
 
 bpy = pytest.importorskip("bpy")
 
+from blender_helpers import import_sheared_file  # noqa: E402
+
 from nephele.addon import data_ops, splat_ops  # noqa: E402
 from nephele.addon.mesh import point_attribute  # noqa: E402
-from blender_helpers import import_sheared_file  # noqa: E402
 from nephele.core.splats import Camera, render_splats, splat_kernel, splat_samples, streak_maps  # noqa: E402
 from nephele.core.volume.transfer import TransferFunction  # noqa: E402
 
@@ -131,7 +132,8 @@ def _exact_composite(sp, kernel, camera, w, h, extinction):
         a, b = to_cell[n] @ -c[n], dirs @ to_cell[n].T
         bb = np.einsum("ij,ij->i", b, b)
         rho2 = a @ a - (b @ a) ** 2 / bb
-        tau = np.where(rho2 < kernel.radius**2, extinction * sp.opacity[n] * kernel.footprint_rho2(np.maximum(rho2, 0.0)) / np.sqrt(bb), 0.0)
+        tau = np.where(rho2 < kernel.radius**2,
+                       extinction * sp.opacity[n] * kernel.footprint_rho2(np.maximum(rho2, 0.0)) / np.sqrt(bb), 0.0)
         color += (trans * -np.expm1(-tau))[:, None] * sp.color[n]
         trans *= np.exp(-tau)
     return color.reshape(h, w, 3)
@@ -232,7 +234,8 @@ def test_curvilinear_file_through_the_panel(empty_scene, tmp_path):
     the operator's points are the core's, and each splat's wind is the file's east/north wind turned into
     the scene at its own column."""
     import_sheared_file(tmp_path / "curvilinear_winds.nc", {
-        "Q": (lambda lat, lon, z: np.exp(-((lat - 45) / 4) ** 2 - ((lon + 2) / 5) ** 2) * np.exp(-((z - 3000) / 2500) ** 2),
+        "Q": (lambda lat, lon,
+              z: np.exp(-((lat - 45) / 4) ** 2 - ((lon + 2) / 5) ** 2) * np.exp(-((z - 3000) / 2500) ** 2),
               {"units": "1"}),
         "U": (lambda lat, lon, z: np.full(lat.shape, 10.0), {"units": "m s-1", "standard_name": "eastward_wind"}),
         "V": (lambda lat, lon, z: np.full(lat.shape, 5.0), {"units": "m s-1", "standard_name": "northward_wind"})},
@@ -243,7 +246,8 @@ def test_curvilinear_file_through_the_panel(empty_scene, tmp_path):
     s.var, s.threshold, s.full, s.color_var = "Q", 0.3, 0.9, "altitude"
     assert bpy.ops.nephele.add_wind_splats() == {"FINISHED"}
     obj = bpy.context.view_layer.objects.active
-    sp = splat_samples(data_ops.settings(scene)["source"], "Q", 0.0, TransferFunction.ramp(0.3, 0.9), color_var="altitude")
+    sp = splat_samples(data_ops.settings(scene)["source"], "Q", 0.0, TransferFunction.ramp(0.3, 0.9),
+                       color_var="altitude")
     assert len(obj.data.vertices) == len(sp) > 50
     np.testing.assert_allclose(point_attribute(obj.data, splat_ops.CENTER), sp.centers, atol=1e-6)
     np.testing.assert_allclose(point_attribute(obj.data, splat_ops.OPACITY), sp.opacity, atol=1e-6)

@@ -84,7 +84,8 @@ def _rim(cam, r, angles):
     m = cam.matrix_world.to_3x3()
     right, up = m @ Vector((1, 0, 0)), m @ Vector((0, 1, 0))
     a = math.asin(r / d)
-    return [cam.location + d * math.cos(a) * (math.cos(a) * axis + math.sin(a) * (math.cos(t) * right + math.sin(t) * up))
+    return [cam.location + d * math.cos(a)
+            * (math.cos(a) * axis + math.sin(a) * (math.cos(t) * right + math.sin(t) * up))
             for t in angles]
 
 
@@ -104,7 +105,8 @@ def test_volume_clouds_render_bright(empty_scene, tmp_path, mode):
     scene.cycles.volume_bounces = 0  # Blender's default, what the user had
     scene.nephele_volume.current_only = True
     scene.nephele_volume.mode = mode
-    if mode == "voxels":  # 0.01 voxels: 9 CPU s, 16 at the default 0.0027 (measured ratio 1.55, 0.87 without the bounces)
+    if mode == "voxels":
+        # 0.01 voxels: 9 CPU s, 16 at the default 0.0027 (measured ratio 1.55, 0.87 without the bounces)
         scene.nephele_volume.voxel_size = 0.01
     assert bpy.ops.nephele.add_volume_clouds() == {"FINISHED"}
     assert scene.cycles.volume_bounces >= 4

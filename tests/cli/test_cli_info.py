@@ -9,7 +9,8 @@ from pathlib import Path
 import pytest
 
 NEPHELE = Path(sys.executable).parent / "nephele"
-# Where ecCodes is not installed (GRIB is optional in the core-only Python 3.11), GRIB files are refused for that reason.
+# Where ecCodes is not installed (GRIB is optional in the core-only Python 3.11), GRIB files are refused for
+# that reason.
 GRIB_REFUSAL = ("x.grib: cannot open as GRIB" if importlib.util.find_spec("eccodes")
                 else "x.grib: reading GRIB needs ecCodes")
 
@@ -50,7 +51,8 @@ def test_info_json_real_grads(tmp_path, shared_data):
         (lambda d: d / "missing.nc", "missing.nc: file not found"),
         (lambda d: (d / "x.grib").write_bytes(b"GRIB") and d / "x.grib", GRIB_REFUSAL),
         (lambda d: (d / "bad.nc").write_bytes(b"\x01\x02junk") and d / "bad.nc", "bad.nc: cannot open as NetCDF"),
-        (lambda d: (d / "bad.ctl").write_text("DSET ^nothing.dat\n") and d / "bad.ctl", "bad.ctl: field 'xdef': descriptor has no XDEF"),
+        (lambda d: (d / "bad.ctl").write_text("DSET ^nothing.dat\n") and d / "bad.ctl",
+         "bad.ctl: field 'xdef': descriptor has no XDEF"),
     ],
 )
 def test_info_bad_input_exits_2_with_one_line(tmp_path, make, expect):

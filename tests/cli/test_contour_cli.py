@@ -31,8 +31,8 @@ def test_exports_the_demo_cloud_surface(tmp_path, ext):
     radius = np.linalg.norm(mesh.vertices, axis=1)
     assert radius.min() > 0.99 and radius.max() < 1.2
     # The same surface as the core function gives.
-    from nephele.core.surface.contour import isosurface
     from nephele.core.climate.readers import open_dataset
+    from nephele.core.surface.contour import isosurface
 
     ds = open_dataset("demo:small")
     periodic = ds.grid.periodic_lon

@@ -40,7 +40,8 @@ def test_muscle_with_the_kernels_hidden_prints_one_notice(tmp_path):
     assert run.returncode == 0, run.stderr[-2000:]
     assert [ln for ln in run.stderr.splitlines() if "note:" in ln] == [
         "nephele muscle: note: the compiled kernels are not loaded (libnephele_kernels.so: cannot open shared object "
-        "file); their NumPy twins run instead, 2-4x slower: install the zip for this platform, or the nephele_native wheel"]
+        "file); their NumPy twins run instead, 2-4x slower: install the zip for this platform, or the nephele_native "
+        "wheel"]
     assert (tmp_path / "m" / "frame_0001.ply").stat().st_size > 0
 
 

@@ -30,7 +30,8 @@ def test_available_memory_is_the_least_of_the_limits(monkeypatch):
 def test_check_memory_is_one_line_naming_the_size_and_what_to_change():
     assert check_memory(10, "x", available=100) == 10
     with pytest.raises(DataError) as err:
-        check_memory(3e9, "contouring a 2000x1000x100 grid", hint="contour a coarser grid", available=1e9, field="values")
+        check_memory(3e9, "contouring a 2000x1000x100 grid", hint="contour a coarser grid", available=1e9,
+                     field="values")
     assert str(err.value) == ("field 'values': contouring a 2000x1000x100 grid needs about 3.0 GB of memory, more than "
                               "the 1.0 GB available; contour a coarser grid")
     assert format_bytes(1536) == "1.5 KB"
@@ -97,13 +98,15 @@ def test_blobby_surface(little):
 
     n = 50
     with pytest.raises(DataError, match="a blobby surface of 50 Gaussians at spacing 0.002 needs .*raise the spacing"):
-        blobby_surface(np.zeros((n, 3)), np.broadcast_to(np.eye(3), (n, 3, 3)), np.full((n, 3), 0.1), np.ones(n), 0.5, 0.002)
+        blobby_surface(np.zeros((n, 3)), np.broadcast_to(np.eye(3), (n, 3, 3)), np.full((n, 3), 0.1), np.ones(n), 0.5,
+                       0.002)
 
 
 def test_flow_volume(little):
     from nephele.core.flowvol.volume import flow_volume
 
-    with pytest.raises(DataError, match=r"a flow volume of up to 200,000 points needs about 500.0 MB.*lower max_points"):
+    with pytest.raises(DataError,
+                       match=r"a flow volume of up to 200,000 points needs about 500.0 MB.*lower max_points"):
         flow_volume(lambda p, t: np.ones_like(p), [0, 0, 0], 0.5, 1.0)
     fv = flow_volume(lambda p, t: np.ones_like(p), [0, 0, 0], 0.5, 1.0, sides=8, max_points=5000)  # fits
     assert len(fv.vertices) > 0
@@ -124,13 +127,15 @@ def test_volume_resample(little):
     from nephele.core.volume.transfer import TransferFunction
 
     ds = open_dataset("demo:small")
-    with pytest.raises(DataError, match=r"resampling .* blocks of 4\^3 voxels \(voxel size 0.002\).*raise the voxel size"):
+    with pytest.raises(DataError,
+                       match=r"resampling .* blocks of 4\^3 voxels \(voxel size 0.002\).*raise the voxel size"):
         resample(ds.grid, ds.read("cloud", 0), TransferFunction.ramp(0.05, 1.0), voxel_size=0.002)
 
 
 def test_the_scatter_cli_refuses_in_one_line_and_writes_nothing(tmp_path):
     out = tmp_path / "scatter"
-    run = subprocess.run([sys.executable, "-m", "nephele.farm.cli", "scatter", "--grid", "256x256x192", "--out", str(out)],
+    run = subprocess.run([sys.executable, "-m", "nephele.farm.cli", "scatter", "--grid", "256x256x192", "--out",
+                          str(out)],
                          capture_output=True, text=True, timeout=300, env={**__import__("os").environ,
                                                                             "NEPHELE_MEMORY_LIMIT": "4G"})
     assert run.returncode == 2, run.stderr

@@ -1,9 +1,10 @@
 """Bad input exits with code 2 and a clear message before any worker starts; job scripts."""
 
+from pathlib import Path
+
 import pytest
 
 from nephele.farm import cli, cluster
-from pathlib import Path
 
 SCENE = Path(__file__).with_name("cube_scene.py")
 

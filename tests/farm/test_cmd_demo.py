@@ -2,8 +2,8 @@
 
 import json
 import subprocess
-from pathlib import Path
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -45,7 +45,8 @@ def test_demo_renders_frames_sheet_and_summary(tmp_path):
     (["--samples", "0"], "--samples"),
     (["--hours-per-frame", "0"], "--hours-per-frame"),
     # a real file without cloud fraction: one line before any worker starts (was a Blender traceback)
-    (["--source", str(Path(__file__).resolve().parents[1] / "data" / "cam_vinth2p.nc")], "field 'cloud': has no cloud fraction"),
+    (["--source", str(Path(__file__).resolve().parents[1] / "data" / "cam_vinth2p.nc")],
+     "field 'cloud': has no cloud fraction"),
 ])
 def test_bad_input_exits_2_with_one_line(tmp_path, capsys, args, message):
     assert main(["demo", "--out", str(tmp_path / "o")] + args) == 2

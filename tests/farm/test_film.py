@@ -151,7 +151,8 @@ def test_only_each_figure(key, farm_cluster, tmp_path):
 
 @pytest.mark.slow
 def test_kill_worker_mid_reel_then_resume(farm_cluster, tmp_path):
-    """kill -9 of a worker while it renders a frame of the reel: nothing is lost; a resume renders only missing frames."""
+    """kill -9 of a worker while it renders a frame of the reel: nothing is lost; a resume renders only
+    missing frames."""
     pytest.importorskip("bpy")
     from distributed import Client
 

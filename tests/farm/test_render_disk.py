@@ -47,8 +47,8 @@ def test_read_only_output_is_refused_before_rendering(small_disk, capsys):
     code = cli.main(["render", str(SCENE), "--frames", "1-3", "--out", str(disk / "out")])
     err = capsys.readouterr().err
     assert code == 2 and time.perf_counter() - t0 < 5.0  # before any worker starts
-    assert err.strip().splitlines() == [f"nephele render: error: {disk / 'out'}: field '--out': output directory cannot "
-                                        "be written: Read-only file system"]
+    assert err.strip().splitlines() == [f"nephele render: error: {disk / 'out'}: field '--out': output directory "
+                                        "cannot be written: Read-only file system"]
 
 
 def test_full_disk_estimate_then_stop_then_resume(small_disk):
@@ -126,5 +126,6 @@ def test_damaged_manifest_is_moved_aside_and_the_render_goes_on(farm_cluster, tm
     bad = list(out.glob("manifest.json.bad-*"))
     assert len(bad) == 1 and bad[0].read_text() == '{"version": 1, "frames": {"1": '  # its history kept
     warning = [ln for ln in err.splitlines() if "warning" in ln]
-    assert len(warning) == 1 and f"{out / 'manifest.json'}: is not valid JSON" in warning[0] and bad[0].name in warning[0]
+    assert (len(warning) == 1 and f"{out / 'manifest.json'}: is not valid JSON" in warning[0]
+            and bad[0].name in warning[0])
     assert sorted(map(int, json.loads((out / "manifest.json").read_text())["frames"])) == [1, 2, 3, 4]

@@ -70,8 +70,8 @@ def _selftest(path):
         np.ones(3 << 30, dtype=np.uint8)
 
 
-TARGETS = {"selftest": _selftest, "netcdf": _climate, "grib": _climate, "zarr": _climate, "grads": _climate, "relief": _relief, "pqr": _pqr,
-           "vtu": _vtu}
+TARGETS = {"selftest": _selftest, "netcdf": _climate, "grib": _climate, "zarr": _climate, "grads": _climate,
+           "relief": _relief, "pqr": _pqr, "vtu": _vtu}
 
 
 def _data_size():
@@ -111,7 +111,8 @@ def main():
         except MemoryError:
             out = {"status": "memory", "detail": "".join(traceback.format_exc(limit=-6))[-2000:]}
         except Exception as exc:  # noqa: BLE001 - any other type escaping a reader is the finding
-            out = {"status": "bug", "type": type(exc).__name__, "detail": "".join(traceback.format_exc(limit=-6))[-2000:]}
+            out = {"status": "bug", "type": type(exc).__name__,
+                   "detail": "".join(traceback.format_exc(limit=-6))[-2000:]}
         stuck = [t for t in threading.enumerate() if t.name == "nephele-hdf5-header"]
         if stuck:
             out["restart"] = True  # its reading thread spins on: a fresh worker for the next case

@@ -124,7 +124,8 @@ def ops_strategy(text=False):
     binary = [st.tuples(st.just("trunc"), st.floats(0, 1)), st.tuples(st.just("flip"), where, head, st.integers(0, 7)),
               st.tuples(st.just("byte"), where, head, st.integers(0, 255)), word,
               st.tuples(st.just("del"), where, head, span), st.tuples(st.just("dup"), where, head, span)]
-    texty = [st.tuples(st.just("num"), st.integers(0, 1 << 16), st.sampled_from(EDGE_NUMBERS)), *binary[:2], *binary[4:]]
+    texty = [st.tuples(st.just("num"), st.integers(0, 1 << 16), st.sampled_from(EDGE_NUMBERS)), *binary[:2],
+             *binary[4:]]
     return st.lists(st.one_of(texty if text else binary), min_size=1, max_size=4)
 
 
@@ -155,7 +156,8 @@ class Seed:
 
 def _single(target, path, text=False):
     path = Path(path)
-    return Seed(target, path.name, {path.name: path.read_bytes()}, path.name, (path.name,), (path.name,) if text else ())
+    return Seed(target, path.name, {path.name: path.read_bytes()}, path.name, (path.name,),
+                (path.name,) if text else ())
 
 
 def grib_seed():
@@ -169,9 +171,11 @@ def grib_seed():
             h = eccodes.codes_grib_new_from_samples("regular_ll_pl_grib2")
             try:
                 eccodes.codes_set_key_vals(h, {
-                    "Ni": 36, "Nj": 19, "latitudeOfFirstGridPointInDegrees": 90, "longitudeOfFirstGridPointInDegrees": 0,
+                    "Ni": 36, "Nj": 19, "latitudeOfFirstGridPointInDegrees": 90,
+                    "longitudeOfFirstGridPointInDegrees": 0,
                     "latitudeOfLastGridPointInDegrees": -90, "longitudeOfLastGridPointInDegrees": 350,
-                    "iDirectionIncrementInDegrees": 10, "jDirectionIncrementInDegrees": 10, "typeOfFirstFixedSurface": 100,
+                    "iDirectionIncrementInDegrees": 10, "jDirectionIncrementInDegrees": 10,
+                    "typeOfFirstFixedSurface": 100,
                     "level": level, "discipline": 0, "parameterCategory": cat, "parameterNumber": num,
                     "dataDate": 20240101, "dataTime": 0})
                 eccodes.codes_set(h, "bitsPerValue", 12)
@@ -199,20 +203,24 @@ def small_vtu(fire):
     cells = np.array([[idx[k, j, i], idx[k, j, i + 1], idx[k, j + 1, i + 1], idx[k, j + 1, i], idx[k + 1, j, i],
                        idx[k + 1, j, i + 1], idx[k + 1, j + 1, i + 1], idx[k + 1, j + 1, i]]
                       for k in range(n - 1) for j in range(n - 1) for i in range(n - 1)])
-    arrays = [("Float32", "uvw", 3, g["point_data"]["uvw"][: n ** 3].astype("<f4")), ("Float32", None, 3, pts.astype("<f4")),
-              ("Int32", "connectivity", 1, cells.astype("<i4")), ("Int32", "offsets", 1, 8 * np.arange(1, len(cells) + 1, dtype="<i4")),
+    arrays = [("Float32", "uvw", 3, g["point_data"]["uvw"][: n ** 3].astype("<f4")),
+              ("Float32", None, 3, pts.astype("<f4")), ("Int32", "connectivity", 1, cells.astype("<i4")),
+              ("Int32", "offsets", 1, 8 * np.arange(1, len(cells) + 1, dtype="<i4")),
               ("UInt8", "types", 1, np.full(len(cells), 12, "u1"))]
     blob, tags, offset = b"", [], 0
     for kind, name, comps, a in arrays:
         raw = a.tobytes()
         packed = zlib.compress(raw)
-        block = base64.b64encode(np.array([1, len(raw), len(raw), len(packed)], "<u4").tobytes()) + base64.b64encode(packed)
+        block = base64.b64encode(np.array([1, len(raw), len(raw), len(packed)],
+                                          "<u4").tobytes()) + base64.b64encode(packed)
         attr = f' Name="{name}"' if name else ""
-        tags.append(f'<DataArray type="{kind}"{attr} NumberOfComponents="{comps}" format="appended" offset="{offset}"/>')
+        tags.append(f'<DataArray type="{kind}"{attr} NumberOfComponents="{comps}" format="appended" '
+                    f'offset="{offset}"/>')
         blob += block
         offset += len(block)
     xml = (f'<?xml version="1.0"?>\n<VTKFile type="UnstructuredGrid" version="0.1" byte_order="LittleEndian" '
-           f'compressor="vtkZLibDataCompressor">\n<UnstructuredGrid><Piece NumberOfPoints="{n ** 3}" NumberOfCells="{len(cells)}">\n'
+           f'compressor="vtkZLibDataCompressor">\n<UnstructuredGrid><Piece NumberOfPoints="{n ** 3}" '
+           f'NumberOfCells="{len(cells)}">\n'
            f"<PointData>{tags[0]}</PointData>\n<Points>{tags[1]}</Points>\n<Cells>{''.join(tags[2:])}</Cells>\n"
            f'</Piece></UnstructuredGrid>\n<AppendedData encoding="base64">\n_')
     return xml.encode() + blob + b"\n</AppendedData>\n</VTKFile>\n"
@@ -255,10 +263,12 @@ def build_seeds(data_dirs, work):
             seeds.append(Seed("vtu", "fire_corner.vtu", {"small.vtu": small_vtu(p)}, "small.vtu", ("small.vtu",),
                               ("small.vtu",)))
         elif p.suffix == ".ctl" and p.with_suffix(".dat").is_file():
-            seeds.append(Seed("grads", name, {name: p.read_bytes(), p.with_suffix(".dat").name: p.with_suffix(".dat").read_bytes()},
+            seeds.append(Seed("grads", name,
+                              {name: p.read_bytes(), p.with_suffix(".dat").name: p.with_suffix(".dat").read_bytes()},
                               name, (name, p.with_suffix(".dat").name), (name,)))
     if importlib.util.find_spec("cfgrib") and importlib.util.find_spec("eccodes"):
-        seeds.append(Seed("grib", "isobaric.grib2", {"isobaric.grib2": grib_seed()}, "isobaric.grib2", ("isobaric.grib2",)))
+        seeds.append(Seed("grib", "isobaric.grib2", {"isobaric.grib2": grib_seed()}, "isobaric.grib2",
+                          ("isobaric.grib2",)))
     if importlib.util.find_spec("zarr") and "cam_vinth2p.nc" in files:
         try:
             z = zarr_files(files["cam_vinth2p.nc"], work)
@@ -298,12 +308,14 @@ class Runner:
         self.timeout, self.memory, self.recycle = timeout, memory, recycle
         self.proc = None
         self.count = 0
-        self.work = Path(tempfile.mkdtemp(prefix="nephele-fuzz-", dir="/dev/shm" if os.path.isdir("/dev/shm") else None))
+        self.work = Path(tempfile.mkdtemp(prefix="nephele-fuzz-",
+                                          dir="/dev/shm" if os.path.isdir("/dev/shm") else None))
 
     def _start(self):
         # The worker imports nephele (and the readers' libraries) exactly as this process does.
         env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
-        self.proc = subprocess.Popen([sys.executable, str(HERE / "fuzz_worker.py"), str(self.memory)], stdin=subprocess.PIPE,
+        self.proc = subprocess.Popen([sys.executable, str(HERE / "fuzz_worker.py"), str(self.memory)],
+                                     stdin=subprocess.PIPE,
                                      stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, env=env, text=True, bufsize=1)
         ready = self._answer(120.0)  # imports (xarray, netCDF4, cfgrib) take a few seconds
         if ready is None or ready.get("status") != "ready":

@@ -26,7 +26,8 @@ def main(argv=None):
     ap.add_argument("--seed", type=int, default=None, help="random seed (default: from the clock, printed)")
     ap.add_argument("--out", default="build/fuzz", help="folder for the findings")
     ap.add_argument("--jobs", type=int, default=1, help="worker processes at once (default 1)")
-    ap.add_argument("--only", action="append", help="fuzz only these readers (netcdf, grib, zarr, grads, relief, pqr, vtu)")
+    ap.add_argument("--only", action="append",
+                    help="fuzz only these readers (netcdf, grib, zarr, grads, relief, pqr, vtu)")
     ap.add_argument("--data", action="append", default=None,
                     help="seed folders (default: tests/data and ../shared/data)")
     args = ap.parse_args(argv)
@@ -63,7 +64,8 @@ def main(argv=None):
                             findings += 1
                             print(describe(s, mutated, ops, res), flush=True)
                             (out / f"finding-{seed}-{i}.json").write_text(json.dumps(
-                                {"target": s.target, "seed": s.name, "mutated": mutated, "ops": ops, "result": res}, indent=1))
+                                {"target": s.target, "seed": s.name, "mutated": mutated, "ops": ops, "result": res},
+                                indent=1))
                         if done % 1000 == 0:
                             print(f"fuzz: {done} cases, {findings} findings, {time.time() - t0:.0f} s", flush=True)
             finally:

@@ -114,7 +114,8 @@ def test_a_read_failing_in_the_library_is_a_data_error(tmp_path, monkeypatch):
 
 
 def test_netcdf_failing_while_opening_is_a_data_error(tmp_path, monkeypatch):
-    """The issue's first finding: 'RuntimeError: NetCDF: HDF error' out of open_dataset (raised after the file opened)."""
+    """The issue's first finding: 'RuntimeError: NetCDF: HDF error' out of open_dataset (raised after the file
+    opened)."""
     from nephele.core.climate import netcdf, open_dataset
 
     real = netcdf._find_time
@@ -147,7 +148,8 @@ def test_netcdf4_with_a_damaged_hdf5_header_is_one_line(tmp_path):
 def _ctl(tmp_path, xdef="72 linear 0 5", vars_line="1"):
     (tmp_path / "m.dat").write_bytes(np.zeros(72 * 46 * 2, "<f4").tobytes())
     (tmp_path / "m.ctl").write_text(f"dset ^m.dat\nundef -9.99e8\nxdef {xdef}\nydef 46 linear -90 4\n"
-                                    f"zdef 2 levels 1000 500\ntdef 1 linear 00z01jan1987 1dy\nvars {vars_line}\nT 2 99 t\nendvars\n")
+                                    f"zdef 2 levels 1000 500\ntdef 1 linear 00z01jan1987 1dy\nvars {vars_line}\nT 2 "
+                                    "99 t\nendvars\n")
     return tmp_path / "m.ctl"
 
 
@@ -246,7 +248,8 @@ def _hex(tmp_path, cells=1, stray=None, conn=None):
     path = tmp_path / "hex.vtu"
     path.write_text(HEX.format(n=len(points), cells=cells, uvw=" ".join(["0 0 1"] * len(points)),
                                points=" ".join(f"{v:g}" for v in points.ravel()), conn=conn,
-                               offsets=" ".join(str(8 * (i + 1)) for i in range(cells)), types=" ".join(["12"] * cells)))
+                               offsets=" ".join(str(8 * (i + 1)) for i in range(cells)),
+                               types=" ".join(["12"] * cells)))
     return path
 
 
@@ -325,7 +328,8 @@ def test_netcdf4_header_that_makes_hdf5_loop_forever_is_refused_in_seconds(tmp_p
     check_header(DATA / "cam_vinth2p.nc")  # NetCDF 3: not HDF5, not probed
     cli = subprocess.run([sys.executable, "-m", "nephele.farm.cli", "info", str(path)], capture_output=True, text=True,
                          timeout=300)
-    assert cli.returncode == 2 and cli.stderr.strip().splitlines()[-1].startswith(f"nephele info: error: {path}: the HDF5")
+    assert cli.returncode == 2 and cli.stderr.strip().splitlines()[-1].startswith(f"nephele info: error: {path}: the "
+                                                                                  "HDF5")
 
 
 def test_netcdf3_header_claiming_67_million_dimensions_is_refused_in_python(shared_data, tmp_path):

@@ -17,7 +17,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from fuzzlib import BAD, ROOT, Runner, build_seeds, describe, ops_strategy  # noqa: E402
 
 hypothesis = pytest.importorskip("hypothesis")
-from hypothesis import HealthCheck, Phase, given, settings, strategies as st  # noqa: E402
+from hypothesis import HealthCheck, Phase, given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
 
 READERS = ("netcdf", "grib", "zarr", "grads", "relief", "pqr", "vtu")
 QUICK, FULL = 12, 150

@@ -166,4 +166,5 @@ def read_out(path):
 
 def loaded(lib_path):
     """A stand-in for the nephele_native module that loads ``lib_path`` (``native._module``'s result)."""
-    return types.SimpleNamespace(lib=ctypes.CDLL(str(lib_path)), BUILD_ID=lib_path.with_name("BUILD_ID").read_text().strip())
+    return types.SimpleNamespace(lib=ctypes.CDLL(str(lib_path)),
+                                 BUILD_ID=lib_path.with_name("BUILD_ID").read_text().strip())

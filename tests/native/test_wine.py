@@ -14,8 +14,8 @@ import subprocess
 
 import numpy as np
 import pytest
-
 from kernel_calls import Recorder, loaded, read_out, write_calls
+
 from nephele.core import native
 from nephele.core.muscle import blobby
 
@@ -96,7 +96,8 @@ def _linux_exports(lib):
 def test_wine_every_exported_kernel_has_a_harness_entry(harnesses, linux_lib, windows_lib, build, recorded):
     entries = _entries(harnesses[0])
     kernels = _linux_exports(linux_lib)
-    assert kernels == set(entries), f"kernels.def lacks {sorted(kernels - set(entries))} / has extra {sorted(set(entries) - kernels)}"
+    assert kernels == set(entries), (f"kernels.def lacks {sorted(kernels - set(entries))} / has extra "
+                                     f"{sorted(set(entries) - kernels)}")
     dll = set(build.describe(windows_lib)["exports"])
     assert dll - RUNTIME_EXPORTS == kernels, sorted(dll ^ kernels)
     called = {c.name for c in recorded[0]}

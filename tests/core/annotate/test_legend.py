@@ -3,8 +3,19 @@
 import numpy as np
 import pytest
 
-from nephele.core.annotate import (ColorBar, OpacityBar, Swatch, bar_pixels, bar_values, box_text, legend_image,
-                                   overlay, srgb_decode, srgb_encode, title_card)
+from nephele.core.annotate import (
+    ColorBar,
+    OpacityBar,
+    Swatch,
+    bar_pixels,
+    bar_values,
+    box_text,
+    legend_image,
+    overlay,
+    srgb_decode,
+    srgb_encode,
+    title_card,
+)
 from nephele.core.annotate.canvas import line_height
 from nephele.core.annotate.legend import legend_size
 from nephele.core.errors import DataError

@@ -81,7 +81,8 @@ def test_domemaster_orientation():
 def test_omnimax_frame_geometry():
     cam = dome.dome_camera("omnimax")
     assert (cam.width, cam.height) == (2048, 1500)
-    assert cam.width / cam.height == pytest.approx(dome.OMNIMAX_FILM_MM[0] / dome.OMNIMAX_FILM_MM[1], rel=0.03)  # 2048x1500 (the paper) is 2% wider
+    # 2048x1500 (the paper) is 2% wider
+    assert cam.width / cam.height == pytest.approx(dome.OMNIMAX_FILM_MM[0] / dome.OMNIMAX_FILM_MM[1], rel=0.03)
     cx, cy = cam.centre
     assert cy > (cam.height - 1) / 2  # lens centre below the frame centre
     # the lens axis is the tilted dome zenith: 65 deg up in front
@@ -161,7 +162,8 @@ def test_fov_360_is_allowed():
 
 
 def test_domemaster_stays_square():
-    assert (dome.dome_camera("domemaster", width=512).height, dome.dome_camera("domemaster", height=300).width) == (512, 300)
+    assert (dome.dome_camera("domemaster", width=512).height,
+            dome.dome_camera("domemaster", height=300).width) == (512, 300)
 
 
 # --- sources ------------------------------------------------------------------------------------

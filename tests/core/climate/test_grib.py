@@ -4,8 +4,8 @@ to GRIB2 by ecCodes read back exactly."""
 import numpy as np
 import pytest
 
-from nephele.core.errors import DataError
 from nephele.core.climate.readers import open_dataset
+from nephele.core.errors import DataError
 
 DATA = __import__("pathlib").Path(__file__).resolve().parents[2] / "data"
 

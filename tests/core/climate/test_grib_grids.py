@@ -14,11 +14,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from gribfiles import message, write
 
 from nephele.core.climate.readers import open_dataset
 from nephele.core.errors import DataError
-
-from gribfiles import message, write
 
 eccodes = pytest.importorskip("eccodes")
 DATA = Path(__file__).resolve().parents[2] / "data" / "grib"
@@ -79,9 +78,10 @@ def proj(crs, x, y, forward=False, radius=None):
     """PROJ in its own process (its wheels and netCDF4's crash together at exit here)."""
     if importlib.util.find_spec("pyproj") is None:
         pytest.skip("pyproj is not installed")
-    args = {"crs": crs, "x": np.asarray(x, dtype=float).ravel().tolist(), "y": np.asarray(y, dtype=float).ravel().tolist(),
-            "forward": forward, "R": radius}
-    out = subprocess.run([sys.executable, "-c", PROJ], input=json.dumps(args), capture_output=True, text=True, check=True, timeout=120)
+    args = {"crs": crs, "x": np.asarray(x, dtype=float).ravel().tolist(),
+            "y": np.asarray(y, dtype=float).ravel().tolist(), "forward": forward, "R": radius}
+    out = subprocess.run([sys.executable, "-c", PROJ], input=json.dumps(args), capture_output=True, text=True,
+                         check=True, timeout=120)
     a, b = json.loads(out.stdout)
     return np.array(a).reshape(np.shape(x)), np.array(b).reshape(np.shape(y))
 
@@ -135,7 +135,8 @@ def test_reduced_gaussian_expands_along_each_latitude_circle(tmp_path, real):
 
 
 # ---------------------------------------------------------------------------------------------- rotated grids
-@pytest.mark.parametrize("real", [False, True], ids=["ecCodes sample, pole 35 S 15 E", "rotated_ll.grib1 (pygrib sample)"])
+@pytest.mark.parametrize("real", [False, True],
+                         ids=["ecCodes sample, pole 35 S 15 E", "rotated_ll.grib1 (pygrib sample)"])
 def test_ecmwf_rotated_grid_at_ecCodes_true_positions(tmp_path, grib_samples, real):
     if real:
         path = _on_levels(tmp_path / "rot.grib1", src=grib_samples / "rotated_ll.grib1")
@@ -148,22 +149,27 @@ def test_ecmwf_rotated_grid_at_ecCodes_true_positions(tmp_path, grib_samples, re
     lat, lon, values = _positions(path)
     nj, ni = g.shape[1:]
     true_lon, true_lat = g.true_lonlat()
-    rows = slice(None, None, -1) if not np.isclose(lat.reshape(nj, ni)[0, 0], true_lat[0, 0], atol=1e-4) else slice(None)
+    rows = (slice(None, None, -1) if not np.isclose(lat.reshape(nj, ni)[0, 0], true_lat[0, 0], atol=1e-4)
+            else slice(None))
     np.testing.assert_allclose(true_lat, lat.reshape(nj, ni)[rows], atol=2e-5)  # ecCodes rounds to ~1e-5 degree
     assert _same_lon(true_lon, lon.reshape(nj, ni)[rows]).max() < 2e-5
-    np.testing.assert_allclose(ds.read(ds.resolve(next(iter(ds.file_names.values()))), 0)[0], values.reshape(nj, ni)[rows], rtol=1e-6)
+    np.testing.assert_allclose(ds.read(ds.resolve(next(iter(ds.file_names.values()))), 0)[0],
+                               values.reshape(nj, ni)[rows], rtol=1e-6)
 
 
 def test_rotated_grid_with_an_angle_is_refused_in_one_line(tmp_path):
-    keys = (("latitudeOfSouthernPoleInDegrees", -35.0), ("longitudeOfSouthernPoleInDegrees", 15.0), ("angleOfRotationInDegrees", 25.0))
+    keys = (("latitudeOfSouthernPoleInDegrees", -35.0), ("longitudeOfSouthernPoleInDegrees", 15.0),
+            ("angleOfRotationInDegrees", 25.0))
     path = _on_levels(tmp_path / "rot.grib2", "rotated_ll_pl_grib2", keys, values=np.zeros(496))
-    with pytest.raises(DataError, match=r"rot.grib2: field 't': rotated grid with an angle of rotation of 25 degrees is not read"):
+    with pytest.raises(DataError,
+                       match=r"rot.grib2: field 't': rotated grid with an angle of rotation of 25 degrees is not read"):
         open_dataset(path)
 
 
 def _rotated_to_true(x, y, centre_lat, centre_lon):
     """PROJ's true longitude/latitude of rotated coordinates whose (0, 0) is true (centre_lon, centre_lat)."""
-    crs = f"+proj=ob_tran +o_proj=longlat +o_lat_p={90.0 - centre_lat} +o_lon_p=0 +lon_0={centre_lon} +R=6371229 +no_defs"
+    crs = (f"+proj=ob_tran +o_proj=longlat +o_lat_p={90.0 - centre_lat} +o_lon_p=0 +lon_0={centre_lon} "
+           "+R=6371229 +no_defs")
     return proj(crs, x, y, radius=6371229)
 
 
@@ -222,10 +228,13 @@ def _projected_truth(path, crs, radius):
     """PROJ's positions of the grid ecCodes describes: the first point projected, then even steps of Dx, Dy."""
     with open(path, "rb") as f:
         h = eccodes.codes_grib_new_from_file(f)
-    k = {n: eccodes.codes_get(h, n) for n in ("Nx", "Ny", "DxInMetres", "DyInMetres", "latitudeOfFirstGridPointInDegrees",
-                                              "longitudeOfFirstGridPointInDegrees", "iScansNegatively", "jScansPositively")}
+    k = {n: eccodes.codes_get(h, n)
+         for n in ("Nx", "Ny", "DxInMetres", "DyInMetres", "latitudeOfFirstGridPointInDegrees",
+                                              "longitudeOfFirstGridPointInDegrees", "iScansNegatively",
+                                              "jScansPositively")}
     eccodes.codes_release(h)
-    (x0,), (y0,) = proj(crs, [k["longitudeOfFirstGridPointInDegrees"]], [k["latitudeOfFirstGridPointInDegrees"]], forward=True, radius=radius)
+    (x0,), (y0,) = proj(crs, [k["longitudeOfFirstGridPointInDegrees"]], [k["latitudeOfFirstGridPointInDegrees"]],
+                        forward=True, radius=radius)
     assert k["jScansPositively"] == 1 and k["iScansNegatively"] == 0  # NCEP's scanning mode 64, as the products use
     X, Y = np.meshgrid(x0 + k["DxInMetres"] * np.arange(k["Nx"]), y0 + k["DyInMetres"] * np.arange(k["Ny"]))
     return proj(crs, X, Y, radius=radius)
@@ -237,7 +246,8 @@ def test_lambert_grid_at_proj_positions(tmp_path, grib_samples, real):
         path = grib_samples / "eta.grb"
         crs = "+proj=lcc +lat_1=25 +lat_2=25 +lat_0=25 +lon_0=265 +R=6371229 +no_defs"
     else:
-        path = _on_levels(tmp_path / "lcc.grib2", "regular_ll_pl_grib2", _lambert_keys(), values=np.linspace(250, 300, 600))
+        path = _on_levels(tmp_path / "lcc.grib2", "regular_ll_pl_grib2", _lambert_keys(),
+                          values=np.linspace(250, 300, 600))
         crs = "+proj=lcc +lat_1=33 +lat_2=45 +lat_0=40 +lon_0=262.5 +R=6371229 +no_defs"
     ds = open_dataset(path)
     g = ds.grid
@@ -247,16 +257,19 @@ def test_lambert_grid_at_proj_positions(tmp_path, grib_samples, real):
     np.testing.assert_allclose(g.lat2d, want_lat[rows], atol=1e-4)
     assert _same_lon(g.lon2d, want_lon[rows]).max() < 1e-4
     if not real:
-        np.testing.assert_allclose(ds.read("t", 0)[1], (np.linspace(250, 300, 600) + 1).reshape(20, 30)[rows], rtol=1e-7)
+        np.testing.assert_allclose(ds.read("t", 0)[1], (np.linspace(250, 300, 600) + 1).reshape(20, 30)[rows],
+                                   rtol=1e-7)
 
 
 def test_polar_stereographic_grid_at_proj_positions(tmp_path):
     keys = (("gridType", "polar_stereographic"), ("Nx", 25), ("Ny", 20), ("latitudeOfFirstGridPointInDegrees", 40.0),
-            ("longitudeOfFirstGridPointInDegrees", 200.0), ("LaDInDegrees", 60.0), ("orientationOfTheGridInDegrees", 250.0),
+            ("longitudeOfFirstGridPointInDegrees", 200.0), ("LaDInDegrees", 60.0),
+            ("orientationOfTheGridInDegrees", 250.0),
             ("DxInMetres", 200000.0), ("DyInMetres", 200000.0), ("shapeOfTheEarth", 6), ("jScansPositively", 1))
     path = _on_levels(tmp_path / "ps.grib2", "regular_ll_pl_grib2", keys, values=np.arange(500.0))
     ds = open_dataset(path)
-    want_lon, want_lat = _projected_truth(path, "+proj=stere +lat_0=90 +lat_ts=60 +lon_0=250 +R=6371229 +no_defs", 6371229)
+    want_lon, want_lat = _projected_truth(path, "+proj=stere +lat_0=90 +lat_ts=60 +lon_0=250 +R=6371229 +no_defs",
+                                          6371229)
     rows = _rows(ds.grid, want_lat)
     np.testing.assert_allclose(ds.grid.lat2d, want_lat[rows], atol=1e-4)
     assert _same_lon(ds.grid.lon2d, want_lon[rows]).max() < 1e-4

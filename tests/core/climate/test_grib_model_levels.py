@@ -11,12 +11,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from gribfiles import message, regular_ll, when, write
 
 from nephele.core.climate.humidity import G0, R_DRY
 from nephele.core.climate.readers import open_dataset
 from nephele.core.errors import DataError
-
-from gribfiles import message, regular_ll, when, write
 
 eccodes = pytest.importorskip("eccodes")
 DATA = Path(__file__).resolve().parents[2] / "data" / "grib"
@@ -25,13 +24,14 @@ B = np.array([0.0, 0.0, 0.05, 0.2, 0.5, 0.85, 1.0])
 
 
 def _hybrid(short, level, grid, values, pv, centre="ecmf"):
-    keys = [("centre", centre), *when(), *grid, ("typeOfFirstFixedSurface", 105), ("level", int(level)), ("shortName", short),
-            ("PVPresent", 1), ("pv", pv)]
+    keys = [("centre", centre), *when(), *grid, ("typeOfFirstFixedSurface", 105), ("level", int(level)),
+            ("shortName", short), ("PVPresent", 1), ("pv", pv)]
     return message("regular_ll_pl_grib2", keys, values)
 
 
 def _surface(short, grid, values):
-    return message("regular_ll_sfc_grib2", [*when(), *grid, ("typeOfLevel", "surface"), ("level", 0), ("shortName", short)], values)
+    return message("regular_ll_sfc_grib2",
+                   [*when(), *grid, ("typeOfLevel", "surface"), ("level", 0), ("shortName", short)], values)
 
 
 def _closed_form(ps, a=A, b=B, t=250.0, zs=0.0):
@@ -118,7 +118,8 @@ def test_model_levels_without_surface_pressure_are_one_line(tmp_path):
     grid, lon, lat = regular_ll()
     pv = np.concatenate([A, B])
     path = write(tmp_path / "nops.grib2", [_hybrid("t", n, grid, np.full((5, 8), 250.0), pv) for n in range(1, 4)])
-    with pytest.raises(DataError, match=r"nops.grib2: field 'pv': hybrid levels need the surface pressure \(lnsp") as err:
+    with pytest.raises(DataError,
+                       match=r"nops.grib2: field 'pv': hybrid levels need the surface pressure \(lnsp") as err:
         open_dataset(path)
     assert "\n" not in str(err.value)
 
@@ -129,9 +130,11 @@ def test_ncep_native_levels_use_their_own_pressure_and_heights(tmp_path):
     msgs = []
     for n in range(1, 5):
         h = 500.0 * n + 10.0 * np.add.outer(np.arange(5), np.arange(8))
-        msgs.append(message("regular_ll_pl_grib2", [("centre", "kwbc"), *when(), *grid, ("typeOfFirstFixedSurface", 105),
+        msgs.append(message("regular_ll_pl_grib2",
+                            [("centre", "kwbc"), *when(), *grid, ("typeOfFirstFixedSurface", 105),
                                                     ("level", n), ("shortName", "gh")], h))
-        msgs.append(message("regular_ll_pl_grib2", [("centre", "kwbc"), *when(), *grid, ("typeOfFirstFixedSurface", 105),
+        msgs.append(message("regular_ll_pl_grib2",
+                            [("centre", "kwbc"), *when(), *grid, ("typeOfFirstFixedSurface", 105),
                                                     ("level", n), ("shortName", "pres")], 1e5 * np.exp(-h / 8000.0)))
     ds = open_dataset(write(tmp_path / "native.grib2", msgs))
     want = 500.0 * np.arange(1, 5)[:, None, None] + 10.0 * np.add.outer(np.arange(5), np.arange(8))[None, ::-1]
@@ -149,7 +152,8 @@ def test_real_ifs_l91_coefficients_give_the_closed_form_pressures(tmp_path):
     nlev = pv.size // 2 - 1
     nj, ni = eccodes.codes_get(src, "Nj"), eccodes.codes_get(src, "Ni")
     lat = eccodes.codes_get_array(src, "distinctLatitudes")
-    ps = np.broadcast_to(101325.0 - 3000.0 * np.cos(np.deg2rad(lat))[::-1, None] ** 2, (nj, ni))  # rows as stored (north first)
+    # rows as stored (north first)
+    ps = np.broadcast_to(101325.0 - 3000.0 * np.cos(np.deg2rad(lat))[::-1, None] ** 2, (nj, ni))
     msgs = []
     for n in range(1, nlev + 1):
         h = eccodes.codes_clone(src)

@@ -6,11 +6,10 @@ tests know; the reader must give those values back at the right level, time and 
 
 import numpy as np
 import pytest
+from gribfiles import field, isobaric, other_level, regular_ll, write
 
 from nephele.core.climate.readers import open_dataset
 from nephele.core.errors import DataError
-
-from gribfiles import field, isobaric, other_level, regular_ll, write
 
 pytest.importorskip("eccodes")
 
@@ -25,7 +24,8 @@ def _product(path, *, centre="kwbc", clwmr_levels=(1000, 850, 700)):
     for p in LEVELS:
         for short, k in (("t", 1.0), ("u", 2.0), ("v", 3.0)):
             msgs.append(isobaric(short, p, grid, 250 + 10 * field(lon, lat, p, k), centre=centre))
-        msgs.append(isobaric("gh", p, grid, 44330.8 * (1 - (p / 1013.25) ** 0.1903) + field(lon, lat, p), centre=centre))
+        msgs.append(isobaric("gh", p, grid, 44330.8 * (1 - (p / 1013.25) ** 0.1903) + field(lon, lat, p),
+                             centre=centre))
         if p in clwmr_levels:
             msgs.append(isobaric("clwmr", p, grid, 1e-4 * (1 + field(lon, lat, p)), centre=centre))
     msgs.append(isobaric("r", 500, grid, 50 + field(lon, lat, 500), centre=centre))  # one level only: a 2-D field
@@ -55,13 +55,15 @@ def test_many_level_types_open_on_the_isobaric_ones_and_list_the_rest(tmp_path):
     np.testing.assert_allclose(c[1], (1e-4 * (1 + field(lon, lat, 850)))[::-1], rtol=1e-6)
     assert any("shared by all variables" in n and "clwmr (3 of 5)" in n for n in ds.notes)
     # Heights: the mean of gh on each level (it rises with the level).
-    np.testing.assert_allclose(ds.grid.height[:, 0, 0], [np.mean(44330.8 * (1 - (p / 1013.25) ** 0.1903) + field(lon, lat, p))
+    np.testing.assert_allclose(ds.grid.height[:, 0, 0],
+                               [np.mean(44330.8 * (1 - (p / 1013.25) ** 0.1903) + field(lon, lat, p))
                                                         for p in LEVELS], rtol=1e-6)  # fields are float32
 
 
 def test_level_type_chooses_another_kind_and_refuses_an_unknown_one(tmp_path):
     path, lon, lat = _product(tmp_path / "gfs-like.grib2")
-    with pytest.raises(DataError, match=r"field 'level_type': no fields on level type 'hybrid' \(found: .*isobaricInhPa") as err:
+    with pytest.raises(DataError,
+                       match=r"field 'level_type': no fields on level type 'hybrid' \(found: .*isobaricInhPa") as err:
         open_dataset(path, level_type="hybrid")
     assert "\n" not in str(err.value)
     with pytest.raises(DataError, match=r"level type 'surface' has no field on two or more levels"):
@@ -74,7 +76,8 @@ def test_level_type_chooses_another_kind_and_refuses_an_unknown_one(tmp_path):
 def test_variables_by_meaning_shortname_standard_and_cf_names(tmp_path):
     path, lon, lat = _product(tmp_path / "gfs-like.grib2")
     ds = open_dataset(path)
-    assert ds.resolve("clwmr") == ds.resolve("cloud_water") == ds.resolve("cloud_liquid_water_mixing_ratio") == "cloud_water"
+    assert (ds.resolve("clwmr") == ds.resolve("cloud_water") == ds.resolve("cloud_liquid_water_mixing_ratio")
+            == "cloud_water")
     assert ds.read("clwmr", 0) is ds.read("cloud_water", 0)
     assert ds.resolve("t") == ds.resolve("air_temperature") == ds.resolve("TEMPERATURE") == "temperature"
     assert ds.variables["cloud_water"].units == "kg/kg"
@@ -88,10 +91,13 @@ def test_ensemble_members_and_steps(tmp_path):
     path = write(tmp_path / "ens.grib2", msgs)
     ds = open_dataset(path)
     assert ds.members == [0, 1, 2, 3, 4] and ds.member == 0
-    np.testing.assert_array_equal(ds.times, np.array(["2024-01-01T00", "2024-01-01T06", "2024-01-01T12"], dtype="datetime64[s]"))
-    np.testing.assert_array_equal(ds.read("temperature", 2)[1], (250 + field(lon, lat, 500) + 12)[::-1].astype(np.float32))
+    np.testing.assert_array_equal(ds.times,
+                                  np.array(["2024-01-01T00", "2024-01-01T06", "2024-01-01T12"], dtype="datetime64[s]"))
+    np.testing.assert_array_equal(ds.read("temperature", 2)[1],
+                                  (250 + field(lon, lat, 500) + 12)[::-1].astype(np.float32))
     three = open_dataset(path, member=3)
-    np.testing.assert_array_equal(three.read("temperature", 1)[0], (250 + field(lon, lat, 850) + 36)[::-1].astype(np.float32))
+    np.testing.assert_array_equal(three.read("temperature", 1)[0],
+                                  (250 + field(lon, lat, 850) + 36)[::-1].astype(np.float32))
     with pytest.raises(DataError, match=r"field 'member': no member 7 \(members: 0\.\.4\)"):
         open_dataset(path, member=7)
 
@@ -103,8 +109,10 @@ def test_valid_time_from_many_reference_times_and_steps(tmp_path):
             for run in (0, 6) for step in (0, 6) for p in (850, 500)]
     path = write(tmp_path / "runs.grib2", msgs)
     ds = open_dataset(path)
-    np.testing.assert_array_equal(ds.times, np.array(["2024-01-01T00", "2024-01-01T06", "2024-01-01T12"], dtype="datetime64[s]"))
-    np.testing.assert_array_equal(ds.read("t", 1)[0], (250 + field(lon, lat, 850) + 6)[::-1].astype(np.float32))  # run 06, step 0
+    np.testing.assert_array_equal(ds.times,
+                                  np.array(["2024-01-01T00", "2024-01-01T06", "2024-01-01T12"], dtype="datetime64[s]"))
+    # run 06, step 0
+    np.testing.assert_array_equal(ds.read("t", 1)[0], (250 + field(lon, lat, 850) + 6)[::-1].astype(np.float32))
     np.testing.assert_array_equal(ds.read("t", 2)[0], (250 + field(lon, lat, 850) + 6.06)[::-1].astype(np.float32))
     assert any("later reference time" in n for n in ds.notes)
 
@@ -157,7 +165,8 @@ def test_not_grib_and_cut_short_are_one_line(tmp_path):
     with pytest.raises(DataError, match=r"notes.grib2: cannot open as GRIB \(no GRIB message found: not GRIB\)"):
         open_dataset(bad)
     bad.write_text("GRIB is named here but no message follows\n" * 50)
-    with pytest.raises(DataError, match=r"notes.grib2: cannot open as GRIB \(no readable GRIB message; skipped 50 damaged") as err:
+    with pytest.raises(DataError,
+                       match=r"notes.grib2: cannot open as GRIB \(no readable GRIB message; skipped 50 damaged") as err:
         open_dataset(bad)
     assert "\n" not in str(err.value)
     path, _, _ = _product(tmp_path / "p.grib2")

@@ -17,7 +17,8 @@ def decoded(path, short, level, number=None, valid=None):
         with open(path, "rb") as f:
             while (h := eccodes.codes_grib_new_from_file(f)) is not None:
                 try:
-                    ok = (eccodes.codes_get(h, "typeOfLevel") == "isobaricInhPa" and eccodes.codes_get(h, "level") == level
+                    ok = (eccodes.codes_get(h, "typeOfLevel") == "isobaricInhPa"
+                          and eccodes.codes_get(h, "level") == level
                           and eccodes.codes_get(h, "shortName") == short)
                     if ok and number is not None:
                         ok = eccodes.codes_get(h, "number") == number
@@ -51,13 +52,16 @@ def test_gfs_forecast_with_mixed_level_types_opens_on_its_isobaric_levels(grib_s
     c = ds.read("clwmr", 0)
     np.testing.assert_array_equal(np.isnan(c).all(axis=(1, 2)), levels < 100)
     k = int(np.flatnonzero(levels == 700)[0])
-    np.testing.assert_allclose(c[k], decoded(path, "clwmr" if name.endswith("2") else "unknown", 700), rtol=1e-6, atol=1e-12)
+    np.testing.assert_allclose(c[k], decoded(path, "clwmr" if name.endswith("2") else "unknown", 700), rtol=1e-6,
+                               atol=1e-12)
     np.testing.assert_allclose(ds.read("u", 0)[k], decoded(path, "u", 700), rtol=1e-6)
-    np.testing.assert_allclose(ds.read("v", 0)[k], decoded(path, "v", 700), rtol=1e-6)  # the second field of multi-field messages
+    # the second field of multi-field messages
+    np.testing.assert_allclose(ds.read("v", 0)[k], decoded(path, "v", 700), rtol=1e-6)
     rh = decoded(path, "r", 700) / 100.0
     np.testing.assert_allclose(ds.read("rh", 0)[k], np.clip(rh, 0, 1), rtol=1e-6, atol=1e-7)
     # every other level type stays out of the way; choosing one that cannot be placed says so in one line
-    why = "cannot place potentialVorticity levels: 'gh' is missing in" if name.endswith("2") else "has no field on two or more"
+    why = ("cannot place potentialVorticity levels: 'gh' is missing in" if name.endswith("2")
+           else "has no field on two or more")
     with pytest.raises(DataError, match=r"field 'level_type': .*" + why) as err:  # (GRIB1 could keep only +2 PVU)
         open_dataset(path, level_type="potentialVorticity")
     assert "\n" not in str(err.value)

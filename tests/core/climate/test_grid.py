@@ -2,8 +2,8 @@ import numpy as np
 import pytest
 
 from nephele.core.climate.dataset import ArrayDataset, hourly
-from nephele.core.errors import DataError
 from nephele.core.climate.grid import EARTH_RADIUS, GlobeGrid, globe_radius, lonlat_to_xyz, xyz_to_lonlat
+from nephele.core.errors import DataError
 
 
 def small_grid(ni=8, nj=5, nk=3):
@@ -35,7 +35,8 @@ def test_lonlat_roundtrip_and_poles():
 
 def test_periodic_detection():
     assert small_grid(ni=9).periodic_lon
-    g = GlobeGrid(np.linspace(0, 90, 10), np.linspace(-10, 10, 3), np.zeros((2, 3, 10)) + np.array([0, 1.0])[:, None, None])
+    g = GlobeGrid(np.linspace(0, 90, 10), np.linspace(-10, 10, 3),
+                  np.zeros((2, 3, 10)) + np.array([0, 1.0])[:, None, None])
     assert not g.periodic_lon
 
 

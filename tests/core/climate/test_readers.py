@@ -5,9 +5,9 @@ import pytest
 
 xr = pytest.importorskip("xarray")
 
-from nephele.core.errors import DataError  # noqa: E402
 from nephele.core.climate.humidity import standard_height  # noqa: E402
 from nephele.core.climate.readers import open_dataset  # noqa: E402
+from nephele.core.errors import DataError  # noqa: E402
 
 UNDEF = -2.56e33
 
@@ -50,7 +50,9 @@ def test_echam5_netcdf(shared_data):
     assert ds.times[0] == np.datetime64("2001-01-01T00:00")
     g = ds.grid
     assert np.all(np.diff(g.lat) > 0) and g.lon[0] == 0.0 and g.lon[-1] == 358.125 and g.periodic_lon
-    np.testing.assert_allclose(g.height[:, 5, 5], standard_height(np.sort([100000, 92500, 85000, 77500, 70000, 60000, 50000, 40000, 30000, 25000, 20000, 15000, 10000, 7000, 5000, 3000, 1000])[::-1]))
+    np.testing.assert_allclose(g.height[:, 5, 5],
+                               standard_height(np.sort([100000, 92500, 85000, 77500, 70000, 60000, 50000, 40000, 30000,
+                                                        25000, 20000, 15000, 10000, 7000, 5000, 3000, 1000])[::-1]))
     assert "pressure" in ds.vertical
     with xr.open_dataset(path, decode_times=False) as f:
         t_file = f["t"].values[0]
@@ -82,7 +84,8 @@ def _write(path, data_vars, coords, attrs=None):
     return path
 
 
-def _basic(tmp_path, name="f.nc", lev=(1000.0, 850.0, 500.0), lat=(-60.0, 0.0, 60.0), lon=(0.0, 90.0, 180.0, 270.0), var="t", units="K"):
+def _basic(tmp_path, name="f.nc", lev=(1000.0, 850.0, 500.0), lat=(-60.0, 0.0, 60.0), lon=(0.0, 90.0, 180.0, 270.0),
+           var="t", units="K"):
     shape = (2, len(lev), len(lat), len(lon))
     values = np.arange(np.prod(shape), dtype=np.float32).reshape(shape) + 200.0
     coords = {
@@ -117,7 +120,8 @@ def test_hybrid_sigma_pressure_is_terrain_following(tmp_path):
     ps[0, 1, 2] = 60000.0  # a mountain
     coords = {
         "time": ("time", [0.0], {"units": "days since 2000-01-01"}),
-        "lev": ("lev", np.arange(nk, dtype=float), {"standard_name": "atmosphere_hybrid_sigma_pressure_coordinate", "formula_terms": "ap: hyam b: hybm ps: aps"}),
+        "lev": ("lev", np.arange(nk, dtype=float), {"standard_name": "atmosphere_hybrid_sigma_pressure_coordinate",
+                                                    "formula_terms": "ap: hyam b: hybm ps: aps"}),
         "lat": ("lat", lat, {"units": "degrees_north"}),
         "lon": ("lon", lon, {"units": "degrees_east"}),
     }
@@ -142,7 +146,8 @@ def test_hybrid_height_and_plain_height(tmp_path):
     lat, lon = np.array([-10.0, 10.0]), np.array([0.0, 120.0, 240.0])
     orog = np.array([[0.0, 500.0, 1000.0], [200.0, 0.0, 2000.0]])
     coords = {
-        "lev": ("lev", np.array([10.0, 1000.0, 5000.0]), {"standard_name": "atmosphere_hybrid_height_coordinate", "formula_terms": "a: lev b: bb orog: orog", "units": "m"}),
+        "lev": ("lev", np.array([10.0, 1000.0, 5000.0]), {"standard_name": "atmosphere_hybrid_height_coordinate",
+                                                          "formula_terms": "a: lev b: bb orog: orog", "units": "m"}),
         "lat": ("lat", lat, {"units": "degrees_north"}),
         "lon": ("lon", lon, {"units": "degrees_east"}),
     }
@@ -167,7 +172,8 @@ def test_cf_hybrid_without_p0_and_percent_labelled_fraction(tmp_path):
     lat, lon = np.array([-30.0, 0.0, 30.0]), np.arange(0.0, 360.0, 60.0)
     hyam, hybm = np.array([0.0, 0.05, 0.2, 0.1]), np.array([0.99, 0.8, 0.3, 0.0])
     coords = {
-        "lev": ("lev", np.arange(4.0), {"standard_name": "atmosphere_hybrid_sigma_pressure_coordinate", "formula_terms": "a: hyam b: hybm p0: P0 ps: PS"}),
+        "lev": ("lev", np.arange(4.0), {"standard_name": "atmosphere_hybrid_sigma_pressure_coordinate",
+                                        "formula_terms": "a: hyam b: hybm p0: P0 ps: PS"}),
         "lat": ("lat", lat, {"units": "degrees_north"}),
         "lon": ("lon", lon, {"units": "degrees_east"}),
     }
@@ -208,7 +214,8 @@ def test_missing_variable(tmp_path):
 
 
 def test_wrong_dimensions(tmp_path):
-    coords = {"lat": ("lat", [0.0, 10.0], {"units": "degrees_north"}), "lon": ("lon", [0.0, 10.0, 20.0], {"units": "degrees_east"})}
+    coords = {"lat": ("lat", [0.0, 10.0], {"units": "degrees_north"}),
+              "lon": ("lon", [0.0, 10.0, 20.0], {"units": "degrees_east"})}
     path = _write(tmp_path / "flat.nc", {"t": (("lat", "lon"), np.zeros((2, 3)))}, coords)
     with pytest.raises(DataError, match=r"flat.nc: field 'variables': no 3-D field"):
         open_dataset(path)
@@ -273,7 +280,8 @@ def test_grads_endianness_yrev_undef_and_steps(tmp_path):
     rows = np.concatenate([t, rh], axis=1)  # file order: rows north->south under yrev
     ctl = _grads(tmp_path, CTL.format(options="big_endian yrev", step="6hr"), rows.astype(">f4").tobytes())
     ds = open_dataset(ctl)
-    np.testing.assert_array_equal(ds.times, np.array(["1990-02-01T06", "1990-02-01T12", "1990-02-01T18"], dtype="datetime64[s]"))
+    np.testing.assert_array_equal(ds.times,
+                                  np.array(["1990-02-01T06", "1990-02-01T12", "1990-02-01T18"], dtype="datetime64[s]"))
     np.testing.assert_array_equal(ds.grid.lat, [-45, 0, 45])
     out = ds.read("temperature", 1)
     # yrev: the first file row is the northernmost latitude.
@@ -282,7 +290,8 @@ def test_grads_endianness_yrev_undef_and_steps(tmp_path):
     assert np.isnan(ds.read("rh", 0)[1]).all()  # one level of two
     ctl = _grads(tmp_path, CTL.format(options="little_endian", step="1mo"), rows.astype("<f4").tobytes(), name="m")
     ds = open_dataset(ctl)
-    np.testing.assert_array_equal(ds.times, np.array(["1990-02-01T06", "1990-03-01T06", "1990-04-01T06"], dtype="datetime64[s]"))
+    np.testing.assert_array_equal(ds.times,
+                                  np.array(["1990-02-01T06", "1990-03-01T06", "1990-04-01T06"], dtype="datetime64[s]"))
     assert ds.read("temperature", 2)[1, 0, 2] == t[2, 1, 0, 2]
 
 
@@ -296,7 +305,8 @@ def test_grads_errors(tmp_path):
     ctl = _grads(tmp_path, good, b"\0" * (size - 8), name="short")
     with pytest.raises(DataError, match=r"short.dat: field 'dset': .*wrong dimensions"):
         open_dataset(ctl)
-    ctl = _grads(tmp_path, good.replace("ZDEF 2 LEVELS 1000 500", "ZDEF 3 LEVELS 1000 500 700").replace("T 2", "T 3"), b"\0" * 10_000, name="mono")
+    ctl = _grads(tmp_path, good.replace("ZDEF 2 LEVELS 1000 500", "ZDEF 3 LEVELS 1000 500 700").replace("T 2", "T 3"),
+                 b"\0" * 10_000, name="mono")
     with pytest.raises(DataError, match=r"mono.ctl: field 'zdef': levels are not monotonic"):
         open_dataset(ctl)
     ctl = _grads(tmp_path, good.replace("XDEF 4 LINEAR 0 90\n", ""), b"\0" * size, name="nox")
@@ -338,7 +348,8 @@ def test_pressure_levels_use_geopotential_height_and_sigma_levels(tmp_path):
     assert "mean geopotential height" in ds.vertical
     # sigma levels: p = ptop + sigma (ps - ptop)
     coords = {
-        "lev": ("lev", np.array([0.95, 0.5, 0.1]), {"standard_name": "atmosphere_sigma_coordinate", "formula_terms": "sigma: lev ps: ps ptop: ptop"}),
+        "lev": ("lev", np.array([0.95, 0.5, 0.1]),
+                {"standard_name": "atmosphere_sigma_coordinate", "formula_terms": "sigma: lev ps: ps ptop: ptop"}),
         "lat": ("lat", lat, {"units": "degrees_north"}),
         "lon": ("lon", lon, {"units": "degrees_east"}),
     }
@@ -348,7 +359,8 @@ def test_pressure_levels_use_geopotential_height_and_sigma_levels(tmp_path):
         "t": (("lev", "lat", "lon"), np.full((3, 2, 3), 250.0, dtype=np.float32), {"units": "K"}),
     }
     ds = open_dataset(_write(tmp_path / "sigma.nc", data, coords))
-    np.testing.assert_allclose(ds.read("pressure", 0)[:, 1, 1], 1000.0 + np.array([0.95, 0.5, 0.1]) * 99000.0, rtol=1e-6)
+    np.testing.assert_allclose(ds.read("pressure", 0)[:, 1, 1], 1000.0 + np.array([0.95, 0.5, 0.1]) * 99000.0,
+                               rtol=1e-6)
 
 
 def test_time_problems(tmp_path):
@@ -370,7 +382,8 @@ def test_time_problems(tmp_path):
     assert any("time units 'Month'" in n for n in ds.notes)
     # The caller can say what the file does not.
     ds = open_dataset(tmp_path / "months.nc", time_units="days since 2000-03-01")
-    np.testing.assert_array_equal(ds.times, np.datetime64("2000-03-01", "s") + (f["time"].values * 86400).astype("timedelta64[s]"))
+    np.testing.assert_array_equal(ds.times, np.datetime64("2000-03-01", "s")
+                                  + (f["time"].values * 86400).astype("timedelta64[s]"))
     f["time"].attrs.update(units="hours since 1987-01-01", calendar="360_day")
     f.to_netcdf(tmp_path / "cal.nc")
     ds = open_dataset(tmp_path / "cal.nc")
@@ -396,11 +409,10 @@ def _nc(path):
 def _proj_rotated_to_true(path, mapping, rlon, rlat):
     """True lon/lat of a rotated grid by PROJ, in a fresh Python: pyproj imported after netCDF4 has
     opened a file crashes the interpreter (their bundled libraries clash), so it runs apart."""
+    import importlib.util
     import json
     import subprocess
     import sys
-
-    import importlib.util
 
     if importlib.util.find_spec("pyproj") is None:
         pytest.skip("pyproj is not installed")
@@ -410,10 +422,11 @@ def _proj_rotated_to_true(path, mapping, rlon, rlat):
         "with netCDF4.Dataset(a['path']) as f:\n"
         "    cf = {k: f[a['mapping']].getncattr(k) for k in f[a['mapping']].ncattrs()}\n"
         "crs = pyproj.CRS.from_cf({k: (v.item() if hasattr(v, 'item') else v) for k, v in cf.items()})\n"
-        "lon, lat = pyproj.Transformer.from_crs(crs, 'EPSG:4326', always_xy=True).transform(*np.meshgrid(a['rlon'], a['rlat']))\n"
-        "json.dump([lon.tolist(), lat.tolist()], sys.stdout)\n"
+        "lon, lat = pyproj.Transformer.from_crs(crs, 'EPSG:4326', always_xy=True).transform(*np.meshgrid(a['rlon'], "
+        "a['rlat']))\njson.dump([lon.tolist(), lat.tolist()], sys.stdout)\n"
     )
-    args = json.dumps({"path": str(path), "mapping": mapping, "rlon": list(map(float, rlon)), "rlat": list(map(float, rlat))})
+    args = json.dumps({"path": str(path), "mapping": mapping, "rlon": list(map(float, rlon)),
+                       "rlat": list(map(float, rlat))})
     out = subprocess.run([sys.executable, "-c", code], input=args, capture_output=True, text=True, check=True).stdout
     lon, lat = json.loads(out)
     return np.array(lon), np.array(lat)
@@ -444,7 +457,8 @@ def test_cam_history_file_ncar_hybrid_levels():
     kf = 17 - k
     p_hand = hyam[kf] * 100000.0 + hybm[kf] * ps[t, j, i]
     np.testing.assert_allclose(ds.read("pressure", t)[k, j, i], p_hand, rtol=1e-6)
-    np.testing.assert_allclose(ds.grid.height[k, j, i], standard_height(hyam[kf] * 1e5 + hybm[kf] * ps[0, j, i]), rtol=1e-5)
+    np.testing.assert_allclose(ds.grid.height[k, j, i], standard_height(hyam[kf] * 1e5 + hybm[kf] * ps[0, j, i]),
+                               rtol=1e-5)
     assert ds.read("temperature", t)[k, j, i] == np.float32(t_file[t, kf, j, i])
     # The file's own name works too.
     assert "T" in ds and ds.read("T", t) is ds.read("temperature", t)
@@ -459,7 +473,6 @@ def test_cam_history_file_ncar_hybrid_levels():
         open_dataset(path, variables={"temperature": "TS"})
     mesh = _contour(ds, "temperature", 250.0)
     assert len(mesh.faces) > 1000
-    from nephele.core.climate.grid import xyz_to_lonlat
 
     r = np.linalg.norm(mesh.vertices, axis=1)
     radii = ds.grid.radii()
@@ -493,7 +506,8 @@ def test_vertical_override_on_unlabelled_levels(tmp_path):
         f = f.load()
     f["lev"].attrs.pop("units")
     f.to_netcdf(tmp_path / "nounits.nc")
-    with pytest.raises(DataError, match=r"nounits.nc: field 'lev': cannot tell what the vertical coordinate is .*vertical="):
+    with pytest.raises(DataError,
+                       match=r"nounits.nc: field 'lev': cannot tell what the vertical coordinate is .*vertical="):
         open_dataset(tmp_path / "nounits.nc")
     ds, ref = open_dataset(tmp_path / "nounits.nc", vertical="pressure_hpa"), open_dataset(DATA / "ncl_nc4uvt_T.nc")
     np.testing.assert_array_equal(ds.grid.height, ref.grid.height)
@@ -553,7 +567,8 @@ def test_zarr_store_written_from_the_cam_file(tmp_path):
 
 
 def test_packed_and_filled_copy_of_the_cam_file(tmp_path):
-    """The CAM T packed to int16 (scale_factor/add_offset) with _FillValue holes: unpacked within half a step, holes NaN."""
+    """The CAM T packed to int16 (scale_factor/add_offset) with _FillValue holes: unpacked within half a step,
+    holes NaN."""
     src = DATA / "cam_vinth2p.nc"
     with xr.open_dataset(src, decode_times=False) as f:
         f = f.load()

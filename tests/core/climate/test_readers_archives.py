@@ -2,13 +2,12 @@
 current CDS (packed shorts, valid_time, pressure_level, number, expver, the zip), MERRA-2 model layers,
 CMIP6 ``cl`` on hybrid sigma-pressure with 360-day and no-leap calendars, unstructured grids refused."""
 
+import archives
 import numpy as np
 import pytest
 
 from nephele.core.climate.readers import open_dataset
 from nephele.core.errors import DataError
-
-import archives
 
 
 def test_era5_cds_pressure_levels_packed_shorts(tmp_path):
@@ -36,7 +35,8 @@ def test_era5_ensemble_member_dimension(tmp_path):
     np.testing.assert_array_equal(two.read("t", 1), info["values"]["t"][2, 1][:, ::-1])
     with pytest.raises(DataError, match=r"ens.nc: field 'member': no member 5 \(members: 0, 1, 2\)"):
         open_dataset(tmp_path / "ens.nc", member=5)
-    with pytest.raises(DataError, match=r"field 'member': member 1 asked for, but the file has no ensemble member dimension"):
+    with pytest.raises(DataError,
+                       match=r"field 'member': member 1 asked for, but the file has no ensemble member dimension"):
         open_dataset(archives.era5_cds(tmp_path / "one.nc") and tmp_path / "one.nc", member=1)
 
 
@@ -51,7 +51,8 @@ def test_era5_cds_zip_reads_the_instant_fields_unpacked_into_the_cache(tmp_path,
     finally:
         data.chmod(0o755)
     assert ds.source == str(data / "data.zip")
-    assert any(n == "zip: read data_stream-oper_stepType-instant.nc; also in the zip: data_stream-oper_stepType-accum.nc"
+    assert any(n == "zip: read data_stream-oper_stepType-instant.nc; also in the zip: "
+                    "data_stream-oper_stepType-accum.nc"
                for n in ds.notes)
     np.testing.assert_allclose(ds.read("t", 3), info["values"]["t"][3][:, ::-1], rtol=1e-6)
     assert list((own_cache / "zip").rglob("*.nc"))
@@ -82,7 +83,8 @@ def test_merra2_without_heights_integrates_delp_and_t(tmp_path):
         nc.renameVariable("H", "H_unused")  # no mid-layer heights: integrate upward instead
     ds = open_dataset(path)
     assert "hypsometric equation from DELP and T" in ds.vertical
-    np.testing.assert_allclose(ds.read("pressure", 0), info["PL"][0][::-1][:, :, np.argsort(np.mod(info["lon"], 360.0))], rtol=1e-6)
+    np.testing.assert_allclose(ds.read("pressure", 0),
+                               info["PL"][0][::-1][:, :, np.argsort(np.mod(info["lon"], 360.0))], rtol=1e-6)
     assert np.all(np.diff(ds.grid.height, axis=0) > 0)
 
 

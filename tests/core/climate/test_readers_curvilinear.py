@@ -16,10 +16,11 @@ import pytest
 
 xr = pytest.importorskip("xarray")
 
-from nephele.core.errors import DataError  # noqa: E402
+from projections import lcc_inverse  # noqa: E402
+
 from nephele.core.climate.grid import lonlat_to_xyz, xyz_to_lonlat  # noqa: E402
 from nephele.core.climate.readers import open_dataset  # noqa: E402
-from projections import lcc_inverse  # noqa: E402
+from nephele.core.errors import DataError  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[2] / "data"
 R = 6370000.0  # WRF's sphere
@@ -70,7 +71,8 @@ def test_2d_latlon_grid_positions_and_contour(tmp_path, wrf_names):
     np.testing.assert_allclose(tt, lat) and np.testing.assert_allclose(tl, lon)
     np.testing.assert_array_equal(ds.read("temperature", 1), t[1])
     # The contour at 285 K: a tilted sheet at z = (300 - 0.3 (lat - 45) - 285) / 0.0065 m.
-    mesh = isosurface(g.points(dtype=np.float64), ds.read("T", 0), 285.0, attributes={"altitude": g.height.astype(np.float32)})
+    mesh = isosurface(g.points(dtype=np.float64), ds.read("T", 0), 285.0,
+                      attributes={"altitude": g.height.astype(np.float32)})
     assert len(mesh.faces) > 500
     vlon, vlat, _ = xyz_to_lonlat(mesh.vertices)
     expected = (15.0 - 0.3 * (vlat - 45.0)) / 0.0065
@@ -182,7 +184,8 @@ def test_voxel_volume_on_a_curvilinear_grid_matches_the_closed_form(tmp_path):
     assert np.all(np.isfinite(got))
     np.testing.assert_allclose(got, _t_closed_form(h, lat), atol=2e-3)
     # Outside: NaN (beyond the region, below the lowest level, above the top).
-    out = np.array([lonlat_to_xyz(-140.0, 45.0, 1.001), u[0] * (1 + 30 * 100.0 / 6371000.0), u[0] * (1 + 30 * 7000.0 / 6371000.0)])
+    out = np.array([lonlat_to_xyz(-140.0, 45.0, 1.001), u[0] * (1 + 30 * 100.0 / 6371000.0),
+                    u[0] * (1 + 30 * 7000.0 / 6371000.0)])
     assert np.all(np.isnan(field.sample("value", out)))
 
     # The resampled volume: opacity rising from 0 at T = 279 K to 1 at 281 K (a tilted slab near the ground).
@@ -237,7 +240,8 @@ def test_cli_info_and_contour_on_a_projected_file(tmp_path, capsys):
 
     info = json.loads(capsys.readouterr().out)
     assert info["curvilinear"] and info["earth_radius_m"] == R
-    assert info["true_lon"] == pytest.approx([lon.min(), lon.max()]) and info["true_lat"] == pytest.approx([lat.min(), lat.max()])
+    assert info["true_lon"] == pytest.approx([lon.min(),
+                                              lon.max()]) and info["true_lat"] == pytest.approx([lat.min(), lat.max()])
     out = tmp_path / "t.ply"
     assert main(["contour", str(tmp_path / "xy.nc"), "--var", "T", "--level", "285", "-o", str(out)]) == 0
     v = np.asarray(trimesh.load(out, force="mesh", process=False).vertices, dtype=np.float64)

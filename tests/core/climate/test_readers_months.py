@@ -6,8 +6,8 @@ import pytest
 xr = pytest.importorskip("xarray")
 cftime = pytest.importorskip("cftime")
 
-from nephele.core.errors import DataError  # noqa: E402
 from nephele.core.climate.readers import open_dataset  # noqa: E402
+from nephele.core.errors import DataError  # noqa: E402
 
 
 def _file(path, time, units, calendar):

@@ -50,7 +50,8 @@ def test_parse_var_map_empty_and_spaces():
 
 
 def test_source_name_round_trip_and_the_cli_form():
-    kw = check_overrides(str(NCL), time_units="days since 2000-01-01 00:00:00", radius=6371220, variables="temperature=T")
+    kw = check_overrides(str(NCL), time_units="days since 2000-01-01 00:00:00", radius=6371220,
+                         variables="temperature=T")
     name = override_source(NCL, **kw)
     # The CLI's form: urlencode of the sorted overrides, variables as STD:NAME pairs, then &file=ID.
     assert name == f"{NCL}?radius=6371220.0&time_units=days+since+2000-01-01+00%3A00%3A00&variables=temperature%3AT"

@@ -41,7 +41,8 @@ def _staggered_winds(z_stag, alpha):
     }
     if alpha is not None:  # WRF's rotation from grid to earth axes, here one angle per column
         for name, f in (("COSALPHA", np.cos), ("SINALPHA", np.sin)):
-            out[name] = (("Time", "south_north", "west_east"), np.repeat(f(alpha)[None], NT, axis=0).astype(np.float32), {"units": ""})
+            out[name] = (("Time", "south_north", "west_east"), np.repeat(f(alpha)[None], NT, axis=0).astype(np.float32),
+                         {"units": ""})
     return out
 
 
@@ -58,20 +59,26 @@ def _wrf_file(path, winds=False, alpha=None):
     cloud = np.clip((z_mass - 1500.0) / 5000.0, 0.0, 1.0)  # linear in height through the 0.5 crossing
     rep = lambda a: np.repeat(a[None], NT, axis=0).astype(np.float32)  # noqa: E731
     data = {
-        "XLAT": (("Time", "south_north", "west_east"), rep(lat), {"units": "degree_north", "description": "LATITUDE, SOUTH IS NEGATIVE"}),
-        "XLONG": (("Time", "south_north", "west_east"), rep(lon), {"units": "degree_east", "description": "LONGITUDE, WEST IS NEGATIVE"}),
-        "XTIME": (("Time",), np.array([0.0, 60.0]), {"units": "minutes since 2020-06-01 00:00:00", "description": "minutes since 2020-06-01 00:00:00"}),
+        "XLAT": (("Time", "south_north", "west_east"), rep(lat),
+                 {"units": "degree_north", "description": "LATITUDE, SOUTH IS NEGATIVE"}),
+        "XLONG": (("Time", "south_north", "west_east"), rep(lon),
+                  {"units": "degree_east", "description": "LONGITUDE, WEST IS NEGATIVE"}),
+        "XTIME": (("Time",), np.array([0.0, 60.0]),
+                  {"units": "minutes since 2020-06-01 00:00:00", "description": "minutes since 2020-06-01 00:00:00"}),
         "HGT": (("Time", "south_north", "west_east"), rep(hgt), {"units": "m"}),
         "PH": (("Time", "bottom_top_stag", "south_north", "west_east"), rep(0.1 * G0 * z_stag), {"units": "m2 s-2"}),
         "PHB": (("Time", "bottom_top_stag", "south_north", "west_east"), rep(0.9 * G0 * z_stag), {"units": "m2 s-2"}),
-        "T": (("Time", "bottom_top", "south_north", "west_east"), rep(theta_pert), {"units": "K", "description": "perturbation potential temperature (theta-t0)"}),
+        "T": (("Time", "bottom_top", "south_north", "west_east"), rep(theta_pert),
+              {"units": "K", "description": "perturbation potential temperature (theta-t0)"}),
         "P": (("Time", "bottom_top", "south_north", "west_east"), rep(0.2 * p), {"units": "Pa"}),
         "PB": (("Time", "bottom_top", "south_north", "west_east"), rep(0.8 * p), {"units": "Pa"}),
-        "CLDFRA": (("Time", "bottom_top", "south_north", "west_east"), rep(cloud), {"units": "", "description": "CLOUD FRACTION"}),
+        "CLDFRA": (("Time", "bottom_top", "south_north", "west_east"), rep(cloud),
+                   {"units": "", "description": "CLOUD FRACTION"}),
     }
     if winds:
         data.update(_staggered_winds(z_stag, alpha))
-    xr.Dataset(data, attrs={"TITLE": " OUTPUT FROM WRF V4 MODEL (written by the Nephele test)", "MAP_PROJ": 1}).to_netcdf(path)
+    xr.Dataset(data, attrs={"TITLE": " OUTPUT FROM WRF V4 MODEL (written by the Nephele test)",
+                            "MAP_PROJ": 1}).to_netcdf(path)
     return lon, lat, z_mass, p, t_air, cloud
 
 
@@ -104,7 +111,8 @@ def test_staggered_winds_at_mass_points_closed_form(tmp_path):
     u, v, w = ds.wind(1)
     assert u.shape == v.shape == w.shape == ds.grid.shape == (NZ, NY, NX)
     np.testing.assert_allclose(u, np.broadcast_to(10.0 * np.sin(K * i) * np.cos(K / 2), u.shape), atol=2e-6)
-    np.testing.assert_allclose(v, np.broadcast_to((5.0 + 3.0 * np.cos(K * j) * np.cos(K / 2))[:, None], v.shape), atol=2e-6)
+    np.testing.assert_allclose(v, np.broadcast_to((5.0 + 3.0 * np.cos(K * j) * np.cos(K / 2))[:, None], v.shape),
+                               atol=2e-6)
     np.testing.assert_allclose(w, 1e-3 * z_mass, rtol=1e-6)
     assert np.array_equal(ds.read("U", 0), u)  # the file's own name
     # The destaggered geopotential is the level heights' geopotential: (PH + PHB) / g at mass points.

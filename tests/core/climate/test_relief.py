@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 
-from nephele.core.errors import DataError
 from nephele.core.climate.relief import RELIEF_FILE, load_etopo, load_relief, sample_relief, write_relief
+from nephele.core.errors import DataError
 
 
 def test_shipped_relief_is_small_and_plausible():

@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
-from nephele.core.errors import DataError
 from nephele.core.climate.grid import EARTH_RADIUS, lonlat_to_xyz, xyz_to_lonlat
 from nephele.core.climate.readers import open_dataset
 from nephele.core.climate.synthetic import SyntheticClimate, demo_dataset
+from nephele.core.errors import DataError
 
 
 @pytest.fixture(scope="module")
@@ -25,15 +25,18 @@ def _bilinear(field, grid, lon, lat):
     y = np.interp(lat, grid.lat, np.arange(nj))
     j0 = np.minimum(np.floor(y).astype(int), nj - 2)
     fy = y - j0
-    return (field[j0, i0] * (1 - fx) + field[j0, i1] * fx) * (1 - fy) + (field[j0 + 1, i0] * (1 - fx) + field[j0 + 1, i1] * fx) * fy
+    return (field[j0, i0] * (1 - fx) + field[j0, i1]
+            * fx) * (1 - fy) + (field[j0 + 1, i0] * (1 - fx) + field[j0 + 1, i1] * fx) * fy
 
 
 def _velocity(ds, k, p, hours):
     """Unit-sphere velocity (per hour) from the dataset's gridded hourly u, v on level k."""
     lon, lat, _ = xyz_to_lonlat(p)
     i0, i1, w = ds.locate_time(hours)
-    u = (1 - w) * _bilinear(ds.read("u", i0)[k], ds.grid, lon, lat) + w * _bilinear(ds.read("u", i1)[k], ds.grid, lon, lat)
-    v = (1 - w) * _bilinear(ds.read("v", i0)[k], ds.grid, lon, lat) + w * _bilinear(ds.read("v", i1)[k], ds.grid, lon, lat)
+    u = (1 - w) * _bilinear(ds.read("u", i0)[k], ds.grid, lon,
+                            lat) + w * _bilinear(ds.read("u", i1)[k], ds.grid, lon, lat)
+    v = (1 - w) * _bilinear(ds.read("v", i0)[k], ds.grid, lon,
+                            lat) + w * _bilinear(ds.read("v", i1)[k], ds.grid, lon, lat)
     lam, phi = np.deg2rad(lon), np.deg2rad(lat)
     east = np.stack([-np.sin(lam), np.cos(lam), 0 * lam], -1)
     north = np.stack([-np.sin(phi) * np.cos(lam), -np.sin(phi) * np.sin(lam), np.cos(phi)], -1)

@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
-from nephele.core.flow import advect, flows
 from nephele.core.climate.dataset import ArrayDataset, hourly
-from nephele.core.errors import DataError
 from nephele.core.climate.grid import GlobeGrid, lonlat_to_xyz, xyz_to_lonlat
+from nephele.core.errors import DataError
+from nephele.core.flow import advect, flows
 
 TILT = np.pi / 2 - 0.05
 
@@ -27,7 +27,8 @@ def flat_grid(ni=16, nj=8, nk=4, top=10_000.0):
 
 def wind_dataset(grid, nt=4, u=0.0, v=0.0, w=0.0):
     shape = (nt,) + grid.shape
-    fields = {n: np.broadcast_to(np.asarray(val, dtype=np.float32), shape).copy() for n, val in (("u", u), ("v", v), ("w", w))}
+    fields = {n: np.broadcast_to(np.asarray(val, dtype=np.float32), shape).copy()
+              for n, val in (("u", u), ("v", v), ("w", w))}
     return ArrayDataset(grid, hourly("2000-01-01", nt), fields, source="test.nc")
 
 

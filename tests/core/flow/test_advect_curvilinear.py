@@ -12,6 +12,7 @@ pole.  The winds are stored as a file would hold them: east/north components
 
 import numpy as np
 import pytest
+from projections import lcc_inverse, polar_inverse
 from scipy.integrate import solve_ivp
 
 from nephele.core.climate.columns import ColumnLocator
@@ -20,7 +21,6 @@ from nephele.core.climate.grid import GlobeGrid, lonlat_to_xyz, xyz_to_lonlat
 from nephele.core.errors import DataError
 from nephele.core.flow import advect
 from nephele.core.flow.flows import DeformationalFlow, rotate, tangent_velocity
-from projections import lcc_inverse, polar_inverse
 
 R = 6_371_000.0
 HOURS = 25
@@ -45,7 +45,8 @@ def east_north(lon, lat):
 def wind_dataset(grid, uv_of_hour, nt=HOURS, w=None):
     """u, v (and w, default 0) from ``uv_of_hour(hours) -> (u, v)`` (nj, ni) at every hourly step."""
     nk = grid.shape[0]
-    u, v = (np.stack([np.broadcast_to(uv_of_hour(float(t))[c], (nk,) + grid.shape[1:]) for t in range(nt)]) for c in (0, 1))
+    u, v = (np.stack([np.broadcast_to(uv_of_hour(float(t))[c], (nk,) + grid.shape[1:]) for t in range(nt)])
+            for c in (0, 1))
     ds = ArrayDataset(grid, hourly("2000-01-01", nt), {"u": u, "v": v, "w": np.zeros_like(u) if w is None else w},
                       source="<regional test>", units={"u": "m/s", "v": "m/s", "w": "m/s"})
     ds.earth_radius = R
@@ -135,7 +136,8 @@ def test_deformational_flow_against_dop853_and_the_same_lonlat_grid():
     ref = advect.trace(anchor, xyz, np.zeros(len(xyz)), t_from, t_to)[0]
     err, err_ref = advect.great_circle_km(got, truth, R), advect.great_circle_km(ref, truth, R)
     # Measured: 0.042 km max on the LCC grid, 0.037 km on the lon/lat grid (hourly winds, 50 km cells, ~900 km travel).
-    print(f"deformational: max {err.max():.3f} km (lon/lat anchor {err_ref.max():.3f} km), travel {moved.min():.0f}-{moved.max():.0f} km")
+    print(f"deformational: max {err.max():.3f} km (lon/lat anchor {err_ref.max():.3f} km), travel "
+          f"{moved.min():.0f}-{moved.max():.0f} km")
     assert err.max() < 0.2
     assert err.max() < 1.5 * err_ref.max()
 
@@ -171,7 +173,8 @@ def test_a_point_that_leaves_the_region_stops_just_beyond_its_edge():
     assert np.all(loc(end)[0] < 0)
     step_km = wind.min_spacing * R / 1000.0
     d = advect.great_circle_km(end, exit_point, R)
-    print(f"exit: {d.max():.1f} km at most from the exact exit point (step {step_km:.1f} km), median {np.median(d):.1f} km")
+    print(f"exit: {d.max():.1f} km at most from the exact exit point (step {step_km:.1f} km), median "
+          f"{np.median(d):.1f} km")
     assert d.max() <= 2.0 * step_km
     np.testing.assert_allclose(advect.trace(wind, end, np.zeros(len(end)), 24.0, 0.0)[0], end, rtol=0, atol=1e-15)
     # Its height comes from the nearest column (no zeros from outside the grid).
@@ -201,7 +204,8 @@ def test_terrain_slopes_follow_the_chain_rule_through_the_columns():
     g0 = regional_grid("lcc", nx=60, ny=45, dx=30e3)
     lam, phi = np.deg2rad(g0.lon2d), np.deg2rad(g0.lat2d)
     h0 = 1000.0 + 800.0 * np.sin(3 * lam) * np.cos(2 * phi)
-    g = GlobeGrid(g0.lon, g0.lat, h0[None] + np.array([0.0, 4000.0, 9000.0])[:, None, None], lon2d=g0.lon2d, lat2d=g0.lat2d)
+    g = GlobeGrid(g0.lon, g0.lat, h0[None] + np.array([0.0, 4000.0, 9000.0])[:, None, None], lon2d=g0.lon2d,
+                  lat2d=g0.lat2d)
     wind = advect.WindField(wind_dataset(g, lambda t: (np.zeros(lam.shape), np.zeros(lam.shape))))
     dx_true = 2400.0 * np.cos(3 * lam) * np.cos(2 * phi) / (R * np.cos(phi))
     dy_true = -1600.0 * np.sin(3 * lam) * np.sin(2 * phi) / R
@@ -314,10 +318,13 @@ def test_advected_contour_task_on_a_lambert_conformal_file(tmp_path):
     rep3 = lambda a: rep(np.broadcast_to(a, (3,) + a.shape[-2:]))  # noqa: E731
     xr.Dataset(
         {"cloud": (("time", "z", "y", "x"), rep3(q), {"units": "1", "grid_mapping": "lambert"}),
-         "u": (("time", "z", "y", "x"), rep3(u), {"units": "m s-1", "standard_name": "eastward_wind", "grid_mapping": "lambert"}),
-         "v": (("time", "z", "y", "x"), rep3(v), {"units": "m s-1", "standard_name": "northward_wind", "grid_mapping": "lambert"}),
+         "u": (("time", "z", "y", "x"), rep3(u),
+               {"units": "m s-1", "standard_name": "eastward_wind", "grid_mapping": "lambert"}),
+         "v": (("time", "z", "y", "x"), rep3(v),
+               {"units": "m s-1", "standard_name": "northward_wind", "grid_mapping": "lambert"}),
          "lambert": ((), 0, lcc)},
-        coords={"time": ("time", np.arange(nt, dtype=float), {"units": "hours since 2020-01-01", "standard_name": "time"}),
+        coords={"time": ("time", np.arange(nt, dtype=float),
+                         {"units": "hours since 2020-01-01", "standard_name": "time"}),
                 "z": ("z", z, {"units": "m", "standard_name": "height", "positive": "up"}),
                 "y": ("y", y, {"units": "m", "standard_name": "projection_y_coordinate"}),
                 "x": ("x", x, {"units": "m", "standard_name": "projection_x_coordinate"}),

@@ -3,11 +3,11 @@
 import numpy as np
 import pytest
 
+from nephele.core.climate.grid import xyz_to_lonlat
 from nephele.core.flow import advect, advect_task
 from nephele.core.pipeline import tasks
 from nephele.core.pipeline.cache import Cache
 from nephele.core.pipeline.sources import open_source
-from nephele.core.climate.grid import xyz_to_lonlat
 from nephele.core.surface.mesh import Mesh
 
 OBJ = {"kind": "advected_contour", "source": "demo:small", "var": "cloud", "level": 0.15, "hours_per_frame": 1.0,
@@ -27,7 +27,8 @@ def test_first_frame_starts_where_the_vertices_are():
         start = m.attributes[advect.START.format(c)]
         assert start.shape == (len(m.vertices), 3)
         np.testing.assert_allclose(_unit(start), _unit(m.vertices), atol=2e-3)
-        np.testing.assert_allclose(m.attributes[advect.START_ALT.format(c)], m.attributes["altitude"], rtol=1e-3, atol=1.0)
+        np.testing.assert_allclose(m.attributes[advect.START_ALT.format(c)], m.attributes["altitude"], rtol=1e-3,
+                                   atol=1.0)
     assert m.attributes[advect.WEIGHT.format("a")][0] == 0.0
 
 

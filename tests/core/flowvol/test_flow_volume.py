@@ -2,12 +2,12 @@
 
 import numpy as np
 import pytest
+from mesh_checks import check_mesh
 from scipy.integrate import solve_ivp
 
 from nephele.core.errors import DataError
 from nephele.core.flow.flows import FlowDataset, SolidBodyRotation, sample_grid
 from nephele.core.flowvol import ClimateVelocity, flow_volume
-from mesh_checks import check_mesh
 
 
 def polygon_area(radius, sides):
@@ -15,7 +15,8 @@ def polygon_area(radius, sides):
 
 
 def polygon_flux(fv, v, n=60):
-    """Flux of a steady ``v`` through the generator polygon: centroid rule on n^2 equal sub-triangles of each fan triangle."""
+    """Flux of a steady ``v`` through the generator polygon: centroid rule on n^2 equal sub-triangles of each
+    fan triangle."""
     c, g = fv.generator[0], fv.generator[1:]
     outer = g[1::2]  # rings=2: the outer ring's points (the polygon's corners and edge points)
     i, j = np.meshgrid(np.arange(n), np.arange(n))
@@ -41,7 +42,8 @@ def shear(p, t):
 
 def abc(p, t, A=np.sqrt(3), B=np.sqrt(2), C=1.0):
     x, y, z = p.T
-    return np.stack([A * np.sin(z) + C * np.cos(y), B * np.sin(x) + A * np.cos(z), C * np.sin(y) + B * np.cos(x)], axis=1)
+    return np.stack([A * np.sin(z) + C * np.cos(y), B * np.sin(x) + A * np.cos(z), C * np.sin(y) + B * np.cos(x)],
+                    axis=1)
 
 
 @pytest.mark.parametrize("sides,duration", [(3, 1.0), (32, 2.5)])
@@ -63,7 +65,8 @@ def test_shear_gives_polygon_area_times_duration():
 
 def test_solid_body_rotation_matches_pappus():
     # v = z x p about the z axis; the generator at x = 1 faces +y; the axis lies in its plane.
-    rot = lambda p, t: np.stack([-p[:, 1], p[:, 0], 0 * p[:, 0]], axis=1)
+    def rot(p, t):
+        return np.stack([-p[:, 1], p[:, 0], 0 * p[:, 0]], axis=1)
     fv = flow_volume(rot, [1, 0, 0], 0.25, 2.0, sides=16, tol=0.01)
     assert np.allclose(fv.normal, [0, 1, 0])
     exact = polygon_area(0.25, 16) * 2.0 * 1.0
@@ -83,14 +86,16 @@ def test_front_matches_dop853_reference_on_abc():
     fv = flow_volume(abc, [0.5, 0.3, 0.2], 0.3, 1.5, sides=12, steps=32)
     first = np.isclose(fv.release, 0.0)
     start = fv.generator
-    ref = solve_ivp(lambda t, y: abc(y.reshape(-1, 3), t).ravel(), (0, 1.5), start.ravel(), method="DOP853", rtol=1e-12, atol=1e-12).y[:, -1].reshape(-1, 3)
+    ref = solve_ivp(lambda t, y: abc(y.reshape(-1, 3), t).ravel(), (0, 1.5), start.ravel(), method="DOP853", rtol=1e-12,
+                    atol=1e-12).y[:, -1].reshape(-1, 3)
     got = fv.vertices[first]
     assert np.max(np.linalg.norm(got - ref, axis=1)) < 1e-6
 
 
 def test_refinement_reintegrates_from_the_generator_on_a_diverging_flow():
     # v = (x, y, 1): exact flow map (x e^a, y e^a, z + a) for age a; the front spreads e^2 = 7.4 times.
-    div = lambda p, t: np.stack([p[:, 0], p[:, 1], np.ones(len(p))], axis=1)
+    def div(p, t):
+        return np.stack([p[:, 0], p[:, 1], np.ones(len(p))], axis=1)
     fv = flow_volume(div, [0, 0, 0], 0.2, 2.0, sides=8, tol=0.1, steps=64)
     assert len(fv.generator) > 1 + 2 * 8  # columns were inserted
     a = fv.age[:, None]
@@ -107,7 +112,8 @@ def test_refinement_reintegrates_from_the_generator_on_a_diverging_flow():
 
 
 def test_stagnation_point_at_the_centre():
-    para = lambda p, t: np.stack([0 * p[:, 0], 0 * p[:, 0], p[:, 0] ** 2 + p[:, 1] ** 2], axis=1)
+    def para(p, t):
+        return np.stack([0 * p[:, 0], 0 * p[:, 0], p[:, 0] ** 2 + p[:, 1] ** 2], axis=1)
     with pytest.raises(DataError, match="calm air"):
         flow_volume(para, [0, 0, 0], 1.0, 1.0)
     fv = flow_volume(para, [0, 0, 0], 1.0, 1.0, normal=[0, 0, 1], sides=24, rings=8, tol=0.05)
@@ -122,7 +128,8 @@ def test_stagnation_point_at_the_centre():
 
 
 def test_zero_wind_and_zero_duration_give_no_smoke():
-    calm = lambda p, t: np.zeros_like(p)
+    def calm(p, t):
+        return np.zeros_like(p)
     fv = flow_volume(calm, [0, 0, 0], 1.0, 5.0, normal=[1, 0, 0])
     assert len(fv.tets) == 0 and fv.volume == 0.0 and len(fv.surface.faces) == 0
     fv = flow_volume(uniform, [0, 0, 0], 1.0, 0.0)
@@ -180,7 +187,8 @@ def test_climate_generator_outside_the_data_time_raises(rotation_globe):
 def test_converging_flow_merges_front_points_and_keeps_the_volume():
     # v = (-x, 0, 1): exact flow map (x e^-a, y, z + a); air of age a fills area A e^-a per unit
     # height, so V = A (1 - e^-T).  The front narrows to a segment: its points merge.
-    conv = lambda p, t: np.stack([-p[:, 0], 0 * p[:, 0], np.ones(len(p))], axis=1)
+    def conv(p, t):
+        return np.stack([-p[:, 0], 0 * p[:, 0], np.ones(len(p))], axis=1)
     T, exact = 6.0, polygon_area(1.0, 32) * (1 - np.exp(-6.0))
     kept = flow_volume(conv, [0, 0, 0], 1.0, T, normal=[0, 0, 1], sides=32, tol=0.1, steps=64, merge=0.5)
     full = flow_volume(conv, [0, 0, 0], 1.0, T, normal=[0, 0, 1], sides=32, tol=0.1, steps=64, merge=0.0)
@@ -208,7 +216,8 @@ def test_converging_flow_merges_front_points_and_keeps_the_volume():
 def test_merging_leaves_uniform_and_diverging_fronts_alone():
     fv = flow_volume(uniform, [1.0, 2.0, 3.0], 0.7, 2.5, sides=32, merge=0.9)
     assert len(np.unique(fv.tets)) == len(fv.vertices)
-    div = lambda p, t: np.stack([p[:, 0], p[:, 1], np.ones(len(p))], axis=1)
+    def div(p, t):
+        return np.stack([p[:, 0], p[:, 1], np.ones(len(p))], axis=1)
     fv = flow_volume(div, [0, 0, 0], 0.2, 2.0, sides=8, tol=0.1, steps=64, merge=0.9)
     assert len(np.unique(fv.tets)) == len(fv.vertices)
 
@@ -218,7 +227,8 @@ def test_climate_stacked_steps_equal_step_by_step_reads(rotation_globe):
     _, ds = rotation_globe
     stacked, per_step = ClimateVelocity(ds), ClimateVelocity(ds, stack_mb=0)
     rng = np.random.default_rng(3)
-    p = np.array([stacked.point(lo, la, h) for lo, la, h in zip(rng.uniform(-180, 180, 200), rng.uniform(-89, 89, 200), rng.uniform(0, 9000, 200))])
+    p = np.array([stacked.point(lo, la, h) for lo, la, h in zip(rng.uniform(-180, 180, 200), rng.uniform(-89, 89, 200),
+                                                                rng.uniform(0, 9000, 200))])
     t = rng.uniform(0, 24, 200)
     t[:10] = np.round(t[:10])  # exactly on a step
     a, b = stacked(p, t), per_step(p, t)

@@ -11,6 +11,7 @@ so flow_volume's bounded rule applies).
 
 import numpy as np
 import pytest
+from projections import lcc_inverse
 
 from nephele.core.climate.columns import ColumnLocator
 from nephele.core.climate.dataset import ArrayDataset, hourly
@@ -19,7 +20,6 @@ from nephele.core.errors import DataError
 from nephele.core.flow.flows import rotate
 from nephele.core.flowvol import ClimateVelocity, flow_volume
 from nephele.core.flowvol.tets import face_use_counts, signed_volumes
-from projections import lcc_inverse
 
 R = 6_371_000.0
 AXIS = lonlat_to_xyz(-100.0, 20.0)  # 25 degrees south of the grid's centre
@@ -52,7 +52,8 @@ def test_velocity_matches_the_rotation_inside_and_is_nan_outside(rotation_lcc):
     cols = lonlat_to_xyz(g.lon2d, g.lat2d)
     j, i = rng.integers(0, g.shape[1] - 1, 500), rng.integers(0, g.shape[2] - 1, 500)
     a, b = rng.uniform(0.0, 1.0, (2, 500, 1))  # blends of each cell's four columns: inside the cell
-    q = (1 - a) * (1 - b) * cols[j, i] + a * (1 - b) * cols[j, i + 1] + (1 - a) * b * cols[j + 1, i] + a * b * cols[j + 1, i + 1]
+    q = ((1 - a) * (1 - b) * cols[j, i] + a * (1 - b) * cols[j, i + 1]
+         + (1 - a) * b * cols[j + 1, i] + a * b * cols[j + 1, i + 1])
     q /= np.linalg.norm(q, axis=1)[:, None]
     assert np.all(ColumnLocator(g.lon2d, g.lat2d)(q)[0] >= 0)
     pts = q * vel.point(0.0, 0.0, 5000.0)[0]
@@ -65,7 +66,8 @@ def test_velocity_matches_the_rotation_inside_and_is_nan_outside(rotation_lcc):
     assert np.all(np.isnan(vel(far, np.zeros(3))))
     stacked, per_step = ClimateVelocity(rotation_lcc), ClimateVelocity(rotation_lcc, stack_mb=0)
     both = np.concatenate([pts[:20], far])
-    np.testing.assert_allclose(stacked(both, np.full(len(both), 3.5)), per_step(both, np.full(len(both), 3.5)), rtol=1e-6, atol=1e-12)
+    np.testing.assert_allclose(stacked(both, np.full(len(both), 3.5)), per_step(both, np.full(len(both), 3.5)),
+                               rtol=1e-6, atol=1e-12)
 
 
 def test_flow_volume_inside_the_region_matches_rotation_and_pappus(rotation_lcc):

@@ -5,11 +5,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from mesh_checks import check_mesh
 from scipy.integrate import solve_ivp
 
 from nephele.core.flowvol import flow_volume
 from nephele.core.flowvol.front import Streams, advance
-from mesh_checks import check_mesh
 from nephele.core.flowvol.unstructured import UnstructuredVelocity
 
 FIRE = Path(__file__).resolve().parents[2] / "data" / "flow" / "fire_ug.vtu"
@@ -17,20 +17,23 @@ FIRE = Path(__file__).resolve().parents[2] / "data" / "flow" / "fire_ug.vtu"
 
 def abc(p, t, A=np.sqrt(3), B=np.sqrt(2), C=1.0):
     x, y, z = p.T
-    return np.stack([A * np.sin(z) + C * np.cos(y), B * np.sin(x) + A * np.cos(z), C * np.sin(y) + B * np.cos(x)], axis=1)
+    return np.stack([A * np.sin(z) + C * np.cos(y), B * np.sin(x) + A * np.cos(z), C * np.sin(y) + B * np.cos(x)],
+                    axis=1)
 
 
 def dop853(v, points, ages):
     """Positions of ``points`` after each of ``ages`` by DOP853 (rtol = atol = 1e-11): (n, len(ages), 3)."""
     out = np.empty((len(points), len(ages), 3))
     for i, p in enumerate(points):
-        sol = solve_ivp(lambda t, y: v(y[None], t)[0], (0, ages.max()), p, method="DOP853", rtol=1e-11, atol=1e-11, dense_output=True)
+        sol = solve_ivp(lambda t, y: v(y[None], t)[0], (0, ages.max()), p, method="DOP853", rtol=1e-11, atol=1e-11,
+                        dense_output=True)
         out[i] = sol.sol(ages).T
     return out
 
 
 def polygon_flux(fv, v, n=60):
-    """Flux of a steady ``v`` through the generator (rings=2: outer ring every other point): centroid rule on n^2 sub-triangles."""
+    """Flux of a steady ``v`` through the generator (rings=2: outer ring every other point): centroid rule on
+    n^2 sub-triangles."""
     c, outer = fv.generator[0], fv.generator[1:][1::2]
     i, j = np.meshgrid(np.arange(n), np.arange(n))
     up, down = i + j < n, i + j < n - 1
@@ -68,11 +71,13 @@ def test_every_layer_of_the_stream_tube_matches_dop853_on_abc():
 
 @pytest.mark.parametrize("steady", [False, True])
 def test_uniform_and_shear_flows_stay_exact(steady):
-    uniform = lambda p, t: np.tile([0.3, -0.2, 2.0], (len(p), 1))
+    def uniform(p, t):
+        return np.tile([0.3, -0.2, 2.0], (len(p), 1))
     fv = flow_volume(uniform, [1.0, 2.0, 3.0], 0.7, 2.5, sides=9, steady=steady)
     area = 0.5 * 9 * 0.7**2 * np.sin(2 * np.pi / 9)
     assert fv.volume == pytest.approx(area * np.linalg.norm([0.3, -0.2, 2.0]) * 2.5, rel=1e-12)
-    shear = lambda p, t: np.stack([0 * p[:, 0], 0 * p[:, 0], 1 + p[:, 0]], axis=1)
+    def shear(p, t):
+        return np.stack([0 * p[:, 0], 0 * p[:, 0], 1 + p[:, 0]], axis=1)
     fv = flow_volume(shear, [0, 0, 0], 0.5, 2.0, normal=[0, 0, 1], sides=7, rings=3, steady=steady)
     assert fv.volume == pytest.approx(0.5 * 7 * 0.25 * np.sin(2 * np.pi / 7) * 2.0, rel=1e-12)
     check_mesh(fv, positive=True)
@@ -80,7 +85,8 @@ def test_uniform_and_shear_flows_stay_exact(steady):
 
 def test_diverging_flow_points_come_from_the_generator():
     # v = (x, y, 1): exact flow map (x e^a, y e^a, z + a); inserted columns get their own streamlines.
-    div = lambda p, t: np.stack([p[:, 0], p[:, 1], np.ones(len(p))], axis=1)
+    def div(p, t):
+        return np.stack([p[:, 0], p[:, 1], np.ones(len(p))], axis=1)
     fv = flow_volume(div, [0, 0, 0], 0.2, 2.0, sides=8, tol=0.1, steps=64, steady=True)
     assert len(fv.generator) > 1 + 2 * 8
     a = fv.age

@@ -30,7 +30,8 @@ def test_cube_gives_closed_form_on_every_ray():
     assert ray_lengths(v, t, [[2.0, 2.0, -1.0]], [[0, 0, 1.0]])[0] == 0
     assert ray_lengths(v, t, [[0.5, 0.3, 0.25]], [[0, 0, 1.0]])[0] == pytest.approx(0.75, rel=1e-12)
     # Rays lying exactly in the inner diagonal face x = y count once, not twice.
-    assert ray_lengths(v, t, [[0.5, 0.5, -1.0], [0.25, 0.25, -1.0]], [[0, 0, 1.0]] * 2) == pytest.approx([1.0, 1.0], rel=1e-12)
+    assert ray_lengths(v, t, [[0.5, 0.5, -1.0], [0.25, 0.25, -1.0]],
+                       [[0, 0, 1.0]] * 2) == pytest.approx([1.0, 1.0], rel=1e-12)
 
 
 def test_shuffled_order_gives_the_same_image():

@@ -1,14 +1,15 @@
-"""The fire-in-a-room unstructured grid: our reader and trilinear cells against VTK, a linear field, a flow volume above the fire."""
+"""The fire-in-a-room unstructured grid: our reader and trilinear cells against VTK, a linear field, a flow
+volume above the fire."""
 
 from pathlib import Path
 
 import numpy as np
 import pytest
+from mesh_checks import check_mesh
 
 from nephele.core.errors import DataError
 from nephele.core.flowvol import flow_volume
 from nephele.core.flowvol.tets import face_use_counts, signed_volumes
-from mesh_checks import check_mesh
 from nephele.core.flowvol.unstructured import UnstructuredVelocity, read_vtu
 
 FIRE = Path(__file__).resolve().parents[2] / "data" / "flow" / "fire_ug.vtu"
@@ -102,7 +103,8 @@ def test_cell_interpolation_is_exact_for_a_linear_field(fire):
 
 
 def test_flow_volume_above_the_fire(fire):
-    up = (fire.points[:, 2] < 1.2) & (fire.points[:, 0] > 0.3) & (fire.points[:, 0] < 5.7) & (fire.points[:, 1] > 0.3) & (fire.points[:, 1] < 2.2)
+    up = ((fire.points[:, 2] < 1.2) & (fire.points[:, 0] > 0.3) & (fire.points[:, 0] < 5.7)
+          & (fire.points[:, 1] > 0.3) & (fire.points[:, 1] < 2.2))
     i = np.argmax(np.where(up, fire.vectors[:, 2], -np.inf))
     assert np.allclose(fire.updraft(0.1), fire.points[i] + [0, 0, 0.1])
     fv = flow_volume(str(FIRE), fire.updraft(0.1), 0.1, 1.0, sides=16, rings=1, steps=8, tol=0.05)
@@ -137,7 +139,8 @@ def test_smoke_in_a_bounded_uniform_flow_stops_at_the_wall(steady):
 
     box.bounded = True
     tol = 0.05
-    fv = flow_volume(box, [0.2, 0.5, 0.5], 0.1, 2.0, normal=[1, 0, 0], sides=8, rings=1, steps=4, tol=tol, steady=steady)
+    fv = flow_volume(box, [0.2, 0.5, 0.5], 0.1, 2.0, normal=[1, 0, 0], sides=8, rings=1, steps=4, tol=tol,
+                     steady=steady)
     assert fv.complete and fv.exited.any() and not fv.exited.all()
     assert np.allclose(fv.vertices[fv.exited, 0], 1.0, atol=1e-5)  # each rests at its exit point on the wall
     assert np.all(fv.vertices[fv.exited, 0] <= 1.0)

@@ -22,8 +22,8 @@ def test_hg_normalised_and_mean_cosine():
     from scipy.integrate import quad
 
     for g in (-0.95, -0.3, 0.0, 0.5, 0.8, 0.99):
-        integ = quad(lambda m: 2 * np.pi * phase.hg(m, g), -1, 1, points=[1 - 1e-3], limit=200)[0]
-        mean = quad(lambda m: 2 * np.pi * m * phase.hg(m, g), -1, 1, points=[1 - 1e-3], limit=200)[0]
+        integ = quad(lambda m, g=g: 2 * np.pi * phase.hg(m, g), -1, 1, points=[1 - 1e-3], limit=200)[0]
+        mean = quad(lambda m, g=g: 2 * np.pi * m * phase.hg(m, g), -1, 1, points=[1 - 1e-3], limit=200)[0]
         assert integ == pytest.approx(1.0, rel=1e-8)
         assert mean == pytest.approx(g, abs=1e-8)
     with pytest.raises(ValueError):

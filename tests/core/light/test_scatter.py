@@ -2,10 +2,10 @@
 
 import numpy as np
 import pytest
-
 from kernel_paths import BOTH, EVERY
-from nephele.core.light import scatter, scatter_task
+
 from nephele.core.errors import DataError
+from nephele.core.light import scatter, scatter_task
 
 # Homogeneous slab, normal incidence, no refractive boundary: total R and T
 # (T includes the unscattered exp(-tau)) from adding-doubling (facts.md;
@@ -153,7 +153,7 @@ def test_render_homogeneous_emission_box():
     # trilinear fields fall to zero over half a voxel beyond the box on each side
     img = scatter.render(sig, src, (1, 1, 1), cam, step=0.05)
     h = 1.0 / n
-    s = np.linspace(-h / 2, h / 2, 20001)[1:-1]  # ramp: value * (0.5 - s/h) ... integrate exactly
+    # ramp: value * (0.5 - s/h) for s in (-h/2, h/2), integrated exactly
     ramp_tau = 3.0 * h / 2  # optical depth of each half-voxel ramp
     chord_tau = 3.0 * (1.0 - h)
     tau_total = chord_tau + 2 * ramp_tau
@@ -175,8 +175,8 @@ def test_save_load_roundtrip(tmp_path):
 
 
 def test_scatter_task_matches_solve_and_is_planned(tmp_path):
-    from nephele.core.volume import cloud_density as cd
     from nephele.core.pipeline import tasks
+    from nephele.core.volume import cloud_density as cd
 
     cloud = cd.CloudParams(shape=(6, 8, 8), size=(1.0, 1.0, 0.75), seed=3)
     params = scatter_task.task_params(cloud, 30.0, albedo=0.9, g=0.8, sun_dir=[0.3, 0.1, 1.0], tol=1e-2)

@@ -5,13 +5,12 @@ import json
 
 import numpy as np
 import pytest
+from radiative_truth import adding_doubling
 
 from nephele.core.errors import DataError
 from nephele.core.light import phase, scatter, scatter_task, sky
 from nephele.core.pipeline.cache import cache_key
 from nephele.core.volume import cloud_density as cd
-
-from radiative_truth import adding_doubling
 
 SIZE = (1.0, 1.0, 0.75)
 SUN = (0.6, -0.35, 0.55)

@@ -3,11 +3,13 @@ term) and the closed forms the sweeps use for them, against numerical integratio
 
 import numpy as np
 import pytest
-
-from nephele.core.light import _escape as escape, _passes as passes, _sweep as sweeps
 from kernel_paths import BOTH, EVERY
-from nephele.core.light import scatter
 from radiative_truth import adding_doubling
+
+from nephele.core.light import _escape as escape
+from nephele.core.light import _passes as passes
+from nephele.core.light import _sweep as sweeps
+from nephele.core.light import scatter
 
 # Gauss-Legendre nodes (weights W) on panels refined geometrically toward both ends, where
 # the steep exponentials here live: integrals of them exact to ~1e-14

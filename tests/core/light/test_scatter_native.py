@@ -97,7 +97,7 @@ def test_sweep_shifts_over_a_cell_and_periodic_sides(monkeypatch):
     bs = np.flatnonzero(cen[:, 2] < -0.3)
     emis = rng.uniform(0, 1, (len(bs),) + shape).astype(np.float32)
     for periodic in ((True, True, False), (False, False, False), (True, False, False)):
-        def run():
+        def run(periodic=periodic):
             r, tot, ex = sweeps._sweep(sigma, h, dirs[bs], w[bs] / w[bs].sum(1, keepdims=True), emis,
                                        rng.uniform(0, 1, (len(bs), 4)) * 0 + 0.3, periodic, 0)
             return r.copy(), tot.copy(), ex.copy()

@@ -5,13 +5,12 @@ import json
 
 import numpy as np
 import pytest
+from radiative_truth import adding_doubling, gauss01
 
 from nephele.core.errors import DataError
 from nephele.core.light import phase, scatter, scatter_task, sky
 from nephele.core.pipeline.cache import cache_key
 from nephele.core.volume import cloud_density as cd
-
-from radiative_truth import adding_doubling, gauss01
 
 CEN, OMEGA = phase.bins(1)[0], phase.bins(1)[1]
 UP = CEN[:, 2] > 0

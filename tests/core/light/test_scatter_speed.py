@@ -7,10 +7,13 @@ the whole grid, one beam block, the fine-step ray march) and against closed form
 
 import numpy as np
 import pytest
-
-from nephele.core.light import _escape as escape, _passes as passes, _sweep as sweeps, _views as views
-from nephele.core.light import phase, scatter
 from radiative_truth import single_scattering_r
+
+from nephele.core.light import _escape as escape
+from nephele.core.light import _passes as passes
+from nephele.core.light import _sweep as sweeps
+from nephele.core.light import _views as views
+from nephele.core.light import phase, scatter
 
 
 def test_exp_only_helpers_match_expm1_and_tanh_forms():

@@ -9,10 +9,10 @@ from overhead down to 15 degrees.
 
 import numpy as np
 import pytest
-
 from kernel_paths import BOTH
-from nephele.core.light import scatter
 from radiative_truth import adding_doubling, gauss01, h_function, single_scattering_r
+
+from nephele.core.light import scatter
 
 
 def slab(tau, layers, omega, g, mu0, **kw):
@@ -171,11 +171,11 @@ def test_forward_peaked_slab_against_adding_doubling(tau, omega, vtau, mu0, rel,
 # layer's beams move far sideways) in thin layers, oblique sun.  Measured (2026-11-28):
 # g = 0 within 0.31 %, g = 0.8 within 0.83 % (one layer of tau 1, sun 15 deg up: R -0.83 %, and
 # -0.82 % at mu0 0.5; -0.80 % and -0.66 % before the sun's first flight took the sub-squares'
-# mean directions, see test_forward_peaked_slab_against_adding_doubling; 0.98 % before the second moments, the slab profile groups, four peaked orders and 8x8
-# sub-directions for a low sun; 1.6 % before one voxel profile per sweep group and
-# the diffusion-matched bin matrix); before the moments were kept along the sweep axis only,
-# g = 0.8 was R -15 % / T +3.8 % (one layer of tau 1, sun at 60 degrees) and
-# R -22 % / T +23 % (tau 2, sun at 15 degrees).
+# mean directions, see test_forward_peaked_slab_against_adding_doubling; 0.98 % before the second moments,
+# the slab profile groups, four peaked orders and 8x8 sub-directions for a low sun; 1.6 % before one voxel
+# profile per sweep group and the diffusion-matched bin matrix); before the moments were kept along the
+# sweep axis only, g = 0.8 was R -15 % / T +3.8 % (one layer of tau 1, sun at 60 degrees) and R -22 % / T
+# +23 % (tau 2, sun at 15 degrees).
 @pytest.mark.parametrize("g,rel", [(0.0, 0.0045), (0.8, 0.009)])
 @pytest.mark.parametrize("mu0", [1.0, 0.5, MU15])
 @pytest.mark.parametrize("tau,layers", [(1.0, 1), (2.0, 1), (2.0, 2), (4.0, 2)])

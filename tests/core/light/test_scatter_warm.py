@@ -5,8 +5,8 @@ import dataclasses
 
 import numpy as np
 import pytest
-
 from kernel_paths import EVERY
+
 from nephele.core.errors import DataError
 from nephele.core.light import evolving, scatter
 from nephele.core.volume import cloud_density as cd

@@ -64,7 +64,8 @@ SCENES = scenes()
 
 # "300 periodic" (15 CPU s: both meshers on 300 blobs and their images) is the full tier's; its two
 # halves, "300" and "periodic", stay in the quick one.
-@pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.slow) if n == "300 periodic" else n for n in SCENES])
+@pytest.mark.parametrize("name",
+                         [pytest.param(n, marks=pytest.mark.slow) if n == "300 periodic" else n for n in SCENES])
 def test_against_the_numpy_projection_and_the_exact_field(name, monkeypatch):
     (c, r, s, w), level, h, box = SCENES[name]
     ours = blobby_surface(c, r, s, w, level, h, box=box)

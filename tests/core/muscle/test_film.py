@@ -3,10 +3,9 @@
 import numpy as np
 import pytest
 
-from nephele.core.pipeline import tasks
 from nephele.core.errors import DataError
-from nephele.core.muscle import brownian as br
 from nephele.core.muscle import film
+from nephele.core.pipeline import tasks
 
 
 @pytest.fixture(scope="module")

@@ -52,7 +52,8 @@ def test_box_copies_are_the_hexagonal_lattice(cell):
     tri = _hex_points(a, (0, 0), box[:2], offset=(a / 2, a / (2 * np.sqrt(3))))
     tri2 = _hex_points(a, (0, 0), box[:2], offset=(a, a / np.sqrt(3)))
     # Trigonal points from both sublattices, wrapped into the box.
-    both = np.concatenate([tri, tri2, _wrap2(_hex_points(a, (-a, -a), box[:2] + a, offset=(a / 2, a / (2 * np.sqrt(3)))), box),
+    both = np.concatenate([tri, tri2,
+                           _wrap2(_hex_points(a, (-a, -a), box[:2] + a, offset=(a / 2, a / (2 * np.sqrt(3)))), box),
                            _wrap2(_hex_points(a, (-a, -a), box[:2] + a, offset=(a, a / np.sqrt(3))), box)])
     both = np.unique(np.round(both, 6), axis=0)
     assert len(both) == 12

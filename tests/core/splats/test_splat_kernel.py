@@ -5,11 +5,19 @@ import pytest
 from scipy import ndimage
 
 from nephele.core.climate.dataset import ArrayDataset, hourly
-from nephele.core.errors import DataError
 from nephele.core.climate.grid import GlobeGrid
-from nephele.core.splats import Splats, cell_jacobians, footprint_table, principal_axes, reconstruct, splat_kernel, splat_samples
-from nephele.core.splats.partition import shell_heights, shell_reach, stencil_weights, widening
 from nephele.core.climate.synthetic import demo_dataset
+from nephele.core.errors import DataError
+from nephele.core.splats import (
+    Splats,
+    cell_jacobians,
+    footprint_table,
+    principal_axes,
+    reconstruct,
+    splat_kernel,
+    splat_samples,
+)
+from nephele.core.splats.partition import shell_heights, shell_reach, stencil_weights, widening
 from nephele.core.volume.transfer import TransferFunction
 
 
@@ -70,7 +78,8 @@ def test_vtk_gaussian_splatter_ripples_more_than_ours():
     inner = vol[4 * sub : -4 * sub, 4 * sub : -4 * sub, 4 * sub : -4 * sub]
     vtk_dev = float(np.abs(inner / inner.mean() - 1).max())
     ours = worst_deviation(splat_kernel("gaussian"))
-    print(f"vtkGaussianSplatter (R 2.5 cells, exponent -5): worst deviation from its mean {vtk_dev:.2e}; ours {ours:.2e}")
+    print(f"vtkGaussianSplatter (R 2.5 cells, exponent -5): worst deviation from its mean {vtk_dev:.2e}; ours "
+          f"{ours:.2e}")
     assert vtk_dev > 5 * ours
 
 
@@ -88,12 +97,14 @@ def test_footprint_equals_a_numerical_line_integral(kind):
     k = splat_kernel(kind)
     rng = np.random.default_rng(3)
     p = np.vstack([[0.0, 0.0], [2.4, 0.3], rng.uniform(-2.0, 2.0, (12, 2))])
-    ref = np.array([integrate.quad(lambda z: k.weight([[x, y, z]])[0], -3, 3, points=[0], limit=200, epsabs=1e-13)[0] for x, y in p])
+    ref = np.array([integrate.quad(lambda z, x=x, y=y: k.weight([[x, y, z]])[0], -3, 3, points=[0], limit=200,
+                                   epsabs=1e-13)[0] for x, y in p])
     assert np.abs(k.footprint(p) - ref).max() < 1e-9 * k.peak
     # The renderer's ρ² table.
     assert np.abs(k.footprint_rho2(np.sum(p * p, axis=1)) - ref).max() < 1e-6 * k.peak
     # The footprint integrates to 1 over the view plane (the kernel's integral).
-    assert 2 * np.pi * integrate.quad(lambda r: r * k.footprint([[r, 0.0]])[0], 0, k.radius)[0] == pytest.approx(1.0, abs=1e-9)
+    assert 2 * np.pi * integrate.quad(lambda r: r * k.footprint([[r, 0.0]])[0], 0,
+                                      k.radius)[0] == pytest.approx(1.0, abs=1e-9)
 
 
 def test_footprint_table_matches_line_integrals_at_texel_centres():
@@ -103,7 +114,7 @@ def test_footprint_table_matches_line_integrals_at_texel_centres():
     assert t.shape == (32, 32) and t.dtype == np.float32
     c = -k.radius + (np.arange(32) + 0.5) * (2 * k.radius / 32)
     for j, i in [(0, 0), (15, 16), (16, 16), (3, 20), (31, 9)]:
-        ref = integrate.quad(lambda z: k.weight([[c[i], c[j], z]])[0], -3, 3, limit=200)[0]
+        ref = integrate.quad(lambda z, i=i, j=j: k.weight([[c[i], c[j], z]])[0], -3, 3, limit=200)[0]
         assert abs(t[j, i] - ref) < 1e-3 * k.peak
     assert t.max() <= k.peak
     assert footprint_table(k, 33, normalized=True).max() == pytest.approx(1.0, abs=1e-6)  # odd size samples the centre
@@ -235,7 +246,8 @@ def drawn_sum(sp, layout, kernel, f, reach, exaggeration=30.0):
     row, kk, jj, ii, w = stencil_weights(p, to_cell, f, kernel, reach)
     total = np.bincount(row, w * fac[kk, jj, ii], minlength=len(f))
     size = tuple(2 * r + 2 for r in reach)  # the stencil: offsets -r .. r + 1 from the cell's corner
-    full = ndimage.minimum_filter(present.astype(np.uint8), size=size, origin=(-1, -1, -1), mode=("nearest", "nearest", "wrap"))
+    full = ndimage.minimum_filter(present.astype(np.uint8), size=size, origin=(-1, -1, -1),
+                                  mode=("nearest", "nearest", "wrap"))
     b = np.floor(f).astype(int)
     return total, full[b[:, 0], b[:, 1], b[:, 2] % shape[2]].astype(bool)
 
@@ -299,12 +311,15 @@ def test_demo_grid_interior_sweep_measured():
     f, e = interior_sweep(full, k)
     low, high = f[:, 0] < 6, f[:, 0] >= 10
     print(f"demo grid interior, {e.size} points: worst |sum - 1| = {e.max():.2e}, median {np.median(e):.2e}, "
-          f"90th percentile {np.percentile(e, 90):.2e}; levels 3-6 worst {e[low].max():.2e}, levels 10-15 worst {e[high].max():.2e}")
+          f"90th percentile {np.percentile(e, 90):.2e}; levels 3-6 worst {e[low].max():.2e}, levels 10-15 worst "
+          f"{e[high].max():.2e}")
     assert e.max() < 0.15 and np.median(e) < 5e-3
     assert e[high].max() < e[low].max()  # the error follows the stretching and the terrain, both largest low down
-    even = GlobeGrid(full.lon, full.lat, np.broadcast_to(np.linspace(0.0, 20000.0, full.shape[0])[:, None, None], full.shape).copy())
+    even = GlobeGrid(full.lon, full.lat,
+                     np.broadcast_to(np.linspace(0.0, 20000.0, full.shape[0])[:, None, None], full.shape).copy())
     f, e = interior_sweep(even, k)
     lat = np.interp(f[:, 1], np.arange(full.shape[1]), full.lat)
     mid = np.abs(lat) < 75
-    print(f"same grid, levels at fixed heights: worst |sum - 1| = {e[mid].max():.2e} at |lat| < 75°, {e.max():.2e} overall")
+    print(f"same grid, levels at fixed heights: worst |sum - 1| = {e[mid].max():.2e} at |lat| < 75°, {e.max():.2e} "
+          "overall")
     assert e[mid].max() < 1e-3

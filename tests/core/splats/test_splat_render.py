@@ -4,7 +4,15 @@ import numpy as np
 import pytest
 
 from nephele.core.errors import DataError
-from nephele.core.splats import Camera, Splats, principal_axes, project_splats, ray_integral, render_splats, splat_kernel
+from nephele.core.splats import (
+    Camera,
+    Splats,
+    principal_axes,
+    project_splats,
+    ray_integral,
+    render_splats,
+    splat_kernel,
+)
 
 K = splat_kernel()
 
@@ -98,7 +106,8 @@ def test_compositing_order_front_splat_wins():
     centre = images[0][8, 8]
     assert centre[0] > 0.99 and centre[2] < 0.01
     # Transmission is order-free: alpha = 1 - exp(-(tau1 + tau2)).
-    single = render_splats(Splats(c[:1], axes[:1], np.ones((1, 3)), np.ones(1), np.zeros((1, 3)), K.radius), K, cam, 16, 16, extinction=200.0)
+    single = render_splats(Splats(c[:1], axes[:1], np.ones((1, 3)), np.ones(1), np.zeros((1, 3)), K.radius), K, cam, 16,
+                           16, extinction=200.0)
     t1 = 1 - single[..., 3].astype(np.float64)
     assert np.allclose(1 - images[0][..., 3], t1 * t1, atol=1e-6)
 
@@ -154,7 +163,8 @@ def test_bad_input_raises_data_error():
         lambda: Camera.look_at((0, 0, 5), (0, 0, 0), up=(0, 0, 1)),
         lambda: Camera(np.diag([2.0, 1, 1, 1])),
         lambda: Camera(np.eye(4), fov=180),
-        lambda: Splats(np.zeros((1, 3)), np.zeros((1, 3, 3)), np.zeros((1, 3)), np.array([np.nan]), np.zeros((1, 3)), 2.5),
+        lambda: Splats(np.zeros((1, 3)), np.zeros((1, 3, 3)), np.zeros((1, 3)), np.array([np.nan]), np.zeros((1, 3)),
+                       2.5),
         lambda: Splats(np.zeros((2, 3)), np.zeros((1, 3, 3)), np.zeros((2, 3)), np.zeros(2), np.zeros((2, 3)), 2.5),
     ]
     for call in calls:
@@ -192,7 +202,8 @@ def test_anisotropic_splat_matches_line_integrals_of_the_ellipsoidal_kernel():
     ortho = Camera.look_at((3.0, 1.5, 2.0), (0, 0, 0), up=(0, 0, 1), orthographic=True, ortho_scale=1.6)
     persp = Camera.look_at((3.0, 1.5, 2.0), (0, 0, 0), up=(0, 0, 1), fov=20)
     errors = {}
-    for name, cam, scale, tol in (("orthographic", ortho, 1.0, 1e-5), ("perspective", persp, 1.0, 0.05), ("perspective, 1/4 size", persp, 0.25, 0.01)):
+    for name, cam, scale, tol in (("orthographic", ortho, 1.0, 1e-5), ("perspective", persp, 1.0, 0.05),
+                                  ("perspective, 1/4 size", persp, 0.25, 0.01)):
         axes = principal_axes((q @ np.diag([0.05, 0.12, 0.3]) * scale)[None], K.radius)
         sp = Splats(centre[None], axes, np.ones((1, 3)), np.ones(1), np.zeros((1, 3)), K.radius)
         inv = K.radius * np.linalg.inv(axes[0])
@@ -210,7 +221,8 @@ def test_anisotropic_splat_matches_line_integrals_of_the_ellipsoidal_kernel():
                 o, d = cam.position, rot.T @ (np.array([x, y, -1.0]) / np.linalg.norm([x, y, -1.0]))
             t0 = float((centre - o) @ d)
             t = np.linspace(t0 - reach, t0 + reach, 20001)
-            ref = np.trapezoid(K.weight((o + t[:, None] * d - centre) @ inv.T), t) if hasattr(np, "trapezoid") else np.trapz(K.weight((o + t[:, None] * d - centre) @ inv.T), t)
+            ref = (np.trapezoid(K.weight((o + t[:, None] * d - centre) @ inv.T), t) if hasattr(np, "trapezoid")
+                   else np.trapz(K.weight((o + t[:, None] * d - centre) @ inv.T), t))
             worst = max(worst, abs(tau[r, c] - ref) / ref)
         print(f"anisotropic splat, {name}: worst relative optical-depth error {worst:.1e}")
         errors[name] = worst

@@ -4,10 +4,10 @@ import numpy as np
 import pytest
 
 from nephele.core.climate.dataset import ArrayDataset, hourly
-from nephele.core.errors import DataError
 from nephele.core.climate.grid import EARTH_RADIUS, GlobeGrid
-from nephele.core.splats import splat_kernel, splat_samples
 from nephele.core.climate.synthetic import demo_dataset
+from nephele.core.errors import DataError
+from nephele.core.splats import splat_kernel, splat_samples
 from nephele.core.volume.transfer import ALTITUDE_COLORS, TransferFunction
 
 TF = TransferFunction.ramp(0.15, 0.6)
@@ -27,7 +27,8 @@ def test_one_splat_per_sample_above_the_threshold(small):
     assert np.allclose(sp.opacity, TF(cloud[k, j, i]), atol=1e-6)
     assert np.allclose(sp.centers, small.grid.points(1.0, 30.0, dtype=np.float64)[k, j, i], atol=1e-12)
     assert np.allclose(sp.color, ALTITUDE_COLORS(small.grid.height[k, j, i]), atol=1e-6)
-    assert len(splat_samples(small, "cloud", 5.0, TF, threshold=0.5, vertical="native")) == np.count_nonzero(TF(cloud) > 0.5)
+    assert len(splat_samples(small, "cloud", 5.0, TF, threshold=0.5,
+                             vertical="native")) == np.count_nonzero(TF(cloud) > 0.5)
 
 
 def test_axes_are_the_cells_principal_axes(small):
@@ -53,7 +54,8 @@ def test_stride_grows_the_kernels(small):
     assert len(one) == 8 * 32 * 64 and len(two) == 4 * 16 * 32
     # Same sample (0, 10, 20): the Jacobian's columns are differences over two grid steps.
     p = small.grid.points(1.0, 30.0, dtype=np.float64)
-    jac = np.column_stack([(p[0, 10, 22] - p[0, 10, 18]) / 2, (p[0, 12, 20] - p[0, 8, 20]) / 2, p[2, 10, 20] - p[0, 10, 20]])
+    jac = np.column_stack([(p[0, 10, 22] - p[0, 10, 18]) / 2, (p[0, 12, 20] - p[0, 8, 20]) / 2,
+                           p[2, 10, 20] - p[0, 10, 20]])
     a2 = two.axes[np.flatnonzero((two.index == [0, 10, 20]).all(1))[0]]
     assert np.linalg.det(a2) == pytest.approx(2.5**3 * abs(np.linalg.det(jac)), rel=1e-9)
 
@@ -180,7 +182,8 @@ def test_shells_sample_each_column_linearly_in_height():
     assert np.allclose(shells, np.linspace(0.0, 10000.0, 6))  # the levels over flat ground
     vals = ShellSampler(g, shells)(ds.read_at("cloud", 0.0))
     below = shells[:, None, None] < g.terrain[None]
-    assert np.all(np.isnan(vals[below])) and np.allclose(vals[~below], np.broadcast_to(shells[:, None, None] / 1e4, vals.shape)[~below], atol=1e-12)
+    assert np.all(np.isnan(vals[below]))
+    assert np.allclose(vals[~below], np.broadcast_to(shells[:, None, None] / 1e4, vals.shape)[~below], atol=1e-12)
     ident = TransferFunction(points=((0.0, 0.0), (1.0, 1.0)))
     sp = splat_samples(ds, "cloud", 0.0, ident, color_var="altitude")
     k, j, i = sp.index.T
@@ -213,7 +216,8 @@ def test_shell_kernels_widen_towards_the_poles_and_with_stretched_levels():
 def test_shells_bad_input_raises_one_line_data_error(small):
     ds = terrain_dataset()
     uneven = ArrayDataset(
-        GlobeGrid(np.r_[0.0, 5.0, np.arange(20, 360, 10.0)], ds.grid.lat, np.broadcast_to(ds.grid.height[:, :, :1], (6, 13, 36)).copy()),
+        GlobeGrid(np.r_[0.0, 5.0, np.arange(20, 360, 10.0)], ds.grid.lat,
+                  np.broadcast_to(ds.grid.height[:, :, :1], (6, 13, 36)).copy()),
         ds.times, {"cloud": np.ones((1, 6, 13, 36))},
     )
     for call in (

@@ -54,7 +54,8 @@ def slab(wind, h=0.1):
     c = np.stack(np.meshgrid(g, g, gz, indexing="ij"), -1).reshape(-1, 3)
     m = len(c)
     w = np.asarray(wind(c), dtype=np.float64)
-    return Splats(c, principal_axes(np.broadcast_to(np.eye(3) * h, (m, 3, 3)), K.radius), np.ones((m, 3)), np.ones(m), np.broadcast_to(w, (m, 3)).copy(), K.radius)
+    return Splats(c, principal_axes(np.broadcast_to(np.eye(3) * h, (m, 3, 3)), K.radius), np.ones((m, 3)), np.ones(m),
+                  np.broadcast_to(w, (m, 3)).copy(), K.radius)
 
 
 TOP = Camera.look_at((0, 0, 5), (0, 0, 0), up=(0, 1, 0), orthographic=True, ortho_scale=2.0)
@@ -68,7 +69,7 @@ def test_rendered_streaks_follow_a_uniform_wind_within_5_degrees():
     maps = streak_maps()
     errors = []
     for theta in np.deg2rad([0, 30, 75, 120, 160]):
-        sp = slab(lambda c: 0.2 * np.array([np.cos(theta), np.sin(theta), 0.0]))
+        sp = slab(lambda c, theta=theta: 0.2 * np.array([np.cos(theta), np.sin(theta), 0.0]))
         img = render_splats(sp, K, TOP, 128, 128, streaks=maps, streak_contrast=1.0, extinction=10.0)
         angle, _ = streak_orientation(img[..., 3], sigma=3)
         expected = np.arctan2(-np.sin(theta), np.cos(theta)) % np.pi  # image y points down
@@ -83,7 +84,8 @@ def test_rendered_streaks_follow_a_rotating_wind_locally_within_5_degrees():
     # turn with it; measured in 24x24-pixel windows against the wind at each window's centre.
     def wind(c):
         r = np.maximum(np.hypot(c[:, 0], c[:, 1]), 0.6)
-        return np.column_stack([-c[:, 1], c[:, 0], np.zeros(len(c))]) * (0.25 * r / np.hypot(c[:, 0], c[:, 1]).clip(1e-9))[:, None]
+        return np.column_stack([-c[:, 1], c[:, 0],
+                                np.zeros(len(c))]) * (0.25 * r / np.hypot(c[:, 0], c[:, 1]).clip(1e-9))[:, None]
 
     sp = slab(wind, h=0.07)
     n = 192
@@ -113,10 +115,12 @@ def test_streaks_move_downwind_at_the_projected_wind_speed():
     maps = streak_maps()
     speed, theta, tile = 0.3, np.deg2rad(-30), 2.0  # scene units per hour; tile in scene units (107 px)
     wind = speed * np.array([np.cos(theta), np.sin(theta), 0.0])
-    sp = Splats(np.zeros((1, 3)), principal_axes(np.eye(3)[None], K.radius), np.ones((1, 3)), np.ones(1), wind[None], K.radius)
+    sp = Splats(np.zeros((1, 3)), principal_axes(np.eye(3)[None], K.radius), np.ones((1, 3)), np.ones(1), wind[None],
+                K.radius)
 
     def optical_depth(**kw):
-        img = render_splats(sp, K, TOP, 128, 128, extinction=0.5, streak_tile=tile, streak_contrast=1.0, prefilter=0.0, **kw)
+        img = render_splats(sp, K, TOP, 128, 128, extinction=0.5, streak_tile=tile, streak_contrast=1.0, prefilter=0.0,
+                            **kw)
         return -np.log1p(-img[..., 3].astype(np.float64))
 
     plain = optical_depth()
@@ -128,10 +132,12 @@ def test_streaks_move_downwind_at_the_projected_wind_speed():
     ref = streak_factor(sp, np.zeros(len(xyz), int), xyz, TOP, 0.1 * step, maps, tile, 1.0).reshape(128, 128)
     inner = (slice(24, 104), slice(24, 104))
     assert np.abs(a[inner] - ref[inner]).max() < 2e-3  # float32 alpha limits the ratio
-    err = {(dx, dy): np.mean((a[24:104, 24:104] - b[24 + dy : 104 + dy, 24 + dx : 104 + dx]) ** 2) for dx in range(-20, 21) for dy in range(-20, 21)}
+    err = {(dx, dy): np.mean((a[24:104, 24:104] - b[24 + dy : 104 + dy, 24 + dx : 104 + dx]) ** 2)
+           for dx in range(-20, 21) for dy in range(-20, 21)}
     dx, dy = min(err, key=err.get)
     expected = tile / 8 * f * np.array([np.cos(theta), -np.sin(theta)])  # image y down
-    print(f"streak shift per map: ({dx}, {dy}) px; the wind moves ({expected[0]:.2f}, {expected[1]:.2f}) px in {step:.3f} h")
+    print(f"streak shift per map: ({dx}, {dy}) px; the wind moves ({expected[0]:.2f}, {expected[1]:.2f}) px in "
+          f"{step:.3f} h")
     assert np.hypot(dx - expected[0], dy - expected[1]) <= 1.0
     scr = project_splats(sp, K, TOP, 128, 128, streak_tile=tile)
     assert scr.wind_speed[0] == pytest.approx(speed * f) and scr.rate[0] == pytest.approx(speed / tile)
@@ -139,11 +145,13 @@ def test_streaks_move_downwind_at_the_projected_wind_speed():
 
 def test_calm_wind_and_bad_streak_input():
     maps = streak_maps(4, 32)
-    sp = Splats(np.zeros((1, 3)), principal_axes(np.eye(3)[None] * 0.3, K.radius), np.ones((1, 3)), np.ones(1), np.zeros((1, 3)), K.radius)
+    sp = Splats(np.zeros((1, 3)), principal_axes(np.eye(3)[None] * 0.3, K.radius), np.ones((1, 3)), np.ones(1),
+                np.zeros((1, 3)), K.radius)
     # Calm: streaks lie along the camera's x axis and do not move with time.
     f0 = streak_factor(sp, [0, 0], [[0.1, 0.05, 0], [0.2, -0.1, 0]], TOP, 0.0, maps, 0.5)
     f1 = streak_factor(sp, [0, 0], [[0.1, 0.05, 0], [0.2, -0.1, 0]], TOP, 7.3, maps, 0.5)
     assert np.array_equal(f0, f1)
-    for kw in (dict(streaks=np.zeros((2, 2))), dict(streaks=maps, hours=np.nan), dict(streaks=maps, streak_contrast=2.0), dict(streaks=maps, streak_tile=-1.0)):
+    for kw in (dict(streaks=np.zeros((2, 2))), dict(streaks=maps, hours=np.nan),
+               dict(streaks=maps, streak_contrast=2.0), dict(streaks=maps, streak_tile=-1.0)):
         with pytest.raises(DataError):
             render_splats(sp, K, TOP, 16, 16, **kw)

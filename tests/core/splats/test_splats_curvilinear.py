@@ -12,6 +12,7 @@ rotation about any axis are ``ω × x`` (closed form).
 
 import numpy as np
 import pytest
+from projections import lcc_inverse, polar_inverse
 from scipy.spatial import cKDTree
 
 from nephele.core.climate.dataset import ArrayDataset, hourly
@@ -19,7 +20,6 @@ from nephele.core.climate.grid import EARTH_RADIUS, GlobeGrid, lonlat_to_xyz
 from nephele.core.splats import Camera, project_splats, splat_kernel, splat_samples
 from nephele.core.splats.partition import shell_heights
 from nephele.core.volume.transfer import TransferFunction
-from projections import lcc_inverse, polar_inverse
 
 R = EARTH_RADIUS
 EXAGGERATION = 30.0
@@ -91,11 +91,13 @@ def test_shells_on_regional_grids_are_a_partition_within_1e3(kind):
     rng = np.random.default_rng(0)
     f = np.column_stack([rng.uniform(3, n - 4, 3000) for n in (nk, nj, ni)])
     e = np.abs(brute_sum(sp, kernel, trilinear(layout, f)) - 1)
-    plain = splat_samples(dataset(g, cloud=1.0), "cloud", 0.0, ONE, kernel=kernel, exaggeration=EXAGGERATION, vertical="native")
+    plain = splat_samples(dataset(g, cloud=1.0), "cloud", 0.0, ONE, kernel=kernel, exaggeration=EXAGGERATION,
+                          vertical="native")
     e_native = np.abs(brute_sum(plain, kernel, trilinear(layout, f)) - 1)
     low = f[:, 0] < 6
-    print(f"{kind} on shells: worst |sum - 1| = {e.max():.2e}, median {np.median(e):.2e}, shells 3-6 worst {e[low].max():.2e}; "
-          f"native (no widening, no factors) worst {e_native.max():.2e}, median {np.median(e_native):.2e}")
+    print(f"{kind} on shells: worst |sum - 1| = {e.max():.2e}, median {np.median(e):.2e}, shells 3-6 worst "
+          f"{e[low].max():.2e}; native (no widening, no factors) worst {e_native.max():.2e}, median "
+          f"{np.median(e_native):.2e}")
     assert e.max() < 1e-3
     assert e_native.max() > 5e-3  # the factors are what makes it a partition
     if kind == "polar":  # the pole is a column, and inside the measured block

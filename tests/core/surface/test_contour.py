@@ -4,11 +4,11 @@ analytic surfaces, agreement with VTK and scikit-image."""
 import numpy as np
 import pytest
 
+from nephele.core.climate.grid import GlobeGrid, lonlat_to_xyz
+from nephele.core.errors import DataError
 from nephele.core.surface import _mc_tables as tables
 from nephele.core.surface import contour
 from nephele.core.surface.contour import EDGE_MARGIN, isosurface, regular_points
-from nephele.core.errors import DataError
-from nephele.core.climate.grid import GlobeGrid, lonlat_to_xyz
 from nephele.core.surface.mesh import triangle_areas
 
 METHODS = ["cubes", "tetra5"]
@@ -101,7 +101,8 @@ def test_cube_table_normals_point_toward_the_corners_below():
         above = [(config >> c) & 1 for c in range(8)]
         down = tables.CORNERS[[c for c in range(8) if not above[c]]].mean(axis=0)
         up = tables.CORNERS[[c for c in range(8) if above[c]]].mean(axis=0)
-        flux = sum(np.dot(np.cross(mid[b] - mid[a], mid[c] - mid[a]), down - up) for a, b, c in table[config, : ntri[config]])
+        flux = sum(np.dot(np.cross(mid[b] - mid[a], mid[c] - mid[a]), down - up)
+                   for a, b, c in table[config, : ntri[config]])
         assert flux >= 0  # zero only for the symmetric configurations
     assert ntri[0] == ntri[255] == 0
 

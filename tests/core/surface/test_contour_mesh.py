@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from nephele.core.surface.contour import isosurface, regular_points
 from nephele.core.errors import DataError
+from nephele.core.surface.contour import isosurface, regular_points
 from nephele.core.surface.mesh import Mesh, triangle_areas, vertex_normals
 
 

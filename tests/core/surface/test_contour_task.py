@@ -3,13 +3,12 @@
 import numpy as np
 import pytest
 
-from nephele.core.pipeline import sources
-from nephele.core.surface import contour_task
-from nephele.core.pipeline import tasks
-from nephele.core.pipeline.cache import Cache
 from nephele.core.climate.dataset import ArrayDataset, hourly
-from nephele.core.errors import DataError
 from nephele.core.climate.grid import GlobeGrid, globe_radius
+from nephele.core.errors import DataError
+from nephele.core.pipeline import sources, tasks
+from nephele.core.pipeline.cache import Cache
+from nephele.core.surface import contour_task
 
 H_SCALE = (10000.0, 20000.0, 40000.0)  # cloud = height / H_SCALE[t]
 
@@ -60,7 +59,8 @@ def test_task_params(source):
         contour_task.task_params({"source": source, "var": "cloud"}, 1)
 
 
-@pytest.mark.parametrize("hours, height", [(0.0, 5000.0), (1.0, 10000.0), (0.5, 1.0 / (0.5 / 10000 + 0.5 / 20000) * 0.5)])
+@pytest.mark.parametrize("hours, height",
+                         [(0.0, 5000.0), (1.0, 10000.0), (0.5, 1.0 / (0.5 / 10000 + 0.5 / 20000) * 0.5)])
 def test_contour_sits_at_the_analytic_height(source, hours, height):
     # cloud = h / H(t), linear in time between steps: the 0.5 surface is the
     # sphere h = 0.5 / ((1-w)/H0 + w/H1).

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from nephele.core.texture.fractal import Fractal, blend, terms, texture, texture_xyz
 from nephele.core.climate.grid import lonlat_to_xyz
+from nephele.core.texture.fractal import Fractal, blend, terms, texture, texture_xyz
 
 
 def test_range_and_contrast():

@@ -3,11 +3,11 @@
 import numpy as np
 import pytest
 
+from nephele.core.climate.grid import GlobeGrid, globe_radius, lonlat_to_xyz
 from nephele.core.errors import DataError
 from nephele.core.volume.exact_ray import opacity, reference_optical_depth, volume_optical_depth
-from nephele.core.climate.grid import GlobeGrid, globe_radius, lonlat_to_xyz
-from nephele.core.volume.transfer import TransferFunction
 from nephele.core.volume.sparse import ALTITUDE, CurvilinearField, SparseVolume, resample
+from nephele.core.volume.transfer import TransferFunction
 
 
 def grid(ni=40, nj=20, nk=8, top=16000.0, terrain=True):
@@ -176,7 +176,8 @@ def test_longitude_origin_and_threads_do_not_change_the_volume(lon0):
     first = lon0 + d[shift]  # the column nearest lon0, written near lon0
     rolled = GlobeGrid(first + np.arange(g.lon.size) * 360.0 / g.lon.size, g.lat,
                        np.roll(g.height, -shift, axis=2), np.roll(g.terrain, -shift, axis=1))
-    got = resample(rolled, np.roll(c, -shift, axis=2), tf, voxel_size=0.03, color_name=ALTITUDE, workers=2, chunk_blocks=8)
+    got = resample(rolled, np.roll(c, -shift, axis=2), tf, voxel_size=0.03, color_name=ALTITUDE, workers=2,
+                   chunk_blocks=8)
     assert got.stats["active_voxels"] == ref.stats["active_voxels"] > 1000
     np.testing.assert_array_equal(got.blocks, ref.blocks)
     np.testing.assert_allclose(got.density, ref.density, atol=1e-5)
@@ -264,8 +265,8 @@ def test_arrays_roundtrip_and_bad_input():
 
 def test_planner_feeds_the_cache_the_blender_bake_reads(tmp_path, monkeypatch):
     from nephele.core.pipeline import tasks
-    from nephele.core.volume import volume_task as vmod
     from nephele.core.pipeline.sources import open_source
+    from nephele.core.volume import volume_task as vmod
 
     obj = {"kind": "volume", "source": "demo:small", "var": "cloud", "tf": TransferFunction.ramp(0.3, 1.0).to_dict(),
            "color_var": "altitude", "voxel_size": 0.02, "frame_start": 1, "hours_per_frame": 1.5, "frames": [1, 3]}

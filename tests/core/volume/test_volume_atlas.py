@@ -9,14 +9,13 @@ agree to ~1e-5 and the tolerance is 1e-4 (fields of order 1).
 import numpy as np
 import pytest
 
+from nephele.core.climate.dataset import ArrayDataset, hourly
+from nephele.core.climate.grid import GlobeGrid, globe_radius, lonlat_to_xyz
+from nephele.core.errors import DataError
 from nephele.core.pipeline import tasks
 from nephele.core.pipeline.sources import register_source
-from nephele.core.climate.dataset import ArrayDataset, hourly
-from nephele.core.errors import DataError
-from nephele.core.climate.grid import GlobeGrid, globe_radius, lonlat_to_xyz
-from nephele.core.volume.transfer import TransferFunction
 from nephele.core.volume.sparse import EXACT, CurvilinearField
-from nephele.core.volume.volume_task import frame_params
+from nephele.core.volume.transfer import TransferFunction
 from nephele.core.volume.volume_atlas import (
     DEFAULT_BELOW,
     atlas_layout,
@@ -25,6 +24,7 @@ from nephele.core.volume.volume_atlas import (
     map_runs,
     tf_eval32,
 )
+from nephele.core.volume.volume_task import frame_params
 
 TF = TransferFunction.ramp(0.3, 0.7)
 TOL = 1e-4  # value agreement, float32 shader against float64 reference
@@ -155,7 +155,8 @@ def test_regional_grid_matches_reference_and_is_empty_outside():
     rng = np.random.default_rng(4)
     pts = np.concatenate([random_points(rng, 30000), random_points(rng, 30000, (-30, 60), (-50, 70))])
     ok = assert_agrees(field, layout, atlas, pts)
-    lon_p, lat_p = np.rad2deg(np.arctan2(pts[:, 1], pts[:, 0])), np.rad2deg(np.arcsin(pts[:, 2] / np.linalg.norm(pts, axis=1)))
+    lon_p, lat_p = np.rad2deg(np.arctan2(pts[:, 1],
+                                         pts[:, 0])), np.rad2deg(np.arcsin(pts[:, 2] / np.linalg.norm(pts, axis=1)))
     outside = (lon_p < -30.0) | (lon_p > 60.0) | (lat_p < -50.0) | (lat_p > 70.0)
     assert outside.sum() > 20000 and not ok[outside].any()
     assert ok[~outside].mean() > 0.8
@@ -339,7 +340,8 @@ def cloudy_points(field, rng, n):
     for dk in (0, 1):
         for dj in (0, 1):
             for di in (0, 1):
-                w = (f[:, 0] if dk else 1 - f[:, 0]) * (f[:, 1] if dj else 1 - f[:, 1]) * (f[:, 2] if di else 1 - f[:, 2])
+                w = (f[:, 0] if dk else 1 - f[:, 0]) * (f[:, 1] if dj else 1
+                                                        - f[:, 1]) * (f[:, 2] if di else 1 - f[:, 2])
                 out += w[:, None] * pts[k[pick] + dk, j[pick] + dj, i[pick] + di]
     return out
 
@@ -565,7 +567,8 @@ def test_curvilinear_grid_through_its_index_map_matches_the_column_reference(kin
     assert ev.layout.index is not None and ev.rotation is None
     field = CurvilinearField.from_grid(grid, {"value": values})
     rng = np.random.default_rng(32)
-    box = dict(lon=(-60.0, 110.0), lat=(-25.0, 65.0)) if kind == "sheared" else dict(lon=(-180.0, 180.0), lat=(55.0, 90.0))
+    box = (dict(lon=(-60.0, 110.0), lat=(-25.0, 65.0)) if kind == "sheared"
+           else dict(lon=(-180.0, 180.0), lat=(55.0, 90.0)))
     pts = np.concatenate([random_points(rng, 100000, **box), cloudy_points(field, rng, 50000)])
     ref = reference(field, pts, ev.below)
     value, _, ok = ev.layout.shade(ev.layout.values_atlas(field), pts, below=ev.below)
@@ -574,7 +577,8 @@ def test_curvilinear_grid_through_its_index_map_matches_the_column_reference(kin
     assert np.mean(ok != rok) < 1e-3  # measured 5e-5 (sheared), 7e-6 (polar)
     both = ok & rok
     err = np.abs(value[both] - ref[both])
-    print(f"{kind}: inside disagree {np.mean(ok != rok):.1e}, value max {err.max():.1e}, p99.9 {np.percentile(err, 99.9):.1e}")
+    print(f"{kind}: inside disagree {np.mean(ok != rok):.1e}, value max {err.max():.1e}, p99.9 "
+          f"{np.percentile(err, 99.9):.1e}")
     # Measured max 5.8e-4 / p99.9 1.4e-4 (sheared), 4.4e-5 / 1.7e-5 (polar); the field varies by ~0.1 per cell.
     assert err.max() < 2e-3 and np.percentile(err, 99.9) < 3e-4
     # The index map itself: fractional column indices against ColumnLocator, inside the grid.

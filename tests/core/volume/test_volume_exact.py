@@ -3,11 +3,11 @@
 import numpy as np
 import pytest
 
+from nephele.core.climate.grid import GlobeGrid, globe_radius
 from nephele.core.errors import DataError
 from nephele.core.volume.exact_ray import opacity, reference_optical_depth, segment_optical_depth, sphere_span
-from nephele.core.climate.grid import GlobeGrid, globe_radius
-from nephele.core.volume.transfer import TransferFunction
 from nephele.core.volume.sparse import CurvilinearField
+from nephele.core.volume.transfer import TransferFunction
 
 
 def test_segment_crossing_threshold_closed_form():

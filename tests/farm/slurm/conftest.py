@@ -2,8 +2,8 @@
 
 It is installed with apt-get when missing (root on Debian) and started once
 (see :mod:`slurm_local`); where that is impossible the tests skip with the reason, or,
-in a strict run (CI, ``make test-full``), the session stops with that one line.  ``SLURM_CONF`` points every Slurm command of the session
-(dask-jobqueue's ``sbatch``/``scancel`` too) at it.  Each test's jobs are
+in a strict run (CI, ``make test-full``), the session stops with that one line.  ``SLURM_CONF`` points every
+Slurm command of the session (dask-jobqueue's ``sbatch``/``scancel`` too) at it.  Each test's jobs are
 cancelled after it, so one test's leftovers never hold the next one's CPUs.
 """
 

@@ -75,7 +75,8 @@ def _node():
 
 
 class LocalSlurm:
-    """A started cluster: ``conf`` (path of slurm.conf), ``env`` (SLURM_CONF), ``cpus``, ``memory_mb``, ``partition``."""
+    """A started cluster: ``conf`` (path of slurm.conf), ``env`` (SLURM_CONF), ``cpus``, ``memory_mb``,
+    ``partition``."""
 
     def __init__(self, root):
         self.root = Path(root)

@@ -16,7 +16,6 @@ import time
 from pathlib import Path
 
 import pytest
-
 from slurm_local import Unavailable, ensure_installed, only_frames, render_args
 
 from nephele.farm import cli
@@ -56,7 +55,8 @@ def test_render_with_pbs_job_scripts(torque_wrappers, tmp_path, capsys, monkeypa
     # What the scheduler made of the #PBS lines: name, 2 CPUs, 1500MB (1431 MiB), 10 min; then qdel ended it.
     deadline = time.monotonic() + 15
     while True:
-        name, state, cpus, mem, limit = slurm.run("squeue", "-h", "-t", "all", "-j", job, "-o", "%j %T %C %m %l").split()
+        name, state, cpus, mem, limit = slurm.run("squeue", "-h", "-t", "all", "-j", job, "-o",
+                                                  "%j %T %C %m %l").split()
         if state not in ("RUNNING", "COMPLETING") or time.monotonic() > deadline:
             break
         time.sleep(0.2)

@@ -11,7 +11,6 @@ import time
 from pathlib import Path
 
 import pytest
-
 from slurm_local import only_frames, render_args
 
 from nephele.farm import cli
@@ -65,7 +64,8 @@ def test_job_that_cannot_start_is_a_clear_error(slurm_jobs, tmp_path, capsys, ex
     err = capsys.readouterr().err
     assert rc == 2, err
     lines = [ln for ln in err.splitlines() if ln.strip()]
-    assert len(lines) == 1 and lines[0].startswith("nephele render: error: ") and option in lines[0] and words in lines[0]
+    assert (len(lines) == 1 and lines[0].startswith("nephele render: error: ") and option in lines[0]
+            and words in lines[0])
     assert time.monotonic() - t0 < 30  # no hang: refusals are immediate, a dead job is seen within a second
     assert not list(out.glob("frame_*"))
     assert _wait_jobs_gone(slurm_jobs)
@@ -121,7 +121,8 @@ def test_scancel_of_a_working_job(slurm_jobs, tmp_path):
 
 
 def test_resume_after_the_whole_run_was_killed(slurm_jobs, tmp_path):
-    """kill -9 of the client (and its scheduler); scancel of the orphaned jobs; the resume renders only what is missing."""
+    """kill -9 of the client (and its scheduler); scancel of the orphaned jobs; the resume renders only what
+    is missing."""
     from nephele.farm.render import render_sequence
 
     out = tmp_path / "out"

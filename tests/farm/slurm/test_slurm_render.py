@@ -6,7 +6,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from slurm_local import only_frames, render_args
 
 from nephele.farm import cli
