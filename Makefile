@@ -79,9 +79,10 @@ $(GRIB_SAMPLES): tests/data/fetch_grib_samples.py $(VENV)/.stamp
 demo: $(VENV)/.stamp $(VENV)/.native
 	$(VENV)/bin/nephele film --out out/demo
 
-# The quick tier: everything but the slow hard cases, the extension zips and Slurm.
+# The quick tier: the linter, then everything but the slow hard cases, the extension zips and Slurm.
 test: $(VENV)/.stamp $(VENV)/.native $(GRIB_SAMPLES)
 	@mkdir -p $(TIERS)
+	$(VENV)/bin/ruff check .
 	$(STRICT) $(BUDGET) quick 480 --junit $(TIERS)/quick.xml -- $(VENV)/bin/python -m pytest $(XDIST) -m "not slow" \
 	  --ignore=tests/extension --ignore=tests/farm/slurm --junitxml=$(TIERS)/quick.xml $(PYTEST_ARGS)
 
@@ -92,7 +93,7 @@ lint: $(VENV)/.stamp
 # The full suite (CI): each tier once, then their times.
 test-full:
 	@mkdir -p $(TIERS) && rm -f $(TIERS)/times.tsv
-	$(MAKE) test-main test-core311 test-extension test-slurm test-bench
+	$(MAKE) lint test-main test-core311 test-extension test-slurm test-bench
 	@$(VENV)/bin/python tests/budget.py --summary
 
 # Everything on Python 3.13 + bpy, the slow hard cases too (the zips and Slurm have tiers of their own).
