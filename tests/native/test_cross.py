@@ -8,10 +8,9 @@ import subprocess
 import sys
 
 import pytest
+from cross_tools import MACOS, ROOT
 
 from nephele.farm import cmd_build_extension as be
-
-from cross_tools import MACOS, ROOT
 
 
 def test_loader_names_the_file_each_build_writes(build):
