@@ -14,9 +14,11 @@
 
 /* GCC keeps floating-point comparisons from raising exceptions early (-ftrapping-math, its default),
  * so it turns no select of a comparison into vector code: every loop with one stays scalar (GCC 12).
- * These kernels read no exception flags.  (Clang ignores them by default.) */
+ * These kernels read no exception flags.  (Clang ignores them by default.)  No fp-contract=fast:
+ * fused multiply-adds in the x86-64-v3 clone made Linux on FMA processors differ from Windows,
+ * macOS and older processors (tests/native/test_wine.py; native/build.py's -ffp-contract=off). */
 #if defined(__GNUC__) && !defined(__clang__)
-#pragma GCC optimize("no-trapping-math", "fp-contract=fast")
+#pragma GCC optimize("no-trapping-math")
 #endif
 
 #include <stdint.h>

@@ -4,14 +4,17 @@
  *     harness CALLS.bin OUT.bin   run the calls, write each call's result and buffers
  *
  * The kernels come from kernels.def (one line each), called through the library's exports.  CALLS.bin,
- * little-endian (tests/native/calls.py writes it from calls recorded on Linux):
+ * little-endian (tests/native/kernel_calls.py writes it from calls recorded on Linux):
  *
  *     "NPHCALL1" u32 ncalls, then per call:
- *       u32 len, name;  u32 nbuf, per buffer: u8 'b' u64 nbytes bytes | u8 't' u32 n i32 buffer[n] (-1: NULL);
+ *       u32 len, name;  u32 nbuf, per buffer: u8 'b' u64 nbytes bytes | u8 't' u32 n, n words;
  *       u32 nargs, per argument: u8 'i' i64 | u8 'd' f64 | u8 'p' i32 buffer (-1: NULL)
  *
- * A 't' buffer is a table of pointers to other buffers (a struct of pointers).  OUT.bin: "NPHOUT01"
- * u32 ncalls, per call: i64 result (0 for void), u32 nbuf, per buffer u64 nbytes bytes (0 for a table).
+ * A 't' buffer is a table of 8-byte words, each u8 'i' i64 (an integer) or u8 'p' i32 buffer (-1: NULL;
+ * a pointer to another buffer): a struct whose fields are all 8 bytes (pointers, int64_t), such as
+ * scatter_sweep's struct nph_sweep or a struct of pointers.  An F32 argument is recorded as 'd' and
+ * rounded to float here, as ctypes rounds a Python float.  OUT.bin: "NPHOUT01" u32 ncalls, per call:
+ * i64 result (0 for void), u32 nbuf, per buffer u64 nbytes bytes (0 for a table).
  * Files are opened in binary mode: Windows would otherwise translate line ends.
  */
 
@@ -32,13 +35,19 @@ union slot {
 #define TYPE_I64 int64_t
 #define TYPE_I32 int32_t
 #define TYPE_F64 double
+#define TYPE_F32 float
 #define TYPE_P void *
 #define TYPE_V void
 #define NPH_CAT(a, b) NPH_CAT_(a, b)
 #define NPH_CAT_(a, b) a##b
 #define NPH_MAP(m, ...) NPH_CAT(NPH_MAP, NPH_NARGS(__VA_ARGS__))(m, 0, __VA_ARGS__)
 #define PARAM(kind, i) TYPE_##kind
-#define ARG(kind, i) a[i].kind
+#define ARG(kind, i) ARG_##kind(i)
+#define ARG_I64(i) a[i].I64
+#define ARG_I32(i) a[i].I32
+#define ARG_F64(i) a[i].F64
+#define ARG_F32(i) (float)a[i].F64
+#define ARG_P(i) a[i].P
 #define STORE_V(call) (call, 0)
 #define STORE_I64(call) (int64_t)(call)
 #define STORE_I32(call) (int64_t)(call)
@@ -89,7 +98,7 @@ struct buffer {
     uint8_t kind;
     uint64_t nbytes;
     void *data;
-    int32_t *refs; /* a table's buffer indices */
+    int32_t *refs; /* a table's buffer index per word (-1: NULL, -2: an integer word) */
 };
 
 static void run_call(FILE *out)
@@ -119,15 +128,27 @@ static void run_call(FILE *out)
         } else if (buf[b].kind == 't') {
             uint32_t n = GET(uint32_t);
             buf[b].refs = malloc((n ? n : 1) * sizeof(int32_t));
-            buf[b].data = calloc(n ? n : 1, sizeof(void *));
+            buf[b].data = calloc(n ? n : 1, sizeof(union slot)); /* 8 bytes: pointers and int64_t */
             buf[b].nbytes = n;
-            get(buf[b].refs, n * sizeof(int32_t));
+            for (uint32_t j = 0; j < n; j++) {
+                uint8_t kind = GET(uint8_t);
+                if (kind == 'p')
+                    buf[b].refs[j] = GET(int32_t);
+                else if (kind == 'i') {
+                    buf[b].refs[j] = -2;
+                    ((union slot *)buf[b].data)[j].I64 = GET(int64_t);
+                } else
+                    fail("unknown table word kind");
+                if (buf[b].refs[j] >= (int32_t)nbuf)
+                    fail("a table refers to a buffer the call lacks");
+            }
         } else
             fail("unknown buffer kind");
     }
     for (uint32_t b = 0; b < nbuf; b++)
         for (uint64_t j = 0; buf[b].kind == 't' && j < buf[b].nbytes; j++)
-            ((void **)buf[b].data)[j] = buf[b].refs[j] < 0 ? NULL : buf[buf[b].refs[j]].data;
+            if (buf[b].refs[j] != -2)
+                ((union slot *)buf[b].data)[j].P = buf[b].refs[j] < 0 ? NULL : buf[buf[b].refs[j]].data;
     uint32_t nargs = GET(uint32_t);
     if ((int)nargs != k->nargs) {
         fprintf(stderr, "harness: %s takes %d arguments in kernels.def, the call has %u\n", name, k->nargs, nargs);

@@ -2,10 +2,12 @@
 
 :class:`Recorder` stands in for :func:`nephele.core.native.kernel`: each kernel it hands out copies its
 arguments' buffers before and after the real call (calls run one at a time while it records).  A
-pointer argument is an array address (``x.ctypes.data``), an ``ndpointer`` array, or a ctypes array
-of addresses (a struct of pointers, ``blobby_march_*``); the arrays behind the addresses are found
-among the calling frames' variables.  ``harness CALLS OUT`` then replays the calls on any platform,
-and :func:`read_out` gives each call's result and buffers.
+pointer argument is an array address (``x.ctypes.data``), an ``ndpointer`` array, a ctypes array of
+addresses (a struct of pointers, ``blobby_march_*``) or a ctypes structure of 8-byte fields, passed
+by ``byref`` (``scatter_sweep``'s ``struct nph_sweep``: addresses and integers); the arrays behind the
+addresses are found among the calling frames' variables, so the calls must come from the thread that
+made the arrays (one thread: ``OMP_NUM_THREADS=1``).  ``harness CALLS OUT`` then replays the calls on
+any platform, and :func:`read_out` gives each call's result and buffers.
 """
 
 import collections
@@ -18,7 +20,8 @@ import types
 import numpy as np
 
 # ctypes type -> harness kind (native/tests/kernels.def)
-_KINDS = {ctypes.c_int64: "I64", ctypes.c_int32: "I32", ctypes.c_double: "F64", ctypes.c_void_p: "P", None: "V"}
+_KINDS = {ctypes.c_int64: "I64", ctypes.c_int32: "I32", ctypes.c_double: "F64", ctypes.c_float: "F32",
+          ctypes.c_void_p: "P", None: "V"}
 
 
 def kind(t):
@@ -28,6 +31,25 @@ def kind(t):
     if isinstance(t, type) and (issubclass(t, ctypes._Pointer) or hasattr(t, "_dtype_")):  # POINTER, ndpointer
         return "P"
     raise TypeError(f"no harness kind for {t!r}")
+
+
+def _words(obj):
+    """A ctypes array or structure of 8-byte fields as words: ("p", address or None) or ("i", integer)."""
+    if isinstance(obj, ctypes.Array):
+        items = [(obj._type_, v) for v in obj]
+    else:
+        items = [(t, getattr(obj, name)) for name, t in obj._fields_]
+    out = []
+    for t, v in items:
+        if issubclass(t, ctypes.Array):
+            out += _words(v)
+        elif ctypes.sizeof(t) != 8:
+            raise TypeError(f"harness tables hold 8-byte words, not {t.__name__}")
+        elif kind(t) == "P":
+            out.append(("p", v if v is None or isinstance(v, int) else ctypes.cast(v, ctypes.c_void_p).value))
+        else:
+            out.append(("i", int(v)))
+    return out
 
 
 class Call:
@@ -64,10 +86,12 @@ def _frame_arrays(frames=4):
 
 
 class Recorder:
-    """Records the first ``limit`` calls of each kernel; ``kernel`` replaces :func:`native.kernel`."""
+    """Records the first ``limit`` calls of each kernel, or of each of its paths where ``paths[name]``
+    says which path a call takes (a function of the call's arguments); ``kernel`` replaces
+    :func:`native.kernel`."""
 
-    def __init__(self, real_kernel, limit=2):
-        self.real, self.limit = real_kernel, limit
+    def __init__(self, real_kernel, limit=2, paths=None):
+        self.real, self.limit, self.paths = real_kernel, limit, paths or {}
         self.calls, self.counts, self.lock = [], collections.Counter(), threading.Lock()
 
     def kernel(self, name, restype, argtypes):
@@ -78,9 +102,10 @@ class Recorder:
 
         def call(*args):
             with self.lock:
-                if self.counts[name] >= self.limit:
+                path = (name, self.paths[name](*args) if name in self.paths else None)
+                if self.counts[path] >= self.limit:
                     return fn(*args)
-                self.counts[name] += 1
+                self.counts[path] += 1
                 rec = Call(name, sig)
                 views = self._resolve(rec, args, _frame_arrays())
                 rec.before = [v.tobytes() for v in views]
@@ -108,12 +133,15 @@ class Recorder:
             return where[addr]
 
         for x in args:
+            obj = getattr(x, "_obj", None) if type(x).__name__ == "CArgObject" else x  # byref(struct)
             if isinstance(x, np.ndarray):
                 arrays.append(x)
                 rec.args.append(("p", buffer(x.ctypes.data)))
-            elif isinstance(x, ctypes.Array):  # a struct of pointers: a table buffer
-                refs = [buffer(p) for p in x]
-                rec.tables[len(views)] = refs
+            elif isinstance(obj, (ctypes.Array, ctypes.Structure)):  # a struct: a table buffer
+                words = [(k, buffer(v) if k == "p" else v) for k, v in _words(obj)]
+                if 8 * len(words) != ctypes.sizeof(obj):
+                    raise TypeError(f"{rec.name}: a struct argument must be all 8-byte fields")
+                rec.tables[len(views)] = words
                 views.append(np.zeros(0, np.uint8))
                 rec.args.append(("p", len(views) - 1))
             elif isinstance(x, (float, np.floating)):
@@ -135,7 +163,8 @@ def write_calls(calls, path):
         out += [struct.pack("<I", len(name)), name, struct.pack("<I", len(c.before))]
         for i, data in enumerate(c.before):
             if i in c.tables:
-                out += [struct.pack("<cI", b"t", len(c.tables[i])), struct.pack(f"<{len(c.tables[i])}i", *c.tables[i])]
+                out.append(struct.pack("<cI", b"t", len(c.tables[i])))
+                out += [struct.pack("<ci" if k == "p" else "<cq", k.encode(), v) for k, v in c.tables[i]]
             else:
                 out += [struct.pack("<cQ", b"b", len(data)), data]
         out.append(struct.pack("<I", len(c.args)))
@@ -166,5 +195,5 @@ def read_out(path):
 
 def loaded(lib_path):
     """A stand-in for the nephele_native module that loads ``lib_path`` (``native._module``'s result)."""
-    return types.SimpleNamespace(lib=ctypes.CDLL(str(lib_path)),
-                                 BUILD_ID=lib_path.with_name("BUILD_ID").read_text().strip())
+    build_id = lib_path.with_name("BUILD_ID").read_text().strip()
+    return types.SimpleNamespace(lib=ctypes.CDLL(str(lib_path)), BUILD_ID=build_id)

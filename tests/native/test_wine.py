@@ -5,7 +5,8 @@ Calls are recorded on Linux while the drivers below run the Python code that cal
 replayed by native/tests/harness.c, built against each library.  Adding a kernel: one ``KERNEL`` line
 in native/tests/kernels.def; if no driver below reaches it, a driver (a small call of its Python
 caller, ``DRIVERS``); if its results depend on libm (exp, log, pow...), an entry in ``TOLERANCE`` with
-the rtol its NumPy-twin test uses.  Everything else is compared bit for bit.
+the rtol its NumPy-twin test uses.  Everything else is compared bit for bit.  The first two calls of
+each kernel are recorded, or, where ``PATHS`` tells a kernel's paths apart, of each path.
 """
 
 import ctypes
@@ -17,6 +18,7 @@ import pytest
 from kernel_calls import Recorder, loaded, read_out, write_calls
 
 from nephele.core import native
+from nephele.core.light import scatter
 from nephele.core.muscle import blobby
 
 pytestmark = pytest.mark.slow
@@ -54,7 +56,49 @@ def fastexp_edges():
     fn(len(x), x, np.empty_like(x))
 
 
-DRIVERS = (blobby_plain, blobby_periodic, fastexp_edges)
+def _solve(sigma, size, **kw):
+    """scatter.solve on one thread: the recorder finds the arrays behind a kernel's addresses in the
+    calling frames, which a pool thread's stack lacks."""
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("OMP_NUM_THREADS", "1")
+        return scatter.solve(sigma, size, **kw)
+
+
+def scatter_cloud():
+    """Every scatter kernel: a 10x10x8 cloud under an oblique sun and a sky, second moments (P2
+    terms, scatter_profile's second half), escapes stored and read back (profile_every 2, pass 9),
+    2x2 then 1x1 sub-directions per bin."""
+    z, y, x = np.meshgrid(*[np.linspace(-1, 1, n) for n in (8, 10, 10)], indexing="ij")
+    cloud = np.where(x * x + 1.5 * y * y + z * z < 0.7, 12.0 * (1.2 - x * x - z), 0.0)
+    _solve(cloud, (1, 1, 0.8), albedo=0.99, g=0.8, sun_dir=(0.6, -0.35, 0.55), sky_radiance=0.3,
+           second_moments=True, profile_every=2, tol=1e-9, extrapolate=False, max_passes=9)
+
+
+def scatter_slab():
+    """The periodic sides: beams wrapping, and in flat voxels (2.5:1) shifted by more than a cell per
+    layer (the sun by 1.56 in x); isotropic scattering's shared profile (first moments only); then a
+    warm start (signed unshot light) with sources spread evenly (no profiles)."""
+    slab = np.full((8, 3, 3), 2.0)
+    slab[5] = 4.0
+    kw = dict(albedo=0.9, g=0.0, sun_dir=(0.5, 0.2, 0.8), periodic=(True, True, False), max_passes=4)
+    prev = _solve(slab, (0.3, 0.3, 2.0), **kw)
+    _solve(slab * 1.1, (0.3, 0.3, 2.0), source_profile=False, warm=prev, **kw)
+
+
+DRIVERS = (blobby_plain, blobby_periodic, fastexp_edges, scatter_cloud, scatter_slab)
+
+
+def _sweep_path(ref, bin_lo, bin_hi):
+    s = ref._obj  # struct nph_sweep: the row's mode, its P2 term, moments, cache, sub-beams, sides
+    return (s.em is None, s.kap is None, s.qa is None, s.mom is None, s.slot_m2 >= 0, s.cache_mode, s.per_sub,
+            s.sign, bool(s.periodic_a or s.periodic_b))
+
+
+# kernel -> the path a call takes (a function of its arguments): the first calls of each path are
+# recorded, not only each kernel's first calls (scatter_sweep's are the sun's, without emission)
+PATHS = {"scatter_sweep": _sweep_path,
+         "scatter_moments": lambda *a: (a[9] >= 0, a[10] >= 0, a[16] is None),  # kept, second, also
+         "scatter_profile": lambda *a: a[3]}  # second moments
 
 # kernel -> (buffer dtype, rtol) where results go through libm (its float32 expf: glibc's vs the UCRT's),
 # the tolerance of the kernel's NumPy-twin test (tests/core/muscle/test_blobby_native_nodes.py).
@@ -66,7 +110,7 @@ def recorded(linux_lib, tmp_path_factory, monkeypatch_module):
     """The drivers' kernel calls through the freshly built Linux library, and CALLS.bin."""
     lib = loaded(linux_lib)
     monkeypatch_module.setattr(native, "_module", lambda: lib)
-    rec = Recorder(native.kernel)
+    rec = Recorder(native.kernel, paths=PATHS)
     monkeypatch_module.setattr(native, "kernel", rec.kernel)
     for drive in DRIVERS:
         drive()
@@ -96,8 +140,8 @@ def _linux_exports(lib):
 def test_wine_every_exported_kernel_has_a_harness_entry(harnesses, linux_lib, windows_lib, build, recorded):
     entries = _entries(harnesses[0])
     kernels = _linux_exports(linux_lib)
-    assert kernels == set(entries), (f"kernels.def lacks {sorted(kernels - set(entries))} / has extra "
-                                     f"{sorted(set(entries) - kernels)}")
+    assert kernels == set(entries), (f"kernels.def lacks {sorted(kernels - set(entries))} / "
+                                     f"has extra {sorted(set(entries) - kernels)}")
     dll = set(build.describe(windows_lib)["exports"])
     assert dll - RUNTIME_EXPORTS == kernels, sorted(dll ^ kernels)
     called = {c.name for c in recorded[0]}
