@@ -127,13 +127,12 @@ test-slurm: $(VENV)/.stamp
 	$(STRICT) $(BUDGET) slurm 180 --junit $(TIERS)/slurm.xml -- $(VENV)/bin/python -m pytest tests/farm/slurm \
 	  --junitxml=$(TIERS)/slurm.xml $(PYTEST_ARGS)
 
-# Every benchmark's --quick mode as a smoke test, so none can rot; a quick run prints its table and
+# Every benchmark's --quick mode as a smoke test, JOBS at a time, so none can rot; a quick run prints its table and
 # leaves docs/benchmarks.md alone (benchmarks/report.py).
 test-bench: $(VENV)/.stamp $(VENV)/.native
 	@mkdir -p $(TIERS)
-	$(BUDGET) bench 180 -- sh -c 'for b in benchmarks/bench_*.py; do echo "$$b --quick"; \
-	  $(VENV)/bin/python $$b --quick > build/bench-quick.log 2>&1 || { tail -40 build/bench-quick.log; exit 1; }; \
-	done'
+	$(BUDGET) bench 180 -- sh -c 'ls benchmarks/bench_*.py | xargs -P $(or $(filter-out 0,$(JOBS)),1) -n 1 \
+	  tests/bench_quick.sh $(VENV)/bin/python'
 
 bench: $(VENV)/.stamp $(VENV)/.native
 	for b in benchmarks/bench_*.py; do $(VENV)/bin/python $$b || exit 1; done
