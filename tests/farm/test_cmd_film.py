@@ -25,7 +25,7 @@ BAD = [
     (["--frames", "0"], "--frames must be >= 1"),
     (["--samples", "0"], "--samples must be >= 1"),
     (["--size", "8x8"], "outside 16..8192"),
-    (["--size", "wide"], "--resolution must be WxH"),
+    (["--size", "wide"], "--size must be WxH"),
     (["--name", "../x"], "--name must be a plain file name"),
     (["--source", "/nonexistent/file.nc"], "/nonexistent/file.nc"),
     (["--timeout", "0"], "--timeout must be > 0"),
