@@ -4,14 +4,16 @@ ecCodes trusts the lengths in a message: a GRIB2 section claiming more bytes
 than its message holds made cfgrib crash the whole process (a segmentation
 fault, found by the readers' fuzz test), and a grid claiming billions of
 points makes it allocate them.  :func:`check_grib` walks the messages with
-plain seeks (a few reads per message, no decoding): every GRIB2 section of a
-whole message must lie inside it, and the points a grid claims must fit in memory
+plain seeks (a few reads per message, no decoding): every section of a whole
+message (GRIB2: sections 1-7; GRIB1: the PDS, GDS, BMS and BDS) must lie inside it,
+and the points a grid claims must fit in memory
 (:func:`~nephele.core.memory.check_memory`).  Messages cut short are left to the
 reader, which skips them with a note and reads the rest.
 
 References
 ----------
 .. [1] WMO Manual on Codes, Volume I.2, FM 92 GRIB edition 2 (sections 0-8).
+.. [2] WMO, "A guide to the code form FM 92-IX Ext. GRIB edition 1" (1994): sections 0-5.
 """
 
 from ..errors import DataError
@@ -65,6 +67,30 @@ def _sections(f, path, n, start, end):
     raise DataError(f"cannot open as GRIB (message {n} at byte {start} has no end marker 7777)", path=path)
 
 
+def _sections1(f, path, n, start, end):
+    """Walk a GRIB1 message's sections (PDS, the GDS and BMS its flags announce, BDS): each must lie inside
+    ``[start, end)``; the points of a grid whose GDS gives Ni and Nj (0 when it does not)."""
+    f.seek(start + 8)
+    pds = f.read(8)
+    if len(pds) < 8:
+        return 0
+    flags, pos, points = pds[7], start + 8, 0
+    names = ["PDS"] + ["GDS"] * bool(flags & 0x80) + ["BMS"] * bool(flags & 0x40) + ["BDS"]
+    for name in names:
+        f.seek(pos)
+        head = f.read(10)
+        length = int.from_bytes(head[:3], "big") if len(head) >= 3 else 0
+        if length < 3 or pos + length > end - 4:
+            raise DataError(f"cannot open as GRIB (message {n} at byte {start} is damaged: its {name} at byte {pos} "
+                            f"claims {length} bytes, the message has {end - pos - 4} left)", path=path)
+        if name == "GDS" and len(head) == 10:
+            ni, nj = int.from_bytes(head[6:8], "big"), int.from_bytes(head[8:10], "big")
+            if 0xFFFF not in (ni, nj):  # (0xFFFF: a reduced grid, its rows listed further on)
+                points = ni * nj
+        pos += length
+    return points
+
+
 def check_grib(path):
     """Raise :class:`~nephele.core.errors.DataError` when a whole message of ``path`` would crash ecCodes.
 
@@ -100,8 +126,8 @@ def check_grib(path):
             f.seek(end - 4)
             if f.read(4) != b"7777":
                 continue
-            if edition == 2:
-                points = max(points, _sections(f, path, n + 1, start, end))
+            walk = _sections if edition == 2 else _sections1
+            points = max(points, walk(f, path, n + 1, start, end))
             n += 1
             pos = end
     # Decoding a field holds its values as float64, and the reader a copy.

@@ -55,6 +55,43 @@ def test_grib_section_claiming_more_than_its_message_is_refused_before_ecCodes(t
     assert "DataError:" in out.stdout and "section 3" in out.stdout and "claims 3892314149 bytes" in out.stdout
 
 
+def test_grib1_section_claiming_more_than_its_message_is_refused_before_ecCodes(tmp_path):
+    """Fuzz (make fuzz N=20000, seed 1795913527): one bit flipped in a GRIB1 GDS length (32 -> 8388640 bytes)
+    made ecCodes segfault reading the grid section's md5; GRIB1 sections were not walked."""
+    pytest.importorskip("eccodes")
+    data = bytearray((DATA / "grib" / "t_on_different_level_types.grib").read_bytes())
+    gds = 8 + int.from_bytes(data[8:11], "big")  # after section 0 and the PDS
+    assert data[7] == 1 and data[15] & 0x80 and int.from_bytes(data[gds:gds + 3], "big") == 32
+    data[gds] ^= 0x80
+    path = tmp_path / "bad.grib"
+    path.write_bytes(bytes(data))
+    code = textwrap.dedent(f"""
+        from nephele.core.climate import open_dataset
+        from nephele.core.errors import DataError
+        try:
+            open_dataset({str(path)!r})
+        except DataError as exc:
+            print("DataError:", exc)
+    """)
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert "DataError:" in out.stdout and "its GDS at byte 60 claims 8388640 bytes" in out.stdout, out.stdout
+
+
+def test_grib1_grid_claiming_billions_of_points_is_refused_before_allocating(tmp_path):
+    pytest.importorskip("eccodes")
+    data = bytearray((DATA / "grib" / "t_on_different_level_types.grib").read_bytes())
+    gds = 8 + int.from_bytes(data[8:11], "big")
+    data[gds + 6:gds + 10] = (65000).to_bytes(2, "big") + (65000).to_bytes(2, "big")  # Ni, Nj
+    path = tmp_path / "huge.grib"
+    path.write_bytes(bytes(data))
+    from nephele.core.climate import open_dataset
+
+    with pytest.raises(DataError) as err:
+        open_dataset(path)
+    one_line(err, "huge.grib", "4,225,000,000 points", "memory")
+
+
 def test_grib_grid_claiming_billions_of_points_is_refused_before_allocating(tmp_path):
     data = bytearray(_grib2(tmp_path))
     sec3 = 16 + int.from_bytes(data[16:20], "big")
