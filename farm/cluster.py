@@ -213,6 +213,12 @@ def local_cluster(workers=None, env=None):
 def open_client(*, workers=None, scheduler=None, security=None, jobqueue=None, jobs=1, env=None):
     """Yield a :class:`distributed.Client` on the chosen cluster; closes what it started.
 
+    The client is not made the process's default Dask scheduler: the farm submits to it by hand,
+    and a default client changes ``dask.config``'s scheduler for everything else in the process
+    (xarray's writers, the user's own dask arrays) until the last default client closes; with two
+    clients closed out of order the setting outlived both ("Requested dask.distributed scheduler but
+    no Client active").
+
     Parameters
     ----------
     workers : int, optional
@@ -234,7 +240,7 @@ def open_client(*, workers=None, scheduler=None, security=None, jobqueue=None, j
 
     if scheduler:
         try:
-            client = Client(scheduler, security=security, timeout="30s")
+            client = Client(scheduler, security=security, timeout="30s", set_as_default=False)
         except (OSError, TimeoutError, TypeError, ValueError) as exc:
             from ..core.errors import DataError
 
@@ -252,7 +258,7 @@ def open_client(*, workers=None, scheduler=None, security=None, jobqueue=None, j
         return
     cluster = local_cluster(workers, env)
     try:
-        client = Client(cluster)
+        client = Client(cluster, set_as_default=False)
         try:
             yield client
         finally:
@@ -288,7 +294,7 @@ def _jobqueue_client(jobqueue, security, jobs):
     with dask.config.set({"distributed.deploy.lost-worker-timeout": "2s"}):
         cluster = jobqueue_cluster(system, security=security, **params)
         try:
-            client = Client(cluster)
+            client = Client(cluster, set_as_default=False)
             try:
                 start_jobs(cluster, client, system, jobs=jobs, adapt=adapt, timeout=start_timeout,
                            log_dir=params.get("log_dir"))

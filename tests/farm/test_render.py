@@ -214,3 +214,20 @@ def test_exr_output_decodes(cluster, tmp_path):
     for n in (len(data) // 3, len(data) - 1):
         with pytest.raises(InvalidFrame):
             check_exr(data[:n])
+
+
+def test_the_farm_client_leaves_the_default_dask_scheduler_alone(farm_cluster):
+    """The farm's client is not the process's default: a default client closed out of order beside it
+    (a script's own, or a test's watching a render in a thread) once left dask's scheduler set to
+    'dask.distributed' with no client, and every later xarray write failed."""
+    import dask
+    from distributed import Client
+
+    from nephele.farm.cluster import open_client
+
+    before = dask.config.get("scheduler", None)
+    user = Client(farm_cluster.scheduler_address)  # made first, closed first
+    with open_client(scheduler=farm_cluster.scheduler_address) as client:
+        assert client.scheduler.address == farm_cluster.scheduler_address
+        user.close()
+    assert dask.config.get("scheduler", None) == before
