@@ -379,7 +379,7 @@ def _render(manifest, result, todo, reclassify, scene_path, kind, settings, out,
             # Without frames already there to size them, the first chunk renders alone: its files give the estimate.
             sized = _space_needed(out, manifest, result.skipped, views, len(todo), force)
             first, rest = (parts, []) if sized or len(parts) < 2 else (parts[:1], parts[1:])
-            pending = as_completed([submit(c) for c in first])
+            pending = as_completed([submit(c) for c in first], loop=client.loop)  # (not a default client)
             stop = None
             for fut in pending:
                 frames = futures.pop(fut)
@@ -576,7 +576,7 @@ def precompute_scene(scene, frames, *, workers=None, scheduler=None, security=No
         name, info = _start(client, spec)
         _, by_key = _precompute(client, info["objects"], frame_list, spec["cache_dir"])
         computed = done = 0
-        for fut in as_completed(list(by_key.values())):
+        for fut in as_completed(list(by_key.values()), loop=client.loop):
             _, new, _ = fut.result()
             computed += bool(new)
             done += 1
