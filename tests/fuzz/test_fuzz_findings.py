@@ -61,12 +61,17 @@ def test_grib_section_claiming_more_than_its_message_is_refused_before_ecCodes(t
     assert "DataError:" in out.stdout and "section 3" in out.stdout and "claims 3892314149 bytes" in out.stdout
 
 
+def _grib1():
+    """A real GRIB1 file's bytes and the offset of its first message's GDS (after section 0 and the PDS)."""
+    pytest.importorskip("eccodes")
+    data = bytearray((DATA / "grib" / "t_on_different_level_types.grib").read_bytes())
+    return data, 8 + int.from_bytes(data[8:11], "big")
+
+
 def test_grib1_section_claiming_more_than_its_message_is_refused_before_ecCodes(tmp_path):
     """Fuzz (make fuzz N=20000, seed 1795913527): one bit flipped in a GRIB1 GDS length (32 -> 8388640 bytes)
     made ecCodes segfault reading the grid section's md5; GRIB1 sections were not walked."""
-    pytest.importorskip("eccodes")
-    data = bytearray((DATA / "grib" / "t_on_different_level_types.grib").read_bytes())
-    gds = 8 + int.from_bytes(data[8:11], "big")  # after section 0 and the PDS
+    data, gds = _grib1()
     assert data[7] == 1 and data[15] & 0x80 and int.from_bytes(data[gds:gds + 3], "big") == 32
     data[gds] ^= 0x80
     path = tmp_path / "bad.grib"
@@ -76,9 +81,7 @@ def test_grib1_section_claiming_more_than_its_message_is_refused_before_ecCodes(
 
 
 def test_grib1_grid_claiming_billions_of_points_is_refused_before_allocating(tmp_path):
-    pytest.importorskip("eccodes")
-    data = bytearray((DATA / "grib" / "t_on_different_level_types.grib").read_bytes())
-    gds = 8 + int.from_bytes(data[8:11], "big")
+    data, gds = _grib1()
     data[gds + 6:gds + 10] = (65000).to_bytes(2, "big") + (65000).to_bytes(2, "big")  # Ni, Nj
     path = tmp_path / "huge.grib"
     path.write_bytes(bytes(data))
