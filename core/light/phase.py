@@ -10,7 +10,9 @@ directions light *travels*.
 
 Solid angles are exact (the solid angle of a rectangle on a tangent plane);
 integrals over a bin use ``sub x sub`` sub-squares weighted by their exact
-solid angles.
+solid angles.  HG depends only on cosines, so the bin-to-bin tables are computed
+for one incoming bin per orbit of the cube's 48 symmetries (6 of 216 bins for
+``per_face`` 6) and permuted into the others (:func:`_by_symmetry`).
 
 The bin-to-bin matrix ``M[i, j]`` is the fraction of the flux scattered out
 of bin ``j`` (uniform over that bin) that goes into bin ``i``; every column
@@ -31,6 +33,7 @@ W. J. Wiscombe, "The delta-M method", J. Atmos. Sci. 34 (1977) 1408-1422.
 N. Max, R. Crawfis, "Advances in Scientific Visualization" ("Cloud rendering").
 """
 
+import itertools
 import threading
 from functools import lru_cache
 
@@ -161,6 +164,65 @@ def bin_of(direction, per_face=N_PER_FACE):
     return (face * n + iu) * n + iv
 
 
+def _cube_group():
+    """The cube's 48 symmetries, signed 3x3 permutation matrices (48, 3, 3); ``[0]`` is the identity."""
+    out = np.zeros((48, 3, 3))
+    for n, (p, s) in enumerate(itertools.product(itertools.permutations(range(3)),
+                                                 itertools.product((1.0, -1.0), repeat=3))):
+        out[n, np.arange(3), p] = s
+    return out
+
+
+@lru_cache(maxsize=16)
+def _symmetries(per_face, sub):
+    """How the cube's symmetries permute the sub-squares of :func:`bins` ``(sub, per_face)``.
+
+    HG depends only on the cosine between directions, and each symmetry maps the uniform face
+    grid onto itself (bins to bins, sub-squares to sub-squares, with their solid angles), so a
+    bin-to-bin table is known from the columns of one bin per orbit.  Returns ``perm`` (48,
+    nb * sub^2): the image of each sub-square (flat ``bin * sub^2 + iu * sub + iv``, the order
+    of ``dirs``); ``rep`` (nb,): each bin's orbit representative; ``sym`` (nb,): a symmetry
+    taking ``rep[j]`` to ``j``.
+    """
+    ns = sub * sub
+    dirs = _bins_cached(sub, per_face)[2].reshape(-1, 3)
+    # images of the sub-square centres, found on the whole cube's grid (per_face * sub per side)
+    face, iu, iv = _cube_cells(np.einsum("sij,cj->sci", _cube_group(), dirs), per_face * sub)
+    b = (face * per_face + iu // sub) * per_face + iv // sub
+    perm = (b * ns + (iu % sub) * sub + iv % sub).reshape(48, -1)
+    assert np.all(np.sort(perm, axis=1) == np.arange(len(dirs))), "cube symmetries: not a bijection"
+    assert np.all(perm[0] == np.arange(len(dirs))), "cube symmetries: cells out of dirs' order"
+    to_bin = perm[:, ::ns] // ns
+    rep = np.full(len(to_bin[0]), -1)
+    sym = np.zeros(len(rep), int)
+    for j in range(len(rep)):
+        if rep[j] < 0:  # a new orbit; the identity (s = 0) keeps j as its own representative
+            for s in range(48):
+                if rep[to_bin[s, j]] < 0:
+                    rep[to_bin[s, j]], sym[to_bin[s, j]] = j, s
+    for a in (perm, rep, sym):
+        a.setflags(write=False)
+    return perm, rep, sym
+
+
+def _by_symmetry(column, per_face, sub, row_sub):
+    """``m[r, j, a]`` (rows, nb, sub^2) of a cube-symmetric kernel from ``column(j)`` (rows,
+    sub^2) for the orbit representatives only: incoming sub-direction ``a`` of bin ``j`` in
+    :func:`bins` ``(sub)``, outgoing rows the sub-squares of :func:`bins` ``(row_sub)``.
+
+    ``m[P(r), P(j0, a)] = m[r, (j0, a)]`` for each symmetry ``P``.
+    """
+    perm, rep, sym = _symmetries(per_face, sub)
+    rows = _symmetries(per_face, row_sub)[0]
+    ns = sub * sub
+    # contiguous columns: scattering from a transposed view was 2-3x slower (216 bins, sub 8)
+    cols = {r: np.ascontiguousarray(column(r)) for r in np.unique(rep)}
+    m = np.empty((rows.shape[1], len(rep), ns))
+    for j, (r, s) in enumerate(zip(rep, sym)):
+        m[rows[s][:, None], j, perm[s, r * ns:(r + 1) * ns] - j * ns] = cols[r]
+    return m
+
+
 def _split_rest(g):
     """``g_rest`` of the split ``p = g^2 delta + (1 - g^2) HG(g_rest)`` (same mean cosine; the
     delta forward for g >= 0, backward otherwise)."""
@@ -185,13 +247,15 @@ def _binned_hg(g, sub, per_face=N_PER_FACE):
     flat_d = dirs.reshape(-1, 3)
     flat_w = w.reshape(-1)
     nb = len(omega)
-    m = np.zeros((nb, nb))
-    for j in range(nb):
+
+    def column(j):
         # p(d_a . d_b) w_b for incoming sub-direction a of bin j, every outgoing b
         pw = hg(dirs[j] @ flat_d.T, g) * flat_w[None, :]
         pw /= pw.sum(1, keepdims=True)  # exact conservation for each incoming direction
         frac = pw.reshape(len(dirs[j]), nb, -1).sum(2)  # (a, i)
-        m[:, j] = (w[j] @ frac) / omega[j]
+        return ((w[j] @ frac) / omega[j])[:, None]
+
+    m = _by_symmetry(column, per_face, 1, 1).reshape(nb, nb)
     return m / m.sum(0, keepdims=True)
 
 
@@ -331,11 +395,13 @@ def _sub_phase_matrix_cached(g, sub, out_sub, per_face):
     _, _, od, ow = bins(out_sub, per_face)
     flat_d = od.reshape(-1, 3)
     nb = len(dirs)
-    m = np.empty((nb, nb, dirs.shape[1]))
-    for j in range(nb):
+
+    def column(j):
         q = hg(dirs[j] @ flat_d.T, g) * ow.reshape(-1)[None, :]
         q /= q.sum(1, keepdims=True)
-        m[:, j, :] = q.reshape(dirs.shape[1], nb, -1).sum(2).T
+        return q.reshape(dirs.shape[1], nb, -1).sum(2).T
+
+    m = _by_symmetry(column, per_face, sub, 1)
     m.setflags(write=False)
     return m
 
@@ -363,12 +429,14 @@ def _sub_sub_cached(g, sub, k, per_face):
     flat_d = od.reshape(-1, 3)
     ns = sub * sub
     nb = len(dirs)
-    m = np.empty((nb, ns, nb, ns))
-    for j in range(nb):
+
+    def column(j):
         q = hg(dirs[j] @ flat_d.T, g) * ow.reshape(-1)[None, :]
         q /= q.sum(1, keepdims=True)
-        q = q.reshape(ns, nb, sub, k, sub, k).sum((3, 5)).reshape(ns, nb, ns)
-        m[:, :, j, :] = q.transpose(1, 2, 0)
+        return q.reshape(ns, nb, sub, k, sub, k).sum((3, 5)).reshape(ns, nb * ns).T
+
+    # one incoming bin per orbit of the cube's symmetries: 6 of 216 columns (per_face 6)
+    m = _by_symmetry(column, per_face, sub, sub).reshape(nb, ns, nb, ns)
     m.setflags(write=False)
     return m
 

@@ -219,3 +219,64 @@ def test_sub_sub_phase_matrix_refines_sub_phase_matrix():
     d = phase.bins(4)[2][37, 6]
     q = phase.direct_fractions(d, 0.8, sub=48, into_sub=4)
     np.testing.assert_allclose(m[:, :, 37, 6], q, atol=2e-3)
+
+
+@pytest.mark.parametrize("per_face", [2, 4, 6])
+@pytest.mark.parametrize("sub", [1, 2, 3])
+def test_cube_symmetries_permute_sub_squares(per_face, sub):
+    # each of the 48 symmetries takes every sub-square centre onto the centre of the sub-square
+    # it names, with the same solid angle: a bijection of the cells, in the order of bins' dirs
+    perm, rep, sym = phase._symmetries(per_face, sub)
+    _, _, dirs, w = phase.bins(sub, per_face)
+    d, w = dirs.reshape(-1, 3), w.reshape(-1)
+    group = phase._cube_group()
+    assert perm.shape == (48, len(d)) and len({g.tobytes() for g in group}) == 48
+    np.testing.assert_array_equal(np.sort(perm, axis=1), np.broadcast_to(np.arange(len(d)), perm.shape))
+    for s in range(48):
+        np.testing.assert_allclose(d @ group[s].T, d[perm[s]], atol=1e-15)
+        np.testing.assert_allclose(w[perm[s]], w, rtol=1e-12)
+    # orbits of the bins: the face's quadrant triangle (1, 3, 6); sym[j] takes rep[j] to j
+    nb = 6 * per_face ** 2
+    assert len(np.unique(rep)) == {2: 1, 4: 3, 6: 6}[per_face]
+    np.testing.assert_array_equal(rep[rep], rep)
+    np.testing.assert_array_equal(perm[sym, rep * sub * sub] // (sub * sub), np.arange(nb))
+
+
+def _brute_sub_sub(g, sub, k, per_face):
+    """Every column of sub_sub_phase_matrix, one incoming sub-direction at a time (the
+    brute force the symmetric tables replace): HG about it on the k x k finer squares."""
+    dirs = phase.bins(sub, per_face)[2].reshape(-1, 3)
+    _, _, fd, fw = phase.bins(sub * k, per_face)
+    nb = len(fw)
+    m = np.empty((len(dirs), len(dirs)))
+    for c, d in enumerate(dirs):
+        q = phase.hg(fd @ d, g) * fw
+        m[:, c] = (q / q.sum()).reshape(nb, sub, k, sub, k).sum((2, 4)).reshape(-1)
+    return m.reshape(nb, sub * sub, nb, sub * sub)
+
+
+def _check_tables_by_symmetry(g, sub, k, per_face):
+    ref = _brute_sub_sub(g, sub, k, per_face)
+    m = phase.sub_sub_phase_matrix(g, sub, k, per_face=per_face)
+    assert m.flags.c_contiguous and not m.flags.writeable and m.dtype == np.float64
+    np.testing.assert_allclose(m, ref, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(phase.sub_phase_matrix(g, sub, sub * k, per_face=per_face), ref.sum(1),
+                               rtol=0, atol=1e-12)
+    # flux spread evenly over bin j (solid-angle shares of its sub-squares), bins integrated on them
+    _, omega, _, w = phase.bins(sub, per_face)
+    mb = np.einsum("ija,ja->ij", _brute_sub_sub(g, sub, 1, per_face).sum(1), w / omega[:, None])
+    np.testing.assert_allclose(phase._binned_hg(g, sub, per_face), mb / mb.sum(0), rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("g", [0.8, -0.5])
+@pytest.mark.parametrize("per_face", [2, 4, 6])
+def test_tables_by_symmetry_equal_brute_force(g, per_face):
+    # the tables are computed for one incoming bin per orbit of the cube's symmetries and
+    # permuted into the others: every entry as computed column by column
+    _check_tables_by_symmetry(g, 2, 2, per_face)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("sub,k,per_face", [(4, 2, 6), (2, 2, 8), (3, 2, 4)])
+def test_tables_by_symmetry_equal_brute_force_finer(sub, k, per_face):
+    _check_tables_by_symmetry(0.9, sub, k, per_face)
