@@ -356,7 +356,7 @@ def accuracy(quick=False):
     for name, tau, layers, om, g, mu0, r_ref, t_ref, cubic in cases:
         errs, secs = [], 0.0
         finer = FINER if g == 0.8 and not cubic else ()
-        if quick:  # the smoke run leaves out 216 bins: their phase tables alone are ~70 CPU s
+        if quick:  # the smoke run leaves out 216 bins: a solve costs ~2.7x a 96-bin one (_solve's notes)
             finer = tuple(kw for kw in finer if "bins_per_face" not in kw)
         for prof, kw in [(False, {}), (True, {})] + [(True, kw) for kw in finer]:
             r, tr, sec = _slab(tau, layers, om, g, mu0, prof, cubic, **kw)
