@@ -170,8 +170,10 @@ def plan(out, quality="preview", only=None, *, days=None, frames=None, size=None
         lines = [seg.motion, REFERENCE]
         if days is not None:
             lines[0] = f"{days:g} model days, one frame per model hour: the texture moves with the wind"
-        # splats: EEVEE draws them as the paper's hardware did, ~4x faster than Cycles here; 1 sample is enough
-        engine = "BLENDER_EEVEE" if quality == "preview" and seg.key == "fig3" else None
+        # splats: EEVEE draws them as the paper's hardware did (tests/addon/test_splat_ops.py: within 2 % of the
+        # core renderer), ~7x faster than Cycles at 1 sample; a final Cycles frame (1920x1080, 32 samples) ran
+        # past 23 min on 2 cores without finishing (2026-11-29), so a final reel draws them with EEVEE too
+        engine = "BLENDER_EEVEE" if seg.key == "fig3" else None
         n_samples = samples
         if samples_given is None and quality == "preview":  # the denoiser cleans 2 samples; Fig. 7 has none
             n_samples = 1 if engine == "BLENDER_EEVEE" else 4 if seg.key == "fig7" else samples

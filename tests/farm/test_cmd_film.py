@@ -77,6 +77,9 @@ def test_plan_follows_the_paper():
     final = {s.key: s for s in reel.plan("/tmp/x", "final")}
     assert final["fig1"].frames == 240 and final["fig6"].frames == 120 and final["fig1"].size == (1920, 1080)
     assert final["fig1"].options["hours_per_frame"] == 1.0 and final["fig1"].options["haze"] == "volume"
+    # the splats in EEVEE at both qualities (a final Cycles frame of them: past 23 min on 2 cores), the rest in Cycles
+    assert final["fig3"].engine == shots[2].engine == "BLENDER_EEVEE" and final["fig3"].samples == 32
+    assert all(s.engine is None for s in final.values() if s.key != "fig3")
     # a different option, a different folder: resume never mixes frames made otherwise
     a, b = reel.plan("/tmp/x", only="fig1")[0], reel.plan("/tmp/x", only="fig1", annotate=False)[0]
     assert a.out_dir != b.out_dir and a.out_dir == reel.plan("/tmp/x", only="fig1")[0].out_dir
