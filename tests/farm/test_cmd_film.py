@@ -80,6 +80,7 @@ def test_plan_follows_the_paper():
     # the splats in EEVEE at both qualities (a final Cycles frame of them: past 23 min on 2 cores), the rest in Cycles
     assert final["fig3"].engine == shots[2].engine == "BLENDER_EEVEE" and final["fig3"].samples == 32
     assert all(s.engine is None for s in final.values() if s.key != "fig3")
+    assert final["fig6"].options["grid"] == [64, 64, 48] and "grid" not in shots[5].options  # preview: the example's
     # a different option, a different folder: resume never mixes frames made otherwise
     a, b = reel.plan("/tmp/x", only="fig1")[0], reel.plan("/tmp/x", only="fig1", annotate=False)[0]
     assert a.out_dir != b.out_dir and a.out_dir == reel.plan("/tmp/x", only="fig1")[0].out_dir
