@@ -7,7 +7,9 @@
  * rows of unshot by VB voxels stay in registers while the rows of recv stream past, so each value
  * of unshot is read and written once, and each row of unshot in runs long enough to stream (the
  * 96 rows in 64-byte pieces missed the prefetchers: 2.8 GB/s, slower than NumPy's BLAS).  Python
- * runs voxel ranges on its threads.
+ * runs voxel ranges on its threads.  Blocks of VB voxels where every row of recv is zero (empty
+ * voxels catch nothing: 40-47 % of the Fig. 6 cloud's blocks inside its occupied box) are skipped,
+ * their rows of unshot neither read nor written: the sum is the same.
  */
 
 #include <stdint.h>
@@ -63,13 +65,24 @@ void scatter_shoot(int64_t nb, int64_t k, int64_t v0, int64_t v1, const float *m
     int64_t run = (8192 / (k > 0 ? k : 1)) / VB * VB;
     run = run < VB ? VB : run > 512 ? 512 : run;
     int64_t c0 = v0;
+    unsigned char lit[512 / VB]; /* per block of the run: does it catch anything */
     for (; c0 + VB <= v1; c0 += run) {
         const int64_t c1 = c0 + run < v1 ? c0 + run : v1 - (v1 - c0) % VB; /* whole VB blocks */
+        int64_t any = 0;
+        for (int64_t c = c0; c < c1; c += VB) {
+            unsigned nz = 0;
+            for (int64_t j = 0; j < k && !nz; j++)
+                for (int v = 0; v < VB; v++)
+                    nz |= recv[j * r_stride + c + v] != 0.0f;
+            lit[(c - c0) / VB] = (unsigned char)nz;
+            any |= nz;
+        }
         int64_t i = 0;
-        for (; i + IB <= nb; i += IB)
+        for (; any && i + IB <= nb; i += IB)
             for (int64_t c = c0; c < c1; c += VB)
-                block(nb, k, i, c, mt, recv, r_stride, unshot, u_stride);
-        for (; i < nb; i++)
+                if (lit[(c - c0) / VB])
+                    block(nb, k, i, c, mt, recv, r_stride, unshot, u_stride);
+        for (; any && i < nb; i++)
             for (int64_t j = 0; j < k; j++)
                 for (int64_t v = c0; v < c1; v++)
                     unshot[i * u_stride + v] += mt[j * nb + i] * recv[j * r_stride + v];

@@ -129,6 +129,27 @@ def test_scatter_into_matches_the_direct_product(g, shape):
     np.testing.assert_allclose(u, want, rtol=2e-6)
 
 
+def test_scatter_into_where_little_is_caught():
+    """Empty voxels catch nothing: the kernel skips blocks whose every row is zero.  Lone lit
+    voxels at block edges, one lit row of k, and the last voxels (fewer than a block) still count,
+    and the unshot light of voxels that caught nothing is left exactly as it was."""
+    rng = np.random.default_rng(5)
+    k, n = 16, 16 * 70 + 9
+    r = np.zeros((k, n), np.float32)
+    r[:, 32:48] = rng.random((k, 16))  # one whole block
+    r[3, 80] = r[0, 111] = 1.5  # one row, a block's first and last voxels
+    r[k - 1, n - 1] = 2.0  # the tail after the last whole block
+    r[:, 500:700] = rng.random((k, 200)) * (rng.random(200) < 0.3)
+    m = rng.random((96, k))
+    u = rng.random((96, n)).astype(np.float32)
+    want = u + 0.9 * (m @ r.astype(np.float64))
+    dark = ~r.any(0)
+    before = u[:, dark].copy()
+    passes._scatter_into(u, m, r, 0.9)
+    np.testing.assert_allclose(u, want, rtol=2e-6)
+    np.testing.assert_array_equal(u[:, dark], before)
+
+
 def test_float32_exponentials_of_the_kernels(monkeypatch):
     # the sweep of one beam through one voxel returns exp(-tau) (no emission) and, with an even
     # source, (1 - exp(-tau)) / tau: scatter_math.h's expf and expm1 against float64 (measured:
