@@ -457,12 +457,13 @@ def _error(sol, ref):
     return float(d.sum(dtype=np.float64) / ref.injected), float(d.max() / ref.received.max())
 
 
-def evolving(frames=240, n=64, check=24, kinds=("drifting", "climate")):
+def evolving(frames=240, n=64, check=24, kinds=("drifting", "climate"), climate_frames=None):
     """Rows: per evolving cloud, every frame solved warm-started from the one before, every
     ``check``-th frame also cold and cold-tight (tol 1e-5 and 2x2 sub-directions in every pass,
     ``late_sub=None``: the finer reference; a warm start's one Jacobi pass carries all the binned
     light on 2x2 too, where a cold solve's late passes take 1x1); per-frame seconds warm and cold,
-    and each checked frame's error against its tight solve (warm and cold)."""
+    and each checked frame's error against its tight solve (warm and cold).  ``climate_frames``: the
+    climate cloud's own frame count (None: ``frames``), spread over the same 240 steps of its data."""
     from nephele.core.climate.synthetic import demo_dataset
     from nephele.core.light import evolving as ev
     from nephele.core.light import scatter
@@ -470,14 +471,16 @@ def evolving(frames=240, n=64, check=24, kinds=("drifting", "climate")):
 
     kw = dict(albedo=ALBEDO, g=G, sun_dir=SUN, tol=1e-3)
     rows, series = [], {}
+    film = frames
     for kind in kinds:
+        frames = film if kind == "drifting" or climate_frames is None else climate_frames
         if kind == "drifting":
             params = cloud_density.CloudParams(shape=(3 * n // 4, n, n), size=SIZE)
-            density = lambda i, params=params: ev.drifting_cloud(params, i, frames, extinction=EXT)  # noqa: E731
+            density = lambda i, params=params, f=frames: ev.drifting_cloud(params, i, f, extinction=EXT)  # noqa: E731
         else:
             data = demo_dataset()
-            density = lambda i, data=data: ev.climate_cloud(  # noqa: E731
-                data, i * 240 // frames, shape=(3 * n // 4, n, n), extinction=EXT)
+            density = lambda i, data=data, f=frames: ev.climate_cloud(  # noqa: E731
+                data, i * 240 // f, shape=(3 * n // 4, n, n), extinction=EXT)
         prev, warm_s, cold_s, errs, passes = None, [], [], [], []
         load0 = os.getloadavg()[0]
         for i in range(frames):
@@ -522,6 +525,8 @@ def main(argv=None):
     ap.add_argument("--compiled", action="store_true",
                     help="only the compiled kernels against the NumPy twins and the evolving clouds (writes docs)")
     ap.add_argument("--frames", type=int, default=240, help="frames of the evolving clouds (default 240)")
+    ap.add_argument("--climate-frames", type=int, default=None,
+                    help="frames of the climate cloud, over the same 240 steps of its data (default: --frames)")
     ap.add_argument("--skip-accuracy", action="store_true", help="leave the voxel-depth table as it is")
     ap.add_argument("--views", type=int, default=120)
     ap.add_argument("--film", type=int, action="append", default=[],
@@ -541,15 +546,16 @@ def main(argv=None):
         ns, frames, n, check = ((24,), 3, 24, 2) if args.quick else ((64, 128), args.frames, 64, 24)
         load = f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores at the start"
         rows = compiled(ns)
-        ev_rows, series = evolving(frames, n, check)
+        ev_rows, series = evolving(frames, n, check, climate_frames=None if args.quick else args.climate_frames)
         if not args.quick:
             write_section("scatter-compiled", f"{load}; the machine is shared, so each row says its load (1-minute "
                           "average before-after). The compiled kernels (native/src/scatter_*.c) against their NumPy "
                           "twins in one process, back to back; CPU = this process's CPU seconds, all threads.\n\n"
                           + md_table(["solve", "wall s", "CPU s", "load", "note"], rows),
                           title="Multiple scattering: compiled kernels against the NumPy twins")
-            write_section("scatter-evolving", f"{load}. Clouds that change during the film ({frames} frames, "
-                          f"{n}x{n}x{3 * n // 4}): each frame's solve warm-started from the frame before (the passes "
+            write_section("scatter-evolving", f"{load}. Clouds that change during the film ({n}x{n}x{3 * n // 4}; "
+                          "frames: each row's, the climate cloud's over the 240 steps of its data): each frame's "
+                          "solve warm-started from the frame before (the passes "
                           "shoot only the difference its density makes) against a cold solve, both to tol 1e-3; "
                           f"every {check}th frame (and the last) also solved cold to tol 1e-5 with 2x2 sub-directions "
                           "in every pass (`late_sub=None`), the reference of the errors: L1 of received over the "
