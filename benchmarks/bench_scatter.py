@@ -480,25 +480,24 @@ def evolving(frames=240, n=64, check=24, kinds=("drifting", "climate"), climate_
 
     kw = dict(albedo=ALBEDO, g=G, sun_dir=SUN, tol=1e-3)
     rows, series = [], {}
-    film = frames
     for kind in kinds:
-        frames = film if kind == "drifting" or climate_frames is None else climate_frames
+        count = frames if kind == "drifting" or climate_frames is None else climate_frames
         if kind == "drifting":
             params = cloud_density.CloudParams(shape=(3 * n // 4, n, n), size=SIZE)
-            density = lambda i, params=params, f=frames: ev.drifting_cloud(params, i, f, extinction=EXT)  # noqa: E731
+            density = lambda i, params=params, f=count: ev.drifting_cloud(params, i, f, extinction=EXT)  # noqa: E731
         else:
             data = demo_dataset()
-            density = lambda i, data=data, f=frames: ev.climate_cloud(  # noqa: E731
+            density = lambda i, data=data, f=count: ev.climate_cloud(  # noqa: E731
                 data, i * 240 // f, shape=(3 * n // 4, n, n), extinction=EXT)
         prev, warm_s, cold_s, errs, passes = None, [], [], [], []
         load0 = os.getloadavg()[0]
-        for i in range(frames):
+        for i in range(count):
             sigma = density(i)
             t = time.perf_counter()
             sol = scatter.solve(sigma, SIZE, warm=prev, **kw)
             warm_s.append(time.perf_counter() - t)
             passes.append(sol.passes)
-            if i % check == 0 or i == frames - 1:
+            if i % check == 0 or i == count - 1:
                 t = time.perf_counter()
                 cold = scatter.solve(sigma, SIZE, **kw)
                 cold_s.append(time.perf_counter() - t)
@@ -511,7 +510,7 @@ def evolving(frames=240, n=64, check=24, kinds=("drifting", "climate"), climate_
         load = f"{load0:.1f}-{os.getloadavg()[0]:.1f}"
         worst = max(errs[1:] or errs, key=lambda e: e[1])
         later = [e for e in errs if e[0] > 0]
-        rows.append((kind, frames, f"{np.mean(warm_s[1:] or warm_s):.2f}", f"{np.mean(cold_s):.2f}",
+        rows.append((kind, count, f"{np.mean(warm_s[1:] or warm_s):.2f}", f"{np.mean(cold_s):.2f}",
                      f"{np.mean(warm_s[1:] or warm_s) / np.mean(cold_s):.2f}", f"{np.mean(passes[1:] or passes):.1f}",
                      f"{worst[1]:.2e} (frame {worst[0]})", f"{max(e[3] for e in errs):.2e}",
                      f"{later[0][1]:.2e} -> {later[-1][1]:.2e}" if later else "", load))
