@@ -24,12 +24,13 @@ class SweepArgs(ctypes.Structure):
                 ("em", _P), ("em_s", _I * 4), ("kap", _P), ("kap_s", _I * 4), ("qa", _P), ("qa_s", _I * 3),
                 ("var", _P), ("var_s", _I * 3), ("recv", _P), ("recv_s", _I * 5), ("per_sub", _I),
                 ("total", _P), ("total_s", _I * 4), ("exit_power", _P), ("mom", _P), ("mom_s", _I * 5),
-                ("slot_kept", _I), ("slot_m2", _I), ("slot_dep", _I), ("cache", _P), ("cache_mode", _I)]
+                ("slot_kept", _I), ("slot_m2", _I), ("slot_dep", _I), ("cache", _P), ("cache_mode", _I),
+                ("obins", _P), ("rbin", _P), ("rbin_s", _I * 4), ("caught", _P)]
 
 
 def sweep_kernel():
     """``scatter_sweep`` with its types, or None (no compiled kernels, or ``NEPHELE_NATIVE=0``)."""
-    return native.kernel("scatter_sweep", ctypes.c_int, [ctypes.POINTER(SweepArgs), _I, _I])
+    return native.kernel("scatter_sweep", None, [ctypes.POINTER(SweepArgs), _I, _I, _P])
 
 
 def scatter_kernel():
@@ -69,18 +70,24 @@ def _taps(shift):
     return np.ascontiguousarray(np.where(small, 0, i0)), np.ascontiguousarray(w)
 
 
-def sweep(kernel, sig, geom, beams, sources, outputs, cache, fresh, threads):
+def sweep(kernel, sig, geom, beams, sources, outputs, cache, fresh, threads, scratch):
     """Sweep every bin of a group by the compiled kernel, bins on ``threads`` threads.
 
     ``geom`` = (sign, periodic_a, periodic_b, comp); ``beams`` = (cross (K, 3), ell (K,), sa (K,),
     sb (K,), w (g, ns), inflow (g, ns)); ``sources`` = (em, kap, qa, var) sweep-order views or None;
-    ``outputs`` = (recv, per_sub, total, exit_power, mom, slot) with ``slot`` the moments' slots.
+    ``outputs`` = (recv, per_sub, total, exit_power, mom, slot, into) with ``slot`` the moments'
+    slots and ``into`` None or (rbin, bins, caught): ``total`` and ``rbin`` (None or, per_sub, the
+    catch summed over sub-directions) are then sweep-order views of the solve's arrays of all bins,
+    this group's bins at rows ``bins`` (int64), the total added to them; ``caught`` (g, ns) float64
+    zeros or None, gets the power each sub-beam caught.
     ``cache``: the group's dict (kept between passes) or None, ``fresh`` as :func:`._sweep._sweep`'s.
+    ``scratch``: a :class:`._sweep._Scratch` holding each thread's workspace from call to call, or None.
     """
     sign, pa, pb, comp = geom
     cross, ell, sa, sb, w, inflow = beams
     em, kap, qa, var = sources
-    recv, per_sub, total, exit_power, mom, slot = outputs
+    recv, per_sub, total, exit_power, mom, slot, into = outputs
+    rbin, obins, caught = (None, None, None) if into is None else into
     g, ns = w.shape
     L, A, B = sig.shape
     # per row, the span of non-empty voxels (the twin's rectangles hold empty ones too)
@@ -105,9 +112,13 @@ def sweep(kernel, sig, geom, beams, sources, outputs, cache, fresh, threads):
                   cross=vecs[0].ctypes.data, ell=vecs[1].ctypes.data, w=vecs[2].ctypes.data,
                   inflow=vecs[3].ctypes.data, per_sub=int(per_sub), exit_power=exit_power.ctypes.data,
                   slot_kept=slot.get("kept", -1), slot_m2=slot.get("m2", -1), slot_dep=slot.get("dep", -1),
-                  cache=None if buf is None else buf.ctypes.data, cache_mode=mode)
+                  cache=None if buf is None else buf.ctypes.data, cache_mode=mode,
+                  obins=None if obins is None else obins.ctypes.data,
+                  caught=None if caught is None else caught.ctypes.data)
+    if caught is not None and (caught.dtype != np.float64 or not caught.flags.c_contiguous or caught.size != g * ns):
+        raise TypeError("scatter kernels: caught must be contiguous float64 (g, ns)")
     for name, arr, n in (("em", em, 4), ("kap", kap, 4), ("qa", qa, 3), ("var", var, 3), ("recv", recv, 5),
-                         ("total", total, 4), ("mom", mom, 5)):
+                         ("total", total, 4), ("mom", mom, 5), ("rbin", rbin, 4)):
         if name == "recv" and not per_sub:  # (bin, layer, row, column): no sub axis
             p, st = _ptr(arr, 4)
             st = st[:1] + [0] + st[1:]
@@ -118,9 +129,11 @@ def sweep(kernel, sig, geom, beams, sources, outputs, cache, fresh, threads):
     if exit_power.dtype != np.float64 or not exit_power.flags.c_contiguous:
         raise TypeError("scatter kernels: exit power must be contiguous float64")
     ref = ctypes.byref(a)
-    failed = thread_map(lambda b: kernel(ref, b, b + 1), range(g), threads or default_threads())
-    if any(failed):
-        raise MemoryError("scatter_sweep: out of memory for its beam planes")
+    size = native.kernel("scatter_sweep_work", _I, [ctypes.POINTER(SweepArgs)])(ref)
+    n = max(1, min(int(threads or default_threads()), g))
+    work = [np.empty(size, np.float32) if scratch is None else scratch.empty(("sweep", t), (size,)) for t in range(n)]
+    # (bins of one group cost alike: each thread takes every n-th)
+    thread_map(lambda t: [kernel(ref, b, b + 1, work[t].ctypes.data) for b in range(t, g, n)], range(n), n)
 
 
 def scatter_into(kernel, unshot, m, recv, threads=None):
@@ -142,7 +155,7 @@ def _kernel(name, argtypes):
     return native.kernel(name, None, argtypes)
 
 
-def _bins(bs, nb):
+def bin_rows(bs, nb):
     """Bin indices ``bs`` (a slice or indices into ``nb`` bins) as a contiguous int64 array."""
     return np.ascontiguousarray(np.arange(nb)[bs] if isinstance(bs, slice) else bs, np.int64)
 
@@ -165,7 +178,7 @@ def bin_sum(a, bs):
     if k is None:
         return None
     flat = _rows(a)
-    bins = _bins(bs, len(a))
+    bins = bin_rows(bs, len(a))
     out = np.empty(a.shape[1:], np.float64)
     n = flat.shape[1]
     thread_map(lambda r: k(len(bins), bins.ctypes.data, flat.ctypes.data, n, r[0], r[1], out.ctypes.data),
@@ -173,38 +186,19 @@ def bin_sum(a, bs):
     return out
 
 
-def shot_group(bs, unshot, received, total, r, tot, power, shot, albedo):
+def shot_group(bs, unshot, received, r, power, shot, albedo):
     """:func:`._passes._shot_group` by the compiled kernel; False without it."""
-    k = _kernel("scatter_shot", [_I, _P, _I, _I, _I, _P, _P, _P, _P, _P, _P, _P, ctypes.c_double])
+    k = _kernel("scatter_shot", [_I, _P, _I, _I, _I, _P, _P, _P, _P, _P, ctypes.c_double])
     if k is None:
         return False
-    u, rec, tt = _rows(unshot), _rows(received), _rows(total)
-    rr, to = _rows(np.ascontiguousarray(r, np.float32)), _rows(np.ascontiguousarray(tot, np.float32))
+    u, rec, rr = _rows(unshot), _rows(received), _rows(np.ascontiguousarray(r, np.float32))
     if not (power.dtype == shot.dtype == np.float64 and power.flags.c_contiguous and shot.flags.c_contiguous):
         raise TypeError("scatter_shot: contiguous float64 power and shot")
-    bins = _bins(bs, len(unshot))
+    bins = bin_rows(bs, len(unshot))
     n = u.shape[1]
     thread_map(lambda q: k(len(bins), bins.ctypes.data, n, q[0], q[1], u.ctypes.data, rec.ctypes.data,
-                           tt.ctypes.data, rr.ctypes.data, to.ctypes.data, power.ctypes.data, shot.ctypes.data,
-                           float(albedo)), _ranges(n))
+                           rr.ctypes.data, power.ctypes.data, shot.ctypes.data, float(albedo)), _ranges(n))
     return True
-
-
-def caught_per_sub(bs, r, tot, rec, total):
-    """:func:`._passes._caught_per_sub` by the compiled kernel, or None without it."""
-    k = _kernel("scatter_caught", [_I, _I, _P, _I, _I, _I, _P, _P, _P, _P, _P])
-    if k is None:
-        return None
-    g, ns = r.shape[:2]
-    rr = np.ascontiguousarray(r, np.float32).reshape(g * ns, -1)
-    to, fo, fa = _rows(np.ascontiguousarray(tot, np.float32)), _rows(rec), _rows(total)
-    bins = _bins(bs, len(rec))
-    n = fo.shape[1]
-    parts = _ranges(n)
-    caught = np.zeros((len(parts), g, ns))
-    thread_map(lambda i: k(g, ns, bins.ctypes.data, n, parts[i][0], parts[i][1], rr.ctypes.data, to.ctypes.data,
-                           fo.ctypes.data, fa.ctypes.data, caught[i].ctypes.data), range(len(parts)))
-    return caught.sum(0)
 
 
 def moments(mw, bm, comp, slot, d, m2, scale, out, threads=None, also=None):

@@ -6,6 +6,7 @@ import numpy as np
 
 from ..threads import default_threads, split_map, thread_map
 from . import _native, phase
+from ._sweep import _as_slice
 
 
 class _Tail:
@@ -31,11 +32,11 @@ class _Tail:
     def begin(self):
         """Before a pass: remember where it starts (in buffers kept from pass to pass)."""
         if self.start is None:
-            self.start = [a.copy() for a in self.arrays]
-            return
-        if self.spare is None:
-            self.spare = np.empty_like(self.arrays[0])
-        self.start[0], self.spare = self.spare, None
+            self.start = [np.empty_like(a) for a in self.arrays]
+        else:
+            if self.spare is None:
+                self.spare = np.empty_like(self.arrays[0])
+            self.start[0], self.spare = self.spare, None
         for buf, a in zip(self.start[:2], self.arrays[:2]):
             fb, fa = buf.reshape(len(buf), -1), a.reshape(len(a), -1)
             split_map(lambda s, fb=fb, fa=fa: np.copyto(fb[:, s], fa[:, s]), fa.shape[1])
@@ -50,7 +51,7 @@ class _Tail:
             np.subtract(fr[:, s], fd[:, s], out=fd[:, s])
             return np.abs(fd[:, s]).sum(dtype=np.float64)
 
-        power = float(sum(split_map(increment, fd.shape[1])))
+        power = float(sum(split_map(increment, fd.shape[1], chunk=1 << 12)))  # (small |.| temporaries)
         factor, change = None, np.inf
         if self.last is not None and self.last[1] > 0 and 0 < power < self.last[1]:
             rho = power / self.last[1]
@@ -66,8 +67,15 @@ class _Tail:
     def apply(self):
         """Add the extrapolated passes to ``received``, ``total`` and the exit power."""
         rec, tot, ex = self.arrays
-        rec += np.float32(self.factor) * self.last[0]
-        tot += (tot - self.start[1]) * np.float32(self.factor)
+        f = np.float32(self.factor)
+        fr, fl = rec.reshape(len(rec), -1), self.last[0].reshape(len(rec), -1)
+        ft, fs = tot.reshape(len(tot), -1), self.start[1].reshape(len(tot), -1)
+
+        def add(s):
+            fr[:, s] += f * fl[:, s]
+            ft[:, s] += (ft[:, s] - fs[:, s]) * f
+
+        split_map(add, fr.shape[1], chunk=1 << 12)
         ex += (ex - self.start[2]) * self.factor
 
 
@@ -127,50 +135,24 @@ def _occupied_box(sigma, periodic):
     return None if sigma[box].shape == sigma.shape else box
 
 
-def _shot_group(bs, unshot, received, total, r, tot, power, shot, albedo):
-    """After a sweep of bins ``bs``: their unshot light is shot, what they caught (``r``) and
-    carried (``tot``) is added to ``received`` and ``total``, and the unshot ``power`` per voxel
-    loses ``shot`` and gains albedo times ``r``; on threads, voxel ranges side by side (in one
-    thread these whole-grid steps took 2.6 s, about 3 %, of a line-profiled 128x128x96 solve)."""
+def _shot_group(bs, unshot, received, r, power, shot, albedo):
+    """After a sweep of bins ``bs``: their unshot light is shot, what they caught (``r``) is added
+    to ``received``, and the unshot ``power`` per voxel loses ``shot`` and gains albedo times ``r``
+    (the sweep added what they carried to the total); on threads, voxel ranges side by side (in
+    one thread these whole-grid steps took 2.6 s, about 3 %, of a line-profiled 128x128x96 solve)."""
     bs = _as_slice(bs)
-    if _native.shot_group(bs, unshot, received, total, r, tot, power.reshape(-1), shot.reshape(-1), albedo):
+    if _native.shot_group(bs, unshot, received, r, power.reshape(-1), shot.reshape(-1), albedo):
         return
-    u, rec, tt = (a.reshape(len(a), -1) for a in (unshot, received, total))
-    rr, to, pw, sh = r.reshape(len(r), -1), tot.reshape(len(tot), -1), power.reshape(-1), shot.reshape(-1)
+    u, rec = (a.reshape(len(a), -1) for a in (unshot, received))
+    rr, pw, sh = r.reshape(len(r), -1), power.reshape(-1), shot.reshape(-1)
 
     def run(s):
         u[bs, s] = 0.0
         rec[bs, s] += rr[:, s]
-        tt[bs, s] += to[:, s]
         pw[s] -= sh[s]
         pw[s] += albedo * rr[:, s].sum(0, dtype=np.float64)
 
     split_map(run, pw.size)
-
-
-def _caught_per_sub(bs, r, tot, rec, total):
-    """After a sweep of bins ``bs`` per sub-direction: ``rec[bs]`` = what each bin caught
-    (``r`` (k, ns, ...) summed over its sub-directions), ``total[bs] += tot``; returns the
-    power caught per bin and sub-direction (k, ns), float64.  On threads, voxel ranges side
-    by side."""
-    bs = _as_slice(bs)
-    caught = _native.caught_per_sub(bs, r, tot, rec, total)
-    if caught is not None:
-        return caught
-    fr, ft = r.reshape(r.shape[0], r.shape[1], -1), tot.reshape(len(tot), -1)
-    fo, fa = rec.reshape(len(rec), -1), total.reshape(len(total), -1)
-
-    def run(s):
-        fo[bs, s] = fr[:, :, s].sum(1, dtype=np.float32)
-        fa[bs, s] += ft[:, s]
-        return fr[:, :, s].sum(2, dtype=np.float64)
-
-    return np.sum(split_map(run, fr.shape[2]), axis=0)
-
-
-def _as_slice(bs):
-    """Bin indices ``bs`` as a slice where they are a run (a view instead of a gather)."""
-    return slice(int(bs[0]), int(bs[-1]) + 1) if len(bs) and np.all(np.diff(bs) == 1) else bs
 
 
 def _bin_sum(a, bs):

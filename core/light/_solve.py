@@ -73,7 +73,6 @@ from ._escape import _DHI, _DLO, _DSCALE, _RSTEP, _RTAB, _offset, _rate_of_offse
 from ._passes import (
     _as_slice,
     _bin_sum,
-    _caught_per_sub,
     _fine_bins,
     _groups,
     _merge_quarters,
@@ -84,7 +83,7 @@ from ._passes import (
     _Tail,
 )
 from ._solution import Progress, Solution, _check_sky
-from ._sweep import _layer_area, _Scratch, _sweep
+from ._sweep import _layer_area, _Scratch, _sweep, _zero
 
 MERGE_TOL = 0.2
 MERGE_TOL_FIRST = 0.01
@@ -326,9 +325,9 @@ class _Solve:
                     else:
                         bdirs, bw, cols = sdirs[bs], weights[bs], m_k[:, bs]
                     sets = self.moment_sets(np.einsum("iba,ba->ib", cols, bw), alb_k)
-                    r, tot, ex = _sweep(sig_k, self.h, bdirs, bw, emission(bs), np.zeros(bw.shape), o.periodic, axis,
-                                        per_sub=True, profile=prof(gi), moments=sets, scratch=self.scratch)
-                    caught = _caught_per_sub(bs, r, tot, rec, self.total)
+                    r, caught, ex = _sweep(sig_k, self.h, bdirs, bw, emission(bs), np.zeros(bw.shape), o.periodic,
+                                           axis, per_sub=True, profile=prof(gi), moments=sets, scratch=self.scratch,
+                                           into=(rec, self.total, bs))
                     if merged:
                         rsub[np.ix_(bs, kids.reshape(-1))] = (caught[:, :, None] * share).reshape(len(bs), -1)
                     else:
@@ -354,8 +353,10 @@ class _Solve:
                                  o.real_orders > 0, o.albedo * self.q * self.injected, o.merge_tol_first,
                                  self.peaked[0])
         self.pweights = [self.wq]
+        self.spare = None
         for k in range(1, o.peaked_orders):
             rsub = self.peaked_order(k, rsub)
+        self.spare = None
 
     def peaked_order(self, k, rsub):
         """Peaked order ``k`` >= 1: what order ``k - 1`` left unshot, shot on sub-direction weights
@@ -365,8 +366,8 @@ class _Solve:
         wk = np.einsum("ibja,ja->ib", m_ss, rsub)
         wk = np.where(wk.sum(1, keepdims=True) > 0, wk / np.maximum(wk.sum(1, keepdims=True), 1e-300),
                       1.0 / wk.shape[1])
-        nxt = self.unshot.copy()
-        self.unshot[:] = 0.0
+        # (the order before's unshot light is shot now; the buffer of the one before that holds this one's)
+        nxt, self.unshot = self.unshot, _zero(self.spare if self.spare is not None else np.empty_like(self.unshot))
         prof = [self.unshot_profile(gi, _bin_sum(nxt, bs)) for gi, (_, bs) in enumerate(self.groups)]
         if self.umom is not None:
             self.umom[:] = 0.0
@@ -374,6 +375,7 @@ class _Solve:
                                  k < o.real_orders, nxt.reshape(nb, -1).sum(1, dtype=np.float64),
                                  o.merge_tol if k == 1 else o.merge_tol_later, self.peaked[k])
         self.pweights.append(wk)
+        self.spare = nxt
         return rsub
 
     # ------------------------------------------------------------------ the sky
@@ -394,10 +396,10 @@ class _Solve:
                 sky_in = sky_radiance * wabs[bs] * np.abs(dirs[bs][..., cc]) * area * down
             else:
                 sky_in = sky_radiance[bs][:, None] * wabs[bs] * np.abs(dirs[bs][..., cc]) * area
-            r, tot, ex = _sweep(self.sig_s, h, dirs[bs], self.wsub[bs], None, sky_in, o.periodic, axis,
-                                moments=self.moment_sets(self.M[:, bs], self.alb_s, True), scratch=self.scratch)
+            r, _, ex = _sweep(self.sig_s, h, dirs[bs], self.wsub[bs], None, sky_in, o.periodic, axis,
+                              moments=self.moment_sets(self.M[:, bs], self.alb_s, True), scratch=self.scratch,
+                              into=(None, self.total, bs))
             self.received[bs] += r.astype(np.float32)
-            self.total[bs] += tot.astype(np.float32)
             self.exit_flux[bs] += ex
             self.injected += float(r.sum())
             _scatter_into(self.unshot, self.M[:, bs], r, self.alb_s)
@@ -439,11 +441,11 @@ class _Solve:
         diff = np.zeros_like(self.unshot)
         for gi, (axis, bs) in enumerate(self.groups):
             sl = _as_slice(bs)
-            r, tot, ex = _sweep(self.sig_s, self.h, self.dirs[bs], self.wsub[bs], self.unshot[sl],
-                                np.zeros(self.wsub[bs].shape), o.periodic, axis, profile=prof[gi],
-                                moments=self.moment_sets(self.M[:, bs], self.alb_s, True), scratch=self.scratch)
+            r, _, ex = _sweep(self.sig_s, self.h, self.dirs[bs], self.wsub[bs], self.unshot[sl],
+                              np.zeros(self.wsub[bs].shape), o.periodic, axis, profile=prof[gi],
+                              moments=self.moment_sets(self.M[:, bs], self.alb_s, True), scratch=self.scratch,
+                              into=(None, self.total, bs))
             self.received[sl] += r
-            self.total[sl] += tot
             self.exit_flux[bs] += ex
             r -= g[sl]
             _scatter_into(diff, self.M[:, bs], r, self.alb_s)
@@ -504,11 +506,11 @@ class _Solve:
         sets = ((np.ones((1, len(bs))), umom, self.alb_s, self.mom_binned) if self.shared
                 else self.moment_sets(M_p[:, bs], self.alb_s, True))
         keep = int(o.profile_every) > 1
-        r, tot, ex = _sweep(self.sig_s, self.h, dirs_p[bs], wsub_p[bs], self.unshot[_as_slice(bs)],
-                            np.zeros(wsub_p[bs].shape), o.periodic, axis, caches_p[gi], profile=prof, moments=sets,
-                            fresh=refresh if keep else None, scratch=self.scratch)
+        r, _, ex = _sweep(self.sig_s, self.h, dirs_p[bs], wsub_p[bs], self.unshot[_as_slice(bs)],
+                          np.zeros(wsub_p[bs].shape), o.periodic, axis, caches_p[gi], profile=prof, moments=sets,
+                          fresh=refresh if keep else None, scratch=self.scratch, into=(None, self.total, bs))
         self.exit_flux[bs] += ex
-        _shot_group(bs, self.unshot, self.received, self.total, r, tot, self.power, shot, self.alb_s)
+        _shot_group(bs, self.unshot, self.received, r, self.power, shot, self.alb_s)
         _scatter_into(self.unshot, M_p[:, bs], r, self.alb_s)
 
     def run_passes(self):
@@ -536,7 +538,7 @@ class _Solve:
                 err = self.alb_s * self.tail.end() / self.ref
                 if err <= o.tol or (self.converged and self.tail.factor is not None):
                     self.tail.apply()
-                    self.unshot[:] = 0.0
+                    _zero(self.unshot)
                     self.residual, self.converged = min(err, self.residual), True
                     yield Progress(self.passes, len(groups), len(groups), self.residual)
         self.tail = None

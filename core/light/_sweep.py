@@ -107,14 +107,18 @@ class _Scratch:
         return buf[:n].reshape(shape)
 
     def zeros(self, name, shape):
-        out = self.empty(name, shape)
-        flat = out.reshape(-1)
-        split_map(lambda s: flat[s].fill(0), flat.size)
-        return out
+        return _zero(self.empty(name, shape))
+
+
+def _zero(a):
+    """``a`` (contiguous) filled with zeros on threads; returns it."""
+    flat = a.reshape(-1)
+    split_map(lambda s: flat[s].fill(0), flat.size)
+    return a
 
 
 def _sweep(sigma, h, dirs, wsub, emis, inflow, periodic, axis, cache=None, per_sub=False, profile=None,
-           moments=None, fresh=True, threads=None, scratch=None):
+           moments=None, fresh=True, threads=None, scratch=None, into=None):
     """Sweep a group of beams through ``sigma`` layer by layer along array ``axis``.
 
     ``dirs`` (g, ns, 3): ``ns`` sub-directions for each of ``g`` bins, all with
@@ -150,8 +154,13 @@ def _sweep(sigma, h, dirs, wsub, emis, inflow, periodic, axis, cache=None, per_s
     Emission must sit only in voxels with ``sigma > 0`` (a source needs extinction): each
     layer is transported only on the rectangle around its non-empty voxels, elsewhere the
     beams pass unchanged.
-    Returns received (g, ...) (``per_sub``: (g, ns, ...) per sub-direction),
-    total (g, ...) and the exit power (g,) through the far face.
+    ``into = (rec, total, bins)`` or None: the solve's arrays of all bins (nb, ...); the sweep's
+    total is added to ``total[bins]`` instead of being returned, and with ``per_sub`` and ``rec``
+    not None ``rec[bins]`` becomes the catch summed over sub-directions (the compiled sweep does
+    both as it goes, saving whole-grid passes over the outputs).
+    Returns received (g, ...) (``per_sub``: (g, ns, ...) per sub-direction), total (g, ...)
+    (with ``into``: the power caught per bin and sub-direction (g, ns) float64 where ``rec`` is
+    filled, else None) and the exit power (g,) through the far face.
     """
     g, ns, _ = dirs.shape
     comp = 2 - axis  # xyz component along the sweep
@@ -172,8 +181,17 @@ def _sweep(sigma, h, dirs, wsub, emis, inflow, periodic, axis, cache=None, per_s
         zeros = (lambda name, shape: np.zeros(shape, np.float32)) if scratch is None else scratch.zeros
     recv_grid = zeros("recv", (g, ns) + sigma.shape if per_sub else (g,) + sigma.shape)
     recv = np.moveaxis(recv_grid, lead + axis, lead)
-    total = zeros("total", (g, L, A, B))
     exit_power = np.zeros(g)
+    sums = None
+    if kernel is not None and into is not None:  # the kernel adds to the solve's arrays itself
+        rec_all, total_all, bins = into
+        rbin = None if rec_all is None or not per_sub else np.moveaxis(rec_all, axis + 1, 1)
+        sums = None if rbin is None else np.zeros((g, ns))
+        total = np.moveaxis(total_all, axis + 1, 1)
+        into_kernel = (rbin, _native.bin_rows(bins, len(total_all)), sums)
+    else:
+        total = zeros("total", (g, L, A, B))
+        into_kernel = None
     em = None if emis is None else np.moveaxis(np.asarray(emis, np.float32), axis + 1, 1)
     kap = None if profile is None else np.moveaxis(np.asarray(profile[0], np.float32), axis + 1, 1)
     mw = None if moments is None else np.asarray(moments[0], np.float32).reshape(-1, g)
@@ -208,7 +226,8 @@ def _sweep(sigma, h, dirs, wsub, emis, inflow, periodic, axis, cache=None, per_s
         shifts = [d[:, c] / np.abs(d[:, comp]) * (h[comp] / h[c]) for c in (ca, cb)]
         _native.sweep(kernel, sig, (sign, periodic[ca], periodic[cb], comp),
                       (ell[:, None] * d / np.asarray(h, float)[None], ell, *shifts, wsub, inflow),
-                      (em, kap, *shape2), (recv, per_sub, total, exit_power, bmom, slot), cache, fresh, threads)
+                      (em, kap, *shape2), (recv, per_sub, total, exit_power, bmom, slot, into_kernel), cache, fresh,
+                      threads, scratch)
     else:
         geom = (h, comp, others, periodic, sign, L, A, B, _layer_boxes(sig), slot)
 
@@ -228,7 +247,7 @@ def _sweep(sigma, h, dirs, wsub, emis, inflow, periodic, axis, cache=None, per_s
                  for i in (1, 2))
         side = [c for c in range(3) if c != comp]
         if _native.moments(mw, bm, comp, slot, d, m2, scale, out, threads, also):
-            return recv_grid, np.moveaxis(total, 1, axis + 1), exit_power
+            return _outputs(recv_grid, total, axis, exit_power, into, sums, into_kernel is not None)
 
         def add(s):
             # (einsum, not a BLAS product: OpenBLAS's threads would spin beside the solve's own
@@ -247,7 +266,38 @@ def _sweep(sigma, h, dirs, wsub, emis, inflow, periodic, axis, cache=None, per_s
                             o[:, 1, c, s] += m2[c, s] * m[slot["kept"]]
 
         split_map(add, bm.shape[2], threads)
-    return recv_grid, np.moveaxis(total, 1, axis + 1), exit_power
+    return _outputs(recv_grid, total, axis, exit_power, into, sums, into_kernel is not None)
+
+
+def _outputs(recv, total, axis, exit_power, into, sums, done):
+    """:func:`_sweep`'s return, ``total`` (g, L, A, B) in sweep order; with ``into`` it goes to the
+    solve's arrays (``done``: the compiled sweep put it there, and ``sums`` its per-sub catch)."""
+    if into is None:
+        return recv, np.moveaxis(total, 1, axis + 1), exit_power
+    if done:
+        return recv, sums, exit_power
+    rec_all, total_all, bins = into
+    fill = rec_all is not None and recv.ndim == total.ndim + 1
+    bs = bins if isinstance(bins, slice) else _as_slice(np.asarray(bins))
+    ft = np.moveaxis(total, 1, axis + 1).reshape(len(total), -1)
+    fa = total_all.reshape(len(total_all), -1)
+    fr = recv.reshape(recv.shape[0], recv.shape[1], -1)
+    fo = None if rec_all is None else rec_all.reshape(len(rec_all), -1)
+
+    def run(s):
+        fa[bs, s] += ft[:, s]
+        if fill:
+            fo[bs, s] = fr[:, :, s].sum(1, dtype=np.float32)
+            return fr[:, :, s].sum(2, dtype=np.float64)
+        return 0.0
+
+    parts = split_map(run, fa.shape[1])
+    return recv, np.sum(parts, axis=0) if fill else None, exit_power
+
+
+def _as_slice(bs):
+    """Bin indices ``bs`` as a slice where they are a run (a view instead of a gather)."""
+    return slice(int(bs[0]), int(bs[-1]) + 1) if len(bs) and np.all(np.diff(bs) == 1) else bs
 
 
 def _layer_boxes(sig):

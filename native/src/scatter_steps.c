@@ -1,5 +1,5 @@
 /* The scattering solve's bookkeeping between sweeps, compiled twins of nephele.core.light._passes
- * (_bin_sum, _shot_group, _caught_per_sub) and of the moments' sums in _sweep._sweep: whole-grid
+ * (_bin_sum, _shot_group) and of the moments' sums in _sweep._sweep: whole-grid
  * passes over (bins, voxels) arrays, each value read and written once, for voxels [v0, v1) (Python
  * runs voxel ranges on its threads).  Rows of the solve's (nb, voxels) arrays are picked by bin
  * index (``bins``), n voxels a row.
@@ -35,11 +35,11 @@ void scatter_bin_sum(int64_t g, const int64_t *bins, const float *a, int64_t n, 
 }
 
 /* After a sweep of bins ``bins``: their unshot light is shot (zeroed), what they caught (r, (g, n))
- * and carried (tot, (g, n)) is added to received and total, and the unshot power per voxel loses
- * ``shot`` and gains albedo times the catch (float64): _shot_group. */
+ * is added to received, and the unshot power per voxel loses ``shot`` and gains albedo times the
+ * catch (float64): _shot_group.  (The sweep added what they carried to the total.) */
 CLONES
 void scatter_shot(int64_t g, const int64_t *bins, int64_t n, int64_t v0, int64_t v1, float *unshot, float *received,
-                  float *total, const float *r, const float *tot, double *power, const double *shot, double albedo)
+                  const float *r, double *power, const double *shot, double albedo)
 {
     for (int64_t c = v0; c < v1; c += RUN) {
         const int64_t e = c + RUN < v1 ? c + RUN : v1, m = e - c;
@@ -48,49 +48,15 @@ void scatter_shot(int64_t g, const int64_t *bins, int64_t n, int64_t v0, int64_t
             sum[v] = 0.0;
         for (int64_t i = 0; i < g; i++) {
             float *restrict u = unshot + bins[i] * n + c, *restrict rec = received + bins[i] * n + c;
-            float *restrict tt = total + bins[i] * n + c;
-            const float *restrict ri = r + i * n + c, *restrict ti = tot + i * n + c;
+            const float *restrict ri = r + i * n + c;
             for (int64_t v = 0; v < m; v++) {
                 u[v] = 0.0f;
                 rec[v] += ri[v];
-                tt[v] += ti[v];
                 sum[v] += ri[v];
             }
         }
         for (int64_t v = 0; v < m; v++)
             power[c + v] = (power[c + v] - shot[c + v]) + albedo * sum[v];
-    }
-}
-
-/* After a sweep of bins ``bins`` per sub-direction: received[bins[i]] = r[i] summed over its ns
- * sub-directions (float32), total[bins[i]] += tot[i], and caught[i, s] += the power r[i, s] holds
- * over these voxels (float64): _caught_per_sub. */
-CLONES
-void scatter_caught(int64_t g, int64_t ns, const int64_t *bins, int64_t n, int64_t v0, int64_t v1, const float *r,
-                    const float *tot, float *received, float *total, double *caught)
-{
-    for (int64_t i = 0; i < g; i++) {
-        float *restrict rec = received + bins[i] * n, *restrict tt = total + bins[i] * n;
-        const float *restrict ti = tot + i * n;
-        for (int64_t v = v0; v < v1; v++)
-            tt[v] += ti[v];
-        for (int64_t v = v0; v < v1; v++)
-            rec[v] = 0.0f;
-        for (int64_t s = 0; s < ns; s++) {
-            const float *restrict x = r + (i * ns + s) * n;
-            double part[8] = {0.0}; /* eight running sums: one would wait on each addition's latency */
-            int64_t v = v0;
-            for (; v + 8 <= v1; v += 8)
-                for (int q = 0; q < 8; q++) {
-                    rec[v + q] += x[v + q];
-                    part[q] += x[v + q];
-                }
-            for (; v < v1; v++) {
-                rec[v] += x[v];
-                part[0] += x[v];
-            }
-            caught[i * ns + s] += ((part[0] + part[1]) + (part[2] + part[3])) + ((part[4] + part[5]) + (part[6] + part[7]));
-        }
     }
 }
 

@@ -17,7 +17,6 @@
 
 #include <math.h>
 #include <stdint.h>
-#include <stdlib.h>
 #include <string.h>
 
 #include "scatter_math.h"
@@ -60,6 +59,11 @@ struct nph_sweep {
     int64_t slot_kept, slot_m2, slot_dep; /* -1: not tracked; slot 0 is the first moment */
     float *cache;         /* (3, beams, soff[L A]): escapes, kept shifts, kept second moments */
     int64_t cache_mode;   /* 0: none, 1: compute and store, 2: read */
+    const int64_t *obins; /* (bins,) or NULL: total (and rbin) are the solve's arrays of all bins, this
+                             group's bin ``bin`` being row obins[bin]; the total is added to them */
+    float *rbin;
+    int64_t rbin_s[4];    /* (bin, layer, row, column) or NULL: per_sub's catch summed over the sub-beams */
+    double *caught;       /* (beams,) or NULL: the power each sub-beam caught (per_sub) */
 };
 
 /* Row buffers of one layer row (width n of the rectangle). */
@@ -331,6 +335,30 @@ static void fill_row(float *dst, int64_t stride, float v, int64_t n)
         dst[i * stride] = v;
 }
 
+/* a row of the total: written, or added to the solve's (obins) */
+static void put_total(const struct nph_sweep *s, float *dst, const float *restrict src, int64_t n)
+{
+    const int64_t stride = s->total_s[3];
+    if (s->obins == NULL)
+        scatter_row(dst, stride, src, n);
+    else
+        for (int64_t i = 0; i < n; i++)
+            dst[i * stride] += src[i];
+}
+
+/* sum of a row in float64, eight running sums (one would wait on each addition's latency) */
+static double row_sum(const float *restrict x, int64_t n)
+{
+    double part[8] = {0.0};
+    int64_t i = 0;
+    for (; i + 8 <= n; i += 8)
+        for (int q = 0; q < 8; q++)
+            part[q] += x[i + q];
+    for (; i < n; i++)
+        part[0] += x[i];
+    return ((part[0] + part[1]) + (part[2] + part[3])) + ((part[4] + part[5]) + (part[6] + part[7]));
+}
+
 /* zero columns [0, b0) and [b1, B) of row a of a strided (layer, row, column) plane */
 static void zero_outside(float *plane, const int64_t *st, int64_t a, int64_t b0, int64_t b1, int64_t B)
 {
@@ -366,21 +394,27 @@ INLINE void sweep_bin(const struct nph_sweep *s, int64_t bin, float *planes, flo
         for (int64_t q = 1; q < ns; q++)
             for (int64_t c = 0; c < AB; c++)
                 tmp[c] += planes[q * AB + c];
-        float *tot = s->total + bin * s->total_s[0];
+        const int64_t ob = s->obins == NULL ? bin : s->obins[bin];
+        float *tot = s->total + ob * s->total_s[0];
         float *rec = s->recv + bin * s->recv_s[0];
+        float *rb = s->rbin == NULL ? NULL : s->rbin + ob * s->rbin_s[0];
         float *mo = mom ? s->mom + bin * s->mom_s[0] : NULL;
         for (int64_t a = 0; a < A; a++) {
             const int64_t b0 = s->spans[2 * (k * A + a)], b1 = s->spans[2 * (k * A + a) + 1], wd = b1 - b0;
             if (wd <= 0) {
-                scatter_row(at3(tot, s->total_s + 1, k, a, 0), s->total_s[3], tmp + a * B, B);
+                put_total(s, at3(tot, s->total_s + 1, k, a, 0), tmp + a * B, B);
                 for (int64_t q = 0; q < nrecv; q++)
                     fill_row(at3(rec + q * s->recv_s[1], s->recv_s + 2, k, a, 0), s->recv_s[4], 0.0f, B);
+                if (rb != NULL)
+                    fill_row(at3(rb, s->rbin_s + 1, k, a, 0), s->rbin_s[3], 0.0f, B);
                 for (int64_t sl = 0; sl < nslots; sl++)
                     fill_row(at3(mo + sl * s->mom_s[1], s->mom_s + 2, k, a, 0), s->mom_s[4], 0.0f, B);
                 continue;
             }
             for (int64_t q = 0; q < nrecv; q++)
                 zero_outside(rec + q * s->recv_s[1] + k * s->recv_s[2], s->recv_s + 2, a, b0, b1, B);
+            if (rb != NULL)
+                zero_outside(rb + k * s->rbin_s[1], s->rbin_s + 1, a, b0, b1, B);
             for (int64_t sl = 0; sl < nslots; sl++)
                 zero_outside(mo + sl * s->mom_s[1] + k * s->mom_s[2], s->mom_s + 2, a, b0, b1, B);
             const float *sg = s->sig + k * AB + a * B + b0;
@@ -412,17 +446,22 @@ INLINE void sweep_bin(const struct nph_sweep *s, int64_t bin, float *planes, flo
                     ck = cs + beams * span;
                 }
                 row_dispatch(s, j, sg, planes + q * AB + a * B + b0, rw, ce, cs, ck, wd, mode, qa, mom, m2, store);
-                if (s->per_sub)
+                if (s->per_sub) {
                     scatter_row(at3(rec + q * s->recv_s[1], s->recv_s + 2, k, a, b0), s->recv_s[4], rw->r, wd);
-                else
+                    if (s->caught != NULL)
+                        s->caught[j] += row_sum(rw->r, wd);
+                }
+                if (!s->per_sub || rb != NULL)
                     for (int64_t i = 0; i < wd; i++)
                         rw->rsum[i] += rw->r[i];
             }
             if (!s->per_sub)
                 scatter_row(at3(rec, s->recv_s + 2, k, a, b0), s->recv_s[4], rw->rsum, wd);
+            if (rb != NULL)
+                scatter_row(at3(rb, s->rbin_s + 1, k, a, b0), s->rbin_s[3], rw->rsum, wd);
             for (int64_t i = 0; i < wd; i++)
                 tmp[a * B + b0 + i] += rw->etot[i];
-            scatter_row(at3(tot, s->total_s + 1, k, a, 0), s->total_s[3], tmp + a * B, B);
+            put_total(s, at3(tot, s->total_s + 1, k, a, 0), tmp + a * B, B);
             if (mom) {
                 const int64_t *ms = s->mom_s + 2;
                 scatter_row(at3(mo, ms, k, a, b0), ms[2], rw->m1, wd);
@@ -441,18 +480,19 @@ INLINE void sweep_bin(const struct nph_sweep *s, int64_t bin, float *planes, flo
     s->exit_power[bin] = ex;
 }
 
-/* Sweep bins [bin_lo, bin_hi) of the group ``s`` describes; 0, or 1 when out of memory. */
+/* Floats of the workspace scatter_sweep needs: the sub-beams' planes, one more plane, the row buffers. */
+int64_t scatter_sweep_work(const struct nph_sweep *s)
+{
+    return s->ns * s->A * s->B + s->A * s->B + 17 * s->B + 4;
+}
+
+/* Sweep bins [bin_lo, bin_hi) of the group ``s`` describes in ``work`` (scatter_sweep_work floats,
+ * kept by the caller from call to call: fresh memory would cost a page fault per 4 KiB each time). */
 CLONES
-int scatter_sweep(const struct nph_sweep *s, int64_t bin_lo, int64_t bin_hi)
+void scatter_sweep(const struct nph_sweep *s, int64_t bin_lo, int64_t bin_hi, float *work)
 {
     const int64_t AB = s->A * s->B, B = s->B;
-    float *planes = malloc((size_t)(s->ns * AB + AB) * sizeof(float));
-    float *buf = malloc((size_t)(13 * B + 3 * B + 4 + B) * sizeof(float));
-    if (planes == NULL || buf == NULL) {
-        free(planes);
-        free(buf);
-        return 1;
-    }
+    float *planes = work, *buf = work + s->ns * AB + AB;
     struct rows rw;
     float **fields[13] = {&rw.em, &rw.k0, &rw.k1, &rw.k2, &rw.qa, &rw.var, &rw.r, &rw.rsum, &rw.etot,
                           &rw.m1, &rw.mk, &rw.m2, &rw.md};
@@ -463,7 +503,4 @@ int scatter_sweep(const struct nph_sweep *s, int64_t bin_lo, int64_t bin_hi)
     for (int64_t bin = bin_lo; bin < bin_hi; bin++)
         sweep_bin(s, bin, planes, planes + s->ns * AB, &rw);
     nph_restore_denormals(csr);
-    free(planes);
-    free(buf);
-    return 0;
 }

@@ -88,7 +88,7 @@ def scatter_slab():
 DRIVERS = (blobby_plain, blobby_periodic, fastexp_edges, scatter_cloud, scatter_slab)
 
 
-def _sweep_path(ref, bin_lo, bin_hi):
+def _sweep_path(ref, bin_lo, bin_hi, work):
     s = ref._obj  # struct nph_sweep: the row's mode, its P2 term, moments, cache, sub-beams, sides
     return (s.em is None, s.kap is None, s.qa is None, s.mom is None, s.slot_m2 >= 0, s.cache_mode, s.per_sub,
             s.sign, bool(s.periodic_a or s.periodic_b))
