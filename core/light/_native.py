@@ -186,9 +186,9 @@ def bin_sum(a, bs):
     return out
 
 
-def shot_group(bs, unshot, received, r, power, shot, albedo):
+def shot_group(bs, unshot, received, r, power, shot, albedo, omega):
     """:func:`._passes._shot_group` by the compiled kernel; False without it."""
-    k = _kernel("scatter_shot", [_I, _P, _I, _I, _I, _P, _P, _P, _P, _P, ctypes.c_double])
+    k = _kernel("scatter_shot", [_I, _P, _I, _I, _I, _P, _P, _P, _P, _P, ctypes.c_double, ctypes.c_double])
     if k is None:
         return False
     u, rec, rr = _rows(unshot), _rows(received), _rows(np.ascontiguousarray(r, np.float32))
@@ -197,7 +197,8 @@ def shot_group(bs, unshot, received, r, power, shot, albedo):
     bins = bin_rows(bs, len(unshot))
     n = u.shape[1]
     thread_map(lambda q: k(len(bins), bins.ctypes.data, n, q[0], q[1], u.ctypes.data, rec.ctypes.data,
-                           rr.ctypes.data, power.ctypes.data, shot.ctypes.data, float(albedo)), _ranges(n))
+                           rr.ctypes.data, power.ctypes.data, shot.ctypes.data, float(albedo), float(omega)),
+               _ranges(n))
     return True
 
 

@@ -34,13 +34,15 @@ void scatter_bin_sum(int64_t g, const int64_t *bins, const float *a, int64_t n, 
     }
 }
 
-/* After a sweep of bins ``bins``: their unshot light is shot (zeroed), what they caught (r, (g, n))
- * is added to received, and the unshot power per voxel loses ``shot`` and gains albedo times the
- * catch (float64): _shot_group.  (The sweep added what they carried to the total.) */
+/* After a sweep of bins ``bins``: omega times their unshot light is shot (1 - omega times it stays),
+ * what they caught (r, (g, n)) is added to received, and the unshot power per voxel loses omega times
+ * ``shot`` and gains albedo times the catch (float64): _shot_group.  (The sweep added what they
+ * carried to the total.) */
 CLONES
 void scatter_shot(int64_t g, const int64_t *bins, int64_t n, int64_t v0, int64_t v1, float *unshot, float *received,
-                  const float *r, double *power, const double *shot, double albedo)
+                  const float *r, double *power, const double *shot, double albedo, double omega)
 {
+    const float keep = (float)(1.0 - omega);
     for (int64_t c = v0; c < v1; c += RUN) {
         const int64_t e = c + RUN < v1 ? c + RUN : v1, m = e - c;
         double sum[RUN];
@@ -50,13 +52,13 @@ void scatter_shot(int64_t g, const int64_t *bins, int64_t n, int64_t v0, int64_t
             float *restrict u = unshot + bins[i] * n + c, *restrict rec = received + bins[i] * n + c;
             const float *restrict ri = r + i * n + c;
             for (int64_t v = 0; v < m; v++) {
-                u[v] = 0.0f;
+                u[v] *= keep;
                 rec[v] += ri[v];
                 sum[v] += ri[v];
             }
         }
         for (int64_t v = 0; v < m; v++)
-            power[c + v] = (power[c + v] - shot[c + v]) + albedo * sum[v];
+            power[c + v] = (power[c + v] - omega * shot[c + v]) + albedo * sum[v];
     }
 }
 
