@@ -281,8 +281,8 @@ def _outputs(recv, total, axis, exit_power, into, sums, done):
     bs = bins if isinstance(bins, slice) else _as_slice(np.asarray(bins))
     ft = np.moveaxis(total, 1, axis + 1).reshape(len(total), -1)
     fa = total_all.reshape(len(total_all), -1)
-    fr = recv.reshape(recv.shape[0], recv.shape[1], -1)
-    fo = None if rec_all is None else rec_all.reshape(len(rec_all), -1)
+    if fill:
+        fr, fo = recv.reshape(recv.shape[0], recv.shape[1], -1), rec_all.reshape(len(rec_all), -1)
 
     def run(s):
         fa[bs, s] += ft[:, s]
