@@ -347,7 +347,7 @@ static void put_total(const struct nph_sweep *s, float *dst, const float *restri
 }
 
 /* sum of a row in float64, eight running sums (one would wait on each addition's latency) */
-static double row_sum(const float *restrict x, int64_t n)
+INLINE double row_sum(const float *restrict x, int64_t n)
 {
     double part[8] = {0.0};
     int64_t i = 0;
