@@ -369,7 +369,6 @@ class _Solve:
         self.spare = None
         for k in range(1, o.peaked_orders):
             rsub = self.peaked_order(k, rsub)
-        self.spare = None
 
     def peaked_order(self, k, rsub):
         """Peaked order ``k`` >= 1: what order ``k - 1`` left unshot, shot on sub-direction weights
@@ -451,7 +450,8 @@ class _Solve:
         if self.umom is not None:
             self.umom[:] = 0.0
             self.mom_binned[:] = 0.0
-        diff = np.zeros_like(self.unshot)
+        # (the difference goes to the peaked orders' spare buffer, and this one becomes the spare)
+        diff = _zero(self.spare) if self.spare is not None else np.zeros_like(self.unshot)
         for gi, (axis, bs) in enumerate(self.groups):
             sl = _as_slice(bs)
             r, _, ex = _sweep(self.sig_s, self.h, self.dirs[bs], self.wsub[bs], self.unshot[sl],
@@ -464,7 +464,7 @@ class _Solve:
             _scatter_into(diff, self.M[:, bs], r, self.alb_s)
         if gm is not None:  # the difference's moments: the new catch's less the guess's
             self.umom -= self.alb_s * gm
-        self.unshot = diff
+        self.unshot, self.spare = diff, self.unshot
         self.warm = self.signed = True
 
     def start_passes(self, prev=None):
@@ -491,7 +491,9 @@ class _Solve:
             self.umom = self.umom.sum(0, keepdims=True)
             self.mom_binned = self.mom_binned.sum(0, keepdims=True)
         self.beams = (self.dirs, self.wsub, self.M, self.new_caches(self.dirs.shape[1]))
-        self.tail = _Tail(self.received, self.total, self.exit_flux) if self.o.extrapolate else None
+        # (the peaked orders' spare unshot buffer, its pages touched, holds the tail's first copy)
+        self.tail = _Tail(self.received, self.total, self.exit_flux, self.spare) if self.o.extrapolate else None
+        self.spare = None
         self.late = self.o.late_sub is None
 
     def go_late(self):
@@ -501,7 +503,8 @@ class _Solve:
         _, d1, w1, _ = _groups(o.periodic, o.late_sub, o.per_face, bands=self.g_s != 0.0)
         self.beams = (d1, w1, phase.phase_matrix(self.g_s, sub=o.phase_sub, transport_sub=o.late_sub,
                                                  per_face=o.per_face), self.new_caches(d1.shape[1]))
-        self.tail = _Tail(self.received, self.total, self.exit_flux) if o.extrapolate else None
+        if self.tail is not None:
+            self.tail.reset()
 
     def shoot_group(self, gi, axis, bs, refresh):
         """One group of bins shoots ``omega`` times its unshot light (one sweep; over-relaxed, the
