@@ -144,15 +144,14 @@ def _occupied_box(sigma, periodic):
 def _shot_group(bs, unshot, received, r, power, shot, albedo, omega=1.0):
     """After a sweep of bins ``bs``: ``omega`` times their unshot light is shot (``1 - omega`` times
     it stays), what they caught (``r``) is added to ``received``, and the unshot ``power`` per voxel
-    loses ``omega`` times ``shot`` and gains albedo times ``r``
-    (the sweep added what they carried to the total); on threads, voxel ranges side by side (in
-    one thread these whole-grid steps took 2.6 s, about 3 %, of a line-profiled 128x128x96 solve)."""
+    loses ``omega`` times ``shot`` and gains albedo times ``r`` (the sweep added what they carried
+    to the total); on threads, voxel ranges side by side (in one thread these whole-grid steps took
+    2.6 s, about 3 %, of a line-profiled 128x128x96 solve)."""
     bs = _as_slice(bs)
     if _native.shot_group(bs, unshot, received, r, power.reshape(-1), shot.reshape(-1), albedo, omega):
         return
     u, rec = (a.reshape(len(a), -1) for a in (unshot, received))
     rr, pw, sh = r.reshape(len(r), -1), power.reshape(-1), shot.reshape(-1)
-
     keep = np.float32(1.0 - omega)
 
     def run(s):

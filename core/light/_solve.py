@@ -184,6 +184,7 @@ class _Solve:
         self.exit_flux = np.zeros(nb)
         self.history = []
         self.scratch = _Scratch()
+        self.spare = None  # a free array like unshot, its pages already touched: the next one to fill
         self.passes, self.residual, self.converged = 0, 0.0, False
 
     # ------------------------------------------------------------------ the sun's beam
@@ -366,7 +367,6 @@ class _Solve:
                                  o.real_orders > 0, o.albedo * self.q * self.injected, o.merge_tol_first,
                                  self.peaked[0])
         self.pweights = [self.wq]
-        self.spare = None
         for k in range(1, o.peaked_orders):
             rsub = self.peaked_order(k, rsub)
 
@@ -471,7 +471,8 @@ class _Solve:
         """After the first step (and a warm start's Jacobi pass from ``prev``): the unshot power per
         voxel (all bins), kept up to date group by group instead of summing the bins again (the
         phase matrix's columns sum to 1: a group adds albedo times what it caught); summed afresh
-        after each pass.  After a warm start the unshot light is signed: its residual is its L1."""
+        after each pass.  After a warm start (and over-relaxed passes) the unshot light is signed:
+        its residual is its L1."""
         self.ref = max(self.injected, 1e-300)
         self.warm = self.signed = False
         self.omega = 1.0
