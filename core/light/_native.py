@@ -89,6 +89,8 @@ def sweep(kernel, sig, geom, beams, sources, outputs, cache, fresh, threads, scr
     recv, per_sub, total, exit_power, mom, slot, into = outputs
     rbin, obins, caught = (None, None, None) if into is None else into
     g, ns = w.shape
+    if caught is not None and (caught.dtype != np.float64 or not caught.flags.c_contiguous or caught.size != g * ns):
+        raise TypeError("scatter kernels: caught must be contiguous float64 (g, ns)")
     L, A, B = sig.shape
     # per row, the span of non-empty voxels (the twin's rectangles hold empty ones too)
     occ = sig > 0
@@ -115,8 +117,6 @@ def sweep(kernel, sig, geom, beams, sources, outputs, cache, fresh, threads, scr
                   cache=None if buf is None else buf.ctypes.data, cache_mode=mode,
                   obins=None if obins is None else obins.ctypes.data,
                   caught=None if caught is None else caught.ctypes.data)
-    if caught is not None and (caught.dtype != np.float64 or not caught.flags.c_contiguous or caught.size != g * ns):
-        raise TypeError("scatter kernels: caught must be contiguous float64 (g, ns)")
     for name, arr, n in (("em", em, 4), ("kap", kap, 4), ("qa", qa, 3), ("var", var, 3), ("recv", recv, 5),
                          ("total", total, 4), ("mom", mom, 5), ("rbin", rbin, 4)):
         if name == "recv" and not per_sub:  # (bin, layer, row, column): no sub axis

@@ -41,7 +41,7 @@ class _Tail:
         """Before a pass: remember where it starts (in buffers kept from pass to pass)."""
         rec = self.free.pop() if self.free else np.empty_like(self.arrays[0])
         if self.start is None:
-            self.start = [rec, np.empty_like(self.arrays[1]), np.empty_like(self.arrays[2])]
+            self.start = [None, np.empty_like(self.arrays[1]), np.empty_like(self.arrays[2])]
         self.start[0] = rec
         for buf, a in zip(self.start[:2], self.arrays[:2]):
             fb, fa = buf.reshape(len(buf), -1), a.reshape(len(a), -1)
