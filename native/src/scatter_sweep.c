@@ -4,15 +4,19 @@
  * each bin with its ns sub-beams, through all layers; Python calls it per bin from its threads
  * (the bins never share an output).  Per layer a sub-beam's plane moves sideways (bilinear, three
  * taps per axis: the NumPy twin's plane shift, or its gathers for shifts over a cell), then on the
- * layer's rectangle of non-empty voxels loses exp(-tau) to what is caught and gains the voxels'
- * emission that escapes (exponential source profile plus its P2 term), with the moments of what is
- * caught; outside the rectangle the beams pass and the outputs are written zero (no zeroing pass
- * in Python).  Arrays in the grid's layout are addressed through element strides in sweep order
- * (layer, row, column), gathered into contiguous rows so the arithmetic vectorizes; in each row only
- * the span of non-empty voxels is transported (an empty voxel passes the beams unchanged and holds
- * no emission: the NumPy twin's rectangles give the same numbers).  float32 as the
- * NumPy twin; the exponentials are scatter_math.h's, so the two agree to a few float32 ulps per
- * step, not bit for bit.  Plain C11 and libm, no threads (see native/build.py).
+ * layer's non-empty voxels loses exp(-tau) to what is caught and gains the voxels' emission that
+ * escapes (exponential source profile plus its P2 term), with the moments of what is caught;
+ * elsewhere the beams pass and the outputs are zero (no zeroing pass in Python).  Arrays in the
+ * grid's layout are addressed through element strides in sweep order (layer, row, column).  In
+ * each row only the span of non-empty voxels is transported (an empty voxel passes the beams
+ * unchanged and holds no emission: the NumPy twin's rectangles give the same numbers), and a
+ * layer's spans are gathered one after another into contiguous buffers, so the arithmetic runs as
+ * one long vector loop per sub-beam and layer (row by row, each row's vector remainder, setup and
+ * bookkeeping cost as much as the arithmetic).  float32 as the NumPy twin; the exponentials are
+ * scatter_math.h's, so the two agree to a few float32 ulps per step, not bit for bit.  Plain C11
+ * and libm, no threads (see native/build.py).  The x86-64-v4 clone (AVX-512: 32 vector registers,
+ * masked remainders) gives the same numbers as the others (no fused multiply-adds anywhere:
+ * tests/native/test_wine.py) and ran the Fig. 6 cloud's sweeps 1.4x as fast as the x86-64-v3 one.
  */
 
 #include <math.h>
@@ -22,7 +26,7 @@
 #include "scatter_math.h"
 
 #if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && defined(__linux__)
-#define CLONES __attribute__((target_clones("arch=x86-64-v3", "default")))
+#define CLONES __attribute__((target_clones("arch=x86-64-v4", "arch=x86-64-v3", "default")))
 #else
 #define CLONES
 #endif
@@ -66,9 +70,9 @@ struct nph_sweep {
     double *caught;       /* (beams,) or NULL: the power each sub-beam caught (per_sub) */
 };
 
-/* Row buffers of one layer row (width n of the rectangle). */
+/* Buffers of one layer's spans, one after another (soff's layout), and the plane shift's row. */
 struct rows {
-    float *em, *k0, *k1, *k2, *qa, *var, *r, *rsum, *etot, *m1, *mk, *m2, *md, *ext;
+    float *sg, *cur, *em, *k0, *k1, *k2, *qa, *var, *r, *rsum, *etot, *m1, *mk, *m2, *md, *ext;
 };
 
 /* ------------------------------------------------------------------ the closed forms (float32) */
@@ -267,15 +271,42 @@ static inline int64_t axis_index(int64_t c, int64_t n, int64_t periodic)
     return c < 0 ? c + n : c;
 }
 
+/* o[c] = wc x[c] + wm x[c - d] + wp x[c + d] for c in [0, n): one tap step of a plane shift over a run
+ * of whole rows (d = B) or of a plane read as one long row (d = 1) */
+INLINE void taps(float *restrict o, const float *x, int64_t d, int64_t n, float wm, float wc, float wp)
+{
+    for (int64_t c = 0; c < n; c++)
+        o[c] = wc * x[c] + wm * x[c - d] + wp * x[c + d];
+}
+
+/* x[q] of a row of B, or what lies beyond its ends: the row wrapped (periodic) or the inflow */
+static inline float ghost(const float *x, int64_t q, int64_t B, int64_t periodic, const float *inrow)
+{
+    int64_t i = axis_index(q, B, periodic);
+    return i < 0 ? inrow[0] : x[i];
+}
+
 /* new[c] = wc old[c - i0] + wm old[c - i0 - 1] + wp old[c - i0 + 1] along a (rows) into tmp, then
- * along b (columns) back into p; the inflow outside non-periodic sides. */
+ * along b (columns) back into p; the inflow outside non-periodic sides.  The rows whose three taps
+ * all fall inside the plane go as one run, and along b the plane is read as one long row, its
+ * columns whose taps cross a row's end then redone from that row with its ghost cells: long loops
+ * (rows of 38 or 46 columns left a vector loop's remainder each), the same sums. */
 INLINE void shift_plane(const struct nph_sweep *s, int64_t j, float *restrict p, float *restrict tmp,
                         float *restrict ext, const float *restrict inrow)
 {
     const int64_t A = s->A, B = s->B;
     const float wm = s->wa[3 * j], wc = s->wa[3 * j + 1], wp = s->wa[3 * j + 2];
     const int64_t i0 = s->ia[j];
+    int64_t r0 = i0 + 1 < 0 ? 0 : i0 + 1, r1 = A + i0 - 1 > A ? A : A + i0 - 1; /* rows with all taps inside */
+    if (r1 <= r0)
+        r0 = r1 = 0;
+    else
+        taps(tmp + r0 * B, p + (r0 - i0) * B, B, (r1 - r0) * B, wm, wc, wp);
     for (int64_t a = 0; a < A; a++) {
+        if (a == r0 && r1 > r0) {
+            a = r1 - 1;
+            continue;
+        }
         int64_t ic = axis_index(a - i0, A, s->periodic_a), im = axis_index(a - i0 - 1, A, s->periodic_a),
                 ip = axis_index(a - i0 + 1, A, s->periodic_a);
         const float *xc = ic < 0 ? inrow : p + ic * B, *xm = im < 0 ? inrow : p + im * B,
@@ -288,15 +319,32 @@ INLINE void shift_plane(const struct nph_sweep *s, int64_t j, float *restrict p,
     const int64_t j0 = s->periodic_b ? ((s->ib[j] % B) + B) % B : s->ib[j];
     /* ext[q] holds old[q - G] for q in [0, B + 2G): the row with G ghost cells each side */
     const int64_t G = (j0 < 0 ? -j0 : j0) + 1 > B + 1 ? B + 1 : (j0 < 0 ? -j0 : j0) + 1;
+    int64_t c0 = 0, c1 = 0; /* the columns [c0, c1) of every row whose taps stay in the row */
+    if (j0 + 1 < B - 1 && -j0 + 1 < B - 1) {
+        c0 = j0 + 1 > 0 ? j0 + 1 : 0;
+        c1 = B + j0 - 1 < B ? B + j0 - 1 : B;
+        /* as one long row: the columns outside [c0, c1) are overwritten below */
+        taps(p + c0, tmp + c0 - j0, 1, A * B - c0 - (B - c1), vm, vc, vp);
+    }
     for (int64_t a = 0; a < A; a++) {
         const float *x = tmp + a * B;
+        float *restrict o = p + a * B;
+        if (c1 > c0) { /* the columns whose taps cross the row's ends */
+            for (int64_t b = 0; b < B; b++) {
+                if (b == c0)
+                    b = c1;
+                if (b < B)
+                    o[b] = vc * ghost(x, b - j0, B, s->periodic_b, inrow) + vm * ghost(x, b - j0 - 1, B, s->periodic_b, inrow)
+                           + vp * ghost(x, b - j0 + 1, B, s->periodic_b, inrow);
+            }
+            continue;
+        }
         memcpy(ext + G, x, (size_t)B * sizeof *ext);
         for (int64_t q = 0; q < G; q++) {
             int64_t lo = axis_index(q - G, B, s->periodic_b), hi = axis_index(B + q, B, s->periodic_b);
             ext[q] = lo < 0 ? inrow[0] : x[lo];
             ext[G + B + q] = hi < 0 ? inrow[0] : x[hi];
         }
-        float *restrict o = p + a * B;
         int64_t jc = j0 < -G + 1 ? -G + 1 : (j0 > G - 1 ? G - 1 : j0); /* beyond the ghosts: all inflow */
         const float *ec = ext + G - jc;
         for (int64_t b = 0; b < B; b++)
@@ -366,19 +414,146 @@ static void zero_outside(float *plane, const int64_t *st, int64_t a, int64_t b0,
     fill_row(plane + a * st[1] + b1 * st[2], st[2], 0.0f, B - b1);
 }
 
+/* The size of the block the n axes (dims, element strides) address, or 0 unless it is dense (every
+ * element once, none between, lowest address first): such an output is zeroed by one memset per
+ * bin, not row by row outside the spans (1216 memsets a layer for 16 sub-beams' catches). */
+static int64_t dense_size(int n, const int64_t *dims, const int64_t *st)
+{
+    int64_t d[5], t[5], m = 0, size = 1;
+    for (int i = 0; i < n; i++)
+        if (dims[i] > 1) {
+            int64_t j = m++;
+            for (; j > 0 && t[j - 1] > st[i]; j--) { /* insertion sort by stride, innermost first */
+                d[j] = d[j - 1];
+                t[j] = t[j - 1];
+            }
+            d[j] = dims[i];
+            t[j] = st[i];
+        }
+    for (int64_t i = 0; i < m; size *= d[i], i++)
+        if (t[i] != size)
+            return 0;
+    return size;
+}
+
+/* Zero the bin's outputs (catch, catch summed over sub-beams, moments) as whole blocks; 0 (nothing
+ * written) unless every one of them is dense. */
+static int zero_outputs(const struct nph_sweep *s, float *rec, float *rb, float *mo, int64_t nslots)
+{
+    const int64_t nrecv = s->per_sub ? s->ns : 1;
+    int64_t rd[4] = {nrecv, s->L, s->A, s->B}, md[3] = {s->L, s->A, s->B};
+    int64_t nr = dense_size(4, rd, s->recv_s + 1), nb = rb == NULL ? 0 : dense_size(3, md, s->rbin_s + 1);
+    int64_t nm = nslots ? dense_size(3, md, s->mom_s + 2) : 0;
+    if (nr == 0 || (rb != NULL && nb == 0) || (nslots && nm == 0))
+        return 0;
+    memset(rec, 0, (size_t)nr * sizeof(float));
+    if (rb != NULL)
+        memset(rb, 0, (size_t)nb * sizeof(float));
+    for (int64_t sl = 0; sl < nslots; sl++)
+        memset(mo + sl * s->mom_s[1], 0, (size_t)nm * sizeof(float));
+    return 1;
+}
+
+/* Layer k's rows: outputs zero outside each row's span (a row without one: all zero, its total the
+ * entering beams) unless ``zeroed`` (the bin's outputs were zeroed as a block), inputs of the spans gathered into the layer's buffers one after another (row a's
+ * at soff[k A + a] - soff[k A]), so the arithmetic runs once per sub-beam over the whole layer. */
+INLINE void layer_rows(const struct nph_sweep *s, int64_t bin, int64_t k, const float *tmp, float *tot, float *rec,
+                       float *rb, float *mo, int64_t nslots, int zeroed, struct rows *rw, int mode, int qa, int m2)
+{
+    const int64_t A = s->A, B = s->B, AB = A * B, base = s->soff[k * A];
+    const int64_t nrecv = s->per_sub ? s->ns : 1;
+    for (int64_t a = 0; a < A; a++) {
+        const int64_t b0 = s->spans[2 * (k * A + a)], b1 = s->spans[2 * (k * A + a) + 1], wd = b1 - b0;
+        if (wd <= 0) {
+            put_total(s, at3(tot, s->total_s + 1, k, a, 0), tmp + a * B, B);
+            if (zeroed)
+                continue;
+            for (int64_t q = 0; q < nrecv; q++)
+                fill_row(at3(rec + q * s->recv_s[1], s->recv_s + 2, k, a, 0), s->recv_s[4], 0.0f, B);
+            if (rb != NULL)
+                fill_row(at3(rb, s->rbin_s + 1, k, a, 0), s->rbin_s[3], 0.0f, B);
+            for (int64_t sl = 0; sl < nslots; sl++)
+                fill_row(at3(mo + sl * s->mom_s[1], s->mom_s + 2, k, a, 0), s->mom_s[4], 0.0f, B);
+            continue;
+        }
+        for (int64_t q = 0; q < nrecv && !zeroed; q++)
+            zero_outside(rec + q * s->recv_s[1] + k * s->recv_s[2], s->recv_s + 2, a, b0, b1, B);
+        if (rb != NULL && !zeroed)
+            zero_outside(rb + k * s->rbin_s[1], s->rbin_s + 1, a, b0, b1, B);
+        for (int64_t sl = 0; sl < nslots && !zeroed; sl++)
+            zero_outside(mo + sl * s->mom_s[1] + k * s->mom_s[2], s->mom_s + 2, a, b0, b1, B);
+        const int64_t o = s->soff[k * A + a] - base;
+        memcpy(rw->sg + o, s->sig + k * AB + a * B + b0, (size_t)wd * sizeof(float));
+        if (mode != NONE)
+            gather(rw->em + o, s->em + bin * s->em_s[0] + k * s->em_s[1] + a * s->em_s[2] + b0 * s->em_s[3],
+                   s->em_s[3], wd);
+        if (mode == PROFILE) {
+            float *kr[3] = {rw->k0, rw->k1, rw->k2};
+            for (int c = 0; c < 3; c++)
+                gather(kr[c] + o, s->kap + c * s->kap_s[0] + k * s->kap_s[1] + a * s->kap_s[2] + b0 * s->kap_s[3],
+                       s->kap_s[3], wd);
+            if (qa)
+                gather(rw->qa + o, s->qa + k * s->qa_s[0] + a * s->qa_s[1] + b0 * s->qa_s[2], s->qa_s[2], wd);
+            if (m2)
+                gather(rw->var + o, s->var + k * s->var_s[0] + a * s->var_s[1] + b0 * s->var_s[2], s->var_s[2], wd);
+        }
+    }
+}
+
+/* Sub-beam j's plane (q's) through layer k: its spans copied out, transported as one row, copied
+ * back; what it caught per row to its own catch (per_sub, with the power it caught) and summed. */
+INLINE void layer_sub(const struct nph_sweep *s, int64_t bin, int64_t q, int64_t k, int64_t S, float *plane,
+                      float *rec, struct rows *rw, int mode, int qa, int mom, int m2, int store, int sum)
+{
+    const int64_t A = s->A, B = s->B, base = s->soff[k * A], j = bin * s->ns + q;
+    for (int64_t a = 0; a < A; a++) {
+        const int64_t b0 = s->spans[2 * (k * A + a)], wd = s->spans[2 * (k * A + a) + 1] - b0;
+        if (wd > 0)
+            memcpy(rw->cur + s->soff[k * A + a] - base, plane + a * B + b0, (size_t)wd * sizeof(float));
+    }
+    float *ce = NULL, *cs = NULL, *ck = NULL;
+    if (s->cache_mode) {
+        const int64_t beams = s->g * s->ns, span = s->soff[s->L * A];
+        ce = s->cache + j * span + base;
+        cs = ce + beams * span;
+        ck = cs + beams * span;
+    }
+    row_dispatch(s, j, rw->sg, rw->cur, rw, ce, cs, ck, S, mode, qa, mom, m2, store);
+    for (int64_t a = 0; a < A; a++) {
+        const int64_t b0 = s->spans[2 * (k * A + a)], wd = s->spans[2 * (k * A + a) + 1] - b0;
+        if (wd <= 0)
+            continue;
+        const int64_t o = s->soff[k * A + a] - base;
+        memcpy(plane + a * B + b0, rw->cur + o, (size_t)wd * sizeof(float));
+        if (s->per_sub) {
+            scatter_row(at3(rec + q * s->recv_s[1], s->recv_s + 2, k, a, b0), s->recv_s[4], rw->r + o, wd);
+            if (s->caught != NULL)
+                s->caught[j] += row_sum(rw->r + o, wd);
+        }
+    }
+    if (sum)
+        for (int64_t i = 0; i < S; i++)
+            rw->rsum[i] += rw->r[i];
+}
+
 INLINE void sweep_bin(const struct nph_sweep *s, int64_t bin, float *planes, float *tmp, struct rows *rw)
 {
     const int64_t L = s->L, A = s->A, B = s->B, ns = s->ns, AB = A * B;
     const int64_t nslots = s->mom == NULL ? 0 : 1 + (s->slot_kept >= 0) + (s->slot_m2 >= 0) + (s->slot_dep >= 0);
     const int mode = s->em == NULL ? NONE : s->kap == NULL ? PLAIN : s->cache_mode == 2 ? CACHED : PROFILE;
     const int qa = s->qa != NULL, mom = s->mom != NULL, m2 = s->slot_m2 >= 0, store = s->cache_mode == 1;
-    const int64_t nrecv = s->per_sub ? ns : 1;
     float *inrow = rw->ext + 3 * B + 4; /* a row of the inflow (per sub-beam, refilled) */
     for (int64_t q = 0; q < ns; q++) {
         float v = s->inflow[bin * ns + q];
         for (int64_t c = 0; c < AB; c++)
             planes[q * AB + c] = v;
     }
+    const int64_t ob = s->obins == NULL ? bin : s->obins[bin];
+    float *tot = s->total + ob * s->total_s[0];
+    float *rec = s->recv + bin * s->recv_s[0];
+    float *rb = s->rbin == NULL ? NULL : s->rbin + ob * s->rbin_s[0];
+    float *mo = mom ? s->mom + bin * s->mom_s[0] : NULL;
+    const int zeroed = zero_outputs(s, rec, rb, mo, nslots);
     for (int64_t n = 0; n < L; n++) {
         const int64_t k = s->sign > 0 ? n : L - 1 - n;
         if (n)
@@ -394,83 +569,36 @@ INLINE void sweep_bin(const struct nph_sweep *s, int64_t bin, float *planes, flo
         for (int64_t q = 1; q < ns; q++)
             for (int64_t c = 0; c < AB; c++)
                 tmp[c] += planes[q * AB + c];
-        const int64_t ob = s->obins == NULL ? bin : s->obins[bin];
-        float *tot = s->total + ob * s->total_s[0];
-        float *rec = s->recv + bin * s->recv_s[0];
-        float *rb = s->rbin == NULL ? NULL : s->rbin + ob * s->rbin_s[0];
-        float *mo = mom ? s->mom + bin * s->mom_s[0] : NULL;
+        layer_rows(s, bin, k, tmp, tot, rec, rb, mo, nslots, zeroed, rw, mode, qa, mom && m2);
+        const int64_t S = s->soff[(k + 1) * A] - s->soff[k * A];
+        if (S == 0)
+            continue;
+        float *zero[6] = {rw->etot, rw->rsum, rw->m1, rw->mk, rw->m2, rw->md};
+        for (int f = 0; f < 6; f++)
+            memset(zero[f], 0, (size_t)S * sizeof(float));
+        for (int64_t q = 0; q < ns; q++)
+            layer_sub(s, bin, q, k, S, planes + q * AB, rec, rw, mode, qa, mom, m2, store, !s->per_sub || rb != NULL);
         for (int64_t a = 0; a < A; a++) {
-            const int64_t b0 = s->spans[2 * (k * A + a)], b1 = s->spans[2 * (k * A + a) + 1], wd = b1 - b0;
-            if (wd <= 0) {
-                put_total(s, at3(tot, s->total_s + 1, k, a, 0), tmp + a * B, B);
-                for (int64_t q = 0; q < nrecv; q++)
-                    fill_row(at3(rec + q * s->recv_s[1], s->recv_s + 2, k, a, 0), s->recv_s[4], 0.0f, B);
-                if (rb != NULL)
-                    fill_row(at3(rb, s->rbin_s + 1, k, a, 0), s->rbin_s[3], 0.0f, B);
-                for (int64_t sl = 0; sl < nslots; sl++)
-                    fill_row(at3(mo + sl * s->mom_s[1], s->mom_s + 2, k, a, 0), s->mom_s[4], 0.0f, B);
+            const int64_t b0 = s->spans[2 * (k * A + a)], wd = s->spans[2 * (k * A + a) + 1] - b0;
+            if (wd <= 0)
                 continue;
-            }
-            for (int64_t q = 0; q < nrecv; q++)
-                zero_outside(rec + q * s->recv_s[1] + k * s->recv_s[2], s->recv_s + 2, a, b0, b1, B);
-            if (rb != NULL)
-                zero_outside(rb + k * s->rbin_s[1], s->rbin_s + 1, a, b0, b1, B);
-            for (int64_t sl = 0; sl < nslots; sl++)
-                zero_outside(mo + sl * s->mom_s[1] + k * s->mom_s[2], s->mom_s + 2, a, b0, b1, B);
-            const float *sg = s->sig + k * AB + a * B + b0;
-            if (mode != NONE)
-                gather(rw->em, s->em + bin * s->em_s[0] + k * s->em_s[1] + a * s->em_s[2] + b0 * s->em_s[3],
-                       s->em_s[3], wd);
-            if (mode == PROFILE) {
-                float *kr[3] = {rw->k0, rw->k1, rw->k2};
-                for (int c = 0; c < 3; c++)
-                    gather(kr[c], s->kap + c * s->kap_s[0] + k * s->kap_s[1] + a * s->kap_s[2] + b0 * s->kap_s[3],
-                           s->kap_s[3], wd);
-                if (qa)
-                    gather(rw->qa, s->qa + k * s->qa_s[0] + a * s->qa_s[1] + b0 * s->qa_s[2], s->qa_s[2], wd);
-                if (mom && m2)
-                    gather(rw->var, s->var + k * s->var_s[0] + a * s->var_s[1] + b0 * s->var_s[2], s->var_s[2], wd);
-            }
-            memset(rw->etot, 0, (size_t)wd * sizeof(float));
-            memset(rw->rsum, 0, (size_t)wd * sizeof(float));
-            memset(rw->m1, 0, (size_t)wd * sizeof(float));
-            memset(rw->mk, 0, (size_t)wd * sizeof(float));
-            memset(rw->m2, 0, (size_t)wd * sizeof(float));
-            memset(rw->md, 0, (size_t)wd * sizeof(float));
-            for (int64_t q = 0; q < ns; q++) {
-                const int64_t j = bin * ns + q, beams = s->g * ns, span = s->soff[L * A];
-                float *ce = NULL, *cs = NULL, *ck = NULL;
-                if (s->cache_mode) {
-                    ce = s->cache + j * span + s->soff[k * A + a];
-                    cs = ce + beams * span;
-                    ck = cs + beams * span;
-                }
-                row_dispatch(s, j, sg, planes + q * AB + a * B + b0, rw, ce, cs, ck, wd, mode, qa, mom, m2, store);
-                if (s->per_sub) {
-                    scatter_row(at3(rec + q * s->recv_s[1], s->recv_s + 2, k, a, b0), s->recv_s[4], rw->r, wd);
-                    if (s->caught != NULL)
-                        s->caught[j] += row_sum(rw->r, wd);
-                }
-                if (!s->per_sub || rb != NULL)
-                    for (int64_t i = 0; i < wd; i++)
-                        rw->rsum[i] += rw->r[i];
-            }
+            const int64_t o = s->soff[k * A + a] - s->soff[k * A];
             if (!s->per_sub)
-                scatter_row(at3(rec, s->recv_s + 2, k, a, b0), s->recv_s[4], rw->rsum, wd);
+                scatter_row(at3(rec, s->recv_s + 2, k, a, b0), s->recv_s[4], rw->rsum + o, wd);
             if (rb != NULL)
-                scatter_row(at3(rb, s->rbin_s + 1, k, a, b0), s->rbin_s[3], rw->rsum, wd);
+                scatter_row(at3(rb, s->rbin_s + 1, k, a, b0), s->rbin_s[3], rw->rsum + o, wd);
             for (int64_t i = 0; i < wd; i++)
-                tmp[a * B + b0 + i] += rw->etot[i];
+                tmp[a * B + b0 + i] += rw->etot[o + i];
             put_total(s, at3(tot, s->total_s + 1, k, a, 0), tmp + a * B, B);
             if (mom) {
                 const int64_t *ms = s->mom_s + 2;
-                scatter_row(at3(mo, ms, k, a, b0), ms[2], rw->m1, wd);
+                scatter_row(at3(mo, ms, k, a, b0), ms[2], rw->m1 + o, wd);
                 if (s->slot_kept >= 0)
-                    scatter_row(at3(mo + s->slot_kept * s->mom_s[1], ms, k, a, b0), ms[2], rw->mk, wd);
+                    scatter_row(at3(mo + s->slot_kept * s->mom_s[1], ms, k, a, b0), ms[2], rw->mk + o, wd);
                 if (s->slot_m2 >= 0)
-                    scatter_row(at3(mo + s->slot_m2 * s->mom_s[1], ms, k, a, b0), ms[2], rw->m2, wd);
+                    scatter_row(at3(mo + s->slot_m2 * s->mom_s[1], ms, k, a, b0), ms[2], rw->m2 + o, wd);
                 if (s->slot_dep >= 0)
-                    scatter_row(at3(mo + s->slot_dep * s->mom_s[1], ms, k, a, b0), ms[2], rw->md, wd);
+                    scatter_row(at3(mo + s->slot_dep * s->mom_s[1], ms, k, a, b0), ms[2], rw->md + o, wd);
             }
         }
     }
@@ -480,10 +608,12 @@ INLINE void sweep_bin(const struct nph_sweep *s, int64_t bin, float *planes, flo
     s->exit_power[bin] = ex;
 }
 
-/* Floats of the workspace scatter_sweep needs: the sub-beams' planes, one more plane, the row buffers. */
+/* Floats of the workspace scatter_sweep needs: the sub-beams' planes, one more plane, the layer's
+ * buffers (NBUF, a plane each), the shifted row with its ghosts and a row of the inflow. */
+#define NBUF 15
 int64_t scatter_sweep_work(const struct nph_sweep *s)
 {
-    return s->ns * s->A * s->B + s->A * s->B + 17 * s->B + 4;
+    return s->ns * s->A * s->B + s->A * s->B + NBUF * s->A * s->B + 4 * s->B + 4;
 }
 
 /* Sweep bins [bin_lo, bin_hi) of the group ``s`` describes in ``work`` (scatter_sweep_work floats,
@@ -491,14 +621,14 @@ int64_t scatter_sweep_work(const struct nph_sweep *s)
 CLONES
 void scatter_sweep(const struct nph_sweep *s, int64_t bin_lo, int64_t bin_hi, float *work)
 {
-    const int64_t AB = s->A * s->B, B = s->B;
+    const int64_t AB = s->A * s->B;
     float *planes = work, *buf = work + s->ns * AB + AB;
     struct rows rw;
-    float **fields[13] = {&rw.em, &rw.k0, &rw.k1, &rw.k2, &rw.qa, &rw.var, &rw.r, &rw.rsum, &rw.etot,
-                          &rw.m1, &rw.mk, &rw.m2, &rw.md};
-    for (int f = 0; f < 13; f++)
-        *fields[f] = buf + f * B;
-    rw.ext = buf + 13 * B; /* 3 B + 4 for the shifted row with its ghosts, then a row of the inflow */
+    float **fields[NBUF] = {&rw.sg, &rw.cur, &rw.em, &rw.k0, &rw.k1, &rw.k2, &rw.qa, &rw.var, &rw.r, &rw.rsum,
+                            &rw.etot, &rw.m1, &rw.mk, &rw.m2, &rw.md};
+    for (int f = 0; f < NBUF; f++)
+        *fields[f] = buf + f * AB;
+    rw.ext = buf + NBUF * AB; /* 3 B + 4 for the shifted row with its ghosts, then a row of the inflow */
     unsigned csr = nph_flush_denormals();
     for (int64_t bin = bin_lo; bin < bin_hi; bin++)
         sweep_bin(s, bin, planes, planes + s->ns * AB, &rw);
