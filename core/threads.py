@@ -1,7 +1,12 @@
 """How many threads core work may use on this machine, and a map over them."""
 
 import os
+import threading
 from concurrent.futures import ThreadPoolExecutor
+
+_POOLS = {}  # threads -> (pid, executor): kept, since starting threads cost 0.8 ms a map
+_LOCK = threading.Lock()
+_LOCAL = threading.local()
 
 
 def default_threads():
@@ -15,14 +20,56 @@ def default_threads():
 
 
 def thread_map(fn, items, threads=None):
-    """``[fn(x) for x in items]`` on up to ``threads`` threads (default :func:`default_threads`);
-    in this thread when one would do.  NumPy releases the GIL in its loops, so array work overlaps."""
+    """``[fn(x) for x in items]`` on up to ``threads`` threads (default :func:`default_threads`),
+    this one among them; in this thread alone when one would do.  NumPy releases the GIL in its
+    loops, so array work overlaps.  The other threads are kept from call to call (starting them
+    cost 0.8 ms a call, 0.36 s of a 2.6 s scattering solve); each takes the next item until none
+    are left, so an item may share a thread with another, one after the other."""
     items = list(items)
     n = max(1, min(int(threads or default_threads()), len(items)))
     if n == 1:
         return [fn(x) for x in items]
-    with ThreadPoolExecutor(n) as pool:
-        return list(pool.map(fn, items))
+    out, order, lock = [None] * len(items), iter(range(len(items))), threading.Lock()
+
+    def drain():
+        while True:
+            with lock:
+                i = next(order, None)
+            if i is None:
+                return
+            out[i] = fn(items[i])
+
+    if getattr(_LOCAL, "worker", False):  # a map inside a map: its own threads (a kept pool's
+        with ThreadPoolExecutor(n - 1) as pool:  # workers, all waiting on it, could wait forever)
+            return _join([pool.submit(drain) for _ in range(n - 1)], drain, out)
+    pool = _pool(n - 1)
+    return _join([pool.submit(drain) for _ in range(n - 1)], drain, out)
+
+
+def _join(futures, drain, out):
+    """Run ``drain`` here too, wait for the other threads, raise the first error."""
+    try:
+        drain()
+    finally:
+        errors = [f.exception() for f in futures]
+    for e in errors:
+        if e is not None:
+            raise e
+    return out
+
+
+def _pool(n):
+    """The kept pool of ``n`` threads of this process (a forked child starts its own)."""
+    with _LOCK:
+        pid, pool = _POOLS.get(n, (None, None))
+        if pid != os.getpid():
+            pool = ThreadPoolExecutor(n, thread_name_prefix=f"nephele-map{n}", initializer=_worker)
+            _POOLS[n] = (os.getpid(), pool)
+        return pool
+
+
+def _worker():
+    _LOCAL.worker = True
 
 
 def split_map(fn, n, threads=None, chunk=1 << 16):
