@@ -61,7 +61,7 @@ QUALITIES = {
 }
 
 
-FINAL_FIG6_GRID = (64, 64, 48)  # one solve for the orbit: 3.6-3.7 s on 2 cores (docs/benchmarks.md, scatter-compiled)
+FINAL_FIG6_GRID = (64, 64, 48)  # one solve for the orbit: 2.4 s on 2 cores (docs/benchmarks.md, scatter-compiled)
 
 
 @dataclass
