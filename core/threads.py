@@ -29,15 +29,19 @@ def thread_map(fn, items, threads=None):
     n = max(1, min(int(threads or default_threads()), len(items)))
     if n == 1:
         return [fn(x) for x in items]
-    out, order, lock = [None] * len(items), iter(range(len(items))), threading.Lock()
+    out, order, lock = [None] * len(items), [iter(range(len(items)))], threading.Lock()
 
     def drain():
         while True:
             with lock:
-                i = next(order, None)
+                i = next(order[0], None)
             if i is None:
                 return
-            out[i] = fn(items[i])
+            try:
+                out[i] = fn(items[i])
+            except BaseException:
+                order[0] = iter(())  # (no more items for anyone: the error is raised once all stop)
+                raise
 
     if getattr(_LOCAL, "worker", False):  # a map inside a map: its own threads (a kept pool's
         with ThreadPoolExecutor(n - 1) as pool:  # workers, all waiting on it, could wait forever)

@@ -53,6 +53,19 @@ def test_thread_map_inside_thread_map_and_errors():
 
     with pytest.raises(ValueError, match="item 7"):
         thread_map(bad, range(20), 2)
+    done = []
+
+    def slow_bad(x):
+        import time
+
+        if x == 1:
+            raise ValueError("item 1")
+        time.sleep(0.01)
+        done.append(x)
+
+    with pytest.raises(ValueError, match="item 1"):
+        thread_map(slow_bad, range(200), 2)
+    assert len(done) < 10  # the other thread stopped taking items
     assert thread_map(lambda v: v + 1, range(5), 2) == [1, 2, 3, 4, 5]  # the pool still works
 
 
