@@ -118,7 +118,7 @@ def test_cached_escapes_are_reused_as_numpy_reuses_them(monkeypatch):
     close(c.received, n.received, 1e-5)  # measured 6.0e-7
 
 
-@pytest.mark.parametrize("g,shape", [(16, (40, 50, 61)), (256, (5, 7, 9)), (7, (3, 1, 1))])
+@pytest.mark.parametrize("g,shape", [(16, (40, 50, 61)), (100, (9, 10, 11)), (256, (5, 7, 9)), (7, (3, 1, 1))])
 def test_scatter_into_matches_the_direct_product(g, shape):
     rng = np.random.default_rng(3)
     r = rng.random((g,) + shape).astype(np.float32)
@@ -136,7 +136,7 @@ def test_scatter_into_where_little_is_caught():
     rng = np.random.default_rng(5)
     k, n = 16, 16 * 70 + 9
     r = np.zeros((k, n), np.float32)
-    r[:, 32:48] = rng.random((k, 16))  # one whole block
+    r[:, 32:48] = rng.random((k, 16))  # 16 voxels in a row (half a block of 32)
     r[3, 80] = r[0, 111] = 1.5  # one row, a block's first and last voxels
     r[k - 1, n - 1] = 2.0  # the tail after the last whole block
     r[:, 500:700] = rng.random((k, 200)) * (rng.random(200) < 0.3)
