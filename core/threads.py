@@ -45,13 +45,13 @@ def thread_map(fn, items, threads=None):
 
     if getattr(_LOCAL, "worker", False):  # a map inside a map: its own threads (a kept pool's
         with ThreadPoolExecutor(n - 1) as pool:  # workers, all waiting on it, could wait forever)
-            return _join([pool.submit(drain) for _ in range(n - 1)], drain, out)
-    pool = _pool(n - 1)
-    return _join([pool.submit(drain) for _ in range(n - 1)], drain, out)
+            return _join(pool, n - 1, drain, out)
+    return _join(_pool(n - 1), n - 1, drain, out)
 
 
-def _join(futures, drain, out):
-    """Run ``drain`` here too, wait for the other threads, raise the first error."""
+def _join(pool, others, drain, out):
+    """Run ``drain`` on ``others`` threads of ``pool`` and here, wait for them, raise the first error."""
+    futures = [pool.submit(drain) for _ in range(others)]
     try:
         drain()
     finally:

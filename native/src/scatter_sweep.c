@@ -70,9 +70,9 @@ struct nph_sweep {
     double *caught;       /* (beams,) or NULL: the power each sub-beam caught (per_sub) */
 };
 
-/* Buffers of one layer's spans, one after another (soff's layout), and the plane shift's row. */
+/* Buffers of one layer's spans, one after another (soff's layout), and a row of the inflow. */
 struct rows {
-    float *sg, *cur, *em, *k0, *k1, *k2, *qa, *var, *r, *rsum, *etot, *m1, *mk, *m2, *md, *ext;
+    float *sg, *cur, *em, *k0, *k1, *k2, *qa, *var, *r, *rsum, *etot, *m1, *mk, *m2, *md, *inrow;
 };
 
 /* ------------------------------------------------------------------ the closed forms (float32) */
@@ -289,10 +289,11 @@ static inline float ghost(const float *x, int64_t q, int64_t B, int64_t periodic
 /* new[c] = wc old[c - i0] + wm old[c - i0 - 1] + wp old[c - i0 + 1] along a (rows) into tmp, then
  * along b (columns) back into p; the inflow outside non-periodic sides.  The rows whose three taps
  * all fall inside the plane go as one run, and along b the plane is read as one long row, its
- * columns whose taps cross a row's end then redone from that row with its ghost cells: long loops
- * (rows of 38 or 46 columns left a vector loop's remainder each), the same sums. */
+ * columns whose taps cross a row's end (all of them for shifts of about a row) then redone from
+ * that row with its ghost cells: long loops (rows of 38 or 46 columns left a vector loop's
+ * remainder each), the same sums. */
 INLINE void shift_plane(const struct nph_sweep *s, int64_t j, float *restrict p, float *restrict tmp,
-                        float *restrict ext, const float *restrict inrow)
+                        const float *restrict inrow)
 {
     const int64_t A = s->A, B = s->B;
     const float wm = s->wa[3 * j], wc = s->wa[3 * j + 1], wp = s->wa[3 * j + 2];
@@ -317,8 +318,6 @@ INLINE void shift_plane(const struct nph_sweep *s, int64_t j, float *restrict p,
     }
     const float vm = s->wb[3 * j], vc = s->wb[3 * j + 1], vp = s->wb[3 * j + 2];
     const int64_t j0 = s->periodic_b ? ((s->ib[j] % B) + B) % B : s->ib[j];
-    /* ext[q] holds old[q - G] for q in [0, B + 2G): the row with G ghost cells each side */
-    const int64_t G = (j0 < 0 ? -j0 : j0) + 1 > B + 1 ? B + 1 : (j0 < 0 ? -j0 : j0) + 1;
     int64_t c0 = 0, c1 = 0; /* the columns [c0, c1) of every row whose taps stay in the row */
     if (j0 + 1 < B - 1 && -j0 + 1 < B - 1) {
         c0 = j0 + 1 > 0 ? j0 + 1 : 0;
@@ -326,29 +325,16 @@ INLINE void shift_plane(const struct nph_sweep *s, int64_t j, float *restrict p,
         /* as one long row: the columns outside [c0, c1) are overwritten below */
         taps(p + c0, tmp + c0 - j0, 1, A * B - c0 - (B - c1), vm, vc, vp);
     }
-    for (int64_t a = 0; a < A; a++) {
+    for (int64_t a = 0; a < A; a++) { /* the columns whose taps cross the row's ends */
         const float *x = tmp + a * B;
         float *restrict o = p + a * B;
-        if (c1 > c0) { /* the columns whose taps cross the row's ends */
-            for (int64_t b = 0; b < B; b++) {
-                if (b == c0)
-                    b = c1;
-                if (b < B)
-                    o[b] = vc * ghost(x, b - j0, B, s->periodic_b, inrow) + vm * ghost(x, b - j0 - 1, B, s->periodic_b, inrow)
-                           + vp * ghost(x, b - j0 + 1, B, s->periodic_b, inrow);
-            }
-            continue;
+        for (int64_t b = 0; b < B; b++) {
+            if (b == c0 && c1 > c0)
+                b = c1;
+            if (b < B)
+                o[b] = vc * ghost(x, b - j0, B, s->periodic_b, inrow) + vm * ghost(x, b - j0 - 1, B, s->periodic_b, inrow)
+                       + vp * ghost(x, b - j0 + 1, B, s->periodic_b, inrow);
         }
-        memcpy(ext + G, x, (size_t)B * sizeof *ext);
-        for (int64_t q = 0; q < G; q++) {
-            int64_t lo = axis_index(q - G, B, s->periodic_b), hi = axis_index(B + q, B, s->periodic_b);
-            ext[q] = lo < 0 ? inrow[0] : x[lo];
-            ext[G + B + q] = hi < 0 ? inrow[0] : x[hi];
-        }
-        int64_t jc = j0 < -G + 1 ? -G + 1 : (j0 > G - 1 ? G - 1 : j0); /* beyond the ghosts: all inflow */
-        const float *ec = ext + G - jc;
-        for (int64_t b = 0; b < B; b++)
-            o[b] = vc * ec[b] + vm * ec[b - 1] + vp * ec[b + 1];
     }
 }
 
@@ -455,8 +441,9 @@ static int zero_outputs(const struct nph_sweep *s, float *rec, float *rb, float 
 }
 
 /* Layer k's rows: outputs zero outside each row's span (a row without one: all zero, its total the
- * entering beams) unless ``zeroed`` (the bin's outputs were zeroed as a block), inputs of the spans gathered into the layer's buffers one after another (row a's
- * at soff[k A + a] - soff[k A]), so the arithmetic runs once per sub-beam over the whole layer. */
+ * entering beams) unless ``zeroed`` (the bin's outputs were zeroed as blocks), inputs of the spans
+ * gathered into the layer's buffers one after another (row a's at soff[k A + a] - soff[k A]), so
+ * the arithmetic runs once per sub-beam over the whole layer. */
 INLINE void layer_rows(const struct nph_sweep *s, int64_t bin, int64_t k, const float *tmp, float *tot, float *rec,
                        float *rb, float *mo, int64_t nslots, int zeroed, struct rows *rw, int mode, int qa, int m2)
 {
@@ -542,7 +529,7 @@ INLINE void sweep_bin(const struct nph_sweep *s, int64_t bin, float *planes, flo
     const int64_t nslots = s->mom == NULL ? 0 : 1 + (s->slot_kept >= 0) + (s->slot_m2 >= 0) + (s->slot_dep >= 0);
     const int mode = s->em == NULL ? NONE : s->kap == NULL ? PLAIN : s->cache_mode == 2 ? CACHED : PROFILE;
     const int qa = s->qa != NULL, mom = s->mom != NULL, m2 = s->slot_m2 >= 0, store = s->cache_mode == 1;
-    float *inrow = rw->ext + 3 * B + 4; /* a row of the inflow (per sub-beam, refilled) */
+    float *inrow = rw->inrow; /* (per sub-beam, refilled) */
     for (int64_t q = 0; q < ns; q++) {
         float v = s->inflow[bin * ns + q];
         for (int64_t c = 0; c < AB; c++)
@@ -561,7 +548,7 @@ INLINE void sweep_bin(const struct nph_sweep *s, int64_t bin, float *planes, flo
                 float v = s->inflow[bin * ns + q];
                 for (int64_t b = 0; b < B; b++)
                     inrow[b] = v;
-                shift_plane(s, bin * ns + q, planes + q * AB, tmp, rw->ext, inrow);
+                shift_plane(s, bin * ns + q, planes + q * AB, tmp, inrow);
             }
         /* total: the beams entering the layer (the emission is added on the rectangle) */
         for (int64_t c = 0; c < AB; c++)
@@ -609,11 +596,11 @@ INLINE void sweep_bin(const struct nph_sweep *s, int64_t bin, float *planes, flo
 }
 
 /* Floats of the workspace scatter_sweep needs: the sub-beams' planes, one more plane, the layer's
- * buffers (NBUF, a plane each), the shifted row with its ghosts and a row of the inflow. */
+ * buffers (NBUF, a plane each) and a row of the inflow. */
 #define NBUF 15
 int64_t scatter_sweep_work(const struct nph_sweep *s)
 {
-    return s->ns * s->A * s->B + s->A * s->B + NBUF * s->A * s->B + 4 * s->B + 4;
+    return s->ns * s->A * s->B + s->A * s->B + NBUF * s->A * s->B + s->B;
 }
 
 /* Sweep bins [bin_lo, bin_hi) of the group ``s`` describes in ``work`` (scatter_sweep_work floats,
@@ -628,7 +615,7 @@ void scatter_sweep(const struct nph_sweep *s, int64_t bin_lo, int64_t bin_hi, fl
                             &rw.etot, &rw.m1, &rw.mk, &rw.m2, &rw.md};
     for (int f = 0; f < NBUF; f++)
         *fields[f] = buf + f * AB;
-    rw.ext = buf + NBUF * AB; /* 3 B + 4 for the shifted row with its ghosts, then a row of the inflow */
+    rw.inrow = buf + NBUF * AB;
     unsigned csr = nph_flush_denormals();
     for (int64_t bin = bin_lo; bin < bin_hi; bin++)
         sweep_bin(s, bin, planes, planes + s->ns * AB, &rw);
