@@ -186,17 +186,18 @@ def bin_sum(a, bs):
     return out
 
 
-def shot_group(bs, unshot, received, r, power, shot, albedo, omega):
+def shot_group(bs, unshot, received, r, power, shot, albedo, omega, inc=None):
     """:func:`._passes._shot_group` by the compiled kernel; False without it."""
-    k = _kernel("scatter_shot", [_I, _P, _I, _I, _I, _P, _P, _P, _P, _P, ctypes.c_double, ctypes.c_double])
+    k = _kernel("scatter_shot", [_I, _P, _I, _I, _I, _P, _P, _P, _P, _P, _P, ctypes.c_double, ctypes.c_double])
     if k is None:
         return False
     u, rec, rr = _rows(unshot), _rows(received), _rows(np.ascontiguousarray(r, np.float32))
+    ip = None if inc is None else _rows(inc).ctypes.data
     if not (power.dtype == shot.dtype == np.float64 and power.flags.c_contiguous and shot.flags.c_contiguous):
         raise TypeError("scatter_shot: contiguous float64 power and shot")
     bins = bin_rows(bs, len(unshot))
     n = u.shape[1]
-    thread_map(lambda q: k(len(bins), bins.ctypes.data, n, q[0], q[1], u.ctypes.data, rec.ctypes.data,
+    thread_map(lambda q: k(len(bins), bins.ctypes.data, n, q[0], q[1], u.ctypes.data, rec.ctypes.data, ip,
                            rr.ctypes.data, power.ctypes.data, shot.ctypes.data, float(albedo), float(omega)),
                _ranges(n))
     return True

@@ -21,15 +21,22 @@ class _Tail:
     extrapolated ``received`` still moves by at most ``rho / (1 - rho)`` times its last move
     (L1 over voxels and bins), the bound :meth:`end` returns.  Fig. 6 cloud 64x64x48: the
     bound is about twice the true error (against a solve to tol 1e-6).
-    Memory: copies of ``received`` and ``total`` at the pass start and the last increment;
-    ``spare``: a free array like ``received`` to hold one of them (fresh memory costs a page
-    fault per 4 KiB when first written: 2 ms per MB on this VM).
+    Memory: the pass's increment of ``received`` (:attr:`inc`: :func:`_shot_group` writes each
+    group's catch there, each bin being shot once a pass, and :meth:`end` adds it to ``received``), a
+    copy of ``total`` at the pass start and the last increment; ``spares``: free float32 buffers,
+    their pages touched, cut into arrays like ``received`` to hold them (fresh memory costs a page
+    fault per 4 KiB when first written: up to 2 ms per MB on this VM).
     """
 
-    def __init__(self, received, total, exit_flux, spare=None):
+    def __init__(self, received, total, exit_flux, spares=()):
         self.arrays = (received, total, exit_flux)
-        self.start = self.last = self.factor = None
-        self.free = [] if spare is None else [spare]  # received-sized buffers holding nothing, reused
+        self.start = self.inc = self.last = self.factor = None
+        n, shape = received.size, received.shape
+        self.free = [b.reshape(-1)[i * n:(i + 1) * n].reshape(shape)  # received-sized, holding nothing
+                     for b in spares if b is not None for i in range(b.size // n)]
+
+    def _buffer(self):
+        return self.free.pop() if self.free else np.empty_like(self.arrays[0])
 
     def reset(self):
         """A new run of passes (on other sub-directions): forget the increments, keep the buffers."""
@@ -38,26 +45,25 @@ class _Tail:
         self.last = self.factor = None
 
     def begin(self):
-        """Before a pass: remember where it starts (in buffers kept from pass to pass)."""
-        rec = self.free.pop() if self.free else np.empty_like(self.arrays[0])
+        """Before a pass: a buffer for its increment, and where ``total`` and the exit power start."""
+        self.inc = self._buffer()
         if self.start is None:
-            self.start = [None, np.empty_like(self.arrays[1]), np.empty_like(self.arrays[2])]
-        self.start[0] = rec
-        for buf, a in zip(self.start[:2], self.arrays[:2]):
-            fb, fa = buf.reshape(len(buf), -1), a.reshape(len(a), -1)
-            split_map(lambda s, fb=fb, fa=fa: np.copyto(fb[:, s], fa[:, s]), fa.shape[1])
-        np.copyto(self.start[2], self.arrays[2])
+            self.start = [self._buffer(), np.empty_like(self.arrays[2])]
+        fb, fa = (a.reshape(len(a), -1) for a in (self.start[0], self.arrays[1]))
+        split_map(lambda s: np.copyto(fb[:, s], fa[:, s]), fa.shape[1])
+        np.copyto(self.start[1], self.arrays[2])
 
     def end(self):
-        """After a pass: the bound on the extrapolated ``received``'s L1 error (inf until it has one)."""
-        d = self.start[0]
+        """After a pass: its increment added to ``received``; the bound on the extrapolated
+        ``received``'s L1 error (inf until it has one)."""
+        d = self.inc
         fd, fr = d.reshape(len(d), -1), self.arrays[0].reshape(len(d), -1)
 
-        def increment(s):  # this pass's increment, in place of the copy; its L1 (signed after a warm start)
-            np.subtract(fr[:, s], fd[:, s], out=fd[:, s])
+        def add(s):  # the increment's L1 (signed after a warm start) with it in cache
+            np.add(fr[:, s], fd[:, s], out=fr[:, s])
             return np.abs(fd[:, s]).sum(dtype=np.float64)
 
-        power = float(sum(split_map(increment, fd.shape[1], chunk=1 << 12)))  # (small |.| temporaries)
+        power = float(sum(split_map(add, fd.shape[1], chunk=1 << 12)))
         factor, change = None, np.inf
         if self.last is not None and self.last[1] > 0 and 0 < power < self.last[1]:
             rho = power / self.last[1]
@@ -67,7 +73,7 @@ class _Tail:
                                                   -np.float32(self.factor))
         if self.last is not None:
             self.free.append(self.last[0])
-        self.last, self.factor = (d, power), factor
+        self.last, self.factor, self.inc = (d, power), factor, None
         return change
 
     def apply(self):
@@ -75,14 +81,14 @@ class _Tail:
         rec, tot, ex = self.arrays
         f = np.float32(self.factor)
         fr, fl = rec.reshape(len(rec), -1), self.last[0].reshape(len(rec), -1)
-        ft, fs = tot.reshape(len(tot), -1), self.start[1].reshape(len(tot), -1)
+        ft, fs = tot.reshape(len(tot), -1), self.start[0].reshape(len(tot), -1)
 
         def add(s):
             fr[:, s] += f * fl[:, s]
             ft[:, s] += (ft[:, s] - fs[:, s]) * f
 
         split_map(add, fr.shape[1], chunk=1 << 12)
-        ex += (ex - self.start[2]) * self.factor
+        ex += (ex - self.start[1]) * self.factor
 
 
 def _l1_combination(x, a, y, b):
@@ -141,22 +147,28 @@ def _occupied_box(sigma, periodic):
     return None if sigma[box].shape == sigma.shape else box
 
 
-def _shot_group(bs, unshot, received, r, power, shot, albedo, omega=1.0):
+def _shot_group(bs, unshot, received, r, power, shot, albedo, omega=1.0, inc=None):
     """After a sweep of bins ``bs``: ``omega`` times their unshot light is shot (``1 - omega`` times
-    it stays), what they caught (``r``) is added to ``received``, and the unshot ``power`` per voxel
-    loses ``omega`` times ``shot`` and gains albedo times ``r`` (the sweep added what they carried
-    to the total); on threads, voxel ranges side by side (in one thread these whole-grid steps took
-    2.6 s, about 3 %, of a line-profiled 128x128x96 solve)."""
+    it stays), what they caught (``r``) is added to ``received`` (or, unless ``inc`` is None, written
+    to ``inc``: :class:`_Tail` adds it at the pass end), and the unshot ``power`` per voxel loses
+    ``omega`` times ``shot`` and gains albedo times ``r`` (the sweep added what they carried to the
+    total); on threads, voxel
+    ranges side by side (in one thread these whole-grid steps took 2.6 s, about 3 %, of a
+    line-profiled 128x128x96 solve)."""
     bs = _as_slice(bs)
-    if _native.shot_group(bs, unshot, received, r, power.reshape(-1), shot.reshape(-1), albedo, omega):
+    if _native.shot_group(bs, unshot, received, r, power.reshape(-1), shot.reshape(-1), albedo, omega, inc):
         return
+    fi = None if inc is None else inc.reshape(len(inc), -1)
     u, rec = (a.reshape(len(a), -1) for a in (unshot, received))
     rr, pw, sh = r.reshape(len(r), -1), power.reshape(-1), shot.reshape(-1)
     keep = np.float32(1.0 - omega)
 
     def run(s):
         u[bs, s] *= keep
-        rec[bs, s] += rr[:, s]
+        if fi is None:
+            rec[bs, s] += rr[:, s]
+        else:
+            fi[bs, s] = rr[:, s]
         pw[s] -= omega * sh[s]
         pw[s] += albedo * rr[:, s].sum(0, dtype=np.float64)
 

@@ -492,8 +492,10 @@ class _Solve:
             self.umom = self.umom.sum(0, keepdims=True)
             self.mom_binned = self.mom_binned.sum(0, keepdims=True)
         self.beams = (self.dirs, self.wsub, self.M, self.new_caches(self.dirs.shape[1]))
-        # (the peaked orders' spare unshot buffer, its pages touched, holds the tail's first copy)
-        self.tail = _Tail(self.received, self.total, self.exit_flux, self.spare) if self.o.extrapolate else None
+        # (the tail's buffers: the peaked orders' spare unshot buffer and their catches per sub-direction,
+        # their pages touched)
+        self.tail = (_Tail(self.received, self.total, self.exit_flux, (self.spare, self.scratch.take("recv")))
+                     if self.o.extrapolate else None)
         self.spare = None
         self.late = self.o.late_sub is None
 
@@ -529,7 +531,8 @@ class _Solve:
                           np.zeros(wsub_p[bs].shape), o.periodic, axis, caches_p[gi], profile=prof, moments=sets,
                           fresh=refresh if keep else None, scratch=self.scratch, into=(None, self.total, bs))
         self.exit_flux[bs] += ex
-        _shot_group(bs, self.unshot, self.received, r, self.power, shot, self.alb_s, w)
+        _shot_group(bs, self.unshot, self.received, r, self.power, shot, self.alb_s, w,
+                    None if self.tail is None else self.tail.inc)
         _scatter_into(self.unshot, M_p[:, bs], r, self.alb_s)
 
     def run_passes(self):

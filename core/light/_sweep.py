@@ -109,6 +109,10 @@ class _Scratch:
     def zeros(self, name, shape):
         return _zero(self.empty(name, shape))
 
+    def take(self, name):
+        """The flat buffer ``name`` (its pages touched), no longer kept here; None if there is none."""
+        return self.bufs.pop(name, None)
+
 
 def _zero(a):
     """``a`` (contiguous) filled with zeros on threads; returns it."""

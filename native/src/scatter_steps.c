@@ -6,6 +6,7 @@
  */
 
 #include <stdint.h>
+#include <string.h>
 
 #include "scatter_math.h" /* (its GCC vectorizing setting) */
 
@@ -35,12 +36,13 @@ void scatter_bin_sum(int64_t g, const int64_t *bins, const float *a, int64_t n, 
 }
 
 /* After a sweep of bins ``bins``: omega times their unshot light is shot (1 - omega times it stays),
- * what they caught (r, (g, n)) is added to received, and the unshot power per voxel loses omega times
- * ``shot`` and gains albedo times the catch (float64): _shot_group.  (The sweep added what they
+ * what they caught (r, (g, n)) is added to received (or, unless ``inc`` is NULL, written to inc: the
+ * pass's increment, which the tail adds at the pass end), and the unshot power per voxel loses omega
+ * times ``shot`` and gains albedo times the catch (float64): _shot_group.  (The sweep added what they
  * carried to the total.) */
 CLONES
 void scatter_shot(int64_t g, const int64_t *bins, int64_t n, int64_t v0, int64_t v1, float *unshot, float *received,
-                  const float *r, double *power, const double *shot, double albedo, double omega)
+                  float *inc, const float *r, double *power, const double *shot, double albedo, double omega)
 {
     const float keep = (float)(1.0 - omega);
     for (int64_t c = v0; c < v1; c += RUN) {
@@ -53,9 +55,13 @@ void scatter_shot(int64_t g, const int64_t *bins, int64_t n, int64_t v0, int64_t
             const float *restrict ri = r + i * n + c;
             for (int64_t v = 0; v < m; v++) {
                 u[v] *= keep;
-                rec[v] += ri[v];
                 sum[v] += ri[v];
             }
+            if (inc != NULL)
+                memcpy(inc + bins[i] * n + c, ri, (size_t)m * sizeof(float));
+            else
+                for (int64_t v = 0; v < m; v++)
+                    rec[v] += ri[v];
         }
         for (int64_t v = 0; v < m; v++)
             power[c + v] = (power[c + v] - omega * shot[c + v]) + albedo * sum[v];
