@@ -365,8 +365,11 @@ static void scatter_row(float *dst, int64_t stride, const float *restrict src, i
 
 static void fill_row(float *dst, int64_t stride, float v, int64_t n)
 {
-    for (int64_t i = 0; i < n; i++)
-        dst[i * stride] = v;
+    if (stride == 1 && v == 0.0f)
+        memset(dst, 0, (size_t)n * sizeof *dst);
+    else
+        for (int64_t i = 0; i < n; i++)
+            dst[i * stride] = v;
 }
 
 /* a row of the total: written, or added to the solve's (obins) */
@@ -375,6 +378,9 @@ static void put_total(const struct nph_sweep *s, float *dst, const float *restri
     const int64_t stride = s->total_s[3];
     if (s->obins == NULL)
         scatter_row(dst, stride, src, n);
+    else if (stride == 1) /* (a loop of its own: the strided one does not vectorize) */
+        for (int64_t i = 0; i < n; i++)
+            dst[i] += src[i];
     else
         for (int64_t i = 0; i < n; i++)
             dst[i * stride] += src[i];
