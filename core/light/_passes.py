@@ -150,11 +150,10 @@ def _occupied_box(sigma, periodic):
 def _shot_group(bs, unshot, received, r, power, shot, albedo, omega=1.0, inc=None):
     """After a sweep of bins ``bs``: ``omega`` times their unshot light is shot (``1 - omega`` times
     it stays), what they caught (``r``) is added to ``received`` (or, unless ``inc`` is None, written
-    to ``inc``: :class:`_Tail` adds it at the pass end), and the unshot ``power`` per voxel loses
+    to ``inc``: :meth:`_Tail.end` adds it at the pass end), and the unshot ``power`` per voxel loses
     ``omega`` times ``shot`` and gains albedo times ``r`` (the sweep added what they carried to the
-    total); on threads, voxel
-    ranges side by side (in one thread these whole-grid steps took 2.6 s, about 3 %, of a
-    line-profiled 128x128x96 solve)."""
+    total); on threads, voxel ranges side by side (in one thread these whole-grid steps took 2.6 s,
+    about 3 %, of a line-profiled 128x128x96 solve)."""
     bs = _as_slice(bs)
     if _native.shot_group(bs, unshot, received, r, power.reshape(-1), shot.reshape(-1), albedo, omega, inc):
         return

@@ -556,12 +556,13 @@ class _Solve:
             self.converged = self.residual <= o.tol
             if self.passes == 1 and o.overrelax and not self.shared:
                 self.relax()
-            if self.tail is not None and (not self.converged or self.signed):
+            if self.tail is not None:
+                err = self.alb_s * self.tail.end() / self.ref  # (which adds the pass's catch to received)
                 # (signed passes (a warm start's, over-relaxed ones) reach tol with their unshot light
                 # undone, which would still add about residual / (1 - rho): their tail goes in too,
                 # once it is known)
-                err = self.alb_s * self.tail.end() / self.ref
-                if err <= o.tol or (self.converged and self.tail.factor is not None):
+                if (not self.converged or self.signed) and (
+                        err <= o.tol or (self.converged and self.tail.factor is not None)):
                     self.tail.apply()
                     _zero(self.unshot)
                     self.residual, self.converged = min(err, self.residual), True
