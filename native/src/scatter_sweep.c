@@ -363,13 +363,13 @@ static void scatter_row(float *dst, int64_t stride, const float *restrict src, i
             dst[i * stride] = src[i];
 }
 
-static void fill_row(float *dst, int64_t stride, float v, int64_t n)
+static void zero_row(float *dst, int64_t stride, int64_t n)
 {
-    if (stride == 1 && v == 0.0f)
+    if (stride == 1)
         memset(dst, 0, (size_t)n * sizeof *dst);
     else
         for (int64_t i = 0; i < n; i++)
-            dst[i * stride] = v;
+            dst[i * stride] = 0.0f;
 }
 
 /* a row of the total: written, or added to the solve's (obins) */
@@ -402,8 +402,8 @@ INLINE double row_sum(const float *restrict x, int64_t n)
 /* zero columns [0, b0) and [b1, B) of row a of a strided (layer, row, column) plane */
 static void zero_outside(float *plane, const int64_t *st, int64_t a, int64_t b0, int64_t b1, int64_t B)
 {
-    fill_row(plane + a * st[1], st[2], 0.0f, b0);
-    fill_row(plane + a * st[1] + b1 * st[2], st[2], 0.0f, B - b1);
+    zero_row(plane + a * st[1], st[2], b0);
+    zero_row(plane + a * st[1] + b1 * st[2], st[2], B - b1);
 }
 
 /* The size of the block the n axes (dims, element strides) address, or 0 unless it is dense (every
@@ -462,11 +462,11 @@ INLINE void layer_rows(const struct nph_sweep *s, int64_t bin, int64_t k, const 
             if (zeroed)
                 continue;
             for (int64_t q = 0; q < nrecv; q++)
-                fill_row(at3(rec + q * s->recv_s[1], s->recv_s + 2, k, a, 0), s->recv_s[4], 0.0f, B);
+                zero_row(at3(rec + q * s->recv_s[1], s->recv_s + 2, k, a, 0), s->recv_s[4], B);
             if (rb != NULL)
-                fill_row(at3(rb, s->rbin_s + 1, k, a, 0), s->rbin_s[3], 0.0f, B);
+                zero_row(at3(rb, s->rbin_s + 1, k, a, 0), s->rbin_s[3], B);
             for (int64_t sl = 0; sl < nslots; sl++)
-                fill_row(at3(mo + sl * s->mom_s[1], s->mom_s + 2, k, a, 0), s->mom_s[4], 0.0f, B);
+                zero_row(at3(mo + sl * s->mom_s[1], s->mom_s + 2, k, a, 0), s->mom_s[4], B);
             continue;
         }
         for (int64_t q = 0; q < nrecv && !zeroed; q++)
