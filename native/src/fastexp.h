@@ -16,24 +16,26 @@
 
 #include <stdint.h>
 
+#include "nph_inline.h"
+
 typedef double nph_v4d __attribute__((vector_size(32)));
 typedef int64_t nph_v4l __attribute__((vector_size(32)));
 
 #define NPH_EXP_MIN (-708.0)
 #define NPH_EXP_MAX 709.0
 
-static inline nph_v4d nph_splat4(double x)
+NPH_INLINE nph_v4d nph_splat4(double x)
 {
     return (nph_v4d){x, x, x, x};
 }
 
 /* m ? a : b per lane (m: all bits set or none, as comparisons give). */
-static inline nph_v4d nph_select4(nph_v4l m, nph_v4d a, nph_v4d b)
+NPH_INLINE nph_v4d nph_select4(nph_v4l m, nph_v4d a, nph_v4d b)
 {
     return (nph_v4d)(((nph_v4l)a & m) | ((nph_v4l)b & ~m));
 }
 
-static inline nph_v4d nph_exp4(nph_v4d x)
+NPH_INLINE nph_v4d nph_exp4(nph_v4d x)
 {
     const nph_v4d shift = nph_splat4(0x1.8p52); /* adding it rounds to an integer, kept in the low bits */
     nph_v4l under = x < nph_splat4(NPH_EXP_MIN);
@@ -58,7 +60,7 @@ static inline nph_v4d nph_exp4(nph_v4d x)
     return nph_select4(under, nph_splat4(0.0), p * scale);
 }
 
-static inline double nph_exp(double x)
+NPH_INLINE double nph_exp(double x)
 {
     return nph_exp4(nph_splat4(x))[0];
 }

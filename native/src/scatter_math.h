@@ -23,6 +23,8 @@
 
 #include <stdint.h>
 #include <string.h>
+
+#include "nph_inline.h"
 #if defined(__x86_64__) || defined(_M_X64) || defined(__i386__)
 #include <xmmintrin.h>
 #define NPH_X86 1
@@ -56,12 +58,12 @@ static inline void nph_restore_denormals(unsigned csr)
 #endif
 }
 
-static inline float nph_minf(float a, float b) { return a < b ? a : b; }
-static inline float nph_maxf(float a, float b) { return a > b ? a : b; }
-static inline float nph_absf(float a) { return a < 0.0f ? -a : a; }
-static inline float nph_clampf(float x, float lo, float hi) { return nph_minf(nph_maxf(x, lo), hi); }
+NPH_INLINE float nph_minf(float a, float b) { return a < b ? a : b; }
+NPH_INLINE float nph_maxf(float a, float b) { return a > b ? a : b; }
+NPH_INLINE float nph_absf(float a) { return a < 0.0f ? -a : a; }
+NPH_INLINE float nph_clampf(float x, float lo, float hi) { return nph_minf(nph_maxf(x, lo), hi); }
 
-static inline float nph_expf(float x)
+NPH_INLINE float nph_expf(float x)
 {
     float xc = nph_clampf(x, NPH_EXPF_MIN, NPH_EXPF_MAX);
     /* k = round(x / ln2) by the 1.5 * 2^23 trick (exact for |x / ln2| < 2^22) */
@@ -80,7 +82,7 @@ static inline float nph_expf(float x)
 }
 
 /* expm1(x) given ex = exp(x) (the caller's, when it needs both) */
-static inline float nph_expm1f_of(float x, float ex)
+NPH_INLINE float nph_expm1f_of(float x, float ex)
 {
     float s = x * (1.0f + x * (0.5f + x * (1.0f / 6 + x * (1.0f / 24 + x * (1.0f / 120 + x * (1.0f / 720
               + x * (1.0f / 5040 + x * (1.0f / 40320))))))));
@@ -88,7 +90,7 @@ static inline float nph_expm1f_of(float x, float ex)
     return nph_absf(x) < 0.5f ? s : e;
 }
 
-static inline float nph_expm1f(float x)
+NPH_INLINE float nph_expm1f(float x)
 {
     float s = x * (1.0f + x * (0.5f + x * (1.0f / 6 + x * (1.0f / 24 + x * (1.0f / 120 + x * (1.0f / 720
               + x * (1.0f / 5040 + x * (1.0f / 40320))))))));
@@ -97,7 +99,7 @@ static inline float nph_expm1f(float x)
 }
 
 /* (1 - exp(-x)) / x for x >= 0 (1 at 0): scatter's _phi */
-static inline float nph_phif(float x)
+NPH_INLINE float nph_phif(float x)
 {
     float n = -nph_maxf(x, NPH_TINY);
     return nph_expm1f(n) / n;

@@ -230,9 +230,40 @@ INLINE void row_sub(const struct nph_sweep *s, int64_t j, int64_t n, const float
     }
 }
 
-#define ROW(MODE, QA, MOM, M2, STORE)                                                                            \
-    row_sub(s, j, n, sg, cur, rw->em, rw->k0, rw->k1, rw->k2, rw->qa, rw->var, rw->r, rw->etot, rw->m1, rw->mk,   \
-            rw->m2, rw->md, ce, cs, ck, MODE, QA, MOM, M2, STORE)
+/* Each specialization of row_sub is a function of its own, with its own clones.  Inlined into the
+ * sweep, whether GCC vectorized the hot ones hung on unrelated code: renaming a zeroing helper
+ * left the v4 clone's profile rows scalar and the sweeps 4x as slow. */
+#define ROW_KERNEL(MODE, QA, MOM, M2, STORE)                                                                      \
+    CLONES __attribute__((noinline)) static void row_##MODE##_##QA##MOM##M2##STORE(                                \
+        const struct nph_sweep *s, int64_t j, int64_t n, const float *sg, float *cur, const struct rows *rw,        \
+        float *ce, float *cs, float *ck)                                                                           \
+    {                                                                                                              \
+        row_sub(s, j, n, sg, cur, rw->em, rw->k0, rw->k1, rw->k2, rw->qa, rw->var, rw->r, rw->etot, rw->m1,         \
+                rw->mk, rw->m2, rw->md, ce, cs, ck, MODE, QA, MOM, M2, STORE);                                     \
+    }
+ROW_KERNEL(NONE, 0, 0, 0, 0)
+ROW_KERNEL(PLAIN, 0, 0, 0, 0)
+ROW_KERNEL(CACHED, 0, 0, 0, 0)
+ROW_KERNEL(NONE, 0, 1, 0, 0)
+ROW_KERNEL(PLAIN, 0, 1, 0, 0)
+ROW_KERNEL(CACHED, 0, 1, 0, 0)
+ROW_KERNEL(NONE, 0, 1, 1, 0)
+ROW_KERNEL(PLAIN, 0, 1, 1, 0)
+ROW_KERNEL(CACHED, 0, 1, 1, 0)
+ROW_KERNEL(PROFILE, 0, 0, 0, 0)
+ROW_KERNEL(PROFILE, 0, 0, 0, 1)
+ROW_KERNEL(PROFILE, 1, 0, 0, 0)
+ROW_KERNEL(PROFILE, 1, 0, 0, 1)
+ROW_KERNEL(PROFILE, 0, 1, 0, 0)
+ROW_KERNEL(PROFILE, 0, 1, 0, 1)
+ROW_KERNEL(PROFILE, 1, 1, 0, 0)
+ROW_KERNEL(PROFILE, 1, 1, 0, 1)
+ROW_KERNEL(PROFILE, 0, 1, 1, 0)
+ROW_KERNEL(PROFILE, 0, 1, 1, 1)
+ROW_KERNEL(PROFILE, 1, 1, 1, 0)
+ROW_KERNEL(PROFILE, 1, 1, 1, 1)
+
+#define ROW(MODE, QA, MOM, M2, STORE) row_##MODE##_##QA##MOM##M2##STORE(s, j, n, sg, cur, rw, ce, cs, ck)
 
 INLINE void row_dispatch(const struct nph_sweep *s, int64_t j, const float *sg, float *cur, const struct rows *rw,
                          float *ce, float *cs, float *ck, int64_t n, int mode, int qa, int mom, int m2, int store)
