@@ -25,7 +25,14 @@ class SweepArgs(ctypes.Structure):
                 ("var", _P), ("var_s", _I * 3), ("recv", _P), ("recv_s", _I * 5), ("per_sub", _I),
                 ("total", _P), ("total_s", _I * 4), ("exit_power", _P), ("mom", _P), ("mom_s", _I * 5),
                 ("slot_kept", _I), ("slot_m2", _I), ("slot_dep", _I), ("cache", _P), ("cache_mode", _I),
-                ("obins", _P), ("rbin", _P), ("rbin_s", _I * 4), ("caught", _P)]
+                ("obins", _P), ("rbin", _P), ("rbin_s", _I * 4), ("caught", _P), ("stage_min", _I)]
+
+# Voxels in a layer from which the sweep stages arrays whose layers lie next to one another in
+# memory (the sweeps along x) in blocks of 16 layers.  Fig. 6 cloud, warm solves alternated
+# (2026-11-29, load 1.9): 128x128x96 (x layers of 5472 voxels) 14.1-16.6 s instead of 15.0-15.8 s,
+# the solve's CPU median 26.8 s instead of 29.2 s; 64x64x48 (1368 voxels) staged ran no faster and
+# its single sub-beams slower, so its layers stay in place.
+STAGE_MIN = 4096
 
 
 def sweep_kernel():
@@ -116,7 +123,7 @@ def sweep(kernel, sig, geom, beams, sources, outputs, cache, fresh, threads, scr
                   slot_kept=slot.get("kept", -1), slot_m2=slot.get("m2", -1), slot_dep=slot.get("dep", -1),
                   cache=None if buf is None else buf.ctypes.data, cache_mode=mode,
                   obins=None if obins is None else obins.ctypes.data,
-                  caught=None if caught is None else caught.ctypes.data)
+                  caught=None if caught is None else caught.ctypes.data, stage_min=STAGE_MIN)
     for name, arr, n in (("em", em, 4), ("kap", kap, 4), ("qa", qa, 3), ("var", var, 3), ("recv", recv, 5),
                          ("total", total, 4), ("mom", mom, 5), ("rbin", rbin, 4)):
         if name == "recv" and not per_sub:  # (bin, layer, row, column): no sub axis

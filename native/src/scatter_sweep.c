@@ -68,6 +68,8 @@ struct nph_sweep {
     float *rbin;
     int64_t rbin_s[4];    /* (bin, layer, row, column) or NULL: per_sub's catch summed over the sub-beams */
     double *caught;       /* (beams,) or NULL: the power each sub-beam caught (per_sub) */
+    int64_t stage_min;    /* voxels in a layer (A B) from which arrays whose layers lie next to one
+                             another are staged (see struct arr) */
 };
 
 /* Buffers of one layer's spans, one after another (soff's layout), and a row of the inflow. */
@@ -369,12 +371,7 @@ INLINE void shift_plane(const struct nph_sweep *s, int64_t j, float *restrict p,
     }
 }
 
-/* ------------------------------------------------------------------ one bin */
-
-static inline float *at3(float *base, const int64_t *st, int64_t k, int64_t a, int64_t b)
-{
-    return base + k * st[0] + a * st[1] + b * st[2];
-}
+/* ------------------------------------------------------------------ rows of strided arrays */
 
 static void gather(float *restrict dst, const float *src, int64_t stride, int64_t n)
 {
@@ -403,20 +400,6 @@ static void zero_row(float *dst, int64_t stride, int64_t n)
             dst[i * stride] = 0.0f;
 }
 
-/* a row of the total: written, or added to the solve's (obins) */
-static void put_total(const struct nph_sweep *s, float *dst, const float *restrict src, int64_t n)
-{
-    const int64_t stride = s->total_s[3];
-    if (s->obins == NULL)
-        scatter_row(dst, stride, src, n);
-    else if (stride == 1) /* (a loop of its own: the strided one does not vectorize) */
-        for (int64_t i = 0; i < n; i++)
-            dst[i] += src[i];
-    else
-        for (int64_t i = 0; i < n; i++)
-            dst[i * stride] += src[i];
-}
-
 /* sum of a row in float64, eight running sums (one would wait on each addition's latency) */
 INLINE double row_sum(const float *restrict x, int64_t n)
 {
@@ -428,13 +411,6 @@ INLINE double row_sum(const float *restrict x, int64_t n)
     for (; i < n; i++)
         part[0] += x[i];
     return ((part[0] + part[1]) + (part[2] + part[3])) + ((part[4] + part[5]) + (part[6] + part[7]));
-}
-
-/* zero columns [0, b0) and [b1, B) of row a of a strided (layer, row, column) plane */
-static void zero_outside(float *plane, const int64_t *st, int64_t a, int64_t b0, int64_t b1, int64_t B)
-{
-    zero_row(plane + a * st[1], st[2], b0);
-    zero_row(plane + a * st[1] + b1 * st[2], st[2], B - b1);
 }
 
 /* The size of the block the n axes (dims, element strides) address, or 0 unless it is dense (every
@@ -477,57 +453,249 @@ static int zero_outputs(const struct nph_sweep *s, float *rec, float *rb, float 
     return 1;
 }
 
+/* ------------------------------------------------------------------ layers, in place or staged */
+
+/* One layer of an array: element (a, b) at p[a * rs + b * cs]. */
+struct lay {
+    float *p;
+    int64_t rs, cs;
+};
+
+/* An array addressed by (layer, row, column) element strides ``st`` (NULL base: absent).  Where its
+ * layers lie next to one another in memory (st[0] == 1: the sweeps along the grid's x axis) each
+ * element of a layer's rows sits in a cache line of its own, and at 128x128x96 the lines had left
+ * the cache before the next layer used them (x sweeps took 1.7-2.6x as long as the others): such
+ * an array goes through ``stage`` (KB, A, B) in blocks of KB layers, copied in or out a cache line
+ * at a time, where a layer holds at least stage_min voxels.  ``add``: an output added to the
+ * array (the solve's total). */
+struct arr {
+    float *base;
+    const int64_t *st;
+    float *stage; /* NULL: used in place */
+    int add;
+};
+
+#define KB 16     /* layers in a staged block: 64 bytes of float32 */
+#define MAXREC 16 /* catches staged per bin at most (more sub-beams: in place) */
+
+/* x is staged: its layers lie next to one another, and they are big enough (stage_min) */
+static int layers_adjacent(const struct nph_sweep *s, const struct arr *x)
+{
+    return x->base != NULL && x->st[0] == 1 && x->st[2] != 1 && s->A * s->B >= s->stage_min;
+}
+
+/* layer k of x, whose staged block starts at layer klo */
+static struct lay view(const struct arr *x, int64_t k, int64_t klo, int64_t A, int64_t B)
+{
+    if (x->stage != NULL)
+        return (struct lay){x->stage + (k - klo) * A * B, B, 1};
+    if (x->base != NULL)
+        return (struct lay){x->base + k * x->st[0], x->st[1], x->st[2]};
+    return (struct lay){NULL, 0, 0};
+}
+
+/* columns [*u0, *u1) of row a holding a span in some layer of [klo, klo + nk) ((0, 0): none) */
+static void union_span(const struct nph_sweep *s, int64_t a, int64_t klo, int64_t nk, int64_t *u0, int64_t *u1)
+{
+    int64_t lo = s->B, hi = 0;
+    for (int64_t k = klo; k < klo + nk; k++) {
+        const int64_t b0 = s->spans[2 * (k * s->A + a)], b1 = s->spans[2 * (k * s->A + a) + 1];
+        if (b1 > b0) {
+            lo = b0 < lo ? b0 : lo;
+            hi = b1 > hi ? b1 : hi;
+        }
+    }
+    *u0 = hi > lo ? lo : 0;
+    *u1 = hi > lo ? hi : 0;
+}
+
+enum { STAGE_IN, STAGE_ZERO, STAGE_OUT };
+
+/* Block [klo, klo + nk) of a staged array on its rows' spans (``full``: whole rows): copied into the
+ * stage, the stage zeroed (an output), or the stage copied (added) back. */
+static void stage_block(const struct nph_sweep *s, const struct arr *x, int64_t klo, int64_t nk, int full, int how)
+{
+    const int64_t A = s->A, B = s->B, AB = A * B;
+    for (int64_t a = 0; a < A; a++) {
+        int64_t u0 = 0, u1 = B;
+        if (!full)
+            union_span(s, a, klo, nk, &u0, &u1);
+        for (int64_t b = u0; b < u1; b++) {
+            float *m = x->base + klo + a * x->st[1] + b * x->st[2], *t = x->stage + a * B + b;
+            if (how == STAGE_IN)
+                for (int64_t q = 0; q < nk; q++)
+                    t[q * AB] = m[q];
+            else if (how == STAGE_ZERO)
+                for (int64_t q = 0; q < nk; q++)
+                    t[q * AB] = 0.0f;
+            else if (x->add)
+                for (int64_t q = 0; q < nk; q++)
+                    m[q] += t[q * AB];
+            else
+                for (int64_t q = 0; q < nk; q++)
+                    m[q] = t[q * AB];
+        }
+    }
+}
+
+/* A bin's arrays: inputs (emission, the profiles' three rates, P2 weight, variance), outputs
+ * (per_sub's summed catch, up to four moment slots, the total), and the catch: one array per
+ * sub-beam (per_sub) at rec.base + q * rec_q, stage rec.stage + q KB A B, or one. */
+enum { EM, KAP0, KAP1, KAP2, QA, VAR, RBIN, MOM0, TOT = MOM0 + 4, NARR };
+struct bin_arrays {
+    struct arr x[NARR], rec;
+    int64_t rec_q, nrec;
+};
+
+/* The bin's arrays, those whose layers are adjacent staged in ``stage`` (NULL: none); the outputs
+ * only where ``zeroed`` (their blocks were zeroed whole: a staged block writes back the union of
+ * its layers' spans, not each layer's). */
+static void bin_arrays(const struct nph_sweep *s, int64_t bin, float *stage, int zeroed, struct bin_arrays *ba)
+{
+    const int64_t KAB = KB * s->A * s->B, ob = s->obins == NULL ? bin : s->obins[bin];
+    struct arr *x = ba->x;
+    for (int i = 0; i < NARR; i++)
+        x[i] = (struct arr){NULL, NULL, NULL, 0};
+    if (s->em != NULL)
+        x[EM] = (struct arr){(float *)s->em + bin * s->em_s[0], s->em_s + 1, NULL, 0};
+    for (int c = 0; c < 3 && s->kap != NULL; c++)
+        x[KAP0 + c] = (struct arr){(float *)s->kap + c * s->kap_s[0], s->kap_s + 1, NULL, 0};
+    x[QA] = (struct arr){(float *)s->qa, s->qa_s, NULL, 0};
+    x[VAR] = (struct arr){(float *)s->var, s->var_s, NULL, 0};
+    if (s->rbin != NULL)
+        x[RBIN] = (struct arr){s->rbin + ob * s->rbin_s[0], s->rbin_s + 1, NULL, 0};
+    const int64_t slots[4] = {0, s->slot_kept, s->slot_m2, s->slot_dep};
+    for (int f = 0; f < 4 && s->mom != NULL; f++)
+        if (slots[f] >= 0)
+            x[MOM0 + f] = (struct arr){s->mom + bin * s->mom_s[0] + slots[f] * s->mom_s[1], s->mom_s + 2, NULL, 0};
+    x[TOT] = (struct arr){s->total + ob * s->total_s[0], s->total_s + 1, NULL, s->obins != NULL};
+    ba->nrec = s->per_sub ? s->ns : 1;
+    ba->rec_q = s->recv_s[1];
+    ba->rec = (struct arr){s->recv + bin * s->recv_s[0], s->recv_s + 2, NULL, 0};
+    if (stage == NULL)
+        return;
+    for (int i = 0; i < NARR; i++)
+        if (layers_adjacent(s, &x[i]) && (i < RBIN || i == TOT || zeroed))
+            x[i].stage = stage + i * KAB;
+    if (layers_adjacent(s, &ba->rec) && ba->nrec <= MAXREC && zeroed)
+        ba->rec.stage = stage + NARR * KAB;
+}
+
+/* sub-beam q's catch */
+static struct arr rec_arr(const struct bin_arrays *ba, int64_t q, int64_t KAB)
+{
+    struct arr r = ba->rec;
+    r.base += q * ba->rec_q;
+    if (r.stage != NULL)
+        r.stage += q * KAB;
+    return r;
+}
+
+/* The staged arrays of block [klo, klo + nk): in (inputs copied, outputs zeroed) or out */
+static void stage_blocks(const struct nph_sweep *s, const struct bin_arrays *ba, int64_t klo, int64_t nk, int in)
+{
+    const int64_t KAB = KB * s->A * s->B;
+    for (int i = 0; i < NARR; i++)
+        if (ba->x[i].stage != NULL && (in || i >= RBIN))
+            stage_block(s, &ba->x[i], klo, nk, i == TOT, i < RBIN ? STAGE_IN : in ? STAGE_ZERO : STAGE_OUT);
+    for (int64_t q = 0; q < ba->nrec && ba->rec.stage != NULL; q++) {
+        const struct arr r = rec_arr(ba, q, KAB);
+        stage_block(s, &r, klo, nk, 0, in ? STAGE_ZERO : STAGE_OUT);
+    }
+}
+
+/* Floats of the stages: none unless some array of the group has its layers next to one another. */
+static int64_t stage_size(const struct nph_sweep *s)
+{
+    struct bin_arrays ba;
+    bin_arrays(s, 0, NULL, 0, &ba);
+    int any = layers_adjacent(s, &ba.rec);
+    for (int i = 0; i < NARR; i++)
+        any |= layers_adjacent(s, &ba.x[i]);
+    return any ? (NARR + MAXREC) * KB * s->A * s->B : 0;
+}
+
+/* row a's columns [b0, b0 + n) of a layer: zeroed, gathered into dst, or scattered from src */
+static void zero_lay(struct lay v, int64_t a, int64_t b0, int64_t n) { zero_row(v.p + a * v.rs + b0 * v.cs, v.cs, n); }
+static void gather_lay(float *dst, struct lay v, int64_t a, int64_t b0, int64_t n)
+{
+    gather(dst, v.p + a * v.rs + b0 * v.cs, v.cs, n);
+}
+static void scatter_lay(struct lay v, int64_t a, int64_t b0, const float *src, int64_t n)
+{
+    scatter_row(v.p + a * v.rs + b0 * v.cs, v.cs, src, n);
+}
+
+/* row a of the total: written, or added to the solve's (obins) */
+static void put_total(const struct nph_sweep *s, struct lay t, int64_t a, const float *restrict src, int64_t n)
+{
+    float *dst = t.p + a * t.rs;
+    if (s->obins == NULL)
+        scatter_row(dst, t.cs, src, n);
+    else if (t.cs == 1) /* (a loop of its own: the strided one does not vectorize) */
+        for (int64_t i = 0; i < n; i++)
+            dst[i] += src[i];
+    else
+        for (int64_t i = 0; i < n; i++)
+            dst[i * t.cs] += src[i];
+}
+
+/* ------------------------------------------------------------------ one bin */
+
 /* Layer k's rows: outputs zero outside each row's span (a row without one: all zero, its total the
  * entering beams) unless ``zeroed`` (the bin's outputs were zeroed as blocks), inputs of the spans
  * gathered into the layer's buffers one after another (row a's at soff[k A + a] - soff[k A]), so
  * the arithmetic runs once per sub-beam over the whole layer. */
-INLINE void layer_rows(const struct nph_sweep *s, int64_t bin, int64_t k, const float *tmp, float *tot, float *rec,
-                       float *rb, float *mo, int64_t nslots, int zeroed, struct rows *rw, int mode, int qa, int m2)
+INLINE void layer_rows(const struct nph_sweep *s, int64_t k, int64_t klo, const float *tmp,
+                       const struct bin_arrays *ba, int zeroed, struct rows *rw, int mode, int qa, int m2)
 {
     const int64_t A = s->A, B = s->B, AB = A * B, base = s->soff[k * A];
-    const int64_t nrecv = s->per_sub ? s->ns : 1;
+    const struct lay tot = view(&ba->x[TOT], k, klo, A, B);
+    struct lay in[RBIN], out[TOT - RBIN + MAXREC];
+    int64_t nout = 0;
+    for (int i = 0; i < RBIN; i++)
+        in[i] = view(&ba->x[i], k, klo, A, B);
+    if (!zeroed) {
+        for (int i = RBIN; i < TOT; i++)
+            if (ba->x[i].base != NULL)
+                out[nout++] = view(&ba->x[i], k, klo, A, B);
+        for (int64_t q = 0; q < ba->nrec; q++) {
+            const struct arr r = rec_arr(ba, q, KB * AB);
+            out[nout++] = view(&r, k, klo, A, B);
+        }
+    }
     for (int64_t a = 0; a < A; a++) {
         const int64_t b0 = s->spans[2 * (k * A + a)], b1 = s->spans[2 * (k * A + a) + 1], wd = b1 - b0;
+        const int64_t lo = wd > 0 ? b0 : B, hi = wd > 0 ? b1 : B; /* zero outside [lo, hi) */
+        for (int64_t f = 0; f < nout; f++) {
+            zero_lay(out[f], a, 0, lo);
+            zero_lay(out[f], a, hi, B - hi);
+        }
         if (wd <= 0) {
-            put_total(s, at3(tot, s->total_s + 1, k, a, 0), tmp + a * B, B);
-            if (zeroed)
-                continue;
-            for (int64_t q = 0; q < nrecv; q++)
-                zero_row(at3(rec + q * s->recv_s[1], s->recv_s + 2, k, a, 0), s->recv_s[4], B);
-            if (rb != NULL)
-                zero_row(at3(rb, s->rbin_s + 1, k, a, 0), s->rbin_s[3], B);
-            for (int64_t sl = 0; sl < nslots; sl++)
-                zero_row(at3(mo + sl * s->mom_s[1], s->mom_s + 2, k, a, 0), s->mom_s[4], B);
+            put_total(s, tot, a, tmp + a * B, B);
             continue;
         }
-        for (int64_t q = 0; q < nrecv && !zeroed; q++)
-            zero_outside(rec + q * s->recv_s[1] + k * s->recv_s[2], s->recv_s + 2, a, b0, b1, B);
-        if (rb != NULL && !zeroed)
-            zero_outside(rb + k * s->rbin_s[1], s->rbin_s + 1, a, b0, b1, B);
-        for (int64_t sl = 0; sl < nslots && !zeroed; sl++)
-            zero_outside(mo + sl * s->mom_s[1] + k * s->mom_s[2], s->mom_s + 2, a, b0, b1, B);
         const int64_t o = s->soff[k * A + a] - base;
         memcpy(rw->sg + o, s->sig + k * AB + a * B + b0, (size_t)wd * sizeof(float));
         if (mode != NONE)
-            gather(rw->em + o, s->em + bin * s->em_s[0] + k * s->em_s[1] + a * s->em_s[2] + b0 * s->em_s[3],
-                   s->em_s[3], wd);
+            gather_lay(rw->em + o, in[EM], a, b0, wd);
         if (mode == PROFILE) {
             float *kr[3] = {rw->k0, rw->k1, rw->k2};
             for (int c = 0; c < 3; c++)
-                gather(kr[c] + o, s->kap + c * s->kap_s[0] + k * s->kap_s[1] + a * s->kap_s[2] + b0 * s->kap_s[3],
-                       s->kap_s[3], wd);
+                gather_lay(kr[c] + o, in[KAP0 + c], a, b0, wd);
             if (qa)
-                gather(rw->qa + o, s->qa + k * s->qa_s[0] + a * s->qa_s[1] + b0 * s->qa_s[2], s->qa_s[2], wd);
+                gather_lay(rw->qa + o, in[QA], a, b0, wd);
             if (m2)
-                gather(rw->var + o, s->var + k * s->var_s[0] + a * s->var_s[1] + b0 * s->var_s[2], s->var_s[2], wd);
+                gather_lay(rw->var + o, in[VAR], a, b0, wd);
         }
     }
 }
 
 /* Sub-beam j's plane (q's) through layer k: its spans copied out, transported as one row, copied
- * back; what it caught per row to its own catch (per_sub, with the power it caught) and summed. */
+ * back; what it caught per row to its own catch ``rec`` (per_sub, with the power it caught) and
+ * summed. */
 INLINE void layer_sub(const struct nph_sweep *s, int64_t bin, int64_t q, int64_t k, int64_t S, float *plane,
-                      float *rec, struct rows *rw, int mode, int qa, int mom, int m2, int store, int sum)
+                      struct lay rec, struct rows *rw, int mode, int qa, int mom, int m2, int store, int sum)
 {
     const int64_t A = s->A, B = s->B, base = s->soff[k * A], j = bin * s->ns + q;
     for (int64_t a = 0; a < A; a++) {
@@ -550,7 +718,7 @@ INLINE void layer_sub(const struct nph_sweep *s, int64_t bin, int64_t q, int64_t
         const int64_t o = s->soff[k * A + a] - base;
         memcpy(plane + a * B + b0, rw->cur + o, (size_t)wd * sizeof(float));
         if (s->per_sub) {
-            scatter_row(at3(rec + q * s->recv_s[1], s->recv_s + 2, k, a, b0), s->recv_s[4], rw->r + o, wd);
+            scatter_lay(rec, a, b0, rw->r + o, wd);
             if (s->caught != NULL)
                 s->caught[j] += row_sum(rw->r + o, wd);
         }
@@ -560,7 +728,47 @@ INLINE void layer_sub(const struct nph_sweep *s, int64_t bin, int64_t q, int64_t
             rw->rsum[i] += rw->r[i];
 }
 
-INLINE void sweep_bin(const struct nph_sweep *s, int64_t bin, float *planes, float *tmp, struct rows *rw)
+/* Layer k's S non-empty voxels: every sub-beam through them, then the summed catch, the moments
+ * and the total (the entering beams in ``tmp`` plus the emission) written on the rows. */
+INLINE void layer_end(const struct nph_sweep *s, int64_t bin, int64_t k, int64_t klo, int64_t S, float *planes,
+                      float *tmp, const struct bin_arrays *ba, struct rows *rw, int mode, int qa, int mom, int m2,
+                      int store)
+{
+    const int64_t A = s->A, B = s->B, AB = A * B;
+    const struct lay rb = view(&ba->x[RBIN], k, klo, A, B), tot = view(&ba->x[TOT], k, klo, A, B);
+    float *zero[6] = {rw->etot, rw->rsum, rw->m1, rw->mk, rw->m2, rw->md};
+    for (int f = 0; f < 6; f++)
+        memset(zero[f], 0, (size_t)S * sizeof(float));
+    for (int64_t q = 0; q < s->ns; q++) {
+        const struct arr r = rec_arr(ba, s->per_sub ? q : 0, KB * AB);
+        layer_sub(s, bin, q, k, S, planes + q * AB, view(&r, k, klo, A, B), rw, mode, qa, mom, m2, store,
+                  !s->per_sub || rb.p != NULL);
+    }
+    const struct lay rec = view(&ba->rec, k, klo, A, B);
+    const float *mf[4] = {rw->m1, rw->mk, rw->m2, rw->md}; /* slot fields in bin_arrays' order */
+    struct lay mo[4];
+    for (int f = 0; f < 4; f++)
+        mo[f] = view(&ba->x[MOM0 + f], k, klo, A, B);
+    for (int64_t a = 0; a < A; a++) {
+        const int64_t b0 = s->spans[2 * (k * A + a)], wd = s->spans[2 * (k * A + a) + 1] - b0;
+        if (wd <= 0)
+            continue;
+        const int64_t o = s->soff[k * A + a] - s->soff[k * A];
+        if (!s->per_sub)
+            scatter_lay(rec, a, b0, rw->rsum + o, wd);
+        if (rb.p != NULL)
+            scatter_lay(rb, a, b0, rw->rsum + o, wd);
+        for (int64_t i = 0; i < wd; i++)
+            tmp[a * B + b0 + i] += rw->etot[o + i];
+        put_total(s, tot, a, tmp + a * B, B);
+        for (int f = 0; f < 4 && mom; f++)
+            if (mo[f].p != NULL)
+                scatter_lay(mo[f], a, b0, mf[f] + o, wd);
+    }
+}
+
+INLINE void sweep_bin(const struct nph_sweep *s, int64_t bin, float *planes, float *tmp, struct rows *rw,
+                      float *stage)
 {
     const int64_t L = s->L, A = s->A, B = s->B, ns = s->ns, AB = A * B;
     const int64_t nslots = s->mom == NULL ? 0 : 1 + (s->slot_kept >= 0) + (s->slot_m2 >= 0) + (s->slot_dep >= 0);
@@ -573,13 +781,19 @@ INLINE void sweep_bin(const struct nph_sweep *s, int64_t bin, float *planes, flo
             planes[q * AB + c] = v;
     }
     const int64_t ob = s->obins == NULL ? bin : s->obins[bin];
-    float *tot = s->total + ob * s->total_s[0];
-    float *rec = s->recv + bin * s->recv_s[0];
     float *rb = s->rbin == NULL ? NULL : s->rbin + ob * s->rbin_s[0];
-    float *mo = mom ? s->mom + bin * s->mom_s[0] : NULL;
-    const int zeroed = zero_outputs(s, rec, rb, mo, nslots);
+    const int zeroed = zero_outputs(s, s->recv + bin * s->recv_s[0], rb, mom ? s->mom + bin * s->mom_s[0] : NULL,
+                                    nslots);
+    struct bin_arrays ba;
+    bin_arrays(s, bin, stage, zeroed, &ba);
+    int64_t klo = 0, nk = 0;
     for (int64_t n = 0; n < L; n++) {
         const int64_t k = s->sign > 0 ? n : L - 1 - n;
+        if (n % KB == 0) {
+            nk = L - n < KB ? L - n : KB;
+            klo = s->sign > 0 ? n : L - n - nk;
+            stage_blocks(s, &ba, klo, nk, 1);
+        }
         if (n)
             for (int64_t q = 0; q < ns; q++) {
                 float v = s->inflow[bin * ns + q];
@@ -593,38 +807,12 @@ INLINE void sweep_bin(const struct nph_sweep *s, int64_t bin, float *planes, flo
         for (int64_t q = 1; q < ns; q++)
             for (int64_t c = 0; c < AB; c++)
                 tmp[c] += planes[q * AB + c];
-        layer_rows(s, bin, k, tmp, tot, rec, rb, mo, nslots, zeroed, rw, mode, qa, mom && m2);
+        layer_rows(s, k, klo, tmp, &ba, zeroed, rw, mode, qa, mom && m2);
         const int64_t S = s->soff[(k + 1) * A] - s->soff[k * A];
-        if (S == 0)
-            continue;
-        float *zero[6] = {rw->etot, rw->rsum, rw->m1, rw->mk, rw->m2, rw->md};
-        for (int f = 0; f < 6; f++)
-            memset(zero[f], 0, (size_t)S * sizeof(float));
-        for (int64_t q = 0; q < ns; q++)
-            layer_sub(s, bin, q, k, S, planes + q * AB, rec, rw, mode, qa, mom, m2, store, !s->per_sub || rb != NULL);
-        for (int64_t a = 0; a < A; a++) {
-            const int64_t b0 = s->spans[2 * (k * A + a)], wd = s->spans[2 * (k * A + a) + 1] - b0;
-            if (wd <= 0)
-                continue;
-            const int64_t o = s->soff[k * A + a] - s->soff[k * A];
-            if (!s->per_sub)
-                scatter_row(at3(rec, s->recv_s + 2, k, a, b0), s->recv_s[4], rw->rsum + o, wd);
-            if (rb != NULL)
-                scatter_row(at3(rb, s->rbin_s + 1, k, a, b0), s->rbin_s[3], rw->rsum + o, wd);
-            for (int64_t i = 0; i < wd; i++)
-                tmp[a * B + b0 + i] += rw->etot[o + i];
-            put_total(s, at3(tot, s->total_s + 1, k, a, 0), tmp + a * B, B);
-            if (mom) {
-                const int64_t *ms = s->mom_s + 2;
-                scatter_row(at3(mo, ms, k, a, b0), ms[2], rw->m1 + o, wd);
-                if (s->slot_kept >= 0)
-                    scatter_row(at3(mo + s->slot_kept * s->mom_s[1], ms, k, a, b0), ms[2], rw->mk + o, wd);
-                if (s->slot_m2 >= 0)
-                    scatter_row(at3(mo + s->slot_m2 * s->mom_s[1], ms, k, a, b0), ms[2], rw->m2 + o, wd);
-                if (s->slot_dep >= 0)
-                    scatter_row(at3(mo + s->slot_dep * s->mom_s[1], ms, k, a, b0), ms[2], rw->md + o, wd);
-            }
-        }
+        if (S > 0)
+            layer_end(s, bin, k, klo, S, planes, tmp, &ba, rw, mode, qa, mom, m2, store);
+        if (n % KB == KB - 1 || n == L - 1)
+            stage_blocks(s, &ba, klo, nk, 0);
     }
     double ex = 0.0;
     for (int64_t c = 0; c < ns * AB; c++)
@@ -633,11 +821,11 @@ INLINE void sweep_bin(const struct nph_sweep *s, int64_t bin, float *planes, flo
 }
 
 /* Floats of the workspace scatter_sweep needs: the sub-beams' planes, one more plane, the layer's
- * buffers (NBUF, a plane each) and a row of the inflow. */
+ * buffers (NBUF, a plane each), a row of the inflow and the stages. */
 #define NBUF 15
 int64_t scatter_sweep_work(const struct nph_sweep *s)
 {
-    return s->ns * s->A * s->B + s->A * s->B + NBUF * s->A * s->B + s->B;
+    return s->ns * s->A * s->B + s->A * s->B + NBUF * s->A * s->B + s->B + stage_size(s);
 }
 
 /* Sweep bins [bin_lo, bin_hi) of the group ``s`` describes in ``work`` (scatter_sweep_work floats,
@@ -653,8 +841,9 @@ void scatter_sweep(const struct nph_sweep *s, int64_t bin_lo, int64_t bin_hi, fl
     for (int f = 0; f < NBUF; f++)
         *fields[f] = buf + f * AB;
     rw.inrow = buf + NBUF * AB;
+    float *stage = stage_size(s) ? rw.inrow + s->B : NULL;
     unsigned csr = nph_flush_denormals();
     for (int64_t bin = bin_lo; bin < bin_hi; bin++)
-        sweep_bin(s, bin, planes, planes + s->ns * AB, &rw);
+        sweep_bin(s, bin, planes, planes + s->ns * AB, &rw, stage);
     nph_restore_denormals(csr);
 }

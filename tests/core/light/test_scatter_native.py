@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 from nephele.core import native
+from nephele.core.light import _native, phase, scatter
 from nephele.core.light import _passes as passes
 from nephele.core.light import _sweep as sweeps
-from nephele.core.light import phase, scatter
 
 pytestmark = pytest.mark.skipif(native.identity() == "numpy", reason="no compiled kernels")
 
@@ -42,11 +42,9 @@ def random_profile(rng, shape, second):
     return kap, dlt, m2, q
 
 
-@pytest.mark.parametrize("axis", [0, 1, 2])
-@pytest.mark.parametrize("kind", ["sun", "sky", "plain", "profile", "p2", "per_sub"])
-def test_sweep_matches_numpy(monkeypatch, axis, kind):
+def sweep_case(axis, kind, shape=(7, 9, 8)):
+    """A sweep of one group of bins along ``axis`` with beams of ``kind``: the call, returning its outputs."""
     rng = np.random.default_rng(axis * 10 + len(kind))
-    shape = (7, 9, 8)
     sigma = rng.uniform(0.0, 3.0, shape) * (rng.random(shape) > 0.2)
     sigma[:, 0, :] = 0.0  # rectangles smaller than the planes
     sigma[3] = 0.0  # an empty layer along z
@@ -77,7 +75,13 @@ def test_sweep_matches_numpy(monkeypatch, axis, kind):
                                    profile=profile, moments=mom)
         return r.copy(), tot.copy(), ex.copy(), None if mom is None else mom[1]
 
-    c, n = both(monkeypatch, run)
+    return run
+
+
+@pytest.mark.parametrize("axis", [0, 1, 2])
+@pytest.mark.parametrize("kind", ["sun", "sky", "plain", "profile", "p2", "per_sub"])
+def test_sweep_matches_numpy(monkeypatch, axis, kind):
+    c, n = both(monkeypatch, sweep_case(axis, kind))
     # the moments within 1e-4 of the largest: in a thin voxel (tau ~ 0.01) what a source keeps,
     # 1 - esc, loses most of its digits, and its centroid (vs - esc) / (1 - esc) moves by a few
     # 1e-4 between two float32 exponentials an ulp apart (measured: 3.0e-5)
@@ -189,32 +193,34 @@ def test_solve_by_either_path(monkeypatch, case):
         close(scatter.slab_reflectance(c), scatter.slab_reflectance(n), 1e-5)
 
 
-@pytest.mark.parametrize("per_sub", [True, False])
-def test_sweep_into_the_solve_arrays_matches_numpy(monkeypatch, per_sub):
-    # the compiled sweep adds its total to the solve's arrays and (per sub-direction) sums each
-    # bin's catch into them as it goes; bins scattered over the arrays (not a run of rows)
+def into_case(per_sub, axis=0, shape=(6, 7, 5)):
+    """A sweep that adds its total to the solve's arrays and (per sub-direction) sums each bin's catch
+    into them as it goes, bins scattered over the arrays (not a run of rows): (the call, its rows,
+    the arrays before)."""
     rng = np.random.default_rng(9)
-    shape = (6, 7, 5)
     sigma = rng.uniform(0.0, 3.0, shape) * (rng.random(shape) > 0.2)
     _, _, dirs, w = phase.bins(2)
     cen = phase.bins(1)[2][:, 0]
-    bs = np.flatnonzero((np.abs(cen[:, 2]) >= np.abs(cen).max(1)) & (cen[:, 2] > 0))[[0, 2, 3]]
+    comp = 2 - axis
+    bs = np.flatnonzero((np.abs(cen[:, comp]) >= np.abs(cen).max(1)) & (cen[:, comp] > 0))[[0, 2, 3]]
     emis = rng.uniform(0, 1, (3,) + shape).astype(np.float32) * (sigma > 0)
     base = rng.uniform(0, 1, (96,) + shape).astype(np.float32)
+    profile = random_profile(rng, shape, False)
 
     def run():
         rec, total = np.zeros_like(base), base.copy()
         r, caught, ex = sweeps._sweep(sigma, np.full(3, 0.1), dirs[bs], w[bs] / w[bs].sum(1, keepdims=True), emis,
-                                      np.zeros((3, 4)), (False,) * 3, 0, per_sub=per_sub,
-                                      profile=random_profile(rng, shape, False), into=(rec, total, bs))
+                                      np.zeros((3, 4)), (False,) * 3, axis, per_sub=per_sub, profile=profile,
+                                      into=(rec, total, bs))
         return r.copy(), caught, rec, total, ex.copy()
 
-    state = rng.bit_generator.state
-    c = run()
-    rng.bit_generator.state = state  # the same profile for the twin
-    with monkeypatch.context() as m:
-        numpy_twin(m)
-        n = run()
+    return run, bs, base
+
+
+@pytest.mark.parametrize("per_sub", [True, False])
+def test_sweep_into_the_solve_arrays_matches_numpy(monkeypatch, per_sub):
+    run, bs, base = into_case(per_sub)
+    c, n = both(monkeypatch, run)
     for name, a, b in zip(("received", "caught", "rec", "total", "exit"), c, n):
         if b is None:
             assert a is None, name
@@ -224,3 +230,46 @@ def test_sweep_into_the_solve_arrays_matches_numpy(monkeypatch, per_sub):
     if per_sub:
         close(c[2][bs], c[0].sum(1), 1e-6, "rec is the catch summed over sub-directions")
         close(c[1], c[0].reshape(3, 4, -1).sum(2), 1e-6, "caught per sub-direction")
+
+
+def staged_and_in_place(monkeypatch, fn):
+    """``fn()`` with every layer of the arrays whose layers lie next to one another (the sweeps along
+    x) staged in blocks, then with none."""
+    with monkeypatch.context() as m:
+        m.setattr(_native, "STAGE_MIN", 1)
+        staged = fn()
+    with monkeypatch.context() as m:
+        m.setattr(_native, "STAGE_MIN", 1 << 62)
+        return staged, fn()
+
+
+def equal(a, b, what):
+    assert (a is None) == (b is None), what
+    if a is not None:
+        assert np.array_equal(a, b), (what, np.abs(np.asarray(a, float) - np.asarray(b, float)).max())
+
+
+# Staging copies the layers through blocks of 16; the arithmetic is the same, so the results are bit
+# for bit those of the arrays used in place: 37 layers (two whole blocks and a part), both directions.
+@pytest.mark.parametrize("kind", ["sky", "plain", "profile", "p2", "per_sub"])
+def test_staged_layers_give_the_same_bits(monkeypatch, kind):
+    s, p = staged_and_in_place(monkeypatch, sweep_case(2, kind, shape=(7, 9, 37)))
+    for name, a, b in zip(("received", "total", "exit", "moments"), s, p):
+        equal(a, b, name)
+
+
+@pytest.mark.parametrize("per_sub", [True, False])
+def test_staged_layers_into_the_solve_arrays_give_the_same_bits(monkeypatch, per_sub):
+    s, p = staged_and_in_place(monkeypatch, into_case(per_sub, axis=2, shape=(6, 7, 37))[0])
+    for name, a, b in zip(("received", "caught", "rec", "total", "exit"), s, p):
+        equal(a, b, name)
+
+
+def test_staged_solve_gives_the_same_bits(monkeypatch):
+    z, y, x = np.meshgrid(*[np.linspace(-1, 1, n) for n in (10, 12, 34)], indexing="ij")
+    cloud = np.where(x * x + 1.5 * y * y + z * z < 0.6, 25.0 * (1.2 - x * x - z), 0.0)
+    kw = dict(albedo=0.95, g=0.7, sun_dir=(0.8, -0.2, 0.5), tol=1e-3)
+    s, p = staged_and_in_place(monkeypatch, lambda: scatter.solve(cloud, (2, 1, 0.8), **kw))
+    assert s.passes == p.passes
+    for name in ("received", "total", "received_peaked", "exit_flux", "unshot"):
+        equal(getattr(s, name), getattr(p, name), name)
