@@ -189,13 +189,21 @@ def _bin_sum(a, bs):
     return out
 
 
+# Multiply-adds per BLAS product in _scatter_into.  96 bins (2026-11-29, load 1.9, 2 threads, 40 %
+# of voxels empty), median ms at 96 x 8192 against 96 x 4096: 5.0e5 voxels, k = 128 101 / 150,
+# 192 174 / 238, 256 188 / 267, 384 330 / 409; 6.3e4 voxels 18 / 23, 32 / 43, 31 / 51, 44 / 73.
+# At 96 x 12288 (1.2e6) the products slowed down again (k = 128: 219 ms): past 1e6 OpenBLAS leaves
+# its single-threaded small-matrix kernel.
+_PRODUCT_MACS = 96 * 8192
+
+
 def _scatter_into(unshot, m_cols, recv, albedo):
     """``unshot += albedo * M[:, group] @ recv`` in float32 chunks; ``m_cols`` (nb, k) with
     ``recv`` (k, ...): k bins, or bins x sub-directions.
 
-    Chunks of ``4096 // k`` voxels keep each product under ~4e5 multiply-adds, which OpenBLAS
-    runs in the calling thread: larger ones it splits over its own threads, which then spin
-    and take the cores from the sweeps (k = 16 on 5.2e5 voxels: 0.19 s CPU in chunks of
+    Chunks of ``_PRODUCT_MACS // (nb k)`` voxels keep each product under ~8e5 multiply-adds,
+    which OpenBLAS runs in the calling thread: larger ones it splits over its own threads, which
+    then spin and take the cores from the sweeps (k = 16 on 5.2e5 voxels: 0.19 s CPU in chunks of
     65536, 0.057 s in chunks of 256, as with ``OPENBLAS_NUM_THREADS=1``; 64x64x48 solve
     17 -> 12 s CPU at load 5).  One ``matmul`` call takes a stack of 64 chunks (its loop over
     them runs in C without the GIL), and our own threads take every other stack:
@@ -212,7 +220,7 @@ def _scatter_into(unshot, m_cols, recv, albedo):
     u = unshot.reshape(nb, -1)
     r = recv.reshape(g, -1)
     m = (albedo * m_cols).astype(np.float32)
-    chunk = max(16, 4096 // g)
+    chunk = max(16, _PRODUCT_MACS // (nb * g))
     stack = 64 * chunk
     n = r.shape[1]
     starts = range(0, n, stack)
