@@ -479,7 +479,7 @@ struct arr {
 #define MAXREC 16 /* catches staged per bin at most (more sub-beams: in place) */
 
 /* x is staged: its layers lie next to one another, and they are big enough (stage_min) */
-static int layers_adjacent(const struct nph_sweep *s, const struct arr *x)
+static int staged(const struct nph_sweep *s, const struct arr *x)
 {
     return x->base != NULL && x->st[0] == 1 && x->st[2] != 1 && s->A * s->B >= s->stage_min;
 }
@@ -575,9 +575,9 @@ static void bin_arrays(const struct nph_sweep *s, int64_t bin, float *stage, int
     if (stage == NULL)
         return;
     for (int i = 0; i < NARR; i++)
-        if (layers_adjacent(s, &x[i]) && (i < RBIN || i == TOT || zeroed))
+        if (staged(s, &x[i]) && (i < RBIN || i == TOT || zeroed))
             x[i].stage = stage + i * KAB;
-    if (layers_adjacent(s, &ba->rec) && ba->nrec <= MAXREC && zeroed)
+    if (staged(s, &ba->rec) && ba->nrec <= MAXREC && zeroed)
         ba->rec.stage = stage + NARR * KAB;
 }
 
@@ -609,14 +609,20 @@ static int64_t stage_size(const struct nph_sweep *s)
 {
     struct bin_arrays ba;
     bin_arrays(s, 0, NULL, 0, &ba);
-    int any = layers_adjacent(s, &ba.rec);
+    int any = staged(s, &ba.rec);
     for (int i = 0; i < NARR; i++)
-        any |= layers_adjacent(s, &ba.x[i]);
+        any |= staged(s, &ba.x[i]);
     return any ? (NARR + MAXREC) * KB * s->A * s->B : 0;
 }
 
-/* row a's columns [b0, b0 + n) of a layer: zeroed, gathered into dst, or scattered from src */
-static void zero_lay(struct lay v, int64_t a, int64_t b0, int64_t n) { zero_row(v.p + a * v.rs + b0 * v.cs, v.cs, n); }
+/* row a of a layer zeroed outside columns [lo, hi) */
+static void zero_outside(struct lay v, int64_t a, int64_t lo, int64_t hi, int64_t B)
+{
+    zero_row(v.p + a * v.rs, v.cs, lo);
+    zero_row(v.p + a * v.rs + hi * v.cs, v.cs, B - hi);
+}
+
+/* row a's columns [b0, b0 + n) of a layer gathered into dst, or scattered from src */
 static void gather_lay(float *dst, struct lay v, int64_t a, int64_t b0, int64_t n)
 {
     gather(dst, v.p + a * v.rs + b0 * v.cs, v.cs, n);
@@ -651,25 +657,18 @@ INLINE void layer_rows(const struct nph_sweep *s, int64_t k, int64_t klo, const 
 {
     const int64_t A = s->A, B = s->B, AB = A * B, base = s->soff[k * A];
     const struct lay tot = view(&ba->x[TOT], k, klo, A, B);
-    struct lay in[RBIN], out[TOT - RBIN + MAXREC];
-    int64_t nout = 0;
+    struct lay in[RBIN];
     for (int i = 0; i < RBIN; i++)
         in[i] = view(&ba->x[i], k, klo, A, B);
-    if (!zeroed) {
-        for (int i = RBIN; i < TOT; i++)
-            if (ba->x[i].base != NULL)
-                out[nout++] = view(&ba->x[i], k, klo, A, B);
-        for (int64_t q = 0; q < ba->nrec; q++) {
-            const struct arr r = rec_arr(ba, q, KB * AB);
-            out[nout++] = view(&r, k, klo, A, B);
-        }
-    }
     for (int64_t a = 0; a < A; a++) {
         const int64_t b0 = s->spans[2 * (k * A + a)], b1 = s->spans[2 * (k * A + a) + 1], wd = b1 - b0;
         const int64_t lo = wd > 0 ? b0 : B, hi = wd > 0 ? b1 : B; /* zero outside [lo, hi) */
-        for (int64_t f = 0; f < nout; f++) {
-            zero_lay(out[f], a, 0, lo);
-            zero_lay(out[f], a, hi, B - hi);
+        for (int i = RBIN; i < TOT && !zeroed; i++)
+            if (ba->x[i].base != NULL)
+                zero_outside(view(&ba->x[i], k, klo, A, B), a, lo, hi, B);
+        for (int64_t q = 0; q < ba->nrec && !zeroed; q++) {
+            const struct arr r = rec_arr(ba, q, KB * AB);
+            zero_outside(view(&r, k, klo, A, B), a, lo, hi, B);
         }
         if (wd <= 0) {
             put_total(s, tot, a, tmp + a * B, B);
