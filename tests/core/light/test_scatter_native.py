@@ -250,7 +250,8 @@ def equal(a, b, what):
 
 
 # Staging copies the layers through blocks of 16; the arithmetic is the same, so the results are bit
-# for bit those of the arrays used in place: 37 layers (two whole blocks and a part), both directions.
+# for bit those of the arrays used in place: 37 layers (two whole blocks and a part), swept down x
+# here and up x into the solve's arrays below.
 @pytest.mark.parametrize("kind", ["sky", "plain", "profile", "p2", "per_sub"])
 def test_staged_layers_give_the_same_bits(monkeypatch, kind):
     s, p = staged_and_in_place(monkeypatch, sweep_case(2, kind, shape=(7, 9, 37)))
