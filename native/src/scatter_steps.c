@@ -102,33 +102,67 @@ static inline __attribute__((always_inline)) void add_moments(double *o1, int64_
     }
 }
 
+/* one set's sums over voxels [c, c + m) of a run, added to out (and also) */
+static inline __attribute__((always_inline)) void set_moments(int64_t g, int64_t nslots, int64_t n, int64_t c,
+                                                               int64_t m, const float *mw, const float *bm,
+                                                               int64_t order, int64_t comp, int64_t slot_kept,
+                                                               int64_t slot_m2, int64_t slot_dep, const float *d,
+                                                               const float *m2, float scale, double *o, double *oa)
+{
+    float acc[4][RUN];
+    for (int64_t k = 0; k < nslots; k++)
+        for (int64_t v = 0; v < m; v++)
+            acc[k][v] = 0.0f;
+    for (int64_t b = 0; b < g; b++) {
+        const float w = mw[b];
+        for (int64_t k = 0; k < nslots; k++) {
+            const float *restrict x = bm + (b * nslots + k) * n + c;
+            float *restrict a = acc[k];
+            for (int64_t v = 0; v < m; v++)
+                a[v] += w * x[v];
+        }
+    }
+    add_moments(o, n, c, m, order, comp, slot_kept, slot_m2, slot_dep, d, m2, scale, acc);
+    if (oa != NULL)
+        add_moments(oa, n, c, m, order, comp, slot_kept, slot_m2, slot_dep, d, m2, scale, acc);
+}
+
+/* Blocks of MB voxels where the sweep caught nothing (every slot of every bin zero: the empty voxels,
+ * 58 % of the Fig. 6 cloud's box) add nothing to the sums: the runs of blocks between them go alone,
+ * and their float64 sums are neither read nor written. */
+#define MB 32
+
 CLONES
 void scatter_moments(int64_t sets, int64_t g, int64_t nslots, int64_t n, int64_t v0, int64_t v1, const float *mw,
                      const float *bm, int64_t comp, int64_t slot_kept, int64_t slot_m2, int64_t slot_dep,
                      const float *d, const float *m2, float scale, double *out, double *also)
 {
     const int64_t order = slot_m2 >= 0 ? 2 : 1;
+    unsigned char lit[RUN / MB];
     for (int64_t c = v0; c < v1; c += RUN) {
-        const int64_t e = c + RUN < v1 ? c + RUN : v1, m = e - c;
-        for (int64_t s = 0; s < sets; s++) {
-            float acc[4][RUN];
-            for (int64_t k = 0; k < nslots; k++)
-                for (int64_t v = 0; v < m; v++)
-                    acc[k][v] = 0.0f;
-            for (int64_t b = 0; b < g; b++) {
-                const float w = mw[s * g + b];
-                for (int64_t k = 0; k < nslots; k++) {
-                    const float *restrict x = bm + (b * nslots + k) * n + c;
-                    float *restrict a = acc[k];
-                    for (int64_t v = 0; v < m; v++)
-                        a[v] += w * x[v];
-                }
+        const int64_t e = c + RUN < v1 ? c + RUN : v1, nblk = (e - c + MB - 1) / MB;
+        for (int64_t q = 0; q < nblk; q++) {
+            const int64_t b0 = c + q * MB, b1 = b0 + MB < e ? b0 + MB : e;
+            unsigned nz = 0;
+            for (int64_t r = 0; r < g * nslots && !nz; r++)
+                for (int64_t v = b0; v < b1; v++)
+                    nz |= bm[r * n + v] != 0.0f;
+            lit[q] = (unsigned char)nz;
+        }
+        for (int64_t q = 0; q < nblk;) {
+            if (!lit[q]) {
+                q++;
+                continue;
             }
-            add_moments(out + (s * order) * 3 * n + c, n, c, m, order, comp, slot_kept, slot_m2, slot_dep, d, m2,
-                        scale, acc);
-            if (also != NULL)
-                add_moments(also + (s * order) * 3 * n + c, n, c, m, order, comp, slot_kept, slot_m2, slot_dep, d,
-                            m2, scale, acc);
+            int64_t q1 = q + 1;
+            while (q1 < nblk && lit[q1])
+                q1++;
+            const int64_t s0 = c + q * MB, s1 = c + q1 * MB < e ? c + q1 * MB : e;
+            for (int64_t s = 0; s < sets; s++)
+                set_moments(g, nslots, n, s0, s1 - s0, mw + s * g, bm, order, comp, slot_kept, slot_m2, slot_dep, d,
+                            m2, scale, out + (s * order) * 3 * n + s0,
+                            also == NULL ? NULL : also + (s * order) * 3 * n + s0);
+            q = q1;
         }
     }
 }

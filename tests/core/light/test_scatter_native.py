@@ -154,6 +154,41 @@ def test_scatter_into_where_little_is_caught():
     np.testing.assert_array_equal(u[:, dark], before)
 
 
+@pytest.mark.parametrize("second", [False, True])
+def test_moments_where_little_is_caught(second):
+    """The moments' sums skip blocks of voxels where no bin caught anything: lone lit voxels at
+    block edges, one lit slot of one bin, and the last voxels still count (against float64 sums),
+    and the sums of voxels that caught nothing are left exactly as they were, in ``also`` too."""
+    rng = np.random.default_rng(8)
+    sets, g, n, comp = 3, 5, 1024 * 2 + 32 * 5 + 7, 1
+    slot = {"m1": 0, "kept": 1} | ({"m2": 2, "dep": 3} if second else {})
+    bm = np.zeros((g, len(slot), n), np.float32)
+    bm[:, :, 40:56] = rng.random((g, len(slot), 16))  # half a block
+    bm[2, 1, 64] = bm[0, 0, 127] = 1.5  # one slot of one bin, alone in its block (first, last voxel)
+    bm[g - 1, 0, n - 1] = 2.0  # the last voxels, after the last whole block
+    bm[:, :, 1000:1100] = rng.random((g, len(slot), 100)) * (rng.random(100) < 0.3)  # across a run's end
+    mw = rng.random((sets, g)).astype(np.float32)
+    d = rng.uniform(-0.4, 0.4, (3, n)).astype(np.float32)
+    m2 = rng.uniform(0.0, 0.25, (3, n)).astype(np.float32)
+    order = 2 if second else 1
+    out, also = (rng.random((sets, order, 3, n)) for _ in range(2))
+    acc = np.einsum("sb,bkn->skn", mw.astype(np.float64), bm.astype(np.float64)) * 0.7
+    add = np.zeros_like(out)
+    add[:, 0, comp] += acc[:, 0]
+    add[:, 0] += d * acc[:, None, 1]
+    if second:
+        side = [x for x in range(3) if x != comp]
+        add[:, 1, comp] += acc[:, 2]
+        add[:, 1, side] += acc[:, None, 3] / 12 + m2[side] * acc[:, None, 1]
+    want = out + add, also + add
+    dark = ~bm.any((0, 1))
+    before = out[..., dark].copy(), also[..., dark].copy()
+    assert _native.moments(mw, bm, 2 - comp, slot, d, m2 if second else None, 0.7, out, also=also)
+    for o, w, b in zip((out, also), want, before):  # (float32 sums: measured within 2e-7)
+        np.testing.assert_allclose(o, w, rtol=0, atol=1e-6 * np.abs(acc).max())
+        np.testing.assert_array_equal(o[..., dark], b)
+
+
 def test_float32_exponentials_of_the_kernels(monkeypatch):
     # the sweep of one beam through one voxel returns exp(-tau) (no emission) and, with an even
     # source, (1 - exp(-tau)) / tau: scatter_math.h's expf and expm1 against float64 (measured:
