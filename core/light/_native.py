@@ -25,7 +25,8 @@ class SweepArgs(ctypes.Structure):
                 ("var", _P), ("var_s", _I * 3), ("recv", _P), ("recv_s", _I * 5), ("per_sub", _I),
                 ("total", _P), ("total_s", _I * 4), ("exit_power", _P), ("mom", _P), ("mom_s", _I * 5),
                 ("slot_kept", _I), ("slot_m2", _I), ("slot_dep", _I), ("cache", _P), ("cache_mode", _I),
-                ("obins", _P), ("rbin", _P), ("rbin_s", _I * 4), ("caught", _P), ("stage_min", _I)]
+                ("obins", _P), ("rbin", _P), ("rbin_s", _I * 4), ("caught", _P), ("stage_min", _I),
+                ("dark_zero", _I)]
 
 # Voxels in a layer from which the sweep stages arrays whose layers lie next to one another in
 # memory (the sweeps along x) in blocks of 16 layers.  Fig. 6 cloud, warm solves alternated
@@ -77,7 +78,7 @@ def _taps(shift):
     return np.ascontiguousarray(np.where(small, 0, i0)), np.ascontiguousarray(w)
 
 
-def sweep(kernel, sig, geom, beams, sources, outputs, cache, fresh, threads, scratch):
+def sweep(kernel, sig, geom, beams, sources, outputs, cache, fresh, threads, scratch, dark_zero=False):
     """Sweep every bin of a group by the compiled kernel, bins on ``threads`` threads.
 
     ``geom`` = (sign, periodic_a, periodic_b, comp); ``beams`` = (cross (K, 3), ell (K,), sa (K,),
@@ -89,6 +90,11 @@ def sweep(kernel, sig, geom, beams, sources, outputs, cache, fresh, threads, scr
     zeros or None, gets the power each sub-beam caught.
     ``cache``: the group's dict (kept between passes) or None, ``fresh`` as :func:`._sweep._sweep`'s.
     ``scratch``: a :class:`._sweep._Scratch` holding each thread's workspace from call to call, or None.
+    ``dark_zero``: ``recv``, ``mom`` and ``rbin`` already hold zero outside the cloud's voxels (memory
+    zeroed once and written only by sweeps, whose every write there is zero), so the kernel leaves
+    them as they are there instead of zeroing each bin's first: the per-sub-direction catches of the
+    peaked orders are 32 MB a bin at 128x128x96.  Its precondition, emission only in non-empty voxels,
+    is every sweep's.
     """
     sign, pa, pb, comp = geom
     cross, ell, sa, sb, w, inflow = beams
@@ -123,7 +129,8 @@ def sweep(kernel, sig, geom, beams, sources, outputs, cache, fresh, threads, scr
                   slot_kept=slot.get("kept", -1), slot_m2=slot.get("m2", -1), slot_dep=slot.get("dep", -1),
                   cache=None if buf is None else buf.ctypes.data, cache_mode=mode,
                   obins=None if obins is None else obins.ctypes.data,
-                  caught=None if caught is None else caught.ctypes.data, stage_min=STAGE_MIN)
+                  caught=None if caught is None else caught.ctypes.data, stage_min=STAGE_MIN,
+                  dark_zero=int(dark_zero))
     for name, arr, n in (("em", em, 4), ("kap", kap, 4), ("qa", qa, 3), ("var", var, 3), ("recv", recv, 5),
                          ("total", total, 4), ("mom", mom, 5), ("rbin", rbin, 4)):
         if name == "recv" and not per_sub:  # (bin, layer, row, column): no sub axis

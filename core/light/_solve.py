@@ -436,14 +436,14 @@ class _Solve:
         guess's own light are not known: the profiles of what is shot now take them as centred."""
         o, nb = self.o, self.o.nb
         origin = (0, 0, 0) if self.box is None else tuple(b.start for b in self.box)
-        g = _warm.guess(prev, origin, self.shape)
+        g = _warm.guess(prev, origin, self.sigma)
         rec, pk = self.received.reshape(nb, -1), self.peaked.reshape(len(self.peaked), nb, -1)
         fg = g.reshape(nb, -1)
         for k in range(len(self.peaked)):  # this frame's sky (received less its peaked orders) is in g
             fg += pk[k]
         fg -= rec
         _scatter_into(self.unshot, self.M, g, self.alb_s)
-        gm = _warm.moments(prev, origin, self.shape, self.umom)
+        gm = _warm.moments(prev, origin, self.sigma, self.umom)
         if gm is not None:  # where the guess's light sits in its voxels (else: centred)
             self.umom += self.alb_s * gm
         prof = [self.unshot_profile(gi, _bin_sum(self.unshot, bs)) for gi, (_, bs) in enumerate(self.groups)]

@@ -99,11 +99,13 @@ class _Scratch:
         self.bufs = {}
 
     def empty(self, name, shape):
-        """The array ``name`` of ``shape``, its values left as they were (for outputs written whole)."""
+        """The array ``name`` of ``shape``, its values left as they were (zero on new memory): for
+        outputs written whole, or the compiled sweeps' outputs, zero outside the cloud (``dark_zero``
+        of native/src/scatter_sweep.c)."""
         n = int(np.prod(shape))
         buf = self.bufs.get(name)
         if buf is None or buf.size < n:
-            buf = self.bufs[name] = np.empty(n, np.float32)
+            buf = self.bufs[name] = np.zeros(n, np.float32)
         return buf[:n].reshape(shape)
 
     def zeros(self, name, shape):
@@ -231,7 +233,7 @@ def _sweep(sigma, h, dirs, wsub, emis, inflow, periodic, axis, cache=None, per_s
         _native.sweep(kernel, sig, (sign, periodic[ca], periodic[cb], comp),
                       (ell[:, None] * d / np.asarray(h, float)[None], ell, *shifts, wsub, inflow),
                       (em, kap, *shape2), (recv, per_sub, total, exit_power, bmom, slot, into_kernel), cache, fresh,
-                      threads, scratch)
+                      threads, scratch, dark_zero=scratch is not None)
     else:
         geom = (h, comp, others, periodic, sign, L, A, B, _layer_boxes(sig), slot)
 

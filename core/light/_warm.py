@@ -33,18 +33,25 @@ def on_box(a, from_origin, origin, shape):
     return out
 
 
-def guess(prev, origin, shape):
+def guess(prev, origin, sigma):
     """The previous frame's binned light (``received`` less its peaked orders: the light scattered
-    after them and the sky's) on this frame's solved box (``origin`` (z y x) of ``shape``); zero
-    where the previous box did not reach.  float32 (nb, ...)."""
+    after them and the sky's) on this frame's solved box (``origin`` (z y x), extinction ``sigma``);
+    zero where the previous box did not reach, and in voxels empty now, which catch nothing (as a
+    guess's light there, its scattering would be emission where no sweep takes it: the sweeps carry
+    the light of non-empty voxels only).  float32 (nb, ...)."""
     binned = prev.received - prev.received_peaked.sum(0, dtype=np.float32)
-    return on_box(binned, prev.origin, origin, shape)
+    out = on_box(binned, prev.origin, origin, sigma.shape)
+    out *= sigma > 0
+    return out
 
 
-def moments(prev, origin, shape, like):
-    """``prev``'s :attr:`.Solution.moments_binned` on this frame's box, or None where they are not
-    there or have another layout than ``like`` (this solve's unshot moments)."""
+def moments(prev, origin, sigma, like):
+    """``prev``'s :attr:`.Solution.moments_binned` on this frame's box (zero in voxels empty now,
+    as :func:`guess`), or None where they are not there or have another layout than ``like`` (this
+    solve's unshot moments)."""
     m = getattr(prev, "moments_binned", None)
     if m is None or like is None or m.shape[:-3] != like.shape[:-3]:
         return None
-    return on_box(m, prev.origin, origin, shape)
+    out = on_box(m, prev.origin, origin, sigma.shape)
+    out *= sigma > 0
+    return out

@@ -70,6 +70,8 @@ struct nph_sweep {
     double *caught;       /* (beams,) or NULL: the power each sub-beam caught (per_sub) */
     int64_t stage_min;    /* voxels in a layer (A B) from which arrays whose layers lie next to one
                              another are staged (see struct arr) */
+    int64_t dark_zero;    /* the outputs (recv, rbin, mom) already hold zero at every voxel outside
+                             this sweep's spans: they are not zeroed first (zero_outputs) */
 };
 
 /* Buffers of one layer's spans, one after another (soff's layout), and a row of the inflow. */
@@ -436,9 +438,13 @@ static int64_t dense_size(int n, const int64_t *dims, const int64_t *st)
 }
 
 /* Zero the bin's outputs (catch, catch summed over sub-beams, moments) as whole blocks; 0 (nothing
- * written) unless every one of them is dense. */
+ * written) unless every one of them is dense.  1 at once where they hold zero outside the spans
+ * already (dark_zero): the solve's outputs, which no sweep ever writes anything but zero outside
+ * its spans (an empty voxel, tau 0, catches nothing of a beam and holds no emission). */
 static int zero_outputs(const struct nph_sweep *s, float *rec, float *rb, float *mo, int64_t nslots)
 {
+    if (s->dark_zero)
+        return 1;
     const int64_t nrecv = s->per_sub ? s->ns : 1;
     int64_t rd[4] = {nrecv, s->L, s->A, s->B}, md[3] = {s->L, s->A, s->B};
     int64_t nr = dense_size(4, rd, s->recv_s + 1), nb = rb == NULL ? 0 : dense_size(3, md, s->rbin_s + 1);

@@ -309,3 +309,36 @@ def test_staged_solve_gives_the_same_bits(monkeypatch):
     assert s.passes == p.passes
     for name in ("received", "total", "received_peaked", "exit_flux", "unshot"):
         equal(getattr(s, name), getattr(p, name), name)
+
+
+def test_outputs_left_dark_give_the_same_bits(monkeypatch):
+    """The solve's sweeps leave their outputs as they are outside the cloud (``dark_zero``: the
+    memory holds zero there, and no sweep writes anything else there) instead of zeroing each bin's
+    first: bit for bit the zeroed sweeps' solve, cold and warm-started from a frame whose cloud had
+    another shape (its light in voxels empty now is not part of the guess: as emission there no
+    sweep would carry it, and the catches written over the guess's would keep it), and no light
+    is received in an empty voxel."""
+    from nephele.core.climate.synthetic import demo_dataset
+    from nephele.core.light import evolving
+
+    data = demo_dataset()
+    first, later = (evolving.climate_cloud(data, step, shape=(12, 16, 16)) for step in (0, 40))
+    assert ((first > 0) != (later > 0)).sum() > 100
+    kw = dict(albedo=0.99, g=0.8, sun_dir=(0.3, 0.2, 0.9), tol=1e-3, size=(1.0, 1.0, 0.75))
+
+    def run():
+        cold = scatter.solve(first, **kw)
+        return cold, scatter.solve(later, warm=cold, **kw)
+
+    dark = run()
+    with monkeypatch.context() as m:
+        sweep = _native.sweep
+        m.setattr(_native, "sweep", lambda *a, dark_zero=False: sweep(*a, dark_zero=False))
+        zeroed = run()
+    for d, z, sigma in zip(dark, zeroed, (first, later)):
+        assert d.passes == z.passes
+        for name in ("received", "total", "received_peaked", "exit_flux", "unshot", "moments_binned"):
+            equal(getattr(d, name), getattr(z, name), name)
+        empty = sigma[d.box] == 0
+        assert empty.any() and not d.received[:, empty].any()
+    assert dark[1].warm
