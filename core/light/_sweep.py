@@ -135,7 +135,9 @@ def _sweep(sigma, h, dirs, wsub, emis, inflow, periodic, axis, cache=None, per_s
     ``cache``: a dict kept between calls with the same beams; it stores the
     per-layer transmittances and deposit centroids (float32) so later passes skip them.
     ``threads``: beam blocks swept side by side (default :func:`..threads.default_threads`).
-    ``scratch``: a :class:`_Scratch` for the outputs, which then hold until its next use.
+    ``scratch``: a :class:`_Scratch` for the outputs, which then hold until its next use.  With it
+    the compiled sweep takes its outputs and ``into``'s ``rec`` to hold zero outside the cloud already
+    (memory zeroed once and written only by sweeps: the solve's) and leaves them so there.
 
     Sources inside a voxel are not spread evenly: with ``profile = (kappa, delta, m2, q)``
     (each (3, nz, ny, nx), x y z) the emission in a voxel is
