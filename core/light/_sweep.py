@@ -248,33 +248,38 @@ def _sweep(sigma, h, dirs, wsub, emis, inflow, periodic, axis, cache=None, per_s
 
         thread_map(work, range(nthreads), nthreads)
     if mw is not None:
-        out, scale = moments[1].reshape(len(mw), 1 + second, 3, -1), np.float32(moments[2])
-        also = None if len(moments) < 4 or moments[3] is None else moments[3].reshape(out.shape)
-        bm = bmom_grid.reshape(g, slots, -1)
-        d, m2 = (None if profile is None or profile[i] is None else np.asarray(profile[i], np.float32).reshape(3, -1)
-                 for i in (1, 2))
-        side = [c for c in range(3) if c != comp]
-        if _native.moments(mw, bm, comp, slot, d, m2, scale, out, threads, also):
-            return _outputs(recv_grid, total, axis, exit_power, into, sums, into_kernel is not None)
-
-        def add(s):
-            # (einsum, not a BLAS product: OpenBLAS's threads would spin beside the solve's own
-            # afterwards; 64x64x48 on 2 threads 19.4 s CPU that way, 13.3 s so)
-            m = scale * np.einsum("sb,bkn->ksn", mw, bm[:, :, s])
-            for o in (out, also) if also is not None else (out,):
-                o[:, 0, comp, s] += m[slot["m1"]]
-                if "kept" in slot:
-                    for c in range(3):
-                        o[:, 0, c, s] += d[c, s] * m[slot["kept"]]
-                if second:
-                    o[:, 1, comp, s] += m[slot["m2"]]
-                    for c in side:
-                        o[:, 1, c, s] += np.float32(1 / 12) * m[slot["dep"]]
-                        if "kept" in slot:
-                            o[:, 1, c, s] += m2[c, s] * m[slot["kept"]]
-
-        split_map(add, bm.shape[2], threads)
+        _moment_sums(moments, mw, bmom_grid.reshape(g, slots, -1), comp, slot, profile, second, threads)
     return _outputs(recv_grid, total, axis, exit_power, into, sums, into_kernel is not None)
+
+
+def _moment_sums(moments, mw, bm, comp, slot, profile, second, threads):
+    """:func:`_sweep`'s moments: the bins' (``bm`` (g, slots, voxels), grid layout) summed into the
+    sets of ``moments`` with weights ``mw`` (sets, g), by the compiled kernel or its NumPy twin."""
+    out, scale = moments[1].reshape(len(mw), 1 + second, 3, -1), np.float32(moments[2])
+    also = None if len(moments) < 4 or moments[3] is None else moments[3].reshape(out.shape)
+    d, m2 = (None if profile is None or profile[i] is None else np.asarray(profile[i], np.float32).reshape(3, -1)
+             for i in (1, 2))
+    side = [c for c in range(3) if c != comp]
+    if _native.moments(mw, bm, comp, slot, d, m2, scale, out, threads, also):
+        return
+
+    def add(s):
+        # (einsum, not a BLAS product: OpenBLAS's threads would spin beside the solve's own
+        # afterwards; 64x64x48 on 2 threads 19.4 s CPU that way, 13.3 s so)
+        m = scale * np.einsum("sb,bkn->ksn", mw, bm[:, :, s])
+        for o in (out, also) if also is not None else (out,):
+            o[:, 0, comp, s] += m[slot["m1"]]
+            if "kept" in slot:
+                for c in range(3):
+                    o[:, 0, c, s] += d[c, s] * m[slot["kept"]]
+            if second:
+                o[:, 1, comp, s] += m[slot["m2"]]
+                for c in side:
+                    o[:, 1, c, s] += np.float32(1 / 12) * m[slot["dep"]]
+                    if "kept" in slot:
+                        o[:, 1, c, s] += m2[c, s] * m[slot["kept"]]
+
+    split_map(add, bm.shape[2], threads)
 
 
 def _outputs(recv, total, axis, exit_power, into, sums, done):
