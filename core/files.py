@@ -4,7 +4,8 @@
 file beside the target, then :func:`os.replace` onto it.  A reader sees the
 old file or the new one, never a torn one; an error or a kill while writing
 leaves the old file and no temporary behind (a kill leaves at most a hidden
-``.name.*.tmp`` file).  The file gets an ordinary file's mode (``0o666``
+``.name.*.tmp`` file, which :func:`remove_temporaries` clears for the next
+writer).  The file gets an ordinary file's mode (``0o666``
 less the umask), not ``mkstemp``'s private ``0o600``: a render farm's other
 users must read what one node wrote.
 """
@@ -13,6 +14,7 @@ import contextlib
 import datetime
 import errno
 import os
+import re
 import shutil
 import socket
 import sys
@@ -183,6 +185,26 @@ def atomic_write(path, *, fsync=True):
         raise
     if fsync and os.name == "posix":  # the rename itself; folders cannot be opened on Windows
         fsync_path(path.parent)
+
+
+def remove_temporaries(path):
+    """Remove what killed :func:`atomic_write` calls left beside ``path``; the names removed.
+
+    A kill (``kill -9``, a power cut, a job's time limit) between the
+    temporary file's creation and its rename leaves ``.stem.<12 hex>.tmp.suffix``
+    beside the target.  Only a caller that holds the target's one writer's
+    lock (no live writer can own such a file) may call this.
+    """
+    path = Path(path)
+    pattern = re.compile(rf"\.{re.escape(path.stem)}\.[0-9a-f]{{12}}\.tmp{re.escape(path.suffix)}")
+    gone = []
+    with contextlib.suppress(FileNotFoundError):
+        for p in path.parent.iterdir():
+            if pattern.fullmatch(p.name) and p.is_file():
+                with contextlib.suppress(FileNotFoundError):
+                    p.unlink()
+                    gone.append(p.name)
+    return sorted(gone)
 
 
 def replace(src, dst):

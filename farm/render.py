@@ -22,7 +22,7 @@ from pathlib import Path
 
 from ..addon.render_device import DEVICES
 from ..core.errors import DataError, UsageError
-from ..core.files import WriteError, check_space, lock_file
+from ..core.files import WriteError, check_space, lock_file, remove_temporaries
 from .frames import FORMATS, TMP_DIR, InvalidFrame, check_image, chunks, format_frames, frame_name, parse_frames
 from .manifest import Manifest, classify, entry_files, file_entry, views_entry
 
@@ -297,7 +297,9 @@ def render_sequence(scene, frames, out_dir, *, workers=None, engine=None, sample
             done, todo = [], list(frame_list)
         else:
             done, todo = classify(manifest, frame_list, fmt, verify=verify, views=views)
-        shutil.rmtree(out / TMP_DIR, ignore_errors=True)  # leftovers of a killed run
+        # Leftovers of a killed run: its workers' unfinished frames, a manifest it was saving.
+        shutil.rmtree(out / TMP_DIR, ignore_errors=True)
+        remove_temporaries(manifest.path)
         settings = {
             "scene": str(scene_path), "frames": format_frames(frame_list), "engine": engine, "samples": samples,
             "resolution": resolution, "percentage": percentage, "device": device, "persistent": bool(persistent),

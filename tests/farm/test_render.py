@@ -69,11 +69,14 @@ def test_render_resume_and_repair(cluster, tmp_path):
         assert e["worker"].startswith("tcp://127.0.0.1:")
         assert (out / e["log"]).read_text().count(f"=== frame {f} ") == 1
 
-    # Resume: nothing to do, no cluster needed.
+    # Resume: nothing to do, no cluster needed.  A client killed (kill -9) while saving the manifest left its
+    # temporary file; the next run clears it.
+    (out / ".manifest.0123456789ab.tmp.json").write_text('{"version": 1, "fra')
     t0 = time.perf_counter()
     again = render_sequence(SCENE, "1-6", out, scheduler="tcp://127.0.0.1:9", progress=False)
     assert time.perf_counter() - t0 < 1.0
     assert again.rendered == [] and again.skipped == [1, 2, 3, 4, 5, 6]
+    only_frames(out, range(1, 7))
 
     # A truncated frame, a 0-byte placeholder and a missing frame are re-rendered; the rest kept.
     kept = (out / "frame_0001.png").stat().st_mtime_ns

@@ -4,11 +4,12 @@ It is installed with apt-get when missing (root on Debian) and started once
 (see :mod:`slurm_local`); where that is impossible the tests skip with the reason, or,
 in a strict run (CI, ``make test-full``), the session stops with that one line.  ``SLURM_CONF`` points every
 Slurm command of the session (dask-jobqueue's ``sbatch``/``scancel`` too) at it.  Each test's jobs are
-cancelled after it, so one test's leftovers never hold the next one's CPUs.
+cancelled after it, and gone before the next test, so one test's leftovers never hold the next one's CPUs.
 """
 
 import os
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -43,6 +44,14 @@ def slurm(tmp_path_factory, strict):
 
 @pytest.fixture
 def slurm_jobs(slurm):
-    """The session cluster, with every job cancelled after the test."""
+    """The session cluster, with every job cancelled after the test and gone from squeue before the next one.
+
+    A job still COMPLETING (KillWait) is listed: a test that takes the queue's first job for its own must
+    not see it.
+    """
     yield slurm
     slurm.cancel_all()
+    deadline = time.monotonic() + 30
+    while (left := slurm.jobs()) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert not left, f"jobs still in the queue 30 s after scancel: {left}"

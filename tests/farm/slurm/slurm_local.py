@@ -244,7 +244,9 @@ def only_frames(out, frames):
     """OUT holds exactly these whole PNG frames (no temp, partial or duplicate files), the logs and the manifest."""
     from nephele.farm.frames import check_image, frame_name
 
-    names = sorted(p.name for p in Path(out).iterdir())
-    assert names == sorted([frame_name(f, "PNG") for f in frames] + ["logs", "manifest.json"])
+    names = {p.name for p in Path(out).iterdir()}
+    want = {frame_name(f, "PNG") for f in frames} | {"logs", "manifest.json"}
+    # (no pytest assertion rewriting in a helper module: the message says what differs)
+    assert names == want, f"in {out}: unexpected {sorted(names - want)}, missing {sorted(want - names)}"
     for f in frames:
         check_image(Path(out) / frame_name(f, "PNG"))

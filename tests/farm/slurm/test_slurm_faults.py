@@ -31,9 +31,10 @@ def _kwargs(slurm, *extra):
 
 
 def _wait_jobs_gone(slurm, timeout=20):
+    """No job listed any more: not even COMPLETING, whose processes may still be ending (and writing)."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
-        if all(st not in ("PENDING", "RUNNING") for st in slurm.jobs().values()):
+        if not slurm.jobs():
             return True
         time.sleep(0.2)
     return False
@@ -49,6 +50,29 @@ def _jobs_with_frames(out):
         if log.is_file():
             jobs.update(re.findall(r"job (\d+)\)", log.read_text(errors="replace")))
     return jobs
+
+
+@pytest.fixture
+def background():
+    """``start(run, gate=None)`` runs ``run()`` in a thread: ``(thread, box)``, its result in ``box["res"]``.
+
+    At teardown, also after a failed assertion, the gate (a file whose presence keeps frames slow) is removed and
+    the thread waited for: a failed test's render must not run on into the next test, holding a job there.
+    """
+    started = []
+
+    def start(run, gate=None):
+        box = {}
+        t = threading.Thread(target=lambda: box.update(res=run()))
+        t.start()
+        started.append((t, gate))
+        return t, box
+
+    yield start
+    for t, gate in started:
+        if gate is not None:
+            gate.unlink(missing_ok=True)
+        t.join(180)
 
 
 @pytest.mark.parametrize("extra, option, words", [
@@ -81,19 +105,17 @@ def test_scheduler_unreachable_from_the_jobs(slurm_jobs, tmp_path, capsys):
     assert _wait_jobs_gone(slurm_jobs)
 
 
-def test_scancel_of_a_working_job(slurm_jobs, tmp_path):
+def test_scancel_of_a_working_job(slurm_jobs, tmp_path, background):
     """scancel of one of two jobs mid-sequence: its frame is retried, a new job is submitted, nothing lost."""
     from nephele.farm.render import render_sequence
 
     out = tmp_path / "out"
-    box = {}
 
     def run():
-        box["res"] = render_sequence(SCENE, "1-16", out, progress=False, scene_options={"delay": 0.5}, retries=2,
-                                     **_kwargs(slurm_jobs, "--jobs", "2"))
+        return render_sequence(SCENE, "1-16", out, progress=False, scene_options={"delay": 0.5}, retries=2,
+                               **_kwargs(slurm_jobs, "--jobs", "2"))
 
-    t = threading.Thread(target=run)
-    t.start()
+    t, box = background(run)
     deadline = time.monotonic() + 90
     while time.monotonic() < deadline:  # 3 frames, and a running job that has rendered one of them
         running = [j for j, st in slurm_jobs.jobs().items() if st == "RUNNING"]
@@ -146,7 +168,7 @@ def test_resume_after_the_whole_run_was_killed(slurm_jobs, tmp_path):
     assert sorted(map(int, m["frames"])) == list(range(1, 13))
 
 
-def test_job_killed_at_its_time_limit_mid_sequence(slurm_jobs, tmp_path):
+def test_job_killed_at_its_time_limit_mid_sequence(slurm_jobs, tmp_path, background):
     """Slurm itself ends the only worker job at its time limit mid-sequence; a new job finishes the sequence.
 
     A real wall time is at least one minute and slurmctld checks limits every 30 s, so waiting for one
@@ -166,14 +188,12 @@ def test_job_killed_at_its_time_limit_mid_sequence(slurm_jobs, tmp_path):
     gate = tmp_path / "slow"
     gate.touch()
     n = 80  # held slow, the victim could not finish them within the 30 s the kill may take
-    box = {}
 
     def run():
-        box["res"] = render_sequence(GATED, f"1-{n}", out, progress=False, retries=2,
-                                     scene_options={"gate": str(gate), "slow": 0.3}, **_kwargs(slurm_jobs))
+        return render_sequence(GATED, f"1-{n}", out, progress=False, retries=2,
+                               scene_options={"gate": str(gate), "slow": 0.3}, **_kwargs(slurm_jobs))
 
-    t = threading.Thread(target=run)
-    t.start()
+    t, box = background(run, gate)
     deadline = time.monotonic() + 90
     while len(list(out.glob("frame_*.png"))) < 2 and time.monotonic() < deadline:
         time.sleep(0.05)
@@ -205,7 +225,7 @@ def test_job_killed_at_its_time_limit_mid_sequence(slurm_jobs, tmp_path):
 
 
 @pytest.mark.slow
-def test_worker_reaching_its_wall_time_hands_over(slurm_jobs, tmp_path):
+def test_worker_reaching_its_wall_time_hands_over(slurm_jobs, tmp_path, background):
     """--walltime 00:01:00: the worker retires at 48 s (before Slurm's kill) and a new job finishes the sequence.
 
     About 70 s (the wall time cannot be shorter than a minute), so it is left out of ``make test``;
@@ -219,19 +239,20 @@ def test_worker_reaching_its_wall_time_hands_over(slurm_jobs, tmp_path):
     gate = tmp_path / "slow"
     gate.touch()
     n = 80  # held slow (~1 s each) until the first job has retired: it cannot finish them in 48 s
-    box = {}
 
     def run():
-        box["res"] = render_sequence(GATED, f"1-{n}", out, progress=False, retries=2,
-                                     scene_options={"gate": str(gate), "slow": 0.3},
-                                     **_kwargs(slurm_jobs, "--walltime", "00:01:00"))
+        return render_sequence(GATED, f"1-{n}", out, progress=False, retries=2,
+                               scene_options={"gate": str(gate), "slow": 0.3},
+                               **_kwargs(slurm_jobs, "--walltime", "00:01:00"))
 
-    t = threading.Thread(target=run)
-    t.start()
+    t, box = background(run, gate)
     deadline = time.monotonic() + 90
-    while not slurm_jobs.jobs() and time.monotonic() < deadline:
+    jobs = {}
+    while not jobs and time.monotonic() < deadline:
+        jobs = slurm_jobs.jobs()  # (the fixture left none of an earlier test's)
         time.sleep(0.2)
-    first = min(slurm_jobs.jobs(), key=int)
+    assert jobs, "no job submitted within 90 s"
+    first = min(jobs, key=int)
     while slurm_jobs.jobs().get(first) in ("PENDING", "RUNNING") and time.monotonic() < deadline:
         time.sleep(0.2)
     gate.unlink()
