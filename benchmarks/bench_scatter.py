@@ -410,10 +410,11 @@ def solution_bytes(sol):
 
 
 def compiled(ns=(64, 128), view=(640, 480)):
-    """Rows: per grid, the solve by the compiled kernels and by their NumPy twins back to back
-    (C first, then NumPy, then C again: the load moves), their wall ratio and how far their flux
-    is apart (max |C - NumPy| of received and total over the largest value), the solution's memory,
-    and one view (view_source + march_planes) of the C solution."""
+    """Rows: per grid, the default solve (``received`` only) by the compiled kernels and by their
+    NumPy twins back to back (C first, then NumPy, then C again: the load moves), their wall ratio
+    and how far their received flux is apart (max |C - NumPy| over the largest value); the same
+    with the total flux summed (``total=True``), C then NumPy, and how far their total is apart; the
+    solution's memory, and one view (view_source + march_planes) of the C solution."""
     from nephele.core import native
     from nephele.core.light import scatter
 
@@ -426,24 +427,34 @@ def compiled(ns=(64, 128), view=(640, 480)):
         sigma = _film_cloud(n)
         first = []  # wall time of each solve's first step: the sun, its peaked orders (and the sky)
 
-        def run(sigma=sigma, first=first):
+        def run(sigma=sigma, first=first, total=False):
             t = time.perf_counter()
             return scatter.solve(sigma, SIZE, progress=lambda p: first.append(time.perf_counter() - t)
-                                 if p.pass_index == 0 else None, **kw)
+                                 if p.pass_index == 0 else None, total=total, **kw)
 
         c1, w1, cpu1, l1 = _timed(run)
         with numpy_kernels():
             py, w2, cpu2, l2 = _timed(run)
         c2, w3, cpu3, l3 = _timed(run)
-        diff = {k: float(np.abs(getattr(c1, k) - getattr(py, k)).max() / np.abs(getattr(py, k)).max())
-                for k in ("received", "total")}
+        apart = float(np.abs(c1.received - py.received).max() / np.abs(py.received).max())
+        del py
         name = f"{n}x{n}x{3 * n // 4}"
         rows.append((f"{name} C", f"{w1:.1f} / {w3:.1f}", f"{cpu1:.1f} / {cpu3:.1f}", f"{l1} / {l3}",
                      f"{c1.report}; first step (sun, peaked orders) {first[0]:.1f} / {first[2]:.1f} s wall, "
                      f"then {c1.passes} passes"))
         rows.append((f"{name} NumPy", f"{w2:.1f}", f"{cpu2:.1f}", l2, f"first step {first[1]:.1f} s wall; "
-                     f"{w2 / min(w1, w3):.1f}x the C's faster run, {2 * w2 / (w1 + w3):.1f}x their mean; flux apart: "
-                     f"received {diff['received']:.1e}, total {diff['total']:.1e} of the largest"))
+                     f"{w2 / min(w1, w3):.1f}x the C's faster run, {2 * w2 / (w1 + w3):.1f}x their mean; received "
+                     f"flux apart {apart:.1e} of the largest"))
+        ct, w4, cpu4, l4 = _timed(lambda run=run: run(total=True))
+        with numpy_kernels():
+            pt, w5, cpu5, l5 = _timed(lambda run=run: run(total=True))
+        diff = {k: float(np.abs(getattr(ct, k) - getattr(pt, k)).max() / np.abs(getattr(pt, k)).max())
+                for k in ("received", "total")}
+        rows.append((f"{name} C / NumPy, total=True", f"{w4:.1f} / {w5:.1f}", f"{cpu4:.1f} / {cpu5:.1f}",
+                     f"{l4} / {l5}", f"the total flux summed too: {w5 / w4:.1f}x; flux apart: received "
+                     f"{diff['received']:.1e}, total {diff['total']:.1e} of the largest; solution "
+                     f"{solution_bytes(ct) / 2**30:.2f} GiB with the total"))
+        del ct, pt
         cam = scatter.orbit_camera(VIEW_ANGLE, SIZE, width=view[0], height=view[1])
         _, wv, cv, lv = _timed(lambda sigma=sigma, c2=c2,
                                cam=cam: scatter.march_planes(sigma, scatter.view_source(c2, cam.position), SIZE, cam,
@@ -454,9 +465,9 @@ def compiled(ns=(64, 128), view=(640, 480)):
         rows.append((f"{name} view {view[0]}x{view[1]}", f"{wv:.2f} / {wv2:.2f}", f"{cv:.2f} / {cv2:.2f}",
                      f"{lv} / {lv2}",
                      f"first (builds the tables) / second; solution {solution_bytes(c2) / 2**30:.2f} GiB"))
-        for r in rows[-3:]:
+        for r in rows[-4:]:
             print(r, flush=True)
-        del c1, c2, py
+        del c1, c2
     return rows
 
 
@@ -558,7 +569,10 @@ def main(argv=None):
         if not args.quick:
             write_section("scatter-compiled", f"{load}; the machine is shared, so each row says its load (1-minute "
                           "average before-after). The compiled kernels (native/src/scatter_*.c) against their NumPy "
-                          "twins in one process, back to back; CPU = this process's CPU seconds, all threads.\n\n"
+                          "twins in one process, back to back; CPU = this process's CPU seconds, all threads. The "
+                          "first two rows per grid are the default solve (`received`, what the views read); the "
+                          "third sums the paper's total flux too (`solve(total=True)`), C then NumPy, to compare it."
+                          "\n\n"
                           + md_table(["solve", "wall s", "CPU s", "load", "note"], rows),
                           title="Multiple scattering: compiled kernels against the NumPy twins")
             write_section("scatter-evolving", f"{load}. Clouds that change during the film ({n}x{n}x{3 * n // 4}; "

@@ -13,7 +13,7 @@ class _Tail:
     """The shooting passes' geometric tail, extrapolated (Aitken's delta-squared on the passes).
 
     Late passes repeat the iteration's slowest mode: each pass adds ``rho`` times what the
-    pass before added to ``received``, ``total`` and the exit power, so the passes still to
+    pass before added to ``received``, ``total`` (where summed) and the exit power, so the passes still to
     come add ``rho / (1 - rho)`` times the last pass's increment (the "ambient" or overshoot
     term of progressive radiosity: Cohen et al. 1988, Feda & Purgathofer 1992).  ``rho`` is
     the ratio of the last two increments' power.  The extrapolation's own error comes from
@@ -23,7 +23,7 @@ class _Tail:
     bound is about twice the true error (against a solve to tol 1e-6).
     Memory: the pass's increment of ``received`` (:attr:`inc`: :func:`_shot_group` writes each
     group's catch there, each bin being shot once a pass, and :meth:`end` adds it to ``received``), a
-    copy of ``total`` at the pass start and the last increment; ``spares``: free float32 buffers,
+    copy of ``total`` (None: not summed) at the pass start and the last increment; ``spares``: free float32 buffers,
     their pages touched, cut into arrays like ``received`` to hold them (fresh memory costs a page
     fault per 4 KiB when first written: up to 2 ms per MB on this VM).
     """
@@ -47,10 +47,12 @@ class _Tail:
     def begin(self):
         """Before a pass: a buffer for its increment, and where ``total`` and the exit power start."""
         self.inc = self._buffer()
+        total = self.arrays[1]
         if self.start is None:
-            self.start = [self._buffer(), np.empty_like(self.arrays[2])]
-        fb, fa = (a.reshape(len(a), -1) for a in (self.start[0], self.arrays[1]))
-        split_map(lambda s: np.copyto(fb[:, s], fa[:, s]), fa.shape[1])
+            self.start = [None if total is None else self._buffer(), np.empty_like(self.arrays[2])]
+        if total is not None:
+            fb, fa = (a.reshape(len(a), -1) for a in (self.start[0], total))
+            split_map(lambda s: np.copyto(fb[:, s], fa[:, s]), fa.shape[1])
         np.copyto(self.start[1], self.arrays[2])
 
     def end(self):
@@ -81,11 +83,13 @@ class _Tail:
         rec, tot, ex = self.arrays
         f = np.float32(self.factor)
         fr, fl = rec.reshape(len(rec), -1), self.last[0].reshape(len(rec), -1)
-        ft, fs = tot.reshape(len(tot), -1), self.start[0].reshape(len(tot), -1)
+        if tot is not None:
+            ft, fs = tot.reshape(len(tot), -1), self.start[0].reshape(len(tot), -1)
 
         def add(s):
             fr[:, s] += f * fl[:, s]
-            ft[:, s] += (ft[:, s] - fs[:, s]) * f
+            if tot is not None:
+                ft[:, s] += (ft[:, s] - fs[:, s]) * f
 
         split_map(add, fr.shape[1], chunk=1 << 12)
         ex += (ex - self.start[1]) * self.factor

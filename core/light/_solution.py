@@ -39,7 +39,8 @@ class Solution:
     size : box size (Lx, Ly, Lz).
     received : (nb, …) power intercepted per bin from scattered light and sky; ``nb = 6 n^2``
         bins, ``n`` = :attr:`bins_per_face` (derived from this array's length).
-    total : (nb, …) power passing through each voxel per bin (the paper's 'total' flux).
+    total : (nb, …) power passing through each voxel per bin (the paper's 'total' flux), or None
+        (summed only on request: ``solve(total=True)``).
     received_sun : power intercepted from the direct sun beam.
     received_peaked : (2, nb, …) the parts of ``received`` scattered once and twice (sun light).
     peaked_weights : (2, nb, s*s) how those are distributed over the sub-directions of each bin.
@@ -68,7 +69,7 @@ class Solution:
     sun_irradiance: float
     sky_radiance: object  # float (uniform, downward) or read-only (nb,) float64 per bin
     received: np.ndarray
-    total: np.ndarray
+    total: object  # float32 (nb, …) or None
     received_sun: np.ndarray
     received_peaked: np.ndarray
     peaked_weights: np.ndarray
@@ -148,9 +149,8 @@ def slab_reflectance(sol):
     return float(r), float(t)
 
 
-_ARRAYS = ("sigma", "received", "total", "received_sun", "received_peaked", "peaked_weights", "unshot",
-           "exit_flux")
-_OPTIONAL = ("moments_binned",)  # saved where not None; files without them load with None
+_ARRAYS = ("sigma", "received", "received_sun", "received_peaked", "peaked_weights", "unshot", "exit_flux")
+_OPTIONAL = ("total", "moments_binned")  # saved where not None; files without them load with None
 
 
 def json_plain(value):
@@ -173,7 +173,7 @@ def solution_from_arrays(arrays):
         if k in meta:
             meta[k] = tuple(meta[k])
     meta["sky_radiance"] = _check_sky(meta.get("sky_radiance", 0.0), len(arrays["received"]))
-    extra = {k: np.asarray(arrays[k]) for k in _OPTIONAL if k in arrays}
+    extra = {k: np.asarray(arrays[k]) if k in arrays else None for k in _OPTIONAL}
     return Solution(**{k: np.asarray(arrays[k]) for k in _ARRAYS}, **extra, **meta)
 
 

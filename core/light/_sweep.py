@@ -163,9 +163,10 @@ def _sweep(sigma, h, dirs, wsub, emis, inflow, periodic, axis, cache=None, per_s
     layer is transported only on the rectangle around its non-empty voxels, elsewhere the
     beams pass unchanged.
     ``into = (rec, total, bins)`` or None: the solve's arrays of all bins (nb, ...); the sweep's
-    total is added to ``total[bins]`` instead of being returned, and with ``per_sub`` and ``rec``
-    not None ``rec[bins]`` becomes the catch summed over sub-directions (the compiled sweep does
-    both as it goes, saving whole-grid passes over the outputs).
+    total is added to ``total[bins]`` instead of being returned (``total`` None: not summed), and
+    with ``per_sub`` and ``rec`` not None ``rec[bins]`` becomes the catch summed over
+    sub-directions (the compiled sweep does both as it goes, saving whole-grid passes over the
+    outputs).
     Returns received (g, ...) (``per_sub``: (g, ns, ...) per sub-direction), total (g, ...)
     (with ``into``: the power caught per bin and sub-direction (g, ns) float64 where ``rec`` is
     filled, else None) and the exit power (g,) through the far face.
@@ -195,10 +196,11 @@ def _sweep(sigma, h, dirs, wsub, emis, inflow, periodic, axis, cache=None, per_s
         rec_all, total_all, bins = into
         rbin = None if rec_all is None or not per_sub else np.moveaxis(rec_all, axis + 1, 1)
         sums = None if rbin is None else np.zeros((g, ns))
-        total = np.moveaxis(total_all, axis + 1, 1)
-        into_kernel = (rbin, _native.bin_rows(bins, len(total_all)), sums)
+        total = None if total_all is None else np.moveaxis(total_all, axis + 1, 1)
+        rows = None if rbin is None and total is None else len(rec_all if total is None else total_all)
+        into_kernel = (rbin, None if rows is None else _native.bin_rows(bins, rows), sums)
     else:
-        total = zeros("total", (g, L, A, B))
+        total = None if into is not None and into[1] is None else zeros("total", (g, L, A, B))
         into_kernel = None
     em = None if emis is None else np.moveaxis(np.asarray(emis, np.float32), axis + 1, 1)
     kap = None if profile is None else np.moveaxis(np.asarray(profile[0], np.float32), axis + 1, 1)
@@ -290,21 +292,25 @@ def _outputs(recv, total, axis, exit_power, into, sums, done):
     if done:
         return recv, sums, exit_power
     rec_all, total_all, bins = into
-    fill = rec_all is not None and recv.ndim == total.ndim + 1
+    fill = rec_all is not None and recv.ndim == 5  # (per sub-direction)
+    if total is None and not fill:
+        return recv, None, exit_power
     bs = bins if isinstance(bins, slice) else _as_slice(np.asarray(bins))
-    ft = np.moveaxis(total, 1, axis + 1).reshape(len(total), -1)
-    fa = total_all.reshape(len(total_all), -1)
+    if total is not None:
+        ft = np.moveaxis(total, 1, axis + 1).reshape(len(total), -1)
+        fa = total_all.reshape(len(total_all), -1)
     if fill:
         fr, fo = recv.reshape(recv.shape[0], recv.shape[1], -1), rec_all.reshape(len(rec_all), -1)
 
     def run(s):
-        fa[bs, s] += ft[:, s]
+        if total is not None:
+            fa[bs, s] += ft[:, s]
         if fill:
             fo[bs, s] = fr[:, :, s].sum(1, dtype=np.float32)
             return fr[:, :, s].sum(2, dtype=np.float64)
         return 0.0
 
-    parts = split_map(run, fa.shape[1])
+    parts = split_map(run, int(np.prod(recv.shape[-3:])))
     return recv, np.sum(parts, axis=0) if fill else None, exit_power
 
 
@@ -358,7 +364,8 @@ def _sweep_block(sig, geom, dirs, wsub, em, inflow, kap, shape2, cache, ib, fres
     for n, k in enumerate(order):
         if n:  # move to this layer: bilinear transverse shift, inflow outside the grid
             beam = shifter(beam)
-        total[bs, k] = beam.reshape(g, ns, A, B).sum(1)
+        if total is not None:
+            total[bs, k] = beam.reshape(g, ns, A, B).sum(1)
         if rects[k] is None:  # empty layer: the beams pass unchanged
             continue
         wa, wb = rects[k]
@@ -420,7 +427,8 @@ def _sweep_block(sig, geom, dirs, wsub, em, inflow, kap, shape2, cache, ib, fres
             re = e - ee
             r = rb + re
             beam[box] = bt + ee
-            total[bs, k, wa, wb] += e.reshape((g, ns) + sh[1:]).sum(1)
+            if total is not None:
+                total[bs, k, wa, wb] += e.reshape((g, ns) + sh[1:]).sum(1)
         if mom is not None:
             rb = r if em is None else rb
             # Moments along the sweep axis only: a beam crosses the whole layer there, while

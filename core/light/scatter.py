@@ -4,7 +4,7 @@ Method
 ------
 Each voxel keeps, for each of the ``nb = 6 n^2`` direction bins (:mod:`.phase`; ``n =
 bins_per_face``, 4 by default: the paper's 96 bins, 6 gives 216), the
-``received`` flux (power intercepted by its droplets), the ``total`` flux
+``received`` flux (power intercepted by its droplets), on request the ``total`` flux
 passing through it, and the ``unshot`` scattered flux not yet propagated.
 
 * The sun is a parallel beam swept through the grid first.  Its first

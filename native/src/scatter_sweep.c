@@ -57,7 +57,7 @@ struct nph_sweep {
     int64_t recv_s[5];    /* (bin, sub, layer, row, column): caught (sub stride used if per_sub) */
     int64_t per_sub;
     float *total;
-    int64_t total_s[4];   /* (bin, layer, row, column) */
+    int64_t total_s[4];   /* (bin, layer, row, column) or NULL: not summed */
     double *exit_power;   /* (bins,) */
     float *mom;
     int64_t mom_s[5];     /* (bin, slot, layer, row, column) or NULL */
@@ -507,7 +507,8 @@ static void bin_arrays(const struct nph_sweep *s, int64_t bin, float *stage, int
     for (int f = 0; f < 4 && s->mom != NULL; f++)
         if (slots[f] >= 0)
             x[MOM0 + f] = (struct arr){s->mom + bin * s->mom_s[0] + slots[f] * s->mom_s[1], s->mom_s + 2, NULL, 0};
-    x[TOT] = (struct arr){s->total + ob * s->total_s[0], s->total_s + 1, NULL, s->obins != NULL};
+    if (s->total != NULL)
+        x[TOT] = (struct arr){s->total + ob * s->total_s[0], s->total_s + 1, NULL, s->obins != NULL};
     ba->nrec = s->per_sub ? s->ns : 1;
     ba->rec_q = s->recv_s[1];
     ba->rec = (struct arr){s->recv + bin * s->recv_s[0], s->recv_s + 2, NULL, 0};
@@ -610,7 +611,8 @@ INLINE void layer_rows(const struct nph_sweep *s, int64_t k, int64_t klo, const 
             zero_outside(view(&r, k, klo, A, B), a, lo, hi, B);
         }
         if (wd <= 0) {
-            put_total(s, tot, a, tmp + a * B, B);
+            if (tot.p != NULL)
+                put_total(s, tot, a, tmp + a * B, B);
             continue;
         }
         const int64_t o = s->soff[k * A + a] - base;
@@ -696,9 +698,11 @@ INLINE void layer_end(const struct nph_sweep *s, int64_t bin, int64_t k, int64_t
             scatter_lay(rec, a, b0, rw->rsum + o, wd);
         if (rb.p != NULL)
             scatter_lay(rb, a, b0, rw->rsum + o, wd);
-        for (int64_t i = 0; i < wd; i++)
-            tmp[a * B + b0 + i] += rw->etot[o + i];
-        put_total(s, tot, a, tmp + a * B, B);
+        if (tot.p != NULL) {
+            for (int64_t i = 0; i < wd; i++)
+                tmp[a * B + b0 + i] += rw->etot[o + i];
+            put_total(s, tot, a, tmp + a * B, B);
+        }
         for (int f = 0; f < 4 && mom; f++)
             if (mo[f].p != NULL)
                 scatter_lay(mo[f], a, b0, mf[f] + o, wd);
@@ -739,12 +743,13 @@ INLINE void sweep_bin(const struct nph_sweep *s, int64_t bin, float *planes, flo
                     inrow[b] = v;
                 shift_plane(s, bin * ns + q, planes + q * AB, tmp, inrow);
             }
-        /* total: the beams entering the layer (the emission is added on the rectangle) */
-        for (int64_t c = 0; c < AB; c++)
-            tmp[c] = planes[c];
-        for (int64_t q = 1; q < ns; q++)
+        if (s->total != NULL) { /* total: the beams entering the layer (the emission is added on the spans) */
             for (int64_t c = 0; c < AB; c++)
-                tmp[c] += planes[q * AB + c];
+                tmp[c] = planes[c];
+            for (int64_t q = 1; q < ns; q++)
+                for (int64_t c = 0; c < AB; c++)
+                    tmp[c] += planes[q * AB + c];
+        }
         layer_rows(s, k, klo, tmp, &ba, zeroed, rw, mode, qa, mom && m2);
         const int64_t S = s->soff[(k + 1) * A] - s->soff[k * A];
         if (S > 0)

@@ -74,7 +74,7 @@ def test_empty_density():
 def test_very_thick_voxels_no_overflow(kernels):
     sig = small_cloud(value=1e8)
     with np.errstate(over="raise", invalid="raise", divide="raise"):
-        sol = scatter.solve(sig, (1, 1, 1), sun_dir=(0.2, -0.1, 1.0), albedo=0.9, max_passes=8)
+        sol = scatter.solve(sig, (1, 1, 1), sun_dir=(0.2, -0.1, 1.0), albedo=0.9, max_passes=8, total=True)
     for a in (sol.received, sol.total, sol.received_sun, sol.unshot):
         assert np.all(np.isfinite(a))
     # a wall: all entering power is intercepted in the first lit voxels
@@ -161,6 +161,29 @@ def test_render_homogeneous_emission_box():
     tau_total = chord_tau + 2 * ramp_tau
     expect = 2.0 / 3.0 * (1 - np.exp(-tau_total))
     np.testing.assert_allclose(img, expect, rtol=2e-3)
+
+
+@pytest.mark.parametrize("kernels", EVERY, indirect=True)
+def test_total_on_request_changes_nothing_else(kernels, tmp_path):
+    # Summing the total flux (solve(total=True)) feeds nothing back: every other array has the same bits,
+    # cold and warm-started, and a solution without it saves and loads as one.
+    kw = dict(albedo=0.99, g=0.8, sun_dir=(0.3, -0.2, 1.0), tol=1e-3)
+    sig = small_cloud(value=30.0)
+    with_total, without = (scatter.solve(sig, (1, 1, 0.8), total=t, **kw) for t in (True, False))
+    moved = np.roll(sig, 1, axis=2)
+    warm = [scatter.solve(moved, (1, 1, 0.8), warm=w, total=w is with_total, **kw) for w in (with_total, without)]
+    assert without.total is None and warm[1].total is None and warm[0].warm and warm[1].warm
+    for a, b in ((with_total, without), warm):
+        assert a.total.shape == a.received.shape and a.total.max() > 0 and np.all(np.isfinite(a.total))
+        assert a.history == b.history
+        for k in ("received", "received_sun", "received_peaked", "unshot", "exit_flux", "moments_binned"):
+            np.testing.assert_array_equal(getattr(a, k), getattr(b, k), err_msg=k)
+    for sol in (with_total, without):
+        back = scatter.load_solution(scatter.save_solution(sol, tmp_path / "s.npz"))
+        assert (back.total is None) == (sol.total is None)
+        np.testing.assert_array_equal(back.received, sol.received)
+        if sol.total is not None:
+            np.testing.assert_array_equal(back.total, sol.total)
 
 
 def test_save_load_roundtrip(tmp_path):

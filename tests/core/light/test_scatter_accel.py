@@ -26,9 +26,9 @@ def cases():
 
 @pytest.mark.parametrize("name,sigma,size,kw", list(cases()), ids=lambda v: v if isinstance(v, str) else "")
 def test_extrapolated_tail_matches_tight_plain_solve_in_fewer_passes(name, sigma, size, kw):
-    truth = scatter.solve(sigma, size, tol=1e-6, max_passes=2000, extrapolate=False, **kw)
+    truth = scatter.solve(sigma, size, tol=1e-6, max_passes=2000, extrapolate=False, total=True, **kw)
     plain = scatter.solve(sigma, size, tol=TOL, max_passes=2000, extrapolate=False, **kw)
-    fast = scatter.solve(sigma, size, tol=TOL, max_passes=2000, **kw)
+    fast = scatter.solve(sigma, size, tol=TOL, max_passes=2000, total=True, **kw)
     assert truth.converged and plain.converged and fast.converged
     assert fast.passes < plain.passes, (fast.passes, plain.passes)
     assert fast.residual <= TOL and not fast.unshot.any()
@@ -56,9 +56,10 @@ def test_tail_needs_a_steady_ratio():
 
 @pytest.mark.parametrize("name,sigma,size,kw", list(cases()), ids=lambda v: v if isinstance(v, str) else "")
 def test_over_relaxed_passes_reach_the_same_light_in_fewer_passes(name, sigma, size, kw):
-    truth = scatter.solve(sigma, size, tol=1e-6, max_passes=2000, extrapolate=False, overrelax=False, **kw)
+    truth = scatter.solve(sigma, size, tol=1e-6, max_passes=2000, extrapolate=False, overrelax=False, total=True,
+                          **kw)
     gs = scatter.solve(sigma, size, tol=TOL, max_passes=2000, overrelax=False, **kw)
-    sor = scatter.solve(sigma, size, tol=TOL, max_passes=2000, **kw)
+    sor = scatter.solve(sigma, size, tol=TOL, max_passes=2000, total=True, **kw)
     assert gs.converged and sor.converged and sor.passes < gs.passes, (sor.passes, gs.passes)
     assert gs.history[:2] == sor.history[:2]  # the first pass is plain: it measures the ratio
     ref = truth.injected
@@ -88,8 +89,8 @@ def test_passes_that_converge_on_their_residual_keep_their_catch(albedo):
     size = (1.0, 1.0, 0.75)
     sigma = 12.0 * cloud_density.cloud_density(cloud_density.CloudParams(shape=(12, 16, 16), size=size))
     kw = dict(albedo=albedo, g=0.0, sun_dir=(0.6, -0.35, 0.55), tol=1e-2)
-    fast = scatter.solve(sigma, size, **kw)
-    plain = scatter.solve(sigma, size, extrapolate=False, **kw)
+    fast = scatter.solve(sigma, size, total=True, **kw)
+    plain = scatter.solve(sigma, size, extrapolate=False, total=True, **kw)
     assert 1 <= fast.passes == plain.passes <= 3 and fast.converged
     np.testing.assert_array_equal(fast.received, plain.received)
     np.testing.assert_array_equal(fast.total, plain.total)

@@ -76,7 +76,7 @@ def test_layout_must_be_an_integer(bad):
 
 
 def test_default_is_four_per_face():
-    kw = dict(sun_dir=SUN, tol=1e-2, sky_radiance=0.2)
+    kw = dict(sun_dir=SUN, tol=1e-2, sky_radiance=0.2, total=True)
     a = scatter.solve(_cloud(), SIZE, **kw)
     b = scatter.solve(_cloud(), SIZE, bins_per_face=4, **kw)
     assert a.received.shape[0] == 96 and a.bins_per_face == 4
@@ -126,7 +126,7 @@ def test_216_bins_thin_voxels_low_sun():
 
 @pytest.fixture(scope="module")
 def sol216():
-    return scatter.solve(_cloud(), SIZE, sun_dir=SUN, tol=1e-2, bins_per_face=6)
+    return scatter.solve(_cloud(), SIZE, sun_dir=SUN, tol=1e-2, bins_per_face=6, total=True)
 
 
 def test_216_bin_views(sol216):

@@ -220,7 +220,7 @@ def test_solve_by_either_path(monkeypatch, case):
                           dict(albedo=1.0, g=0.8, sun_dir=(0.9, 0, 0.26), tol=1e-5, periodic=(True, True, False),
                                max_passes=300)),
     }[case]
-    c, n = both(monkeypatch, lambda: scatter.solve(sig, size, **kw))
+    c, n = both(monkeypatch, lambda: scatter.solve(sig, size, total=True, **kw))
     assert c.passes == n.passes and c.injected == pytest.approx(n.injected, rel=1e-6)
     for name in ("received", "total", "received_peaked"):
         close(getattr(c, name), getattr(n, name), 3e-4, name)
@@ -228,10 +228,10 @@ def test_solve_by_either_path(monkeypatch, case):
         close(scatter.slab_reflectance(c), scatter.slab_reflectance(n), 1e-5)
 
 
-def into_case(per_sub, axis=0, shape=(6, 7, 5)):
-    """A sweep that adds its total to the solve's arrays and (per sub-direction) sums each bin's catch
-    into them as it goes, bins scattered over the arrays (not a run of rows): (the call, its rows,
-    the arrays before)."""
+def into_case(per_sub, axis=0, shape=(6, 7, 5), with_total=True):
+    """A sweep that adds its total to the solve's arrays (``with_total``; else sums none) and (per
+    sub-direction) sums each bin's catch into them as it goes, bins scattered over the arrays (not a
+    run of rows): (the call, its rows, the arrays before)."""
     rng = np.random.default_rng(9)
     sigma = rng.uniform(0.0, 3.0, shape) * (rng.random(shape) > 0.2)
     _, _, dirs, w = phase.bins(2)
@@ -243,7 +243,7 @@ def into_case(per_sub, axis=0, shape=(6, 7, 5)):
     profile = random_profile(rng, shape, False)
 
     def run():
-        rec, total = np.zeros_like(base), base.copy()
+        rec, total = np.zeros_like(base), base.copy() if with_total else None
         r, caught, ex = sweeps._sweep(sigma, np.full(3, 0.1), dirs[bs], w[bs] / w[bs].sum(1, keepdims=True), emis,
                                       np.zeros((3, 4)), (False,) * 3, axis, per_sub=per_sub, profile=profile,
                                       into=(rec, total, bs))
@@ -252,16 +252,19 @@ def into_case(per_sub, axis=0, shape=(6, 7, 5)):
     return run, bs, base
 
 
+@pytest.mark.parametrize("with_total", [True, False])
 @pytest.mark.parametrize("per_sub", [True, False])
-def test_sweep_into_the_solve_arrays_matches_numpy(monkeypatch, per_sub):
-    run, bs, base = into_case(per_sub)
+def test_sweep_into_the_solve_arrays_matches_numpy(monkeypatch, per_sub, with_total):
+    run, bs, base = into_case(per_sub, with_total=with_total)
     c, n = both(monkeypatch, run)
+    assert (c[3] is None) == (n[3] is None) == (not with_total)
     for name, a, b in zip(("received", "caught", "rec", "total", "exit"), c, n):
         if b is None:
             assert a is None, name
             continue
         close(a, b, 2e-5, name)
-    assert np.array_equal(c[3][np.setdiff1d(np.arange(96), bs)], base[np.setdiff1d(np.arange(96), bs)])
+    if with_total:
+        assert np.array_equal(c[3][np.setdiff1d(np.arange(96), bs)], base[np.setdiff1d(np.arange(96), bs)])
     if per_sub:
         close(c[2][bs], c[0].sum(1), 1e-6, "rec is the catch summed over sub-directions")
         close(c[1], c[0].reshape(3, 4, -1).sum(2), 1e-6, "caught per sub-direction")
@@ -305,7 +308,7 @@ def test_staged_solve_gives_the_same_bits(monkeypatch):
     z, y, x = np.meshgrid(*[np.linspace(-1, 1, n) for n in (10, 12, 34)], indexing="ij")
     cloud = np.where(x * x + 1.5 * y * y + z * z < 0.6, 25.0 * (1.2 - x * x - z), 0.0)
     kw = dict(albedo=0.95, g=0.7, sun_dir=(0.8, -0.2, 0.5), tol=1e-3)
-    s, p = staged_and_in_place(monkeypatch, lambda: scatter.solve(cloud, (2, 1, 0.8), **kw))
+    s, p = staged_and_in_place(monkeypatch, lambda: scatter.solve(cloud, (2, 1, 0.8), total=True, **kw))
     assert s.passes == p.passes
     for name in ("received", "total", "received_peaked", "exit_flux", "unshot"):
         equal(getattr(s, name), getattr(p, name), name)
@@ -324,7 +327,7 @@ def test_outputs_left_dark_give_the_same_bits(monkeypatch):
     data = demo_dataset()
     first, later = (evolving.climate_cloud(data, step, shape=(12, 16, 16)) for step in (0, 40))
     assert ((first > 0) != (later > 0)).sum() > 100
-    kw = dict(albedo=0.99, g=0.8, sun_dir=(0.3, 0.2, 0.9), tol=1e-3, size=(1.0, 1.0, 0.75))
+    kw = dict(albedo=0.99, g=0.8, sun_dir=(0.3, 0.2, 0.9), tol=1e-3, size=(1.0, 1.0, 0.75), total=True)
 
     def run():
         cold = scatter.solve(first, **kw)

@@ -25,7 +25,7 @@ def test_downward_bins_equal_the_uniform_sky():
     # No bin straddles the horizon (z = 0 is a bin edge on the side faces), so the uniform
     # sky is exactly the per-bin sky with c on the downward bins; the cloud is not periodic,
     # so light also enters through the box's sides.
-    sigma, kw = _cloud(), dict(sun_dir=(0.6, -0.35, 0.55), tol=1e-3)
+    sigma, kw = _cloud(), dict(sun_dir=(0.6, -0.35, 0.55), tol=1e-3, total=True)
     a = scatter.solve(sigma, (1.0, 1.0, 0.75), sky_radiance=0.35, **kw)
     b = scatter.solve(sigma, (1.0, 1.0, 0.75), sky_radiance=np.where(UP, 0.0, 0.35), **kw)
     assert a.passes == b.passes and a.injected == pytest.approx(b.injected, rel=1e-12)
