@@ -197,8 +197,8 @@ def _sweep(sigma, h, dirs, wsub, emis, inflow, periodic, axis, cache=None, per_s
         rbin = None if rec_all is None or not per_sub else np.moveaxis(rec_all, axis + 1, 1)
         sums = None if rbin is None else np.zeros((g, ns))
         total = None if total_all is None else np.moveaxis(total_all, axis + 1, 1)
-        rows = None if rbin is None and total is None else len(rec_all if total is None else total_all)
-        into_kernel = (rbin, None if rows is None else _native.bin_rows(bins, rows), sums)
+        out = total_all if total is not None else rec_all if rbin is not None else None  # (what bins index)
+        into_kernel = (rbin, None if out is None else _native.bin_rows(bins, len(out)), sums)
     else:
         total = None if into is not None and into[1] is None else zeros("total", (g, L, A, B))
         into_kernel = None
