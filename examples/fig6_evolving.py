@@ -47,14 +47,6 @@ def build(frames=240, grid=(24, 24, 18), drift=(0.25, 0.1, 0.02), directory=None
     return bpy.data.objects[OBJECT_NAME]
 
 
-def _frames(text, step=1):
-    """Frames to render from "A-B" (every ``step``-th) or "A,B,C"."""
-    if "," in text:
-        return [int(v) for v in text.split(",")]
-    a, _, b = text.partition("-")
-    return list(range(int(a), int(b or a) + 1, max(step, 1)))
-
-
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", help="render frames into this directory")
@@ -72,8 +64,15 @@ def main(argv=None):
 
     sys.path.insert(0, str(ROOT.parent))
     bpy.ops.wm.read_factory_settings(use_empty=True)
-    w, h = (int(v) for v in args.size.lower().split("x"))
-    picked = _frames(args.frames or f"1-{args.film}", args.step)
+    from nephele.core.errors import UsageError
+    from nephele.core.parse import parse_size
+    from nephele.farm.frames import parse_frames
+
+    try:
+        w, h = parse_size(args.size)
+        picked = parse_frames(args.frames or f"1-{args.film}")[::max(args.step, 1)]
+    except UsageError as exc:
+        ap.error(str(exc))  # (one line, exit 2)
     out = Path(args.out).resolve() if args.out else None
     t0 = time.perf_counter()
     cloud = build(frames=args.film, grid=tuple(int(v) for v in args.grid.split("x")),

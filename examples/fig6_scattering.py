@@ -48,7 +48,7 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", help="render frames into this directory")
     ap.add_argument("--save", help="save the scene as a .blend")
-    ap.add_argument("--frames", default="1-120", help="frames to render (the orbit has 120)")
+    ap.add_argument("--frames", default="1-120", help="frames to render, e.g. 1-120 or 1,60 (the orbit has 120)")
     ap.add_argument("--size", default="300x255", help="WxH (the paper: 300x255)")
     ap.add_argument("--samples", type=int, default=32)
     ap.add_argument("--step", type=int, default=1, help="render every STEP-th frame")
@@ -62,20 +62,25 @@ def main(argv=None):
 
     sys.path.insert(0, str(ROOT.parent))
     bpy.ops.wm.read_factory_settings(use_empty=True)
-    from nephele.core.parse import parse_range, parse_size
+    from nephele.core.errors import UsageError
+    from nephele.core.parse import parse_size
+    from nephele.farm.frames import parse_frames
 
-    w, h = parse_size(args.size)
-    first, last = parse_range(args.frames)
+    try:
+        w, h = parse_size(args.size)
+        picked = parse_frames(args.frames)[::max(args.step, 1)]
+    except UsageError as exc:
+        ap.error(str(exc))  # (one line, exit 2)
     out = Path(args.out).resolve() if args.out else None
     directory = (out / "vdb") if out else None
-    build(frames=max(120, last), grid=tuple(int(v) for v in args.grid.split("x")), size=(w, h),
+    build(frames=max(120, picked[-1]), grid=tuple(int(v) for v in args.grid.split("x")), size=(w, h),
           samples=args.samples, directory=directory, sky=args.sky, annotations=args.annotations)
     scene = bpy.context.scene
     if args.save:
         bpy.ops.wm.save_as_mainfile(filepath=str(Path(args.save).resolve()))
     if out:
         out.mkdir(parents=True, exist_ok=True)
-        for f in range(first, last + 1, max(args.step, 1)):
+        for f in picked:
             scene.frame_set(f)
             scene.render.filepath = str(out / f"fig6_{f:04d}.png")
             bpy.ops.render.render(write_still=True)
