@@ -31,6 +31,18 @@ def test_scatter_command_writes_views_and_solution(tmp_path):
     assert (out / "scatter_0002.vdb").stat().st_size > 0
 
 
+def test_scatter_command_total_on_request(tmp_path):
+    # The saved solution holds the total flux only with --total; the received flux is the same either way.
+    args = ["--grid", "8x8x6", "--views", "1", "--size", "12x10", "--tol", "1e-2", "--quiet"]
+    sols = []
+    for name, extra in (("plain", []), ("total", ["--total"])):
+        assert cli.main(["scatter", "--out", str(tmp_path / name), *args, *extra]) == 0
+        sols.append(scatter.load_solution(tmp_path / name / "solution.npz"))
+    plain, total = sols
+    assert plain.total is None and total.total.shape == total.received.shape and total.total.max() > 0
+    np.testing.assert_array_equal(plain.received, total.received)
+
+
 def test_scatter_command_bad_values(tmp_path, capsys):
     assert cli.main(["scatter", "--out", str(tmp_path), "--grid", "8x8"]) == 2
     assert "--grid" in capsys.readouterr().err
