@@ -9,7 +9,6 @@ cancelled after it, and gone before the next test, so one test's leftovers never
 
 import os
 import sys
-import time
 from pathlib import Path
 
 import pytest
@@ -51,7 +50,4 @@ def slurm_jobs(slurm):
     """
     yield slurm
     slurm.cancel_all()
-    deadline = time.monotonic() + 30
-    while (left := slurm.jobs()) and time.monotonic() < deadline:
-        time.sleep(0.2)
-    assert not left, f"jobs still in the queue 30 s after scancel: {left}"
+    assert slurm.wait_gone(30), f"jobs still in the queue 30 s after scancel: {slurm.jobs()}"

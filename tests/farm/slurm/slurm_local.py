@@ -101,6 +101,16 @@ class LocalSlurm:
     def cancel_all(self):
         self.run("scancel", "--full", "-p", self.partition, check=False)
 
+    def wait_gone(self, timeout=20):
+        """Wait until squeue lists no job, not even one COMPLETING (its processes may still be ending,
+        and writing); False after ``timeout`` seconds."""
+        deadline = time.monotonic() + timeout
+        while self.jobs():
+            if time.monotonic() >= deadline:
+                return False
+            time.sleep(0.2)
+        return True
+
     def start(self, timeout=60):
         ensure_installed()
         root = self.root
@@ -192,9 +202,7 @@ PartitionName={PARTITION} Nodes={host} Default=YES MaxTime=INFINITE State=UP
             # Jobs first, while slurmd can still end their steps (KillWait=3 s).
             with contextlib.suppress(Exception):
                 self.cancel_all()
-                deadline = time.monotonic() + timeout
-                while self.jobs() and time.monotonic() < deadline:
-                    time.sleep(0.2)
+                self.wait_gone(timeout)
         for name in DAEMONS:
             pid = self.pids.pop(name, None)
             if pid is None and name in self.pid_files:

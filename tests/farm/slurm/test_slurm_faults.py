@@ -30,16 +30,6 @@ def _kwargs(slurm, *extra):
     return cluster_kwargs(args)
 
 
-def _wait_jobs_gone(slurm, timeout=20):
-    """No job listed any more: not even COMPLETING, whose processes may still be ending (and writing)."""
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if not slurm.jobs():
-            return True
-        time.sleep(0.2)
-    return False
-
-
 def _jobs_with_frames(out):
     """Jobs named in the logs of the frames already in ``out`` (each log starts with '... job N) ...')."""
     import re
@@ -92,7 +82,7 @@ def test_job_that_cannot_start_is_a_clear_error(slurm_jobs, tmp_path, capsys, ex
             and words in lines[0])
     assert time.monotonic() - t0 < 30  # no hang: refusals are immediate, a dead job is seen within a second
     assert not list(out.glob("frame_*"))
-    assert _wait_jobs_gone(slurm_jobs)
+    assert slurm_jobs.wait_gone()
 
 
 def test_scheduler_unreachable_from_the_jobs(slurm_jobs, tmp_path, capsys):
@@ -102,7 +92,7 @@ def test_scheduler_unreachable_from_the_jobs(slurm_jobs, tmp_path, capsys):
     err = capsys.readouterr().err
     assert rc == 2, err
     assert "--interface/--contact-address" in err and "tcp://192.0.2.1:" in err and "within 6 s" in err
-    assert _wait_jobs_gone(slurm_jobs)
+    assert slurm_jobs.wait_gone()
 
 
 def test_scancel_of_a_working_job(slurm_jobs, tmp_path, background):
@@ -158,7 +148,7 @@ def test_resume_after_the_whole_run_was_killed(slurm_jobs, tmp_path):
     proc.communicate(timeout=30)
     # The orphaned worker job would end by itself after its death timeout; a user cancels it at once.
     slurm_jobs.run("scancel", "--name", "nephele")
-    assert _wait_jobs_gone(slurm_jobs)
+    assert slurm_jobs.wait_gone()
     done = sorted(int(p.stem[6:]) for p in out.glob("frame_*.png"))
     assert 3 <= len(done) < 12
     res = render_sequence(SCENE, "1-12", out, progress=False, **_kwargs(slurm_jobs))
