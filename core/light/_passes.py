@@ -193,19 +193,19 @@ def _bin_sum(a, bs):
     return out
 
 
-# Multiply-adds per BLAS product in _scatter_into.  96 bins (2026-11-29, load 1.9, 2 threads, 40 %
-# of voxels empty), median ms at 96 x 8192 against 96 x 4096: 5.0e5 voxels, k = 128 101 / 150,
-# 192 174 / 238, 256 188 / 267, 384 330 / 409; 6.3e4 voxels 18 / 23, 32 / 43, 31 / 51, 44 / 73.
-# At 96 x 12288 (1.2e6) the products slowed down again (k = 128: 219 ms): past 1e6 OpenBLAS leaves
-# its single-threaded small-matrix kernel.
-_PRODUCT_MACS = 96 * 8192
+# Multiply-adds per BLAS product in _scatter_into: at most 2^18, where OpenBLAS still runs a product
+# in the calling thread (above it, its own threads take every product, then spin beside ours).
+# 96 bins on 6e5 voxels, 2 threads (2026-11-29, AMD EPYC, load 1.0), ms at 2^18 against 96 x 8192:
+# k = 16 86 / 195, 64 200 / 474, 128 378 / 704, 256 647 / 1237; with no fewer than 8 voxels a
+# product (not 16): k = 464 725 / 927 ms on 3e5 voxels.
+_PRODUCT_MACS = 1 << 18
 
 
 def _scatter_into(unshot, m_cols, recv, albedo):
     """``unshot += albedo * M[:, group] @ recv`` in float32 chunks; ``m_cols`` (nb, k) with
     ``recv`` (k, ...): k bins, or bins x sub-directions.
 
-    Chunks of ``_PRODUCT_MACS // (nb k)`` voxels keep each product under ~8e5 multiply-adds,
+    Chunks of ``_PRODUCT_MACS // (nb k)`` voxels keep each product under 2^18 multiply-adds,
     which OpenBLAS runs in the calling thread: larger ones it splits over its own threads, which
     then spin and take the cores from the sweeps (k = 16 on 5.2e5 voxels: 0.19 s CPU in chunks of
     65536, 0.057 s in chunks of 256, as with ``OPENBLAS_NUM_THREADS=1``; 64x64x48 solve
@@ -224,7 +224,7 @@ def _scatter_into(unshot, m_cols, recv, albedo):
     u = unshot.reshape(nb, -1)
     r = recv.reshape(g, -1)
     m = (albedo * m_cols).astype(np.float32)
-    chunk = max(16, _PRODUCT_MACS // (nb * g))
+    chunk = max(8, _PRODUCT_MACS // (nb * g))
     stack = 64 * chunk
     n = r.shape[1]
     starts = range(0, n, stack)
