@@ -4,8 +4,8 @@ machine or, cross-compiled from it, for Windows and macOS (``--target``).
 
 The library uses no Python C API (it is loaded with ctypes), so the wheel is ``py3-none``
 for its platform: on Linux the manylinux level of the newest glibc symbol it links
-(built with this machine's ``cc``); ``win_amd64`` (a PE32+ DLL importing only KERNEL32 and
-the universal C runtime); ``macosx_X_Y_arm64`` / ``_x86_64`` with X.Y the minimum macOS
+(built with this machine's ``cc``); ``win_amd64`` (a PE32+ DLL importing only the universal C
+runtime, ucrtbase.dll); ``macosx_X_Y_arm64`` / ``_x86_64`` with X.Y the minimum macOS
 written into the dylib (``--macos``).  Other platforms are built by ``zig cc`` from the
 ``ziglang`` package, which this script installs from PyPI into ``build/toolchain`` on first
 use.  Each cross-built library is read back (:func:`describe`) and refused unless its format,
@@ -35,6 +35,12 @@ FLAGS = ["-O3", "-std=c11", "-fPIC", "-shared", "-fno-math-errno", "-Wall", "-We
 # and the kernels promise their NumPy twins' arithmetic operation by operation.
 ZIG_FLAGS = ["-O3", "-std=c11", "-shared", "-fno-math-errno", "-ffp-contract=off", "-Wall", "-Werror", "-Wno-psabi"]
 ZIG = "ziglang==0.17.0"
+# Windows: the kernels call malloc, free, memcpy, memset and expf, all in the C runtime every Windows 10+
+# has (ucrtbase.dll).  Linking that alone, without MinGW-w64's start-up code, spares zig building
+# MinGW-w64's C runtime from source first (3.5 minutes from a cold cache, on every fresh clone); the DLL
+# needs no entry point (the kernels keep no state), and compiler-rt still gives ___chkstk_ms, the
+# stack probe of frames over 4 KiB.
+WINDOWS_LINK = ["-nostdlib", "-rtlib=compiler-rt", "-lucrtbase"]
 TOOLCHAIN = HERE.parent / "build" / "toolchain"
 HOST = "linux-x64"
 MACOS_MIN = "11.0"  # Blender 4.2's; the extension builder passes the version its zip's wheels need
@@ -95,6 +101,8 @@ def compiler(target=HOST, cc=CC, macos=None, toolchain=TOOLCHAIN):
     if target.startswith("macos"):
         triple += "." + (macos or MACOS_MIN)
         flags.append(f"-Wl,-install_name,@rpath/{lib}")  # not this machine's build path
+    if target == "windows-x64":
+        flags += ["-Wl,--no-entry", *WINDOWS_LINK]
     return [str(exe), "cc", "-target", triple], flags, ver, env
 
 
@@ -121,7 +129,10 @@ def package(dest, cc=CC, target=HOST, macos=None, toolchain=TOOLCHAIN):
     shutil.copy2(HERE / "nephele_native" / "__init__.py", pkg / "__init__.py")
     obj = tmp / "obj"  # the compiler's by-products (zig writes a .pdb beside a DLL) stay out of the wheel
     obj.mkdir()
-    subprocess.run([*cmd, *flags, "-o", str(obj / lib), *map(str, sources()), "-lm"], check=True, env=env)
+    if target == "windows-x64":
+        _windows_dll(cmd, flags, obj / lib, env)
+    else:
+        subprocess.run([*cmd, *flags, "-o", str(obj / lib), *map(str, sources()), "-lm"], check=True, env=env)
     (obj / lib).replace(pkg / lib)
     shutil.rmtree(obj)
     if target != HOST:  # (the Linux build's check is its glibc tag, below)
@@ -132,6 +143,18 @@ def package(dest, cc=CC, target=HOST, macos=None, toolchain=TOOLCHAIN):
     pkg.replace(final)
     tmp.rmdir()
     return final
+
+
+def _windows_dll(cmd, flags, out, env):
+    """Compile each source against MinGW-w64's headers, then link the objects into ``out`` with the
+    UCRT alone (``-nostdlib`` also drops the headers, so the two steps are apart)."""
+    link = ["-shared", "-Wl,--no-entry", *WINDOWS_LINK]
+    objs = []
+    for src in sources():
+        objs.append(str(out.parent / (src.stem + ".o")))
+        subprocess.run([*cmd, *[f for f in flags if f not in link], "-c", "-o", objs[-1], str(src)], check=True,
+                       env=env)
+    subprocess.run([*cmd, *link, "-o", str(out), *objs], check=True, env=env)
 
 
 def platform_tag(lib, target=HOST, macos=None):
@@ -262,9 +285,10 @@ def describe(path):
 
 
 def system_dll(name):
-    """Whether a DLL is one every Windows 10+ has: KERNEL32 or the universal C runtime."""
+    """Whether a DLL is one every Windows 10+ has: KERNEL32 or the universal C runtime (ucrtbase.dll
+    or its api-ms-win-crt-* sets)."""
     n = name.lower()
-    return n == "kernel32.dll" or (n.startswith("api-ms-win-crt-") and n.endswith(".dll"))
+    return n in ("kernel32.dll", "ucrtbase.dll") or (n.startswith("api-ms-win-crt-") and n.endswith(".dll"))
 
 
 def check(path, target, macos=MACOS_MIN):

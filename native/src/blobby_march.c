@@ -87,7 +87,7 @@ static void extend(const struct march_in *in, int64_t blk, float lvl, float *ext
 static double linear_t(double level, float va, float vz, double margin)
 {
     double t = (level - (double)va) / ((double)vz - (double)va);
-    if (!isfinite(t))
+    if (!__builtin_isfinite(t)) /* MinGW-w64's isfinite calls __fpclassify, which the UCRT lacks */
         t = 0.5;
     return t < margin ? margin : (t > 1 - margin ? 1 - margin : t);
 }

@@ -17,7 +17,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))
 
-from cross_tools import HARNESS, MACOS, WINE, build_module, ensure_wine, unavailable  # noqa: E402
+from cross_tools import HARNESS, MACOS, WIN_START, WINE, build_module, ensure_wine, unavailable  # noqa: E402
 
 
 @pytest.fixture(scope="session")
@@ -59,9 +59,13 @@ def harnesses(build, linux_lib, windows_lib, tmp_path_factory):
     win = out / "win"
     win.mkdir()
     shutil.copy2(windows_lib, win / windows_lib.name)
-    exe = build.zig()
-    subprocess.run([str(exe), "cc", "-target", "x86_64-windows-gnu", *flags, str(HARNESS), str(win / windows_lib.name),
-                    "-o", str(win / "harness.exe")], check=True, env=build._zig_env(exe))
+    # Linked as the DLL is, against the UCRT alone, its start-up from win_start.c (build.WINDOWS_LINK)
+    zig, env = [str(build.zig()), "cc", "-target", "x86_64-windows-gnu"], build._zig_env(build.zig())
+    objs = [str(out / (src.stem + ".o")) for src in (HARNESS, WIN_START)]
+    for src, obj in zip((HARNESS, WIN_START), objs):
+        subprocess.run([*zig, *flags, "-c", str(src), "-o", obj], check=True, env=env)
+    subprocess.run([*zig, *build.WINDOWS_LINK, "-Wl,--entry=mainCRTStartup", "-Wl,--subsystem,console", *objs,
+                    str(win / windows_lib.name), "-o", str(win / "harness.exe")], check=True, env=env)
     return linux, win / "harness.exe"
 
 

@@ -10,6 +10,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
 HARNESS = ROOT / "native" / "tests" / "harness.c"
+WIN_START = ROOT / "native" / "tests" / "win_start.c"  # harness.exe's start-up without MinGW-w64's C runtime
 WINE = "/usr/lib/wine/wine64"  # Debian's runner, not on PATH
 # The minimum macOS each macOS zip states (build-extension reads it from the wheels it fetched;
 # README's install table): the Python 3.11 zips', the oldest.
