@@ -155,7 +155,7 @@ def main(argv=None):
     shell = 4.0 / 3.0 * np.pi * (r_out**3 - r_in**3)
     rows = []
     for vs in sizes:
-        repeat = 1 if vs < 0.0025 else 3
+        repeat = 1 if vs < 0.0025 or args.quick else 3
         vol, wall, cpu = timed(lambda vs=vs: resample(grid, values, TF, voxel_size=vs, color_name="altitude",
                                                       workers=1), repeat)
         (_, wall2, cpu2) = timed(lambda vs=vs: resample(grid, values, TF, voxel_size=vs, color_name="altitude",
