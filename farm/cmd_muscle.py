@@ -93,7 +93,7 @@ def _core_only(args, frames, film):
     from ..core.surface.mesh import Mesh
 
     p = core_film.film_params(**film)
-    cell, sim = core_film.simulate(p)
+    cell, sim = core_film.simulate(p, upto=max(frames))
     if args.info:
         print("frame  " + "  ".join(f"{n:>10}" for n in br.STATE_NAMES) + "  slide_nm")
         for f in frames:

@@ -75,8 +75,12 @@ def film_params(**kw):
 _SIMS = {}
 
 
-def simulate(params):
-    """All frames of the film's simulation (memoised per process on the parameters).
+def simulate(params, upto=None):
+    """The film's simulation, its first ``upto`` frames (default: all of them).
+
+    Memoised per process on the parameters and extended on demand: a frame depends only on the
+    steps before it, so the first ``upto`` frames are those of the whole film, and exporting or
+    rendering frame 3 of 240 does not wait for the other 237.
 
     Returns
     -------
@@ -84,13 +88,17 @@ def simulate(params):
     frames : list of :class:`.brownian.Frame`
     """
     p = film_params(**params)
+    n = p["frames"] if upto is None else max(0, min(int(upto), p["frames"]))
     key = json.dumps({k: p[k] for k in ("seed", "frames", "d10", "frame_time")}, sort_keys=True)
     if key not in _SIMS:
         cell = lat.unit_cell(d10=p["d10"])
         sim = br.CrossBridges(cell, br.with_params(frame_time=p["frame_time"]), seed=p["seed"])
         _SIMS.clear()  # keep one film in memory
-        _SIMS[key] = (cell, sim.run(p["frames"]))
-    return _SIMS[key]
+        _SIMS[key] = (cell, sim, [])
+    cell, sim, frames = _SIMS[key]
+    if len(frames) < n:  # run() starts from the state it is in: the last frame already kept
+        frames.extend(sim.run(n - len(frames) + 1)[1:] if frames else sim.run(n))
+    return cell, frames[:n]
 
 
 def _actin_model():
@@ -167,7 +175,7 @@ def frame_meshes(params, index):
     p = film_params(**params)
     if not 0 <= int(index) < p["frames"]:
         raise DataError(f"frame {index} outside 0..{p['frames'] - 1}", field="frame")
-    cell, frames = simulate(p)
+    cell, frames = simulate(p, upto=int(index) + 1)
     mol = frame_molecules(cell, frames[int(index)])
     b = mol.blobs
     mesh = blobby_surface(b.centers, b.rotations, b.sigmas, b.weights, LEVEL, p["spacing"], box=mol.box,

@@ -97,7 +97,7 @@ def test_example_main_denoises_and_writes_the_red_cyan_anaglyph(tmp_path):
 
 
 def test_adding_the_film_in_the_interface_does_not_wait_for_the_simulation(ops, tmp_path, monkeypatch):
-    """Issue 20 ("never freeze"): the first frame needs the whole simulation; in the interface
+    """Issue 20 ("never freeze"): the first frame needs the simulation up to it; in the interface
     (forced headless with frame.force_background_jobs) it runs on the worker thread."""
     from nephele.core.muscle import film
 

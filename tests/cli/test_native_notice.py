@@ -4,8 +4,6 @@ import os
 import subprocess
 import sys
 
-import pytest
-
 
 def _hidden(tmp_path):
     """An environment whose ``nephele_native`` fails to load, as a zip without this platform's library would."""
@@ -33,7 +31,6 @@ def test_info_version_says_which_kernels_run(tmp_path):
     assert _nephele({**os.environ, "NEPHELE_NATIVE": "0"}, "info", "--version").stderr == ""  # chosen: no notice
 
 
-@pytest.mark.slow
 def test_muscle_with_the_kernels_hidden_prints_one_notice(tmp_path):
     run = _nephele(_hidden(tmp_path), "muscle", "--export", "ply", "--frames", "1", "--out", str(tmp_path / "m"),
                    "--spacing", "1.6")

@@ -51,6 +51,21 @@ def test_bound_heads_touch_their_actin(sim):
     assert np.all(far > own)
 
 
+def test_early_frames_do_not_wait_for_the_film():
+    # frame k depends only on the steps before it: simulated up to it, extended later, or whole
+    p = film.film_params(frames=5, seed=11)
+    film._SIMS.clear()
+    _, first2 = film.simulate(p, upto=2)
+    _, first4 = film.simulate(p, upto=4)  # the same simulation carried on
+    assert len(first2) == 2 and len(first4) == 4 and film.simulate(p, upto=0)[1] == []
+    film._SIMS.clear()
+    _, whole = film.simulate(p)
+    assert len(whole) == 5 and [f.time for f in first4] == [f.time for f in whole[:4]]
+    for a, b in zip(first4, whole):
+        for name in ("rotations", "states", "sites", "slide", "motor"):
+            np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+
+
 def test_same_params_same_frames():
     a = film.simulate(film.film_params(frames=3, seed=9))[1][-1].rotations.copy()
     film.simulate(film.film_params(frames=3, seed=10))
