@@ -41,6 +41,7 @@ ZIG = "ziglang==0.17.0"
 # needs no entry point (the kernels keep no state), and compiler-rt still gives ___chkstk_ms, the
 # stack probe of frames over 4 KiB.
 WINDOWS_LINK = ["-nostdlib", "-rtlib=compiler-rt", "-lucrtbase"]
+WINDOWS_DLL = ["-shared", "-Wl,--no-entry", *WINDOWS_LINK]
 TOOLCHAIN = HERE.parent / "build" / "toolchain"
 HOST = "linux-x64"
 MACOS_MIN = "11.0"  # Blender 4.2's; the extension builder passes the version its zip's wheels need
@@ -102,7 +103,7 @@ def compiler(target=HOST, cc=CC, macos=None, toolchain=TOOLCHAIN):
         triple += "." + (macos or MACOS_MIN)
         flags.append(f"-Wl,-install_name,@rpath/{lib}")  # not this machine's build path
     if target == "windows-x64":
-        flags += ["-Wl,--no-entry", *WINDOWS_LINK]
+        flags += [f for f in WINDOWS_DLL if f not in flags]
     return [str(exe), "cc", "-target", triple], flags, ver, env
 
 
@@ -148,13 +149,12 @@ def package(dest, cc=CC, target=HOST, macos=None, toolchain=TOOLCHAIN):
 def _windows_dll(cmd, flags, out, env):
     """Compile each source against MinGW-w64's headers, then link the objects into ``out`` with the
     UCRT alone (``-nostdlib`` also drops the headers, so the two steps are apart)."""
-    link = ["-shared", "-Wl,--no-entry", *WINDOWS_LINK]
     objs = []
     for src in sources():
         objs.append(str(out.parent / (src.stem + ".o")))
-        subprocess.run([*cmd, *[f for f in flags if f not in link], "-c", "-o", objs[-1], str(src)], check=True,
-                       env=env)
-    subprocess.run([*cmd, *link, "-o", str(out), *objs], check=True, env=env)
+        subprocess.run([*cmd, *[f for f in flags if f not in WINDOWS_DLL], "-c", "-o", objs[-1], str(src)],
+                       check=True, env=env)
+    subprocess.run([*cmd, *WINDOWS_DLL, "-o", str(out), *objs], check=True, env=env)
 
 
 def platform_tag(lib, target=HOST, macos=None):

@@ -60,7 +60,8 @@ def harnesses(build, linux_lib, windows_lib, tmp_path_factory):
     win.mkdir()
     shutil.copy2(windows_lib, win / windows_lib.name)
     # Linked as the DLL is, against the UCRT alone, its start-up from win_start.c (build.WINDOWS_LINK)
-    zig, env = [str(build.zig()), "cc", "-target", "x86_64-windows-gnu"], build._zig_env(build.zig())
+    exe = build.zig()
+    zig, env = [str(exe), "cc", "-target", "x86_64-windows-gnu"], build._zig_env(exe)
     objs = [str(out / (src.stem + ".o")) for src in (HARNESS, WIN_START)]
     for src, obj in zip((HARNESS, WIN_START), objs):
         subprocess.run([*zig, *flags, "-c", str(src), "-o", obj], check=True, env=env)
