@@ -91,15 +91,16 @@ def part1(quick):
                 label = "(b) compose, " + ("trilinear" if order == 1 else "Catmull-Rom bicubic")
                 rows.append([cname, wname, label, "1 frame", grid.shape[0] * len(lvl0), *e_half,
                              *err_km(c.xyz, truth_end), sec])
-            # (c) restart every 24 frames (quick: 6), two copies: error of the longest-running copy (23 frames).
+            # (c) restart every 24 frames (quick: 6), two copies: error of the longest-running copy (period - 1
+            # frames).
             period = 6 if quick else 24
             st = advect.RestartTrace(wind, fh, grid, period=period)
-            first = half - period
+            first, end = half - period, half + period // 2
             t0 = time.perf_counter()
-            for n in range(first, half + period // 2):
+            for n in range(first, end):
                 cs = st.copies(n, pts)
-            sec = (time.perf_counter() - t0) / (half + period // 2 - first)
-            n = half + period // 2 - 1
+            sec = (time.perf_counter() - t0) / (end - first)
+            n = end - 1
             errs = []
             for cp in cs:
                 truth = reference(flow, xyz, fh[n],
