@@ -205,7 +205,8 @@ _PRODUCT_MACS = 1 << 18
 
 def _scatter_into(unshot, m_cols, recv, albedo):
     """``unshot += albedo * M[:, group] @ recv`` in float32 chunks; ``m_cols`` (nb, k) with
-    ``recv`` (k, ...): k bins, or bins x sub-directions.
+    ``recv`` (k, ...): k bins, or bins x sub-directions.  The compiled kernel computes only the
+    voxels that caught something (native/src/scatter_shoot.c); its NumPy twin, below, all of them.
 
     Chunks of ``_PRODUCT_MACS // (nb k)`` voxels keep each product under 2^18 multiply-adds,
     which OpenBLAS runs in the calling thread: larger ones it splits over its own threads, which
@@ -215,10 +216,8 @@ def _scatter_into(unshot, m_cols, recv, albedo):
     them runs in C without the GIL), and our own threads take every other stack:
     k = 256 on 5e5 voxels, one thread, 0.65 s as single chunks -> 0.38 s.
     """
-    kernel = _native.scatter_kernel() if m_cols.shape[1] < 128 else None
-    if kernel is not None:  # (from 128 columns on, NumPy's BLAS product below is as fast: 96 bins on 62928
-        # voxels, 43 % in runs of 5-40 non-empty, 64 columns 5.9-8.6 ms against 7.8-11.4, 128 15.4-17.7 against
-        # 15.6-20.6)
+    kernel = _native.scatter_kernel()
+    if kernel is not None:
         _native.scatter_into(kernel, unshot, albedo * np.asarray(m_cols), np.asarray(recv, np.float32))
         return
     g = m_cols.shape[1]

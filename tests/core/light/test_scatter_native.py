@@ -122,27 +122,31 @@ def test_cached_escapes_are_reused_as_numpy_reuses_them(monkeypatch):
     close(c.received, n.received, 1e-5)  # measured 6.0e-7
 
 
-@pytest.mark.parametrize("g,shape", [(16, (40, 50, 61)), (100, (9, 10, 11)), (256, (5, 7, 9)), (7, (3, 1, 1))])
-def test_scatter_into_matches_the_direct_product(g, shape):
+@pytest.mark.parametrize("g,shape,nb", [(16, (40, 50, 61), 96), (100, (9, 10, 11), 96), (256, (5, 7, 9), 96),
+                                        (7, (3, 1, 1), 96), (600, (4, 5, 7), 50)])
+def test_scatter_into_matches_the_direct_product(g, shape, nb):
+    # (600 columns: three chunks of rows of recv, the last short; 50 bins: rows left after blocks of 3)
     rng = np.random.default_rng(3)
     r = rng.random((g,) + shape).astype(np.float32)
-    m = rng.random((96, g))
-    u = rng.random((96,) + shape).astype(np.float32)
+    m = rng.random((nb, g))
+    u = rng.random((nb,) + shape).astype(np.float32)
     want = u + 0.9 * np.einsum("ij,j...->i...", m, r.astype(np.float64))
     passes._scatter_into(u, m, r, 0.9)
     np.testing.assert_allclose(u, want, rtol=2e-6)
 
 
 def test_scatter_into_where_little_is_caught():
-    """Empty voxels catch nothing: the kernel skips blocks whose every row is zero.  Lone lit
-    voxels at block edges, one lit row of k, and the last voxels (fewer than a block) still count,
-    and the unshot light of voxels that caught nothing is left exactly as it was."""
+    """Empty voxels catch nothing: the kernel skips groups of 8 voxels whose every row is zero.
+    Lone lit voxels at group edges, one lit row of k, lit groups far apart (one block of four lit
+    groups), a number of lit groups no multiple of four, and the last voxels (fewer than a group)
+    still count, and the unshot light of voxels that caught nothing is left exactly as it was."""
     rng = np.random.default_rng(5)
     k, n = 16, 16 * 70 + 9
     r = np.zeros((k, n), np.float32)
-    r[:, 32:48] = rng.random((k, 16))  # 16 voxels in a row (half a block of 32)
-    r[3, 80] = r[0, 111] = 1.5  # one row, a block's first and last voxels
-    r[k - 1, n - 1] = 2.0  # the tail after the last whole block
+    r[:, 32:48] = rng.random((k, 16))  # 16 voxels in a row: two groups
+    r[3, 80] = r[0, 111] = r[7, 8] = 1.5  # one row, a group's first and last voxels
+    r[2, 304] = r[9, 1001] = 0.5  # lone groups far apart (with those above: 7 lit groups before 500)
+    r[k - 1, n - 1] = 2.0  # the tail after the last whole group
     r[:, 500:700] = rng.random((k, 200)) * (rng.random(200) < 0.3)
     m = rng.random((96, k))
     u = rng.random((96, n)).astype(np.float32)
