@@ -81,6 +81,28 @@ NPH_INLINE float nph_expf(float x)
     return x < NPH_EXPF_MIN ? 0.0f : y;
 }
 
+/* expm1(x), and exp(x) in *ex, from one reduction x = k ln2 + r: expm1(r) = q by its degree 7
+ * Taylor polynomial (nph_expf's), exp(x) = 2^k (1 + q) and expm1(x) = 2^k q + (2^k - 1), exact for
+ * k = 0 (|x| < ln2 / 2) and within two float32 ulps beyond (|x| to 1/2: 2 q + 1 or q / 2 - 1/2, no
+ * cancellation).  Where a caller needs both this is one polynomial, not nph_expf's and a series. */
+NPH_INLINE float nph_exp_expm1f(float x, float *ex)
+{
+    float xc = nph_clampf(x, NPH_EXPF_MIN, NPH_EXPF_MAX);
+    float kf = xc * 1.44269504f + 12582912.0f;
+    int32_t ki;
+    memcpy(&ki, &kf, sizeof ki);
+    kf -= 12582912.0f;
+    float r = (xc - kf * 0.693145752f) - kf * 1.42860677e-6f;
+    float q = r * (1.0f + r * (0.5f + r * (1.0f / 6 + r * (1.0f / 24 + r * (1.0f / 120 + r * (1.0f / 720
+              + r * (1.0f / 5040)))))));
+    int32_t e = ((ki - 0x4B400000) + 127) << 23;
+    float scale;
+    memcpy(&scale, &e, sizeof scale);
+    float y = scale * q;
+    *ex = x < NPH_EXPF_MIN ? 0.0f : y + scale;
+    return x < NPH_EXPF_MIN ? -1.0f : y + (scale - 1.0f);
+}
+
 /* expm1(x) given ex = exp(x) (the caller's, when it needs both) */
 NPH_INLINE float nph_expm1f_of(float x, float ex)
 {
