@@ -63,7 +63,8 @@ NPH_INLINE float nph_maxf(float a, float b) { return a > b ? a : b; }
 NPH_INLINE float nph_absf(float a) { return a < 0.0f ? -a : a; }
 NPH_INLINE float nph_clampf(float x, float lo, float hi) { return nph_minf(nph_maxf(x, lo), hi); }
 
-NPH_INLINE float nph_expf(float x)
+/* x (clamped to [NPH_EXPF_MIN, NPH_EXPF_MAX]) = k ln2 + r with |r| <= ln2 / 2: returns r, 2^k in *scale */
+NPH_INLINE float nph_exp_reduce(float x, float *scale)
 {
     float xc = nph_clampf(x, NPH_EXPF_MIN, NPH_EXPF_MAX);
     /* k = round(x / ln2) by the 1.5 * 2^23 trick (exact for |x / ln2| < 2^22) */
@@ -71,45 +72,36 @@ NPH_INLINE float nph_expf(float x)
     int32_t ki;
     memcpy(&ki, &kf, sizeof ki);
     kf -= 12582912.0f;
-    float r = (xc - kf * 0.693145752f) - kf * 1.42860677e-6f; /* ln2 = hi + lo, hi with 12 zero low bits */
-    float p = 1.0f + r * (1.0f + r * (0.5f + r * (1.0f / 6 + r * (1.0f / 24 + r * (1.0f / 120
-              + r * (1.0f / 720 + r * (1.0f / 5040)))))));
     int32_t e = ((ki - 0x4B400000) + 127) << 23; /* ki's low bits hold k (offset by the trick's exponent) */
-    float scale;
-    memcpy(&scale, &e, sizeof scale);
-    float y = p * scale; /* computed on every path: GCC (trapping math) vectorizes only selects of values */
+    memcpy(scale, &e, sizeof *scale);
+    return (xc - kf * 0.693145752f) - kf * 1.42860677e-6f; /* ln2 = hi + lo, hi with 12 zero low bits */
+}
+
+/* expm1(r) for |r| <= ln2 / 2: its degree 7 Taylor polynomial */
+NPH_INLINE float nph_expm1_reduced(float r)
+{
+    return r * (1.0f + r * (0.5f + r * (1.0f / 6 + r * (1.0f / 24 + r * (1.0f / 120 + r * (1.0f / 720
+           + r * (1.0f / 5040)))))));
+}
+
+NPH_INLINE float nph_expf(float x)
+{
+    float scale, r = nph_exp_reduce(x, &scale);
+    float y = (1.0f + nph_expm1_reduced(r)) * scale; /* computed on every path: GCC (trapping math)
+                                                         vectorizes only selects of values */
     return x < NPH_EXPF_MIN ? 0.0f : y;
 }
 
-/* expm1(x), and exp(x) in *ex, from one reduction x = k ln2 + r: expm1(r) = q by its degree 7
- * Taylor polynomial (nph_expf's), exp(x) = 2^k (1 + q) and expm1(x) = 2^k q + (2^k - 1), exact for
- * k = 0 (|x| < ln2 / 2) and within two float32 ulps beyond (|x| to 1/2: 2 q + 1 or q / 2 - 1/2, no
- * cancellation).  Where a caller needs both this is one polynomial, not nph_expf's and a series. */
+/* expm1(x), and exp(x) in *ex, from one reduction: exp(x) = 2^k (1 + q) and expm1(x) = 2^k q +
+ * (2^k - 1) with q = expm1(r), exact for k = 0 (|x| < ln2 / 2) and within two float32 ulps beyond
+ * (|x| to 1/2: 2 q + 1 or q / 2 - 1/2, no cancellation).  Where a caller needs both this is one
+ * polynomial, not nph_expf's and expm1's own series. */
 NPH_INLINE float nph_exp_expm1f(float x, float *ex)
 {
-    float xc = nph_clampf(x, NPH_EXPF_MIN, NPH_EXPF_MAX);
-    float kf = xc * 1.44269504f + 12582912.0f;
-    int32_t ki;
-    memcpy(&ki, &kf, sizeof ki);
-    kf -= 12582912.0f;
-    float r = (xc - kf * 0.693145752f) - kf * 1.42860677e-6f;
-    float q = r * (1.0f + r * (0.5f + r * (1.0f / 6 + r * (1.0f / 24 + r * (1.0f / 120 + r * (1.0f / 720
-              + r * (1.0f / 5040)))))));
-    int32_t e = ((ki - 0x4B400000) + 127) << 23;
-    float scale;
-    memcpy(&scale, &e, sizeof scale);
-    float y = scale * q;
+    float scale, r = nph_exp_reduce(x, &scale);
+    float y = scale * nph_expm1_reduced(r);
     *ex = x < NPH_EXPF_MIN ? 0.0f : y + scale;
     return x < NPH_EXPF_MIN ? -1.0f : y + (scale - 1.0f);
-}
-
-/* expm1(x) given ex = exp(x) (the caller's, when it needs both) */
-NPH_INLINE float nph_expm1f_of(float x, float ex)
-{
-    float s = x * (1.0f + x * (0.5f + x * (1.0f / 6 + x * (1.0f / 24 + x * (1.0f / 120 + x * (1.0f / 720
-              + x * (1.0f / 5040 + x * (1.0f / 40320))))))));
-    float e = ex - 1.0f;
-    return nph_absf(x) < 0.5f ? s : e;
 }
 
 NPH_INLINE float nph_expm1f(float x)

@@ -34,14 +34,14 @@
 #define KC 256    /* rows of recv in a chunk (more: the run's rows would not fit in the cache) */
 #define MAXRUN 64 /* lit groups in a run at most */
 
-/* GV floats, read and written where they lie (no alignment) */
+/* GV floats, read and written where they lie (no alignment).  The helpers below are inlined into
+ * scatter_shoot, so each of its clones compiles them for its own instruction set. */
 typedef float vec __attribute__((vector_size(GV * sizeof(float)), aligned(sizeof(float))));
 
 /* rows [i, i + IB) of unshot over the G groups at voxel offsets off[0..G) (G constant when inlined):
  * IB x G vectors of sums (16 with AVX2's 16 registers) */
-static inline __attribute__((always_inline)) void block(int64_t nb, int64_t k, int64_t i, const int64_t *off,
-                                                        const int G, const float *mt, const float *recv,
-                                                        int64_t r_stride, float *unshot, int64_t u_stride)
+NPH_INLINE void block(int64_t nb, int64_t k, int64_t i, const int64_t *off, const int G, const float *mt,
+                      const float *recv, int64_t r_stride, float *unshot, int64_t u_stride)
 {
     vec a[IB][GB];
     for (int q = 0; q < IB; q++)
@@ -61,8 +61,8 @@ static inline __attribute__((always_inline)) void block(int64_t nb, int64_t k, i
 }
 
 /* unshot[i, v] += sum_j mt[j, i] recv[j, v] for one voxel v, rows of unshot from i on */
-static inline __attribute__((always_inline)) void one_voxel(int64_t nb, int64_t k, int64_t i, int64_t v, const float *mt, const float *recv,
-                      int64_t r_stride, float *unshot, int64_t u_stride)
+NPH_INLINE void one_voxel(int64_t nb, int64_t k, int64_t i, int64_t v, const float *mt, const float *recv,
+                          int64_t r_stride, float *unshot, int64_t u_stride)
 {
     for (; i < nb; i++) {
         float s = unshot[i * u_stride + v];
@@ -73,8 +73,8 @@ static inline __attribute__((always_inline)) void one_voxel(int64_t nb, int64_t 
 }
 
 /* rows [0, nb) of unshot over the lit groups off[0..n), k rows of recv */
-static inline __attribute__((always_inline)) void run_groups(int64_t nb, int64_t k, const int64_t *off, int64_t n, const float *mt, const float *recv,
-                       int64_t r_stride, float *unshot, int64_t u_stride)
+NPH_INLINE void run_groups(int64_t nb, int64_t k, const int64_t *off, int64_t n, const float *mt, const float *recv,
+                           int64_t r_stride, float *unshot, int64_t u_stride)
 {
     const int64_t whole = n - n % GB;
     int64_t i = 0;
@@ -90,7 +90,7 @@ static inline __attribute__((always_inline)) void run_groups(int64_t nb, int64_t
 }
 
 /* does some of the k rows of recv hold anything on voxels [c, c + GV) */
-static inline __attribute__((always_inline)) int lit(int64_t k, int64_t c, const float *recv, int64_t r_stride)
+NPH_INLINE int lit(int64_t k, int64_t c, const float *recv, int64_t r_stride)
 {
     for (int64_t j = 0; j < k; j++) {
         unsigned nz = 0;
