@@ -145,7 +145,7 @@ def test_scatter_into_where_little_is_caught():
     r = np.zeros((k, n), np.float32)
     r[:, 32:48] = rng.random((k, 16))  # 16 voxels in a row: two groups
     r[3, 80] = r[0, 111] = r[7, 8] = 1.5  # one row, a group's first and last voxels
-    r[2, 304] = r[9, 1001] = 0.5  # lone groups far apart (with those above: 7 lit groups before 500)
+    r[2, 304] = r[9, 1001] = 0.5  # lone groups far apart (with those above: 6 lit groups before 500)
     r[k - 1, n - 1] = 2.0  # the tail after the last whole group
     r[:, 500:700] = rng.random((k, 200)) * (rng.random(200) < 0.3)
     m = rng.random((96, k))
