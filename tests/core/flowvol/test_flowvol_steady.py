@@ -22,13 +22,18 @@ def abc(p, t, A=np.sqrt(3), B=np.sqrt(2), C=1.0):
 
 
 def dop853(v, points, ages):
-    """Positions of ``points`` after each of ``ages`` by DOP853 (rtol = atol = 1e-11): (n, len(ages), 3)."""
-    out = np.empty((len(points), len(ages), 3))
-    for i, p in enumerate(points):
-        sol = solve_ivp(lambda t, y: v(y[None], t)[0], (0, ages.max()), p, method="DOP853", rtol=1e-11, atol=1e-11,
-                        dense_output=True)
-        out[i] = sol.sol(ages).T
-    return out
+    """Positions of ``points`` after each of ``ages`` by DOP853 (rtol = atol = 1e-11): (n, len(ages), 3).
+
+    All points as one system, so each step reads the field once for all of them (one at a time, the fire
+    test's 13 points took 13.4 s in 50,000 single-point reads, together 7.1 s; the ABC test's 241, 4.2 s
+    and 0.03 s).  Its steps follow the hardest point and its error norm is their RMS: measured against
+    each point integrated alone, within 2.5e-8 on the fire grid (its cells' kinks) and 1e-10 on the ABC
+    flow, far below the errors the tests measure (1.5e-2 and 4.7e-7).
+    """
+    points = np.asarray(points, dtype=np.float64)
+    sol = solve_ivp(lambda t, y: v(y.reshape(-1, 3), t).ravel(), (0, ages.max()), points.ravel(), method="DOP853",
+                    rtol=1e-11, atol=1e-11, dense_output=True)
+    return sol.sol(ages).T.reshape(len(ages), len(points), 3).transpose(1, 0, 2)
 
 
 def polygon_flux(fv, v, n=60):
