@@ -25,32 +25,40 @@ STRICT := NEPHELE_STRICT=1
 TIERS := build/tiers
 BUDGET = $(VENV)/bin/python tests/budget.py
 
+# $(call install,VENV,REQUIREMENTS): pip byte-compiles what it installs one file at a time (a minute
+# of a fresh venv's two), so the files are compiled afterwards on every core (half that).  Python must
+# not be left to compile them at import: under PYTHONDONTWRITEBYTECODE it would, in every process.
+define install
+	$(1)/bin/pip install -q --no-compile -r $(2)
+	$(1)/bin/python -m compileall -q -j 0 $$($(1)/bin/python -c 'import sysconfig; print(sysconfig.get_path("purelib"))')
+endef
+
 .PHONY: demo lint test test-full test-main test-core311 test-extension test-slurm test-bench bench extension clean
 
 $(VENV)/.stamp: requirements.txt pyproject.toml
 	$(PY313) -m venv $(VENV)
 	$(VENV)/bin/pip install -q --upgrade pip
-	$(VENV)/bin/pip install -q -r requirements.txt
+	$(call install,$(VENV),requirements.txt)
 	$(VENV)/bin/pip install -q --no-deps -e .
 	touch $@
 
 $(VENV311)/.stamp: requirements-core311.txt pyproject.toml
 	$(PY311) -m venv $(VENV311)
 	$(VENV311)/bin/pip install -q --upgrade pip
-	$(VENV311)/bin/pip install -q -r requirements-core311.txt
+	$(call install,$(VENV311),requirements-core311.txt)
 	$(VENV311)/bin/pip install -q --no-deps -e .
 	touch $@
 
 $(BPY52)/.stamp: requirements-blender.txt
 	rm -rf $(BPY52)
 	$(PY313) -m venv $(BPY52)
-	$(BPY52)/bin/pip install -q -r requirements-blender.txt
+	$(call install,$(BPY52),requirements-blender.txt)
 	touch $@
 
 $(BPY50)/.stamp: requirements-blender311.txt
 	rm -rf $(BPY50)
 	$(PY311) -m venv $(BPY50)
-	$(BPY50)/bin/pip install -q -r requirements-blender311.txt
+	$(call install,$(BPY50),requirements-blender311.txt)
 	touch $@
 
 # The compiled kernels (native/) as a wheel, installed into both test Pythons; where it is not
