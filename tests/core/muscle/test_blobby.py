@@ -6,7 +6,7 @@ import itertools
 import numpy as np
 import pytest
 import trimesh
-from blob_scenes import rotations
+from blob_scenes import edges, rotations
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
@@ -53,9 +53,8 @@ def random_blobs(seed, n, lo, hi, smin=0.5, smax=1.2):
 def closed_checks(mesh, components=None, spheres=True, outward=True):
     """Closed, consistently wound, Euler number 2 - 2 genus per component (trimesh agrees)."""
     f = mesh.faces.astype(np.int64)
-    directed = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
-    assert len(np.unique(directed, axis=0)) == len(directed)  # each directed edge once: consistent winding
-    und, cnt = np.unique(np.sort(directed, axis=1), axis=0, return_counts=True)
+    once, und, cnt = edges(f)
+    assert once  # each directed edge once: consistent winding
     assert np.all(cnt == 2)  # watertight and manifold along edges
     used = np.unique(f)
     graph = coo_matrix((np.ones(len(und)), (und[:, 0], und[:, 1])), shape=(len(mesh.vertices),) * 2)

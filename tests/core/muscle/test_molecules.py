@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from blob_scenes import edges
 
 from nephele.core.errors import DataError
 from nephele.core.muscle import blobby_surface, level_distance
@@ -30,10 +31,8 @@ from nephele.core.muscle.molecules import (
 def closed(mesh):
     """Every edge shared by exactly two faces in opposite directions (vertices welded by position)."""
     _, inv = np.unique(mesh.vertices, axis=0, return_inverse=True)
-    f = inv.reshape(-1)[mesh.faces.astype(np.int64)]
-    directed = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
-    _, cnt = np.unique(np.sort(directed, axis=1), axis=0, return_counts=True)
-    return len(np.unique(directed, axis=0)) == len(directed) and np.all(cnt == 2)
+    once, _, cnt = edges(inv.reshape(-1)[mesh.faces.astype(np.int64)])
+    return once and np.all(cnt == 2)
 
 
 @pytest.fixture(scope="module")
