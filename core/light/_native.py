@@ -43,7 +43,7 @@ def sweep_kernel():
 
 def scatter_kernel():
     """``scatter_shoot`` (native/src/scatter_shoot.c) with its types, or None."""
-    return native.kernel("scatter_shoot", None, [_I, _I, _I, _I, _P, _P, _I, _P, _I])
+    return native.kernel("scatter_shoot", None, [_I, _I, _I, _I, _P, _P, _I, _P, _I, _P])
 
 
 def _strides(a, n):
@@ -150,9 +150,19 @@ def sweep(kernel, sig, geom, beams, sources, outputs, cache, fresh, threads, scr
     thread_map(lambda t: [kernel(ref, b, b + 1, work[t].ctypes.data) for b in range(t, g, n)], range(n), n)
 
 
-def scatter_into(kernel, unshot, m, recv, threads=None):
+def held_groups(sigma):
+    """A byte per group of 8 voxels of ``sigma`` (flattened), 1 where one of them holds medium: what
+    :func:`scatter_into` reads for the voxels' ``held``."""
+    occ = np.asarray(sigma).reshape(-1) > 0
+    pad = np.zeros(-(-occ.size // 8) * 8, bool)
+    pad[: occ.size] = occ
+    return np.ascontiguousarray(pad.reshape(-1, 8).any(1), np.uint8)
+
+
+def scatter_into(kernel, unshot, m, recv, threads=None, held=None):
     """``unshot += m @ recv`` (``m`` (nb, k) with the albedo in it, ``recv`` (k, n)) by the compiled
-    kernel, voxel ranges on threads."""
+    kernel, voxel ranges on threads.  ``held``: :func:`held_groups` of the voxels' medium, whose
+    empty groups (where ``recv`` is zero: an empty voxel catches nothing) are skipped unread."""
     nb, k = m.shape
     u = unshot.reshape(nb, -1)
     r = recv.reshape(k, -1)
@@ -161,8 +171,11 @@ def scatter_into(kernel, unshot, m, recv, threads=None):
         raise TypeError("scatter_shoot: float32 arrays with contiguous voxels")
     mt = np.ascontiguousarray(np.asarray(m).T, np.float32)
     step = 1 << 14
+    if held is not None and held.size * 8 < n:
+        raise ValueError(f"scatter_shoot: {held.size} groups of 8 held for {n} voxels")
+    hp = None if held is None else held.ctypes.data
     thread_map(lambda s: kernel(nb, k, s, min(s + step, n), mt.ctypes.data, r.ctypes.data, r.strides[0] // 4,
-                                u.ctypes.data, n), range(0, n, step), threads)
+                                u.ctypes.data, n, hp), range(0, n, step), threads)
 
 
 def _kernel(name, argtypes):

@@ -203,10 +203,12 @@ def _bin_sum(a, bs):
 _PRODUCT_MACS = 1 << 18
 
 
-def _scatter_into(unshot, m_cols, recv, albedo):
+def _scatter_into(unshot, m_cols, recv, albedo, held=None):
     """``unshot += albedo * M[:, group] @ recv`` in float32 chunks; ``m_cols`` (nb, k) with
     ``recv`` (k, ...): k bins, or bins x sub-directions.  The compiled kernel computes only the
-    voxels that caught something (native/src/scatter_shoot.c); its NumPy twin, below, all of them.
+    voxels that caught something (native/src/scatter_shoot.c), and skips the groups of voxels that
+    ``held`` (:func:`._native.held_groups` of the medium) says are empty without reading them; its
+    NumPy twin, below, computes all of them.
 
     Chunks of ``_PRODUCT_MACS // (nb k)`` voxels keep each product under 2^18 multiply-adds,
     which OpenBLAS runs in the calling thread: larger ones it splits over its own threads, which
@@ -218,7 +220,7 @@ def _scatter_into(unshot, m_cols, recv, albedo):
     """
     kernel = _native.scatter_kernel()
     if kernel is not None:
-        _native.scatter_into(kernel, unshot, albedo * np.asarray(m_cols), np.asarray(recv, np.float32))
+        _native.scatter_into(kernel, unshot, albedo * np.asarray(m_cols), np.asarray(recv, np.float32), held=held)
         return
     g = m_cols.shape[1]
     nb = len(unshot)

@@ -167,6 +167,7 @@ class _Solve:
             sigma = sigma[self.box]
             size = tuple(float(v) for v in h_full * np.array(sigma.shape[::-1]))
         self.sigma = sigma
+        self.held = _native.held_groups(sigma)  # (empty voxels catch nothing: the products skip them)
         albedo, g = o.albedo, o.g
         self.f = f = g ** 4 if (o.delta_m and g > 0) else 0.0
         self.sig_s = sigma * (1.0 - albedo * f)
@@ -347,7 +348,7 @@ class _Solve:
                     else:
                         rsub[bs] = caught
                     self.exit_flux[bs] += ex
-                    _scatter_into(self.unshot, cols.reshape(nb, -1), r.reshape((-1,) + shape), alb_k)
+                    _scatter_into(self.unshot, cols.reshape(nb, -1), r.reshape((-1,) + shape), alb_k, self.held)
         fr, fo = self.received.reshape(nb, -1), rec.reshape(nb, -1)
         split_map(lambda s: np.add(fr[:, s], fo[:, s], out=fr[:, s]), fr.shape[1])
         return rsub
@@ -414,7 +415,7 @@ class _Solve:
             self.received[bs] += r.astype(np.float32)
             self.exit_flux[bs] += ex
             self.injected += float(r.sum())
-            _scatter_into(self.unshot, self.M[:, bs], r, self.alb_s)
+            _scatter_into(self.unshot, self.M[:, bs], r, self.alb_s, self.held)
 
     # ------------------------------------------------------------------ shooting passes
 
@@ -442,7 +443,7 @@ class _Solve:
         for k in range(len(self.peaked)):  # this frame's sky (received less its peaked orders) is in g
             fg += pk[k]
         fg -= rec
-        _scatter_into(self.unshot, self.M, g, self.alb_s)
+        _scatter_into(self.unshot, self.M, g, self.alb_s, self.held)
         gm = _warm.moments(prev, origin, self.sigma, self.umom)
         if gm is not None:  # where the guess's light sits in its voxels (else: centred)
             self.umom += self.alb_s * gm
@@ -461,7 +462,7 @@ class _Solve:
             self.received[sl] += r
             self.exit_flux[bs] += ex
             r -= g[sl]
-            _scatter_into(diff, self.M[:, bs], r, self.alb_s)
+            _scatter_into(diff, self.M[:, bs], r, self.alb_s, self.held)
         if gm is not None:  # the difference's moments: the new catch's less the guess's
             self.umom -= self.alb_s * gm
         self.unshot, self.spare = diff, self.unshot
@@ -533,7 +534,7 @@ class _Solve:
         self.exit_flux[bs] += ex
         _shot_group(bs, self.unshot, self.received, r, self.power, shot, self.alb_s, w,
                     None if self.tail is None else self.tail.inc)
-        _scatter_into(self.unshot, M_p[:, bs], r, self.alb_s)
+        _scatter_into(self.unshot, M_p[:, bs], r, self.alb_s, self.held)
 
     def run_passes(self):
         """The shooting passes (Gauss-Seidel by groups of bins) until converged, the tail

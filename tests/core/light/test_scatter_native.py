@@ -158,6 +158,27 @@ def test_scatter_into_where_little_is_caught():
     np.testing.assert_array_equal(u[:, dark], before)
 
 
+def test_scatter_into_skips_groups_that_hold_no_medium():
+    """Groups of 8 voxels that ``held`` marks empty are neither read nor written: NaN there (which no
+    empty voxel ever catches) stays out of the sums, and the other voxels get the direct product.  A
+    group holding medium in one voxel, and the last voxels (fewer than a group), still count."""
+    rng = np.random.default_rng(6)
+    k, n = 40, 8 * 300 + 5
+    sigma = np.where(rng.random(n) < 0.2, rng.random(n), 0.0)
+    sigma[8 * 17 + 7] = 0.3  # one voxel of its group
+    sigma[-1] = 1.0  # the tail
+    held = _native.held_groups(sigma)
+    r = (rng.random((k, n)) * (sigma > 0)).astype(np.float32)
+    empty = np.repeat(held == 0, 8)[:n]
+    r[:, empty] = np.nan
+    m = rng.random((96, k))
+    u = rng.random((96, n)).astype(np.float32)
+    want = u.astype(np.float64) + 0.9 * (m @ np.where(np.isnan(r), 0.0, r).astype(np.float64))
+    passes._scatter_into(u, m, r, 0.9, held)
+    assert empty.sum() > 8 * 50 and not np.isnan(u).any()
+    np.testing.assert_allclose(u, want, rtol=2e-6)
+
+
 @pytest.mark.parametrize("second", [False, True])
 def test_moments_where_little_is_caught(second):
     """The moments' sums skip blocks of voxels where no bin caught anything: lone lit voxels at
