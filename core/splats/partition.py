@@ -211,7 +211,7 @@ def cell_points(points, frac_index):
     return x, b
 
 
-def stretch_of(to_cell):
+def _stretch(to_cell):
     """The most each sample's map stretches a length (its spectral norm), for :func:`stencil_weights`."""
     return np.linalg.norm(to_cell, ord=2, axis=(-2, -1))
 
@@ -222,7 +222,7 @@ def stencil_weights(points, to_cell, frac_index, kernel, reach, stretch=None):
     ``to_cell[k, j, i]`` maps a scene offset from sample ``(k, j, i)`` to its cell
     offset (``R M⁻¹`` of the splat's axes); ``reach = (rk, rj, ri)`` bounds the
     index distance from a point's cell to the samples whose kernels reach it.
-    ``stretch``: :func:`stretch_of` ``to_cell``, passed by callers that call again with
+    ``stretch``: :func:`_stretch` ``to_cell``, passed by callers that call again with
     the same maps (a singular value decomposition per sample: 0.2 s on the demo's slab).
     Returns ``(point, k, j, i, weight)`` arrays over the pairs with a positive
     weight (longitude periodic).
@@ -238,7 +238,7 @@ def stencil_weights(points, to_cell, frac_index, kernel, reach, stretch=None):
     for corner in np.ndindex(2, 2, 2):
         c, _ = cell_points(points, cells + np.array(corner, dtype=np.float64))
         size = np.maximum(size, np.linalg.norm(c - centre, axis=1))
-    stretch = stretch_of(to_cell) if stretch is None else stretch
+    stretch = _stretch(to_cell) if stretch is None else stretch
     rk, rj, ri = reach
     out = [[], [], [], [], []]
     for off in np.ndindex(2 * rk + 2, 2 * rj + 2, 2 * ri + 2):
@@ -316,7 +316,7 @@ def _factors(lat_bytes, shell_bytes, lon_step, exaggeration, kernel_params):
     rng = np.random.default_rng(0)
     cells = np.arange(kk.size)
     mat = None
-    stretch = stretch_of(to_cell)
+    stretch = _stretch(to_cell)
     for rows in np.unique(np.column_stack([rk, ri]), axis=0):  # cells grouped by their reach
         sel = cells[(rk == rows[0]) & (ri == rows[1])]
         pts = np.vstack([base[sel] + o for o in _FACES]
@@ -366,7 +366,7 @@ def _block_factors(points, to_cell, prior, reach, kernel):
     base = np.minimum(np.floor(pts), hi - 1)
     pts = pts[np.lexsort(base.T[::-1])]  # a cell's points in one chunk: stencil_weights culls per cell
     parts = []
-    stretch = stretch_of(to_cell)
+    stretch = _stretch(to_cell)
     for start in range(0, len(pts), _CHUNK):
         row, k, j, i, w = stencil_weights(points, to_cell, pts[start : start + _CHUNK], kernel, reach, stretch)
         cols = np.ravel_multi_index((k, j, i), shape)
