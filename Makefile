@@ -89,8 +89,8 @@ demo: $(VENV)/.stamp $(VENV)/.native
 	$(VENV)/bin/nephele film --out out/demo
 
 # The quick tier: the linter, then everything but the slow hard cases, the extension zips and Slurm.
-# (Its environment is made two jobs at a time: the kernels compile while pip installs, 25 s of a
-# fresh clone's 130.)
+# (Its environment is made two jobs at a time: the kernels compile while pip installs; in a fresh
+# clone 109 s instead of 132.)
 test:
 	@$(MAKE) --no-print-directory -j 2 $(VENV)/.native $(GRIB_SAMPLES)
 	@mkdir -p $(TIERS)
