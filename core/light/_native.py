@@ -154,9 +154,7 @@ def held_groups(sigma):
     """A byte per group of 8 voxels of ``sigma`` (flattened), 1 where one of them holds medium: what
     :func:`scatter_into` reads for the voxels' ``held``."""
     occ = np.asarray(sigma).reshape(-1) > 0
-    pad = np.zeros(-(-occ.size // 8) * 8, bool)
-    pad[: occ.size] = occ
-    return np.ascontiguousarray(pad.reshape(-1, 8).any(1), np.uint8)
+    return np.pad(occ, (0, -occ.size % 8)).reshape(-1, 8).any(1).astype(np.uint8)
 
 
 def scatter_into(kernel, unshot, m, recv, threads=None, held=None):
