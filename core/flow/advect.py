@@ -39,7 +39,6 @@ References
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import ndimage
 
 from ..climate.grid import EARTH_RADIUS, lonlat_to_xyz, xyz_to_lonlat
 from ._grid_index import _normalise, grid_index
@@ -273,6 +272,8 @@ def _extend(m, cells):
     rows = nj + reach + 1  # a level and the gap after it: no other level's vertex is within reach
     stack = np.ones((nk, rows, ni), dtype=bool)
     stack[:, :nj] = missing
+    from scipy import ndimage  # (here: importing it takes 1.8 s, and the add-on and every farm worker load this module)
+
     near = ndimage.distance_transform_edt(stack.reshape(nk * rows, ni), return_distances=False, return_indices=True)
     r_near = near[0].reshape(nk, rows, ni)[:, :nj]
     c_near = near[1].reshape(nk, rows, ni)[:, :nj]
