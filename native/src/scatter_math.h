@@ -78,9 +78,10 @@ NPH_INLINE float nph_exp_reduce(float x, float *scale)
 }
 
 /* expm1(r) for |r| <= ln2 / 2: its degree 7 Taylor polynomial, by Estrin's scheme (pairs of terms
- * summed side by side, joined by powers of r^2): a chain of 5 operations, not Horner's 14.  The row
+ * summed side by side, joined by powers of r^2): a chain of 6 operations, not Horner's 13.  The row
  * kernels wait on such chains (one iteration of the profile rows is more than a Zen core's
- * out-of-order window holds): the Fig. 6 cloud's 64x64x48 sweeps 1.77 -> 1.58 s. */
+ * out-of-order window holds): the Fig. 6 cloud's 64x64x48 sweeps 1.79-1.82 -> 1.65-1.72 s (AMD EPYC,
+ * three solves each, alternated). */
 NPH_INLINE float nph_expm1_reduced(float r)
 {
     float r2 = r * r;
