@@ -27,22 +27,30 @@ def _module_file(base, parts):
     return None
 
 
+@lru_cache(maxsize=4096)
+def _relative_imports(source, filename):
+    """(level, dotted parts, names) of each relative import in ``source`` (the file's bytes: an edited
+    file is parsed again, an unchanged one once per process, whichever stamp reaches it)."""
+    out = []
+    for node in ast.walk(ast.parse(source, filename=filename)):
+        if isinstance(node, ast.ImportFrom) and node.level:
+            parts = tuple(node.module.split(".")) if node.module else ()
+            out.append((node.level, parts, tuple(alias.name for alias in node.names)))
+    return tuple(out)
+
+
 def _imports(path, root):
     """Files under ``root`` that the relative imports of ``path`` name."""
     out = []
-    tree = ast.parse(path.read_bytes(), filename=str(path))
-    for node in ast.walk(tree):
-        if not isinstance(node, ast.ImportFrom) or not node.level:
-            continue
+    for level, parts, names in _relative_imports(path.read_bytes(), str(path)):
         base = path.parent
-        for _ in range(node.level - 1):
+        for _ in range(level - 1):
             base = base.parent
-        parts = node.module.split(".") if node.module else []
-        f = _module_file(base, parts)
+        f = _module_file(base, list(parts))
         if f is not None:
             out.append(f)
-        for alias in node.names:  # ``from . import x`` may name a submodule
-            g = _module_file(base, parts + [alias.name])
+        for name in names:  # ``from . import x`` may name a submodule
+            g = _module_file(base, [*parts, name])
             if g is not None:
                 out.append(g)
     return [f.resolve() for f in out if f.resolve().is_relative_to(root)]
