@@ -155,8 +155,8 @@ def sweep(kernel, sig, geom, beams, sources, outputs, cache, fresh, threads, scr
 def _sweep_order(x):
     """``x`` (..., L, A, B), a sweep-order view, as a contiguous copy where its layers lie next to one
     another (the sweeps along x), which the kernel would otherwise stage block by block for each bin:
-    the Fig. 6 cloud's 128x128x96 solve, its x sweeps 6.3-6.6 -> 5.8-5.9 s (the three profile rates,
-    alternated)."""
+    the Fig. 6 cloud's 128x128x96 solve, its x sweeps 6.15-6.28 -> 5.53-5.59 s (the three profile rates;
+    two solves each, alternated), the same bits."""
     return np.ascontiguousarray(x) if x.strides[-3] == x.itemsize else x
 
 
