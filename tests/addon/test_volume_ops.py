@@ -330,22 +330,29 @@ def _clipped_optical_depth(field, name, tf, o, d, step, groups=8):
     return tau
 
 
-# Each exact-mode render costs some 26 CPU s whatever its size and samples (Cycles evaluates the
-# shader over its volume octree's 128^3 cells first; measured: 26.3 s at 8x6 and 1 sample, 25.5 s at
-# 48x36 and 128): the curvilinear grid (the column index map, the most general path) stays in the
-# quick tier, the plain and the rotated-pole grids run in the full one.
-@pytest.mark.parametrize("grid", [pytest.param("lonlat", marks=pytest.mark.slow),
-                                  pytest.param("rotated", marks=pytest.mark.slow), "curvilinear"])
-def test_exact_mode_render_matches_the_reference_opacity(scene, tmp_path, grid):
+# Each exact-mode render with null scattering (Cycles' default, what users render) costs some 26 CPU s
+# whatever its size and samples (Cycles evaluates the shader over its volume octree's 128^3 cells
+# first; measured: 26.3 s at 8x6 and 1 sample, 25.5 s at 48x36 and 128); ray marching
+# (``volume_biased``) renders the same node graph in 1.5 s, with less noise on an absorbing volume
+# (curvilinear, 2026-11-30: RMS error 0.0013 against 0.0069, 99th percentile 0.006 against 0.030).
+# The node graph's test (the column index map, the most general path) is the ray-marched curvilinear
+# case in the quick tier, held to bounds its lower noise allows; null scattering on it and the plain
+# and rotated-pole grids run in the full tier.
+@pytest.mark.parametrize("grid, biased", [pytest.param("lonlat", True, marks=pytest.mark.slow),
+                                          pytest.param("rotated", True, marks=pytest.mark.slow),
+                                          ("curvilinear", True),
+                                          pytest.param("curvilinear", False, marks=pytest.mark.slow)])
+def test_exact_mode_render_matches_the_reference_opacity(scene, tmp_path, grid, biased):
     # The exact mode's node graph against the curvilinear reference, pixel by
     # pixel: a black absorbing volume over a transparent film makes the alpha
     # the ray's opacity.  Box pixel filter and no adaptive sampling so each
     # pixel is the mean over its area, which the reference supersamples 4×4;
-    # what remains is Monte-Carlo noise (null scattering is unbiased).  Rotated:
-    # the same blob on a rotated-pole grid (the UM file's pole), seen where the
-    # rotation puts it; the reference locates points through the rotation itself.
-    # Curvilinear: on sheared, curved columns, located by the index map in the
-    # shader and by ColumnLocator in the reference.
+    # what remains is Monte-Carlo noise (null scattering is unbiased; ray
+    # marching's steps, a small fraction of the blob, leave less than its noise).
+    # Rotated: the same blob on a rotated-pole grid (the UM file's pole), seen
+    # where the rotation puts it; the reference locates points through the
+    # rotation itself.  Curvilinear: on sheared, curved columns, located by the
+    # index map in the shader and by ColumnLocator in the reference.
     rotation = rotated_pole_matrix(177.5, 37.5) if grid == "rotated" else None
     source = f"{SOURCE}-{grid}"
     ds = blob_dataset(rotation, source, curvilinear=grid == "curvilinear")
@@ -372,6 +379,7 @@ def test_exact_mode_render_matches_the_reference_opacity(scene, tmp_path, grid):
     r.engine = "CYCLES"
     r.resolution_x, r.resolution_y, r.resolution_percentage = 48, 36, 100
     scene.cycles.samples, scene.cycles.device, scene.cycles.use_denoising = 128, "CPU", False
+    scene.cycles.volume_biased = biased
     r.filepath = str(tmp_path / "a.exr")
     bpy.ops.render.render(write_still=True)
     img = bpy.data.images.load(r.filepath)
@@ -386,9 +394,10 @@ def test_exact_mode_render_matches_the_reference_opacity(scene, tmp_path, grid):
             ref += opacity(tau, 200.0).reshape(alpha.shape) / sub.size**2
     err = alpha - ref
     assert ref.max() > 0.9 and np.mean(ref > 0.05) > 0.1  # a real cloud in view
+    rms, top = (0.004, 0.02) if biased else (0.012, 0.05)  # (ray marching: a fifth of the noise, above)
     assert abs(err.mean()) < 0.003, err.mean()
-    assert np.sqrt(np.mean(err**2)) < 0.012, np.sqrt(np.mean(err**2))
-    assert np.percentile(np.abs(err), 99) < 0.05, np.percentile(np.abs(err), 99)
+    assert np.sqrt(np.mean(err**2)) < rms, np.sqrt(np.mean(err**2))
+    assert np.percentile(np.abs(err), 99) < top, np.percentile(np.abs(err), 99)
 
 
 def test_curvilinear_file_bakes_both_modes_by_its_own_variable_name(empty_scene, tmp_path):
