@@ -9,8 +9,8 @@
  * hardly overlap and the loop waits on its chain.  Three chains side by side, statement by statement,
  * keep the core busy while each waits (GCC does not interleave two voxels' bodies itself: it leaves
  * such a loop scalar).  Measured on the AMD EPYC (one row of 2208 voxels, first moments): 11.2 ->
- * 7.8 ns a voxel, the same outputs to the bit.  The AVX-512 clone keeps the plain loop: 16-wide
- * vectors, 32 registers and a larger window.
+ * 7.8 ns a voxel, the same outputs to the bit.  The AVX-512 clone keeps the plain loop (16-wide
+ * vectors, 32 registers and a larger window; lanes there not measured: no such machine at hand).
  */
 
 #ifndef NEPHELE_SCATTER_ESCAPE_LANES_H
