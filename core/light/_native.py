@@ -278,3 +278,30 @@ def profile(mom, power, second, tables):
     thread_map(lambda q: k(n, q[0], q[1], int(second), m.ctypes.data, p.ctypes.data, rtab.ctypes.data,
                            rstep.ctypes.data, dlo, dhi, dscale, out.ctypes.data), _ranges(n))
     return out
+
+
+def march_kernel():
+    """``scatter_march`` (native/src/scatter_view.c) with its types, or None."""
+    d = ctypes.c_double
+    return native.kernel("scatter_march", None, [_P, _I, _I, _P, _I, d, d, _P, _P, _P, _P, _I, _I, _I, _P, _P,
+                                                 _P, _P, _P, _P])
+
+
+def march(kernel, stack, nbp, xs, lim, coef, start, end, first, block):
+    """:func:`._views._march_rays` by the compiled kernel: ``stack`` (samples, texels) complex64 holds
+    the samples' planes; returns (sum, transmittance) per ray, float32."""
+    if stack.dtype != np.complex64 or not stack.flags.c_contiguous or len(stack) != len(xs):
+        raise TypeError("scatter_march: the planes must be contiguous complex64, one per sample")
+    if stack.shape[1] >= 1 << 30:
+        raise ValueError(f"scatter_march: planes of {stack.shape[1]} texels (at most 2^30)")
+    n = len(start)
+    c = np.ascontiguousarray(np.stack(coef[:4]), np.float64)
+    ns = np.ascontiguousarray(coef[4], np.float32)
+    xs, start, end = (np.ascontiguousarray(a, t) for a, t in ((xs, np.float64), (start, np.int64), (end, np.int64)))
+    acc, tr = np.empty(n, np.float32), np.empty(n, np.float32)
+    act, dw = np.empty(n, np.int64), np.empty(4 * n, np.float64)
+    fw, qw = np.empty(5 * n, np.float32), np.empty(n, np.int32)
+    kernel(stack.ctypes.data, stack.shape[1], nbp, xs.ctypes.data, len(xs), float(lim[0]), float(lim[1]),
+           c.ctypes.data, ns.ctypes.data, start.ctypes.data, end.ctypes.data, n, int(first), int(block),
+           acc.ctypes.data, tr.ctypes.data, act.ctypes.data, dw.ctypes.data, fw.ctypes.data, qw.ctypes.data)
+    return acc, tr

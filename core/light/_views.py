@@ -7,7 +7,7 @@ import numpy as np
 
 from ..splats.camera import Camera
 from ..threads import default_threads, thread_map
-from . import phase
+from . import _native, phase
 from ._escape import _exp_source_escape, _phi, _transport_factors
 
 
@@ -238,7 +238,10 @@ def render(sigma, source, size, camera, *, step=0.4, background=0.0, chunk=8192)
     return img.reshape(camera.height, camera.width).astype(np.float32)
 
 
-def _march_rays(planes, xs, nbp, lim, coef, start, end, first, block=8):
+_MARCH_BLOCK = 8  # samples between the march's joins and leaves (:func:`_march_rays`)
+
+
+def _march_rays(planes, xs, nbp, lim, coef, start, end, first, block=_MARCH_BLOCK):
     """:func:`march_planes`' march of one set of rays, sorted by ``start``.
 
     ``planes[s]``: sample ``s``'s plane (flat complex64 ``sigma + i source``, rows of
@@ -304,8 +307,8 @@ def _march_rays(planes, xs, nbp, lim, coef, start, end, first, block=8):
             v += w
             np.multiply(v.real, ns, out=tau)  # -tau
             e = np.exp(tau)
+            np.minimum(tau, tiny, out=tau)  # (before expm1: at tau = 0 it gives -tiny / -tiny)
             phi = np.expm1(tau)
-            np.minimum(tau, tiny, out=tau)
             phi /= tau  # (1 - e^-tau) / tau, 1 at tau = 0
             phi *= v.imag
             phi *= tr
@@ -443,17 +446,21 @@ def march_planes(sigma, source, size, camera, *, samples=1, background=0.0, chun
     # the whole interpolant (the zero planes 0 and nc - 1 included)
     xs = [p + (j + 0.5) / m - 0.5 for p in range(nc) for j in range(m)]
     xs = [x for x in xs if 0 <= x <= nc - 1 and (full[int(np.floor(x))] or full[int(np.floor(x)) + 1])]
-    # each sample's plane, linear between the voxel planes around it (all-zero ones dropped)
-    planes, xo = [], []
+    # each sample's plane, linear between the voxel planes around it (all-zero ones dropped): the
+    # stack's rows, in the march's order
+    kept = []
     for x in (xs if f[c] > 0 else xs[::-1]):
         p0 = int(np.floor(x))
         fc = np.float32(x - p0)
-        parts = [w * texels(p) for p, w in ((p0, 1 - fc), (p0 + 1, fc)) if w > 0 and full[p]]
+        parts = [(p, w) for p, w in ((p0, 1 - fc), (p0 + 1, fc)) if w > 0 and full[p]]
         if parts:
-            pl = sum(parts[1:], parts[0])
-            planes.append((pl, pl[1:], pl[nbp:], pl[nbp + 1:]))
-            xo.append(x)
-    xo = np.array(xo)
+            kept.append((x, parts))
+    xo = np.array([x for x, _ in kept])
+    stack = np.empty((len(kept), (na + 1) * nbp), np.complex64)
+    for row, (_, parts) in zip(stack, kept):
+        np.multiply(texels(parts[0][0]), parts[0][1], out=row)
+        for p, w in parts[1:]:
+            row += w * texels(p)
     # the samples in front of the eye (those of a ray going the way f goes along c): a suffix
     front = np.flatnonzero(((xo - 0.5) * h[c] - o[c]) * np.sign(f[c]) > 0)
     if not len(front):
@@ -501,8 +508,16 @@ def march_planes(sigma, source, size, camera, *, samples=1, background=0.0, chun
     n = int(min(max(nthr, np.ceil(flight / max(int(chunk), 1))), max(len(hit), 1)))
     jobs = [np.arange(j, len(hit), n) for j in range(n)]
     lim = (na - 1.0, nb - 1.0)
-    parts = thread_map(lambda sel: _march_rays(planes, xo, nbp, lim, [x[sel] for x in coef], start[sel], end[sel],
-                                               int(front[0])), jobs, nthr)
+    kernel = _native.march_kernel()
+    planes = None if kernel is not None else [(pl, pl[1:], pl[nbp:], pl[nbp + 1:]) for pl in stack]
+
+    def march(sel):
+        args = ([x[sel] for x in coef], start[sel], end[sel], int(front[0]), _MARCH_BLOCK)
+        if kernel is not None:
+            return _native.march(kernel, stack, nbp, xo, lim, *args)
+        return _march_rays(planes, xo, nbp, lim, *args)
+
+    parts = thread_map(march, jobs, nthr)
     for sel, (acc, tr) in zip(jobs, parts):
         img[hit[sel]] = acc * step[sel].astype(np.float32) + tr * np.float32(background)
     return img.reshape(camera.height, camera.width)

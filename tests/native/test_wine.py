@@ -82,7 +82,20 @@ def scatter_slab():
     _solve(slab * 1.1, (0.3, 0.3, 2.0), source_profile=False, warm=prev, **kw)
 
 
-DRIVERS = (blobby_plain, blobby_periodic, fastexp_edges, scatter_cloud, scatter_slab)
+def scatter_view():
+    """The views' plane march (one thread, as :func:`_solve`): a cloud with holes seen from outside
+    with a background, and from inside (rays starting in the cloud), one and two samples a voxel."""
+    rng = np.random.default_rng(8)
+    sigma = 20.0 * rng.uniform(0, 1, (6, 8, 10)) * (rng.random((6, 8, 10)) > 0.3)
+    source = (rng.uniform(0, 2, sigma.shape) * (sigma > 0)).astype(np.float32)
+    size = (1.0, 0.8, 0.6)
+    scatter.march_planes(sigma, source, size, scatter.orbit_camera(0.7, size, width=24, height=18), background=0.5,
+                         threads=1)
+    inside = scatter.orbit_camera(2.0, size, distance=0.2, width=24, height=18)
+    scatter.march_planes(sigma, source, size, inside, samples=2, threads=1)
+
+
+DRIVERS = (blobby_plain, blobby_periodic, fastexp_edges, scatter_cloud, scatter_slab, scatter_view)
 
 
 def _sweep_path(ref, bin_lo, bin_hi, work):
