@@ -1,6 +1,7 @@
 """Call sites of the scattering solve's compiled kernels (``native/src/scatter_*.c``, through
-:mod:`..native`): the sweeps and the shooting step.  Each has its NumPy twin in the module that
-calls it (:func:`._sweep._sweep_block`, :func:`._passes._scatter_into`), used where the kernels
+:mod:`..native`): the sweeps, the shooting step and the views' plane march.  Each has its NumPy
+twin in the module that calls it (:func:`._sweep._sweep_block`, :func:`._passes._scatter_into`,
+:func:`._views._march_rays`), used where the kernels
 are not installed or with ``NEPHELE_NATIVE=0``; the C runs on Python's threads (ctypes lets go of
 the GIL during a call), never threads of its own."""
 
