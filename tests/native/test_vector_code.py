@@ -53,3 +53,10 @@ def test_every_row_kernel_is_vectorized(library):
     assert len(rows) == 21  # row_dispatch's specializations
     scalar = [s for s in rows if not PACKED.search(_code(library, s))]
     assert scalar == []
+
+
+def test_the_views_march_is_vectorized(library):
+    # One loop of positions, texels and light stayed scalar (march_planes 640x480 at 64x64x48: 0.150 s
+    # against 0.097 s split in two): the positions' packed float64 and the light's packed float32.
+    code = _code(library, "scatter_march.arch_x86_64_v4")
+    assert re.search(r"\svmulpd\s", code) and re.search(r"\svdivps\s", code) and PACKED.search(code)
