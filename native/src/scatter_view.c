@@ -11,8 +11,9 @@
  * block's start the rays past their last sample leave and those starting in the block join, so a
  * ray is marched on the whole blocks its span touches (the samples outside its span meet zero
  * texels: they add exact zeros).  Sample by sample, over the rays in flight: the sample's plane
- * stays in the cache while they read it (one ray marched plane after plane would fetch each of its
- * texels from memory: 128x128x96 view, 27 MB of planes).  Python runs jobs of rays on its threads.
+ * stays in the cache while they read it (a ray marched through all its samples at once would read
+ * another plane at each: 27 MB of planes in the 128x128x96 cloud's view).  Python runs jobs of rays
+ * on its threads.
  */
 
 #include <stdint.h>
