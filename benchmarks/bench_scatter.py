@@ -576,7 +576,7 @@ def main(argv=None):
     if args.compiled or args.quick:
         ns, frames, n, check = ((24,), 3, 24, 2) if args.quick else ((64, 128), args.frames, 64, 24)
         load = f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores at the start"
-        rows = compiled(ns)
+        rows = compiled(ns, view=(160, 120) if args.quick else (640, 480))  # (--quick: its anchor's ray march in 1 s)
         ev_rows, series = evolving(frames, n, check, climate_frames=None if args.quick else args.climate_frames)
         if not args.quick:
             write_section("scatter-compiled", f"{load}; the machine is shared, so each row says its load (1-minute "
