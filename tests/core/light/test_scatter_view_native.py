@@ -9,6 +9,7 @@ import pytest
 
 from nephele.core import native
 from nephele.core.light import scatter
+from nephele.core.splats.camera import Camera
 
 pytestmark = pytest.mark.skipif(native.identity() == "numpy", reason="no compiled kernels")
 
@@ -57,8 +58,6 @@ def test_march_matches_numpy(monkeypatch, angle, elevation, samples):
 
 def test_eye_inside_the_cloud(monkeypatch):
     sigma, source = cloud(scale=3.0)
-    from nephele.core.splats.camera import Camera
-
     cam = Camera.look_at(np.array([0.45, 0.4, 0.3]), np.array([1.0, 0.9, 0.35]), fov=70.0, width=64, height=48)
     c, n = both(monkeypatch, lambda: scatter.march_planes(sigma, source, SIZE, cam, samples=2))
     assert (n > 0).mean() > 0.9
@@ -69,8 +68,7 @@ def test_eye_inside_the_cloud(monkeypatch):
 def test_thin_and_thick_media(monkeypatch, scale):
     # 0: tau exactly 0 (the segment's (1 - e^-tau) / tau is 1); 1e5: tau per sample beyond
     # float32's exp range (the light of the first texels only, the rest extinguished)
-    sigma, source = cloud(seed=1)
-    sigma = np.where(sigma > 0, scale, 0.0) if scale == 0.0 else sigma * (scale / 30.0)
+    sigma, source = cloud(seed=1, scale=scale)
     cam = scatter.orbit_camera(0.7, SIZE, elevation=0.4, width=64, height=48)
     c, n = both(monkeypatch, lambda: scatter.march_planes(sigma, source, SIZE, cam, samples=2, background=0.25))
     # (the kernel flushes values under 1.2e-38 to zero, where NumPy keeps the transmittance's
