@@ -105,13 +105,14 @@ CLONES void scatter_march(const float *planes, int64_t plane_len, int64_t nbp, c
     }
     int64_t k = 0, joined = 0;
     for (int64_t p0 = first; p0 < nx; p0 += block) {
-        int64_t m = 0; /* the rays past their last sample leave */
+        int64_t m = 0; /* the rays past their last sample leave, with their sums */
         for (int64_t j = 0; j < k; j++) {
             const int64_t r = act[j];
-            acc_all[r] = f.acc[j];
-            tr_all[r] = f.tr[j];
-            if (end[r] < p0)
+            if (end[r] < p0) {
+                acc_all[r] = f.acc[j];
+                tr_all[r] = f.tr[j];
                 continue;
+            }
             act[m] = r;
             for (int i = 0; i < 4; i++)
                 fd[i][m] = fd[i][j];
