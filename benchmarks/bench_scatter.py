@@ -27,7 +27,8 @@ Run: ``.venv/bin/python benchmarks/bench_scatter.py [--ref-spp 4096] [--quick]``
 ``--quick`` runs a few cases of each part and prints them without writing docs;
 ``--film 64 [--film 128]`` only times film-resolution solves and 640x480 views;
 ``--compiled`` only the compiled kernels against their NumPy twins (64 and 128, back to back in
-one process) and the 240-frame evolving clouds, warm-started frame by frame against cold solves.
+one process), the same solves by the code of issue 38's time (in processes of their own) and the
+240-frame evolving clouds, warm-started frame by frame against cold solves.
 """
 
 import argparse
@@ -483,6 +484,73 @@ def compiled(ns=(64, 128), view=(640, 480)):
     return rows
 
 
+# The solve as it was when issue 38 asked for compiled speed (main before the compiled kernels):
+# its 128x128x96 solve took 67 s on the issue's machine and the issue's target was 10 s there.
+ISSUE_TIME = "1428a8c"
+ISSUE_SECONDS = {64: (11.6, 13.0), 128: (67.0, 67.0)}
+
+_BASELINE = """
+import json, sys, time
+import numpy as np
+from nephele.core.light import scatter
+sigma, small, kw = np.load(sys.argv[1]), np.load(sys.argv[2]), json.loads(sys.argv[3])
+size = tuple(kw.pop("size"))
+scatter.solve(small, size, **kw)  # (its tables, built once: the C solve beside it has them too)
+w, c = time.perf_counter(), time.process_time()
+sol = scatter.solve(sigma, size, **kw)
+print(json.dumps({"wall": time.perf_counter() - w, "cpu": time.process_time() - c, "report": sol.report}))
+np.save(sys.argv[4], sol.received)
+"""
+
+
+def baseline(ns=(64, 128), rev=ISSUE_TIME):
+    """Rows: per grid, the solve by the code at ``rev`` (issue 38's time: NumPy only), in a Python of
+    its own on ``git archive``'s copy of ``rev`` (its tables built first on a 16-voxel cloud, as the C
+    solve's are in this process), between two of today's C solves: the speed-up on this machine, and how
+    far their received flux is apart (the passes and profiles have changed since, within the
+    tolerance).  What the issue measured the old solve at on its own machine says how this machine's
+    speed compares.  Where ``rev`` is not in the history (a shallow clone), one row that says so."""
+    import subprocess
+    import tempfile
+
+    from nephele.core.light import scatter
+
+    rows, kw = [], dict(albedo=ALBEDO, g=G, sun_dir=SUN, tol=1e-3)
+    with tempfile.TemporaryDirectory() as tmp:
+        got = subprocess.run(f"git -C {ROOT} archive --prefix=nephele/ {rev} | tar -x -C {tmp}", shell=True,
+                             capture_output=True, text=True)
+        if got.returncode:
+            return [(f"issue-time solve ({rev})", "", "", "", f"not run: {got.stderr.strip()}")]
+        big, small, rec = (str(Path(tmp) / f) for f in ("sigma.npy", "small.npy", "received.npy"))
+        np.save(small, _film_cloud(16))
+        for n in ns:
+            sigma = _film_cloud(n)
+            np.save(big, sigma)
+            _, w1, cpu1, l1 = _timed(lambda sigma=sigma: scatter.solve(sigma, SIZE, **kw))
+            load0 = os.getloadavg()[0]
+            out = subprocess.run([sys.executable, "-c", _BASELINE, big, small, json.dumps(dict(kw, size=SIZE)), rec],
+                                 env=dict(os.environ, PYTHONPATH=tmp), capture_output=True, text=True)
+            if out.returncode:
+                rows.append((f"issue-time solve ({rev})", "", "", "", f"failed: {out.stderr.strip().splitlines()[-1]}"))
+                continue
+            old = json.loads(out.stdout.strip().splitlines()[-1])
+            load = f"{load0:.1f}-{os.getloadavg()[0]:.1f}"
+            c, w2, cpu2, l2 = _timed(lambda sigma=sigma: scatter.solve(sigma, SIZE, **kw))
+            apart = float(np.abs(np.load(rec) - c.received).sum(dtype=np.float64) / c.injected)
+            lo, hi = ISSUE_SECONDS[n]
+            then, slower = ((f"{lo:.0f}", f"{old['wall'] / lo:.2f}") if lo == hi else
+                            (f"{lo:.1f}-{hi:.1f}", f"{old['wall'] / hi:.2f}-{old['wall'] / lo:.2f}"))
+            name = f"{n}x{n}x{3 * n // 4}"
+            rows.append((f"{name} issue-time solve ({rev}, NumPy)", f"{old['wall']:.1f}", f"{old['cpu']:.1f}", load,
+                         f"{old['report']}; the issue measured it at {then} s on its machine: this one takes "
+                         f"{slower}x as long"))
+            rows.append((f"{name} C, before and after it", f"{w1:.1f} / {w2:.1f}", f"{cpu1:.1f} / {cpu2:.1f}",
+                         f"{l1} / {l2}", f"{c.report}; {2 * old['wall'] / (w1 + w2):.1f}x as fast as the issue-time "
+                         f"solve (their mean); received flux apart {apart:.1e} of the entered power (L1)"))
+            print(rows[-2], rows[-1], sep="\n", flush=True)
+    return rows
+
+
 def _error(sol, ref):
     """(L1 of received over the entered power, max |received - ref| over ref's largest)."""
     d = np.abs(sol.received - ref.received)
@@ -577,13 +645,19 @@ def main(argv=None):
         ns, frames, n, check = ((24,), 3, 24, 2) if args.quick else ((64, 128), args.frames, 64, 24)
         load = f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores at the start"
         rows = compiled(ns, view=(160, 120) if args.quick else (640, 480))  # (--quick: its anchor's ray march in 1 s)
+        if not args.quick:
+            rows += baseline(ns)
         ev_rows, series = evolving(frames, n, check, climate_frames=None if args.quick else args.climate_frames)
         if not args.quick:
             write_section("scatter-compiled", f"{load}; the machine is shared, so each row says its load (1-minute "
                           "average before-after). The compiled kernels (native/src/scatter_*.c) against their NumPy "
                           "twins in one process, back to back; CPU = this process's CPU seconds, all threads. The "
                           "first two rows per grid are the default solve (`received`, what the views read); the "
-                          "third sums the paper's total flux too (`solve(total=True)`), C then NumPy, to compare it."
+                          "third sums the paper's total flux too (`solve(total=True)`), C then NumPy, to compare it. "
+                          f"The last rows: the solve as it was when issue 38 was filed ({ISSUE_TIME}, NumPy only), "
+                          "each grid in a process of its own, between two more of today's C solves: the issue's "
+                          "seconds were measured on another machine, and its target (128 in 10 s where that solve "
+                          "took 67 s) is 6.7x that solve's speed."
                           "\n\n"
                           + md_table(["solve", "wall s", "CPU s", "load", "note"], rows),
                           title="Multiple scattering: compiled kernels against the NumPy twins")
