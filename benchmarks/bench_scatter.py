@@ -510,17 +510,20 @@ def baseline(ns=(64, 128), rev=ISSUE_TIME):
     far their received flux is apart (the passes and profiles have changed since, within the
     tolerance).  What the issue measured the old solve at on its own machine says how this machine's
     speed compares.  Where ``rev`` is not in the history (a shallow clone), one row that says so."""
+    import io
     import subprocess
+    import tarfile
     import tempfile
 
     from nephele.core.light import scatter
 
     rows, kw = [], dict(albedo=ALBEDO, g=G, sun_dir=SUN, tol=1e-3)
     with tempfile.TemporaryDirectory() as tmp:
-        got = subprocess.run(f"git -C {ROOT} archive --prefix=nephele/ {rev} | tar -x -C {tmp}", shell=True,
-                             capture_output=True, text=True)
+        got = subprocess.run(["git", "-C", str(ROOT), "archive", "--prefix=nephele/", rev], capture_output=True)
         if got.returncode:
-            return [(f"issue-time solve ({rev})", "", "", "", f"not run: {got.stderr.strip()}")]
+            return [(f"issue-time solve ({rev})", "", "", "", f"not run: {got.stderr.decode().strip()}")]
+        with tarfile.open(fileobj=io.BytesIO(got.stdout)) as tar:
+            tar.extractall(tmp, filter="data")
         big, small, rec = (str(Path(tmp) / f) for f in ("sigma.npy", "small.npy", "received.npy"))
         np.save(small, _film_cloud(16))
         for n in ns:

@@ -489,10 +489,9 @@ enum { STAGE_IN, STAGE_ZERO, STAGE_OUT };
 /* Block [klo, klo + nk) of a staged array on its rows' spans (``cols``: row a's columns [cols[2a],
  * cols[2a + 1]) holding a span in some layer of the block; ``full``: whole rows): copied into the
  * stage, the stage zeroed (an output), or the stage copied (added) back.  Layer by layer, so the
- * stage's side is one stream along the layer; the array's side steps through each row's cache
- * lines, which the layers after it find in the second-level cache.  (Column by column, the stage's
- * side was 16 short streams, one per layer, that the prefetchers did not follow: stage_block took
- * 7.3 % of the CPU of the 128x128x96 solve, 4.6 % now.) */
+ * stage's side is one stream along the layer, and the array's side steps through each row's cache
+ * lines (a line holds the block's 16 layers).  (Column by column, the stage's side was 16 short
+ * streams, one per layer: the copies took 7.3 % of the CPU of the 128x128x96 solve, now 4.3 %.) */
 static void stage_block(const struct nph_sweep *s, const struct arr *x, int64_t nk, int full, int how,
                         const int64_t *cols)
 {
