@@ -570,14 +570,15 @@ static struct arr rec_arr(const struct bin_arrays *ba, int64_t q, int64_t KAB)
 }
 
 /* The staged arrays of block [klo, klo + nk): in (inputs copied, outputs zeroed) or out; ``cols``
- * (2 A; NULL: nothing is staged) receives the block's columns per row, which all its arrays share */
+ * (2 A; NULL: nothing is staged): the block's columns per row, which all its arrays share, found on
+ * the way in and still there on the way out */
 static void stage_blocks(const struct nph_sweep *s, const struct bin_arrays *ba, int64_t klo, int64_t nk, int in,
                          int64_t *cols)
 {
     const int64_t KAB = KB * s->A * s->B;
     if (cols == NULL) /* (no stages) */
         return;
-    for (int64_t a = 0; a < s->A; a++)
+    for (int64_t a = 0; a < s->A && in; a++)
         union_span(s, a, klo, nk, &cols[2 * a], &cols[2 * a + 1]);
     for (int i = 0; i < NARR; i++)
         if (ba->x[i].stage != NULL && (in || i >= RBIN)) {
