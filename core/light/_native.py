@@ -108,13 +108,7 @@ def sweep(kernel, sig, geom, beams, sources, outputs, cache, fresh, threads, scr
     g, ns = w.shape
     if caught is not None and (caught.dtype != np.float64 or not caught.flags.c_contiguous or caught.size != g * ns):
         raise TypeError("scatter kernels: caught must be contiguous float64 (g, ns)")
-    # per row, the span of non-empty voxels (the twin's rectangles hold empty ones too)
-    occ = sig > 0
-    some = occ.any(2)
-    spans = np.zeros((L, A, 2), np.int64)
-    spans[..., 0] = np.where(some, np.argmax(occ, 2), 0)
-    spans[..., 1] = np.where(some, B - np.argmax(occ[..., ::-1], 2), 0)
-    soff = np.concatenate([[0], np.cumsum(spans[..., 1] - spans[..., 0])]).astype(np.int64)
+    spans, soff = _spans(sig) if scratch is None else scratch.memo(("spans", id(sig)), sig, lambda: _spans(sig))
     ia, wa = _taps(sa)
     ib, wb = _taps(sb)
     vecs = [np.ascontiguousarray(x, np.float32) for x in (cross, ell, w, inflow)]
@@ -153,12 +147,30 @@ def sweep(kernel, sig, geom, beams, sources, outputs, cache, fresh, threads, scr
     thread_map(lambda t: [kernel(ref, b, b + 1, work[t].ctypes.data) for b in range(t, g, n)], range(n), n)
 
 
+def _spans(sig):
+    """Per row of ``sig`` (L, A, B), the span of its non-empty voxels (L, A, 2) and the spans'
+    offsets, one after another (L A + 1): the twin's rectangles hold empty ones too."""
+    L, A, B = sig.shape
+    occ = sig > 0
+    some = occ.any(2)
+    spans = np.zeros((L, A, 2), np.int64)
+    spans[..., 0] = np.where(some, np.argmax(occ, 2), 0)
+    spans[..., 1] = np.where(some, B - np.argmax(occ[..., ::-1], 2), 0)
+    return spans, np.concatenate([[0], np.cumsum(spans[..., 1] - spans[..., 0])]).astype(np.int64)
+
+
 def _sweep_order(x):
     """``x`` (..., L, A, B), a sweep-order view, as a contiguous copy where its layers lie next to one
     another (the sweeps along x), which the kernel would otherwise stage block by block for each bin:
     the Fig. 6 cloud's 128x128x96 solve, its x sweeps 6.15-6.28 -> 5.53-5.59 s (the three profile rates;
-    two solves each, alternated), the same bits."""
-    return np.ascontiguousarray(x) if x.strides[-3] == x.itemsize else x
+    two solves each, alternated), the same bits.  Copied on threads, layers by layers."""
+    if x.strides[-3] != x.itemsize:
+        return x
+    out, L = np.empty(x.shape, x.dtype), x.shape[-3]
+    step = max(1, -(-L // 4))
+    parts = [(i, slice(s, s + step)) for i in np.ndindex(x.shape[:-3]) for s in range(0, L, step)]
+    thread_map(lambda p: np.copyto(out[p[0]][p[1]], x[p[0]][p[1]]), parts)
+    return out
 
 
 def held_groups(sigma):

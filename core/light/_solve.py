@@ -84,6 +84,7 @@ from . import _native, _warm, phase
 from ._escape import _DHI, _DLO, _DSCALE, _RSTEP, _RTAB, _offset, _rate_of_offset, _second_moment, _variance
 from ._passes import (
     _as_slice,
+    _bin_powers,
     _bin_sum,
     _fine_bins,
     _groups,
@@ -355,8 +356,9 @@ class _Solve:
 
     def sun_emission(self, bs):
         """The sun's first scattering into bins ``bs`` per voxel (float32, in ``scratch``)."""
-        e = self.scratch.zeros("emission", (len(bs),) + self.shape)
-        np.multiply((self.o.albedo * self.q[bs])[:, None], self.r_sun.reshape(1, -1), out=e.reshape(len(bs), -1))
+        e = self.scratch.empty("emission", (len(bs),) + self.shape)
+        fe, q, r = e.reshape(len(bs), -1), (self.o.albedo * self.q[bs])[:, None], self.r_sun.reshape(1, -1)
+        split_map(lambda s: np.multiply(q, r[:, s], out=fe[:, s]), fe.shape[1])
         return e
 
     def peaked_orders(self):
@@ -374,7 +376,7 @@ class _Solve:
     def peaked_order(self, k, rsub):
         """Peaked order ``k`` >= 1: what order ``k - 1`` left unshot, shot on sub-direction weights
         of each bin from ``rsub``, order ``k - 1``'s catch per sub-direction; returns order ``k``'s."""
-        o, nb = self.o, self.o.nb
+        o = self.o
         m_ss = phase.sub_sub_phase_matrix(o.g if k <= o.real_orders else self.g_s, o.first_sub, per_face=o.per_face)
         wk = np.einsum("ibja,ja->ib", m_ss, rsub)
         wk = np.where(wk.sum(1, keepdims=True) > 0, wk / np.maximum(wk.sum(1, keepdims=True), 1e-300),
@@ -385,7 +387,7 @@ class _Solve:
         if self.umom is not None:
             self.umom[:] = 0.0
         rsub = self.shoot_peaked(lambda bs: nxt[_as_slice(bs)], self.fdirs, wk, prof.__getitem__,
-                                 k < o.real_orders, nxt.reshape(nb, -1).sum(1, dtype=np.float64),
+                                 k < o.real_orders, _bin_powers(nxt),
                                  o.merge_tol if k == 1 else o.merge_tol_later, self.peaked[k])
         self.pweights.append(wk)
         self.spare = nxt
@@ -492,6 +494,11 @@ class _Solve:
         if self.shared:
             self.umom = self.umom.sum(0, keepdims=True)
             self.mom_binned = self.mom_binned.sum(0, keepdims=True)
+        # In the passes the binned light's moments are not summed beside the unshot light's (a second
+        # float64 array every sweep would read and write): they are the unshot light's plus what the
+        # shots take from them, which mom_binned holds from here on (moments_out adds the two)
+        if self.mom_binned is not None:
+            self.mom_binned -= self.umom
         self.beams = (self.dirs, self.wsub, self.M, self.new_caches(self.dirs.shape[1]))
         # (the tail's buffers: the peaked orders' spare unshot buffer and their catches per sub-direction,
         # their pages touched)
@@ -517,16 +524,23 @@ class _Solve:
         dirs_p, wsub_p, M_p, caches_p = self.beams
         shot = _bin_sum(self.unshot, bs)
         prof = self.unshot_profile(0, self.power) if self.shared else self.unshot_profile(gi, shot)
-        # the unshot moments: less what is shot (omega times this group's light), plus albedo
-        # times what is caught (added by the sweep)
+        # the unshot moments: less what is shot (omega times this group's light: to mom_binned, see
+        # start_passes), plus albedo times what is caught (added by the sweep)
         if self.shared:
-            umom[0, 0] -= w * prof[1] * shot
-            if second:
-                umom[0, 1] -= w * prof[2] * shot
+            for k in range(1 + second):
+                took = w * prof[1 + k] * shot
+                umom[0, k] -= took
+                self.mom_binned[0, k] += took
         elif umom is not None:
-            umom[gi] *= 1.0 - w
-        sets = ((np.ones((1, len(bs))), umom, self.alb_s, self.mom_binned) if self.shared
-                else self.moment_sets(M_p[:, bs], self.alb_s, True))
+            fu, fb = umom[gi].reshape(-1), self.mom_binned[gi].reshape(-1)
+
+            def take(s):
+                fb[s] += w * fu[s]
+                fu[s] *= 1.0 - w
+
+            split_map(take, fu.size)
+        sets = ((np.ones((1, len(bs))), umom, self.alb_s, None) if self.shared
+                else self.moment_sets(M_p[:, bs], self.alb_s))
         keep = int(o.profile_every) > 1
         r, _, ex = _sweep(self.sig_s, self.h, dirs_p[bs], w * wsub_p[bs], self.unshot[_as_slice(bs)],
                           np.zeros(wsub_p[bs].shape), o.periodic, axis, caches_p[gi], profile=prof, moments=sets,
@@ -574,9 +588,12 @@ class _Solve:
         """The binned light's scattering moments per unit albedo (float32), for the next frame."""
         if self.mom_binned is None:
             return None
-        # (divided in float64 into the float32 array: no float64 temporary, 69 MB at 128x128x96)
-        return np.divide(self.mom_binned, max(self.alb_s, 1e-30), out=np.empty(self.mom_binned.shape, np.float32),
-                         casting="unsafe")
+        # (the unshot light's and what was shot, see start_passes; divided in float64 into the float32
+        # array in voxel ranges: no whole float64 temporary, 69 MB at 128x128x96)
+        out = np.empty(self.mom_binned.shape, np.float32)
+        fo, fb, fu, alb = out.reshape(-1), self.mom_binned.reshape(-1), self.umom.reshape(-1), max(self.alb_s, 1e-30)
+        split_map(lambda s: np.divide(fb[s] + fu[s], alb, out=fo[s], casting="unsafe"), fo.size)
+        return out
 
     def relax(self):
         """After the first pass: over-relax the passes to come, ``omega`` from that pass's ratio

@@ -97,6 +97,15 @@ class _Scratch:
 
     def __init__(self):
         self.bufs = {}
+        self.made = {}
+
+    def memo(self, key, source, make):
+        """``make()``, kept under ``key`` for as long as it is asked for with the same ``source``
+        object (arrays a solve does not change: its media in sweep order, their spans)."""
+        hit = self.made.get(key)
+        if hit is None or hit[0] is not source:
+            hit = self.made[key] = (source, make())
+        return hit[1]
 
     def empty(self, name, shape):
         """The array ``name`` of ``shape``, its values left as they were (zero on new memory): for
@@ -174,7 +183,11 @@ def _sweep(sigma, h, dirs, wsub, emis, inflow, periodic, axis, cache=None, per_s
     g, ns, _ = dirs.shape
     comp = 2 - axis  # xyz component along the sweep
     others = [a for a in range(3) if a != axis]
-    sig = np.ascontiguousarray(np.moveaxis(sigma, axis, 0), dtype=np.float32)
+    def order():
+        return np.ascontiguousarray(np.moveaxis(sigma, axis, 0), dtype=np.float32)
+
+    # (the medium in sweep order: kept by the scratch, the same for every sweep of a solve along an axis)
+    sig = order() if scratch is None else scratch.memo(("sig", id(sigma), axis), sigma, order)
     L, A, B = sig.shape
     dl = dirs[..., comp]
     sign = np.sign(dl.flat[0])
