@@ -27,7 +27,7 @@ class SweepArgs(ctypes.Structure):
                 ("total", _P), ("total_s", _I * 4), ("exit_power", _P), ("mom", _P), ("mom_s", _I * 5),
                 ("slot_kept", _I), ("slot_m2", _I), ("slot_dep", _I), ("cache", _P), ("cache_mode", _I),
                 ("obins", _P), ("rbin", _P), ("rbin_s", _I * 4), ("caught", _P), ("stage_min", _I),
-                ("dark_zero", _I)]
+                ("dark_zero", _I), ("shared", _P)]
 
 # Voxels in a layer from which the sweep stages arrays whose layers lie next to one another in
 # memory (the sweeps along x) in blocks of 16 layers.  Fig. 6 cloud, warm solves alternated
@@ -140,6 +140,11 @@ def sweep(kernel, sig, geom, beams, sources, outputs, cache, fresh, threads, scr
     if exit_power.dtype != np.float64 or not exit_power.flags.c_contiguous:
         raise TypeError("scatter kernels: exit power must be contiguous float64")
     ref = ctypes.byref(a)
+    # the inputs all bins share, on the spans once (scatter_shared), not gathered for each bin
+    shared = np.empty((6, int(soff[-1])), np.float32) if scratch is None else scratch.empty("shared", (6, int(soff[-1])))
+    fill = native.kernel("scatter_shared", None, [ctypes.POINTER(SweepArgs), _I, _I, _P])
+    thread_map(lambda r: fill(ref, r[0], r[1], shared.ctypes.data), _ranges(L, max(1, -(-L // 8))))
+    a.shared = shared.ctypes.data
     size = native.kernel("scatter_sweep_work", _I, [ctypes.POINTER(SweepArgs)])(ref)
     n = max(1, min(int(threads or default_threads()), g))
     work = [np.empty(size, np.float32) if scratch is None else scratch.empty(("sweep", t), (size,)) for t in range(n)]

@@ -78,6 +78,8 @@ struct nph_sweep {
                              another are staged (see struct arr) */
     int64_t dark_zero;    /* the outputs (recv, rbin, mom) already hold zero at every voxel outside
                              this sweep's spans: they are not zeroed first (zero_outputs) */
+    const float *shared;  /* (6, soff[L A]) or NULL: the inputs every bin shares on the spans, laid out as
+                             a beam's cache row (see scatter_shared); NULL: gathered for each bin */
 };
 
 /* Buffers of one layer's spans, one after another (soff's layout), and a row of the inflow; pe, ps,
@@ -535,10 +537,12 @@ static void bin_arrays(const struct nph_sweep *s, int64_t bin, float *stage, int
         x[i] = (struct arr){NULL, NULL, NULL, 0};
     if (s->em != NULL)
         x[EM] = (struct arr){(float *)s->em + bin * s->em_s[0], s->em_s + 1, NULL, 0};
-    for (int c = 0; c < 3 && s->kap != NULL; c++)
+    for (int c = 0; c < 3 && s->kap != NULL && s->shared == NULL; c++)
         x[KAP0 + c] = (struct arr){(float *)s->kap + c * s->kap_s[0], s->kap_s + 1, NULL, 0};
-    x[QA] = (struct arr){(float *)s->qa, s->qa_s, NULL, 0};
-    x[VAR] = (struct arr){(float *)s->var, s->var_s, NULL, 0};
+    if (s->shared == NULL) {
+        x[QA] = (struct arr){(float *)s->qa, s->qa_s, NULL, 0};
+        x[VAR] = (struct arr){(float *)s->var, s->var_s, NULL, 0};
+    }
     if (s->rbin != NULL)
         x[RBIN] = (struct arr){s->rbin + ob * s->rbin_s[0], s->rbin_s + 1, NULL, 0};
     const int64_t slots[4] = {0, s->slot_kept, s->slot_m2, s->slot_dep};
@@ -665,9 +669,11 @@ INLINE void layer_rows(const struct nph_sweep *s, int64_t k, int64_t klo, const 
             continue;
         }
         const int64_t o = s->soff[k * A + a] - base;
-        memcpy(rw->sg + o, s->sig + k * AB + a * B + b0, (size_t)wd * sizeof(float));
         if (mode != NONE)
             gather_lay(rw->em + o, in[EM], a, b0, wd);
+        if (s->shared != NULL)
+            continue;
+        memcpy(rw->sg + o, s->sig + k * AB + a * B + b0, (size_t)wd * sizeof(float));
         if (mode == PROFILE) {
             float *kr[3] = {rw->k0, rw->k1, rw->k2};
             for (int c = 0; c < 3; c++)
@@ -799,10 +805,18 @@ INLINE void sweep_bin(const struct nph_sweep *s, int64_t bin, float *planes, flo
                 for (int64_t c = 0; c < AB; c++)
                     tmp[c] += planes[q * AB + c];
         }
-        layer_rows(s, k, klo, tmp, &ba, zeroed, rw, mode, qa, mom && m2);
+        struct rows lr = *rw; /* (the shared inputs read where they lie) */
+        if (s->shared != NULL) {
+            const int64_t T = s->soff[L * A];
+            float *sh = (float *)s->shared + s->soff[k * A];
+            float **in[6] = {&lr.sg, &lr.k0, &lr.k1, &lr.k2, &lr.qa, &lr.var};
+            for (int f = 0; f < 6; f++)
+                *in[f] = sh + f * T;
+        }
+        layer_rows(s, k, klo, tmp, &ba, zeroed, &lr, mode, qa, mom && m2);
         const int64_t S = s->soff[(k + 1) * A] - s->soff[k * A];
         if (S > 0)
-            layer_end(s, bin, k, klo, S, planes, tmp, &ba, rw, mode, qa, mom, m2, store);
+            layer_end(s, bin, k, klo, S, planes, tmp, &ba, &lr, mode, qa, mom, m2, store);
         if (n % KB == KB - 1 || n == L - 1)
             stage_blocks(s, &ba, klo, nk, 0, rw->cols);
     }
@@ -810,6 +824,35 @@ INLINE void sweep_bin(const struct nph_sweep *s, int64_t bin, float *planes, flo
     for (int64_t c = 0; c < ns * AB; c++)
         ex += planes[c];
     s->exit_power[bin] = ex;
+}
+
+/* The inputs every bin of the group shares on layers [k_lo, k_hi)'s spans, into out (6, soff[L A]): the
+ * medium, the profile's three rates, its P2 weight and variance (rows of absent inputs left as they
+ * are), a layer's rows one after another as in a beam's cache row.  With s->shared pointing there,
+ * scatter_sweep reads them in place, not gathered again for each bin (the Fig. 6 cloud's 64x64x48
+ * solve: its sweeps about a tenth faster).  Python runs layer ranges on its threads. */
+CLONES
+void scatter_shared(const struct nph_sweep *s, int64_t k_lo, int64_t k_hi, float *out)
+{
+    const int64_t A = s->A, B = s->B, T = s->soff[s->L * A];
+    const float *src[6] = {s->sig, s->kap, s->kap == NULL ? NULL : s->kap + s->kap_s[0],
+                           s->kap == NULL ? NULL : s->kap + 2 * s->kap_s[0], s->qa, s->var};
+    const int64_t *st[6] = {NULL, s->kap_s + 1, s->kap_s + 1, s->kap_s + 1, s->qa_s, s->var_s};
+    for (int f = 0; f < 6; f++) {
+        if (src[f] == NULL)
+            continue;
+        for (int64_t k = k_lo; k < k_hi; k++)
+            for (int64_t a = 0; a < A; a++) {
+                const int64_t b0 = s->spans[2 * (k * A + a)], wd = s->spans[2 * (k * A + a) + 1] - b0;
+                float *o = out + f * T + s->soff[k * A + a];
+                if (wd <= 0)
+                    continue;
+                if (f == 0) /* (the medium: contiguous, sweep order) */
+                    memcpy(o, s->sig + (k * A + a) * B + b0, (size_t)wd * sizeof(float));
+                else
+                    gather(o, src[f] + k * st[f][0] + a * st[f][1] + b0 * st[f][2], st[f][2], wd);
+            }
+    }
 }
 
 /* Floats of the workspace scatter_sweep needs: the sub-beams' planes, one more plane, the layer's
