@@ -102,6 +102,44 @@ static inline __attribute__((always_inline)) void add_moments(double *o1, int64_
     }
 }
 
+typedef float mom_v8 __attribute__((vector_size(8 * sizeof(float)), aligned(sizeof(float))));
+#define TILE 32 /* voxels whose sums over the bins stay in four vector registers */
+
+/* acc[k][v] = the sum over bins b, in order, of mw[b] bm[b, k, c + v] (float32: each product, then
+ * its sum), for the slots k and the run's m voxels.  A tile's sums stay in registers over the bins
+ * (summed in acc they were loaded and stored again for each bin: the moments of a 16-bin sweep on the
+ * Fig. 6 cloud's 128 box, 6 sets, 18.1-18.7 -> 14.9-16.0 ms, the same sums). */
+static inline __attribute__((always_inline)) void slot_sums(int64_t g, int64_t nslots, int64_t n, int64_t c, int64_t m,
+                                                             const float *mw, const float *bm, float acc[][RUN])
+{
+    for (int64_t k = 0; k < nslots; k++) {
+        const float *x0 = bm + k * n + c;
+        int64_t t = 0;
+        for (; t + TILE <= m; t += TILE) {
+            mom_v8 a0 = {0}, a1 = {0}, a2 = {0}, a3 = {0};
+            for (int64_t b = 0; b < g; b++) {
+                const float *x = x0 + b * nslots * n + t;
+                const float w = mw[b];
+                const mom_v8 wv = {w, w, w, w, w, w, w, w};
+                a0 += wv * *(const mom_v8 *)x;
+                a1 += wv * *(const mom_v8 *)(x + 8);
+                a2 += wv * *(const mom_v8 *)(x + 16);
+                a3 += wv * *(const mom_v8 *)(x + 24);
+            }
+            *(mom_v8 *)(acc[k] + t) = a0;
+            *(mom_v8 *)(acc[k] + t + 8) = a1;
+            *(mom_v8 *)(acc[k] + t + 16) = a2;
+            *(mom_v8 *)(acc[k] + t + 24) = a3;
+        }
+        for (; t < m; t++) {
+            float a = 0.0f;
+            for (int64_t b = 0; b < g; b++)
+                a += mw[b] * x0[b * nslots * n + t];
+            acc[k][t] = a;
+        }
+    }
+}
+
 /* one set's sums over voxels [c, c + m) of a run, added to out (and also) */
 static inline __attribute__((always_inline)) void set_moments(int64_t g, int64_t nslots, int64_t n, int64_t c,
                                                                int64_t m, const float *mw, const float *bm,
@@ -110,18 +148,7 @@ static inline __attribute__((always_inline)) void set_moments(int64_t g, int64_t
                                                                const float *m2, float scale, double *o, double *oa)
 {
     float acc[4][RUN];
-    for (int64_t k = 0; k < nslots; k++)
-        for (int64_t v = 0; v < m; v++)
-            acc[k][v] = 0.0f;
-    for (int64_t b = 0; b < g; b++) {
-        const float w = mw[b];
-        for (int64_t k = 0; k < nslots; k++) {
-            const float *restrict x = bm + (b * nslots + k) * n + c;
-            float *restrict a = acc[k];
-            for (int64_t v = 0; v < m; v++)
-                a[v] += w * x[v];
-        }
-    }
+    slot_sums(g, nslots, n, c, m, mw, bm, acc);
     add_moments(o, n, c, m, order, comp, slot_kept, slot_m2, slot_dep, d, m2, scale, acc);
     if (oa != NULL)
         add_moments(oa, n, c, m, order, comp, slot_kept, slot_m2, slot_dep, d, m2, scale, acc);
