@@ -141,7 +141,8 @@ def sweep(kernel, sig, geom, beams, sources, outputs, cache, fresh, threads, scr
         raise TypeError("scatter kernels: exit power must be contiguous float64")
     ref = ctypes.byref(a)
     # the inputs all bins share, on the spans once (scatter_shared), not gathered for each bin
-    shared = np.empty((6, int(soff[-1])), np.float32) if scratch is None else scratch.empty("shared", (6, int(soff[-1])))
+    span = (6, int(soff[-1]))
+    shared = np.empty(span, np.float32) if scratch is None else scratch.empty("shared", span)
     fill = native.kernel("scatter_shared", None, [ctypes.POINTER(SweepArgs), _I, _I, _P])
     thread_map(lambda r: fill(ref, r[0], r[1], shared.ctypes.data), _ranges(L, max(1, -(-L // 8))))
     a.shared = shared.ctypes.data
@@ -256,12 +257,13 @@ def shot_group(bs, unshot, received, r, power, shot, albedo, omega, inc=None):
     return True
 
 
-def moments(mw, bm, comp, slot, d, m2, scale, out, threads=None, also=None):
+def moments(mw, bm, comp, slot, d, m2, scale, out, held, threads=None, also=None):
     """The moments' sums of :func:`._sweep._sweep` by the compiled kernel; False without it.
     ``bm`` (g, slots, voxels) float32, ``out`` (and ``also``, when given) (sets, order, 3, voxels)
-    float64."""
+    float64; ``held``: :func:`held_groups` of the voxels' medium (nothing is caught where there is none,
+    so its empty blocks are skipped)."""
     k = _kernel("scatter_moments", [_I, _I, _I, _I, _I, _I, _P, _P, _I, _I, _I, _I, _P, _P, ctypes.c_float, _P,
-                                    _P])
+                                    _P, _P])
     if k is None:
         return False
     sets, g = mw.shape
@@ -272,11 +274,13 @@ def moments(mw, bm, comp, slot, d, m2, scale, out, threads=None, also=None):
     d = None if d is None else np.ascontiguousarray(d, np.float32)
     m2 = None if m2 is None else np.ascontiguousarray(m2, np.float32)
     n = bm.shape[-1]
+    if held.dtype != np.uint8 or held.size * 8 < n:
+        raise ValueError(f"scatter_moments: {held.size} groups of 8 held for {n} voxels")
     thread_map(lambda q: k(sets, g, bm.shape[1], n, q[0], q[1], mw.ctypes.data, bm.ctypes.data, comp,
                            slot.get("kept", -1), slot.get("m2", -1), slot.get("dep", -1),
                            None if d is None else d.ctypes.data, None if m2 is None else m2.ctypes.data,
-                           float(scale), out.ctypes.data, None if also is None else also.ctypes.data), _ranges(n),
-               threads)
+                           float(scale), out.ctypes.data, None if also is None else also.ctypes.data,
+                           held.ctypes.data), _ranges(n), threads)
     return True
 
 

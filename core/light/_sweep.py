@@ -263,19 +263,22 @@ def _sweep(sigma, h, dirs, wsub, emis, inflow, periodic, axis, cache=None, per_s
 
         thread_map(work, range(nthreads), nthreads)
     if mw is not None:
-        _moment_sums(moments, mw, bmom_grid.reshape(g, slots, -1), comp, slot, profile, second, threads)
+        held = (_native.held_groups(sigma) if scratch is None
+                else scratch.memo(("held", id(sigma)), sigma, lambda: _native.held_groups(sigma)))
+        _moment_sums(moments, mw, bmom_grid.reshape(g, slots, -1), comp, slot, profile, second, threads, held)
     return _outputs(recv_grid, total, axis, exit_power, into, sums, into_kernel is not None)
 
 
-def _moment_sums(moments, mw, bm, comp, slot, profile, second, threads):
+def _moment_sums(moments, mw, bm, comp, slot, profile, second, threads, held):
     """:func:`_sweep`'s moments: the bins' (``bm`` (g, slots, voxels), grid layout) summed into the
-    sets of ``moments`` with weights ``mw`` (sets, g), by the compiled kernel or its NumPy twin."""
+    sets of ``moments`` with weights ``mw`` (sets, g), by the compiled kernel (which skips the groups
+    of voxels that ``held`` says are empty) or its NumPy twin."""
     out, scale = moments[1].reshape(len(mw), 1 + second, 3, -1), np.float32(moments[2])
     also = None if len(moments) < 4 or moments[3] is None else moments[3].reshape(out.shape)
     d, m2 = (None if profile is None or profile[i] is None else np.asarray(profile[i], np.float32).reshape(3, -1)
              for i in (1, 2))
     side = [c for c in range(3) if c != comp]
-    if _native.moments(mw, bm, comp, slot, d, m2, scale, out, threads, also):
+    if _native.moments(mw, bm, comp, slot, d, m2, scale, out, held, threads, also):
         return
 
     def add(s):

@@ -181,9 +181,10 @@ def test_scatter_into_skips_groups_that_hold_no_medium():
 
 @pytest.mark.parametrize("second", [False, True])
 def test_moments_where_little_is_caught(second):
-    """The moments' sums skip blocks of voxels where no bin caught anything: lone lit voxels at
-    block edges, one lit slot of one bin, and the last voxels still count (against float64 sums),
-    and the sums of voxels that caught nothing are left exactly as they were, in ``also`` too."""
+    """The moments' sums skip blocks of voxels that hold no medium: lone lit voxels at block edges,
+    one lit slot of one bin, and the last voxels still count (against float64 sums), and the sums of
+    voxels that caught nothing are left exactly as they were, in ``also`` too, whether they hold
+    medium (some do here) or not."""
     rng = np.random.default_rng(8)
     sets, g, n, comp = 3, 5, 1024 * 2 + 32 * 5 + 7, 1
     slot = {"m1": 0, "kept": 1} | ({"m2": 2, "dep": 3} if second else {})
@@ -208,7 +209,8 @@ def test_moments_where_little_is_caught(second):
     want = out + add, also + add
     dark = ~bm.any((0, 1))
     before = out[..., dark].copy(), also[..., dark].copy()
-    assert _native.moments(mw, bm, 2 - comp, slot, d, m2 if second else None, 0.7, out, also=also)
+    held = _native.held_groups(bm.any((0, 1)) | (rng.random(n) < 0.05))  # (medium where something was caught)
+    assert _native.moments(mw, bm, 2 - comp, slot, d, m2 if second else None, 0.7, out, held, also=also)
     for o, w, b in zip((out, also), want, before):  # (float32 sums: measured within 2e-7)
         np.testing.assert_allclose(o, w, rtol=0, atol=1e-6 * np.abs(acc).max())
         np.testing.assert_array_equal(o[..., dark], b)
