@@ -169,7 +169,7 @@ def _sweep_order(x):
     """``x`` (..., L, A, B), a sweep-order view, as a contiguous copy where its layers lie next to one
     another (the sweeps along x), which the kernel would otherwise stage block by block for each bin:
     the Fig. 6 cloud's 128x128x96 solve, its x sweeps 6.15-6.28 -> 5.53-5.59 s (the three profile rates;
-    two solves each, alternated), the same bits.  Copied on threads, layers by layers."""
+    two solves each, alternated), the same bits.  Copied in ranges of layers on threads."""
     if x.strides[-3] != x.itemsize:
         return x
     out, L = np.empty(x.shape, x.dtype), x.shape[-3]
