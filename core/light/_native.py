@@ -101,7 +101,7 @@ def sweep(kernel, sig, geom, beams, sources, outputs, cache, fresh, threads, scr
     cross, ell, sa, sb, w, inflow = beams
     em, kap, qa, var = sources
     L, A, B = sig.shape
-    if A * B >= STAGE_MIN:  # the inputs every bin shares, in sweep order once, not staged bin by bin
+    if A * B >= STAGE_MIN:  # the inputs every bin shares, contiguous in sweep order for scatter_shared
         kap, qa, var = (None if x is None else _sweep_order(x) for x in (kap, qa, var))
     recv, per_sub, total, exit_power, mom, slot, into = outputs
     rbin, obins, caught = (None, None, None) if into is None else into
@@ -167,9 +167,10 @@ def _spans(sig):
 
 def _sweep_order(x):
     """``x`` (..., L, A, B), a sweep-order view, as a contiguous copy where its layers lie next to one
-    another (the sweeps along x), which the kernel would otherwise stage block by block for each bin:
-    the Fig. 6 cloud's 128x128x96 solve, its x sweeps 6.15-6.28 -> 5.53-5.59 s (the three profile rates;
-    two solves each, alternated), the same bits.  Copied in ranges of layers on threads."""
+    another (the sweeps along x), so that scatter_shared gathers each row of its spans from one run of
+    memory, not a cache line a voxel (when the kernel still gathered the profile rates for each bin, the
+    copy took the Fig. 6 cloud's 128x128x96 x sweeps from 6.15-6.28 to 5.53-5.59 s).  Copied in ranges
+    of layers on threads."""
     if x.strides[-3] != x.itemsize:
         return x
     out, L = np.empty(x.shape, x.dtype), x.shape[-3]

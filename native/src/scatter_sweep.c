@@ -78,12 +78,13 @@ struct nph_sweep {
                              another are staged (see struct arr) */
     int64_t dark_zero;    /* the outputs (recv, rbin, mom) already hold zero at every voxel outside
                              this sweep's spans: they are not zeroed first (zero_outputs) */
-    const float *shared;  /* (6, soff[L A]) or NULL: the inputs every bin shares on the spans, laid out as
-                             a beam's cache row (see scatter_shared); NULL: gathered for each bin */
+    const float *shared;  /* (6, soff[L A]): the inputs every bin shares on the spans, laid out as a beam's
+                             cache row (scatter_shared fills it before the bins are swept) */
 };
 
 /* Buffers of one layer's spans, one after another (soff's layout), and a row of the inflow; pe, ps,
- * pk, pt: a profile's escapes, shifts, kept second moments and transmittances (see row_escapes). */
+ * pk, pt: a profile's escapes, shifts, kept second moments and transmittances (see row_escapes); sg,
+ * k0-k2, qa, var: the layer's rows of the inputs all bins share (pointers into s->shared). */
 struct rows {
     float *sg, *cur, *em, *k0, *k1, *k2, *qa, *var, *r, *rsum, *etot, *m1, *mk, *m2, *md, *pe, *ps, *pk, *pt, *inrow;
     int64_t *cols; /* (A, 2): a staged block's columns per row (stage_blocks) */
@@ -517,10 +518,10 @@ static void stage_block(const struct nph_sweep *s, const struct arr *x, int64_t 
         }
 }
 
-/* A bin's arrays: inputs (emission, the profiles' three rates, P2 weight, variance), outputs
+/* A bin's arrays: input (emission; the inputs all bins share are in s->shared), outputs
  * (per_sub's summed catch, up to four moment slots, the total), and the catch: one array per
  * sub-beam (per_sub) at rec.base + q * rec_q, stage rec.stage + q KB A B, or one. */
-enum { EM, KAP0, KAP1, KAP2, QA, VAR, RBIN, MOM0, TOT = MOM0 + 4, NARR };
+enum { EM, RBIN, MOM0, TOT = MOM0 + 4, NARR };
 struct bin_arrays {
     struct arr x[NARR], rec;
     int64_t rec_q, nrec;
@@ -537,12 +538,6 @@ static void bin_arrays(const struct nph_sweep *s, int64_t bin, float *stage, int
         x[i] = (struct arr){NULL, NULL, NULL, 0};
     if (s->em != NULL)
         x[EM] = (struct arr){(float *)s->em + bin * s->em_s[0], s->em_s + 1, NULL, 0};
-    for (int c = 0; c < 3 && s->kap != NULL && s->shared == NULL; c++)
-        x[KAP0 + c] = (struct arr){(float *)s->kap + c * s->kap_s[0], s->kap_s + 1, NULL, 0};
-    if (s->shared == NULL) {
-        x[QA] = (struct arr){(float *)s->qa, s->qa_s, NULL, 0};
-        x[VAR] = (struct arr){(float *)s->var, s->var_s, NULL, 0};
-    }
     if (s->rbin != NULL)
         x[RBIN] = (struct arr){s->rbin + ob * s->rbin_s[0], s->rbin_s + 1, NULL, 0};
     const int64_t slots[4] = {0, s->slot_kept, s->slot_m2, s->slot_dep};
@@ -642,17 +637,15 @@ static void put_total(const struct nph_sweep *s, struct lay t, int64_t a, const 
 /* ------------------------------------------------------------------ one bin */
 
 /* Layer k's rows: outputs zero outside each row's span (a row without one: all zero, its total the
- * entering beams) unless ``zeroed`` (the bin's outputs were zeroed as blocks), inputs of the spans
- * gathered into the layer's buffers one after another (row a's at soff[k A + a] - soff[k A]), so
- * the arithmetic runs once per sub-beam over the whole layer. */
+ * entering beams) unless ``zeroed`` (the bin's outputs were zeroed as blocks), the emission on the
+ * spans gathered into the layer's buffer one after another (row a's at soff[k A + a] - soff[k A], as
+ * the shared inputs lie), so the arithmetic runs once per sub-beam over the whole layer. */
 INLINE void layer_rows(const struct nph_sweep *s, int64_t k, int64_t klo, const float *tmp,
-                       const struct bin_arrays *ba, int zeroed, struct rows *rw, int mode, int qa, int m2)
+                       const struct bin_arrays *ba, int zeroed, struct rows *rw, int mode)
 {
     const int64_t A = s->A, B = s->B, AB = A * B, base = s->soff[k * A];
     const struct lay tot = view(&ba->x[TOT], k, klo, A, B);
-    struct lay in[RBIN];
-    for (int i = 0; i < RBIN; i++)
-        in[i] = view(&ba->x[i], k, klo, A, B);
+    const struct lay em = view(&ba->x[EM], k, klo, A, B);
     for (int64_t a = 0; a < A; a++) {
         const int64_t b0 = s->spans[2 * (k * A + a)], b1 = s->spans[2 * (k * A + a) + 1], wd = b1 - b0;
         const int64_t lo = wd > 0 ? b0 : B, hi = wd > 0 ? b1 : B; /* zero outside [lo, hi) */
@@ -668,21 +661,8 @@ INLINE void layer_rows(const struct nph_sweep *s, int64_t k, int64_t klo, const 
                 put_total(s, tot, a, tmp + a * B, B);
             continue;
         }
-        const int64_t o = s->soff[k * A + a] - base;
         if (mode != NONE)
-            gather_lay(rw->em + o, in[EM], a, b0, wd);
-        if (s->shared != NULL)
-            continue;
-        memcpy(rw->sg + o, s->sig + k * AB + a * B + b0, (size_t)wd * sizeof(float));
-        if (mode == PROFILE) {
-            float *kr[3] = {rw->k0, rw->k1, rw->k2};
-            for (int c = 0; c < 3; c++)
-                gather_lay(kr[c] + o, in[KAP0 + c], a, b0, wd);
-            if (qa)
-                gather_lay(rw->qa + o, in[QA], a, b0, wd);
-            if (m2)
-                gather_lay(rw->var + o, in[VAR], a, b0, wd);
-        }
+            gather_lay(rw->em + s->soff[k * A + a] - base, em, a, b0, wd);
     }
 }
 
@@ -805,18 +785,14 @@ INLINE void sweep_bin(const struct nph_sweep *s, int64_t bin, float *planes, flo
                 for (int64_t c = 0; c < AB; c++)
                     tmp[c] += planes[q * AB + c];
         }
-        struct rows lr = *rw; /* (the shared inputs read where they lie) */
-        if (s->shared != NULL) {
-            const int64_t T = s->soff[L * A];
-            float *sh = (float *)s->shared + s->soff[k * A];
-            float **in[6] = {&lr.sg, &lr.k0, &lr.k1, &lr.k2, &lr.qa, &lr.var};
-            for (int f = 0; f < 6; f++)
-                *in[f] = sh + f * T;
-        }
-        layer_rows(s, k, klo, tmp, &ba, zeroed, &lr, mode, qa, mom && m2);
+        float *sh = (float *)s->shared + s->soff[k * A]; /* (the shared inputs read where they lie) */
+        float **in[6] = {&rw->sg, &rw->k0, &rw->k1, &rw->k2, &rw->qa, &rw->var};
+        for (int f = 0; f < 6; f++)
+            *in[f] = sh + f * s->soff[L * A];
+        layer_rows(s, k, klo, tmp, &ba, zeroed, rw, mode);
         const int64_t S = s->soff[(k + 1) * A] - s->soff[k * A];
         if (S > 0)
-            layer_end(s, bin, k, klo, S, planes, tmp, &ba, &lr, mode, qa, mom, m2, store);
+            layer_end(s, bin, k, klo, S, planes, tmp, &ba, rw, mode, qa, mom, m2, store);
         if (n % KB == KB - 1 || n == L - 1)
             stage_blocks(s, &ba, klo, nk, 0, rw->cols);
     }
@@ -829,7 +805,7 @@ INLINE void sweep_bin(const struct nph_sweep *s, int64_t bin, float *planes, flo
 /* The inputs every bin of the group shares on layers [k_lo, k_hi)'s spans, into out (6, soff[L A]): the
  * medium, the profile's three rates, its P2 weight and variance (rows of absent inputs left as they
  * are), a layer's rows one after another as in a beam's cache row.  With s->shared pointing there,
- * scatter_sweep reads them in place, not gathered again for each bin (a sweep of each group on the
+ * scatter_sweep reads them in place, not gathered for each bin (a sweep of each group on the
  * Fig. 6 cloud's 128x128x96 box: 5 % faster with 4 sub-beams a bin, 8 % with one).  Python runs layer
  * ranges on its threads. */
 CLONES
@@ -859,7 +835,7 @@ void scatter_shared(const struct nph_sweep *s, int64_t k_lo, int64_t k_hi, float
 /* Floats of the workspace scatter_sweep needs: the sub-beams' planes, one more plane, the layer's
  * buffers (NBUF, a plane each), a row of the inflow, the stages and their columns per row (int64,
  * with a float to align them). */
-#define NBUF 19
+#define NBUF 13
 int64_t scatter_sweep_work(const struct nph_sweep *s)
 {
     const int64_t st = stage_size(s);
@@ -874,8 +850,8 @@ void scatter_sweep(const struct nph_sweep *s, int64_t bin_lo, int64_t bin_hi, fl
     const int64_t AB = s->A * s->B;
     float *planes = work, *buf = work + s->ns * AB + AB;
     struct rows rw;
-    float **fields[NBUF] = {&rw.sg, &rw.cur, &rw.em, &rw.k0, &rw.k1, &rw.k2, &rw.qa, &rw.var, &rw.r, &rw.rsum,
-                            &rw.etot, &rw.m1, &rw.mk, &rw.m2, &rw.md, &rw.pe, &rw.ps, &rw.pk, &rw.pt};
+    float **fields[NBUF] = {&rw.cur, &rw.em, &rw.r, &rw.rsum, &rw.etot, &rw.m1, &rw.mk, &rw.m2, &rw.md, &rw.pe,
+                            &rw.ps, &rw.pk, &rw.pt};
     for (int f = 0; f < NBUF; f++)
         *fields[f] = buf + f * AB;
     rw.inrow = buf + NBUF * AB;
